@@ -1,0 +1,55 @@
+"""The ``gaitrig`` command line.
+
+Each sub-command lives in its own module ``app.commands.<name>`` exposing
+``HELP: str``, ``add_arguments(parser)`` and ``run(args) -> int``; this file only
+dispatches, so commands are added without touching each other.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from collections.abc import Sequence
+
+import app.commands
+
+
+def _command_modules() -> dict[str, object]:
+    mods: dict[str, object] = {}
+    for info in sorted(pkgutil.iter_modules(app.commands.__path__), key=lambda i: i.name):
+        if info.name.startswith("_"):
+            continue
+        mods[info.name.replace("_", "-")] = importlib.import_module(f"app.commands.{info.name}")
+    return mods
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="gaitrig",
+        description="Multi-depth-camera motion capture and gait lab.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, mod in _command_modules().items():
+        help_text = getattr(mod, "HELP", "")
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        mod.add_arguments(p)  # type: ignore[attr-defined]
+        p.set_defaults(_run=mod.run)  # type: ignore[attr-defined]
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
