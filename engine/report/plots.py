@@ -1,0 +1,116 @@
+"""Report figures rendered with matplotlib (Agg) to PNG bytes."""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.figure import Figure
+
+SIDE_COLOURS = {"L": "#1f77b4", "R": "#d62728"}
+SIDE_NAMES = {"L": "left", "R": "right"}
+
+
+def figure_png(fig: Figure, dpi: int = 130) -> bytes:
+    """Serialise a figure to PNG and close it."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def plot_foot_placements(trials: Sequence[tuple[str, Sequence[dict[str, Any]]]]) -> bytes:
+    """Foot placements seen from above, one row of markers per trial.
+
+    Args:
+        trials: ``(name, placements)`` with placements ``{"side", "position": [x, y, z]}``
+            in metres, already expressed along (x) and across (y) the walking direction.
+    """
+    n = max(len(trials), 1)
+    fig, axes = plt.subplots(n, 1, figsize=(7.5, 1.3 + 1.1 * n), squeeze=False)
+    for ax, (name, placements) in zip(axes[:, 0], trials, strict=False):
+        for side in ("L", "R"):
+            pts = np.array([p["position"][:2] for p in placements if p["side"] == side])
+            if len(pts):
+                ax.scatter(pts[:, 0], pts[:, 1] * 100.0, s=28, marker="s",
+                           color=SIDE_COLOURS[side], label=SIDE_NAMES[side])
+        ax.set_ylabel("across (cm)")
+        ax.set_title(name, fontsize=9, loc="left")
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("along the walkway (m)")
+    axes[0, 0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.15), fontsize=8, ncol=2,
+                      frameon=False)
+    fig.tight_layout()
+    return figure_png(fig)
+
+
+def plot_ankle_heights(
+    times: np.ndarray, heights: dict[str, np.ndarray], events: Sequence[dict[str, Any]] = ()
+) -> bytes:
+    """Vertical ankle trajectories over time with gait events marked."""
+    fig, ax = plt.subplots(figsize=(7.5, 2.6))
+    for side, h in heights.items():
+        ax.plot(times, np.asarray(h) * 100.0, color=SIDE_COLOURS.get(side, "k"), lw=1.2,
+                label=f"{SIDE_NAMES.get(side, side)} ankle")
+    for ev in events:
+        if ev.get("kind") == "foot_strike":
+            ax.axvline(ev["time_s"], color=SIDE_COLOURS.get(ev["side"], "k"), lw=0.6, ls="--",
+                       alpha=0.6)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("height (cm)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
+    fig.tight_layout()
+    return figure_png(fig)
+
+
+def plot_steps(steps: Sequence[dict[str, Any]]) -> bytes:
+    """Step length, width and time per step, left and right."""
+    fig, axes = plt.subplots(1, 3, figsize=(7.5, 2.4))
+    specs = (("length_m", "step length (cm)", 100.0), ("width_m", "step width (cm)", 100.0),
+             ("duration_s", "step time (s)", 1.0))
+    for ax, (key, label, scale) in zip(axes, specs, strict=True):
+        for side in ("L", "R"):
+            vals = [s[key] * scale for s in steps if s["side"] == side and s.get(key) is not None]
+            ax.plot(np.arange(1, len(vals) + 1), vals, "o-", ms=3, lw=0.8,
+                    color=SIDE_COLOURS[side], label=SIDE_NAMES[side])
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("step #", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    return figure_png(fig)
+
+
+def plot_bland_altman(measured: np.ndarray, reference: np.ndarray, title: str,
+                      unit: str) -> bytes:
+    """Bland–Altman plot: difference vs mean with bias and ±1.96·SD limits."""
+    m = np.asarray(measured, dtype=float)
+    r = np.asarray(reference, dtype=float)
+    ok = np.isfinite(m) & np.isfinite(r)
+    m, r = m[ok], r[ok]
+    mean = (m + r) / 2.0
+    diff = m - r
+    bias = float(np.mean(diff)) if len(diff) else float("nan")
+    sd = float(np.std(diff, ddof=1)) if len(diff) > 1 else float("nan")
+    fig, ax = plt.subplots(figsize=(3.6, 2.8))
+    ax.scatter(mean, diff, s=10, alpha=0.7, color="#444")
+    ax.axhline(bias, color="#d62728", lw=1, label=f"bias {bias:+.2f}")
+    if np.isfinite(sd):
+        for k in (-1.96, 1.96):
+            ax.axhline(bias + k * sd, color="#1f77b4", lw=0.8, ls="--")
+    ax.set_xlabel(f"mean ({unit})", fontsize=8)
+    ax.set_ylabel(f"difference ({unit})", fontsize=8)
+    ax.set_title(title, fontsize=9)
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return figure_png(fig)

@@ -1,0 +1,320 @@
+"""Per-subject gait report: one Jinja2 template rendered to HTML (console) and PDF.
+
+The report is built from the gait engine's JSON result (schema in
+``docs/gait-json.md``: ``events``, ``steps``, ``strides``, ``summary``) of one or more
+trials, plus optional trajectories, data-quality facts and agreement statistics. All
+numbers in the tables are computed here from the per-step lists, so a report never
+depends on which summary keys an older result happens to carry.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from jinja2 import Environment, FileSystemLoader, select_autoescape
+
+from engine import __version__
+from engine.errors import InputError, InsufficientDataError
+from engine.report import plots
+from engine.report.normative import DEFAULT_NORMATIVE_RANGES, NormativeRange, normative_lookup
+
+TEMPLATE_DIR = Path(__file__).with_name("templates")
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A reported parameter: where its per-item values come from and how to show them."""
+
+    key: str
+    label: str
+    source: str  # "steps", "strides" or "summary"
+    field: str
+    unit: str  # display unit
+    scale: float  # SI → display
+    decimals: int
+    sided: bool
+
+
+PARAMETERS: tuple[Parameter, ...] = (
+    Parameter("walking_speed_m_s", "Walking speed", "summary", "walking_speed_m_s", "m/s",
+              1.0, 2, False),
+    Parameter("cadence_steps_min", "Cadence", "summary", "cadence_steps_min", "steps/min",
+              1.0, 1, False),
+    Parameter("step_length_m", "Step length", "steps", "length_m", "cm", 100.0, 1, True),
+    Parameter("stride_length_m", "Stride length", "strides", "length_m", "cm", 100.0, 1, True),
+    Parameter("step_width_m", "Step width", "steps", "width_m", "cm", 100.0, 1, True),
+    Parameter("step_time_s", "Step time", "steps", "duration_s", "s", 1.0, 3, True),
+    Parameter("stride_time_s", "Stride time", "strides", "duration_s", "s", 1.0, 3, True),
+    Parameter("stance_pct", "Stance", "summary", "stance_pct", "% cycle", 1.0, 1, True),
+    Parameter("swing_pct", "Swing", "summary", "swing_pct", "% cycle", 1.0, 1, True),
+    Parameter("double_support_pct", "Double support", "summary", "double_support_pct",
+              "% cycle", 1.0, 1, False),
+)
+
+
+@dataclass
+class TrialData:
+    """One analysed walk.
+
+    Attributes:
+        name: label shown in the report (e.g. recording id and pass).
+        result: gait JSON object (``events``, ``steps``, ``strides``, ``summary``).
+        placements: optional foot placements ``{"side", "time_s", "position": [x, y, z]}``
+            with x along and y across the walking direction (m), for the top view.
+        times: optional ``(T,)`` times of the ankle trajectories.
+        ankle_heights: optional ``{"L": (T,), "R": (T,)}`` vertical ankle positions (m).
+    """
+
+    name: str
+    result: dict[str, Any]
+    placements: list[dict[str, Any]] | None = None
+    times: np.ndarray | None = None
+    ankle_heights: dict[str, np.ndarray] | None = None
+
+
+@dataclass
+class QualityInfo:
+    """Facts about the recording that tell how far the numbers can be trusted."""
+
+    sensors_used: list[str] = field(default_factory=list)
+    joints_tracked_pct: float | None = None
+    gaps_filled: int | None = None
+    clock_offsets_ms: dict[str, float] = field(default_factory=dict)
+    clock_uncertainty_ms: dict[str, float] = field(default_factory=dict)
+    calibration_residuals_mm: dict[str, float] = field(default_factory=dict)
+    calibration_version: str | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass
+class AgreementRow:
+    """Agreement of one parameter with a reference system (units as displayed)."""
+
+    parameter: str
+    level: str
+    n: int
+    r: float
+    p: float
+    bias: float
+    rpc: float
+    cv_pct: float
+    icc_a1: float
+    unit: str = ""
+
+
+@dataclass
+class ReportData:
+    """Everything one report shows."""
+
+    subject_code: str
+    trials: list[TrialData]
+    title: str = "Gait report"
+    subject_info: dict[str, Any] = field(default_factory=dict)
+    session_label: str = ""
+    session_date: str = ""
+    quality: QualityInfo = field(default_factory=QualityInfo)
+    agreement: list[AgreementRow] = field(default_factory=list)
+    agreement_figures: list[tuple[str, bytes]] = field(default_factory=list)
+    normative: tuple[NormativeRange, ...] | list[NormativeRange] = DEFAULT_NORMATIVE_RANGES
+    clinician_notes: str = ""
+
+
+@dataclass
+class TableRow:
+    label: str
+    unit: str
+    side: str  # "L", "R" or "" (both)
+    n: int
+    mean: float
+    sd: float
+    cv_pct: float
+    decimals: int
+    asymmetry_pct: float | None = None
+    normative: NormativeRange | None = None
+    normative_display: str = ""
+    flag: str = ""  # "", "below", "above"
+
+
+def _collect(param: Parameter, trials: list[TrialData], side: str | None) -> np.ndarray:
+    vals: list[float] = []
+    for tr in trials:
+        res = tr.result
+        if param.source == "summary":
+            summ = res.get("summary", {}) or {}
+            key = param.field if side is None else f"{param.field}_{side}"
+            v = summ.get(key)
+            if v is not None:
+                vals.append(float(v))
+        else:
+            for item in res.get(param.source, []) or []:
+                if side is not None and item.get("side") != side:
+                    continue
+                v = item.get(param.field)
+                if v is not None:
+                    vals.append(float(v))
+    arr = np.asarray(vals, dtype=float)
+    return arr[np.isfinite(arr)]
+
+
+def _stats(vals: np.ndarray) -> tuple[int, float, float, float]:
+    n = len(vals)
+    if n == 0:
+        return 0, math.nan, math.nan, math.nan
+    mean = float(np.mean(vals))
+    sd = float(np.std(vals, ddof=1)) if n > 1 else math.nan
+    cv = 100.0 * sd / abs(mean) if n > 1 and mean != 0 else math.nan
+    return n, mean, sd, cv
+
+
+def spatiotemporal_table(
+    trials: list[TrialData],
+    normative: tuple[NormativeRange, ...] | list[NormativeRange] = DEFAULT_NORMATIVE_RANGES,
+) -> list[TableRow]:
+    """Mean ± SD, CV, left/right and asymmetry of every parameter with data.
+
+    Asymmetry is the symmetry index ``100·|L − R| / ((L + R) / 2)`` (Robinson et al.,
+    J Manipulative Physiol Ther 1987), 0 % = perfectly symmetric.
+    """
+    norms = normative_lookup(normative)
+    rows: list[TableRow] = []
+    for p in PARAMETERS:
+        norm = norms.get(p.key)
+        sides: list[str | None] = [None, "L", "R"] if p.sided else [None]
+        per_side: dict[str, TableRow] = {}
+        for side in sides:
+            vals = _collect(p, trials, side)
+            if side is None and len(vals) == 0 and p.sided:
+                vals = np.concatenate([_collect(p, trials, "L"), _collect(p, trials, "R")])
+            n, mean, sd, cv = _stats(vals)
+            if n == 0:
+                continue
+            row = TableRow(p.label, p.unit, side or "", n, mean * p.scale, sd * p.scale, cv,
+                           p.decimals, normative=norm if side is None else None)
+            if norm is not None and side is None:
+                lo, hi = norm.low * p.scale, norm.high * p.scale
+                row.normative_display = f"{lo:.{p.decimals}f}–{hi:.{p.decimals}f}"
+                row.flag = "below" if row.mean < lo else "above" if row.mean > hi else ""
+            rows.append(row)
+            if side:
+                per_side[side] = row
+        if "L" in per_side and "R" in per_side:
+            lm, rm = per_side["L"].mean, per_side["R"].mean
+            denom = (lm + rm) / 2.0
+            asym = 100.0 * abs(lm - rm) / abs(denom) if denom else math.nan
+            for r in rows:
+                if r.label == p.label and r.side == "":
+                    r.asymmetry_pct = asym
+    return rows
+
+
+def quality_notes(data: ReportData, table: list[TableRow]) -> list[str]:
+    """Plain-language warnings about data quality, derived from the facts given."""
+    q = data.quality
+    notes = list(q.notes)
+    n_steps = sum(len(t.result.get("steps", []) or []) for t in data.trials)
+    if n_steps < 10:
+        notes.append(f"Only {n_steps} steps were analysed: means are uncertain and "
+                     "variability (CV) is not reliable below about 10 steps per side.")
+    if q.joints_tracked_pct is not None and q.joints_tracked_pct < 80.0:
+        notes.append(f"Only {q.joints_tracked_pct:.0f} % of joint samples were tracked "
+                     "by the sensors; check sensor placement and occlusions.")
+    for node, off in q.clock_uncertainty_ms.items():
+        if off > 2.0:
+            notes.append(f"Sensor {node}: clock uncertainty {off:.1f} ms exceeds 2 ms; "
+                         "step times may be less accurate.")
+    for node, res in q.calibration_residuals_mm.items():
+        if res > 10.0:
+            notes.append(f"Sensor {node}: calibration residual {res:.1f} mm is high; "
+                         "recalibrate before relying on step width.")
+    if len(q.sensors_used) == 1:
+        notes.append("Recorded from one sensor only (one-sided): step width and length of "
+                     "the far leg are biased; use sensors on both sides of the walkway.")
+    return notes
+
+
+def _png_uri(png: bytes) -> str:
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def build_context(data: ReportData) -> dict[str, Any]:
+    """Template context: tables, figures (as data URIs) and notes."""
+    if not data.trials:
+        raise InsufficientDataError("a report needs at least one analysed trial")
+    for t in data.trials:
+        if not isinstance(t.result, dict) or "steps" not in t.result:
+            raise InputError(f"trial {t.name!r}: result is not a gait JSON object with 'steps'")
+    table = spatiotemporal_table(data.trials, data.normative)
+    figures: list[tuple[str, str]] = []
+    placements = [(t.name, t.placements) for t in data.trials if t.placements]
+    if placements:
+        figures.append(("Foot placements seen from above",
+                        _png_uri(plots.plot_foot_placements(placements))))
+    for t in data.trials:
+        if t.times is not None and t.ankle_heights:
+            figures.append((f"Ankle trajectories — {t.name}",
+                            _png_uri(plots.plot_ankle_heights(t.times, t.ankle_heights,
+                                                              t.result.get("events", [])))))
+            break  # one example trial keeps the report short
+    all_steps = [s for t in data.trials for s in t.result.get("steps", []) or []]
+    if all_steps:
+        figures.append(("Parameters per step", _png_uri(plots.plot_steps(all_steps))))
+    used_norms = sorted({r.normative.source for r in table if r.normative is not None})
+    return {
+        "data": data,
+        "table": table,
+        "figures": figures,
+        "agreement_figures": [(c, _png_uri(p)) for c, p in data.agreement_figures],
+        "notes": quality_notes(data, table),
+        "norm_sources": used_norms,
+        "n_steps": len(all_steps),
+        "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "version": __version__,
+    }
+
+
+def _env() -> Environment:
+    env = Environment(loader=FileSystemLoader(TEMPLATE_DIR),
+                      autoescape=select_autoescape(["html", "j2"]))
+
+    def fmt(v: float | None, d: int = 2) -> str:
+        if v is None or (isinstance(v, float) and not math.isfinite(v)):
+            return "–"
+        return f"{v:.{d}f}"
+
+    env.filters["fmt"] = fmt
+    return env
+
+
+def render_html(data: ReportData, *, standalone: bool = True) -> str:
+    """The report as HTML (``standalone`` adds <html>/<head>; else a fragment)."""
+    ctx = build_context(data)
+    ctx["standalone"] = standalone
+    return _env().get_template("report.html.j2").render(**ctx)
+
+
+def render_pdf(data: ReportData) -> bytes:
+    """The same report as a PDF document (A4, via WeasyPrint)."""
+    from weasyprint import HTML  # heavy import, only when a PDF is asked for
+
+    pdf = HTML(string=render_html(data, standalone=True)).write_pdf()
+    if not pdf:
+        raise RuntimeError("WeasyPrint produced an empty PDF")
+    return bytes(pdf)
+
+
+def save_report(data: ReportData, path: str | Path) -> Path:
+    """Write the report to ``path`` (.html or .pdf, chosen by suffix)."""
+    path = Path(path)
+    if path.suffix.lower() == ".pdf":
+        path.write_bytes(render_pdf(data))
+    elif path.suffix.lower() in (".html", ".htm"):
+        path.write_text(render_html(data), encoding="utf-8")
+    else:
+        raise InputError(f"report path must end in .html or .pdf, got {path.name!r}")
+    return path
