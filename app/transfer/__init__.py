@@ -1,0 +1,43 @@
+"""Integrity-checked, resumable transfer of a node's recording part to the server.
+
+The node describes the files of a part in a :class:`Manifest` (size, SHA-256 of every
+chunk and of every whole file). The server pulls chunks in any order into a
+:class:`TransferSink`, which verifies each chunk against the manifest, persists its
+progress in a journal so a restarted server resumes where it stopped, and only after
+every whole-file hash matches renames the files into place and reports the part
+complete. A part is never accepted partially or silently corrupted.
+"""
+
+from app.transfer._errors import (
+    CorruptChunkError,
+    IncompleteTransferError,
+    ManifestError,
+    StorageFullError,
+    TransferError,
+)
+from app.transfer._manifest import (
+    DEFAULT_CHUNK_SIZE,
+    FileEntry,
+    Manifest,
+    build_manifest,
+    read_chunk,
+    safe_relative_path,
+)
+from app.transfer._pull import pull
+from app.transfer._sink import TransferSink
+
+__all__ = [
+    "DEFAULT_CHUNK_SIZE",
+    "CorruptChunkError",
+    "FileEntry",
+    "IncompleteTransferError",
+    "Manifest",
+    "ManifestError",
+    "StorageFullError",
+    "TransferError",
+    "TransferSink",
+    "build_manifest",
+    "pull",
+    "read_chunk",
+    "safe_relative_path",
+]

@@ -1,0 +1,157 @@
+"""Manifest of a recording part: files, sizes, per-chunk and per-file SHA-256."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+from app.transfer._errors import ManifestError
+
+DEFAULT_CHUNK_SIZE = 1 << 20  # 1 MiB: large enough for throughput, small to retry
+MAX_CHUNK_SIZE = 16 << 20
+MAX_FILES = 10_000
+
+
+def safe_relative_path(name: str) -> PurePosixPath:
+    """Validate a manifest file name: relative, no ``..``, no absolute or drive parts.
+
+    Raises:
+        ManifestError: the name could escape the destination folder.
+    """
+    p = PurePosixPath(name)
+    if (not name or name.startswith(("/", "\\")) or "\\" in name or ":" in name
+            or any(part in ("", ".", "..") for part in p.parts)):
+        raise ManifestError(f"unsafe file name in manifest: {name!r}")
+    return p
+
+
+@dataclass(frozen=True)
+class FileEntry:
+    """One file of a part.
+
+    Attributes:
+        name: POSIX path relative to the part's folder.
+        size: bytes.
+        sha256: hex digest of the whole file.
+        chunk_sha256: hex digest of each chunk, in order.
+    """
+
+    name: str
+    size: int
+    sha256: str
+    chunk_sha256: tuple[str, ...]
+
+    def chunk_count(self) -> int:
+        return len(self.chunk_sha256)
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """What a node holds for one recording part."""
+
+    recording_id: str
+    node_id: str
+    chunk_size: int
+    files: tuple[FileEntry, ...]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def total_bytes(self) -> int:
+        return sum(f.size for f in self.files)
+
+    @property
+    def total_chunks(self) -> int:
+        return sum(f.chunk_count() for f in self.files)
+
+    def file(self, name: str) -> FileEntry:
+        for f in self.files:
+            if f.name == name:
+                return f
+        raise ManifestError(f"file {name!r} is not in the manifest")
+
+    def to_json(self) -> str:
+        d = asdict(self)
+        return json.dumps(d, sort_keys=True, separators=(",", ":"))
+
+    @classmethod
+    def from_json(cls, text: str | bytes) -> Manifest:
+        """Parse and validate a manifest (paths, sizes, chunk counts)."""
+        try:
+            d = json.loads(text)
+            chunk_size = int(d["chunk_size"])
+            files = tuple(
+                FileEntry(str(f["name"]), int(f["size"]), str(f["sha256"]),
+                          tuple(str(h) for h in f["chunk_sha256"]))
+                for f in d["files"]
+            )
+            m = cls(str(d["recording_id"]), str(d["node_id"]), chunk_size, files,
+                    dict(d.get("meta") or {}))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ManifestError(f"malformed manifest: {exc}") from exc
+        m.validate()
+        return m
+
+    def validate(self) -> None:
+        if not 1 <= self.chunk_size <= MAX_CHUNK_SIZE:
+            raise ManifestError(f"chunk size {self.chunk_size} out of range")
+        if len(self.files) > MAX_FILES:
+            raise ManifestError(f"too many files in manifest ({len(self.files)})")
+        seen: set[str] = set()
+        for f in self.files:
+            safe_relative_path(f.name)
+            if f.name in seen:
+                raise ManifestError(f"duplicate file {f.name!r} in manifest")
+            seen.add(f.name)
+            if f.size < 0:
+                raise ManifestError(f"negative size for {f.name!r}")
+            expected = max(1, -(-f.size // self.chunk_size))
+            if f.chunk_count() != expected:
+                raise ManifestError(
+                    f"{f.name!r}: {f.chunk_count()} chunk hashes for {f.size} bytes, "
+                    f"expected {expected}"
+                )
+            for h in (f.sha256, *f.chunk_sha256):
+                if len(h) != 64 or any(c not in "0123456789abcdef" for c in h):
+                    raise ManifestError(f"{f.name!r}: invalid SHA-256 digest {h!r}")
+
+
+def build_manifest(root: str | Path, recording_id: str, node_id: str,
+                   names: list[str] | None = None, chunk_size: int = DEFAULT_CHUNK_SIZE,
+                   meta: dict[str, Any] | None = None) -> Manifest:
+    """Hash the files of a part (node side). ``names`` default: every file under root."""
+    root = Path(root)
+    if names is None:
+        names = sorted(p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file())
+    entries = []
+    for name in names:
+        safe_relative_path(name)
+        whole = hashlib.sha256()
+        chunks: list[str] = []
+        size = 0
+        with open(root / name, "rb") as fh:
+            while True:
+                block = fh.read(chunk_size)
+                if not block and chunks:
+                    break
+                whole.update(block)
+                chunks.append(hashlib.sha256(block).hexdigest())
+                size += len(block)
+                if len(block) < chunk_size:
+                    break
+        entries.append(FileEntry(name, size, whole.hexdigest(), tuple(chunks)))
+    m = Manifest(recording_id, node_id, chunk_size, tuple(entries), dict(meta or {}))
+    m.validate()
+    return m
+
+
+def read_chunk(root: str | Path, manifest: Manifest, name: str, index: int) -> bytes:
+    """Bytes of chunk ``index`` of file ``name`` (node side)."""
+    entry = manifest.file(name)
+    if not 0 <= index < entry.chunk_count():
+        raise ManifestError(f"{name!r} has no chunk {index}")
+    with open(Path(root) / safe_relative_path(name), "rb") as fh:
+        fh.seek(index * manifest.chunk_size)
+        return fh.read(manifest.chunk_size)

@@ -1,0 +1,201 @@
+"""Server side of a transfer: verified, resumable writes into a recording part folder.
+
+Layout of a part folder while transferring::
+
+    <dest>/.incoming/manifest.json     the manifest being fulfilled
+    <dest>/.incoming/<name>.part       preallocated files, chunks written in place
+
+Resuming needs no separate journal: the chunks already present are found by hashing
+the ``.part`` files against the manifest, so a crash between a write and any
+book-keeping can never make a torn chunk count as received. Only after every whole-file
+SHA-256 matches are the files renamed into ``<dest>/`` and ``<dest>/manifest.json``
+written; that file's presence is what "complete" means on disk.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import os
+import shutil
+from pathlib import Path
+
+from app.transfer._errors import (
+    CorruptChunkError,
+    IncompleteTransferError,
+    ManifestError,
+    StorageFullError,
+)
+from app.transfer._manifest import Manifest, safe_relative_path
+
+_FULL_ERRNOS = {errno.ENOSPC, errno.EDQUOT}
+
+
+def _storage_error(exc: OSError, what: str) -> Exception:
+    if exc.errno in _FULL_ERRNOS:
+        return StorageFullError(
+            f"server disk is full while {what}; free space on the server and retry the "
+            "transfer (the data is still safe on the node)"
+        )
+    return exc
+
+
+class TransferSink:
+    """Receives the chunks of one manifest into ``dest``.
+
+    Args:
+        dest: the part's folder on the server (created if needed).
+        manifest: what the node holds.
+
+    Raises:
+        ManifestError: ``dest`` already holds a different transfer or a complete part.
+        StorageFullError: the files cannot be preallocated.
+    """
+
+    def __init__(self, dest: str | Path, manifest: Manifest) -> None:
+        manifest.validate()
+        self.dest = Path(dest)
+        self.manifest = manifest
+        self.incoming = self.dest / ".incoming"
+        self._done: dict[str, set[int]] = {f.name: set() for f in manifest.files}
+        if self.is_complete(self.dest):
+            existing = Manifest.from_json((self.dest / "manifest.json").read_bytes())
+            if existing.to_json() != manifest.to_json():
+                raise ManifestError(f"{self.dest} already holds a different complete part")
+            for f in manifest.files:
+                self._done[f.name] = set(range(f.chunk_count()))
+            return
+        try:
+            self.incoming.mkdir(parents=True, exist_ok=True)
+            mpath = self.incoming / "manifest.json"
+            if mpath.exists():
+                if Manifest.from_json(mpath.read_bytes()).to_json() != manifest.to_json():
+                    raise ManifestError(
+                        f"{self.dest} holds an unfinished transfer of a different manifest"
+                    )
+            else:
+                tmp = mpath.with_suffix(".tmp")
+                tmp.write_text(manifest.to_json(), encoding="utf-8")
+                os.replace(tmp, mpath)
+            for f in manifest.files:
+                part = self._part_path(f.name)
+                part.parent.mkdir(parents=True, exist_ok=True)
+                fd = os.open(part, os.O_RDWR | os.O_CREAT, 0o600)
+                try:
+                    if f.size and os.fstat(fd).st_size < f.size:
+                        # Reserve the space now: a full disk fails here, not mid-way.
+                        os.posix_fallocate(fd, 0, f.size)
+                finally:
+                    os.close(fd)
+        except OSError as exc:
+            raise _storage_error(exc, f"preparing {self.dest}") from exc
+        self._scan_existing()
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def is_complete(dest: str | Path) -> bool:
+        dest = Path(dest)
+        return (dest / "manifest.json").is_file() and not (dest / ".incoming").exists()
+
+    def _part_path(self, name: str) -> Path:
+        return self.incoming / (str(safe_relative_path(name)) + ".part")
+
+    def _scan_existing(self) -> None:
+        cs = self.manifest.chunk_size
+        for f in self.manifest.files:
+            with open(self._part_path(f.name), "rb") as fh:
+                for i, expected in enumerate(f.chunk_sha256):
+                    fh.seek(i * cs)
+                    if hashlib.sha256(fh.read(cs)).hexdigest() == expected:
+                        self._done[f.name].add(i)
+
+    # --------------------------------------------------------------------- API
+    def missing_chunks(self) -> list[tuple[str, int]]:
+        """(file, chunk index) pairs still to fetch, in file order."""
+        return [(f.name, i) for f in self.manifest.files for i in range(f.chunk_count())
+                if i not in self._done[f.name]]
+
+    @property
+    def bytes_done(self) -> int:
+        cs = self.manifest.chunk_size
+        total = 0
+        for f in self.manifest.files:
+            for i in self._done[f.name]:
+                total += min(cs, f.size - i * cs) if f.size else 0
+        return total
+
+    @property
+    def progress(self) -> float:
+        total = self.manifest.total_bytes
+        return 1.0 if total == 0 else self.bytes_done / total
+
+    def write_chunk(self, name: str, index: int, data: bytes) -> None:
+        """Verify and store one chunk.
+
+        Raises:
+            CorruptChunkError: the bytes do not match the manifest's hash.
+            StorageFullError: the server disk is full.
+        """
+        entry = self.manifest.file(name)
+        if not 0 <= index < entry.chunk_count():
+            raise ManifestError(f"{name!r} has no chunk {index}")
+        if hashlib.sha256(data).hexdigest() != entry.chunk_sha256[index]:
+            raise CorruptChunkError(f"chunk {index} of {name!r} failed its SHA-256 check")
+        if index in self._done[name]:
+            return
+        try:
+            fd = os.open(self._part_path(name), os.O_WRONLY)
+            try:
+                os.pwrite(fd, data, index * self.manifest.chunk_size)
+            finally:
+                os.close(fd)
+        except OSError as exc:
+            raise _storage_error(exc, f"writing {name!r}") from exc
+        self._done[name].add(index)
+
+    def finalize(self) -> Path:
+        """Check every whole file, move the part into place, mark it complete.
+
+        Returns:
+            The part folder.
+
+        Raises:
+            IncompleteTransferError: chunks missing or a whole-file hash mismatch.
+        """
+        if self.is_complete(self.dest):
+            return self.dest
+        missing = self.missing_chunks()
+        if missing:
+            raise IncompleteTransferError(
+                f"{len(missing)} of {self.manifest.total_chunks} chunks missing "
+                f"(first: {missing[0][0]!r} #{missing[0][1]})"
+            )
+        try:
+            for f in self.manifest.files:
+                part = self._part_path(f.name)
+                os.truncate(part, f.size)
+                h = hashlib.sha256()
+                with open(part, "rb") as fh:
+                    while block := fh.read(1 << 20):
+                        h.update(block)
+                    os.fsync(fh.fileno())
+                if h.hexdigest() != f.sha256:
+                    # Every chunk matched, so the manifest contradicts itself: the file
+                    # changed on the node while it was being described.
+                    raise IncompleteTransferError(
+                        f"{f.name!r}: chunks verified but the whole-file SHA-256 differs; "
+                        "the node must describe the part again"
+                    )
+            for f in self.manifest.files:
+                target = self.dest / safe_relative_path(f.name)
+                target.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(self._part_path(f.name), target)
+            tmp = self.dest / "manifest.json.tmp"
+            tmp.write_text(self.manifest.to_json(), encoding="utf-8")
+            with open(tmp, "rb") as fh:
+                os.fsync(fh.fileno())
+            os.replace(tmp, self.dest / "manifest.json")
+            shutil.rmtree(self.incoming)
+        except OSError as exc:
+            raise _storage_error(exc, f"finishing {self.dest}") from exc
+        return self.dest
