@@ -1,0 +1,423 @@
+"""gaitrig's orientation filter: inertial-frame inclination, gated heading, bias tracking.
+
+Ideas (after Laidig & Seel 2023, "VQF", implemented independently here):
+
+* The gyroscope is integrated (after bias removal) into a strapdown quaternion ``q_g``
+  relative to an *almost-inertial* frame ``I`` that only drifts slowly.
+* The accelerometer sample is rotated into ``I`` and low-pass filtered there (2nd-order
+  Butterworth, time constant ``tau_acc``). In an inertial frame linear accelerations
+  integrate to velocity changes and so average out, while gravity stays put; the filtered
+  vector is therefore a clean estimate of "up" even during vigorous motion. An
+  inclination correction ``q_inc`` rotates it onto +z at every sample.
+* Heading is a separate rotation ``δ`` about z, fused from the magnetometer's horizontal
+  direction with time constant ``tau_mag``; samples whose field norm or dip angle leave
+  the learnt reference (magnetic disturbance) are rejected, and a new persistent field is
+  adopted after ``mag_new_time`` seconds.
+* Gyroscope bias: a rest detector (low gyro and acceleration variation for
+  ``rest_min_t``) averages the raw rate into the bias; during motion, the corrections
+  applied by inclination (and heading) are fed back as an integral term.
+* ``bidirectional=True`` (offline use, the default for recorded data) runs the filter
+  forward and time-reversed and blends the two estimates by each pass' settling weight, so
+  the low-pass lag of one pass is compensated by the other.
+
+Output frame: ENU (x east, y north, z up), quaternions w-first, sensor-to-earth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numba import njit
+from numpy.typing import ArrayLike, NDArray
+from scipy.signal import butter
+
+from engine.errors import InputError
+from engine.geometry import quat_conj, quat_mul, quat_normalize
+from engine.imu.madgwick import as_sensor_array
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FilterParams:
+    """Tuning of :class:`OrientationFilter` (SI units: s, rad/s, m/s²)."""
+
+    tau_acc: float = 3.0
+    tau_mag: float = 9.0
+    bias_tau_motion: float = 150.0
+    bias_tau_rest: float = 3.0
+    bias_clip: float = np.deg2rad(2.0)
+    rest_min_t: float = 1.5
+    rest_tau: float = 0.5
+    rest_th_gyr: float = np.deg2rad(2.0)
+    rest_th_acc: float = 0.5
+    mag_current_tau: float = 0.05
+    mag_ref_tau: float = 20.0
+    mag_norm_th: float = 0.1
+    mag_dip_th: float = np.deg2rad(10.0)
+    mag_new_time: float = 20.0
+    mag_init_time: float = 3.0
+    mag_new_min_gyr: float = np.deg2rad(20.0)
+    mag_rejection_factor: float = 2.0
+    mag_min_undisturbed_t: float = 0.5
+
+
+def _butter_coeffs(tau: float, fs: float) -> tuple[FloatArray, FloatArray]:
+    """2nd-order Butterworth low-pass with cut-off ``√2/(2π τ)`` (time constant ``τ``)."""
+    fc = np.sqrt(2.0) / (2.0 * np.pi * tau)
+    fc = min(fc, 0.45 * fs)
+    b, a = butter(2, fc, fs=fs)
+    return np.asarray(b, dtype=float), np.asarray(a, dtype=float)
+
+
+@njit(cache=True)
+def _wrap(x: float) -> float:
+    return (x + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@njit(cache=True)
+def _rotate(qw: float, qx: float, qy: float, qz: float, vx: float, vy: float,
+            vz: float) -> tuple[float, float, float]:
+    # v' = q ⊗ v ⊗ q*  via  t = 2 u×v ; v' = v + w t + u×t
+    tx = 2.0 * (qy * vz - qz * vy)
+    ty = 2.0 * (qz * vx - qx * vz)
+    tz = 2.0 * (qx * vy - qy * vx)
+    return (vx + qw * tx + (qy * tz - qz * ty),
+            vy + qw * ty + (qz * tx - qx * tz),
+            vz + qw * tz + (qx * ty - qy * tx))
+
+
+@njit(cache=True)
+def _qmul(aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: float,
+          bz: float) -> tuple[float, float, float, float]:
+    return (aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw)
+
+
+@njit(cache=True)
+def _filter_loop(
+    gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, dt: float,
+    bb: FloatArray, ba: FloatArray, p: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Causal filter over ``(T, S, 3)`` inputs; returns quats (T,S,4), bias (T,S,3), rest."""
+    tau_mag, bias_tau_motion, bias_tau_rest, bias_clip = p[0], p[1], p[2], p[3]
+    rest_min_t, rest_tau, rest_th_gyr, rest_th_acc = p[4], p[5], p[6], p[7]
+    mag_cur_tau, mag_ref_tau, mag_norm_th, mag_dip_th = p[8], p[9], p[10], p[11]
+    mag_new_time, mag_init_time = p[12], p[13]
+    mag_new_min_gyr, mag_rejection_factor, mag_min_undisturbed_t = p[14], p[15], p[16]
+    T, S = gyr.shape[0], gyr.shape[1]
+    out = np.empty((T, S, 4))
+    bias_out = np.empty((T, S, 3))
+    rest_out = np.zeros((T, S), dtype=np.bool_)
+    k_rest = 1.0 - np.exp(-dt / rest_tau)
+    k_bias_rest = 1.0 - np.exp(-dt / bias_tau_rest)
+    k_mag = 1.0 - np.exp(-dt / tau_mag)
+    k_magcur = 1.0 - np.exp(-dt / mag_cur_tau)
+    k_magref = 1.0 - np.exp(-dt / mag_ref_tau)
+    for s in range(S):
+        gw, gx, gy, gz = 1.0, 0.0, 0.0, 0.0          # strapdown q_g (sensor -> I)
+        iw, ix, iy, iz = 1.0, 0.0, 0.0, 0.0          # inclination correction (I -> I')
+        delta = 0.0                                   # heading (I' -> ENU) about z
+        b0, b1, b2 = 0.0, 0.0, 0.0                    # gyro bias estimate
+        # Butterworth state (direct form II transposed) per axis
+        z1 = np.zeros(3)
+        z2 = np.zeros(3)
+        lp_init = False
+        # rest detection
+        rg = np.zeros(3)
+        ra = np.zeros(3)
+        rest_t = 0.0
+        rest_init = False
+        # magnetometer
+        mag_seen = 0.0
+        ref_norm, ref_dip = 0.0, 0.0
+        cur_norm, cur_dip = 0.0, 0.0
+        mag_init = False
+        dist_t = 0.0
+        cand_norm, cand_dip, cand_motion = 0.0, 0.0, 0.0
+        reject_t = 0.0
+        undist_t = 1e9
+        for t in range(T):
+            wx, wy, wz = gyr[t, s, 0], gyr[t, s, 1], gyr[t, s, 2]
+            gyr_ok = np.isfinite(wx) and np.isfinite(wy) and np.isfinite(wz)
+            ax, ay, az = acc[t, s, 0], acc[t, s, 1], acc[t, s, 2]
+            acc_ok = np.isfinite(ax) and np.isfinite(ay) and np.isfinite(az) and \
+                (ax * ax + ay * ay + az * az) > 0.0
+            # ---------------------------------------------------------------- rest
+            is_rest = False
+            if gyr_ok and acc_ok:
+                if not rest_init:
+                    rg[0], rg[1], rg[2] = wx, wy, wz
+                    ra[0], ra[1], ra[2] = ax, ay, az
+                    rest_init = True
+                rg[0] += k_rest * (wx - rg[0])
+                rg[1] += k_rest * (wy - rg[1])
+                rg[2] += k_rest * (wz - rg[2])
+                ra[0] += k_rest * (ax - ra[0])
+                ra[1] += k_rest * (ay - ra[1])
+                ra[2] += k_rest * (az - ra[2])
+                dg = np.sqrt((wx - rg[0]) ** 2 + (wy - rg[1]) ** 2 + (wz - rg[2]) ** 2)
+                da = np.sqrt((ax - ra[0]) ** 2 + (ay - ra[1]) ** 2 + (az - ra[2]) ** 2)
+                gl = np.sqrt(rg[0] ** 2 + rg[1] ** 2 + rg[2] ** 2)
+                if dg < rest_th_gyr and da < rest_th_acc and gl < bias_clip:
+                    rest_t += dt
+                else:
+                    rest_t = 0.0
+                if rest_t >= rest_min_t:
+                    is_rest = True
+                    b0 += k_bias_rest * (rg[0] - b0)
+                    b1 += k_bias_rest * (rg[1] - b1)
+                    b2 += k_bias_rest * (rg[2] - b2)
+            rest_out[t, s] = is_rest
+            # ------------------------------------------------------------ strapdown
+            if gyr_ok and t > 0:
+                ox, oy, oz = wx - b0, wy - b1, wz - b2
+                ang = np.sqrt(ox * ox + oy * oy + oz * oz) * dt
+                if ang > 1e-12:
+                    c = np.cos(0.5 * ang)
+                    sn = np.sin(0.5 * ang) / (ang / dt)
+                    gw, gx, gy, gz = _qmul(gw, gx, gy, gz, c, sn * ox, sn * oy, sn * oz)
+                    n = np.sqrt(gw * gw + gx * gx + gy * gy + gz * gz)
+                    gw, gx, gy, gz = gw / n, gx / n, gy / n, gz / n
+            # --------------------------------------------------------- inclination
+            if acc_ok:
+                vx, vy, vz = _rotate(gw, gx, gy, gz, ax, ay, az)
+                if not lp_init:
+                    # steady state of the low-pass for a constant input
+                    for k in range(3):
+                        v = vx if k == 0 else (vy if k == 1 else vz)
+                        z1[k] = v * (1.0 - bb[0])
+                        z2[k] = v * (bb[2] - ba[2])
+                    lp_init = True
+                fx = bb[0] * vx + z1[0]
+                z1[0] = bb[1] * vx - ba[1] * fx + z2[0]
+                z2[0] = bb[2] * vx - ba[2] * fx
+                fy = bb[0] * vy + z1[1]
+                z1[1] = bb[1] * vy - ba[1] * fy + z2[1]
+                z2[1] = bb[2] * vy - ba[2] * fy
+                fz = bb[0] * vz + z1[2]
+                z1[2] = bb[1] * vz - ba[1] * fz + z2[2]
+                z2[2] = bb[2] * vz - ba[2] * fz
+                ex, ey, ez = _rotate(iw, ix, iy, iz, fx, fy, fz)
+                en = np.sqrt(ex * ex + ey * ey + ez * ez)
+                if en > 0.0:
+                    ex, ey, ez = ex / en, ey / en, ez / en
+                    cw = np.sqrt(max(0.5 * (ez + 1.0), 1e-12))
+                    # shortest rotation taking e onto +z: axis e × z = (ey, -ex, 0)
+                    cx, cy = 0.5 * ey / cw, -0.5 * ex / cw
+                    iw, ix, iy, iz = _qmul(cw, cx, cy, 0.0, iw, ix, iy, iz)
+                    n = np.sqrt(iw * iw + ix * ix + iy * iy + iz * iz)
+                    iw, ix, iy, iz = iw / n, ix / n, iy / n, iz / n
+                    # correction rotation vector (earth frame) -> sensor frame -> bias
+                    if not is_rest and t > 0:
+                        sw, sx, sy, sz = _qmul(iw, ix, iy, iz, gw, gx, gy, gz)
+                        rx, ry, rz = _rotate(sw, -sx, -sy, -sz, 2.0 * cx, 2.0 * cy, 0.0)
+                        kb = 1.0 / (bias_tau_motion * dt) * dt * dt
+                        b0 -= kb * rx / dt
+                        b1 -= kb * ry / dt
+                        b2 -= kb * rz / dt
+            # ---------------------------------------------------------------- 9D
+            if use_mag:
+                mx, my, mz = mag[t, s, 0], mag[t, s, 1], mag[t, s, 2]
+                mn = np.sqrt(mx * mx + my * my + mz * mz)
+                if np.isfinite(mn) and mn > 0.0:
+                    sw, sx, sy, sz = _qmul(iw, ix, iy, iz, gw, gx, gy, gz)
+                    hx, hy, hz = _rotate(sw, sx, sy, sz, mx, my, mz)
+                    hh = np.sqrt(hx * hx + hy * hy)
+                    dip = np.arctan2(hz, hh)
+                    if not mag_init:
+                        cur_norm, cur_dip, ref_norm, ref_dip = mn, dip, mn, dip
+                        mag_init = True
+                    cur_norm += k_magcur * (mn - cur_norm)
+                    cur_dip += k_magcur * (dip - cur_dip)
+                    disturbed = (abs(cur_norm - ref_norm) > mag_norm_th * ref_norm
+                                 or abs(cur_dip - ref_dip) > mag_dip_th)
+                    if disturbed:
+                        # a new homogeneous field must stay consistent (norm and dip) for
+                        # mag_new_time while the sensor moves before it is adopted; a magnet
+                        # fixed to the sensor changes norm/dip with orientation and never is
+                        gmag = np.sqrt(wx * wx + wy * wy + wz * wz) if gyr_ok else 0.0
+                        if (abs(cur_norm - cand_norm) > mag_norm_th * cand_norm
+                                or abs(cur_dip - cand_dip) > mag_dip_th):
+                            cand_norm, cand_dip, dist_t, cand_motion = cur_norm, cur_dip, 0.0, 0.0
+                        else:
+                            dist_t += dt
+                            cand_norm += k_magref * (cur_norm - cand_norm)
+                            cand_dip += k_magref * (cur_dip - cand_dip)
+                            if gmag > mag_new_min_gyr:
+                                cand_motion += dt
+                        if dist_t > mag_new_time and cand_motion > 0.5 * mag_new_time:
+                            ref_norm, ref_dip = cand_norm, cand_dip
+                            disturbed = False
+                            dist_t = 0.0
+                            cand_motion = 0.0
+                        reject_t += dt
+                        undist_t = 0.0
+                    else:
+                        undist_t += dt
+                        dist_t = 0.0
+                        cand_norm, cand_dip, cand_motion = cur_norm, cur_dip, 0.0
+                        ref_norm += k_magref * (cur_norm - ref_norm)
+                        ref_dip += k_magref * (cur_dip - ref_dip)
+                    if not disturbed and undist_t >= mag_min_undisturbed_t and hh > 0.0:
+                        target = 0.5 * np.pi - np.arctan2(hy, hx)
+                        mag_seen += dt
+                        k = k_mag
+                        if reject_t > 0.0:
+                            # catch up on the heading drift accumulated while rejecting
+                            k = min(1.0, k_mag * mag_rejection_factor)
+                            reject_t = max(0.0, reject_t - mag_rejection_factor * dt)
+                        if mag_seen < mag_init_time:
+                            k = max(k_mag, dt / mag_seen)
+                        err = _wrap(target - delta)
+                        delta = _wrap(delta + k * err)
+                        if not is_rest and mag_seen >= mag_init_time:
+                            # heading correction about earth z fed back into the bias
+                            rx, ry, rz = _rotate(sw, -sx, -sy, -sz, 0.0, 0.0, k * err)
+                            kb = dt / bias_tau_motion
+                            b0 -= kb * rx / dt
+                            b1 -= kb * ry / dt
+                            b2 -= kb * rz / dt
+            # clip bias
+            bn = np.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+            if bn > bias_clip:
+                b0, b1, b2 = b0 * bias_clip / bn, b1 * bias_clip / bn, b2 * bias_clip / bn
+            # --------------------------------------------------------------- output
+            qw, qx, qy, qz = _qmul(iw, ix, iy, iz, gw, gx, gy, gz)
+            if use_mag:
+                hw, hzz = np.cos(0.5 * delta), np.sin(0.5 * delta)
+                qw, qx, qy, qz = _qmul(hw, 0.0, 0.0, hzz, qw, qx, qy, qz)
+            out[t, s, 0], out[t, s, 1], out[t, s, 2], out[t, s, 3] = qw, qx, qy, qz
+            bias_out[t, s, 0], bias_out[t, s, 1], bias_out[t, s, 2] = b0, b1, b2
+    return out, bias_out, rest_out
+
+
+def _params_vector(p: FilterParams) -> FloatArray:
+    return np.array([p.tau_mag, p.bias_tau_motion, p.bias_tau_rest, p.bias_clip,
+                     p.rest_min_t, p.rest_tau, p.rest_th_gyr, p.rest_th_acc,
+                     p.mag_current_tau, p.mag_ref_tau, p.mag_norm_th, p.mag_dip_th,
+                     p.mag_new_time, p.mag_init_time, p.mag_new_min_gyr,
+                     p.mag_rejection_factor, p.mag_min_undisturbed_t])
+
+
+def _blend_weights(T: int, dt: float, tau: float) -> FloatArray:
+    """Forward-pass weight per sample: low while the forward pass settles, high at the end."""
+    t = np.arange(T) * dt
+    wf = 1.0 - np.exp(-t / tau)
+    wb = 1.0 - np.exp(-(t[-1] - t) / tau)
+    s = wf + wb
+    return np.where(s > 0, wf / np.where(s > 0, s, 1.0), 0.5)
+
+
+def _blend(qf: FloatArray, qb: FloatArray, w: FloatArray) -> FloatArray:
+    """Weighted mean of two close quaternion series, ``(T, S, 4)``, weight ``w`` on ``qf``."""
+    sign = np.where(np.sum(qf * qb, axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    return quat_normalize(w[:, None, None] * qf + (1.0 - w[:, None, None]) * sign * qb)
+
+
+def orientation_filter(
+    gyr: ArrayLike,
+    acc: ArrayLike,
+    mag: ArrayLike | None = None,
+    *,
+    frequency: float,
+    params: FilterParams | None = None,
+    bidirectional: bool = True,
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Estimate sensor-to-ENU orientation (9D) or inclination (6D) of whole recordings.
+
+    Args:
+        gyr: ``(T, 3)`` or ``(T, S, 3)`` angular rate, rad/s.
+        acc: same shape, m/s² (any unit works; only directions and ratios are used).
+        mag: same shape (any unit) or ``None`` for 6D; 6D heading is arbitrary.
+        frequency: sampling rate, Hz.
+        params: tuning; defaults suit human motion at 50-1000 Hz.
+        bidirectional: blend a forward and a time-reversed pass (offline, better); set
+            ``False`` for a causal (real-time equivalent) estimate.
+
+    Returns:
+        ``(quat, bias, rest)``: quaternions ``(T, [S,] 4)``, gyro bias ``(T, [S,] 3)``
+        rad/s, rest flags ``(T, [S])`` (bias and rest from the forward pass).
+
+    Raises:
+        InputError: shape mismatch or a non-positive sampling rate.
+    """
+    p = params or FilterParams()
+    single = np.ndim(gyr) == 2
+    g = as_sensor_array(gyr, "gyr")
+    a = as_sensor_array(acc, "acc")
+    if a.shape != g.shape:
+        raise InputError(f"acc shape {a.shape} differs from gyr shape {g.shape}")
+    m = np.zeros_like(g) if mag is None else as_sensor_array(mag, "mag")
+    if m.shape != g.shape:
+        raise InputError(f"mag shape {m.shape} differs from gyr shape {g.shape}")
+    if not (np.isfinite(frequency) and frequency > 0):
+        raise InputError(f"frequency must be positive (Hz), got {frequency}")
+    if len(g) < 2:
+        raise InputError("need at least two samples")
+    dt = 1.0 / float(frequency)
+    bb, ba = _butter_coeffs(p.tau_acc, float(frequency))
+    pv = _params_vector(p)
+    use_mag = mag is not None
+    qf, bias, rest = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv)
+    q = qf
+    if bidirectional:
+        # Time reversal: samples in reverse order and negated rates.
+        qb_r, _, _ = _filter_loop(np.ascontiguousarray(-g[::-1]), np.ascontiguousarray(a[::-1]),
+                                  np.ascontiguousarray(m[::-1]), use_mag, dt, bb, ba, pv)
+        qb = qb_r[::-1]
+        # The two passes have independent integration frames; for 6D bring the backward
+        # pass to the forward pass' heading by the mean heading offset.
+        if not use_mag:
+            qb = _align_heading(qf, qb)
+        tau = max(p.tau_acc, p.tau_mag if use_mag else p.tau_acc)
+        q = _blend(qf, qb, _blend_weights(len(g), dt, tau))
+    if single:
+        return q[:, 0], bias[:, 0], rest[:, 0]
+    return q, bias, rest
+
+
+def _align_heading(qf: FloatArray, qb: FloatArray) -> FloatArray:
+    """Rotate ``qb`` about earth z so that its heading matches ``qf`` on average (per sensor)."""
+    d = quat_mul(qf, quat_conj(qb))  # earth-frame difference
+    # heading part of each difference: angle about z
+    yaw = 2.0 * np.arctan2(d[..., 3], d[..., 0])
+    mean_yaw = np.arctan2(np.nanmean(np.sin(yaw), axis=0), np.nanmean(np.cos(yaw), axis=0))
+    qz = np.zeros((*mean_yaw.shape, 4))
+    qz[..., 0] = np.cos(0.5 * mean_yaw)
+    qz[..., 3] = np.sin(0.5 * mean_yaw)
+    return quat_mul(qz[None], qb)
+
+
+class OrientationFilter:
+    """Estimator-object wrapper of :func:`orientation_filter`.
+
+    Attributes:
+        quat_: sensor-to-ENU quaternions after :meth:`fit`.
+        bias_: estimated gyroscope bias (rad/s).
+        rest_: rest-detection flags.
+    """
+
+    def __init__(self, frequency: float, params: FilterParams | None = None,
+                 bidirectional: bool = True) -> None:
+        self.frequency = frequency
+        self.params = params or FilterParams()
+        self.bidirectional = bidirectional
+        self.quat_: FloatArray | None = None
+        self.bias_: FloatArray | None = None
+        self.rest_: NDArray[np.bool_] | None = None
+
+    def fit(self, gyr: ArrayLike, acc: ArrayLike, mag: ArrayLike | None = None,
+            ) -> OrientationFilter:
+        """Filter a recording; results go to ``quat_``, ``bias_``, ``rest_``."""
+        self.quat_, self.bias_, self.rest_ = orientation_filter(
+            gyr, acc, mag, frequency=self.frequency, params=self.params,
+            bidirectional=self.bidirectional)
+        return self
+
+    def get_params(self) -> dict[str, float]:
+        """Tuning parameters as a plain dict."""
+        return asdict(self.params)
