@@ -51,14 +51,14 @@ def _best(f, n: int) -> float:  # type: ignore[no-untyped-def]
 
 def main() -> None:
     rig = avenue_rig()
-    grid = Grid(0.0, 10.0, -2.0, 2.0, 0.05)
+    grid = Grid(-3.0, 7.0, -2.0, 2.0, 0.05)  # 10 × 4 m around the avenue
     H, r = 1.8, 0.2
     model = CoverageModel(rig, grid, body_height_m=H, body_radius_m=r)
     k = [0]
 
     def drag() -> None:
         k[0] += 1
-        model.move_sensor("k1L", sensor_pose((4.5 + 0.01 * (k[0] % 50), 1.0, 1.0), 215.0))
+        model.move_sensor("S1", sensor_pose((2.4 + 0.01 * (k[0] % 50), 1.0, 1.0), 215.0, -8.0))
 
     t_inc = _best(drag, 30)
     t_full = _best(lambda: coverage_map(rig, grid, body_height_m=H, body_radius_m=r), 10)

@@ -156,14 +156,16 @@ def sensor_pose(position: ArrayLike, yaw_deg: float, pitch_deg: float = 0.0,
 
 
 def avenue_rig(n_rows: int = 3, row_spacing_m: float = 2.5, width_m: float = 2.0,
-               inward_deg: float = 35.0, height_m: float = 1.0, first_row_x_m: float = 4.5,
-               facing: int = -1, model: str = "kinect_v2") -> list[SensorSpec]:
+               inward_deg: float = 35.0, height_m: float = 1.0, pitch_deg: float = -8.0,
+               first_row_x_m: float = 2.4, facing: int = -1, model: str = "kinect_v2"
+               ) -> list[SensorSpec]:
     """The seed-000 "avenue": sensor pairs in rows along the walkway (X), turned inwards.
 
     Rows sit at ``x = first_row_x_m + k·row_spacing_m``, the two sensors of a row at
     ``y = ±width_m/2``, each looking along ``facing``·X (−1: towards a walker who walks
-    along +X) and rotated ``inward_deg`` towards the walkway centre line.
-    Ids are ``"k{row}{L|R}"`` (L on +Y, the left of a walker going +X).
+    along +X) rotated ``inward_deg`` towards the walkway centre line and pitched by
+    ``pitch_deg``. Defaults and ids (``S1``… with odd ids on +Y, the left of a walker
+    going +X) match the simulated lab's default rig (``engine.sim.rig``).
     """
     if n_rows < 1 or facing not in (-1, 1):
         raise InputError("avenue_rig: need n_rows ≥ 1 and facing ±1")
@@ -171,11 +173,28 @@ def avenue_rig(n_rows: int = 3, row_spacing_m: float = 2.5, width_m: float = 2.0
     out = []
     for k in range(n_rows):
         x = first_row_x_m + k * row_spacing_m
-        for side, y in (("L", width_m / 2), ("R", -width_m / 2)):
+        for j, y in enumerate((width_m / 2, -width_m / 2)):
             # turning inwards = towards y = 0: sign depends on side and facing
             turn = -np.sign(y) * facing * inward_deg
-            T = sensor_pose((x, y, height_m), base + turn)
-            out.append(SensorSpec.from_model(f"k{k + 1}{side}", T, model))
+            T = sensor_pose((x, y, height_m), base + turn, pitch_deg)
+            out.append(SensorSpec.from_model(f"S{2 * k + j + 1}", T, model))
+    return out
+
+
+def sensors_from_rig(rig: object) -> list[SensorSpec]:
+    """Sensor specs of a simulated or saved rig (``engine.sim.rig.Rig``-like object).
+
+    Duck-typed: needs ``rig.sensors`` with ``id``, ``T_world_sensor`` and a ``model``
+    carrying ``depth_hfov_deg``, ``depth_vfov_deg``, ``range_min_m``, ``range_max_m``.
+    """
+    out = []
+    for s in getattr(rig, "sensors", []):
+        m = s.model
+        out.append(SensorSpec(str(s.id), np.asarray(s.T_world_sensor, dtype=float),
+                              float(m.depth_hfov_deg), float(m.depth_vfov_deg),
+                              float(m.range_min_m), float(m.range_max_m)))
+    if not out:
+        raise InputError("the rig has no sensors")
     return out
 
 
@@ -609,6 +628,6 @@ __all__ = [
     "BLIND_RGB", "SENSOR_MODELS", "CoverageMap", "CoverageModel", "Grid", "PlacementRow",
     "SensorModel", "SensorSpec", "Trapezoid", "active_area_trapezoid", "as_sensor",
     "avenue_rig", "coverage_image", "coverage_map", "format_placement_table",
-    "placement_table", "preset_trapezoid", "sensor_pose",
+    "placement_table", "preset_trapezoid", "sensor_pose", "sensors_from_rig",
 ]
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -19,6 +21,7 @@ from engine.coverage import (
     placement_table,
     preset_trapezoid,
     sensor_pose,
+    sensors_from_rig,
 )
 from engine.errors import InputError
 from engine.geometry import invert_transform, transform_points
@@ -153,20 +156,21 @@ def test_two_sided_and_side_counts() -> None:
 def test_default_avenue_has_two_sided_cells_and_incremental_update() -> None:
     rig = avenue_rig()
     assert len(rig) == 6
-    grid = Grid(0.0, 10.0, -2.0, 2.0, 0.05)
+    assert [s.id for s in rig] == ["S1", "S2", "S3", "S4", "S5", "S6"]
+    grid = Grid(-3.0, 7.0, -2.0, 2.0, 0.05)
     model = CoverageModel(rig, grid)
     cm = model.map()
     assert cm.two_sided.any()
-    # on the centre line between the first two rows the walker is seen from both sides
+    # on the centre line 3 m before the first pair the walker is seen from both sides
     x, y = grid.centres()
-    ix = int(np.argmin(np.abs(x - 2.0)))
+    ix = int(np.argmin(np.abs(x - -0.6)))
     iy = int(np.argmin(np.abs(y - 0.0)))
     assert cm.two_sided[iy, ix] and cm.counts[iy, ix] >= 2
     # drag one tripod: the map changes, and equals a full recomputation
-    moved = sensor_pose((4.5, 1.0, 1.0), 180.0 + 10.0)
-    cm2 = model.move_sensor("k1L", moved)
+    moved = sensor_pose((2.4, 1.0, 1.0), 180.0 + 10.0, -8.0)
+    cm2 = model.move_sensor("S1", moved)
     assert not np.array_equal(cm.counts, cm2.counts)
-    rig2 = [s if s.id != "k1L" else SensorSpec(s.id, moved, s.hfov_deg, s.vfov_deg,
+    rig2 = [s if s.id != "S1" else SensorSpec(s.id, moved, s.hfov_deg, s.vfov_deg,
                                                 s.min_range_m, s.max_range_m) for s in rig]
     full = coverage_map(rig2, grid)
     assert np.array_equal(full.counts, cm2.counts)
@@ -216,3 +220,14 @@ def test_placement_table() -> None:
     assert row.pitch_deg == pytest.approx(-10.0)
     text = format_placement_table([row])
     assert "k1" in text and "500.0" in text and "135.0" in text
+
+
+def test_sensors_from_rig_duck_typed() -> None:
+    model = SimpleNamespace(depth_hfov_deg=70.6, depth_vfov_deg=60.0, range_min_m=0.5,
+                            range_max_m=4.5)
+    T = sensor_pose((1.0, 2.0, 1.0), 30.0)
+    rig = SimpleNamespace(sensors=[SimpleNamespace(id="S9", T_world_sensor=T, model=model)])
+    (s,) = sensors_from_rig(rig)
+    assert s.id == "S9" and s.hfov_deg == 70.6 and np.array_equal(s.T_world_sensor, T)
+    with pytest.raises(InputError, match="no sensors"):
+        sensors_from_rig(SimpleNamespace())
