@@ -23,12 +23,14 @@ from app.transfer._manifest import (
     read_chunk,
     safe_relative_path,
 )
-from app.transfer._pull import pull
+from app.transfer._pull import FetchChunk, FetchRange, per_chunk, pull
 from app.transfer._sink import TransferSink
 
 __all__ = [
     "DEFAULT_CHUNK_SIZE",
     "CorruptChunkError",
+    "FetchChunk",
+    "FetchRange",
     "FileEntry",
     "IncompleteTransferError",
     "Manifest",
@@ -37,6 +39,7 @@ __all__ = [
     "TransferError",
     "TransferSink",
     "build_manifest",
+    "per_chunk",
     "pull",
     "read_chunk",
     "safe_relative_path",

@@ -1,24 +1,36 @@
-"""The pulling loop: fetch missing chunks concurrently, retry the bad ones."""
+"""The pulling loop: stream each file's missing chunks, verify, retry the bad ones."""
 
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 
 from app.transfer._errors import CorruptChunkError, IncompleteTransferError, StorageFullError
 from app.transfer._sink import TransferSink
 
 FetchChunk = Callable[[str, int], Awaitable[bytes]]
+#: Streams ``(chunk index, bytes)`` of one file for the requested indices, in order.
+FetchRange = Callable[[str, list[int]], AsyncIterator[tuple[int, bytes]]]
 ProgressCallback = Callable[[int, int], None]
 
-# What a broken link looks like to a fetcher; anything else is a programming error.
+# What a broken link or a damaged chunk looks like to a fetcher.
 RETRYABLE = (CorruptChunkError, ConnectionError, TimeoutError, OSError)
+
+
+def per_chunk(fetch: FetchChunk) -> FetchRange:
+    """Adapt a one-request-per-chunk fetcher to the streaming interface."""
+
+    async def fetch_range(name: str, indices: list[int]) -> AsyncIterator[tuple[int, bytes]]:
+        for idx in indices:
+            yield idx, await fetch(name, idx)
+
+    return fetch_range
 
 
 async def pull(
     sink: TransferSink,
-    fetch: FetchChunk,
+    fetch: FetchRange,
     *,
     concurrency: int = 4,
     retries: int = 3,
@@ -26,11 +38,16 @@ async def pull(
 ) -> Path:
     """Fetch every missing chunk into ``sink`` and finalise it.
 
+    Files are pulled concurrently (``concurrency`` at once); the chunks of one file
+    arrive in order on one stream, so the whole-file hash is computed on the fly and the
+    file need not be read back (only resumed files are).
+
     Args:
         sink: the receiving part folder (already resumed: only missing chunks fetched).
-        fetch: coroutine returning the bytes of ``(file, chunk)`` from the node.
-        concurrency: chunks in flight at once.
-        retries: attempts per chunk after the first, for corrupt or lost chunks.
+        fetch: streams the requested chunks of a file from the node (see
+            :func:`per_chunk` to adapt a per-chunk request function).
+        concurrency: files in flight at once.
+        retries: extra attempts for chunks that arrived corrupt or were lost.
         on_progress: called with ``(bytes_done, bytes_total)`` after every chunk.
 
     Returns:
@@ -40,33 +57,71 @@ async def pull(
         IncompleteTransferError: a chunk could not be fetched intact after ``retries``.
         StorageFullError: the server disk is full (not retried).
     """
-    queue: asyncio.Queue[tuple[str, int]] = asyncio.Queue()
-    for item in sink.missing_chunks():
-        queue.put_nowait(item)
+    missing: dict[str, list[int]] = {}
+    for name, idx in sink.missing_chunks():
+        missing.setdefault(name, []).append(idx)
+    queue: asyncio.Queue[str] = asyncio.Queue()
+    for name in missing:
+        queue.put_nowait(name)
     failures: list[str] = []
     total = sink.manifest.total_bytes
+
+    async def fetch_file(name: str) -> None:
+        todo = missing[name]
+        last: Exception | None = None
+        for _attempt in range(retries + 1):
+            if not todo:
+                return
+            received: set[int] = set()
+            # Receive and verify/write overlap: a writer thread drains a short queue
+            # while the next chunks arrive (hashing and pwrite release the GIL).
+            pending: asyncio.Queue[tuple[int, bytes] | None] = asyncio.Queue(maxsize=8)
+
+            async def writer(pending: asyncio.Queue[tuple[int, bytes] | None] = pending,
+                             received: set[int] = received) -> Exception | None:
+                err: Exception | None = None
+                while (item := await pending.get()) is not None:
+                    idx, data = item
+                    try:
+                        await asyncio.to_thread(sink.write_chunk, name, idx, data)
+                        received.add(idx)
+                    except CorruptChunkError as exc:
+                        err = exc
+                    if on_progress is not None:
+                        on_progress(sink.bytes_done, total)
+                return err
+
+            writer_task = asyncio.create_task(writer())
+            try:
+                async for item in fetch(name, todo):
+                    if writer_task.done():
+                        break  # the writer failed (e.g. disk full): stop receiving
+                    await pending.put(item)
+            except RETRYABLE as exc:
+                last = exc
+            finally:
+                if not writer_task.done():
+                    await pending.put(None)
+            try:
+                err = await writer_task
+            except StorageFullError:
+                raise
+            except RETRYABLE as exc:
+                err = exc
+            last = err or last
+            todo = [i for i in todo if i not in received]
+            if not todo:
+                await asyncio.to_thread(sink.seal_file, name)
+        if todo:
+            failures.append(f"{name}: {len(todo)} chunk(s), last error: {last}")
 
     async def worker() -> None:
         while True:
             try:
-                name, idx = queue.get_nowait()
+                name = queue.get_nowait()
             except asyncio.QueueEmpty:
                 return
-            last: Exception | None = None
-            for _attempt in range(retries + 1):
-                try:
-                    data = await fetch(name, idx)
-                    sink.write_chunk(name, idx, data)
-                    last = None
-                    break
-                except StorageFullError:
-                    raise
-                except RETRYABLE as exc:
-                    last = exc
-            if last is not None:
-                failures.append(f"{name} #{idx}: {last}")
-            elif on_progress is not None:
-                on_progress(sink.bytes_done, total)
+            await fetch_file(name)
 
     workers = [asyncio.create_task(worker()) for _ in range(max(1, concurrency))]
     try:
@@ -76,6 +131,6 @@ async def pull(
             w.cancel()
     if failures:
         raise IncompleteTransferError(
-            f"{len(failures)} chunk(s) could not be fetched intact: " + "; ".join(failures[:3])
+            f"{len(failures)} file(s) could not be fetched intact: " + "; ".join(failures[:3])
         )
-    return sink.finalize()
+    return await asyncio.to_thread(sink.finalize)

@@ -18,7 +18,9 @@ import errno
 import hashlib
 import os
 import shutil
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 from app.transfer._errors import (
     CorruptChunkError,
@@ -26,7 +28,7 @@ from app.transfer._errors import (
     ManifestError,
     StorageFullError,
 )
-from app.transfer._manifest import Manifest, safe_relative_path
+from app.transfer._manifest import FileEntry, Manifest, safe_relative_path
 
 _FULL_ERRNOS = {errno.ENOSPC, errno.EDQUOT}
 
@@ -58,6 +60,10 @@ class TransferSink:
         self.manifest = manifest
         self.incoming = self.dest / ".incoming"
         self._done: dict[str, set[int]] = {f.name: set() for f in manifest.files}
+        # Running whole-file hash while chunks arrive in order from chunk 0; None once
+        # they don't (then finalize reads the file back).
+        self._running: dict[str, tuple[int, Any] | None] = {}
+        self._digests: dict[str, str] = {}  # files checked and flushed to disk
         if self.is_complete(self.dest):
             existing = Manifest.from_json((self.dest / "manifest.json").read_bytes())
             if existing.to_json() != manifest.to_json():
@@ -90,6 +96,8 @@ class TransferSink:
         except OSError as exc:
             raise _storage_error(exc, f"preparing {self.dest}") from exc
         self._scan_existing()
+        for f in manifest.files:
+            self._running[f.name] = (0, hashlib.sha256()) if not self._done[f.name] else None
 
     # ------------------------------------------------------------------ helpers
     @staticmethod
@@ -151,7 +159,39 @@ class TransferSink:
                 os.close(fd)
         except OSError as exc:
             raise _storage_error(exc, f"writing {name!r}") from exc
+        running = self._running.get(name)
+        if running is not None:
+            nxt, hasher = running
+            if index == nxt:
+                hasher.update(data)
+                self._running[name] = (nxt + 1, hasher)
+            else:
+                self._running[name] = None
         self._done[name].add(index)
+
+    def seal_file(self, name: str) -> None:
+        """Hash and flush a file whose chunks have all arrived (before finalize, so
+        the disk flush of one file overlaps the transfer of the next)."""
+        entry = self.manifest.file(name)
+        if len(self._done[name]) == entry.chunk_count() and name not in self._digests:
+            self._digests[name] = self._hash_part(entry)
+
+    def _hash_part(self, f: FileEntry) -> str:
+        if f.name in self._digests:
+            return self._digests[f.name]
+        part = self._part_path(f.name)
+        os.truncate(part, f.size)
+        running = self._running.get(f.name)
+        with open(part, "rb") as fh:
+            if running is not None and running[0] == f.chunk_count():
+                digest = str(running[1].hexdigest())
+            else:
+                h = hashlib.sha256()
+                while block := fh.read(1 << 20):
+                    h.update(block)
+                digest = h.hexdigest()
+            os.fsync(fh.fileno())
+        return digest
 
     def finalize(self) -> Path:
         """Check every whole file, move the part into place, mark it complete.
@@ -171,15 +211,10 @@ class TransferSink:
                 f"(first: {missing[0][0]!r} #{missing[0][1]})"
             )
         try:
-            for f in self.manifest.files:
-                part = self._part_path(f.name)
-                os.truncate(part, f.size)
-                h = hashlib.sha256()
-                with open(part, "rb") as fh:
-                    while block := fh.read(1 << 20):
-                        h.update(block)
-                    os.fsync(fh.fileno())
-                if h.hexdigest() != f.sha256:
+            with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
+                digests = list(pool.map(self._hash_part, self.manifest.files))
+            for f, digest in zip(self.manifest.files, digests, strict=True):
+                if digest != f.sha256:
                     # Every chunk matched, so the manifest contradicts itself: the file
                     # changed on the node while it was being described.
                     raise IncompleteTransferError(

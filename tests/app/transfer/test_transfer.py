@@ -22,6 +22,7 @@ from app.transfer import (
     StorageFullError,
     TransferSink,
     build_manifest,
+    per_chunk,
     pull,
     read_chunk,
 )
@@ -52,7 +53,7 @@ def _fetcher(src: Path, manifest: Manifest):
     async def fetch(name: str, idx: int) -> bytes:
         return read_chunk(src, manifest, name, idx)
 
-    return fetch
+    return per_chunk(fetch)
 
 
 def test_round_trip_identical_checksums(tmp_path: Path, part):
@@ -86,7 +87,7 @@ def test_corrupted_chunk_is_detected_and_refetched(tmp_path: Path, part):
     with pytest.raises(CorruptChunkError):
         sink.write_chunk("skeleton.bin", 2, b"x" * len(read_chunk(src, manifest,
                                                                   "skeleton.bin", 2)))
-    asyncio.run(pull(sink, flaky))
+    asyncio.run(pull(sink, per_chunk(flaky)))
     assert calls[("skeleton.bin", 2)] == 2
     assert _sha(tmp_path / "dest" / "skeleton.bin") == manifest.file("skeleton.bin").sha256
 
@@ -104,7 +105,8 @@ def test_socket_cut_mid_transfer_then_resume(tmp_path: Path, part):
         return read_chunk(src, manifest, name, idx)
 
     with pytest.raises(IncompleteTransferError, match="could not be fetched"):
-        asyncio.run(pull(TransferSink(dest, manifest), dying, retries=1, concurrency=1))
+        asyncio.run(pull(TransferSink(dest, manifest), per_chunk(dying), retries=1,
+                         concurrency=1))
     assert not TransferSink.is_complete(dest)
     resumed = TransferSink(dest, manifest)
     assert 0 < len(resumed.missing_chunks()) < manifest.total_chunks
@@ -120,14 +122,15 @@ def test_server_killed_mid_transfer_resumes(tmp_path: Path, part):
     script = textwrap.dedent(f"""
         import asyncio, sys, time
         from pathlib import Path
-        from app.transfer import Manifest, TransferSink, pull, read_chunk
+        from app.transfer import Manifest, TransferSink, per_chunk, pull, read_chunk
         m = Manifest.from_json(Path({str(tmp_path / 'manifest.json')!r}).read_text())
         src = Path({str(src)!r})
         async def slow(name, idx):
             print("chunk", flush=True)
             time.sleep(0.2)
             return read_chunk(src, m, name, idx)
-        asyncio.run(pull(TransferSink(Path({str(dest)!r}), m), slow, concurrency=1))
+        asyncio.run(pull(TransferSink(Path({str(dest)!r}), m), per_chunk(slow),
+                         concurrency=1))
     """)
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE,
                             cwd=Path(__file__).resolve().parents[3])
