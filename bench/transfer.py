@@ -97,7 +97,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--chunk-kib", type=int, default=1024)
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory(dir=ROOT) as tmp:
+    with tempfile.TemporaryDirectory(prefix="gaitrig-bench-") as tmp:
         tmpdir = Path(tmp)
         src = tmpdir / "node"
         src.mkdir()
