@@ -16,9 +16,6 @@ Ideas (after Laidig & Seel 2023, "VQF", implemented independently here):
 * Gyroscope bias: a rest detector (low gyro and acceleration variation for
   ``rest_min_t``) averages the raw rate into the bias; during motion, the corrections
   applied by inclination (and heading) are fed back as an integral term.
-* ``bidirectional=True`` (offline use, the default for recorded data) runs the filter
-  forward and time-reversed and blends the two estimates by each pass' settling weight, so
-  the low-pass lag of one pass is compensated by the other.
 
 Output frame: ENU (x east, y north, z up), quaternions w-first, sensor-to-earth.
 """
@@ -33,7 +30,6 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.signal import butter
 
 from engine.errors import InputError
-from engine.geometry import quat_conj, quat_mul, quat_normalize
 from engine.imu.madgwick import as_sensor_array
 
 FloatArray = NDArray[np.float64]
@@ -101,7 +97,7 @@ def _qmul(aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: 
 def _filter_loop(
     gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, dt: float,
     bb: FloatArray, ba: FloatArray, p: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Causal filter over ``(T, S, 3)`` inputs; returns quats (T,S,4), bias (T,S,3), rest."""
     tau_mag, bias_tau_motion, bias_tau_rest, bias_clip = p[0], p[1], p[2], p[3]
     rest_min_t, rest_tau, rest_th_gyr, rest_th_acc = p[4], p[5], p[6], p[7]
@@ -215,7 +211,7 @@ def _filter_loop(
                     if not is_rest and t > 0:
                         sw, sx, sy, sz = _qmul(iw, ix, iy, iz, gw, gx, gy, gz)
                         rx, ry, rz = _rotate(sw, -sx, -sy, -sz, 2.0 * cx, 2.0 * cy, 0.0)
-                        kb = 1.0 / (bias_tau_motion * dt) * dt * dt
+                        kb = dt / bias_tau_motion
                         b0 -= kb * rx / dt
                         b1 -= kb * ry / dt
                         b2 -= kb * rz / dt
@@ -303,21 +299,6 @@ def _params_vector(p: FilterParams) -> FloatArray:
                      p.mag_rejection_factor, p.mag_min_undisturbed_t])
 
 
-def _blend_weights(T: int, dt: float, tau: float) -> FloatArray:
-    """Forward-pass weight per sample: low while the forward pass settles, high at the end."""
-    t = np.arange(T) * dt
-    wf = 1.0 - np.exp(-t / tau)
-    wb = 1.0 - np.exp(-(t[-1] - t) / tau)
-    s = wf + wb
-    return np.where(s > 0, wf / np.where(s > 0, s, 1.0), 0.5)
-
-
-def _blend(qf: FloatArray, qb: FloatArray, w: FloatArray) -> FloatArray:
-    """Weighted mean of two close quaternion series, ``(T, S, 4)``, weight ``w`` on ``qf``."""
-    sign = np.where(np.sum(qf * qb, axis=-1, keepdims=True) < 0, -1.0, 1.0)
-    return quat_normalize(w[:, None, None] * qf + (1.0 - w[:, None, None]) * sign * qb)
-
-
 def orientation_filter(
     gyr: ArrayLike,
     acc: ArrayLike,
@@ -325,7 +306,6 @@ def orientation_filter(
     *,
     frequency: float,
     params: FilterParams | None = None,
-    bidirectional: bool = True,
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Estimate sensor-to-ENU orientation (9D) or inclination (6D) of whole recordings.
 
@@ -335,12 +315,10 @@ def orientation_filter(
         mag: same shape (any unit) or ``None`` for 6D; 6D heading is arbitrary.
         frequency: sampling rate, Hz.
         params: tuning; defaults suit human motion at 50-1000 Hz.
-        bidirectional: blend a forward and a time-reversed pass (offline, better); set
-            ``False`` for a causal (real-time equivalent) estimate.
 
     Returns:
         ``(quat, bias, rest)``: quaternions ``(T, [S,] 4)``, gyro bias ``(T, [S,] 3)``
-        rad/s, rest flags ``(T, [S])`` (bias and rest from the forward pass).
+        rad/s, rest flags ``(T, [S])``.
 
     Raises:
         InputError: shape mismatch or a non-positive sampling rate.
@@ -364,32 +342,9 @@ def orientation_filter(
     use_mag = mag is not None
     qf, bias, rest = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv)
     q = qf
-    if bidirectional:
-        # Time reversal: samples in reverse order and negated rates.
-        qb_r, _, _ = _filter_loop(np.ascontiguousarray(-g[::-1]), np.ascontiguousarray(a[::-1]),
-                                  np.ascontiguousarray(m[::-1]), use_mag, dt, bb, ba, pv)
-        qb = qb_r[::-1]
-        # The two passes have independent integration frames; for 6D bring the backward
-        # pass to the forward pass' heading by the mean heading offset.
-        if not use_mag:
-            qb = _align_heading(qf, qb)
-        tau = max(p.tau_acc, p.tau_mag if use_mag else p.tau_acc)
-        q = _blend(qf, qb, _blend_weights(len(g), dt, tau))
     if single:
         return q[:, 0], bias[:, 0], rest[:, 0]
     return q, bias, rest
-
-
-def _align_heading(qf: FloatArray, qb: FloatArray) -> FloatArray:
-    """Rotate ``qb`` about earth z so that its heading matches ``qf`` on average (per sensor)."""
-    d = quat_mul(qf, quat_conj(qb))  # earth-frame difference
-    # heading part of each difference: angle about z
-    yaw = 2.0 * np.arctan2(d[..., 3], d[..., 0])
-    mean_yaw = np.arctan2(np.nanmean(np.sin(yaw), axis=0), np.nanmean(np.cos(yaw), axis=0))
-    qz = np.zeros((*mean_yaw.shape, 4))
-    qz[..., 0] = np.cos(0.5 * mean_yaw)
-    qz[..., 3] = np.sin(0.5 * mean_yaw)
-    return quat_mul(qz[None], qb)
 
 
 class OrientationFilter:
@@ -401,11 +356,9 @@ class OrientationFilter:
         rest_: rest-detection flags.
     """
 
-    def __init__(self, frequency: float, params: FilterParams | None = None,
-                 bidirectional: bool = True) -> None:
+    def __init__(self, frequency: float, params: FilterParams | None = None) -> None:
         self.frequency = frequency
         self.params = params or FilterParams()
-        self.bidirectional = bidirectional
         self.quat_: FloatArray | None = None
         self.bias_: FloatArray | None = None
         self.rest_: NDArray[np.bool_] | None = None
@@ -414,8 +367,7 @@ class OrientationFilter:
             ) -> OrientationFilter:
         """Filter a recording; results go to ``quat_``, ``bias_``, ``rest_``."""
         self.quat_, self.bias_, self.rest_ = orientation_filter(
-            gyr, acc, mag, frequency=self.frequency, params=self.params,
-            bidirectional=self.bidirectional)
+            gyr, acc, mag, frequency=self.frequency, params=self.params)
         return self
 
     def get_params(self) -> dict[str, float]:

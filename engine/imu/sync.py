@@ -1,0 +1,236 @@
+"""Synchronisation of IMU streams and the depth skeleton by vertical jumps (seed 002 §3.1).
+
+The subject performs a few (the paper: five) vertical jumps; every landing produces a large
+acceleration spike on every body-worn IMU at the same instant, and a sharp upward
+acceleration of the depth skeleton's torso. Spike times are detected per stream, matched
+in order, and each stream's clock offset is the median difference to the reference
+stream; the per-jump residuals show how well the streams agree after alignment.
+
+Offsets are *added* to a stream's own time stamps to express them on the reference clock.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.signal import find_peaks, savgol_filter
+
+from engine.errors import InputError, InsufficientDataError
+from engine.imu.io import ImuRecording
+from engine.skeleton import SkeletonSeries
+
+FloatArray = NDArray[np.float64]
+G = 9.80665
+
+
+@dataclass
+class SyncResult:
+    """Outcome of :func:`synchronize`.
+
+    Attributes:
+        reference: name of the stream whose clock the others are aligned to.
+        offsets: stream name -> seconds to add to its time stamps.
+        spike_times: stream name -> ``(n_jumps,)`` detected landing times (own clock).
+        residuals: stream name -> ``(n_jumps,)`` seconds left after alignment, per jump.
+        warnings: problems worth showing to the operator.
+    """
+
+    reference: str
+    offsets: dict[str, float]
+    spike_times: dict[str, FloatArray]
+    residuals: dict[str, FloatArray]
+    warnings: list[str] = field(default_factory=list)
+
+    def max_residual(self) -> float:
+        """Largest absolute per-jump residual over all streams (s)."""
+        return float(max((np.max(np.abs(r)) for r in self.residuals.values()), default=0.0))
+
+
+def _refine_peak(y: FloatArray, i: int) -> float:
+    """Sub-sample peak position by a parabola through the three samples around ``i``."""
+    if 0 < i < len(y) - 1:
+        a, b, c = y[i - 1], y[i], y[i + 1]
+        den = a - 2.0 * b + c
+        if den < 0:
+            return i + 0.5 * (a - c) / den
+    return float(i)
+
+
+def detect_spikes(
+    times: ArrayLike,
+    signal: ArrayLike,
+    n_jumps: int = 5,
+    min_interval: float = 0.4,
+    max_span: float | None = None,
+    min_height: float | None = None,
+) -> FloatArray:
+    """Times of the ``n_jumps`` landing spikes in an acceleration-like signal.
+
+    Among all peaks at least ``min_interval`` apart, the run of ``n_jumps`` consecutive
+    peaks with the largest summed height whose time span is at most ``max_span`` is chosen
+    (jumps come in one series; isolated impacts elsewhere in the recording are ignored).
+
+    Args:
+        times: ``(T,)`` s, increasing.
+        signal: ``(T,)`` e.g. acceleration norm (IMU) or torso vertical acceleration.
+        n_jumps: number of jumps performed.
+        min_interval: minimum time between two landings, s.
+        max_span: longest allowed duration of the jump series, s (default ``2.5 s`` per
+            jump).
+        min_height: peaks below this are ignored (default: the signal's median plus half
+            its range).
+
+    Returns:
+        ``(n_jumps,)`` spike times, s, increasing (sub-sample precision).
+
+    Raises:
+        InsufficientDataError: fewer than ``n_jumps`` spikes found.
+    """
+    t = np.asarray(times, dtype=float)
+    y = np.asarray(signal, dtype=float)
+    if t.shape != y.shape or t.ndim != 1:
+        raise InputError(f"times and signal must be equal 1-D arrays, got {t.shape}, {y.shape}")
+    ok = np.isfinite(y)
+    if ok.sum() < 3:
+        raise InsufficientDataError("signal has fewer than three finite samples")
+    y = np.interp(t, t[ok], y[ok])
+    dt = float(np.median(np.diff(t)))
+    if min_height is None:
+        med = float(np.median(y))
+        min_height = med + 0.5 * (float(np.max(y)) - med)
+    dist = max(1, round(min_interval / dt))
+    peaks, props = find_peaks(y, height=min_height, distance=dist)
+    if len(peaks) < n_jumps:
+        raise InsufficientDataError(
+            f"found {len(peaks)} landing spike(s), need {n_jumps}; check that the recording "
+            "contains the jump series and covers it completely")
+    span = 2.5 * n_jumps if max_span is None else max_span
+    heights = props["peak_heights"]
+    best, best_score = -1, -np.inf
+    for k in range(len(peaks) - n_jumps + 1):
+        if t[peaks[k + n_jumps - 1]] - t[peaks[k]] > span:
+            continue
+        score = float(np.sum(heights[k:k + n_jumps]))
+        if score > best_score:
+            best, best_score = k, score
+    if best < 0:
+        raise InsufficientDataError(
+            f"no series of {n_jumps} landing spikes within {span:.1f} s")
+    sel = peaks[best:best + n_jumps]
+    return np.interp([_refine_peak(y, int(i)) for i in sel], np.arange(len(t)), t)
+
+
+def imu_jump_spikes(rec: ImuRecording, n_jumps: int = 5, min_interval: float = 0.4) -> FloatArray:
+    """Landing-spike times (own clock) of one IMU: peaks of the acceleration norm.
+
+    The norm does not depend on how the sensor is mounted or oriented.
+    """
+    norm = np.linalg.norm(rec.acc, axis=1)
+    return detect_spikes(rec.time, norm, n_jumps, min_interval, min_height=1.5 * G)
+
+
+def torso_vertical_acceleration(
+    skeleton: SkeletonSeries,
+    up: ArrayLike = (0.0, 0.0, 1.0),
+    window: float = 0.2,
+) -> tuple[FloatArray, FloatArray]:
+    """Vertical acceleration of the torso (mean of spine-mid and pelvis joints).
+
+    The torso height is resampled to the median frame rate and differentiated twice with a
+    Savitzky-Golay filter (cubic, ``window`` seconds), which smooths depth-sensor noise.
+
+    Returns:
+        ``(times, acc)``: uniform time grid (s) and vertical acceleration (m/s²).
+
+    Raises:
+        InsufficientDataError: too few frames with a tracked torso.
+    """
+    js = skeleton.joint_set
+    u = np.asarray(up, dtype=float)
+    u = u / np.linalg.norm(u)
+    idx = [js.role_index("spine_mid"), js.role_index("pelvis")]
+    p = skeleton.tracked_positions()[:, idx, :]
+    h = np.nanmean(p @ u, axis=1) if np.isfinite(p).any() else np.full(len(p), np.nan)
+    ok = np.isfinite(h)
+    if ok.sum() < 8:
+        raise InsufficientDataError("the depth skeleton has fewer than 8 frames with a torso")
+    t = skeleton.times
+    dt = float(np.median(np.diff(t)))
+    grid = np.arange(t[ok][0], t[ok][-1] + 0.5 * dt, dt)
+    hz = np.interp(grid, t[ok], h[ok])
+    win = max(5, round(window / dt) | 1)
+    if win > len(grid):
+        raise InsufficientDataError("skeleton recording is shorter than the smoothing window")
+    acc = savgol_filter(hz, win, 3, deriv=2, delta=dt)
+    return grid, acc
+
+
+def skeleton_jump_spikes(
+    skeleton: SkeletonSeries, n_jumps: int = 5, up: ArrayLike = (0.0, 0.0, 1.0),
+    min_interval: float = 0.4,
+) -> FloatArray:
+    """Landing times (skeleton clock): peaks of the torso's upward acceleration."""
+    t, a = torso_vertical_acceleration(skeleton, up)
+    return detect_spikes(t, a, n_jumps, min_interval, min_height=0.5 * G)
+
+
+def synchronize(
+    imus: Mapping[str, ImuRecording],
+    skeleton: SkeletonSeries | None = None,
+    n_jumps: int = 5,
+    reference: str | None = None,
+    up: ArrayLike = (0.0, 0.0, 1.0),
+) -> SyncResult:
+    """Align IMU streams (and a depth skeleton) by the jump series.
+
+    Args:
+        imus: name -> recording.
+        skeleton: the depth skeleton (its stream is named ``"skeleton"``), or ``None``.
+        n_jumps: number of jumps performed.
+        reference: stream whose clock is kept; default the skeleton if given, else the
+            first IMU.
+        up: the skeleton world frame's up direction.
+
+    Raises:
+        InputError: no streams or an unknown reference.
+        InsufficientDataError: the jump series is not found in some stream.
+    """
+    spikes: dict[str, FloatArray] = {}
+    for name, rec in imus.items():
+        try:
+            spikes[name] = imu_jump_spikes(rec, n_jumps)
+        except InsufficientDataError as e:
+            raise InsufficientDataError(f"IMU {name!r}: {e}") from None
+    if skeleton is not None:
+        try:
+            spikes["skeleton"] = skeleton_jump_spikes(skeleton, n_jumps, up)
+        except InsufficientDataError as e:
+            raise InsufficientDataError(f"depth skeleton: {e}") from None
+    if not spikes:
+        raise InputError("nothing to synchronise: give at least one IMU recording")
+    ref = reference or ("skeleton" if skeleton is not None else next(iter(spikes)))
+    if ref not in spikes:
+        raise InputError(f"unknown reference stream {ref!r}; have {sorted(spikes)}")
+    offsets: dict[str, float] = {}
+    residuals: dict[str, FloatArray] = {}
+    warnings: list[str] = []
+    for name, s in spikes.items():
+        d = spikes[ref] - s
+        offsets[name] = float(np.median(d))
+        residuals[name] = d - offsets[name]
+        if np.max(np.abs(residuals[name])) > 0.1:
+            warnings.append(f"{name}: jumps disagree by up to "
+                            f"{np.max(np.abs(residuals[name])) * 1e3:.0f} ms after alignment; "
+                            "check the clock drift or the detected spikes")
+    return SyncResult(ref, offsets, spikes, residuals, warnings)
+
+
+def shift_recording(rec: ImuRecording, offset: float) -> ImuRecording:
+    """A copy of ``rec`` with ``offset`` seconds added to its time stamps."""
+    return ImuRecording(time=rec.time + offset, gyr=rec.gyr, acc=rec.acc, mag=rec.mag,
+                        frequency=rec.frequency, name=rec.name, quat_ref=rec.quat_ref,
+                        movement=rec.movement, meta={**rec.meta, "time_offset_s": offset},
+                        warnings=list(rec.warnings))
