@@ -1,0 +1,74 @@
+"""Shared FastAPI dependencies as ``Annotated`` aliases.
+
+Use them in a route's signature::
+
+    @router.get("/things")
+    def things(user: CurrentUser, hub: HubDep, settings: SettingsDep) -> list[Thing]: ...
+
+``CurrentUser`` makes a route require a login (bearer token or the console's session
+cookie); every ``/api`` router except login is mounted with it (see
+:func:`app.main.create_app`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Annotated, Any
+
+from fastapi import Depends, HTTPException, Request, status
+from sqlalchemy.orm import Session
+
+from app.api.security import user_for_token
+from app.config import Settings
+from app.db.models import User
+from app.server.hub import Hub
+
+SESSION_COOKIE = "gaitrig_session"
+
+
+def get_app_settings(request: Request) -> Settings:
+    """The settings the app was created with."""
+    settings: Settings = request.app.state.settings
+    return settings
+
+
+def get_hub(request: Request) -> Hub:
+    """The node hub (registry + recordings)."""
+    hub: Hub = request.app.state.hub
+    return hub
+
+
+def get_db(request: Request) -> Iterator[Session]:
+    """A database session for one request."""
+    factory: Any = request.app.state.db_sessions
+    with factory() as db:
+        yield db
+
+
+SettingsDep = Annotated[Settings, Depends(get_app_settings)]
+HubDep = Annotated[Hub, Depends(get_hub)]
+DbDep = Annotated[Session, Depends(get_db)]
+
+
+def request_token(request: Request) -> str | None:
+    """Bearer token from the Authorization header, else the session cookie."""
+    auth = request.headers.get("authorization", "")
+    if auth.lower().startswith("bearer "):
+        return auth[7:].strip() or None
+    return request.cookies.get(SESSION_COOKIE)
+
+
+def get_current_user(request: Request, db: DbDep) -> User:
+    """The logged-in user, or HTTP 401 saying how to log in."""
+    token = request_token(request)
+    user = user_for_token(db, token) if token else None
+    if user is None:
+        raise HTTPException(
+            status.HTTP_401_UNAUTHORIZED,
+            detail="not logged in: POST /api/auth/login with your username and password",
+            headers={"WWW-Authenticate": "Bearer"},
+        )
+    return user
+
+
+CurrentUser = Annotated[User, Depends(get_current_user)]

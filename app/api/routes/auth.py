@@ -1,0 +1,56 @@
+"""Console login: ``POST /api/auth/login``, ``POST /api/auth/logout``, ``GET /api/auth/me``."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from fastapi import APIRouter, HTTPException, Request, Response, status
+from pydantic import BaseModel, Field
+
+from app.api import security
+from app.api.deps import SESSION_COOKIE, CurrentUser, DbDep, SettingsDep, request_token
+
+router = APIRouter(prefix="/auth", tags=["auth"])
+
+
+class LoginIn(BaseModel):
+    username: str = Field(min_length=1, max_length=64)
+    password: str = Field(min_length=1, max_length=256)
+
+
+class LoginOut(BaseModel):
+    token: str
+    expires_at: datetime
+    username: str
+
+
+class UserOut(BaseModel):
+    username: str
+    is_admin: bool
+
+
+@router.post("/login", response_model=LoginOut)
+def login(body: LoginIn, response: Response, db: DbDep, settings: SettingsDep) -> LoginOut:
+    """Log in; returns a bearer token and sets the console's session cookie."""
+    got = security.login(db, body.username, body.password, settings.session_hours)
+    if got is None:
+        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "wrong username or password")
+    token, expires = got
+    response.set_cookie(SESSION_COOKIE, token, httponly=True, samesite="strict",
+                        max_age=int(settings.session_hours * 3600))
+    return LoginOut(token=token, expires_at=expires, username=body.username)
+
+
+@router.post("/logout", status_code=204)
+def logout(request: Request, response: Response, user: CurrentUser, db: DbDep) -> None:
+    """End this login."""
+    token = request_token(request)
+    if token:
+        security.logout(db, token)
+    response.delete_cookie(SESSION_COOKIE)
+
+
+@router.get("/me", response_model=UserOut)
+def me(user: CurrentUser) -> UserOut:
+    """Who is logged in."""
+    return UserOut(username=user.username, is_admin=user.is_admin)

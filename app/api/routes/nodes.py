@@ -1,0 +1,111 @@
+"""Sensor nodes: health, latest skeleton, live images.
+
+``GET /api/nodes`` → list of health records (``id``, ``connected``, ``fps``,
+``dropped_frames``, ``clock_offset_ms``, ``clock_uncertainty_ms``, ``clock_drift_ppm``,
+``disk_free_bytes``, ``warnings`` in plain words, ...).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from fastapi import APIRouter, HTTPException, Response, status
+from pydantic import BaseModel, Field
+
+from app.api.deps import CurrentUser, HubDep
+from app.nodes.protocol import Subscribe, dump
+from app.server.registry import NodeSession
+
+router = APIRouter(prefix="/nodes", tags=["nodes"])
+
+
+class NodeHealth(BaseModel):
+    """Health of one node (times in server seconds since the epoch)."""
+
+    id: str
+    connected: bool
+    backend: str
+    model: str
+    fps: float
+    frames: int
+    dropped_frames: int
+    clock_offset_ms: float | None
+    clock_uncertainty_ms: float | None
+    clock_drift_ppm: float | None
+    clock_rtt_ms: float | None
+    clock_at: float
+    clock_warning: bool
+    disk_free_bytes: int | None
+    ring_seconds: float | None
+    connected_at: float | None
+    last_seen: float | None
+    rejected_messages: int
+    last_rejection: str | None
+    warnings: list[str]
+    diag: dict[str, float] = Field(default_factory=dict)
+
+
+class SubscribeIn(BaseModel):
+    streams: list[Literal["depth", "color", "body_index"]]
+    fps: float = Field(2.0, ge=0, le=30)
+    scale: float = Field(0.5, gt=0, le=1)
+    format: Literal["jpeg", "png"] = "jpeg"
+
+
+def _node(hub: Any, node_id: str) -> NodeSession:
+    s = hub.registry.get(node_id)
+    if s is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"no node {node_id!r}; GET /api/nodes lists the known nodes")
+    return s
+
+
+@router.get("", response_model=list[NodeHealth])
+def list_nodes(user: CurrentUser, hub: HubDep) -> list[dict[str, Any]]:
+    """Every node seen since the server started, with its health."""
+    return [hub.registry.health(s) for s in sorted(hub.registry.nodes.values(),
+                                                   key=lambda s: s.id)]
+
+
+@router.get("/{node_id}", response_model=NodeHealth)
+def get_node(node_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+    """Health of one node."""
+    return hub.registry.health(_node(hub, node_id))
+
+
+@router.get("/{node_id}/sensor")
+def get_sensor(node_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+    """What the node reported about its sensor (sizes, intrinsics, known pose)."""
+    return _node(hub, node_id).sensor.model_dump()
+
+
+@router.get("/{node_id}/skeleton")
+def get_skeleton(node_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+    """Newest skeleton frame (sensor frame, metres; ``t`` in server time)."""
+    sk = _node(hub, node_id).skeleton
+    if sk is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"node {node_id} sent no skeleton yet")
+    return {"seq": sk.seq, "t": sk.t_server, "t_local": sk.t_local, "body_ids": sk.body_ids,
+            "positions": sk.positions.tolist(), "states": sk.states.tolist()}
+
+
+@router.post("/{node_id}/subscribe", status_code=202)
+async def subscribe(node_id: str, body: SubscribeIn, user: CurrentUser, hub: HubDep) -> None:
+    """Ask a node to stream images at ``fps`` (0 stops); read them from ``/images/{stream}``."""
+    s = _node(hub, node_id)
+    if s.send is None:
+        raise HTTPException(status.HTTP_409_CONFLICT, f"node {node_id} is offline")
+    await s.send(dump(Subscribe(**body.model_dump())))
+
+
+@router.get("/{node_id}/images/{stream}")
+def get_image(node_id: str, stream: Literal["depth", "color", "body_index"], user: CurrentUser,
+              hub: HubDep) -> Response:
+    """Newest image of a subscribed stream (JPEG or PNG)."""
+    img = _node(hub, node_id).images.get(stream)
+    if img is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"no {stream} image from {node_id}; subscribe first")
+    media = "image/jpeg" if img.format == "jpeg" else "image/png"
+    return Response(img.data, media_type=media,
+                    headers={"X-Gaitrig-Time": repr(img.t_server), "Cache-Control": "no-store"})

@@ -1,0 +1,101 @@
+"""Application settings: one pydantic-settings class, environment prefix ``GAITRIG_``.
+
+Every knob of the server and of the node agents lives here so that ``gaitrig serve``,
+``gaitrig node``, ``gaitrig demo`` and ``docker-compose.yml`` stay consistent: the CLI
+flags only override these fields.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Server and node configuration (override any field with ``GAITRIG_<FIELD>``)."""
+
+    model_config = SettingsConfigDict(env_prefix="GAITRIG_", extra="ignore")
+
+    data_dir: Path = Field(
+        default=Path("./var"),
+        description="Server data folder (database, recordings).",
+    )
+    host: str = Field(default="127.0.0.1", description="Interface the API server listens on.")
+    port: int = Field(
+        default=8000, ge=0, le=65535,
+        description="API / console / node websocket port.",
+    )
+    viewer_enabled: bool = Field(
+        default=True,
+        description="Start the viser 3D view in the lifespan.",
+    )
+    viewer_host: str = Field(default="127.0.0.1", description="Interface of the viser server.")
+    viewer_port: int = Field(default=8081, ge=0, le=65535, description="Port of the viser 3D view.")
+    public_host: str | None = Field(
+        default=None,
+        description="Host name browsers use to reach the server (links to the 3D view)."
+    )
+
+    node_token: str = Field(
+        default="change-me-node-token", min_length=8,
+        description="Pairing token every node must present."
+    )
+    admin_user: str = Field(
+        default="admin", min_length=1,
+        description="Admin account created on first run.",
+    )
+    admin_password: str | None = Field(
+        default=None, description="First-run admin password; generated and printed when unset."
+    )
+    session_hours: float = Field(default=12.0, gt=0, description="Lifetime of a console login.")
+
+    max_control_bytes: int = Field(
+        default=64 * 1024, gt=0, description="Largest accepted JSON control message from a node."
+    )
+    max_binary_bytes: int = Field(
+        default=16 * 1024 * 1024, gt=0,
+        description="Largest accepted binary (frame) message from a node."
+    )
+    ws_transport_max_bytes: int = Field(
+        default=64 * 1024 * 1024,
+        gt=0,
+        description="Hard websocket frame limit; above it the connection is closed (1009).",
+    )
+
+    clock_warn_ms: float = Field(
+        default=2.0, gt=0,
+        description="Warn when the clock uncertainty exceeds this.",
+    )
+    clock_ping_interval_s: float = Field(
+        default=0.1, gt=0,
+        description="Clock ping period per node.",
+    )
+    clock_window_s: float = Field(default=30.0, gt=1, description="Window of the clock drift fit.")
+    record_start_margin_s: float = Field(
+        default=0.3, ge=0, description="Recording starts this far after the command is issued."
+    )
+    health_stale_s: float = Field(
+        default=3.0, gt=0,
+        description="A node silent this long is marked stale.",
+    )
+
+    test_command_delay_max_s: float = Field(
+        default=0.0,
+        ge=0,
+        le=1.9,
+        description="TEST HOOK: delay every start/stop command by a random 0..this per node.",
+    )
+
+    @property
+    def db_path(self) -> Path:
+        """SQLite database file."""
+        return self.data_dir / "gaitrig.sqlite3"
+
+
+@lru_cache(maxsize=1)
+def get_settings() -> Settings:
+    """Settings read once from the environment (FastAPI dependency)."""
+    return Settings()

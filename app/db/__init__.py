@@ -1,0 +1,1 @@
+"""Database: SQLAlchemy 2 models and session factory (SQLite by default)."""

@@ -1,0 +1,126 @@
+"""FastAPI application factory.
+
+``create_app(settings)`` wires everything: the database (first-run admin account), the
+node hub with its websocket endpoint ``/ws/node``, the REST routers under ``/api`` (all but
+login require a login), the static console at ``/``, and — in the lifespan — the viser 3D
+view on its own port. To add a resource: write ``app/api/routes/<name>.py`` with an
+``APIRouter`` and add it to :data:`ROUTERS`; to add a console page drop an HTML file into
+``static/``; to add a 3D panel write a ``populate_*`` function in :mod:`app.viewer`.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+import numpy as np
+from fastapi import APIRouter, FastAPI, Request, WebSocket
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse, RedirectResponse
+from fastapi.staticfiles import StaticFiles
+
+from app.api.routes import auth, nodes, recordings, system
+from app.api.security import ensure_admin
+from app.config import Settings, get_settings
+from app.db.base import make_engine, make_session_factory
+from app.server.hub import Hub
+from app.server.registry import NodeSession
+from app.viewer.scene import SensorView
+from engine.errors import GaitrigError
+
+log = logging.getLogger("gaitrig.server")
+
+STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
+
+#: Routers mounted under ``/api`` (each declares its own prefix and requires a login).
+ROUTERS: list[APIRouter] = [nodes.router, recordings.router, system.router]
+
+
+def _sensor_views(hub: Hub) -> list[SensorView]:
+    views = []
+    for s in sorted(hub.registry.nodes.values(), key=lambda s: s.id):
+        if s.sensor.T_world_sensor is not None:
+            views.append(SensorView(s.id, np.asarray(s.sensor.T_world_sensor), s.sensor.fov_deg,
+                                    s.connected))
+    return views
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the server app (nothing starts until the ASGI server runs the lifespan)."""
+    settings = settings or get_settings()
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        engine = make_engine(settings.db_path)
+        app.state.db_sessions = make_session_factory(engine)
+        with app.state.db_sessions() as db:
+            generated = ensure_admin(db, settings.admin_user, settings.admin_password)
+        if generated:
+            print(f"gaitrig: created console account {settings.admin_user!r} with password "
+                  f"{generated!r} (change it after logging in)", file=sys.stderr, flush=True)
+        hub = app.state.hub
+        viewer = None
+        if settings.viewer_enabled:
+            from app.viewer.scene import Viewer, populate_sensors
+
+            viewer = Viewer(settings.viewer_host, settings.viewer_port)
+
+            def redraw(_s: NodeSession) -> None:
+                try:
+                    populate_sensors(viewer.server, _sensor_views(hub))
+                except Exception:  # the 3D view must never take the node link down
+                    log.exception("could not update the 3D view")
+
+            hub.registry.listeners.append(redraw)
+        app.state.viewer = viewer
+        try:
+            yield
+        finally:
+            await hub.close()
+            if viewer is not None:
+                viewer.stop()
+            engine.dispose()
+
+    app = FastAPI(
+        title="gaitrig",
+        summary="Multi-depth-camera motion capture and gait lab",
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    app.state.hub = Hub(settings)
+    app.state.viewer = None
+
+    api = APIRouter(prefix="/api")
+    api.include_router(auth.router)
+    for r in ROUTERS:
+        api.include_router(r)
+    app.include_router(api)
+
+    @app.websocket("/ws/node")
+    async def node_socket(ws: WebSocket) -> None:
+        await app.state.hub.handle_node(ws)
+
+    @app.get("/healthz", include_in_schema=False)
+    def healthz() -> dict[str, str]:
+        return {"status": "ok"}
+
+    @app.exception_handler(GaitrigError)
+    async def gaitrig_error(_req: Request, exc: GaitrigError) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=400)
+
+    @app.exception_handler(RequestValidationError)
+    async def validation_error(_req: Request, exc: RequestValidationError) -> JSONResponse:
+        msgs = [f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors()]
+        return JSONResponse({"detail": "; ".join(msgs)}, status_code=422)
+
+    @app.get("/", include_in_schema=False)
+    def root() -> RedirectResponse:
+        return RedirectResponse("/rig.html")
+
+    if STATIC_DIR.is_dir():
+        app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
+    return app

@@ -1,0 +1,435 @@
+"""The node agent: one process per depth sensor (``gaitrig node``).
+
+It connects to the server's ``/ws/node`` websocket, authenticates with the pairing token,
+answers clock pings at once, streams every skeleton frame, sends images when subscribed
+or asked for a snapshot, keeps a 2 s ring buffer and records to its local store between
+the server's start and stop times. When the server goes away it keeps capturing (and
+recording, if a recording runs) and reconnects with exponential backoff.
+
+Threads: the backend's blocking frame iterator runs in a capture thread that hands frames
+to the asyncio loop; image rendering/encoding runs in a worker thread. The loop itself
+only does cheap work so pings are answered within a fraction of a millisecond — the
+clock estimate depends on it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from websockets.asyncio.client import ClientConnection, connect
+from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+
+from app.nodes.backends.base import Backend, Frame
+from app.nodes.protocol import (
+    Hello,
+    NodeError,
+    Ping,
+    Pong,
+    ProtocolError,
+    RecStart,
+    RecState,
+    RecStop,
+    Refused,
+    SensorInfo,
+    ServerError,
+    Snapshot,
+    Status,
+    Subscribe,
+    Welcome,
+    dump,
+    encode_binary,
+    encode_skeletons,
+    parse_server_message,
+)
+from app.nodes.ringbuffer import RingBuffer
+from app.nodes.store import NodeStore, PartWriter
+
+log = logging.getLogger("gaitrig.node")
+
+
+class NodeRefusedError(RuntimeError):
+    """The server refused this node (wrong token, bad id, version); retrying won't help."""
+
+
+def encode_image(stream: str, img: np.ndarray, scale: float, fmt: str) -> tuple[bytes, str]:
+    """Downscale and compress one image; returns ``(bytes, format)``.
+
+    Depth and body index are resized with nearest neighbour (no invented depths); depth
+    stays 16-bit PNG when PNG is asked for, and becomes a false-colour JPEG preview
+    otherwise (JPEG has no 16-bit mode).
+    """
+    if scale != 1.0:
+        h, w = img.shape[:2]
+        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+        interp = cv2.INTER_AREA if stream == "color" else cv2.INTER_NEAREST
+        img = cv2.resize(img, size, interpolation=interp)
+    if stream == "color" and img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    if fmt == "jpeg":
+        if img.dtype == np.uint16:
+            img = cv2.applyColorMap(
+                np.clip(img / 4500.0 * 255.0, 0, 255).astype(np.uint8), cv2.COLORMAP_TURBO
+            )
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 80])
+    else:
+        ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise ProtocolError(f"could not encode the {stream} image as {fmt}")
+    return buf.tobytes(), fmt
+
+
+@dataclass
+class _Rec:
+    cmd: RecStart
+    writer: PartWriter
+    t_stop_local: float = float("inf")
+    stop_cmd: RecStop | None = None
+    n_seen: int = 0
+    pending_images: list[Any] = field(default_factory=list)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+class NodeAgent:
+    """A sensor node.
+
+    Args:
+        node_id: sensor id (``S1`` ...), unique in the rig.
+        backend: the sensor.
+        server_url: ``ws://host:port/ws/node``.
+        token: pairing token.
+        data_dir: node folder; recordings go to ``data_dir/recordings``.
+        ring_seconds: ring buffer length.
+        report_true_clock: send the backend's test-only truths in ``status.diag``.
+    """
+
+    def __init__(
+        self,
+        node_id: str,
+        backend: Backend,
+        server_url: str,
+        token: str,
+        data_dir: Path | str,
+        *,
+        ring_seconds: float = 2.0,
+        report_true_clock: bool = False,
+    ) -> None:
+        self.node_id = node_id
+        self.backend = backend
+        self.server_url = server_url
+        self.token = token
+        self.store = NodeStore(Path(data_dir) / "recordings")
+        self.ring: RingBuffer[Frame] = RingBuffer(ring_seconds)
+        self.report_true_clock = report_true_clock
+        self.started = 0.0
+        self.info: SensorInfo | None = None
+        self.seq = 0
+        self.frames_total = 0
+        self.dropped = 0
+        self._frame_times: deque[float] = deque(maxlen=120)
+        self._recs: dict[str, _Rec] = {}
+        self._ws: ClientConnection | None = None
+        self._out: asyncio.Queue[str | bytes] = asyncio.Queue(maxsize=256)
+        self._stop = asyncio.Event()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="images")
+        self._sub: Subscribe | None = None
+        self._sub_last = 0.0
+        self._sub_busy = False
+        self._submitted = 0  # written by the capture thread only
+        self._handled = 0  # written by the loop only
+
+    # ------------------------------------------------------------------ lifecycle
+
+    async def run(self) -> None:
+        """Open the sensor, then capture, stream and record until :meth:`stop`."""
+        self._loop = asyncio.get_running_loop()
+        recovered = self.store.recover()
+        for p in recovered:
+            log.warning("recovered recording %s after a crash: %d frames kept", p.rec_id,
+                        p.n_frames)
+        self.info = await asyncio.to_thread(self.backend.open)
+        self.started = self.backend.now()
+        capture = threading.Thread(target=self._capture, name="capture", daemon=True)
+        capture.start()
+        try:
+            await self._connect_forever()
+        finally:
+            self.backend.close()
+            await asyncio.to_thread(capture.join, 5.0)
+            for rec in list(self._recs.values()):
+                self._finish(rec, "incomplete", "node shut down during the recording")
+            self._pool.shutdown(wait=True)
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to finish (thread-safe)."""
+        if self._loop is not None:
+            self._loop.call_soon_threadsafe(self._stop.set)
+
+    def _capture(self) -> None:
+        assert self._loop is not None
+        try:
+            for frame in self.backend.frames():
+                if self._stop.is_set():
+                    break
+                if self._submitted - self._handled > 30:
+                    # The loop is >1 s behind: drop rather than grow without bound.
+                    self.dropped += 1
+                    continue
+                self._submitted += 1
+                self._loop.call_soon_threadsafe(self._on_frame, frame)
+        except Exception:
+            log.exception("sensor backend failed")
+            self._loop.call_soon_threadsafe(self._stop.set)
+
+    async def _connect_forever(self) -> None:
+        backoff = 0.2
+        while not self._stop.is_set():
+            try:
+                async with connect(self.server_url, max_size=None, open_timeout=5,
+                                   ping_interval=5, ping_timeout=10) as ws:
+                    backoff = 0.2
+                    await self._session(ws)
+            except NodeRefusedError:
+                raise
+            except (OSError, ConnectionClosed, InvalidHandshake, TimeoutError) as exc:
+                log.info("server unreachable (%s); retrying in %.1f s", exc, backoff)
+            except InvalidURI as exc:
+                raise NodeRefusedError(f"bad server address {self.server_url!r}: {exc}") from exc
+            finally:
+                self._ws = None
+            if self._stop.is_set():
+                break
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._stop.wait(), backoff)
+            backoff = min(backoff * 2.0, 5.0)
+
+    async def _session(self, ws: ClientConnection) -> None:
+        assert self.info is not None
+        parts = self.store.parts()[-200:]
+        await ws.send(dump(Hello(node_id=self.node_id, token=self.token,
+                                 backend=self.backend.name, sensor=self.info, parts=parts,
+                                 agent_started=self.started)))
+        first = await asyncio.wait_for(ws.recv(), 10)
+        msg = parse_server_message(first)
+        if isinstance(msg, Refused):
+            raise NodeRefusedError(f"server refused node {self.node_id}: {msg.reason}")
+        if not isinstance(msg, Welcome):
+            raise ProtocolError(f"expected welcome, got {msg.type}")
+        log.info("connected to %s", self.server_url)
+        self._ws = ws
+        while not self._out.empty():  # stale frames from before the reconnect
+            self._out.get_nowait()
+        sender = asyncio.create_task(self._sender(ws))
+        status = asyncio.create_task(self._status_loop(ws))
+        stopper = asyncio.create_task(self._stop.wait())
+        receiver = asyncio.create_task(self._receiver(ws))
+        try:
+            done, _ = await asyncio.wait({sender, status, stopper, receiver},
+                                         return_when=asyncio.FIRST_COMPLETED)
+            for t in done:
+                if t is not stopper and t.exception() is not None:
+                    raise t.exception()  # type: ignore[misc]
+        finally:
+            for t in (sender, status, stopper, receiver):
+                t.cancel()
+            self._sub = None
+
+    # ------------------------------------------------------------------ receive
+
+    async def _receiver(self, ws: ClientConnection) -> None:
+        async for raw in ws:
+            t2 = self.backend.now()
+            if isinstance(raw, bytes):
+                await ws.send(dump(NodeError(reason="the server sends no binary messages")))
+                continue
+            try:
+                msg = parse_server_message(raw)
+            except ProtocolError as exc:
+                log.warning("rejected server message: %s", exc)
+                await ws.send(dump(NodeError(reason=str(exc))))
+                continue
+            if isinstance(msg, Ping):
+                t3 = self.backend.now()
+                await ws.send(dump(Pong(seq=msg.seq, t1=msg.t1, t2=t2, t3=t3)))
+            elif isinstance(msg, RecStart | RecStop):
+                self._on_command(msg)
+            elif isinstance(msg, Subscribe):
+                self._sub = msg if msg.fps > 0 and msg.streams else None
+            elif isinstance(msg, Snapshot):
+                latest = self.ring.latest()
+                if latest is not None:
+                    self._pool.submit(self._send_images, latest[1], msg.streams, msg.scale,
+                                      msg.format, {"req_id": msg.req_id})
+            elif isinstance(msg, ServerError):
+                log.warning("server reported: %s", msg.reason)
+            elif isinstance(msg, Refused):
+                raise NodeRefusedError(msg.reason)
+
+    # ------------------------------------------------------------------ frames
+
+    def _send_now(self, data: str | bytes) -> bool:
+        if self._ws is None:
+            return False
+        try:
+            self._out.put_nowait(data)
+            return True
+        except asyncio.QueueFull:
+            return False
+
+    async def _sender(self, ws: ClientConnection) -> None:
+        while True:
+            data = await self._out.get()
+            await ws.send(data)
+
+    def _on_frame(self, frame: Frame) -> None:
+        self._handled += 1
+        self.seq += 1
+        self.frames_total += 1
+        self._frame_times.append(frame.t_local)
+        try:
+            self.ring.push(frame.t_local, frame)
+        except ValueError:
+            log.warning("frame time went backwards; frame dropped")
+            self.dropped += 1
+            return
+        msg = encode_skeletons(self.seq, frame.t_local, frame.positions, frame.states,
+                               frame.body_ids)
+        if self._ws is not None and not self._send_now(msg):
+            self.dropped += 1
+        for rec in list(self._recs.values()):
+            self._record_frame(rec, frame, msg)
+        sub = self._sub
+        if (sub is not None and not self._sub_busy
+                and frame.t_local - self._sub_last >= 1.0 / sub.fps):
+            self._sub_last = frame.t_local
+            self._sub_busy = True
+            self._pool.submit(self._send_images, frame, sub.streams, sub.scale, sub.format, {})
+
+    def _send_images(self, frame: Frame, streams: Sequence[str], scale: float, fmt: str,
+                     extra: dict[str, Any]) -> None:
+        try:
+            imgs = frame.images(streams)
+            for name, img in imgs.items():
+                data, f = encode_image(name, img, scale, fmt)
+                h, w = img.shape[:2]
+                header = {"kind": "image", "stream": name, "t": frame.t_local, "format": f,
+                          "width": w, "height": h, "scale": scale, **extra}
+                msg = encode_binary(header, data)
+                if self._loop is not None:
+                    self._loop.call_soon_threadsafe(self._send_now, msg)
+        except Exception:
+            log.exception("could not produce images")
+        finally:
+            self._sub_busy = False
+
+    # ------------------------------------------------------------------ recording
+
+    def _on_command(self, msg: RecStart | RecStop) -> None:
+        if isinstance(msg, RecStart):
+            if msg.rec_id in self._recs or any(p.rec_id == msg.rec_id for p in self.store.parts()):
+                return  # duplicate (resent after a reconnect)
+            try:
+                writer = self.store.create_part(
+                    msg.rec_id, node_id=self.node_id, t_start_local=msg.t_start_local,
+                    t_start_server=msg.t_start_server, streams=list(msg.streams),
+                    image_every=msg.image_every, clock_start=msg.clock,
+                )
+            except Exception as exc:
+                log.exception("cannot create recording %s", msg.rec_id)
+                self._send_now(dump(NodeError(reason=f"cannot record {msg.rec_id}: {exc}")))
+                return
+            rec = _Rec(msg, writer)
+            self._recs[msg.rec_id] = rec
+            # The command may arrive after its start time: take the past from the ring.
+            for _t, fr in self.ring.since(msg.t_start_local):
+                self._record_frame(rec, fr, encode_skeletons(0, fr.t_local, fr.positions,
+                                                             fr.states, fr.body_ids))
+            if self.ring.oldest is not None and self.ring.oldest > msg.t_start_local:
+                log.warning("recording %s started %.2f s before the ring buffer's oldest frame",
+                            msg.rec_id, self.ring.oldest - msg.t_start_local)
+            self._send_now(dump(RecState(part=writer.info())))
+            log.info("recording %s from local %.3f", msg.rec_id, msg.t_start_local)
+        else:
+            rec_ = self._recs.get(msg.rec_id)
+            if rec_ is None:
+                return
+            rec_.stop_cmd = msg
+            rec_.t_stop_local = msg.t_stop_local
+            latest = self.ring.latest()
+            if latest is not None and latest[0] > msg.t_stop_local:
+                # Frames after the stop time were written while the command travelled.
+                with rec_.lock:
+                    rec_.writer.truncate_after(msg.t_stop_local)
+                self._finish(rec_, "on_node", None)
+
+    def _record_frame(self, rec: _Rec, frame: Frame, msg: bytes) -> None:
+        if frame.t_local < rec.cmd.t_start_local:
+            return
+        if frame.t_local > rec.t_stop_local:
+            self._finish(rec, "on_node", None)
+            return
+        with rec.lock:
+            rec.writer.append(frame.t_local, "skeleton", msg)
+        rec.n_seen += 1
+        if rec.cmd.streams and (rec.n_seen - 1) % rec.cmd.image_every == 0:
+            rec.pending_images.append(
+                self._pool.submit(self._record_images, rec, frame, rec.cmd.streams))
+
+    def _record_images(self, rec: _Rec, frame: Frame, streams: Sequence[str]) -> None:
+        imgs = frame.images(streams)
+        for name, img in imgs.items():
+            data, f = encode_image(name, img, 1.0, "png")
+            header = {"kind": "image", "stream": name, "t": frame.t_local, "format": f,
+                      "width": img.shape[1], "height": img.shape[0], "scale": 1.0}
+            with rec.lock:
+                if not rec.writer.closed:
+                    rec.writer.append(frame.t_local, "image", encode_binary(header, data))
+
+    def _finish(self, rec: _Rec, state: str, reason: str | None) -> None:
+        if rec.cmd.rec_id not in self._recs:
+            return
+        del self._recs[rec.cmd.rec_id]
+        for fut in rec.pending_images:
+            with contextlib.suppress(Exception):
+                fut.result(timeout=10)
+        with rec.lock:
+            info = rec.writer.close(
+                state, reason,
+                t_stop_local=rec.t_stop_local if rec.stop_cmd else None,
+                t_stop_server=rec.stop_cmd.t_stop_server if rec.stop_cmd else None,
+                clock_stop=rec.stop_cmd.clock if rec.stop_cmd else {},
+            )
+        log.info("recording %s %s: %d frames", info.rec_id, state, info.n_frames)
+        self._send_now(dump(RecState(part=info)))
+
+    # ------------------------------------------------------------------ status
+
+    def fps(self) -> float:
+        """Frame rate over the last ~4 s of frames."""
+        ts = self._frame_times
+        if len(ts) < 2 or ts[-1] <= ts[0]:
+            return 0.0
+        return (len(ts) - 1) / (ts[-1] - ts[0])
+
+    async def _status_loop(self, ws: ClientConnection) -> None:
+        while True:
+            diag = self.backend.diagnostics(time.time()) if self.report_true_clock else {}
+            free = await asyncio.to_thread(self.store.disk_free)
+            await ws.send(dump(Status(fps=self.fps(), frames=self.frames_total,
+                                      dropped=self.dropped, disk_free_bytes=free,
+                                      ring_seconds=self.ring.span, diag=diag)))
+            for rec in self._recs.values():
+                await ws.send(dump(RecState(part=rec.writer.info())))
+            await asyncio.sleep(1.0)

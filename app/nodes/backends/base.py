@@ -1,0 +1,76 @@
+"""The hardware-backend interface every node backend implements.
+
+A backend owns one depth sensor. The agent calls :meth:`Backend.open` once, then
+iterates :meth:`Backend.frames` in a worker thread (the iterator blocks until the sensor
+delivers the next frame, so it paces the stream at the sensor's own rate), and calls
+:meth:`Backend.close` on shutdown (from another thread: ``frames`` must then end).
+
+A :class:`Frame` always carries the skeletons; images are produced lazily by
+:meth:`Frame.images` because rendering or decoding them costs far more than tracking and
+is only needed while recording images or when the server subscribed to them.
+
+Conventions: ``t_local`` is the node's own clock in seconds (the server converts);
+depth is ``uint16`` millimetres, body index ``uint8`` (255 = no body), colour ``uint8``
+RGB; skeleton positions are metres in the sensor's (OpenCV) frame.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.nodes.protocol import SensorInfo
+
+ImageFn = Callable[[Sequence[str]], dict[str, NDArray[np.uint8] | NDArray[np.uint16]]]
+
+
+def _no_images(streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
+    return {}
+
+
+@dataclass
+class Frame:
+    """One capture of a sensor.
+
+    Attributes:
+        t_local: capture time on the node's clock (s).
+        positions: ``(B, J, 3)`` float32 joint positions, metres, sensor frame.
+        states: ``(B, J)`` uint8 :class:`engine.skeleton.TrackingState` values.
+        body_ids: ``B`` tracking ids.
+        images: ``images(streams)`` → ``{"depth"|"color"|"body_index": array}``.
+    """
+
+    t_local: float
+    positions: NDArray[np.float32]
+    states: NDArray[np.uint8]
+    body_ids: list[int] = field(default_factory=list)
+    images: ImageFn = _no_images
+
+
+class Backend(ABC):
+    """A depth sensor as seen by the node agent (see the module docstring)."""
+
+    name: str = "base"
+
+    @abstractmethod
+    def open(self) -> SensorInfo:
+        """Start the device; returns what the sensor is (sizes, intrinsics, rate)."""
+
+    @abstractmethod
+    def frames(self) -> Iterator[Frame]:
+        """Blocking iterator of frames at the sensor's rate; ends after :meth:`close`."""
+
+    @abstractmethod
+    def now(self) -> float:
+        """The node's local clock (same clock as ``Frame.t_local``)."""
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Stop the device (called from another thread; ``frames`` must end)."""
+
+    def diagnostics(self, t_host: float) -> dict[str, float]:
+        """Test-only truths (e.g. the simulator's true clock offset); empty for hardware."""
+        return {}

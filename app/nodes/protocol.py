@@ -1,0 +1,332 @@
+"""Wire protocol between node agents and the server (websocket, version 1).
+
+Two kinds of websocket messages:
+
+* **Control** — UTF-8 JSON text objects ``{"v": 1, "type": ..., ...}`` validated by the
+  pydantic models below (:data:`NodeMessage` node→server, :data:`ServerMessage`
+  server→node). Bounded by ``Settings.max_control_bytes``.
+* **Bulk** — binary messages: ``b"GRB" + version byte``, a little-endian ``uint32``
+  header length, a JSON header (``kind`` = ``skeleton`` | ``image``, ``seq``, ``t`` =
+  node-local capture time in seconds, ...) and a raw payload. Skeleton payloads are
+  ``float32 (B, J, 3)`` positions in metres in the sensor frame followed by ``uint8 (B, J)``
+  tracking states; image payloads are PNG/JPEG bytes. Bounded by
+  ``Settings.max_binary_bytes``.
+
+Time: every node timestamp on the wire is in the node's **local** clock. The server
+estimates each node's offset (``t_local - t_server``) from ``ping``/``pong`` four-timestamp
+exchanges and converts; recording commands carry both the server time and the server's
+conversion into the node's local time, so nodes never need to know the offset.
+
+Session: the node opens ``/ws/node`` and sends ``hello`` (id, token, protocol version,
+sensor description, parts it holds). The server answers ``welcome`` or ``refused`` (with a
+reason, then closes with code 4401/4400). Afterwards the server sends ``ping`` every
+~0.1 s, ``rec_start``/``rec_stop`` for synchronous recordings, ``subscribe`` for image
+streams at N fps, ``snapshot`` for a one-off image set; the node streams skeleton frames,
+``status`` once per second, ``rec_state`` when a recording part changes, and answers
+malformed input with ``error`` (never by closing).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+from engine.errors import InputError
+
+PROTOCOL_VERSION = 1
+BINARY_MAGIC = b"GRB" + bytes([PROTOCOL_VERSION])
+_HDR = struct.Struct("<4sI")
+MAX_BINARY_HEADER = 16 * 1024
+
+StreamName = Literal["depth", "color", "body_index"]
+PartState = Literal["pending", "recording", "on_node", "incomplete"]
+
+
+class ProtocolError(InputError):
+    """A websocket message that does not follow this protocol (reason in the message)."""
+
+
+class _Msg(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    v: Literal[1] = 1
+
+
+# --------------------------------------------------------------------------- node → server
+
+
+class SensorInfo(BaseModel):
+    """What a node's sensor is: model, image sizes, intrinsics, nominal rate, pose if known."""
+
+    model_config = ConfigDict(extra="forbid")
+    model: str = "unknown"
+    depth_size: tuple[int, int] = (512, 424)
+    color_size: tuple[int, int] = (1920, 1080)
+    depth_K: list[list[float]] | None = None  # noqa: N815 - matrix name
+    color_K: list[list[float]] | None = None  # noqa: N815
+    fov_deg: tuple[float, float] = (70.6, 60.0)
+    rate_hz: float = 30.0
+    joint_set: str = "kinect_v2"
+    T_world_sensor: list[list[float]] | None = Field(
+        default=None, description="Known pose (the simulator's truth); calibration replaces it."
+    )
+
+
+class PartInfo(BaseModel):
+    """A recording part as held by a node (times in the node's local clock)."""
+
+    model_config = ConfigDict(extra="forbid")
+    rec_id: str
+    state: PartState
+    n_frames: int = 0
+    t_first: float | None = None
+    t_last: float | None = None
+    bytes: int = 0
+    reason: str | None = None
+
+
+class Hello(_Msg):
+    type: Literal["hello"] = "hello"
+    node_id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
+    token: str = Field(max_length=256)
+    protocol: int = PROTOCOL_VERSION
+    backend: str = "unknown"
+    agent_started: float = Field(0.0, description="Node-local start time of the agent process.")
+    sensor: SensorInfo = Field(default_factory=lambda: SensorInfo())
+    parts: list[PartInfo] = Field(default_factory=list, max_length=10000)
+
+
+class Pong(_Msg):
+    """Reply to :class:`Ping`: t2 = node receive time, t3 = node send time (local clock)."""
+
+    type: Literal["pong"] = "pong"
+    seq: int
+    t1: float
+    t2: float
+    t3: float
+
+
+class Status(_Msg):
+    type: Literal["status"] = "status"
+    fps: float = 0.0
+    frames: int = 0
+    dropped: int = 0
+    disk_free_bytes: int | None = None
+    ring_seconds: float = 0.0
+    diag: dict[str, float] = Field(
+        default_factory=dict,
+        description="Test-only truths (sim backend with --report-true-clock); never used.",
+    )
+
+
+class RecState(_Msg):
+    type: Literal["rec_state"] = "rec_state"
+    part: PartInfo
+
+
+class NodeError(_Msg):
+    type: Literal["error"] = "error"
+    reason: str = Field(max_length=2000)
+
+
+NodeMessage = Annotated[Hello | Pong | Status | RecState | NodeError, Field(discriminator="type")]
+
+# --------------------------------------------------------------------------- server → node
+
+
+class Welcome(_Msg):
+    type: Literal["welcome"] = "welcome"
+    server_time: float
+    ping_interval_s: float
+
+
+class Refused(_Msg):
+    type: Literal["refused"] = "refused"
+    reason: str
+
+
+class Ping(_Msg):
+    type: Literal["ping"] = "ping"
+    seq: int
+    t1: float
+
+
+class RecStart(_Msg):
+    """Record every frame with local time ≥ ``t_start_local`` (from the ring buffer if past)."""
+
+    type: Literal["rec_start"] = "rec_start"
+    rec_id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
+    t_start_server: float
+    t_start_local: float
+    streams: list[StreamName] = Field(default_factory=list)
+    image_every: int = Field(1, ge=1, le=1000)
+    clock: dict[str, float] = Field(
+        default_factory=dict, description="Server's clock model of this node, kept in the part."
+    )
+
+
+class RecStop(_Msg):
+    """Stop after the last frame with local time ≤ ``t_stop_local`` (waits if in the future)."""
+
+    type: Literal["rec_stop"] = "rec_stop"
+    rec_id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
+    t_stop_server: float
+    t_stop_local: float
+    clock: dict[str, float] = Field(default_factory=dict)
+
+
+class Subscribe(_Msg):
+    """Stream the named image streams at ``fps`` (0 = stop), downscaled by ``scale``."""
+
+    type: Literal["subscribe"] = "subscribe"
+    streams: list[StreamName]
+    fps: float = Field(ge=0, le=30)
+    scale: float = Field(0.5, gt=0, le=1)
+    format: Literal["jpeg", "png"] = "jpeg"
+
+
+class Snapshot(_Msg):
+    type: Literal["snapshot"] = "snapshot"
+    req_id: int
+    streams: list[StreamName]
+    scale: float = Field(1.0, gt=0, le=1)
+    format: Literal["jpeg", "png"] = "png"
+
+
+class ServerError(_Msg):
+    type: Literal["error"] = "error"
+    reason: str
+
+
+ServerMessage = Annotated[
+    Welcome | Refused | Ping | RecStart | RecStop | Subscribe | Snapshot | ServerError,
+    Field(discriminator="type"),
+]
+
+_node_adapter: TypeAdapter[Any] = TypeAdapter(NodeMessage)
+_server_adapter: TypeAdapter[Any] = TypeAdapter(ServerMessage)
+
+
+def _parse(adapter: TypeAdapter[Any], text: str | bytes, limit: int) -> Any:
+    if len(text) > limit:
+        raise ProtocolError(f"control message of {len(text)} bytes exceeds the {limit}-byte limit")
+    try:
+        obj = json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ProtocolError(f"control message is not valid JSON: {exc}") from exc
+    if not isinstance(obj, dict):
+        raise ProtocolError("control message must be a JSON object with a 'type' field")
+    if obj.get("v", PROTOCOL_VERSION) != PROTOCOL_VERSION:
+        raise ProtocolError(
+            f"protocol version {obj.get('v')!r} not supported (this side speaks "
+            f"{PROTOCOL_VERSION}); update the node and server to the same gaitrig version"
+        )
+    try:
+        return adapter.validate_python(obj)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        loc = ".".join(str(x) for x in first.get("loc", ()))
+        raise ProtocolError(
+            f"invalid {obj.get('type', 'untyped')!r} message: {loc}: {first.get('msg')}"
+        ) from exc
+
+
+def parse_node_message(text: str | bytes, limit: int = 64 * 1024) -> Any:
+    """Validate a JSON control message sent by a node.
+
+    Raises:
+        ProtocolError: too large, not JSON, wrong version or wrong fields.
+    """
+    return _parse(_node_adapter, text, limit)
+
+
+def parse_server_message(text: str | bytes, limit: int = 1024 * 1024) -> Any:
+    """Validate a JSON control message sent by the server."""
+    return _parse(_server_adapter, text, limit)
+
+
+def dump(msg: BaseModel) -> str:
+    """Serialise a control message."""
+    return msg.model_dump_json()
+
+
+# --------------------------------------------------------------------------- binary
+
+
+def encode_binary(header: dict[str, Any], payload: bytes | memoryview = b"") -> bytes:
+    """Pack a bulk message: magic+version, header length, JSON header, payload."""
+    h = json.dumps(header, separators=(",", ":")).encode()
+    return _HDR.pack(BINARY_MAGIC, len(h)) + h + bytes(payload)
+
+
+def decode_binary(data: bytes, limit: int = 16 * 1024 * 1024) -> tuple[dict[str, Any], bytes]:
+    """Unpack a bulk message into ``(header, payload)``.
+
+    Raises:
+        ProtocolError: too large, wrong magic/version, bad header.
+    """
+    if len(data) > limit:
+        raise ProtocolError(f"binary message of {len(data)} bytes exceeds the {limit}-byte limit")
+    if len(data) < _HDR.size:
+        raise ProtocolError("binary message shorter than its 8-byte prefix")
+    magic, hlen = _HDR.unpack_from(data)
+    if magic[:3] != BINARY_MAGIC[:3]:
+        raise ProtocolError("binary message does not start with the gaitrig magic 'GRB'")
+    if magic[3] != PROTOCOL_VERSION:
+        raise ProtocolError(f"binary protocol version {magic[3]} not supported")
+    if hlen > MAX_BINARY_HEADER or _HDR.size + hlen > len(data):
+        raise ProtocolError(f"binary header length {hlen} is inconsistent with the message")
+    try:
+        header = json.loads(data[_HDR.size : _HDR.size + hlen])
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ProtocolError(f"binary header is not valid JSON: {exc}") from exc
+    if not isinstance(header, dict) or header.get("kind") not in ("skeleton", "image"):
+        raise ProtocolError("binary header must be an object with kind 'skeleton' or 'image'")
+    return header, data[_HDR.size + hlen :]
+
+
+def encode_skeletons(
+    seq: int,
+    t_local: float,
+    positions: NDArray[np.floating[Any]],
+    states: NDArray[np.integer[Any]],
+    body_ids: list[int] | None = None,
+) -> bytes:
+    """Binary skeleton frame: ``positions (B, J, 3)`` metres, ``states (B, J)`` uint8."""
+    pos = np.ascontiguousarray(positions, dtype="<f4")
+    st = np.ascontiguousarray(states, dtype=np.uint8)
+    if pos.ndim != 3 or pos.shape[2] != 3 or st.shape != pos.shape[:2]:
+        raise ProtocolError(
+            f"skeleton arrays must be (B, J, 3) and (B, J), got {pos.shape} and {st.shape}"
+        )
+    B, J = st.shape
+    ids = list(body_ids) if body_ids is not None else list(range(B))
+    header = {"kind": "skeleton", "seq": int(seq), "t": float(t_local), "bodies": ids, "joints": J}
+    return encode_binary(header, pos.tobytes() + st.tobytes())
+
+
+def decode_skeletons(
+    header: dict[str, Any], payload: bytes
+) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
+    """Inverse of :func:`encode_skeletons` (after :func:`decode_binary`)."""
+    try:
+        B = len(header["bodies"])
+        J = int(header["joints"])
+        float(header["t"])
+        int(header["seq"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ProtocolError(f"skeleton header lacks a valid field: {exc}") from exc
+    if not (0 <= B <= 16 and 0 < J <= 64):
+        raise ProtocolError(f"skeleton header has {B} bodies × {J} joints; limits are 16 × 64")
+    n_pos = B * J * 3 * 4
+    if len(payload) != n_pos + B * J:
+        raise ProtocolError(
+            f"skeleton payload is {len(payload)} bytes, expected {n_pos + B * J} for {B}×{J}"
+        )
+    pos = np.frombuffer(payload, dtype="<f4", count=B * J * 3).reshape(B, J, 3)
+    st = np.frombuffer(payload, dtype=np.uint8, offset=n_pos).reshape(B, J)
+    return pos, st

@@ -1,0 +1,251 @@
+"""Append-only, crash-safe local recording store of a node.
+
+Layout under the node's data folder::
+
+    recordings/<rec_id>/meta.json    # PartInfo + recording parameters (atomic rewrite)
+    recordings/<rec_id>/frames.bin   # records: uint32 length, uint32 crc32, payload
+    recordings/<rec_id>/index.json   # [[t_local, byte_offset, kind], ...] written on close
+
+Each payload is one binary protocol message (:func:`app.nodes.protocol.encode_binary`),
+so a part replays exactly what was streamed. Records are flushed to the OS after every
+write (survives ``kill -9``) and ``fsync``-ed at least every ``fsync_interval_s`` (survives
+power loss up to that interval). On open, :meth:`NodeStore.recover` scans parts that
+were never closed, truncates a torn or corrupt tail, rebuilds the index and marks the
+part ``incomplete`` with the reason.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import struct
+import time
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from app.nodes.protocol import PartInfo, ProtocolError, decode_binary
+from engine.errors import InputError
+
+_REC = struct.Struct("<II")
+MAX_RECORD = 64 * 1024 * 1024
+_ID_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+
+def _atomic_write_json(path: Path, obj: Any) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    with open(tmp, "w") as f:
+        json.dump(obj, f)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _check_id(rec_id: str) -> str:
+    # rec ids become folder names: refuse anything that could traverse paths.
+    if not _ID_RE.match(rec_id) or rec_id in (".", ".."):
+        raise InputError(f"recording id {rec_id!r} must be 1-64 characters of A-Z a-z 0-9 _ . -")
+    return rec_id
+
+
+class PartWriter:
+    """Writer of one recording part; use :meth:`NodeStore.create_part`."""
+
+    def __init__(self, folder: Path, meta: dict[str, Any], fsync_interval_s: float = 0.5) -> None:
+        self.folder = folder
+        self.meta = meta
+        self.fsync_interval_s = fsync_interval_s
+        self._f = open(folder / "frames.bin", "ab")  # noqa: SIM115 - open for the part's life
+        self._offset = self._f.tell()
+        self._index: list[tuple[float, int, str]] = []
+        self._last_sync = time.monotonic()
+        self.n_frames = 0
+        self.t_first: float | None = None
+        self.t_last: float | None = None
+        self.closed = False
+
+    def append(self, t_local: float, kind: str, message: bytes) -> None:
+        """Append one binary protocol message captured at ``t_local``."""
+        if self.closed:
+            raise InputError(f"recording part {self.meta['rec_id']} is already closed")
+        self._f.write(_REC.pack(len(message), zlib.crc32(message)))
+        self._f.write(message)
+        self._f.flush()
+        self._index.append((t_local, self._offset, kind))
+        self._offset += _REC.size + len(message)
+        if kind == "skeleton":
+            self.n_frames += 1
+            self.t_first = t_local if self.t_first is None else self.t_first
+            self.t_last = t_local
+        now = time.monotonic()
+        if now - self._last_sync >= self.fsync_interval_s:
+            os.fsync(self._f.fileno())
+            self._last_sync = now
+
+    def truncate_after(self, t_local: float) -> None:
+        """Drop the records captured after ``t_local`` (a stop command that arrived late)."""
+        keep = [e for e in self._index if e[0] <= t_local]
+        if len(keep) == len(self._index):
+            return
+        cut = self._index[len(keep)][1]
+        self._f.flush()
+        self._f.truncate(cut)
+        self._f.seek(cut)
+        self._offset = cut
+        self._index = keep
+        sk = [t for t, _, k in keep if k == "skeleton"]
+        self.n_frames = len(sk)
+        self.t_first = sk[0] if sk else None
+        self.t_last = sk[-1] if sk else None
+
+    def info(self, state: str | None = None, reason: str | None = None) -> PartInfo:
+        """Current :class:`PartInfo` of the part."""
+        return PartInfo(
+            rec_id=self.meta["rec_id"], state=state or self.meta["state"],  # type: ignore[arg-type]
+            n_frames=self.n_frames, t_first=self.t_first, t_last=self.t_last,
+            bytes=self._offset, reason=reason if reason is not None else self.meta.get("reason"),
+        )
+
+    def close(self, state: str = "on_node", reason: str | None = None, **extra: Any) -> PartInfo:
+        """Fsync, write the index and the final meta (``on_node`` or ``incomplete``)."""
+        if not self.closed:
+            self._f.flush()
+            os.fsync(self._f.fileno())
+            self._f.close()
+            self.closed = True
+            _atomic_write_json(self.folder / "index.json", self._index)
+        self.meta.update(extra)
+        self.meta.update(self.info(state, reason).model_dump())
+        _atomic_write_json(self.folder / "meta.json", self.meta)
+        return self.info()
+
+
+class NodeStore:
+    """A node's recordings folder.
+
+    Args:
+        root: folder holding one sub-folder per recording part (created if missing).
+        fsync_interval_s: longest time between fsyncs of an open part.
+    """
+
+    def __init__(self, root: Path | str, fsync_interval_s: float = 0.5) -> None:
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.fsync_interval_s = fsync_interval_s
+
+    def create_part(self, rec_id: str, **params: Any) -> PartWriter:
+        """Start a new part; ``params`` (times, streams, clock model) go into meta.json."""
+        folder = self.root / _check_id(rec_id)
+        if folder.exists():
+            raise InputError(f"recording {rec_id} already exists on this node")
+        folder.mkdir()
+        meta = {"rec_id": rec_id, "state": "recording", "created": time.time(), **params}
+        _atomic_write_json(folder / "meta.json", meta)
+        return PartWriter(folder, meta, self.fsync_interval_s)
+
+    def recover(self) -> list[PartInfo]:
+        """Close every part left open by a crash; returns the parts it repaired."""
+        fixed = []
+        for folder in sorted(p for p in self.root.iterdir() if p.is_dir()):
+            meta = self._meta(folder)
+            if meta is None or meta.get("state") != "recording":
+                continue
+            index, good_end = _scan(folder / "frames.bin")
+            with open(folder / "frames.bin", "r+b") as f:
+                f.truncate(good_end)
+                os.fsync(f.fileno())
+            _atomic_write_json(folder / "index.json", index)
+            sk = [t for t, _, k in index if k == "skeleton"]
+            meta.update(
+                state="incomplete",
+                reason="node stopped while recording; data recovered up to the last intact frame",
+                n_frames=len(sk), t_first=sk[0] if sk else None, t_last=sk[-1] if sk else None,
+                bytes=good_end,
+            )
+            _atomic_write_json(folder / "meta.json", meta)
+            fixed.append(self._info(meta))
+        return fixed
+
+    def _meta(self, folder: Path) -> dict[str, Any] | None:
+        try:
+            meta = json.loads((folder / "meta.json").read_text())
+        except (OSError, json.JSONDecodeError):
+            return None
+        return meta if isinstance(meta, dict) else None
+
+    @staticmethod
+    def _info(meta: dict[str, Any]) -> PartInfo:
+        return PartInfo.model_validate({k: meta[k] for k in PartInfo.model_fields if k in meta})
+
+    def parts(self) -> list[PartInfo]:
+        """Every part on this node (state from meta.json)."""
+        out = []
+        for folder in sorted(p for p in self.root.iterdir() if p.is_dir()):
+            meta = self._meta(folder)
+            if meta is not None:
+                out.append(self._info(meta))
+        return out
+
+    def meta(self, rec_id: str) -> dict[str, Any]:
+        """Full meta.json of a part."""
+        meta = self._meta(self.root / _check_id(rec_id))
+        if meta is None:
+            raise InputError(f"recording {rec_id} is not on this node")
+        return meta
+
+    def read(self, rec_id: str) -> Iterator[tuple[dict[str, Any], bytes]]:
+        """Decoded ``(header, payload)`` of every intact record of a part, in order."""
+        path = self.root / _check_id(rec_id) / "frames.bin"
+        if not path.exists():
+            raise InputError(f"recording {rec_id} is not on this node")
+        with open(path, "rb") as f:
+            while True:
+                rec = _read_record(f)
+                if rec is None:
+                    return
+                yield decode_binary(rec, limit=MAX_RECORD)
+
+    def delete(self, rec_id: str) -> None:
+        """Remove a part (after the server holds a verified copy)."""
+        shutil.rmtree(self.root / _check_id(rec_id), ignore_errors=True)
+
+    def disk_free(self) -> int:
+        """Free bytes on the store's file system."""
+        return shutil.disk_usage(self.root).free
+
+
+def _read_record(f: Any) -> bytes | None:
+    head = f.read(_REC.size)
+    if len(head) < _REC.size:
+        return None
+    n, crc = _REC.unpack(head)
+    if n > MAX_RECORD:
+        return None
+    data: bytes = f.read(n)
+    if len(data) < n or zlib.crc32(data) != crc:
+        return None
+    return data
+
+
+def _scan(path: Path) -> tuple[list[tuple[float, int, str]], int]:
+    """Index of the intact prefix of a frames file and the byte where it ends."""
+    index: list[tuple[float, int, str]] = []
+    pos = 0
+    if not path.exists():
+        path.touch()
+        return index, 0
+    with open(path, "rb") as f:
+        while True:
+            rec = _read_record(f)
+            if rec is None:
+                break
+            try:
+                header, _ = decode_binary(rec, limit=MAX_RECORD)
+                index.append((float(header["t"]), pos, str(header["kind"])))
+            except (ProtocolError, KeyError, TypeError, ValueError):
+                break
+            pos = f.tell()
+    return index, pos

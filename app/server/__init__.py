@@ -1,0 +1,1 @@
+"""Server-side orchestration: node registry, clock estimation, recordings, node websocket."""

@@ -1,0 +1,207 @@
+"""The node websocket endpoint and the server state it feeds.
+
+:class:`Hub` holds the registry and the recording manager and runs one
+:meth:`Hub.handle_node` per connected node: authentication by pairing token, a clock
+ping loop, and the message loop. A malformed or oversized message is answered with an
+``error`` message and logged with its reason; the connection stays open (only frames above
+the transport limit, ``Settings.ws_transport_max_bytes``, make the websocket layer close
+it with code 1009).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import secrets
+import time
+from collections.abc import Callable
+
+from fastapi import WebSocket, WebSocketDisconnect
+from starlette.websockets import WebSocketState
+
+from app.config import Settings
+from app.nodes.protocol import (
+    Hello,
+    NodeError,
+    Ping,
+    Pong,
+    ProtocolError,
+    RecState,
+    Refused,
+    ServerError,
+    Status,
+    Welcome,
+    decode_binary,
+    decode_skeletons,
+    dump,
+    parse_node_message,
+)
+from app.server.recording import RecordingManager
+from app.server.registry import LatestImage, LatestSkeleton, NodeRegistry, NodeSession
+
+log = logging.getLogger("gaitrig.hub")
+
+CLOSE_REFUSED = 4401
+CLOSE_PROTOCOL = 4400
+CLOSE_REPLACED = 4409
+
+
+class Hub:
+    """Server state shared by the REST routes and the node websocket.
+
+    Args:
+        settings: server settings.
+    """
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self.registry = NodeRegistry(settings.clock_window_s, settings.clock_warn_ms,
+                                     settings.health_stale_s)
+        self.recordings = RecordingManager(self.registry, settings.data_dir,
+                                           settings.record_start_margin_s,
+                                           settings.test_command_delay_max_s)
+        self._sockets: dict[str, WebSocket] = {}
+        self._agent_started: dict[str, float] = {}
+        self.skeleton_listeners: list[Callable[[NodeSession], None]] = []
+
+    async def close(self) -> None:
+        """Close every node connection (server shutdown)."""
+        for ws in list(self._sockets.values()):
+            with contextlib.suppress(Exception):
+                await ws.close(code=1001, reason="server shutting down")
+
+    # ------------------------------------------------------------------ websocket
+
+    async def handle_node(self, ws: WebSocket) -> None:
+        """Serve one node connection until it closes."""
+        await ws.accept()
+        peer = f"{ws.client.host}:{ws.client.port}" if ws.client else "?"
+        try:
+            first = await asyncio.wait_for(ws.receive(), timeout=10.0)
+        except (TimeoutError, WebSocketDisconnect):
+            await self._refuse(ws, peer, "no hello within 10 s", CLOSE_PROTOCOL)
+            return
+        text = first.get("text")
+        if text is None:
+            await self._refuse(ws, peer, "first message must be a JSON hello", CLOSE_PROTOCOL)
+            return
+        try:
+            hello = parse_node_message(text, self.settings.max_control_bytes)
+        except ProtocolError as exc:
+            await self._refuse(ws, peer, str(exc), CLOSE_PROTOCOL)
+            return
+        if not isinstance(hello, Hello):
+            await self._refuse(ws, peer, f"expected hello first, got {hello.type}", CLOSE_PROTOCOL)
+            return
+        if not secrets.compare_digest(hello.token.encode(), self.settings.node_token.encode()):
+            await self._refuse(ws, peer, f"wrong pairing token for node {hello.node_id}; start "
+                               "the node with the token shown in the server settings",
+                               CLOSE_REFUSED)
+            return
+        old = self._sockets.get(hello.node_id)
+        if old is not None:
+            log.warning("node %s reconnected from %s; closing its previous connection",
+                        hello.node_id, peer)
+            with contextlib.suppress(Exception):
+                await old.close(code=CLOSE_REPLACED, reason="replaced by a new connection")
+        self._sockets[hello.node_id] = ws
+        restarted = self._agent_started.get(hello.node_id) != hello.agent_started
+        self._agent_started[hello.node_id] = hello.agent_started
+
+        async def send(text: str) -> None:
+            await ws.send_text(text)
+
+        session = self.registry.connect(hello.node_id, hello.backend, hello.sensor, send,
+                                        restarted)
+        log.info("node %s connected from %s (%s)", hello.node_id, peer, hello.backend)
+        await ws.send_text(dump(_welcome(self.settings)))
+        for part in hello.parts:
+            self.recordings.on_part(hello.node_id, part, from_hello=True)
+        pinger = asyncio.create_task(self._ping_loop(ws, session))
+        try:
+            await self._message_loop(ws, session)
+        except WebSocketDisconnect:
+            pass
+        except Exception:
+            log.exception("node %s connection failed", hello.node_id)
+        finally:
+            pinger.cancel()
+            if self._sockets.get(hello.node_id) is ws:
+                del self._sockets[hello.node_id]
+                self.registry.disconnect(hello.node_id)
+                self.recordings.on_disconnect(hello.node_id)
+                log.info("node %s disconnected", hello.node_id)
+
+    async def _refuse(self, ws: WebSocket, peer: str, reason: str, code: int) -> None:
+        log.warning("refused node connection from %s: %s", peer, reason)
+        with contextlib.suppress(Exception):
+            await ws.send_text(dump(Refused(reason=reason)))
+            await ws.close(code=code, reason=reason[:120])
+
+    async def _ping_loop(self, ws: WebSocket, s: NodeSession) -> None:
+        seq = 0
+        while ws.application_state == WebSocketState.CONNECTED:
+            seq += 1
+            await ws.send_text(dump(Ping(seq=seq, t1=time.time())))
+            await asyncio.sleep(self.settings.clock_ping_interval_s)
+
+    async def _reject(self, ws: WebSocket, s: NodeSession, reason: str) -> None:
+        s.rejected_messages += 1
+        s.last_rejection = reason
+        log.warning("rejected message from node %s: %s", s.id, reason)
+        await ws.send_text(dump(ServerError(reason=reason)))
+
+    async def _message_loop(self, ws: WebSocket, s: NodeSession) -> None:
+        while True:
+            msg = await ws.receive()
+            t4 = time.time()
+            if msg["type"] == "websocket.disconnect":
+                return
+            s.last_seen = t4
+            data = msg.get("bytes")
+            if data is not None:
+                try:
+                    self._on_binary(s, data, t4)
+                except ProtocolError as exc:
+                    await self._reject(ws, s, str(exc))
+                continue
+            try:
+                m = parse_node_message(msg.get("text") or "", self.settings.max_control_bytes)
+            except ProtocolError as exc:
+                await self._reject(ws, s, str(exc))
+                continue
+            if isinstance(m, Pong):
+                s.clock.add(m.t1, m.t2, m.t3, t4)
+            elif isinstance(m, Status):
+                s.status = m
+            elif isinstance(m, RecState):
+                s.parts[m.part.rec_id] = m.part
+                self.recordings.on_part(s.id, m.part)
+            elif isinstance(m, NodeError):
+                log.warning("node %s reported: %s", s.id, m.reason)
+            elif isinstance(m, Hello):
+                await self._reject(ws, s, "hello sent twice on one connection")
+
+    def _on_binary(self, s: NodeSession, data: bytes, now: float) -> None:
+        header, payload = decode_binary(data, self.settings.max_binary_bytes)
+        t_local = float(header.get("t", 0.0))
+        if header["kind"] == "skeleton":
+            pos, st = decode_skeletons(header, payload)
+            seq = int(header["seq"])
+            s.on_skeleton(seq, now)
+            s.skeleton = LatestSkeleton(seq, t_local, s.to_server(t_local), pos, st,
+                                        [int(b) for b in header["bodies"]])
+            for cb in self.skeleton_listeners:
+                cb(s)
+        else:
+            stream = header.get("stream")
+            if stream not in ("depth", "color", "body_index"):
+                raise ProtocolError(f"image stream {stream!r} is not depth, color or body_index")
+            s.images[str(stream)] = LatestImage(t_local, s.to_server(t_local),
+                                                str(header.get("format", "png")), bytes(payload),
+                                                header)
+
+
+def _welcome(settings: Settings) -> Welcome:
+    return Welcome(server_time=time.time(), ping_interval_s=settings.clock_ping_interval_s)

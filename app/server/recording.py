@@ -1,0 +1,258 @@
+"""Synchronous recording across nodes.
+
+Where time conversion happens: the **server**. On start it picks ``t_start = now +
+margin`` in server time and sends each node ``rec_start`` with that time converted into
+the node's own clock through the node's current clock model (the model is also sent, and
+the node keeps it in the part's meta). The node records every frame whose local time is
+in ``[t_start_local, t_stop_local]``: a command arriving late is served from the 2 s ring
+buffer, a stop in the future simply waits, and frames written before a late stop arrived
+are cut. So every part covers the same server-time interval to within one frame period
+(plus the clock uncertainty), whatever the command latency.
+
+Part states: ``pending`` (command sent) → ``recording`` → ``on_node`` (complete on the
+node's disk) or ``incomplete`` (with a reason, e.g. the node disconnected or crashed).
+This module keeps recordings in memory and in ``<data_dir>/recordings.json``; the data
+management database builds on :meth:`RecordingManager.to_dict`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import os
+import random
+import secrets
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from app.nodes.protocol import PartInfo, RecStart, RecStop, StreamName, dump
+from app.server.clock import ClockEstimate
+from app.server.registry import NodeRegistry, NodeSession
+from engine.errors import InputError
+
+log = logging.getLogger("gaitrig.recording")
+
+
+@dataclass
+class Part:
+    """One node's share of a recording, as the server knows it."""
+
+    node_id: str
+    state: str = "pending"
+    reason: str | None = None
+    n_frames: int = 0
+    bytes: int = 0
+    t_first_local: float | None = None
+    t_last_local: float | None = None
+    t_first: float | None = None
+    t_last: float | None = None
+    clock: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class Recording:
+    """A synchronous recording (times in server seconds since the Unix epoch)."""
+
+    id: str
+    t_start: float
+    t_stop: float | None = None
+    created: float = field(default_factory=time.time)
+    streams: list[str] = field(default_factory=list)
+    image_every: int = 1
+    parts: dict[str, Part] = field(default_factory=dict)
+
+    @property
+    def state(self) -> str:
+        """``recording`` | ``stopping`` | ``on_nodes`` | ``incomplete``."""
+        if self.t_stop is None:
+            return "recording"
+        states = {p.state for p in self.parts.values()}
+        if "incomplete" in states:
+            return "incomplete"
+        if states <= {"on_node"}:
+            return "on_nodes"
+        return "stopping"
+
+
+def _model(clock: dict[str, float]) -> ClockEstimate:
+    """Clock model stored with a part (see :meth:`ClockEstimate.as_dict`)."""
+    return ClockEstimate(clock["offset_s"], clock["drift"], clock["t_ref"],
+                         clock.get("uncertainty_s", 0.0), 0, 0.0)
+
+
+class RecordingManager:
+    """Starts/stops recordings on every connected node and tracks their parts.
+
+    Args:
+        registry: the node registry.
+        data_dir: where ``recordings.json`` lives.
+        start_margin_s: start this far in the future (the command then usually arrives
+            before the start; the ring buffer covers it when not).
+        command_delay_max_s: TEST HOOK; each command to each node is held back by a
+            random 0..this seconds, simulating a congested network.
+    """
+
+    def __init__(self, registry: NodeRegistry, data_dir: Path, start_margin_s: float = 0.3,
+                 command_delay_max_s: float = 0.0) -> None:
+        self.registry = registry
+        self.path = Path(data_dir) / "recordings.json"
+        self.start_margin_s = start_margin_s
+        self.command_delay_max_s = command_delay_max_s
+        self.recordings: dict[str, Recording] = {}
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._load()
+
+    # ------------------------------------------------------------------ persistence
+
+    def _load(self) -> None:
+        if not self.path.exists():
+            return
+        try:
+            raw = json.loads(self.path.read_text())
+            for r in raw:
+                parts = {k: Part(**v) for k, v in r.pop("parts").items()}
+                rec = Recording(**r, parts=parts)
+                if rec.t_stop is None:  # the server died during it
+                    rec.t_stop = rec.created
+                    for p in rec.parts.values():
+                        if p.state in ("pending", "recording"):
+                            p.state, p.reason = "incomplete", "server restarted during recording"
+                self.recordings[rec.id] = rec
+        except (OSError, json.JSONDecodeError, TypeError, KeyError) as exc:
+            log.error("ignoring unreadable %s: %s", self.path, exc)
+
+    def save(self) -> None:
+        """Write all recordings atomically."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_suffix(".tmp")
+        tmp.write_text(json.dumps([asdict(r) for r in self.recordings.values()]))
+        os.replace(tmp, self.path)
+
+    # ------------------------------------------------------------------ commands
+
+    def active(self) -> Recording | None:
+        """The recording in progress, if any."""
+        for r in self.recordings.values():
+            if r.t_stop is None:
+                return r
+        return None
+
+    def _send_later(self, s: NodeSession, text: str) -> None:
+        async def go() -> None:
+            if self.command_delay_max_s > 0:
+                await asyncio.sleep(random.uniform(0.0, self.command_delay_max_s))
+            if s.send is not None:
+                try:
+                    await s.send(text)
+                except Exception as exc:  # the node vanished; disconnect handling follows
+                    log.warning("could not send to %s: %s", s.id, exc)
+
+        task = asyncio.create_task(go())
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    def start(self, streams: list[StreamName] | None = None, image_every: int = 1) -> Recording:
+        """Start a recording on every connected node whose clock is measured.
+
+        Raises:
+            InputError: a recording already runs, or no node can record.
+        """
+        if self.active() is not None:
+            raise InputError("a recording is already running; stop it first")
+        ready = [s for s in self.registry.connected() if s.estimate is not None]
+        if not ready:
+            raise InputError("no connected node with a measured clock; wait until the "
+                             "Rig page shows the nodes online")
+        now = time.time()
+        rec_id = time.strftime("R%Y%m%d-%H%M%S", time.gmtime(now)) + "-" + secrets.token_hex(2)
+        rec = Recording(rec_id, t_start=now + self.start_margin_s, streams=list(streams or []),
+                        image_every=image_every)
+        for s in ready:
+            est = s.estimate
+            assert est is not None
+            rec.parts[s.id] = Part(s.id, clock=est.as_dict())
+            cmd = RecStart(rec_id=rec_id, t_start_server=rec.t_start,
+                           t_start_local=est.to_local(rec.t_start), streams=list(streams or []),
+                           image_every=image_every, clock=est.as_dict())
+            self._send_later(s, dump(cmd))
+        self.recordings[rec_id] = rec
+        self.save()
+        log.info("recording %s starts at %.3f on %s", rec_id, rec.t_start, ", ".join(rec.parts))
+        return rec
+
+    def stop(self, rec_id: str) -> Recording:
+        """Stop a recording now (server time) on all its nodes.
+
+        Raises:
+            InputError: unknown or already stopped recording.
+        """
+        rec = self.recordings.get(rec_id)
+        if rec is None:
+            raise InputError(f"no recording {rec_id!r}")
+        if rec.t_stop is not None:
+            raise InputError(f"recording {rec_id} is already stopped")
+        rec.t_stop = max(time.time(), rec.t_start)
+        for node_id in rec.parts:
+            self._send_stop(rec, node_id)
+        self.save()
+        return rec
+
+    def _send_stop(self, rec: Recording, node_id: str) -> None:
+        s = self.registry.get(node_id)
+        if s is None or not s.connected or rec.t_stop is None:
+            return
+        est = s.estimate or _model(rec.parts[node_id].clock)
+        cmd = RecStop(rec_id=rec.id, t_stop_server=rec.t_stop,
+                      t_stop_local=est.to_local(rec.t_stop), clock=est.as_dict())
+        self._send_later(s, dump(cmd))
+
+    # ------------------------------------------------------------------ node events
+
+    def on_part(self, node_id: str, info: PartInfo, from_hello: bool = False) -> None:
+        """A node reported the state of one of its parts."""
+        rec = self.recordings.get(info.rec_id)
+        if rec is None:
+            return
+        part = rec.parts.setdefault(node_id, Part(node_id))
+        prev = part.state
+        part.n_frames, part.bytes = info.n_frames, info.bytes
+        part.t_first_local, part.t_last_local = info.t_first, info.t_last
+        if part.clock:
+            model = _model(part.clock)
+            part.t_first = model.to_server(info.t_first) if info.t_first is not None else None
+            part.t_last = model.to_server(info.t_last) if info.t_last is not None else None
+        if info.state == "incomplete":
+            part.state, part.reason = "incomplete", info.reason or part.reason
+        elif info.state == "recording" and prev == "incomplete" and part.reason:
+            # A network blip: the node kept recording locally.
+            part.state = "recording"
+            part.reason = part.reason + "; the node kept recording"
+        elif not (prev == "incomplete" and info.state != "on_node"):
+            part.state = info.state
+        if from_hello and info.state == "recording" and rec.t_stop is not None:
+            self._send_stop(rec, node_id)  # it missed the stop while disconnected
+        if prev != part.state:
+            log.info("recording %s part %s: %s → %s", rec.id, node_id, prev, part.state)
+            self.save()
+
+    def on_disconnect(self, node_id: str) -> None:
+        """A node dropped: its unfinished parts become incomplete."""
+        for rec in self.recordings.values():
+            part = rec.parts.get(node_id)
+            if part is not None and part.state in ("pending", "recording"):
+                part.state = "incomplete"
+                part.reason = (f"node {node_id} disconnected at "
+                               f"{time.strftime('%H:%M:%S', time.gmtime())} UTC during the "
+                               "recording")
+                log.warning("recording %s: %s", rec.id, part.reason)
+                self.save()
+
+    def to_dict(self, rec: Recording) -> dict[str, Any]:
+        """JSON view of a recording (REST)."""
+        d = asdict(rec)
+        d["state"] = rec.state
+        d["parts"] = list(d["parts"].values())
+        return d

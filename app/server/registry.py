@@ -1,0 +1,201 @@
+"""The server's view of the sensor nodes: who is connected, health, clocks, latest data.
+
+One :class:`NodeSession` per node id survives reconnects (health history, clock
+estimator, sensor description); the websocket handler (:mod:`app.server.ws`) feeds it.
+Everything runs on the server's event loop, so no locks are needed.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.nodes.protocol import PartInfo, SensorInfo, Status
+from app.server.clock import ClockEstimate, ClockEstimator
+
+SendFn = Callable[[str], Awaitable[None]]
+
+
+@dataclass
+class LatestSkeleton:
+    """Newest skeleton frame of a node, timestamps already in server time."""
+
+    seq: int
+    t_local: float
+    t_server: float | None
+    positions: NDArray[np.float32]
+    states: NDArray[np.uint8]
+    body_ids: list[int]
+
+
+@dataclass
+class LatestImage:
+    """Newest encoded image of one stream of a node."""
+
+    t_local: float
+    t_server: float | None
+    format: str
+    data: bytes
+    header: dict[str, Any]
+
+
+@dataclass
+class NodeSession:
+    """Everything the server knows about one node."""
+
+    id: str
+    clock: ClockEstimator
+    backend: str = "unknown"
+    sensor: SensorInfo = field(default_factory=lambda: SensorInfo())
+    connected: bool = False
+    connected_at: float | None = None
+    disconnected_at: float | None = None
+    last_seen: float = 0.0
+    send: SendFn | None = None
+    frames_received: int = 0
+    seq_gaps: int = 0
+    last_seq: int | None = None
+    recent: deque[float] = field(default_factory=lambda: deque(maxlen=90))
+    status: Status | None = None
+    parts: dict[str, PartInfo] = field(default_factory=dict)
+    skeleton: LatestSkeleton | None = None
+    images: dict[str, LatestImage] = field(default_factory=dict)
+    rejected_messages: int = 0
+    last_rejection: str | None = None
+
+    def fps(self, now: float) -> float:
+        """Skeleton frames per second received over the last ~3 s (0 when silent)."""
+        ts = [t for t in self.recent if t >= now - 3.0]
+        if len(ts) < 2 or ts[-1] <= ts[0]:
+            return 0.0
+        return (len(ts) - 1) / (ts[-1] - ts[0])
+
+    def on_skeleton(self, seq: int, now: float) -> None:
+        """Count a received skeleton frame; a gap in ``seq`` counts as dropped frames."""
+        self.frames_received += 1
+        self.recent.append(now)
+        self.last_seen = now
+        if self.last_seq is not None and seq > self.last_seq + 1:
+            self.seq_gaps += seq - self.last_seq - 1
+        self.last_seq = seq
+
+    @property
+    def estimate(self) -> ClockEstimate | None:
+        return self.clock.estimate_
+
+    def to_server(self, t_local: float) -> float | None:
+        """Convert a node timestamp to server time (None until the clock is measured)."""
+        est = self.estimate
+        return est.to_server(t_local) if est is not None else None
+
+
+class NodeRegistry:
+    """All nodes ever seen since the server started.
+
+    Args:
+        clock_window_s: window of the clock drift fit.
+        clock_warn_ms: warn when a node's clock uncertainty exceeds this.
+        stale_s: a connected node silent for this long gets a warning.
+    """
+
+    def __init__(self, clock_window_s: float = 30.0, clock_warn_ms: float = 2.0,
+                 stale_s: float = 3.0) -> None:
+        self.clock_window_s = clock_window_s
+        self.clock_warn_ms = clock_warn_ms
+        self.stale_s = stale_s
+        self.nodes: dict[str, NodeSession] = {}
+        self.listeners: list[Callable[[NodeSession], None]] = []
+
+    def get(self, node_id: str) -> NodeSession | None:
+        return self.nodes.get(node_id)
+
+    def connect(self, node_id: str, backend: str, sensor: SensorInfo, send: SendFn,
+                restarted: bool) -> NodeSession:
+        """Register a (re)connected node; its clock model restarts when the node did."""
+        s = self.nodes.get(node_id)
+        if s is None:
+            s = NodeSession(node_id, ClockEstimator(window_s=self.clock_window_s))
+            self.nodes[node_id] = s
+        elif restarted:
+            s.clock.reset()
+        s.backend, s.sensor, s.send = backend, sensor, send
+        s.connected, s.connected_at = True, time.time()
+        s.last_seen = time.time()
+        s.last_seq = None
+        for cb in self.listeners:
+            cb(s)
+        return s
+
+    def disconnect(self, node_id: str) -> None:
+        s = self.nodes.get(node_id)
+        if s is not None:
+            s.connected, s.send, s.disconnected_at = False, None, time.time()
+            s.images.clear()
+            for cb in self.listeners:
+                cb(s)
+
+    def connected(self) -> list[NodeSession]:
+        return [s for s in self.nodes.values() if s.connected]
+
+    def health(self, s: NodeSession, now: float | None = None) -> dict[str, Any]:
+        """The health record the console and ``GET /api/nodes`` show."""
+        now = time.time() if now is None else now
+        est = s.estimate
+        offset_ms = est.offset_at(now) * 1e3 if est else None
+        unc_ms = est.uncertainty_s * 1e3 if est else None
+        dropped = s.seq_gaps + (s.status.dropped if s.status else 0)
+        fps = s.fps(now) if s.connected else 0.0
+        warnings: list[str] = []
+        if not s.connected:
+            warnings.append("Node is offline: check that its computer and agent are running.")
+        else:
+            if est is None:
+                warnings.append("Clock offset not measured yet.")
+            elif unc_ms is not None and unc_ms > self.clock_warn_ms:
+                warnings.append(
+                    f"Clock uncertain by ±{unc_ms:.1f} ms (limit {self.clock_warn_ms:g} ms): "
+                    "frames of this sensor may be mistimed; check the network load.")
+            if offset_ms is not None and abs(offset_ms) > self.clock_warn_ms:
+                warnings.append(
+                    f"Clock differs from the server by {offset_ms:+.1f} ms; gaitrig corrects "
+                    "this, but running chrony/PTP on the node keeps it below "
+                    f"{self.clock_warn_ms:g} ms.")
+            if now - s.last_seen > self.stale_s:
+                warnings.append(f"No frames for {now - s.last_seen:.0f} s.")
+            elif 0 < fps < 20:
+                warnings.append(f"Low frame rate ({fps:.0f} fps; expected about 30).")
+            if dropped:
+                warnings.append(f"{dropped} frames dropped since the node connected.")
+            free = s.status.disk_free_bytes if s.status else None
+            if free is not None and free < 2 * 1024**3:
+                warnings.append(f"Only {free / 1024**3:.1f} GB free on the node's disk.")
+        return {
+            "id": s.id,
+            "connected": s.connected,
+            "backend": s.backend,
+            "model": s.sensor.model,
+            "fps": round(fps, 2),
+            "frames": s.frames_received,
+            "dropped_frames": dropped,
+            "clock_offset_ms": offset_ms,
+            "clock_uncertainty_ms": unc_ms,
+            "clock_drift_ppm": est.drift * 1e6 if est else None,
+            "clock_rtt_ms": est.rtt_s * 1e3 if est else None,
+            "clock_at": now,
+            "clock_warning": bool(
+                s.connected and (est is None or (unc_ms or 0) > self.clock_warn_ms)),
+            "disk_free_bytes": s.status.disk_free_bytes if s.status else None,
+            "ring_seconds": s.status.ring_seconds if s.status else None,
+            "connected_at": s.connected_at,
+            "last_seen": s.last_seen or None,
+            "rejected_messages": s.rejected_messages,
+            "last_rejection": s.last_rejection,
+            "warnings": warnings,
+            "diag": dict(s.status.diag) if s.status else {},
+        }

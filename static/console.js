@@ -1,0 +1,80 @@
+// gaitrig console: plain JS, no build step. The session cookie set by /api/auth/login
+// authenticates every fetch; a 401 sends the user back to the login page.
+"use strict";
+const gaitrig = (() => {
+  async function api(path, options = {}) {
+    const r = await fetch(path, { credentials: "same-origin", ...options,
+      headers: { "Content-Type": "application/json", ...(options.headers || {}) } });
+    if (r.status === 401) { window.location.href = "/index.html"; throw new Error("not logged in"); }
+    if (!r.ok) { let d = r.statusText; try { d = (await r.json()).detail; } catch (e) {} throw new Error(d); }
+    return r.status === 204 ? null : r.json();
+  }
+  function el(tag, attrs = {}, ...children) {
+    const e = document.createElement(tag);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+    for (const c of children) e.append(c);
+    return e;
+  }
+  function fmt(v, digits, unit) { return v === null || v === undefined ? "—" : v.toFixed(digits) + unit; }
+
+  function loginPage() {
+    const form = document.getElementById("login-form");
+    form.addEventListener("submit", async (ev) => {
+      ev.preventDefault();
+      const msg = document.getElementById("login-error");
+      msg.textContent = "";
+      try {
+        const r = await fetch("/api/auth/login", { method: "POST", credentials: "same-origin",
+          headers: { "Content-Type": "application/json" },
+          body: JSON.stringify({ username: form.username.value, password: form.password.value }) });
+        if (!r.ok) { msg.textContent = "Wrong user name or password."; return; }
+        window.location.href = "/rig.html";
+      } catch (e) { msg.textContent = "The server cannot be reached: " + e.message; }
+    });
+  }
+
+  function clockCell(n, warnMs) {
+    if (!n.connected) return "—";
+    if (n.clock_offset_ms === null) return "measuring…";
+    const text = `${n.clock_offset_ms.toFixed(2)} ms ± ${n.clock_uncertainty_ms.toFixed(2)} ms`;
+    return n.clock_uncertainty_ms > warnMs ? el("span", { class: "warn" }, text + " (too uncertain)") : text;
+  }
+
+  function row(n, warnMs) {
+    const status = n.connected ? el("span", { class: "ok" }, "online") : el("span", { class: "off" }, "offline");
+    const notes = el("ul", { class: "warnings" });
+    for (const w of n.warnings) notes.append(el("li", {}, w));
+    const free = n.disk_free_bytes === null ? "—" : (n.disk_free_bytes / 2 ** 30).toFixed(1) + " GB";
+    return el("tr", { "data-node": n.id },
+      el("th", { scope: "row" }, n.id), el("td", {}, status),
+      el("td", { class: "num" }, n.connected ? fmt(n.fps, 1, " fps") : "—"),
+      el("td", { class: "num" }, String(n.dropped_frames)),
+      el("td", { class: "num" }, clockCell(n, warnMs)),
+      el("td", { class: "num" }, free), el("td", {}, n.warnings.length ? notes : "OK"));
+  }
+
+  async function rigPage() {
+    const sys = await api("/api/system");
+    const link = document.getElementById("viewer-link");
+    if (sys.viewer_url) link.href = sys.viewer_url; else link.remove();
+    document.getElementById("logout").addEventListener("click", async () => {
+      await api("/api/auth/logout", { method: "POST" }).catch(() => {});
+      window.location.href = "/index.html";
+    });
+    async function refresh() {
+      try {
+        const nodes = await api("/api/nodes");
+        const body = document.getElementById("nodes");
+        body.replaceChildren(...nodes.map((n) => row(n, sys.clock_warn_ms)));
+        const online = nodes.filter((n) => n.connected).length;
+        const clockBad = nodes.filter((n) => n.connected && n.clock_warning).length;
+        document.getElementById("summary").textContent =
+          `${online} of ${nodes.length} sensors online.` +
+          (clockBad ? ` ${clockBad} with a clock uncertainty above ${sys.clock_warn_ms} ms.` : "");
+      } catch (e) { document.getElementById("summary").textContent = "Cannot reach the server: " + e.message; }
+    }
+    await refresh();
+    setInterval(refresh, 1000);
+  }
+  return { api, loginPage, rigPage };
+})();
