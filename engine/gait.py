@@ -1,0 +1,504 @@
+"""Spatiotemporal gait parameters from per-foot trajectories.
+
+Two event definitions (``method``):
+
+* ``"crossing"`` — the seed paper's: a foot placement happens when one ankle passes the
+  other along the walking direction. The foot that is passed is the one on the floor
+  (the placed foot); its position at that instant is the placement.
+* ``"heelstrike"`` — Zeni et al. (2008): foot strike at the maximum, foot off at the
+  minimum of the heel (toe for foot off) position relative to the pelvis along the
+  walking direction; refined to sub-frame time by parabolic interpolation.
+
+Steps are assigned to the foot placed last (paper, Fig. 6): the step ending at a
+placement/strike of foot B measures B relative to the other foot A: length along the
+walking direction, width perpendicular to it on the floor, duration since A's event.
+Strides join two events of the same foot. Walking speed is Σ step lengths / Σ step
+times. The walking direction is found per straight pass (back-and-forth walks are split
+at turns, and turns are dropped).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import uniform_filter1d
+from scipy.signal import find_peaks
+
+from engine.errors import InputError, InsufficientDataError
+from engine.mocap import FeetTrajectories
+
+FloatArray = NDArray[np.float64]
+Method = Literal["crossing", "heelstrike"]
+
+#: Below this centre speed (m/s) a subject is standing, not walking.
+MIN_WALK_SPEED = 0.15
+#: Heading change rate (deg/s) of the smoothed body centre above which it is turning.
+MAX_STRAIGHT_TURN_RATE = 60.0
+#: A pass shorter than this (s) or travelling less than MIN_PASS_M is dropped.
+MIN_PASS_S = 0.8
+MIN_PASS_M = 0.5
+
+
+@dataclass(frozen=True)
+class GaitEvent:
+    """A detected gait event."""
+
+    side: str  # "L" | "R"
+    kind: str  # "foot_strike" | "foot_off" | "placement"
+    time_s: float
+    pass_index: int = 0
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step, assigned to the foot placed at its end (``side``)."""
+
+    side: str
+    time_s: float
+    length_m: float
+    width_m: float
+    duration_s: float
+    pass_index: int = 0
+
+
+@dataclass(frozen=True)
+class Stride:
+    """One stride: two successive events of the same foot."""
+
+    side: str
+    time_s: float
+    length_m: float
+    duration_s: float
+    pass_index: int = 0
+
+
+@dataclass(frozen=True)
+class WalkPass:
+    """A straight walking segment and its direction on the floor."""
+
+    t_start: float
+    t_end: float
+    direction: tuple[float, float]
+    excluded_first: bool = False
+
+
+@dataclass
+class _PassEvents:
+    placements: list[tuple[str, float, FloatArray, FloatArray]] = field(default_factory=list)
+    offs: list[tuple[str, float]] = field(default_factory=list)
+
+
+def _interp_rows(t: FloatArray, x: FloatArray, tq: float) -> FloatArray:
+    return np.array([np.interp(tq, t, x[:, k]) for k in range(x.shape[1])])
+
+
+def _nan_fill(t: FloatArray, x: FloatArray) -> FloatArray:
+    """NaNs replaced by linear interpolation/edge values (for smoothing only)."""
+    out = np.array(x, dtype=float, copy=True)
+    for k in range(out.shape[1]):
+        ok = np.isfinite(out[:, k])
+        if ok.sum() >= 2 and not ok.all():
+            out[~ok, k] = np.interp(t[~ok], t[ok], out[ok, k])
+    return out
+
+
+def find_passes(times: FloatArray, centre: FloatArray, rate: float) -> list[WalkPass]:
+    """Split a recording into straight walking passes.
+
+    The horizontal body centre is smoothed over ~0.8 s (about one stride, which removes
+    the side-to-side sway of each step); samples faster than :data:`MIN_WALK_SPEED` and
+    turning slower than :data:`MAX_STRAIGHT_TURN_RATE` form straight runs; a run's
+    direction is its principal axis on the floor, oriented along its travel.
+
+    Args:
+        times: ``(T,)`` seconds.
+        centre: ``(T, 3)`` body centre (pelvis or mid-feet), Z up.
+        rate: sampling rate (Hz).
+    """
+    ok = np.isfinite(centre[:, :2]).all(axis=1)
+    if ok.sum() < 3:
+        return []
+    c = _nan_fill(times, centre[:, :2])
+    c[: np.argmax(ok)] = c[np.argmax(ok)]
+    win = max(3, round(0.8 * rate))
+    cs = uniform_filter1d(c, win, axis=0, mode="nearest")
+    v = np.gradient(cs, times, axis=0)
+    speed = np.linalg.norm(v, axis=1)
+    heading = np.unwrap(np.arctan2(v[:, 1], v[:, 0]))
+    turn = np.degrees(np.abs(np.gradient(heading, times)))
+    straight = (speed > MIN_WALK_SPEED) & (turn < MAX_STRAIGHT_TURN_RATE) & ok
+    passes: list[WalkPass] = []
+    idx = np.flatnonzero(straight)
+    if len(idx) == 0:
+        return []
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    for r in runs:
+        t0, t1 = times[r[0]], times[r[-1]]
+        seg = c[r]
+        travel = cs[r[-1]] - cs[r[0]]
+        if t1 - t0 < MIN_PASS_S or np.linalg.norm(travel) < MIN_PASS_M:
+            continue
+        d = seg - seg.mean(axis=0)
+        _, _, vt = np.linalg.svd(d, full_matrices=False)
+        u = vt[0] / np.linalg.norm(vt[0])
+        if u @ travel < 0:
+            u = -u
+        # A pass that begins at the first sample with the subject already at speed did
+        # not start from standing: its first step is a normal one.
+        started_moving = bool(r[0] == np.argmax(ok) and speed[r[0]] > 0.5 * np.median(speed[r]))
+        passes.append(WalkPass(float(t0), float(t1), (float(u[0]), float(u[1])),
+                               excluded_first=not started_moving))
+    return passes
+
+
+def _segments(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    idx = np.flatnonzero(mask)
+    if len(idx) == 0:
+        return []
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    return [(int(r[0]), int(r[-1]) + 1) for r in runs]
+
+
+def _peaks(t: FloatArray, y: FloatArray, rate: float, height: float, prominence: float,
+           min_period_s: float) -> list[float]:
+    """Sub-frame times of the local maxima of ``y`` (NaN-safe).
+
+    A height threshold (rather than prominence alone) keeps peaks near the start of a
+    recording, whose left flank is cut off and whose prominence is therefore small.
+    """
+    out: list[float] = []
+    for a, b in _segments(np.isfinite(y)):
+        seg = y[a:b]
+        if len(seg) < 3:
+            continue
+        pk, _ = find_peaks(seg, height=height, prominence=prominence,
+                           distance=max(1, round(min_period_s * rate)))
+        for p in pk:
+            i = a + p
+            if 0 < p < len(seg) - 1:
+                y0, y1, y2 = y[i - 1], y[i], y[i + 1]
+                den = y0 - 2 * y1 + y2
+                off = 0.5 * (y0 - y2) / den if den != 0 else 0.0
+                off = float(np.clip(off, -0.5, 0.5))
+                out.append(float(t[i] + off * (t[i + 1] - t[i - 1]) / 2))
+            else:
+                out.append(float(t[i]))
+    return out
+
+
+class GaitAnalysis:
+    """Gait events, steps, strides and summary from per-foot trajectories.
+
+    Args:
+        method: ``"crossing"`` (paper: ankle crossings → foot placements) or
+            ``"heelstrike"`` (Zeni: foot strike / foot off relative to the pelvis).
+        exclude_first: drop the first step of each pass and the first stride of the foot
+            that started it (the paper's acceleration rule). ``"auto"`` does this only
+            for passes that start from standing or a turn, not for passes already at
+            speed at the start of the recording.
+        min_event_period_s: two events of the same kind and foot are at least this far
+            apart (a stride is ≥ 0.6 s even when running slowly).
+
+    Attributes (after :meth:`fit`):
+        passes_: straight passes with their directions.
+        events_: detected events, sorted by time.
+        steps_: included steps.
+        strides_: included strides.
+        summary_: summary parameters (see ``docs/gait-json.md``).
+    """
+
+    def __init__(self, method: Method = "crossing", exclude_first: bool | str = "auto",
+                 min_event_period_s: float = 0.4) -> None:
+        if method not in ("crossing", "heelstrike"):
+            raise InputError(f"method must be 'crossing' or 'heelstrike', got {method!r}")
+        if exclude_first not in (True, False, "auto"):
+            raise InputError("exclude_first must be True, False or 'auto'")
+        self.method: Method = method
+        self.exclude_first = exclude_first
+        self.min_event_period_s = float(min_event_period_s)
+
+    # ------------------------------------------------------------------ fitting
+    def fit(self, feet: FeetTrajectories) -> GaitAnalysis:
+        """Detect passes, events, steps and strides; compute the summary.
+
+        Raises:
+            InsufficientDataError: no straight walking found or fewer than two steps.
+        """
+        t = np.asarray(feet.times, dtype=float)
+        if len(t) < 5:
+            raise InsufficientDataError(f"only {len(t)} frames; a gait analysis needs a walk "
+                                        "of several steps")
+        rate = feet.rate
+        pL, pR = feet.foot("L"), feet.foot("R")
+        if feet.pelvis is not None and np.isfinite(feet.pelvis).all(axis=1).sum() > len(t) // 2:
+            centre = feet.pelvis
+        else:
+            centre = 0.5 * (pL + pR)
+        self.passes_ = find_passes(t, centre, rate)
+        if not self.passes_:
+            raise InsufficientDataError(
+                "no straight walking found (the body centre must travel ≥ "
+                f"{MIN_PASS_M} m at ≥ {MIN_WALK_SPEED} m/s for ≥ {MIN_PASS_S} s)"
+            )
+        events: list[GaitEvent] = []
+        steps: list[Step] = []
+        strides: list[Stride] = []
+        for k, wp in enumerate(self.passes_):
+            pe = (self._crossing_events(feet, wp) if self.method == "crossing"
+                  else self._zeni_events(feet, wp, centre))
+            kind = "placement" if self.method == "crossing" else "foot_strike"
+            events += [GaitEvent(s, kind, tt, k) for s, tt, _, _ in pe.placements]
+            events += [GaitEvent(s, "foot_off", tt, k) for s, tt in pe.offs]
+            st, sd = self._steps(pe, wp, k)
+            steps += st
+            strides += sd
+        self.events_ = sorted(events, key=lambda e: e.time_s)
+        self.steps_ = steps
+        self.strides_ = strides
+        if len(steps) < 2:
+            raise InsufficientDataError(
+                f"only {len(steps)} step(s) found in {len(self.passes_)} pass(es); at least "
+                "two steps are needed — record a longer walk"
+            )
+        self.summary_ = self._summary()
+        return self
+
+    def _frame(self, wp: WalkPass) -> tuple[FloatArray, FloatArray]:
+        d = np.array([wp.direction[0], wp.direction[1], 0.0])
+        lat = np.cross([0.0, 0.0, 1.0], d)  # points to the walker's left
+        return d, lat
+
+    def _crossing_events(self, feet: FeetTrajectories, wp: WalkPass) -> _PassEvents:
+        t = feet.times
+        m = (t >= wp.t_start) & (t <= wp.t_end)
+        d, _ = self._frame(wp)
+        pL, pR = feet.foot("L"), feet.foot("R")
+        diff = (pL - pR) @ d
+        diff[~m] = np.nan
+        vL = np.gradient(pL @ d, t)
+        vR = np.gradient(pR @ d, t)
+        cross: list[tuple[int, float]] = []
+        for i in np.flatnonzero(np.isfinite(diff[:-1]) & np.isfinite(diff[1:])):
+            a, b = diff[i], diff[i + 1]
+            if a == 0 or a * b < 0:
+                u = a / (a - b) if a != b else 0.0
+                cross.append((int(i), float(t[i] + u * (t[i + 1] - t[i]))))
+        # Remove wiggles: consecutive crossings whose excursion between them is tiny
+        # (noise around a crossing) are dropped in pairs.
+        amp = np.nanpercentile(np.abs(diff), 90) if np.isfinite(diff).any() else 0.0
+        thr = max(0.02, 0.2 * amp)
+        changed = True
+        while changed and len(cross) >= 2:
+            changed = False
+            for j in range(len(cross) - 1):
+                seg = diff[cross[j][0] + 1: cross[j + 1][0] + 1]
+                if len(seg) == 0 or np.nanmax(np.abs(seg)) < thr:
+                    del cross[j: j + 2]
+                    changed = True
+                    break
+        pe = _PassEvents()
+        for _i, tc in cross:
+            # The foot on the floor is the one moving slower along the direction.
+            vl = np.interp(tc, t, vL)
+            vr = np.interp(tc, t, vR)
+            side = "L" if vl < vr else "R"
+            placed = _interp_rows(t, feet.foot(side), tc)
+            other = _interp_rows(t, feet.foot("R" if side == "L" else "L"), tc)
+            pe.placements.append((side, tc, placed, other))
+        return pe
+
+    def _zeni_events(self, feet: FeetTrajectories, wp: WalkPass,
+                     centre: FloatArray) -> _PassEvents:
+        t = feet.times
+        m = (t >= wp.t_start) & (t <= wp.t_end)
+        d, _ = self._frame(wp)
+        pe = _PassEvents()
+        strikes: list[tuple[str, float]] = []
+        for side in ("L", "R"):
+            heel = feet.point_for(side, ("explicit", "heel", "ankle"))
+            toe = feet.point_for(side, ("toe", "explicit", "heel", "ankle"))
+            rel_h = (heel - centre) @ d
+            rel_t = (toe - centre) @ d
+            rel_h[~m] = np.nan
+            rel_t[~m] = np.nan
+            for y, store in ((rel_h, "fs"), (-rel_t, "fo")):
+                fin = y[np.isfinite(y)]
+                if len(fin) < 3:
+                    continue
+                rng = float(np.percentile(fin, 95) - np.percentile(fin, 5))
+                height = float(np.median(fin)) + 0.25 * rng
+                prom = max(0.01, 0.1 * rng)
+                for tt in _peaks(t, y, feet.rate, height, prom, self.min_event_period_s):
+                    if store == "fs":
+                        strikes.append((side, self._refine_strike(t, heel, tt)))
+                    else:
+                        pe.offs.append((side, tt))
+        strikes.sort(key=lambda x: x[1])
+        for side, tt in strikes:
+            other = "R" if side == "L" else "L"
+            pts = ("explicit", "heel", "ankle")
+            placed = _interp_rows(t, feet.point_for(side, pts), tt)
+            opp = _interp_rows(t, feet.point_for(other, pts), tt)
+            pe.placements.append((side, tt, placed, opp))
+        pe.offs.sort(key=lambda x: x[1])
+        return pe
+
+    @staticmethod
+    def _refine_strike(t: FloatArray, heel: FloatArray, t_zeni: float) -> float:
+        """Move a Zeni foot strike to the heel's landing (lowest point).
+
+        Zeni's maximum of heel-minus-pelvis precedes ground contact by a few tens of ms
+        (the heel is still descending); the heel reaches the floor where its vertical
+        velocity turns from downward to upward. The search is bounded to
+        [−30, +120] ms around Zeni's estimate so that noisy heights cannot move an event
+        to another step; without a crossing in that window Zeni's time is kept.
+        """
+        m = (t >= t_zeni - 0.03) & (t <= t_zeni + 0.12)
+        idx = np.flatnonzero(m)
+        if len(idx) < 3 or not np.isfinite(heel[idx, 2]).all():
+            return t_zeni
+        vz = np.gradient(heel[idx, 2], t[idx])
+        for j in range(len(idx) - 1):
+            if vz[j] < 0 <= vz[j + 1]:
+                u = vz[j] / (vz[j] - vz[j + 1])
+                return float(t[idx[j]] + u * (t[idx[j + 1]] - t[idx[j]]))
+        return t_zeni
+
+    def _steps(self, pe: _PassEvents, wp: WalkPass, k: int) -> tuple[list[Step], list[Stride]]:
+        d, lat = self._frame(wp)
+        pl = pe.placements
+        steps: list[Step] = []
+        for j in range(1, len(pl)):
+            (sa, ta, pa, _), (sb, tb, pb, ob) = pl[j - 1], pl[j]
+            if sa == sb:
+                continue  # a missed event: this pair is no step
+            # crossing: both placements are feet on the floor; heel strike: both feet at
+            # the strike of foot B.
+            vec = pb - pa if self.method == "crossing" else pb - ob
+            steps.append(Step(sb, tb, float(vec @ d), float(abs(vec @ lat)), float(tb - ta), k))
+        strides: list[Stride] = []
+        last: dict[str, tuple[float, FloatArray]] = {}
+        for s, tt, p, _ in pl:
+            if s in last:
+                t0, p0 = last[s]
+                strides.append(Stride(s, tt, float((p - p0) @ d), float(tt - t0), k))
+            last[s] = (tt, p)
+        excl = wp.excluded_first if self.exclude_first == "auto" else bool(self.exclude_first)
+        if excl and pl:
+            steps = steps[1:]
+            first = next((i for i, x in enumerate(strides) if x.side == pl[0][0]), None)
+            if first is not None:
+                del strides[first]
+        return steps, strides
+
+    # ------------------------------------------------------------------ summary
+    def _summary(self) -> dict[str, Any]:
+        st, sd = self.steps_, self.strides_
+
+        def stats(vals: list[tuple[str, float]]) -> dict[str, float | None]:
+            a = np.array([v for _, v in vals], dtype=float)
+            L = np.array([v for s, v in vals if s == "L"], dtype=float)
+            R = np.array([v for s, v in vals if s == "R"], dtype=float)
+            mean = float(a.mean()) if len(a) else None
+            sdv = float(a.std(ddof=1)) if len(a) > 1 else None
+            mL = float(L.mean()) if len(L) else None
+            mR = float(R.mean()) if len(R) else None
+            asym = (100.0 * abs(mL - mR) / (0.5 * (mL + mR))
+                    if mL is not None and mR is not None and (mL + mR) != 0 else None)
+            return {"mean": mean, "sd": sdv,
+                    "cv_pct": (100.0 * sdv / abs(mean)) if sdv is not None and mean else None,
+                    "left_mean": mL, "right_mean": mR, "asymmetry_pct": asym}
+
+        tot_len = sum(s.length_m for s in st)
+        tot_t = sum(s.duration_s for s in st)
+        out: dict[str, Any] = {
+            "method": self.method,
+            "n_passes": len(self.passes_),
+            "n_steps": len(st),
+            "n_strides": len(sd),
+            "walking_speed_m_s": tot_len / tot_t if tot_t > 0 else None,
+            "cadence_steps_min": 60.0 * len(st) / tot_t if tot_t > 0 else None,
+            "step_length_m": stats([(s.side, s.length_m) for s in st]),
+            "step_width_m": stats([(s.side, s.width_m) for s in st]),
+            "step_time_s": stats([(s.side, s.duration_s) for s in st]),
+            "stride_length_m": stats([(s.side, s.length_m) for s in sd]),
+            "stride_time_s": stats([(s.side, s.duration_s) for s in sd]),
+        }
+        out.update(self._phases())
+        return out
+
+    def _phases(self) -> dict[str, Any]:
+        """Stance, swing and double support in % of the gait cycle (heel-strike only)."""
+        none = {"stance_pct": None, "swing_pct": None, "double_support_pct": None}
+        if self.method != "heelstrike":
+            return none
+        ev = self.events_
+        fs = {s: [e.time_s for e in ev if e.kind == "foot_strike" and e.side == s]
+              for s in "LR"}
+        fo = {s: [e.time_s for e in ev if e.kind == "foot_off" and e.side == s] for s in "LR"}
+        stance: dict[str, list[float]] = {"L": [], "R": []}
+        dsup: list[float] = []
+        for s in "LR":
+            o = "R" if s == "L" else "L"
+            for a, b in zip(fs[s][:-1], fs[s][1:], strict=True):
+                cyc = b - a
+                if cyc <= 0 or cyc > 2.5:
+                    continue
+                offs = [x for x in fo[s] if a < x < b]
+                if len(offs) != 1:
+                    continue
+                stance[s].append(100.0 * (offs[0] - a) / cyc)
+                # Double support: from own strike to the other foot's off, and from the
+                # other foot's strike to own off.
+                o_off = [x for x in fo[o] if a < x < offs[0]]
+                o_fs = [x for x in fs[o] if a < x < offs[0]]
+                if len(o_off) == 1 and len(o_fs) == 1 and o_off[0] < o_fs[0]:
+                    dsup.append(100.0 * ((o_off[0] - a) + (offs[0] - o_fs[0])) / cyc)
+        allst = stance["L"] + stance["R"]
+        if not allst:
+            return none
+
+        def side_stats(v: list[float]) -> float | None:
+            return float(np.mean(v)) if v else None
+
+        return {
+            "stance_pct": {"mean": float(np.mean(allst)), "left_mean": side_stats(stance["L"]),
+                           "right_mean": side_stats(stance["R"])},
+            "swing_pct": {"mean": 100.0 - float(np.mean(allst)),
+                          "left_mean": None if not stance["L"] else 100 - np.mean(stance["L"]),
+                          "right_mean": None if not stance["R"] else 100 - np.mean(stance["R"])},
+            "double_support_pct": {"mean": side_stats(dsup)} if dsup else None,
+        }
+
+    # ------------------------------------------------------------------ output
+    def to_dict(self) -> dict[str, Any]:
+        """The stable JSON document (``docs/gait-json.md``)."""
+        def clean(o: Any) -> Any:
+            if isinstance(o, dict):
+                return {k: clean(v) for k, v in o.items()}
+            if isinstance(o, list | tuple):
+                return [clean(v) for v in o]
+            if isinstance(o, np.floating | float):
+                return None if not np.isfinite(o) else round(float(o), 6)
+            if isinstance(o, np.integer):
+                return int(o)
+            return o
+
+        def strip(d: dict[str, Any]) -> dict[str, Any]:
+            return {k: v for k, v in d.items() if k != "pass_index"}
+
+        return clean({
+            "events": [{"side": e.side, "kind": e.kind, "time_s": e.time_s}
+                       for e in self.events_],
+            "steps": [strip(asdict(s)) for s in self.steps_],
+            "strides": [strip(asdict(s)) for s in self.strides_],
+            "summary": self.summary_,
+        })
+
+    def to_json(self, indent: int | None = None) -> str:
+        """:meth:`to_dict` serialised as one JSON object."""
+        return json.dumps(self.to_dict(), indent=indent)

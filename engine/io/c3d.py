@@ -1,0 +1,193 @@
+"""C3D read/write through ``ezc3d``.
+
+Time axis convention (the one Vicon Nexus and kineticstoolkit use): frame ``i`` of the
+file is at ``(first_frame + i) / rate`` seconds with ``first_frame`` zero-based as
+``ezc3d`` reports it, which is the time axis of the ``EVENT:TIMES`` annotations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from engine.errors import InputError
+from engine.io.markers import (
+    MarkerEvent,
+    MarkerTrajectories,
+    detect_units,
+    normalise_event,
+    unit_scale,
+)
+from engine.skeleton import SkeletonSeries, TrackingState
+
+#: POINT parameters that list model outputs (angles, forces ...) stored as points.
+_NON_MARKER_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
+
+_EVENT_LABELS = {"foot_strike": "Foot Strike", "foot_off": "Foot Off"}
+_SIDE_CONTEXT = {"L": "Left", "R": "Right", "": "General"}
+
+
+def _param(params: dict[str, Any], group: str, name: str) -> list[Any]:
+    """A parameter's values as a list (empty when the parameter is absent)."""
+    try:
+        v = params[group][name]["value"]
+    except KeyError:
+        return []
+    return list(np.asarray(v).ravel()) if not isinstance(v, list) else v
+
+
+def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
+    """Read the 3-D points, labels, rate, units and events of a C3D file.
+
+    Args:
+        path: the ``.c3d`` file.
+        markers_only: drop points that the file lists as model outputs (joint angles,
+            forces, moments, powers) in ``POINT:ANGLES`` etc.
+
+    Returns:
+        Marker trajectories in metres (file axes), NaN where a marker is missing
+        (negative residual or an exact 0,0,0).
+
+    Raises:
+        InputError: the file cannot be read or has no 3-D points.
+    """
+    import ezc3d
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"C3D file not found: {p}")
+    try:
+        c = ezc3d.c3d(str(p), extract_forceplat_data=False)
+    except Exception as exc:  # ezc3d raises plain RuntimeError/IOError on corrupt files
+        raise InputError(f"cannot read {p.name} as C3D: {exc}") from None
+    params = c["parameters"]
+    labels = [str(s).strip() for s in (_param(params, "POINT", "LABELS") or [])]
+    pts = np.asarray(c["data"]["points"], dtype=float)
+    n_points = pts.shape[1] if pts.ndim == 3 else 0
+    if n_points == 0:
+        raise InputError(f"{p.name} holds no 3-D points")
+    # Files with more than 255 points continue the labels in LABELS2, LABELS3 ...
+    k = 2
+    while len(labels) < n_points and _param(params, "POINT", f"LABELS{k}"):
+        labels += [str(s).strip() for s in _param(params, "POINT", f"LABELS{k}")]
+        k += 1
+    labels = (labels + [f"point{i + 1}" for i in range(len(labels), n_points)])[:n_points]
+    rate = float(c["header"]["points"]["frame_rate"])
+    units_v = _param(params, "POINT", "UNITS")
+    units = str(units_v[0]).strip() if units_v else ""
+    if not units:
+        # No POINT:UNITS: guess from the size of the body.
+        units = detect_units(pts[:3].transpose(2, 1, 0), labels)
+    scale = unit_scale(units)
+
+    xyz = pts[:3].transpose(2, 1, 0) * scale  # (T, M, 3)
+    try:
+        resid = np.asarray(c["data"]["meta_points"]["residuals"], dtype=float)[0].T
+        xyz[resid < 0] = np.nan
+    except (KeyError, IndexError):
+        pass
+    xyz[np.all(xyz == 0.0, axis=-1)] = np.nan
+
+    keep = np.ones(n_points, dtype=bool)
+    if markers_only:
+        model = set()
+        for g in _NON_MARKER_GROUPS:
+            v = _param(params, "POINT", g)
+            if v:
+                model |= {str(s).strip() for s in v}
+        keep = np.array([lab not in model for lab in labels])
+    first = int(c["header"]["points"]["first_frame"])
+    T = xyz.shape[0]
+    times = (first + np.arange(T)) / rate
+
+    events: list[MarkerEvent] = []
+    ev = params.get("EVENT", {})
+    if "TIMES" in ev:
+        tv = np.asarray(ev["TIMES"]["value"], dtype=float).reshape(2, -1)
+        ev_t = tv[0] * 60.0 + tv[1]
+        ev_l = list(ev.get("LABELS", {}).get("value", [])) + [""] * len(ev_t)
+        ev_c = list(ev.get("CONTEXTS", {}).get("value", [])) + [""] * len(ev_t)
+        used = ev.get("USED", {}).get("value", [len(ev_t)])
+        n_ev = min(int(np.asarray(used).ravel()[0]), len(ev_t))
+        events = [normalise_event(str(ev_l[i]), str(ev_c[i]), float(ev_t[i]))
+                  for i in range(n_ev)]
+    return MarkerTrajectories(
+        times=times, positions=xyz[:, keep],
+        labels=[lb for lb, k_ in zip(labels, keep, strict=True) if k_],
+        rate=rate, units=units, events=events, meta={"source": str(p), "first_frame": first},
+    )
+
+
+def write_c3d(path: str | Path, markers: MarkerTrajectories, units: str | None = None) -> None:
+    """Write marker trajectories (and their events) to a C3D file.
+
+    Args:
+        path: destination ``.c3d``.
+        markers: trajectories in metres; their ``times[0] * rate`` must be a whole frame
+            number (it becomes the file's first frame).
+        units: length unit to write (default: ``markers.units``; Vicon tools expect mm).
+    """
+    import ezc3d
+
+    u = units or markers.units or "mm"
+    scale = unit_scale(u)
+    first = round(float(markers.times[0]) * markers.rate) if len(markers) else 0
+    if len(markers) and abs(first - markers.times[0] * markers.rate) > 1e-3:
+        raise InputError("C3D time axis must start on a whole frame (times[0] * rate); "
+                         "shift the times first")
+    if any(len(lab) > 255 for lab in markers.labels):
+        raise InputError("C3D labels must be at most 255 characters")
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [float(markers.rate)]
+    c["parameters"]["POINT"]["LABELS"]["value"] = tuple(markers.labels)
+    c["parameters"]["POINT"]["UNITS"]["value"] = [u]
+    data = np.ones((4, len(markers.labels), len(markers)))
+    data[:3] = (markers.positions / scale).transpose(2, 1, 0)
+    c["data"]["points"] = data
+    c["header"]["points"]["first_frame"] = int(first)
+    for e in markers.events:
+        minutes = int(e.time_s // 60.0)
+        c.add_event([minutes, float(e.time_s - 60.0 * minutes)],
+                    _SIDE_CONTEXT.get(e.side, "General"),
+                    e.label or _EVENT_LABELS.get(e.kind, e.kind), "", "",
+                    1 if e.kind == "foot_strike" else 2 if e.kind == "foot_off" else 0)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    c.write(str(path))
+
+
+def skeleton_to_markers(series: SkeletonSeries, events: Sequence[MarkerEvent] = (),
+                        tracked_only: bool = False, rate: float | None = None,
+                        units: str = "mm") -> MarkerTrajectories:
+    """View a skeleton series as labelled points (one per joint, SDK names).
+
+    Args:
+        series: the skeleton (uniformly sampled for C3D/TRC export).
+        events: gait events to carry along.
+        tracked_only: blank joints that are not TRACKED.
+        rate: sampling rate; default from the median time step.
+        units: unit to record as the unit of the file to write.
+    """
+    if len(series) < 2 and rate is None:
+        raise InputError("need at least two frames (or an explicit rate) to export")
+    r = float(rate) if rate is not None else float(1.0 / np.median(np.diff(series.times)))
+    pos = series.tracked_positions() if tracked_only else series.positions.copy()
+    pos[series.states == TrackingState.NOT_TRACKED] = np.nan
+    return MarkerTrajectories(series.times.copy(), pos, list(series.joint_set.joints), r, units,
+                              list(events), dict(series.meta))
+
+
+def write_skeleton_c3d(path: str | Path, series: SkeletonSeries,
+                       events: Sequence[MarkerEvent] = (), units: str = "mm") -> None:
+    """Export a uniformly sampled skeleton as a C3D file (joints = labelled points).
+
+    The time axis is shifted to start on a whole frame if needed.
+    """
+    m = skeleton_to_markers(series, events, units=units)
+    shift = round(m.times[0] * m.rate) / m.rate - m.times[0]
+    if abs(shift) > 1e-9:
+        m.times = m.times + shift
+        m.events = [MarkerEvent(e.time_s + shift, e.side, e.kind, e.label) for e in m.events]
+    write_c3d(path, m, units)

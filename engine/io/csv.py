@@ -1,0 +1,116 @@
+"""Skeleton CSV: ``time,<Joint>_x,<Joint>_y,<Joint>_z[,<Joint>_state]`` in metres.
+
+Joint names are SDK names (Kinect v2 by default; Kinect v1 and Azure Kinect names are
+recognised too). ``_state`` columns hold :class:`TrackingState` values (0, 1, 2); when
+absent a joint is TRACKED wherever its coordinates are present. Empty cells or ``nan``
+are missing values. Joints of the set that the file omits are NOT_TRACKED.
+"""
+
+from __future__ import annotations
+
+import csv as _csv
+from pathlib import Path
+
+import numpy as np
+
+from engine.errors import InputError
+from engine.skeleton import JOINT_SETS, JointSet, SkeletonSeries, TrackingState
+
+
+def _joint_set_for_columns(names: list[str]) -> JointSet:
+    best: JointSet | None = None
+    for js in JOINT_SETS.values():
+        if set(names) <= set(js.joints) and (best is None or len(js.joints) < len(best.joints)):
+            best = js
+    if best is None:
+        unknown = sorted(set(names) - set(JOINT_SETS["kinect_v2"].joints))
+        raise InputError(
+            "unknown joint names in CSV header: " + ", ".join(unknown[:8])
+            + "; use Kinect v2 SDK names such as SpineBase, AnkleLeft, AnkleRight"
+        )
+    return best
+
+
+def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
+    """Read a skeleton CSV file into a :class:`SkeletonSeries` (metres, file axes).
+
+    Raises:
+        InputError: missing ``time`` column, incomplete x/y/z triplets, unknown joints,
+            non-numeric cells or non-increasing times.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"CSV file not found: {p}")
+    with p.open(newline="", encoding="utf-8") as f:
+        reader = _csv.reader(f)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise InputError(f"{p.name} is empty") from None
+        rows = [r for r in reader if any(c.strip() for c in r)]
+    if not header or header[0].lower() != "time":
+        raise InputError(f"{p.name}: the first column must be 'time' (seconds)")
+    joints: list[str] = []
+    for h in header[1:]:
+        base, _, suffix = h.rpartition("_")
+        if suffix not in ("x", "y", "z", "state") or not base:
+            raise InputError(f"{p.name}: column {h!r} is not <Joint>_x/_y/_z/_state")
+        if base not in joints:
+            joints.append(base)
+    col = {h: i for i, h in enumerate(header)}
+    for j in joints:
+        missing = [f"{j}_{a}" for a in "xyz" if f"{j}_{a}" not in col]
+        if missing:
+            raise InputError(f"{p.name}: joint {j} lacks column(s) {', '.join(missing)}")
+    js = _joint_set_for_columns(joints)
+    if not rows:
+        raise InputError(f"{p.name} has no data rows")
+    A = np.full((len(rows), len(header)), np.nan)
+    for i, r in enumerate(rows):
+        for k, cell in enumerate(r[: len(header)]):
+            s = cell.strip()
+            if s:
+                try:
+                    A[i, k] = float(s)
+                except ValueError:
+                    raise InputError(
+                        f"{p.name} row {i + 2}, column {header[k]}: {s!r} is not a number"
+                    ) from None
+    T, J = len(rows), len(js.joints)
+    pos = np.full((T, J, 3), np.nan)
+    states = np.zeros((T, J), dtype=np.uint8)
+    for j in joints:
+        ji = js.index(j)
+        pos[:, ji] = A[:, [col[f"{j}_{a}"] for a in "xyz"]]
+        ok = np.all(np.isfinite(pos[:, ji]), axis=1)
+        if f"{j}_state" in col:
+            st = A[:, col[f"{j}_state"]]
+            st = np.where(np.isfinite(st), st, TrackingState.NOT_TRACKED)
+            if np.any((st < 0) | (st > 2)):
+                raise InputError(f"{p.name}: {j}_state must be 0, 1 or 2")
+            states[:, ji] = np.where(ok, st, TrackingState.NOT_TRACKED).astype(np.uint8)
+        else:
+            states[:, ji] = np.where(ok, TrackingState.TRACKED, TrackingState.NOT_TRACKED)
+    if np.any(~np.isfinite(A[:, 0])):
+        raise InputError(f"{p.name}: every row needs a time")
+    return SkeletonSeries(A[:, 0], pos, states, js, {"source": str(p)})
+
+
+def write_skeleton_csv(path: str | Path, series: SkeletonSeries, with_states: bool = True) -> None:
+    """Write a skeleton series as CSV (full float precision, ``nan`` → empty cell)."""
+    p = Path(path)
+    header = ["time"]
+    for j in series.joint_set.joints:
+        header += [f"{j}_x", f"{j}_y", f"{j}_z"] + ([f"{j}_state"] if with_states else [])
+    p.parent.mkdir(parents=True, exist_ok=True)
+    with p.open("w", newline="", encoding="utf-8") as f:
+        w = _csv.writer(f)
+        w.writerow(header)
+        for t in range(len(series)):
+            row = [repr(float(series.times[t]))]
+            for ji in range(len(series.joint_set.joints)):
+                row += ["" if not np.isfinite(v) else repr(float(v))
+                        for v in series.positions[t, ji]]
+                if with_states:
+                    row.append(str(int(series.states[t, ji])))
+            w.writerow(row)

@@ -1,0 +1,246 @@
+"""Marker trajectories read from mocap files, with unit and vertical-axis detection.
+
+:class:`MarkerTrajectories` is the common in-memory form of a C3D or TRC file: positions
+are always in metres in the file's own axes (no rotation is applied on read), so a
+file written back is the file read. :func:`detect_vertical_axis` and :func:`to_z_up`
+turn the file's axes into the project's Z-up convention when an analysis needs it.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from engine.errors import InputError
+
+#: metres per unit for the unit strings found in C3D/TRC files.
+UNIT_SCALE: dict[str, float] = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0}
+
+AXES = ("x", "y", "z")
+
+
+@dataclass(frozen=True)
+class MarkerEvent:
+    """One annotated event (e.g. a Vicon Nexus foot strike).
+
+    Attributes:
+        time_s: seconds on the file's time axis.
+        side: ``"L"``, ``"R"`` or ``""`` (general / unknown).
+        kind: ``"foot_strike"``, ``"foot_off"`` or the file's label lower-cased.
+        label: the label as written in the file.
+    """
+
+    time_s: float
+    side: str
+    kind: str
+    label: str = ""
+
+
+def normalise_event(label: str, context: str, time_s: float) -> MarkerEvent:
+    """Map a file's event label/context to a :class:`MarkerEvent`."""
+    ctx = context.strip().lower()
+    side = "L" if ctx.startswith("l") else "R" if ctx.startswith("r") else ""
+    key = re.sub(r"[^a-z]", "", label.lower())
+    if key in ("footstrike", "heelstrike", "initialcontact", "fs", "hs", "ic"):
+        kind = "foot_strike"
+    elif key in ("footoff", "toeoff", "finalcontact", "fo", "to"):
+        kind = "foot_off"
+    else:
+        kind = label.strip().lower().replace(" ", "_")
+    return MarkerEvent(float(time_s), side, kind, label)
+
+
+@dataclass
+class MarkerTrajectories:
+    """Labelled 3-D marker trajectories.
+
+    Attributes:
+        times: ``(T,)`` seconds, strictly increasing.
+        positions: ``(T, M, 3)`` metres, NaN where a marker is missing.
+        labels: ``M`` marker labels as in the file.
+        rate: sampling rate in Hz.
+        units: the length unit the file was written in (``"mm"``, ``"m"`` ...).
+        events: annotated events, in file order.
+        meta: free-form provenance (source path, description ...).
+    """
+
+    times: NDArray[np.float64]
+    positions: NDArray[np.float64]
+    labels: list[str]
+    rate: float
+    units: str = "m"
+    events: list[MarkerEvent] = field(default_factory=list)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.times = np.asarray(self.times, dtype=float)
+        self.positions = np.asarray(self.positions, dtype=float)
+        self.labels = [str(s) for s in self.labels]
+        T = len(self.times)
+        if self.positions.ndim != 3 or self.positions.shape != (T, len(self.labels), 3):
+            raise InputError(
+                f"marker positions must have shape ({T}, {len(self.labels)}, 3), "
+                f"got {self.positions.shape}"
+            )
+        if T > 1 and not np.all(np.diff(self.times) > 0):
+            raise InputError("marker times must be strictly increasing")
+        if not (np.isfinite(self.rate) and self.rate > 0):
+            raise InputError(f"sampling rate must be positive, got {self.rate}")
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def index(self, label: str) -> int:
+        """Index of ``label`` (exact match), or InputError listing the labels."""
+        try:
+            return self.labels.index(label)
+        except ValueError:
+            raise InputError(
+                f"marker {label!r} not found; available: {', '.join(self.labels)}"
+            ) from None
+
+    def marker(self, label: str) -> NDArray[np.float64]:
+        """``(T, 3)`` trajectory of one marker."""
+        return self.positions[:, self.index(label)]
+
+
+def unit_scale(units: str) -> float:
+    """Metres per ``units`` (``"mm"``, ``"cm"``, ``"m"``), or InputError."""
+    u = units.strip().lower()
+    if u in ("millimeters", "millimetres"):
+        u = "mm"
+    elif u in ("meters", "metres"):
+        u = "m"
+    elif u in ("centimeters", "centimetres"):
+        u = "cm"
+    if u not in UNIT_SCALE:
+        raise InputError(f"unknown length unit {units!r}; use one of mm, cm, m")
+    return UNIT_SCALE[u]
+
+
+def _first_label(labels: list[str], patterns: tuple[str, ...]) -> int | None:
+    """Index of the first label whose bare name matches one of the regexes."""
+    for pat in patterns:
+        rx = re.compile(pat, re.IGNORECASE)
+        for i, lab in enumerate(labels):
+            bare = lab.split(":")[-1]
+            if rx.fullmatch(bare):
+                return i
+    return None
+
+
+_UPPER_PATTERNS = (r"[LR]ASI[S]?", r"[LR]PSI[S]?", r"SACR?", r"Pelvis", r"SpineBase", r"PELVIS",
+                   r"HipCenter", r"C7", r"Head", r"HEAD", r"[LR]FHD", r"[LR]BHD")
+_FOOT_PATTERNS = (r"[LR]HEE[L]?", r"[LR]ANK", r"[LR]TOE", r"[LR]_?FCC", r"[LR]\.?(Heel|Ankle)",
+                  r"(Ankle|Foot)(Left|Right)", r"(Left|Right)(Ankle|Heel|Foot)",
+                  r"[lr]_(ankle|heel)")
+
+
+def _group(labels: list[str], patterns: tuple[str, ...]) -> list[int]:
+    out: list[int] = []
+    for pat in patterns:
+        rx = re.compile(pat, re.IGNORECASE)
+        out += [i for i, lab in enumerate(labels) if rx.fullmatch(lab.split(":")[-1])]
+    return sorted(set(out))
+
+
+def characteristic_length(positions: ArrayLike, labels: list[str]) -> float:
+    """A body length in the file's units, used to guess units.
+
+    Leg length (pelvis markers to foot markers) when both are labelled, else the median
+    over frames of the largest marker extent along any axis (≈ body height).
+    """
+    P = np.asarray(positions, dtype=float)
+    up = _group(labels, _UPPER_PATTERNS[:9])
+    feet = _group(labels, _FOOT_PATTERNS)
+    with np.errstate(all="ignore"):
+        if up and feet:
+            d = np.nanmean(P[:, up], axis=1) - np.nanmean(P[:, feet], axis=1)
+            L = float(np.nanmedian(np.linalg.norm(d, axis=-1)))
+            if np.isfinite(L) and L > 0:
+                return L
+        ext = np.nanmax(P, axis=1) - np.nanmin(P, axis=1)
+        L = float(np.nanmedian(np.nanmax(ext, axis=-1)))
+    if not np.isfinite(L) or L <= 0:
+        raise InputError("cannot guess the length unit: no frame with two or more markers; "
+                         "give the units explicitly")
+    return L
+
+
+def detect_units(positions: ArrayLike, labels: list[str]) -> str:
+    """Guess ``"mm"``, ``"cm"`` or ``"m"`` from the size of the body.
+
+    A leg is 0.5–1.2 m and a body 0.3–2.2 m tall (feet-only sets are short), so a
+    characteristic length below 5 means metres, below 300 centimetres, else millimetres.
+    """
+    L = characteristic_length(positions, labels)
+    if L < 5.0:
+        return "m"
+    if L < 300.0:
+        return "cm"
+    return "mm"
+
+
+def detect_vertical_axis(positions: ArrayLike, labels: list[str]) -> str:
+    """Guess the vertical axis of a marker set, with sign (``"z"``, ``"-y"`` ...).
+
+    With labelled pelvis/head and foot markers the vertical axis is the one along which
+    the upper body sits furthest from the feet (sign included). Otherwise it is the axis
+    with the largest per-frame marker spread (a standing or walking body is taller than
+    wide) and the least travel of the marker centroid (people walk on a floor); the sign
+    is then assumed positive.
+
+    Args:
+        positions: ``(T, M, 3)`` in any length unit.
+        labels: ``M`` marker labels.
+
+    Returns:
+        One of ``x, y, z, -x, -y, -z``.
+    """
+    P = np.asarray(positions, dtype=float)
+    up = _group(labels, _UPPER_PATTERNS)
+    feet = _group(labels, _FOOT_PATTERNS)
+    with np.errstate(all="ignore"):
+        if up and feet:
+            d = np.nanmedian(np.nanmean(P[:, up], axis=1) - np.nanmean(P[:, feet], axis=1),
+                             axis=0)
+            if np.all(np.isfinite(d)):
+                a = int(np.argmax(np.abs(d)))
+                return ("" if d[a] > 0 else "-") + AXES[a]
+        spread = np.nanmedian(np.nanstd(P, axis=1), axis=0)
+        centroid = np.nanmean(P, axis=1)
+        travel = np.nanstd(centroid, axis=0)
+    if not np.all(np.isfinite(spread)):
+        raise InputError("cannot detect the vertical axis: too few markers; give it with --up")
+    score = spread / (travel + spread.max() * 0.1 + 1e-12)
+    return AXES[int(np.argmax(score))]
+
+
+def up_rotation(up: str) -> NDArray[np.float64]:
+    """3×3 rotation taking the ``up`` axis (e.g. ``"y"``, ``"-z"``) to +Z.
+
+    Positive axes use a cyclic permutation (keeps handedness and the other axes'
+    order); negative ones add a half-turn about the new X axis.
+    """
+    u = up.strip().lower()
+    neg = u.startswith("-")
+    a = u.lstrip("+-")
+    if a not in AXES:
+        raise InputError(f"vertical axis must be one of x, y, z (optionally -x ...), got {up!r}")
+    k = AXES.index(a)
+    # row i of R picks old axis (k + 1 + i) mod 3 so that old axis k becomes new z.
+    R = np.zeros((3, 3))
+    for i in range(3):
+        R[i, (k + 1 + i) % 3] = 1.0
+    if neg:
+        R = np.diag([1.0, -1.0, -1.0]) @ R
+    return R
+
+
+def to_z_up(positions: ArrayLike, up: str) -> NDArray[np.float64]:
+    """Rotate ``(..., 3)`` points so that the ``up`` axis becomes +Z."""
+    return np.asarray(positions, dtype=float) @ up_rotation(up).T

@@ -1,0 +1,97 @@
+"""OpenSim TRC (tab-separated marker trajectories) read/write.
+
+Layout: a ``PathFileType`` line, a header-name line and its values line (``DataRate``,
+``Units`` ...), the ``Frame#  Time  <marker>\\t\\t\\t ...`` line, the ``X1 Y1 Z1 ...``
+line, then one row per frame. Empty fields (or NaN) are missing markers.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from engine.errors import InputError
+from engine.io.markers import MarkerTrajectories, detect_units, unit_scale
+
+
+def read_trc(path: str | Path) -> MarkerTrajectories:
+    """Read a TRC file.
+
+    Returns:
+        Marker trajectories in metres (file axes; OpenSim files are usually Y-up).
+
+    Raises:
+        InputError: the file is not a TRC file or is inconsistent.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"TRC file not found: {p}")
+    lines = p.read_text(encoding="utf-8", errors="replace").splitlines()
+    if len(lines) < 5 or not lines[0].startswith("PathFileType"):
+        raise InputError(f"{p.name} is not a TRC file (first line must start with PathFileType)")
+    keys = lines[1].split("\t")
+    vals = lines[2].split("\t")
+    hdr = {k.strip(): v.strip() for k, v in zip(keys, vals, strict=False)}
+    try:
+        rate = float(hdr.get("DataRate") or hdr.get("CameraRate") or "nan")
+    except ValueError:
+        raise InputError(f"{p.name}: DataRate {hdr.get('DataRate')!r} is not a number") from None
+    name_cells = lines[3].split("\t")
+    labels = [c.strip() for c in name_cells[2:] if c.strip()]
+    M = len(labels)
+    if M == 0:
+        raise InputError(f"{p.name}: no marker names on line 4")
+    rows = []
+    for ln, line in enumerate(lines[5:], start=6):
+        if not line.strip():
+            continue
+        cells = line.split("\t")
+        if len(cells) < 2:
+            raise InputError(f"{p.name} line {ln}: expected Frame# and Time")
+        vals_f = np.full(2 + 3 * M, np.nan)
+        for i, cell in enumerate(cells[: 2 + 3 * M]):
+            s = cell.strip()
+            if s:
+                try:
+                    vals_f[i] = float(s)
+                except ValueError:
+                    raise InputError(f"{p.name} line {ln}: {s!r} is not a number") from None
+        rows.append(vals_f)
+    if not rows:
+        raise InputError(f"{p.name} has no data rows")
+    A = np.vstack(rows)
+    times = A[:, 1]
+    if not np.isfinite(rate) or rate <= 0:
+        rate = float(1.0 / np.median(np.diff(times))) if len(times) > 1 else 1.0
+    raw = A[:, 2:].reshape(len(A), M, 3)
+    # A header without Units: guess from the size of the body.
+    units = hdr.get("Units", "") or detect_units(raw, labels)
+    pos = raw * unit_scale(units)
+    return MarkerTrajectories(times, pos, labels, rate, units, [], {"source": str(p)})
+
+
+def write_trc(path: str | Path, markers: MarkerTrajectories, units: str | None = None) -> None:
+    """Write marker trajectories as an OpenSim TRC file (events are not part of TRC)."""
+    u = units or markers.units or "mm"
+    scale = unit_scale(u)
+    p = Path(path)
+    T, M = len(markers), len(markers.labels)
+    if any("\t" in lab for lab in markers.labels):
+        raise InputError("TRC marker labels cannot contain tab characters")
+    out = [
+        f"PathFileType\t4\t(X/Y/Z)\t{p.name}",
+        "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\t"
+        "OrigDataStartFrame\tOrigNumFrames",
+        f"{markers.rate:.10g}\t{markers.rate:.10g}\t{T}\t{M}\t{u}\t{markers.rate:.10g}\t1\t{T}",
+        "Frame#\tTime\t" + "\t".join(f"{lab}\t\t" for lab in markers.labels),
+        "\t\t" + "\t".join(f"X{i + 1}\tY{i + 1}\tZ{i + 1}" for i in range(M)),
+        "",
+    ]
+    P = markers.positions / scale
+    for t in range(T):
+        cells = [str(t + 1), repr(float(markers.times[t]))]
+        cells += ["" if not np.isfinite(v) else repr(float(v)) for v in P[t].ravel()]
+        out.append("\t".join(cells))
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text("\n".join(out) + "\n", encoding="utf-8")

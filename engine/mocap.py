@@ -1,0 +1,295 @@
+"""From mocap files or skeletons to the per-foot trajectories the gait engine needs.
+
+Marker names are matched automatically for the common conventions (Vicon Plug-in Gait
+``LANK/LHEE/LTOE``, ``L.Ankle``, ``L_FCC``, ``LeftAnkle``, ``AnkleLeft``, ``l_ankle``,
+subject prefixes such as ``Subject:LHEE``; case-insensitive) and can be overridden by
+explicit ``left``/``right`` names. Everything returned is in metres, Z up.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from engine.errors import InputError
+from engine.io.markers import (
+    MarkerEvent,
+    MarkerTrajectories,
+    characteristic_length,
+    detect_units,
+    detect_vertical_axis,
+    to_z_up,
+    unit_scale,
+)
+from engine.skeleton import SkeletonSeries
+
+FloatArray = NDArray[np.float64]
+
+#: Body-part name stems (after the side token is removed), most preferred first.
+PART_STEMS: dict[str, tuple[str, ...]] = {
+    "ankle": ("ank", "ankle", "lmal", "malleolus", "latmal", "mal", "ajc", "anklejc"),
+    "heel": ("hee", "heel", "fcc", "cal", "calc", "calcaneus"),
+    "toe": ("toe", "ttoe", "mt2", "fm2", "mth2", "mt1", "fm1", "toetip", "foot", "foo"),
+}
+_PELVIS_SINGLE = ("sacr", "sacrum", "pelvis", "spinebase", "hipcenter", "midhip", "root")
+_PELVIS_PAIRS = (("lpsi", "rpsi"), ("lasi", "rasi"), ("lpsis", "rpsis"), ("lasis", "rasis"))
+_SIDE_TOKENS = {"L": ("l", "left"), "R": ("r", "right")}
+
+#: Short gaps in mocap data (marker drop-outs) are bridged up to this length.
+MAX_GAP_S = 0.2
+
+
+def _key(label: str) -> str:
+    """Bare, lower-case, alphanumeric form of a label (subject prefix removed)."""
+    return re.sub(r"[^a-z0-9]", "", label.split(":")[-1].lower())
+
+
+def _side_part_keys(side: str, stem: str) -> list[str]:
+    ks: list[str] = []
+    for tok in _SIDE_TOKENS[side]:
+        ks += [tok + stem, stem + tok]
+    return ks
+
+
+def find_marker(labels: list[str], side: str, part: str) -> str | None:
+    """Label of the ``part`` (``ankle``/``heel``/``toe``) marker of ``side`` (``L``/``R``)."""
+    keys = [_key(lab) for lab in labels]
+    for stem in PART_STEMS[part]:
+        for k in _side_part_keys(side, stem):
+            if k in keys:
+                return labels[keys.index(k)]
+    return None
+
+
+def resolve_label(labels: list[str], name: str) -> str:
+    """Match a user-given marker name (case-insensitive, subject prefix optional)."""
+    if name in labels:
+        return name
+    k = _key(name)
+    hits = [lab for lab in labels if _key(lab) == k]
+    if not hits:
+        raise InputError(f"marker {name!r} not found; available labels: {', '.join(labels)}")
+    return hits[0]
+
+
+@dataclass
+class FeetTrajectories:
+    """Per-foot trajectories in metres, Z up, on a common time axis.
+
+    Attributes:
+        times: ``(T,)`` seconds.
+        rate: sampling rate (Hz).
+        points: ``{"L": {"ankle"|"heel"|"toe": (T, 3)}, "R": {...}}``; at least one of
+            ankle/heel per side.
+        primary: ``{"L": part, "R": part}`` — the point used for spatial parameters
+            and crossing detection (``"explicit"`` when chosen by name).
+        pelvis: ``(T, 3)`` pelvis/sacrum centre, or None.
+        sources: role → label(s) the data came from, for reports.
+        events: annotated events carried over from the file.
+    """
+
+    times: FloatArray
+    rate: float
+    points: dict[str, dict[str, FloatArray]]
+    primary: dict[str, str]
+    pelvis: FloatArray | None = None
+    sources: dict[str, str] = field(default_factory=dict)
+    events: list[MarkerEvent] = field(default_factory=list)
+
+    def foot(self, side: str, part: str | None = None) -> FloatArray:
+        """``(T, 3)`` trajectory of ``part`` (default: the primary point) of ``side``."""
+        pts = self.points[side]
+        return pts[part or self.primary[side]]
+
+    def point_for(self, side: str, prefer: tuple[str, ...]) -> FloatArray:
+        """First available of ``prefer`` for ``side`` (else the primary point)."""
+        for p in prefer:
+            if p in self.points[side]:
+                return self.points[side][p]
+        return self.foot(side)
+
+
+def fill_gaps(times: FloatArray, x: FloatArray, max_gap_s: float = MAX_GAP_S) -> FloatArray:
+    """Linear interpolation over NaN runs no longer than ``max_gap_s`` (per column)."""
+    out = np.array(x, dtype=float, copy=True)
+    flat = out.reshape(len(times), -1)
+    for c in range(flat.shape[1]):
+        v = flat[:, c]
+        ok = np.isfinite(v)
+        if ok.all() or ok.sum() < 2:
+            continue
+        idx = np.flatnonzero(ok)
+        gaps = np.flatnonzero(np.diff(idx) > 1)
+        for g in gaps:
+            a, b = idx[g], idx[g + 1]
+            if times[b] - times[a] <= max_gap_s + 1e-9:
+                v[a + 1:b] = np.interp(times[a + 1:b], [times[a], times[b]], [v[a], v[b]])
+    return out
+
+
+def feet_from_markers(
+    markers: MarkerTrajectories,
+    left: str | None = None,
+    right: str | None = None,
+    up: str | None = None,
+    units: str | None = None,
+) -> FeetTrajectories:
+    """Map a mocap file's markers to per-foot trajectories (metres, Z up).
+
+    Args:
+        markers: as read by :func:`engine.io.c3d.read_c3d` / :func:`engine.io.trc.read_trc`.
+        left: explicit left-foot marker (overrides the automatic choice of the point
+            used for spatial parameters and crossings); give both or neither.
+        right: explicit right-foot marker.
+        up: vertical axis of the file (``x``, ``y``, ``z``, optionally ``-``); detected
+            when None.
+        units: unit the file's numbers are really in, overriding its header.
+
+    Raises:
+        InputError: no usable ankle/heel data (the message says what is missing and
+            lists the available labels), or only one of ``left``/``right`` given.
+    """
+    labels = markers.labels
+    if (left is None) != (right is None):
+        raise InputError("give both --left and --right marker names, or neither")
+    P = markers.positions
+    if units is not None:
+        P = P / unit_scale(markers.units) * unit_scale(units)
+    else:
+        # A header that disagrees with the body size by 10x or more is wrong (seen in
+        # exports that write "m" over millimetre data); trust the body size then.
+        raw = P / unit_scale(markers.units)
+        guess = detect_units(raw, labels)
+        plausible = 0.3 < characteristic_length(P, labels) < 3.0
+        if guess != markers.units.strip().lower() and not plausible:
+            P = raw * unit_scale(guess)
+    up_axis = up or detect_vertical_axis(P, labels)
+    P = to_z_up(P, up_axis)
+    t = markers.times
+
+    pts: dict[str, dict[str, FloatArray]] = {"L": {}, "R": {}}
+    sources: dict[str, str] = {"up": up_axis}
+    primary: dict[str, str] = {}
+    for side in ("L", "R"):
+        for part in ("ankle", "heel", "toe"):
+            lab = find_marker(labels, side, part)
+            if lab is not None:
+                x = fill_gaps(t, P[:, labels.index(lab)])
+                if np.isfinite(x).all(axis=1).sum() >= 2:
+                    pts[side][part] = x
+                    sources[f"{side}_{part}"] = lab
+    if left is not None and right is not None:
+        for side, name in (("L", left), ("R", right)):
+            lab = resolve_label(labels, name)
+            x = fill_gaps(t, P[:, labels.index(lab)])
+            if np.isfinite(x).all(axis=1).sum() < 2:
+                raise InputError(f"marker {lab!r} has no data")
+            pts[side]["explicit"] = x
+            sources[f"{side}_explicit"] = lab
+            primary[side] = "explicit"
+    else:
+        missing = []
+        for side, word in (("L", "left"), ("R", "right")):
+            have = [p for p in ("ankle", "heel") if p in pts[side]]
+            if not have:
+                missing.append(f"{word} ankle or heel")
+            else:
+                primary[side] = have[0]
+        if missing:
+            raise InputError(
+                f"no usable {' and no '.join(missing)} marker (looked for names like "
+                "LANK/RANK, LHEE/RHEE, L.Ankle, L_FCC, AnkleLeft); available labels: "
+                + ", ".join(labels) + "; name the foot markers with --left/--right"
+            )
+    pelvis = _pelvis(labels, P, t)
+    if pelvis is not None:
+        sources["pelvis"] = pelvis[1]
+    return FeetTrajectories(t, float(markers.rate), pts, primary,
+                            None if pelvis is None else pelvis[0], sources,
+                            list(markers.events))
+
+
+def _pelvis(labels: list[str], P: FloatArray, t: FloatArray) -> tuple[FloatArray, str] | None:
+    keys = [_key(lab) for lab in labels]
+    for a, b in _PELVIS_PAIRS:
+        if a in keys and b in keys:
+            idx = [keys.index(a), keys.index(b)]
+            # Averaging both pairs when present gives the pelvis centre.
+            for c, d in _PELVIS_PAIRS:
+                if (c, d) != (a, b) and c in keys and d in keys:
+                    idx += [keys.index(c), keys.index(d)]
+            x = fill_gaps(t, np.nanmean(P[:, idx], axis=1))
+            return x, "+".join(labels[i] for i in idx)
+    for s in _PELVIS_SINGLE:
+        if s in keys:
+            i = keys.index(s)
+            return fill_gaps(t, P[:, i]), labels[i]
+    return None
+
+
+def feet_from_skeleton(series: SkeletonSeries, up: str | None = "z",
+                       tracked_only: bool = True) -> FeetTrajectories:
+    """Per-foot trajectories of a skeleton (ankle joints; foot joints as toes).
+
+    Args:
+        series: a skeleton in a world frame.
+        up: its vertical axis (``"z"`` for the project's world frame; None to detect,
+            e.g. for a CSV file in a camera's Y-down frame).
+        tracked_only: treat INFERRED joints as missing (the paper's rule).
+    """
+    js = series.joint_set
+    P = series.tracked_positions() if tracked_only else series.positions.copy()
+    up_axis = up or detect_vertical_axis(P, list(js.joints))
+    P = to_z_up(P, up_axis)
+    t = series.times
+    rate = float(1.0 / np.median(np.diff(t))) if len(t) > 1 else 30.0
+    pts: dict[str, dict[str, FloatArray]] = {"L": {}, "R": {}}
+    sources: dict[str, str] = {"up": up_axis}
+    for side, word in (("L", "left"), ("R", "right")):
+        for part, role in (("ankle", f"ankle_{word}"), ("toe", f"foot_{word}")):
+            name = js.roles[role]
+            x = fill_gaps(t, P[:, js.index(name)])
+            if np.isfinite(x).all(axis=1).sum() >= 2:
+                pts[side][part] = x
+                sources[f"{side}_{part}"] = name
+        if "ankle" not in pts[side]:
+            raise InputError(f"the skeleton has no tracked {js.roles[f'ankle_{word}']} "
+                             "positions; gait needs both ankles")
+    pelvis = fill_gaps(t, P[:, js.role_index("pelvis")])
+    has_pelvis = np.isfinite(pelvis).all(axis=1).sum() >= 2
+    return FeetTrajectories(t, rate, pts, {"L": "ankle", "R": "ankle"},
+                            pelvis if has_pelvis else None, sources)
+
+
+def load_feet(path: str | Path, left: str | None = None, right: str | None = None,
+              up: str | None = None, units: str | None = None) -> FeetTrajectories:
+    """Read a C3D, TRC or skeleton CSV file and return its per-foot trajectories.
+
+    Raises:
+        InputError: unknown extension, unreadable file or no usable foot data.
+    """
+    from engine.io.c3d import read_c3d
+    from engine.io.csv import read_skeleton_csv
+    from engine.io.trc import read_trc
+
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext == ".c3d":
+        return feet_from_markers(read_c3d(p), left, right, up, units)
+    if ext == ".trc":
+        return feet_from_markers(read_trc(p), left, right, up, units)
+    if ext == ".csv":
+        s = read_skeleton_csv(p)
+        if units is not None:
+            s.positions = s.positions * unit_scale(units)
+        if left is not None or right is not None:
+            m = MarkerTrajectories(s.times, s.tracked_positions(), list(s.joint_set.joints),
+                                   float(1.0 / np.median(np.diff(s.times))) if len(s) > 1 else 30.0,
+                                   "m")
+            return feet_from_markers(m, left, right, up, None)
+        return feet_from_skeleton(s, up=up)
+    raise InputError(f"unsupported file type {p.suffix!r}; use .c3d, .trc or .csv")

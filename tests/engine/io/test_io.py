@@ -1,0 +1,189 @@
+"""Round trips of the C3D / TRC / CSV readers-writers and unit/axis detection."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import ezc3d
+import numpy as np
+import pytest
+
+from engine.errors import InputError
+from engine.gait import GaitAnalysis
+from engine.io.c3d import read_c3d, write_c3d, write_skeleton_c3d
+from engine.io.csv import read_skeleton_csv, write_skeleton_csv
+from engine.io.markers import (
+    MarkerEvent,
+    MarkerTrajectories,
+    detect_units,
+    detect_vertical_axis,
+    to_z_up,
+    up_rotation,
+)
+from engine.io.trc import read_trc, write_trc
+from engine.mocap import load_feet
+from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
+from tests.engine.test_gait_synth import synth_walk, walk_markers, walk_skeleton
+
+
+def _skeleton(rng: np.random.Generator) -> SkeletonSeries:
+    w = synth_walk(rate=30.0, origin=(3.0, -2.0, 0.0))
+    P = walk_skeleton(w) + rng.normal(0, 0.001, (len(w.times), 25, 3))
+    S = np.full(P.shape[:2], TrackingState.TRACKED, dtype=np.uint8)
+    S[5:9, 3] = TrackingState.INFERRED
+    S[10:12, 14] = TrackingState.NOT_TRACKED
+    P[10:12, 14] = np.nan
+    return SkeletonSeries(w.times + 10.0, P, S, KINECT_V2)
+
+
+def test_c3d_marker_round_trip_with_events(tmp_path: Path) -> None:
+    m = walk_markers(synth_walk(origin=(2500.0, 1300.0, 0.0)))
+    m.positions[3:6, 2] = np.nan
+    m.times = m.times + 1.23  # starts on frame 123
+    m.events = [MarkerEvent(1.5, "L", "foot_strike", "Foot Strike"),
+                MarkerEvent(2.0, "R", "foot_off", "Foot Off"),
+                MarkerEvent(75.25, "", "general", "General")]
+    p = tmp_path / "a.c3d"
+    write_c3d(p, m, units="mm")
+    r = read_c3d(p)
+    assert r.labels == m.labels and r.rate == m.rate and r.units == "mm"
+    np.testing.assert_allclose(r.times, m.times, atol=1e-9)
+    np.testing.assert_array_equal(np.isnan(r.positions), np.isnan(m.positions))
+    # float32 storage: relative precision 6e-8 of 2.5 km-in-mm coordinates
+    np.testing.assert_allclose(r.positions, m.positions, rtol=1e-6, atol=1e-6)
+    assert [(e.side, e.kind) for e in r.events] == [("L", "foot_strike"), ("R", "foot_off"),
+                                                    ("", "general")]
+    np.testing.assert_allclose([e.time_s for e in r.events], [1.5, 2.0, 75.25], atol=1e-5)
+    # readable by plain ezc3d as other tools would do
+    c = ezc3d.c3d(str(p))
+    assert c["parameters"]["POINT"]["LABELS"]["value"] == m.labels
+
+
+def test_c3d_skeleton_export(tmp_path: Path) -> None:
+    s = _skeleton(np.random.default_rng(0))
+    ev = [MarkerEvent(11.0, "R", "placement", "placement")]
+    write_skeleton_c3d(tmp_path / "s.c3d", s, ev)
+    r = read_c3d(tmp_path / "s.c3d")
+    assert r.labels == list(KINECT_V2.joints) and r.rate == pytest.approx(30.0)
+    np.testing.assert_allclose(r.times, s.times, atol=1e-6)
+    exp = s.positions.copy()
+    np.testing.assert_allclose(r.positions, exp, atol=1e-6, equal_nan=True)
+    assert r.events[0].kind == "placement"
+
+
+def test_vicon_file_round_trip(shared_data: Path, tmp_path: Path) -> None:
+    src = shared_data / "mocap" / "kineticstoolkit" / "walk.c3d"
+    m = read_c3d(src)
+    write_c3d(tmp_path / "w.c3d", m)
+    r = read_c3d(tmp_path / "w.c3d")
+    assert r.labels == m.labels and r.rate == m.rate and r.units == m.units
+    np.testing.assert_allclose(r.times, m.times, atol=1e-9)
+    np.testing.assert_allclose(r.positions, m.positions, rtol=1e-6, equal_nan=True)
+    assert [(e.side, e.kind) for e in r.events] == [(e.side, e.kind) for e in m.events]
+    np.testing.assert_allclose([e.time_s for e in r.events], [e.time_s for e in m.events],
+                               atol=1e-6)
+    write_trc(tmp_path / "w.trc", m)
+    t = read_trc(tmp_path / "w.trc")
+    assert t.labels == m.labels and t.rate == m.rate
+    np.testing.assert_allclose(t.positions, m.positions, rtol=1e-12, equal_nan=True)
+
+
+def test_trc_round_trip_exact(tmp_path: Path) -> None:
+    m = walk_markers(synth_walk(), up="y")
+    m.positions[7, 1] = np.nan
+    for units in ("mm", "m"):
+        write_trc(tmp_path / f"a_{units}.trc", m, units=units)
+        r = read_trc(tmp_path / f"a_{units}.trc")
+        assert r.labels == m.labels and r.rate == pytest.approx(m.rate) and r.units == units
+        np.testing.assert_allclose(r.times, m.times, rtol=1e-15)
+        np.testing.assert_allclose(r.positions, m.positions, rtol=1e-14, atol=1e-15,
+                                   equal_nan=True)
+
+
+def test_csv_round_trip_exact(tmp_path: Path) -> None:
+    s = _skeleton(np.random.default_rng(1))
+    write_skeleton_csv(tmp_path / "s.csv", s)
+    r = read_skeleton_csv(tmp_path / "s.csv")
+    assert r.joint_set is KINECT_V2
+    np.testing.assert_array_equal(r.times, s.times)
+    np.testing.assert_array_equal(r.states, s.states)
+    np.testing.assert_array_equal(r.positions, s.positions)  # repr() is exact
+
+
+def test_csv_without_states_and_partial_joints(tmp_path: Path) -> None:
+    p = tmp_path / "p.csv"
+    p.write_text("time,AnkleLeft_x,AnkleLeft_y,AnkleLeft_z\n0.0,1,2,3\n0.1,,,\n")
+    r = read_skeleton_csv(p)
+    i = KINECT_V2.index("AnkleLeft")
+    assert r.states[0, i] == TrackingState.TRACKED and r.states[1, i] == 0
+    assert r.states[0, KINECT_V2.index("Head")] == TrackingState.NOT_TRACKED
+
+
+@pytest.mark.parametrize("text, match", [
+    ("t,AnkleLeft_x\n", "first column"),
+    ("time,Ankle_x,Ankle_y,Ankle_z\n0,1,2,3\n", "unknown joint"),
+    ("time,AnkleLeft_x,AnkleLeft_y\n0,1,2\n", "lacks"),
+    ("time,AnkleLeft_x,AnkleLeft_y,AnkleLeft_z\n0,a,2,3\n", "not a number"),
+    ("time,AnkleLeft_x,AnkleLeft_y,AnkleLeft_z\n1,1,2,3\n0,1,2,3\n", "increasing"),
+])
+def test_csv_bad_input(tmp_path: Path, text: str, match: str) -> None:
+    p = tmp_path / "bad.csv"
+    p.write_text(text)
+    with pytest.raises(InputError, match=match):
+        read_skeleton_csv(p)
+
+
+def test_bad_files_raise_input_error(tmp_path: Path) -> None:
+    (tmp_path / "x.c3d").write_bytes(b"not a c3d file at all")
+    (tmp_path / "x.trc").write_text("hello\n")
+    for name in ("x.c3d", "x.trc"):
+        with pytest.raises(InputError):
+            load_feet(tmp_path / name)
+    with pytest.raises(InputError, match="unsupported"):
+        load_feet(tmp_path / "x.json")
+    with pytest.raises(InputError, match="not found"):
+        read_c3d(tmp_path / "missing.c3d")
+
+
+def test_unit_and_vertical_axis_detection() -> None:
+    m = walk_markers(synth_walk(origin=(40.0, 7.0, 0.0)))
+    for scale, unit in ((1000.0, "mm"), (100.0, "cm"), (1.0, "m")):
+        assert detect_units(m.positions * scale, m.labels) == unit
+    assert detect_vertical_axis(m.positions, m.labels) == "z"
+    Y = walk_markers(synth_walk(), up="y")
+    assert detect_vertical_axis(Y.positions, Y.labels) == "y"
+    assert detect_vertical_axis(-Y.positions, Y.labels) == "-y"
+    # unlabelled markers: the axis with the largest body spread and least travel
+    anon = [f"M{i}" for i in range(len(m.labels))]
+    assert detect_vertical_axis(m.positions, anon) == "z"
+    for up in ("x", "y", "z", "-x", "-y", "-z"):
+        R = up_rotation(up)
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(R) == pytest.approx(1.0)
+    np.testing.assert_allclose(to_z_up([0.0, 1.0, 0.0], "y"), [0, 0, 1.0])
+    with pytest.raises(InputError):
+        up_rotation("w")
+
+
+def test_y_up_trc_in_mm_without_units_gives_same_gait(tmp_path: Path) -> None:
+    w = synth_walk(origin=(5.0, 2.0, 0.0), heading_deg=20.0)
+    ref = GaitAnalysis("crossing").fit(load_feet_from(walk_markers(w), tmp_path / "z.trc"))
+    ym = walk_markers(w, up="y")
+    write_trc(tmp_path / "y.trc", ym, units="mm")
+    # strip the Units header value: the reader must guess mm from the body size
+    lines = (tmp_path / "y.trc").read_text().splitlines()
+    lines[2] = lines[2].replace("\tmm\t", "\t\t")
+    (tmp_path / "y.trc").write_text("\n".join(lines) + "\n")
+    f = load_feet(tmp_path / "y.trc")
+    assert f.sources["up"] == "y"
+    g = GaitAnalysis("crossing").fit(f)
+    assert [round(s.length_m, 4) for s in g.steps_] == [round(s.length_m, 4) for s in ref.steps_]
+    assert [round(s.width_m, 4) for s in g.steps_] == [round(s.width_m, 4) for s in ref.steps_]
+    # explicit --up/--units give the same result
+    g2 = GaitAnalysis("crossing").fit(load_feet(tmp_path / "y.trc", up="y", units="mm"))
+    assert len(g2.steps_) == len(g.steps_)
+
+
+def load_feet_from(m: MarkerTrajectories, path: Path):  # type: ignore[no-untyped-def]
+    write_trc(path, m)
+    return load_feet(path)

@@ -1,0 +1,168 @@
+"""Gait engine against synthetic walks with exact ground truth."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from engine.errors import InputError, InsufficientDataError
+from engine.gait import GaitAnalysis
+from engine.io.markers import MarkerTrajectories
+from engine.mocap import feet_from_markers
+from tests.engine.test_gait_synth import synth_walk, walk_markers
+
+
+@pytest.mark.parametrize("heading", [0.0, 37.0, 200.0])
+def test_crossing_recovers_steps_far_from_origin(heading: float) -> None:
+    w = synth_walk(step_length=0.68, step_width=0.14, step_time=0.56,
+                   origin=(1200.0, -830.0, 4.0), heading_deg=heading)
+    g = GaitAnalysis("crossing").fit(feet_from_markers(walk_markers(w)))
+    assert len(g.passes_) == 1
+    d = np.array(g.passes_[0].direction)
+    assert np.degrees(np.arccos(np.clip(d @ [np.cos(np.radians(heading)),
+                                             np.sin(np.radians(heading))], -1, 1))) < 1.0
+    assert len(g.steps_) >= 7
+    for s in g.steps_:
+        assert s.length_m == pytest.approx(0.68, abs=0.002)
+        assert s.width_m == pytest.approx(0.14, abs=0.002)
+        assert s.duration_s == pytest.approx(0.56, abs=0.011)
+    assert {s.side for s in g.steps_} == {"L", "R"}
+    for s in g.strides_:
+        assert s.length_m == pytest.approx(1.36, abs=0.003)
+    assert g.summary_["walking_speed_m_s"] == pytest.approx(0.68 / 0.56, rel=0.01)
+    assert g.summary_["cadence_steps_min"] == pytest.approx(60 / 0.56, rel=0.01)
+    assert g.summary_["stance_pct"] is None  # crossings give no foot-off
+
+
+def test_heelstrike_events_match_truth() -> None:
+    w = synth_walk(step_length=0.7, step_width=0.1, step_time=0.55, rate=100.0)
+    g = GaitAnalysis("heelstrike").fit(feet_from_markers(walk_markers(w)))
+    fs = [e for e in g.events_ if e.kind == "foot_strike"]
+    truth = [(s, t) for s, t, _ in w.strikes]
+    assert len(fs) >= len(truth) - 1  # the strike at t = 0 has no peak before it
+    for e in fs:
+        side, tt = min(truth, key=lambda x: abs(x[1] - e.time_s))
+        assert side == e.side
+        assert abs(tt - e.time_s) <= 0.011  # one frame at 100 Hz
+    for s in g.steps_:
+        assert s.length_m == pytest.approx(0.7, abs=0.01)
+        assert s.width_m == pytest.approx(0.1, abs=0.005)
+    st = g.summary_["stance_pct"]["mean"]
+    # True stance: (step + double support) / stride = 59 %; Zeni's toe-off (toe vs
+    # pelvis minimum) lags this synthetic minimum-jerk lift-off by ~50 ms.
+    assert 55.0 < st < 66.0
+    assert g.summary_["double_support_pct"]["mean"] > 10.0
+
+
+def test_asymmetry_and_variability() -> None:
+    w = synth_walk(step_width=0.1, side_bias=0.04)  # right foot placed 4 cm further out
+    g = GaitAnalysis("crossing").fit(feet_from_markers(walk_markers(w)))
+    sw = g.summary_["step_width_m"]
+    assert sw["left_mean"] == pytest.approx(0.14, abs=0.003)
+    assert sw["right_mean"] == pytest.approx(0.14, abs=0.003)
+    assert sw["cv_pct"] < 3.0
+    sl = g.summary_["step_length_m"]
+    assert sl["asymmetry_pct"] < 1.0
+
+
+def test_back_and_forth_passes_and_turns() -> None:
+    a = synth_walk(n_steps=9)
+    b = synth_walk(n_steps=9, origin=(a.joints["pelvis"][-1, 0] + 0.4, 0.3, 0.0),
+                   heading_deg=180.0)
+    m1, m2 = walk_markers(a), walk_markers(b)
+    # stand still 1.5 s (turning on the spot) between the passes
+    stand_t = a.times[-1] + np.arange(1, 151) / 100.0
+    mid = 0.5 * (m1.positions[-1] + m2.positions[0])
+    stand = np.repeat(mid[None], len(stand_t), axis=0)
+    t = np.concatenate([a.times, stand_t, stand_t[-1] + 0.01 + b.times])
+    P = np.concatenate([m1.positions, stand, m2.positions])
+    m = MarkerTrajectories(t, P, m1.labels, 100.0, "m")
+    g = GaitAnalysis("crossing").fit(feet_from_markers(m))
+    assert len(g.passes_) == 2
+    d0, d1 = (np.array(p.direction) for p in g.passes_)
+    assert d0 @ d1 < -0.99
+    # Pass 2 starts after standing: its first step and first stride are excluded.
+    assert g.passes_[1].excluded_first and not g.passes_[0].excluded_first
+    for s in g.steps_:
+        assert s.length_m == pytest.approx(0.7, abs=0.005)
+        assert s.width_m == pytest.approx(0.12, abs=0.005)
+    assert {s.pass_index for s in g.steps_} == {0, 1}
+
+
+def test_fewer_than_two_steps_is_a_clear_error() -> None:
+    w = synth_walk(n_steps=2)
+    m = walk_markers(w)
+    with pytest.raises(InsufficientDataError, match="step"):
+        GaitAnalysis("crossing").fit(feet_from_markers(m))
+
+
+def test_standing_still_is_a_clear_error() -> None:
+    w = synth_walk()
+    m = walk_markers(w)
+    m.positions[:] = m.positions[:1]
+    with pytest.raises(InsufficientDataError, match="no straight walking"):
+        GaitAnalysis().fit(feet_from_markers(m))
+
+
+def test_missing_foot_markers_names_what_is_missing() -> None:
+    w = synth_walk()
+    m = walk_markers(w)
+    keep = [i for i, lab in enumerate(m.labels) if not lab.startswith("R")]
+    m2 = MarkerTrajectories(m.times, m.positions[:, keep], [m.labels[i] for i in keep],
+                            m.rate, "m")
+    with pytest.raises(InputError) as ei:
+        feet_from_markers(m2)
+    msg = str(ei.value)
+    assert "right ankle or heel" in msg and "LHEE" in msg and "left" not in msg.split(";")[0]
+
+
+def test_bad_method_and_unknown_override() -> None:
+    with pytest.raises(InputError):
+        GaitAnalysis("zeni")  # type: ignore[arg-type]
+    m = walk_markers(synth_walk())
+    with pytest.raises(InputError, match="available labels"):
+        feet_from_markers(m, left="LKNEE", right="RKNEE")
+    with pytest.raises(InputError, match="both"):
+        feet_from_markers(m, left="LHEE")
+
+
+@pytest.mark.parametrize("names", [
+    {"ankleL": "Subject:L.Ankle", "ankleR": "Subject:R.Ankle"},
+    {"heelL": "L_FCC", "heelR": "R_FCC"},
+    {"ankleL": "LeftAnkle", "ankleR": "RightAnkle"},
+    {"ankleL": "AnkleLeft", "ankleR": "AnkleRight"},
+    {"ankleL": "l_ankle", "ankleR": "r_ankle"},
+    {"heelL": "L.Heel", "heelR": "R.Heel"},
+])
+def test_marker_name_conventions(names: dict[str, str]) -> None:
+    w = synth_walk()
+    g = GaitAnalysis("crossing").fit(feet_from_markers(walk_markers(w, names)))
+    assert np.median([s.length_m for s in g.steps_]) == pytest.approx(0.7, abs=0.005)
+
+
+def test_explicit_markers_override() -> None:
+    w = synth_walk()
+    m = walk_markers(w)
+    f = feet_from_markers(m, left="ltoe", right="RTOE")
+    assert f.primary == {"L": "explicit", "R": "explicit"}
+    assert f.sources["L_explicit"] == "LTOE"
+    g = GaitAnalysis("crossing").fit(f)
+    assert np.median([s.length_m for s in g.steps_]) == pytest.approx(0.7, abs=0.005)
+
+
+def test_json_schema_is_stable() -> None:
+    g = GaitAnalysis("heelstrike").fit(feet_from_markers(walk_markers(synth_walk())))
+    doc = json.loads(g.to_json())
+    assert set(doc) == {"events", "steps", "strides", "summary"}
+    assert set(doc["events"][0]) == {"side", "kind", "time_s"}
+    assert {e["kind"] for e in doc["events"]} == {"foot_strike", "foot_off"}
+    assert set(doc["steps"][0]) == {"side", "time_s", "length_m", "width_m", "duration_s"}
+    assert set(doc["strides"][0]) == {"side", "time_s", "length_m", "duration_s"}
+    for k in ("walking_speed_m_s", "cadence_steps_min", "step_length_m", "step_width_m",
+              "step_time_s", "stride_length_m", "stride_time_s", "stance_pct", "swing_pct",
+              "double_support_pct", "n_steps", "n_strides", "n_passes", "method"):
+        assert k in doc["summary"]
+    assert set(doc["summary"]["step_length_m"]) == {"mean", "sd", "cv_pct", "left_mean",
+                                                    "right_mean", "asymmetry_pct"}

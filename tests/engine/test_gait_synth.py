@@ -1,0 +1,205 @@
+"""Synthetic walkers with exact ground truth (helpers for gait/integration tests, bench).
+
+Kinematics: feet are placed alternately (left first) at ``k·step_length`` along the
+walking direction, ``±step_width/2`` to the side; each foot swings with a minimum-jerk
+horizontal profile and a sin² heel lift (zero vertical velocity at landing), leaving the
+floor ``double_support_s`` after the other foot lands. The pelvis moves at the mean
+speed. Exact ground truth: step length/width/time, strike and off times.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from engine.geometry import invert_transform, look_at, transform_points
+from engine.io.markers import MarkerTrajectories
+from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class SynthWalk:
+    """A straight walk with its ground truth."""
+
+    times: FloatArray
+    joints: dict[str, FloatArray]  # name -> (T, 3), world, Z up
+    strikes: list[tuple[str, float, FloatArray]]  # side, time, heel position at landing
+    offs: list[tuple[str, float]]
+    step_length: float
+    step_width: float
+    step_time: float
+    double_support_s: float
+
+
+def synth_walk(step_length: float = 0.7, step_width: float = 0.12, step_time: float = 0.55,
+               n_steps: int = 10, rate: float = 100.0, double_support_s: float = 0.1,
+               origin: tuple[float, float, float] = (0.0, 0.0, 0.0), heading_deg: float = 0.0,
+               side_bias: float = 0.0) -> SynthWalk:
+    """A walk of ``n_steps`` strikes (left first) starting at full speed.
+
+    ``side_bias`` (m) shifts the right foot's placements laterally (an asymmetric gait).
+    """
+    Ls, W, Ts, ds = step_length, step_width, step_time, double_support_s
+    v = Ls / Ts
+    T_end = (n_steps - 1) * Ts + 0.3
+    t = np.arange(0.0, T_end, 1.0 / rate)
+    ks = range(-3, n_steps + 3)
+    place = {k: ("L" if k % 2 == 0 else "R", k * Ls,
+                 (W / 2 if k % 2 == 0 else -W / 2 - side_bias), k * Ts) for k in ks}
+    local: dict[str, FloatArray] = {}
+    for side in ("L", "R"):
+        x = np.zeros_like(t)
+        y = np.zeros_like(t)
+        lift = np.zeros_like(t)
+        for k in ks:
+            s_k, xk, yk, tk = place[k]
+            if s_k != side or k - 2 not in place:
+                continue
+            _, xp, yp, _ = place[k - 2]
+            t_lift = tk - Ts + ds  # other foot landed at tk - Ts
+            sw = (t >= t_lift) & (t < tk)
+            st = (t >= tk) & (t < tk + Ts + ds)
+            s = (t[sw] - t_lift) / (tk - t_lift)
+            h = 10 * s**3 - 15 * s**4 + 6 * s**5
+            x[sw] = xp + (xk - xp) * h
+            y[sw] = yp + (yk - yp) * h
+            lift[sw] = np.sin(np.pi * s) ** 2
+            x[st] = xk
+            y[st] = yk
+        ankle = np.stack([x, y, 0.08 + 0.10 * lift], axis=1)
+        local[f"heel{side}"] = ankle + np.array([-0.05, 0.0, -0.05])
+        local[f"toe{side}"] = np.stack([x + 0.15, y, 0.03 + 0.10 * lift], axis=1)
+        local[f"ankle{side}"] = ankle
+    px = v * t - Ls / 2
+    sway = 0.02 * np.sin(np.pi * t / Ts)
+    local["pelvis"] = np.stack([px, sway, np.full_like(t, 0.95)], axis=1)
+
+    a = np.radians(heading_deg)
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+    o = np.asarray(origin, dtype=float)
+    joints = {n: p @ R.T + o for n, p in local.items()}
+    strikes = []
+    offs = []
+    for k in range(n_steps):
+        s_k, xk, yk, tk = place[k]
+        strikes.append((s_k, tk, R @ np.array([xk - 0.05, yk, 0.03]) + o))
+        if tk + ds < T_end:
+            offs.append(("R" if s_k == "L" else "L", tk + ds))
+    return SynthWalk(t, joints, strikes, offs, Ls, W, Ts, ds)
+
+
+def walk_markers(w: SynthWalk, labels: dict[str, str] | None = None, scale: float = 1.0,
+                 up: str = "z") -> MarkerTrajectories:
+    """The walk as a marker set (Plug-in Gait names unless ``labels`` maps them)."""
+    names = labels or {"ankleL": "LANK", "ankleR": "RANK", "heelL": "LHEE", "heelR": "RHEE",
+                       "toeL": "LTOE", "toeR": "RTOE"}
+    P = [w.joints[k] for k in names]
+    labs = list(names.values())
+    pel = w.joints["pelvis"]
+    for lab, off in (("LASI", (0.05, 0.12, 0.0)), ("RASI", (0.05, -0.12, 0.0)),
+                     ("LPSI", (-0.12, 0.05, 0.02)), ("RPSI", (-0.12, -0.05, 0.02))):
+        P.append(pel + np.array(off))
+        labs.append(lab)
+    X = np.stack(P, axis=1)
+    if up == "y":  # OpenSim convention: X forward, Y up, Z right
+        X = np.stack([X[..., 1], X[..., 2], X[..., 0]], axis=-1)
+    rate = round(1.0 / float(np.median(np.diff(w.times))), 6)
+    return MarkerTrajectories(w.times, X / scale * scale, labs, rate, "m")
+
+
+def walk_skeleton(w: SynthWalk) -> FloatArray:
+    """``(T, 25, 3)`` Kinect v2 joints (world) of the walk: a plausible stick figure."""
+    T = len(w.times)
+    J = KINECT_V2.joints
+    P = np.zeros((T, len(J), 3))
+    pel = w.joints["pelvis"]
+    aL, aR = w.joints["ankleL"], w.joints["ankleR"]
+    fwd = np.gradient(pel, w.times, axis=0)
+    fwd[:, 2] = 0
+    fwd /= np.maximum(np.linalg.norm(fwd, axis=1, keepdims=True), 1e-9)
+    lat = np.cross([0, 0, 1.0], fwd)
+    up = np.array([0, 0, 1.0])
+
+    def put(name: str, x: FloatArray) -> None:
+        P[:, J.index(name)] = x
+
+    put("SpineBase", pel)
+    put("SpineMid", pel + 0.25 * up)
+    put("SpineShoulder", pel + 0.5 * up)
+    put("Neck", pel + 0.58 * up)
+    put("Head", pel + 0.72 * up)
+    for s, S, sg, a in (("L", "Left", 1.0, aL), ("R", "Right", -1.0, aR)):
+        hip = pel + sg * 0.1 * lat - 0.05 * up
+        put(f"Hip{S}", hip)
+        put(f"Knee{S}", 0.5 * (hip + a) + 0.04 * fwd)
+        put(f"Ankle{S}", a)
+        put(f"Foot{S}", w.joints[f"toe{s}"])
+        sh = pel + 0.48 * up + sg * 0.18 * lat
+        put(f"Shoulder{S}", sh)
+        put(f"Elbow{S}", sh - 0.28 * up)
+        put(f"Wrist{S}", sh - 0.52 * up + 0.02 * fwd)
+        put(f"Hand{S}", sh - 0.58 * up + 0.02 * fwd)
+        put(f"HandTip{S}", sh - 0.66 * up + 0.02 * fwd)
+        put(f"Thumb{S}", sh - 0.58 * up + 0.05 * fwd)
+    return P
+
+
+def avenue_poses() -> list[tuple[str, FloatArray]]:
+    """Six sensors as in the seed paper's avenue: pairs at x = 2.4, 4.9, 7.4 m,
+    y = ±1 m, 1 m high, looking back along −X, toed in 35° toward the walkway."""
+    out = []
+    for k, x in enumerate((2.4, 4.9, 7.4)):
+        for j, sg in enumerate((1.0, -1.0)):
+            yaw = np.radians(180.0 + sg * 35.0)
+            eye = np.array([x, sg * 1.0, 1.0])
+            d = np.array([np.cos(yaw), np.sin(yaw), -0.14])
+            out.append((f"S{2 * k + j + 1}", look_at(eye, eye + d)))
+    return out
+
+
+def observe(truth: FloatArray, times_true: FloatArray, T_world_sensor: FloatArray,
+            rng: np.random.Generator, noise_m: float = 0.01, occluded_bias_m: float = 0.0,
+            clock_offset_s: float = 0.0, clock_drift_ppm: float = 0.0,
+            drop: tuple[float, float] | None = None, max_range_m: float = 4.5,
+            inferred_frac: float = 0.0) -> SkeletonSeries:
+    """One sensor's view of a world skeleton: sensor frame, local clock.
+
+    Joints on the body side facing away from the sensor are shifted by
+    ``occluded_bias_m`` toward the sensor's side (the Kinect self-occlusion bias the
+    seed paper shows in its Fig. 5B); ``drop`` blanks a true-time interval; joints
+    beyond ``max_range_m`` are NOT_TRACKED; a random fraction is INFERRED.
+    """
+    c = T_world_sensor[:3, 3]
+    T, J = truth.shape[:2]
+    pel = truth[:, KINECT_V2.index("SpineBase")]
+    lat = truth[:, KINECT_V2.index("HipLeft")] - truth[:, KINECT_V2.index("HipRight")]
+    lat[:, 2] = 0
+    lat /= np.linalg.norm(lat, axis=1, keepdims=True)
+    sides = np.array([1.0 if "Left" in n else -1.0 if "Right" in n else 0.0
+                      for n in KINECT_V2.joints])
+    to_s = c - truth
+    to_s_h = to_s.copy()
+    to_s_h[..., 2] = 0
+    to_s_h /= np.maximum(np.linalg.norm(to_s_h, axis=-1, keepdims=True), 1e-9)
+    cos = np.einsum("tjk,tk->tj", to_s_h, lat) * sides[None]
+    occl = cos < 0
+    # The sensor's side of the body, as a unit lateral vector.
+    sensor_side = np.sign(np.einsum("tk,tk->t", c - pel, lat))[:, None] * lat
+    obs = truth + np.where(occl[..., None], occluded_bias_m * sensor_side[:, None, :], 0.0)
+    obs = obs + rng.normal(0.0, noise_m, obs.shape)
+    states = np.full((T, J), TrackingState.TRACKED, dtype=np.uint8)
+    dist = np.linalg.norm(c - pel, axis=1)
+    states[dist > max_range_m] = TrackingState.NOT_TRACKED
+    if inferred_frac > 0:
+        states[(rng.random((T, J)) < inferred_frac) & (states == TrackingState.TRACKED)] = \
+            TrackingState.INFERRED
+    if drop is not None:
+        states[(times_true >= drop[0]) & (times_true <= drop[1])] = TrackingState.NOT_TRACKED
+    P = transform_points(invert_transform(T_world_sensor), obs)
+    P[states == TrackingState.NOT_TRACKED] = np.nan
+    t_local = clock_offset_s + (1 + clock_drift_ppm * 1e-6) * times_true
+    return SkeletonSeries(t_local, P, states, KINECT_V2, {})
