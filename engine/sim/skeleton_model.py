@@ -1,0 +1,366 @@
+"""Kinect-v2-like skeletons observed by one simulated sensor, with realistic errors.
+
+What a Kinect v2 body tracker gets wrong, and how it is simulated here (every parameter
+of :class:`SkeletonErrorModel` names its source):
+
+* **Noise grows with distance.** Each joint carries a slowly varying fitting error
+  (Ornstein–Uhlenbeck process, per sensor/joint/axis) plus frame-to-frame jitter, both
+  scaled linearly with the distance to the sensor (the depth pixel footprint grows
+  linearly and the ToF depth noise quadratically with range; Kinect v2 joint errors grow
+  with distance: Otte et al. 2016, PLoS ONE 11:e0166532; Wang et al. 2015, IEEE ICHI).
+* **Bias towards the visible surface.** The skeleton is fitted to the part of the body
+  surface that sensor sees, so joint estimates are pulled towards the sensor — the effect
+  seed 000 measured with two opposite sensors ("joint positions estimates of the left
+  sensor are closer to the surface which is only tracked by the left sensor", a few cm),
+  larger for the body half turned away (Wang et al. 2015: accuracy of the turned-away
+  half degrades at 30°/60° view angles).
+* **Self-occlusion.** A joint whose line of sight is blocked by another body part
+  (ray-capsule test against the walker's body) is reported INFERRED with a much larger
+  error, and NOT_TRACKED when the occlusion lasts (seed 000: "the Kinect skeleton fitting
+  algorithm initially tries to infer the position of the occluded joints and if that
+  fails the respective joints are labeled as untracked").
+* **Late acquisition.** A body entering the view is reported only after a detection delay
+  of a few hundred ms (seed 000: "needs some time to recognize a person that enters the
+  volume", hence the paper's 2 m overlap of tracking volumes).
+* **Field of view and range.** Joints outside the depth frustum or 0.5–4.5 m are not
+  tracked; no body is reported unless its trunk is in view.
+* **Fitting failures.** (a) The Kinect v2 tracker assumes the user faces the sensor: a
+  person seen from behind is reported mirrored (left/right labels swapped; Microsoft
+  Kinect v2 SDK documentation; Müller et al. 2017, PLoS ONE 12:e0175813 [= seed 000],
+  hence walking *towards* the sensors). (b) Brief left/right leg swaps when the legs
+  cross (Kinect v2 gait studies report such outliers: Geerse et al. 2015, PLoS ONE
+  10:e0139913; Springer & Yogev Seligmann 2016, Sensors 16:194).
+
+The magnitudes are set from the numbers above and from the step-level agreement the seed
+paper found against Vicon (Tables 2–3: step-length error SD ≈ 3 cm two-sided, ≈ 5–7 cm
+one-sided; step-width error SD ≈ 2–2.5 cm two-sided, 4–6.5 cm one-sided), which, for
+3–4 sensors averaged two-sided, implies per-sensor slowly varying ankle errors of
+≈ 3–4 cm along and ≈ 2.5–3 cm across the walkway.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import lfilter
+
+from engine.errors import InputError
+from engine.geometry import transform_points
+from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
+from engine.sim.rig import Rig, SimSensor
+from engine.sim.walker import Walker
+
+FloatArray = NDArray[np.float64]
+_JS = KINECT_V2
+_N = len(_JS.joints)
+_IDX = {n: i for i, n in enumerate(_JS.joints)}
+
+#: joint → +1 (subject's left), −1 (right), 0 (midline)
+_SIDE = np.array([1 if n.endswith("Left") else -1 if n.endswith("Right") else 0
+                  for n in _JS.joints])
+#: permutation that swaps left and right joint labels
+_MIRROR = np.array([_IDX[n.replace("Left", "§").replace("Right", "Left").replace("§", "Right")]
+                    for n in _JS.joints])
+_LOWER_LEG = [_IDX[n] for n in ("KneeLeft", "AnkleLeft", "FootLeft")]
+_LOWER_LEG_R = [_IDX[n] for n in ("KneeRight", "AnkleRight", "FootRight")]
+#: relative error scale per joint: feet/ankles and hands are fitted worst (Otte 2016;
+#: Wang 2015 report the largest errors at ankles/feet and wrists/hands)
+_JOINT_SCALE = np.array([
+    {"SpineBase": 0.6, "SpineMid": 0.5, "Neck": 0.5, "Head": 0.5, "SpineShoulder": 0.5,
+     "HipLeft": 0.7, "HipRight": 0.7, "KneeLeft": 0.8, "KneeRight": 0.8,
+     "AnkleLeft": 1.0, "AnkleRight": 1.0, "FootLeft": 1.2, "FootRight": 1.2,
+     }.get(n, 1.0) for n in _JS.joints])
+
+
+@dataclass
+class SkeletonErrorModel:
+    """Parameters of the simulated Kinect v2 skeleton errors (SI units).
+
+    Attributes:
+        ref_distance_m: Distance at which the SDs below apply; errors scale linearly with
+            distance (pixel footprint ∝ range; Otte 2016, Wang 2015).
+        slow_sd_m: SD per axis of the slowly varying fitting error of an ankle at the
+            reference distance (derived from seed 000 Tables 2–3, see module doc).
+        slow_tau_s: Correlation time of that error (≈ the duration of a stance phase:
+            the fit error follows the pose, which changes within a gait phase).
+        jitter_sd_m: Frame-to-frame white jitter per axis at the reference distance
+            (Kinect v2 joint jitter a few mm: Otte 2016; Wang 2015).
+        surface_bias_near_m: Bias towards the sensor of joints on the body half facing the
+            sensor (seed 000 Fig. 5 and supplementary: a few cm between opposite views).
+        surface_bias_far_m: Bias towards the sensor of joints on the body half turned away
+            (larger: Wang 2015, self-occluded half is less accurate).
+        surface_bias_mid_m: Bias of midline (spine/head) joints.
+        far_noise_gain: Extra noise factor for joints on the turned-away half (×(1+g·far)).
+        inferred_sd_m: SD per axis of the extra error of INFERRED joints (inferred
+            positions are guesses from the rest of the body; Kinect v2 inferred ankle
+            errors ≈ 5–10 cm, Otte 2016).
+        inferred_to_untracked_s: An occlusion lasting longer than this turns INFERRED into
+            NOT_TRACKED (seed 000).
+        occlusion_hangover_s: A joint stays INFERRED this long after it reappears (the
+            SDK's temporal filtering).
+        acquisition_median_s: Median delay before a body entering the view is reported
+            (seed 000: "a few hundred ms"; log-normal, clipped to 0.15–1.5 s).
+        acquisition_sigma: Log-normal shape of that delay.
+        min_joints_in_view: Fraction of the 25 joints that must be in the frustum for a
+            body to be detected (Kinect v2 tracks partially visible bodies but needs the
+            trunk).
+        leg_swap_rate_hz: Rate of brief left/right lower-leg label swaps (per second of
+            tracking; Geerse 2015, Springer 2016 report occasional leg-swap outliers).
+        leg_swap_duration_s: (min, max) duration of a swap.
+        mirror_back_facing: Report a subject seen from behind mirrored (left/right
+            labels swapped), as the Kinect v2 SDK does.
+        back_facing_noise_gain: Noise factor for back-facing subjects.
+    """
+
+    ref_distance_m: float = 2.5
+    slow_sd_m: float = 0.028
+    slow_tau_s: float = 0.3
+    jitter_sd_m: float = 0.006
+    surface_bias_near_m: float = 0.015
+    surface_bias_far_m: float = 0.035
+    surface_bias_mid_m: float = 0.01
+    far_noise_gain: float = 0.8
+    inferred_sd_m: float = 0.06
+    inferred_to_untracked_s: float = 0.4
+    occlusion_hangover_s: float = 0.07
+    acquisition_median_s: float = 0.4
+    acquisition_sigma: float = 0.4
+    min_joints_in_view: float = 0.5
+    leg_swap_rate_hz: float = 0.05
+    leg_swap_duration_s: tuple[float, float] = (0.1, 0.3)
+    mirror_back_facing: bool = True
+    back_facing_noise_gain: float = 1.5
+
+    @classmethod
+    def perfect(cls) -> SkeletonErrorModel:
+        """No errors at all (occlusion/visibility logic kept, states honest)."""
+        return cls(slow_sd_m=0.0, jitter_sd_m=0.0, surface_bias_near_m=0.0,
+                   surface_bias_far_m=0.0, surface_bias_mid_m=0.0, inferred_sd_m=0.0,
+                   acquisition_median_s=0.0, acquisition_sigma=0.0, leg_swap_rate_hz=0.0,
+                   mirror_back_facing=False)
+
+
+# ---------------------------------------------------------------------- occlusion
+
+
+def _seg_seg_dist(p0: FloatArray, p1: FloatArray, q0: FloatArray, q1: FloatArray
+                  ) -> FloatArray:
+    """Distance between segments p0p1 and q0q1 (broadcast over leading axes)."""
+    d1 = p1 - p0
+    d2 = q1 - q0
+    r = p0 - q0
+    a = np.sum(d1 * d1, -1)
+    e = np.sum(d2 * d2, -1)
+    f = np.sum(d2 * r, -1)
+    c = np.sum(d1 * r, -1)
+    b = np.sum(d1 * d2, -1)
+    denom = a * e - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(denom > 1e-12, np.clip((b * f - c * e) / denom, 0, 1), 0.0)
+        t = np.where(e > 1e-12, (b * s + f) / e, 0.0)
+        t_c = np.clip(t, 0, 1)
+        s = np.where(t < 0, np.clip(-c / np.maximum(a, 1e-12), 0, 1),
+                     np.where(t > 1, np.clip((b - c) / np.maximum(a, 1e-12), 0, 1), s))
+    diff = p0 + d1 * s[..., None] - (q0 + d2 * t_c[..., None])
+    return np.linalg.norm(diff, axis=-1)
+
+
+def _point_seg_dist(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
+    ab = b - a
+    t = np.clip(np.sum((p - a) * ab, -1) / np.maximum(np.sum(ab * ab, -1), 1e-12), 0, 1)
+    return np.linalg.norm(p - (a + ab * t[..., None]), axis=-1)
+
+
+def occluded_joints(origin: FloatArray, joints: FloatArray, A: FloatArray, B: FloatArray,
+                    radii: FloatArray) -> NDArray[np.bool_]:
+    """Which joints are hidden from ``origin`` by a body capsule they are not part of.
+
+    Args:
+        origin: (3,) viewpoint (world).
+        joints: (T, J, 3) joint positions.
+        A, B: (T, C, 3) capsule axis end points; radii: (C,).
+
+    Returns:
+        (T, J) bool.
+    """
+    # a capsule the joint lies in (its own limb) cannot occlude it
+    inside = _point_seg_dist(joints[:, :, None, :], A[:, None], B[:, None]) <= radii + 0.02
+    # stop the sight line short of the joint so surrounding flesh does not count
+    v = joints - origin
+    dist = np.linalg.norm(v, axis=-1, keepdims=True)
+    end = joints - v / dist * 0.06
+    o = np.broadcast_to(origin, end.shape)
+    d = _seg_seg_dist(o[:, :, None], end[:, :, None], A[:, None], B[:, None])
+    blocked = (d < radii - 0.005) & ~inside
+    return np.asarray(blocked.any(axis=-1))
+
+
+# ---------------------------------------------------------------------- observation
+
+
+def _ar1(rng: np.random.Generator, shape: tuple[int, ...], a: float) -> FloatArray:
+    """Unit-variance AR(1) series along axis 0."""
+    w = rng.standard_normal(shape) * np.sqrt(max(1.0 - a * a, 0.0))
+    w[0] = rng.standard_normal(shape[1:])
+    return np.asarray(lfilter([1.0], [1.0, -a], w, axis=0))
+
+
+def _runs_longer(mask: NDArray[np.bool_], times: FloatArray, dur: float) -> NDArray[np.bool_]:
+    """Per column, True where ``mask`` has been continuously True for more than ``dur``."""
+    T = len(times)
+    out = np.zeros_like(mask)
+    start = np.full(mask.shape[1:], np.nan)
+    for k in range(T):
+        m = mask[k]
+        start = np.where(m, np.where(np.isnan(start), times[k], start), np.nan)
+        out[k] = m & (times[k] - start > dur)
+    return out
+
+
+def observe_skeletons(
+    sensor: SimSensor,
+    rig: Rig | None,
+    walker: Walker,
+    times_true: NDArray[np.float64],
+    rng: np.random.Generator,
+    model: SkeletonErrorModel | None = None,
+    body_id: int = 0,
+) -> SkeletonSeries:
+    """The skeleton stream one sensor reports for one walker.
+
+    Args:
+        sensor: The observing sensor.
+        rig: The rig (unused by the model itself; kept for the API and future room
+            occluders).
+        walker: The subject.
+        times_true: ``(T,)`` strictly increasing true capture times (e.g. from
+            :func:`engine.sim.clock.frame_times`).
+        rng: Random generator (all randomness of this observation).
+        model: Error model (default :class:`SkeletonErrorModel`).
+        body_id: Body index reported in ``meta``.
+
+    Returns:
+        A :class:`SkeletonSeries` in the SENSOR (depth camera) frame, metres, one row per
+        frame; frames without a tracked body have every joint NOT_TRACKED and NaN.
+        ``times`` are the sensor's LOCAL clock times; ``meta`` holds ``sensor_id``,
+        ``frame`` ("sensor"), ``times_true``, ``times_local``, ``body_tracked`` (T,) bool,
+        ``mirrored`` (T,) bool (labels swapped because seen from behind), ``occluded``
+        (T, 25) bool (ground-truth occlusion) and ``body_id``.
+    """
+    m = model or SkeletonErrorModel()
+    t = np.asarray(times_true, dtype=float)
+    if t.ndim != 1 or (len(t) > 1 and not np.all(np.diff(t) > 0)):
+        raise InputError("times_true must be a strictly increasing 1-D array")
+    T = len(t)
+    o = sensor.position
+    J = walker.joints(t)
+    A, B, radii = walker.capsule_segments(t)
+    in_view = sensor.in_depth_view(J, margin_px=2.0)
+    occl = occluded_joints(o, J, A, B, radii) & in_view
+    dist = np.linalg.norm(J - o, axis=-1)
+
+    # ---- body detection with acquisition delay
+    trunk = in_view[:, _IDX["SpineBase"]] & in_view[:, _IDX["SpineMid"]]
+    detectable = trunk & (in_view.mean(axis=1) >= m.min_joints_in_view)
+    tracked = np.zeros(T, dtype=bool)
+    seen_since = np.nan
+    delay = 0.0
+    for k in range(T):
+        if not detectable[k]:
+            seen_since = np.nan
+            continue
+        if np.isnan(seen_since):
+            seen_since = t[k]
+            delay = 0.0 if m.acquisition_median_s <= 0 else float(np.clip(
+                m.acquisition_median_s * np.exp(m.acquisition_sigma * rng.standard_normal()),
+                0.15, 1.5))
+        tracked[k] = t[k] - seen_since >= delay
+
+    # ---- geometry of the view: which body half faces the sensor, back-facing
+    fr = walker.bone_frames(t)["pelvis"]
+    fwd = fr[:, :3, 0].copy()
+    left = fr[:, :3, 1].copy()
+    fwd[:, 2] = 0.0
+    left[:, 2] = 0.0
+    fwd /= np.linalg.norm(fwd, axis=1, keepdims=True)
+    left /= np.linalg.norm(left, axis=1, keepdims=True)
+    to_sensor = o - J  # (T, J, 3)
+    u = to_sensor / np.linalg.norm(to_sensor, axis=-1, keepdims=True)
+    u_h = u.copy()
+    u_h[..., 2] = 0.0
+    u_h /= np.maximum(np.linalg.norm(u_h, axis=-1, keepdims=True), 1e-9)
+    facing_side = np.einsum("tjk,tk->tj", u_h, left) * _SIDE  # >0: joint's half faces sensor
+    far = np.clip(-facing_side, 0.0, 1.0)
+    near = np.clip(facing_side, 0.0, 1.0)
+    back = np.einsum("tk,tk->t", u_h[:, _IDX["SpineBase"]], fwd) < -0.2
+
+    # ---- errors (world frame)
+    scale = dist / m.ref_distance_m * _JOINT_SCALE
+    gain = (1.0 + m.far_noise_gain * far) * np.where(back, m.back_facing_noise_gain, 1.0)[:, None]
+    dt = float(np.median(np.diff(t))) if T > 1 else 1.0 / 30.0
+    a = float(np.exp(-dt / m.slow_tau_s)) if m.slow_tau_s > 0 else 0.0
+    slow = _ar1(rng, (T, _N, 3), a) * (m.slow_sd_m * scale * gain)[..., None]
+    jitter = rng.standard_normal((T, _N, 3)) * (m.jitter_sd_m * scale * gain)[..., None]
+    beta = np.where(_SIDE == 0, m.surface_bias_mid_m,
+                    m.surface_bias_near_m * near + m.surface_bias_far_m * far
+                    + m.surface_bias_near_m * (1 - near - far))
+    bias = u_h * beta[..., None]
+    est = J + bias + slow + jitter
+
+    # ---- occlusion → inferred / not tracked
+    recent = np.zeros_like(occl)
+    hang = max(int(round(m.occlusion_hangover_s / dt)), 0)
+    for s in range(hang + 1):
+        recent[s:] |= occl[: T - s] if s else occl
+    inferred = recent & in_view
+    untracked = _runs_longer(occl, t, m.inferred_to_untracked_s) | ~in_view
+    if m.inferred_sd_m > 0:
+        a_inf = float(np.exp(-dt / 0.3))
+        est = est + inferred[..., None] * _ar1(rng, (T, _N, 3), a_inf) * m.inferred_sd_m
+
+    states = np.full((T, _N), TrackingState.TRACKED, dtype=np.uint8)
+    states[inferred] = TrackingState.INFERRED
+    states[untracked] = TrackingState.NOT_TRACKED
+
+    # ---- fitting failures: mirrored when seen from behind, brief leg swaps
+    mirrored = back & tracked if m.mirror_back_facing else np.zeros(T, dtype=bool)
+    est[mirrored] = est[mirrored][:, _MIRROR]
+    states[mirrored] = states[mirrored][:, _MIRROR]
+    if m.leg_swap_rate_hz > 0 and T > 1:
+        span = float(t[-1] - t[0])
+        n_ev = rng.poisson(m.leg_swap_rate_hz * span)
+        for _ in range(n_ev):
+            t0 = t[0] + rng.uniform(0, span)
+            dur = rng.uniform(*m.leg_swap_duration_s)
+            sel = (t >= t0) & (t < t0 + dur) & tracked
+            if np.any(sel):
+                idx = np.nonzero(sel)[0][:, None]
+                le, ri = est[idx, _LOWER_LEG].copy(), est[idx, _LOWER_LEG_R].copy()
+                est[idx, _LOWER_LEG], est[idx, _LOWER_LEG_R] = ri, le
+
+    states[~tracked] = TrackingState.NOT_TRACKED
+    est[states == TrackingState.NOT_TRACKED] = np.nan
+    pos = transform_points(sensor.T_sensor_world, est)
+    t_local = np.asarray(sensor.clock.local(t), dtype=float).reshape(-1)
+    meta: dict[str, Any] = {
+        "sensor_id": sensor.id, "frame": "sensor", "units": "m", "body_id": body_id,
+        "times_true": t.copy(), "times_local": t_local, "body_tracked": tracked,
+        "mirrored": mirrored, "occluded": occl,
+    }
+    return SkeletonSeries(times=t_local, positions=pos, states=states, joint_set=_JS,
+                          meta=meta)
+
+
+def observation_errors(series: SkeletonSeries, sensor: SimSensor, walker: Walker
+                       ) -> FloatArray:
+    """``(T, 25, 3)`` world-frame error (estimate − truth) of a sensor's series.
+
+    Joints that are not TRACKED are NaN; mirrored frames are compared label-for-label
+    (so they show as large errors).
+    """
+    t = np.asarray(series.meta["times_true"], dtype=float)
+    est = transform_points(sensor.T_world_sensor, series.tracked_positions())
+    return est - walker.joints(t)
