@@ -1,0 +1,475 @@
+"""KSCC — Kinect Skeleton Coordinate Calibration (seed 004) into a universal skeleton frame.
+
+A user stands still for about four seconds (120 frames at 30 fps). From those frames:
+
+* the **initial centre** ``C`` = mean over frames of the mean of all joints (paper eq. for
+  ``A`` and ``C``);
+* the **facing** from the shoulders: the paper's ``θ = atan(D/W)`` with ``D = Zr − Zl``
+  (depth difference) and ``W = Xr − Xl`` (width), generalised here with ``atan2`` on the
+  horizontal shoulder vector in a Z-up frame, so any facing within ±90° (and beyond) works.
+
+Every later frame is translated by ``−C`` and rotated about the vertical with a
+quaternion (``engine.geometry``, w-first) into the **universal frame** ``U``: origin at the
+initial centre, +Z up, +X the user's initial facing direction, +Y the user's left. Two
+users calibrated this way at two sites can be compared joint by joint
+(``engine.compare``). The paper's universal frame (Kinect SDK axes, user facing the
+sensor, i.e. −Z) differs from ``U`` only by a fixed relabelling of axes: paper
+X = −Y_U (towards the user's right), Y = Z_U (up), Z = −X_U (behind the user).
+
+Input frames. Rotating "about the vertical" needs to know where up is:
+
+* ``frame="kinect"`` — Kinect SDK camera space (v1/v2): +X the sensor's left, +Y up,
+  +Z forward (the sensor assumed level, as in the paper);
+* ``frame="opencv"`` — OpenCV/Azure Kinect depth-camera frame: +X right, +Y down,
+  +Z forward (sensor level);
+* ``frame="world"`` — already Z up (e.g. a calibrated world frame);
+* ``frame=(ux, uy, uz)`` — the up direction measured in the input frame (e.g. from the
+  sensor's accelerometer), for a tilted sensor;
+* or ``T_world_sensor`` — a full 4×4 pose into a Z-up world (overrides ``frame``).
+
+Stillness (documented thresholds). A frame counts as still when the mean joint speed,
+measured over ``speed_window_s`` (0.2 s — long enough that ~1 cm per-frame Kinect jitter
+reads as < 0.1 m/s), is below ``speed_threshold_mps`` (0.15 m/s; slow swaying stays
+below, a step or an arm swing exceeds it), and the median joint has drifted less than
+``max_drift_m`` (5 cm) from its mean over the frames collected so far (catches slow
+drifts). Both shoulders must be present (not NaN, not NOT_TRACKED). A moving or lost
+user restarts the collection.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from engine.errors import InputError, InsufficientDataError
+from engine.geometry import make_transform, quat_from_axis_angle, quat_to_matrix
+from engine.skeleton import JointSet, SkeletonSeries, TrackingState
+
+FloatArray = NDArray[np.float64]
+
+#: Frames the paper collects (≈ 4 s at 30 fps).
+N_STILL_FRAMES = 120
+
+_FRAME_MATRICES: dict[str, FloatArray] = {
+    # rows: level-frame axes (X forward of the sensor, Y sensor's left, Z up) in input coords
+    "kinect": np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+    "opencv": np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]),
+    "world": np.eye(3),
+}
+
+#: Roles used for the centre when ``centre="roles"`` (present in every joint set).
+CENTRE_ROLES: tuple[str, ...] = (
+    "pelvis", "spine_mid", "spine_top", "head",
+    "shoulder_left", "elbow_left", "wrist_left", "hand_left",
+    "shoulder_right", "elbow_right", "wrist_right", "hand_right",
+    "hip_left", "knee_left", "ankle_left", "foot_left",
+    "hip_right", "knee_right", "ankle_right", "foot_right",
+)
+
+State = Literal["waiting", "collecting", "moved", "done"]
+
+
+@dataclass(frozen=True)
+class KsccProgress:
+    """What a live UI shows during calibration.
+
+    Attributes:
+        state: ``waiting`` (no body, shoulders hidden, or not yet still), ``collecting``,
+            ``moved`` (the user moved; collection restarted), ``done``.
+        n_collected: Still frames collected so far.
+        n_required: Still frames needed.
+        message: One short sentence for the operator.
+    """
+
+    state: State
+    n_collected: int
+    n_required: int
+    message: str
+
+    @property
+    def fraction(self) -> float:
+        return self.n_collected / self.n_required
+
+
+def level_transform(frame: str | ArrayLike = "kinect", T_world_sensor: ArrayLike | None = None
+                    ) -> tuple[FloatArray, FloatArray | None]:
+    """``T_level_input`` (4×4, Z up) and the sensor's horizontal view axis in that frame.
+
+    Returns:
+        The transform and the unit horizontal optical axis (or ``None`` when the input
+        frame says nothing about the sensor, i.e. ``frame="world"`` without a pose).
+
+    Raises:
+        InputError: unknown frame name, zero or degenerate up vector, bad pose.
+    """
+    if T_world_sensor is not None:
+        T = np.asarray(T_world_sensor, dtype=float)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            raise InputError("T_world_sensor must be a finite 4×4 matrix")
+        axis = T[:3, 2].copy()  # optical axis (+Z of a Kinect/OpenCV camera) in the world
+        axis[2] = 0.0
+        n = np.linalg.norm(axis)
+        return T, (axis / n if n > 1e-6 else None)
+    if isinstance(frame, str):
+        if frame not in _FRAME_MATRICES:
+            raise InputError(f"unknown skeleton frame {frame!r}; use 'kinect' (Y up), "
+                             "'opencv' (Y down), 'world' (Z up) or an up vector")
+        M = _FRAME_MATRICES[frame]
+        return make_transform(M, np.zeros(3)), (None if frame == "world"
+                                                else np.array([1.0, 0.0, 0.0]))
+    up = np.asarray(frame, dtype=float)
+    if up.shape != (3,) or not np.isfinite(up).all() or np.linalg.norm(up) < 1e-9:
+        raise InputError("the up vector must be three finite numbers, not all zero")
+    up = up / np.linalg.norm(up)
+    # level X = the input's +Z (a camera's optical axis) made horizontal
+    fwd = np.array([0.0, 0.0, 1.0]) - up[2] * up
+    if np.linalg.norm(fwd) < 1e-6:
+        raise InputError("the up vector is parallel to the camera's optical axis (+Z); "
+                         "pass T_world_sensor instead")
+    fwd /= np.linalg.norm(fwd)
+    left = np.cross(up, fwd)
+    return make_transform(np.stack([fwd, left, up]), np.zeros(3)), np.array([1.0, 0.0, 0.0])
+
+
+def _valid_positions(series: SkeletonSeries, use_inferred: bool) -> FloatArray:
+    p = series.positions.copy()
+    bad = series.states == TrackingState.NOT_TRACKED
+    if not use_inferred:
+        bad |= series.states == TrackingState.INFERRED
+    p[bad] = np.nan
+    return p
+
+
+class StillnessCollector:
+    """Streaming collection of consecutive still frames (see the module docstring).
+
+    Args:
+        joint_set: Joint set of the frames.
+        n_frames: Still frames to collect.
+        speed_threshold_mps: Mean joint speed above which the user is moving.
+        speed_window_s: Time base of the speed estimate.
+        max_drift_m: Largest median joint displacement from the collected mean.
+    """
+
+    def __init__(self, joint_set: JointSet, n_frames: int = N_STILL_FRAMES,
+                 speed_threshold_mps: float = 0.15, speed_window_s: float = 0.2,
+                 max_drift_m: float = 0.05) -> None:
+        if n_frames < 1 or speed_threshold_mps <= 0 or speed_window_s <= 0 or max_drift_m <= 0:
+            raise InputError("stillness parameters must be positive")
+        self.joint_set = joint_set
+        self.n_frames = int(n_frames)
+        self.speed_threshold_mps = float(speed_threshold_mps)
+        self.speed_window_s = float(speed_window_s)
+        self.max_drift_m = float(max_drift_m)
+        self._ls = joint_set.role_index("shoulder_left")
+        self._rs = joint_set.role_index("shoulder_right")
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything (new user, new session)."""
+        self._hist: deque[tuple[float, FloatArray]] = deque()
+        self._frames: list[FloatArray] = []
+        self._index: list[int] = []
+        self._sum = np.zeros((len(self.joint_set.joints), 3))
+        self._cnt = np.zeros(len(self.joint_set.joints))
+        self._last_t = -np.inf
+        self._k = -1
+        self.restarts = 0
+        self.longest = 0
+
+    @property
+    def frames(self) -> FloatArray:
+        """``(n, J, 3)`` collected still frames (NaN where a joint was missing)."""
+        return np.array(self._frames).reshape(-1, len(self.joint_set.joints), 3)
+
+    @property
+    def indices(self) -> list[int]:
+        """Update-call indices (0-based) of the collected frames."""
+        return list(self._index)
+
+    @property
+    def done(self) -> bool:
+        return len(self._frames) >= self.n_frames
+
+    def _restart(self) -> None:
+        self.longest = max(self.longest, len(self._frames))
+        if self._frames:
+            self.restarts += 1
+        self._frames.clear()
+        self._index.clear()
+        self._sum[:] = 0.0
+        self._cnt[:] = 0.0
+
+    def _progress(self, state: State, msg: str) -> KsccProgress:
+        return KsccProgress(state, len(self._frames), self.n_frames, msg)
+
+    def update(self, time: float, positions: ArrayLike) -> KsccProgress:
+        """Feed one frame (``(J, 3)``, NaN = missing joint) at ``time`` seconds."""
+        p = np.asarray(positions, dtype=float)
+        if p.shape != self._sum.shape:
+            raise InputError(f"a {self.joint_set.name} frame must have shape {self._sum.shape}, "
+                             f"got {p.shape}")
+        t = float(time)
+        if not t > self._last_t:
+            raise InputError("frame times must be strictly increasing")
+        self._last_t = t
+        self._k += 1
+        if self.done:
+            return self._progress("done", "calibration data complete")
+        while self._hist and t - self._hist[0][0] > 1.5 * self.speed_window_s:
+            self._hist.popleft()
+        ref = next((h for h in reversed(self._hist) if t - h[0] >= self.speed_window_s),
+                   self._hist[0] if self._hist else None)
+        self._hist.append((t, p))
+        valid = np.isfinite(p).all(axis=1)
+        if not (valid[self._ls] and valid[self._rs]) or valid.sum() < len(valid) / 2:
+            had = bool(self._frames)
+            self._restart()
+            what = ("both shoulders" if not (valid[self._ls] and valid[self._rs])
+                    else "the body")
+            return self._progress("moved" if had else "waiting",
+                                  f"{what} not visible — face the sensor"
+                                  + (", restarting" if had else ""))
+        if ref is None or t - ref[0] < 0.5 * self.speed_window_s:
+            return self._progress("waiting", "stand still facing the sensor")
+        both = valid & np.isfinite(ref[1]).all(axis=1)
+        speed = float(np.mean(np.linalg.norm(p[both] - ref[1][both], axis=1))) / (t - ref[0])
+        moving = speed > self.speed_threshold_mps
+        if not moving and self._frames:
+            have = self._cnt > 0
+            m = valid & have
+            mean = self._sum[m] / self._cnt[m, None]
+            moving = float(np.median(np.linalg.norm(p[m] - mean, axis=1))) > self.max_drift_m
+        if moving:
+            had = bool(self._frames)
+            self._restart()
+            if had:
+                return self._progress("moved", "moved — restarting; please stand still")
+            return self._progress("waiting", "stand still facing the sensor")
+        self._frames.append(p)
+        self._index.append(self._k)
+        self._sum[valid] += p[valid]
+        self._cnt[valid] += 1
+        if self.done:
+            self.longest = max(self.longest, len(self._frames))
+            return self._progress("done", "calibration data complete")
+        return self._progress("collecting", f"collecting {len(self._frames)}/{self.n_frames}")
+
+
+def find_still_window(series: SkeletonSeries, n_frames: int = N_STILL_FRAMES,
+                      frame: str | ArrayLike = "kinect", T_world_sensor: ArrayLike | None = None,
+                      use_inferred: bool = True, **stillness: float) -> NDArray[np.int64]:
+    """Indices of the first ``n_frames`` consecutive still frames of a recording.
+
+    Raises:
+        InsufficientDataError: too short, or the user never stood still long enough.
+        InputError: a shoulder is missing in every frame.
+    """
+    T_level, _ = level_transform(frame, T_world_sensor)
+    P = _valid_positions(series, use_inferred) @ T_level[:3, :3].T + T_level[:3, 3]
+    js = series.joint_set
+    if len(series) < n_frames:
+        raise InsufficientDataError(
+            f"KSCC needs {n_frames} still frames (about {n_frames / 30:.0f} s at 30 fps); "
+            f"the recording has only {len(series)} frames"
+        )
+    for role in ("shoulder_left", "shoulder_right"):
+        if not np.isfinite(P[:, js.role_index(role)]).all(axis=1).any():
+            raise InputError(
+                f"{js.roles[role]} is missing (NaN or not tracked) in every frame; the user "
+                "must stand facing the sensor with both shoulders visible"
+            )
+    col = StillnessCollector(js, n_frames, **stillness)
+    for t, p in zip(series.times, P, strict=True):
+        if col.update(t, p).state == "done":
+            return np.array(col.indices, dtype=np.int64)
+    raise InsufficientDataError(
+        f"the user never stood still for {n_frames} consecutive frames (longest still "
+        f"stretch: {max(col.longest, len(col.frames))} frames, restarted {col.restarts} times "
+        "after moving or losing a shoulder); ask them to stand still, facing the sensor, "
+        f"for about {n_frames / 30:.0f} s"
+    )
+
+
+class KsccCalibrator:
+    """Estimator: fit the initial centre and facing, transform into the universal frame.
+
+    Args:
+        n_frames: Still frames to collect (paper: 120).
+        frame: Input frame convention or up vector (module docstring).
+        T_world_sensor: Pose into a Z-up world; overrides ``frame``.
+        centre: ``"all"`` — mean of all joints (the paper); ``"roles"`` — mean of the 20
+            role joints every joint set has, so Kinect v1/v2/Azure centres agree.
+        use_inferred: Use INFERRED joints (the SDK's guesses); NOT_TRACKED/NaN never.
+        speed_threshold_mps, speed_window_s, max_drift_m: Stillness thresholds.
+
+    Attributes (after fit / a completed stream):
+        centre_: Initial centre ``C`` in input coordinates (m).
+        heading_: Facing direction in the level frame (rad, CCW from its +X).
+        angle_: Rotation about the vertical applied into the universal frame (rad) = −heading_.
+        initial_angle_: The paper's θ (rad): 0 facing the sensor, > 0 when the left
+            shoulder is nearer; ``None`` when the sensor's axis is unknown.
+        quaternion_: w-first rotation level → universal (about +Z by ``angle_``).
+        T_universal_input_: 4×4 map from input coordinates to the universal frame.
+        still_indices_: Frame indices used (batch fit) or update indices (stream).
+        joint_set_: Joint set it was fitted on.
+    """
+
+    def __init__(self, n_frames: int = N_STILL_FRAMES, frame: str | ArrayLike = "kinect",
+                 T_world_sensor: ArrayLike | None = None,
+                 centre: Literal["all", "roles"] = "all", use_inferred: bool = True,
+                 speed_threshold_mps: float = 0.15, speed_window_s: float = 0.2,
+                 max_drift_m: float = 0.05) -> None:
+        if centre not in ("all", "roles"):
+            raise InputError("centre must be 'all' or 'roles'")
+        self.n_frames = n_frames
+        self.frame = frame
+        self.T_world_sensor = T_world_sensor
+        self.centre = centre
+        self.use_inferred = use_inferred
+        self.stillness = {"speed_threshold_mps": speed_threshold_mps,
+                          "speed_window_s": speed_window_s, "max_drift_m": max_drift_m}
+        self._T_level, self._axis = level_transform(frame, T_world_sensor)
+        self._collector: StillnessCollector | None = None
+
+    # ------------------------------------------------------------------ fitting
+
+    def fit(self, series: SkeletonSeries) -> KsccCalibrator:
+        """Calibrate from the first still window of a recording."""
+        idx = find_still_window(series, self.n_frames, self.frame, self.T_world_sensor,
+                                self.use_inferred, **self.stillness)
+        P = _valid_positions(series, self.use_inferred)[idx]
+        self._fit_level(P @ self._T_level[:3, :3].T + self._T_level[:3, 3], series.joint_set)
+        self.still_indices_ = idx
+        return self
+
+    def update(self, time: float, positions: ArrayLike, states: ArrayLike | None = None,
+               joint_set: JointSet | None = None) -> KsccProgress:
+        """Streaming calibration: feed frames until the progress says ``done``.
+
+        Args:
+            time: Frame time (s), strictly increasing.
+            positions: ``(J, 3)`` joints in the input frame.
+            states: ``(J,)`` tracking states (optional; NOT_TRACKED joints are ignored).
+            joint_set: Needed on the first call only; inferred from J otherwise.
+        """
+        p = np.array(positions, dtype=float)
+        if self._collector is None:
+            js = joint_set or _joint_set_by_count(p.shape[0] if p.ndim == 2 else -1)
+            self._collector = StillnessCollector(js, self.n_frames, **self.stillness)
+        col = self._collector
+        if states is not None:
+            s = np.asarray(states)
+            bad = s == TrackingState.NOT_TRACKED
+            if not self.use_inferred:
+                bad |= s == TrackingState.INFERRED
+            if s.shape != p.shape[:1]:
+                raise InputError(f"states must have shape ({p.shape[0]},), got {s.shape}")
+            p[bad] = np.nan
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise InputError(f"positions must be (J, 3), got {p.shape}")
+        was_done = col.done
+        prog = col.update(time, p @ self._T_level[:3, :3].T + self._T_level[:3, 3])
+        if prog.state == "done" and not was_done:
+            self._fit_level(col.frames, col.joint_set)
+            self.still_indices_ = np.array(col.indices, dtype=np.int64)
+        return prog
+
+    def reset(self) -> None:
+        """Start a new streaming calibration (keeps the previous fit until replaced)."""
+        self._collector = None
+
+    def _fit_level(self, W: FloatArray, js: JointSet) -> None:
+        """Centre and facing from still frames ``W`` (n, J, 3) in the level frame."""
+        if self.centre == "all":
+            cols = np.arange(len(js.joints))
+        else:
+            cols = np.array([js.role_index(r) for r in CENTRE_ROLES])
+        with np.errstate(invalid="ignore"):
+            per_frame = np.nanmean(W[:, cols], axis=1)  # paper's A(t)
+        c = np.nanmean(per_frame, axis=0)  # paper's C
+        ls = np.nanmean(W[:, js.role_index("shoulder_left")], axis=0)
+        rs = np.nanmean(W[:, js.role_index("shoulder_right")], axis=0)
+        if not (np.isfinite(c).all() and np.isfinite(ls).all() and np.isfinite(rs).all()):
+            raise InputError("no usable shoulder or centre positions in the still frames")
+        left = ls - rs
+        if np.hypot(left[0], left[1]) < 0.05:
+            raise InputError(
+                "the shoulders are less than 5 cm apart seen from above (user side-on to the "
+                "sensor?); ask the user to turn towards the sensor"
+            )
+        heading = float(np.arctan2(-left[0], left[1]))  # forward = left × up = (ly, −lx)
+        q = quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), -heading)
+        R = quat_to_matrix(q)
+        T_u_level = make_transform(R, -R @ c)
+        self.joint_set_ = js
+        self.heading_ = heading
+        self.angle_ = -heading
+        self.quaternion_ = q
+        self.T_universal_input_ = T_u_level @ self._T_level
+        T_input_level = np.linalg.inv(self._T_level)
+        self.centre_ = T_input_level[:3, :3] @ c + T_input_level[:3, 3]
+        if self._axis is None:
+            self.initial_angle_: float | None = None
+        else:
+            a = self._axis
+            sensor_left = np.array([-a[1], a[0], 0.0])
+            d = -left  # RS − LS
+            self.initial_angle_ = float(np.arctan2(d @ a, d @ sensor_left))
+
+    @property
+    def initial_angle_deg_(self) -> float | None:
+        """The paper's initial angle θ in degrees (``None`` if the sensor axis is unknown)."""
+        return None if self.initial_angle_ is None else float(np.degrees(self.initial_angle_))
+
+    # --------------------------------------------------------------- transform
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "T_universal_input_"):
+            raise InputError("KSCC is not calibrated yet: call fit() or stream frames with "
+                             "update() until it reports 'done'")
+
+    def transform_points(self, positions: ArrayLike) -> FloatArray:
+        """Map points ``(..., 3)`` from the input frame into the universal frame."""
+        self._check_fitted()
+        p = np.asarray(positions, dtype=float)
+        if p.shape[-1:] != (3,):
+            raise InputError(f"points must have a last axis of 3, got {p.shape}")
+        T = self.T_universal_input_
+        return p @ T[:3, :3].T + T[:3, 3]
+
+    def transform(self, series: SkeletonSeries) -> SkeletonSeries:
+        """The whole series in the universal frame (states and times unchanged)."""
+        self._check_fitted()
+        if series.joint_set.name != self.joint_set_.name:
+            raise InputError(f"KSCC was calibrated on {self.joint_set_.name} skeletons but got "
+                             f"{series.joint_set.name}; calibrate each sensor's stream itself")
+        meta = dict(series.meta)
+        meta["frame"] = "kscc_universal"
+        return SkeletonSeries(series.times.copy(), self.transform_points(series.positions),
+                              series.states.copy(), series.joint_set, meta)
+
+
+def _joint_set_by_count(n: int) -> JointSet:
+    from engine.skeleton import JOINT_SETS
+
+    for js in JOINT_SETS.values():
+        if len(js.joints) == n:
+            return js
+    raise InputError(f"cannot tell the joint set of a {n}-joint frame; expected 20 (Kinect "
+                     "v1), 25 (Kinect v2) or 32 (Azure Kinect), or pass joint_set=")
+
+
+def kscc_calibrate(series: SkeletonSeries, **kwargs: object) -> KsccCalibrator:
+    """Batch KSCC: ``KsccCalibrator(**kwargs).fit(series)``."""
+    return KsccCalibrator(**kwargs).fit(series)  # type: ignore[arg-type]
+
+
+__all__ = [
+    "CENTRE_ROLES", "N_STILL_FRAMES", "KsccCalibrator", "KsccProgress", "StillnessCollector",
+    "find_still_window", "kscc_calibrate", "level_transform",
+]
