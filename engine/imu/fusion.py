@@ -1,0 +1,368 @@
+"""Fused depth/IMU skeleton (seed paper 002 §2.3-2.4) and joint angles (§3.2).
+
+Pipeline:
+
+1. **Plank initialisation** (:func:`plank_calibration`): while all IMUs lie on a rigid
+   plank they share one orientation, known in the depth (Kinect) world frame
+   (``q_world_plank``; identity when the plank is aligned with the Kinect axes as in the
+   paper's Fig. 1a). Each sensor's filter output at that moment then gives the fixed
+   rotation from its own earth frame to the world frame, ``q_W_E = q_world_plank ⊗ q(t_p)*``
+   — this removes per-sensor heading differences (arbitrary in 6D) and the IMU-to-Kinect
+   frame rotation at once.
+2. **Bone mapping**: nine sensors on forearms, upper arms, thighs, shanks and the chest
+   (:data:`PAPER_SENSORS`, Fig. 1b). The torso joint ``T`` (Kinect v2 ``SpineMid``) follows
+   the depth skeleton.
+3. **Reference skeleton** (:func:`select_reference_frame`): the depth frame where the
+   joints move least over a short window, i.e. the most stable still frame — chosen
+   automatically as the paper suggests.
+4. **Hierarchical rotation**: each bone is rotated by its sensor's rotation since the
+   reference frame, torso first (shoulders and hips follow the chest sensor), then upper
+   arms and thighs, then forearms and shanks. The paper composes the per-sample
+   increments Δq = q_t* ⊗ q_{t+1} (eq. 5-6); composing them from the reference time gives
+   ``q_ref* ⊗ q_t`` in the sensor frame, which we apply in closed form (same result, no
+   accumulation of rounding over thousands of samples). Because the bone vector is
+   expressed in the sensor frame at the reference time, a sensor need not be aligned with
+   its bone (the mounting convention of Fig. 1b only matters for reading axes).
+5. **Joint angles**: :func:`joint_rotation` is q_prox* ⊗ q_dist (eq. 7);
+   :func:`flexion_angles` gives knee and elbow flexion (degrees, 0 = straight) from any
+   skeleton, so depth-only, fused and reference are measured the same way; :func:`rmse`
+   and :func:`ncc` are Table 1's measures.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from engine.errors import InputError, InsufficientDataError
+from engine.geometry import quat_conj, quat_mul, quat_normalize, quat_rotate, quat_slerp
+from engine.imu.metrics import ncc, rmse
+from engine.skeleton import JointSet, SkeletonSeries, TrackingState
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "PAPER_SENSORS",
+    "FusedSkeleton",
+    "PlankCalibration",
+    "delta_quaternions",
+    "flexion_angles",
+    "fuse_skeleton",
+    "joint_rotation",
+    "ncc",
+    "plank_calibration",
+    "rmse",
+    "select_reference_frame",
+]
+
+#: Sensor name -> (proximal joint role, distal joint role) of the bone it drives, with the
+#: rigidly attached joints moved along (roles from ``engine.skeleton``). Chest = torso T.
+PAPER_SENSORS: dict[str, tuple[str, str]] = {
+    "chest": ("spine_mid", "spine_top"),
+    "upperarm_l": ("shoulder_left", "elbow_left"),
+    "forearm_l": ("elbow_left", "wrist_left"),
+    "upperarm_r": ("shoulder_right", "elbow_right"),
+    "forearm_r": ("elbow_right", "wrist_right"),
+    "thigh_l": ("hip_left", "knee_left"),
+    "shank_l": ("knee_left", "ankle_left"),
+    "thigh_r": ("hip_right", "knee_right"),
+    "shank_r": ("knee_right", "ankle_right"),
+}
+
+# Joints carried rigidly by each sensor's segment (roles), beyond the bone's distal joint.
+_CARRIED: dict[str, tuple[str, ...]] = {
+    "chest": ("pelvis", "spine_top", "neck", "head", "shoulder_left", "shoulder_right",
+              "hip_left", "hip_right"),
+    "upperarm_l": ("elbow_left",), "upperarm_r": ("elbow_right",),
+    "forearm_l": ("wrist_left", "hand_left"), "forearm_r": ("wrist_right", "hand_right"),
+    "thigh_l": ("knee_left",), "thigh_r": ("knee_right",),
+    "shank_l": ("ankle_left", "foot_left"), "shank_r": ("ankle_right", "foot_right"),
+}
+# Order of the hierarchy: torso, then proximal limb segments, then distal ones.
+_ORDER = ("chest", "upperarm_l", "upperarm_r", "thigh_l", "thigh_r", "forearm_l",
+          "forearm_r", "shank_l", "shank_r")
+
+
+@dataclass(frozen=True)
+class PlankCalibration:
+    """Per-sensor rotation from the sensor's earth frame to the depth world frame.
+
+    Attributes:
+        q_world_earth: sensor name -> ``(4,)`` quaternion ``q_W_E``.
+        time: plank time used (s, common clock).
+        spread_deg: sensor name -> angle between this sensor's tilt and the median tilt at
+            the plank time (large values mean a sensor was not on the plank).
+    """
+
+    q_world_earth: dict[str, FloatArray]
+    time: float
+    spread_deg: dict[str, float] = field(default_factory=dict)
+
+    def to_world(self, name: str, q: ArrayLike) -> FloatArray:
+        """Sensor-to-world quaternions of sensor ``name`` from its filter output ``q``."""
+        if name not in self.q_world_earth:
+            raise InputError(f"sensor {name!r} was not on the plank; have "
+                             f"{sorted(self.q_world_earth)}")
+        return quat_mul(self.q_world_earth[name], np.asarray(q, dtype=float))
+
+
+def _interp_quat(times: FloatArray, q: FloatArray, t: ArrayLike) -> FloatArray:
+    """Slerp a quaternion series at times ``t`` (clamped to the series' span)."""
+    tq = np.clip(np.asarray(t, dtype=float), times[0], times[-1])
+    i = np.clip(np.searchsorted(times, tq, side="right") - 1, 0, len(times) - 2)
+    u = (tq - times[i]) / (times[i + 1] - times[i])
+    return quat_slerp(q[i], q[i + 1], u)
+
+
+def plank_calibration(
+    times: ArrayLike,
+    orientations: Mapping[str, ArrayLike],
+    plank_time: float,
+    q_world_plank: ArrayLike = (1.0, 0.0, 0.0, 0.0),
+    max_spread_deg: float = 10.0,
+) -> PlankCalibration:
+    """Fixed earth-to-world rotation of every sensor from a plank pose (paper §2.3).
+
+    Args:
+        times: ``(T,)`` common time stamps of the orientation series (s).
+        orientations: sensor name -> ``(T, 4)`` filter output (sensor-to-earth).
+        plank_time: a time at which all sensors lay aligned on the plank.
+        q_world_plank: orientation of the plank (= every sensor) in the world frame.
+        max_spread_deg: tilt disagreement above which a sensor is rejected.
+
+    Raises:
+        InputError: plank time outside the recording, or a sensor whose tilt disagrees
+            with the others (it was not on the plank).
+    """
+    t = np.asarray(times, dtype=float)
+    if not t[0] <= plank_time <= t[-1]:
+        raise InputError(f"plank time {plank_time:.3f} s is outside the IMU recording "
+                         f"[{t[0]:.3f}, {t[-1]:.3f}] s")
+    qp = quat_normalize(np.asarray(q_world_plank, dtype=float))
+    q_at = {n: quat_normalize(_interp_quat(t, np.asarray(q, dtype=float), plank_time))
+            for n, q in orientations.items()}
+    # All sensors share their attitude on the plank: compare each one's "up" seen in the
+    # sensor frame (independent of each filter's arbitrary heading).
+    ups = {n: quat_rotate(quat_conj(q), np.array([0.0, 0.0, 1.0])) for n, q in q_at.items()}
+    med = np.median(np.stack(list(ups.values())), axis=0)
+    med /= np.linalg.norm(med)
+    spread = {n: float(np.degrees(np.arccos(np.clip(u @ med, -1.0, 1.0))))
+              for n, u in ups.items()}
+    bad = [n for n, s in spread.items() if s > max_spread_deg]
+    if bad:
+        raise InputError(f"sensor(s) {bad} were not aligned with the others at the plank time "
+                         f"{plank_time:.2f} s (tilt differs by > {max_spread_deg}°)")
+    return PlankCalibration({n: quat_mul(qp, quat_conj(q)) for n, q in q_at.items()},
+                            float(plank_time), spread)
+
+
+def delta_quaternions(q: ArrayLike) -> FloatArray:
+    """Per-sample rotation increments Δq_{t+1} = q_t* ⊗ q_{t+1} (eq. 5), ``(T-1, 4)``."""
+    qq = np.asarray(q, dtype=float)
+    return quat_mul(quat_conj(qq[:-1]), qq[1:])
+
+
+def joint_rotation(q_prox: ArrayLike, q_dist: ArrayLike) -> FloatArray:
+    """Joint rotation ``q_prox* ⊗ q_dist`` (eq. 7): distal segment relative to proximal."""
+    return quat_mul(quat_conj(np.asarray(q_prox, dtype=float)), np.asarray(q_dist, dtype=float))
+
+
+def select_reference_frame(
+    skeleton: SkeletonSeries,
+    roles: tuple[str, ...] | None = None,
+    window: float = 0.5,
+    t_min: float | None = None,
+    t_max: float | None = None,
+) -> int:
+    """Index of the most stable still depth frame (paper §2.4, automated).
+
+    A frame's instability is the mean, over the needed joints, of the positional standard
+    deviation in a centred window of ``window`` seconds; frames whose window has any
+    needed joint not TRACKED are excluded.
+
+    Args:
+        skeleton: the depth skeleton.
+        roles: joint roles that must be stable (default: every joint the fusion uses).
+        window: window length, s.
+        t_min, t_max: restrict the search to this time range (e.g. the IMU recording).
+
+    Raises:
+        InsufficientDataError: no window with all needed joints tracked.
+    """
+    js = skeleton.joint_set
+    rl = roles or tuple({r for s in PAPER_SENSORS for r in (*PAPER_SENSORS[s], *_CARRIED[s])})
+    idx = [js.role_index(r) for r in rl]
+    P = skeleton.tracked_positions()[:, idx, :]
+    t = skeleton.times
+    T = len(t)
+    if T < 3:
+        raise InsufficientDataError("the depth skeleton needs at least three frames")
+    dt = float(np.median(np.diff(t)))
+    h = max(1, round(0.5 * window / dt))
+    best, best_score = -1, np.inf
+    lo = -np.inf if t_min is None else t_min
+    hi = np.inf if t_max is None else t_max
+    ok_frame = np.all(np.isfinite(P), axis=(1, 2))
+    # cumulative sums make every window's variance O(1)
+    X = np.where(np.isfinite(P), P, 0.0).reshape(T, -1)
+    c1 = np.vstack([np.zeros(X.shape[1]), np.cumsum(X, axis=0)])
+    c2 = np.vstack([np.zeros(X.shape[1]), np.cumsum(X * X, axis=0)])
+    cbad = np.r_[0, np.cumsum(~ok_frame)]
+    for k in range(h, T - h):
+        if not lo <= t[k] <= hi:
+            continue
+        a, b = k - h, k + h + 1
+        if cbad[b] - cbad[a] > 0:
+            continue
+        n = b - a
+        var = (c2[b] - c2[a]) / n - ((c1[b] - c1[a]) / n) ** 2
+        score = float(np.mean(np.sqrt(np.maximum(var.reshape(-1, 3).sum(axis=1), 0.0))))
+        if score < best_score:
+            best, best_score = k, score
+    if best < 0:
+        raise InsufficientDataError(
+            f"no {window:.1f} s window with all fusion joints tracked; record a moment of "
+            "standing still facing the sensor")
+    return best
+
+
+@dataclass
+class FusedSkeleton:
+    """Result of :func:`fuse_skeleton`.
+
+    Attributes:
+        skeleton: fused joints on the IMU time grid (joints not driven are NaN).
+        reference_index: index of the depth frame used as reference skeleton.
+        sensor_world: sensor name -> ``(T, 4)`` sensor-to-world orientation.
+    """
+
+    skeleton: SkeletonSeries
+    reference_index: int
+    sensor_world: dict[str, FloatArray]
+
+
+def _interp_positions(times: FloatArray, P: FloatArray, t: FloatArray) -> FloatArray:
+    ok = np.isfinite(P).all(axis=1)
+    if ok.sum() < 2:
+        raise InsufficientDataError("the torso joint is tracked in fewer than two frames")
+    return np.stack([np.interp(t, times[ok], P[ok, k]) for k in range(3)], axis=1)
+
+
+def fuse_skeleton(
+    skeleton: SkeletonSeries,
+    imu_times: ArrayLike,
+    orientations: Mapping[str, ArrayLike],
+    calibration: PlankCalibration,
+    reference_index: int | None = None,
+    sensors: Mapping[str, tuple[str, str]] | None = None,
+    reference_window: float = 0.5,
+) -> FusedSkeleton:
+    """Build the fused skeleton (Kinect position, IMU rotations) on the IMU time grid.
+
+    Args:
+        skeleton: depth skeleton on the common clock (already synchronised).
+        imu_times: ``(T,)`` times of the orientation series, common clock.
+        orientations: sensor name -> ``(T, 4)`` filter output (sensor-to-earth).
+        calibration: result of :func:`plank_calibration`.
+        reference_index: reference depth frame; chosen by :func:`select_reference_frame`
+            within the IMU time span when ``None``.
+        sensors: sensor -> (proximal role, distal role); default :data:`PAPER_SENSORS`.
+            The chest sensor is required; limb sensors may be missing (their joints are
+            then NaN).
+        reference_window: seconds of depth frames around the reference frame averaged
+            into the reference skeleton (the subject stands still then).
+
+    Returns:
+        :class:`FusedSkeleton`; its skeleton's times are the IMU times inside the depth
+        recording.
+
+    Raises:
+        InputError: missing chest sensor, shapes. InsufficientDataError: no usable
+            reference frame or torso track.
+    """
+    smap = dict(sensors or PAPER_SENSORS)
+    if "chest" not in orientations:
+        raise InputError("the chest (torso) sensor is required for the fused skeleton")
+    js: JointSet = skeleton.joint_set
+    ti = np.asarray(imu_times, dtype=float)
+    inside = (ti >= skeleton.times[0]) & (ti <= skeleton.times[-1])
+    if inside.sum() < 2:
+        raise InsufficientDataError("the IMU and depth recordings do not overlap in time; "
+                                    "synchronise them first")
+    t = ti[inside]
+    q_world: dict[str, FloatArray] = {}
+    for name, q in orientations.items():
+        qa = np.asarray(q, dtype=float)
+        if qa.shape != (len(ti), 4):
+            raise InputError(f"orientation of {name!r} must have shape ({len(ti)}, 4), "
+                             f"got {qa.shape}")
+        if name in smap:
+            q_world[name] = calibration.to_world(name, qa[inside])
+    if reference_index is None:
+        reference_index = select_reference_frame(skeleton, window=reference_window,
+                                                 t_min=t[0], t_max=t[-1])
+    t_ref = float(skeleton.times[reference_index])
+    # Average the still window around the reference frame: depth noise in a single frame
+    # would otherwise become a constant bone-direction (joint-angle) offset.
+    near = np.abs(skeleton.times - t_ref) <= 0.5 * reference_window + 1e-9
+    with np.errstate(invalid="ignore"):
+        ref = np.nanmean(skeleton.tracked_positions()[near], axis=0) if near.sum() > 1 \
+            else skeleton.positions[reference_index]
+    ref = np.where(np.isfinite(ref), ref, skeleton.positions[reference_index])
+    q_ref = {n: _interp_quat(t, q, t_ref) for n, q in q_world.items()}
+
+    P = np.full((len(t), len(js.joints), 3), np.nan)
+    torso = js.role_index(smap["chest"][0])
+    P[:, torso] = _interp_positions(skeleton.times, skeleton.tracked_positions()[:, torso], t)
+    for name in _ORDER:
+        if name not in q_world:
+            continue
+        prox_role = smap[name][0]
+        root = js.role_index(prox_role)
+        if not np.isfinite(P[:, root]).all():
+            continue  # the parent segment has no sensor
+        carried = {js.role_index(r) for r in (smap[name][1], *_CARRIED.get(name, ()))}
+        carried.discard(root)
+        # q(t) ⊗ q_ref*: world-frame rotation of the segment since the reference frame
+        dq = quat_mul(q_world[name], quat_conj(q_ref[name]))
+        for j in sorted(carried):
+            if np.isfinite(ref[j]).all() and np.isfinite(ref[root]).all():
+                P[:, j] = P[:, root] + quat_rotate(dq, ref[j] - ref[root])
+    states = np.where(np.isfinite(P).all(axis=2), TrackingState.TRACKED,
+                      TrackingState.NOT_TRACKED).astype(np.uint8)
+    fused = SkeletonSeries(t, P, states, js, {"source": "imu-depth fusion",
+                                              "reference_time": t_ref})
+    return FusedSkeleton(fused, reference_index, q_world)
+
+
+def flexion_angles(skeleton: SkeletonSeries, tracked_only: bool = False) -> dict[str, FloatArray]:
+    """Knee and elbow flexion (degrees, 0 = straight) from joint positions.
+
+    Flexion is the angle between the proximal bone (hip→knee, shoulder→elbow) and the
+    distal bone (knee→ankle, elbow→wrist), the same definition for depth, fused and
+    reference skeletons.
+
+    Returns:
+        ``{"knee_left", "knee_right", "elbow_left", "elbow_right"}`` -> ``(T,)`` degrees
+        (NaN where a joint is missing).
+    """
+    js = skeleton.joint_set
+    P = skeleton.tracked_positions() if tracked_only else skeleton.positions
+    out: dict[str, FloatArray] = {}
+    for joint, (a, b, c) in {
+        "knee_left": ("hip_left", "knee_left", "ankle_left"),
+        "knee_right": ("hip_right", "knee_right", "ankle_right"),
+        "elbow_left": ("shoulder_left", "elbow_left", "wrist_left"),
+        "elbow_right": ("shoulder_right", "elbow_right", "wrist_right"),
+    }.items():
+        u = P[:, js.role_index(b)] - P[:, js.role_index(a)]
+        v = P[:, js.role_index(c)] - P[:, js.role_index(b)]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cosang = np.sum(u * v, axis=1) / (np.linalg.norm(u, axis=1)
+                                              * np.linalg.norm(v, axis=1))
+        out[joint] = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
+    return out
+
