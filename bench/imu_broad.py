@@ -107,8 +107,8 @@ def main(argv: list[str]) -> int:
         "samples": n_total,
         "ours_madgwick_total_deg": round(float(np.mean(res["ours_madgwick_total"])), 3),
         "ahrs_madgwick_total_deg": round(float(np.mean(res["ahrs_madgwick_total"])), 3),
-        "madgwick_same_init_worst_trial_rms_diff_deg": round(float(np.max(res["madgwick_max_abs_diff_deg"])),
-                                                 6),
+        "madgwick_same_init_worst_trial_rms_diff_deg": round(
+            float(np.max(res["madgwick_max_abs_diff_deg"])), 6),
         "ours_best_total_deg": round(float(np.mean(res["ours_best_total"])), 3),
         "ours_best_incl_deg": round(float(np.mean(res["ours_best_incl"])), 3),
         "vqf_total_deg": round(float(np.mean(res["vqf_total"])), 3),

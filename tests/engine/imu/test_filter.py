@@ -1,0 +1,98 @@
+"""Our orientation filter against ground truth: simulated sensors and real BROAD trials."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from engine.errors import InputError
+from engine.geometry import make_transform, quat_from_axis_angle, quat_to_matrix
+from engine.imu.filter import FilterParams, OrientationFilter, orientation_filter
+from engine.imu.io import load_broad
+from engine.imu.madgwick import madgwick, to_enu
+from engine.imu.metrics import orientation_errors
+from engine.sim.imu import ImuNoise, simulate_imu
+
+FS = 200.0
+
+
+def _tumbling(duration: float = 60.0, rest: float = 8.0) -> tuple[np.ndarray, np.ndarray]:
+    """A sensor at rest, then rotating about changing axes while moving around (ENU)."""
+    t = np.arange(0.0, duration, 1.0 / FS)
+    s = np.clip(t - rest, 0.0, None)
+    rv = np.stack([0.9 * np.sin(0.7 * s), 0.8 * np.sin(0.5 * s + 1.0),
+                   1.5 * np.sin(0.23 * s)], axis=1)
+    q = np.stack([quat_from_axis_angle(r / max(np.linalg.norm(r), 1e-12),
+                                       np.linalg.norm(r)) for r in rv])
+    pos = np.stack([0.3 * np.sin(1.3 * s), 0.2 * np.sin(1.7 * s), 0.1 * np.sin(2.1 * s)], 1)
+    T = np.stack([make_transform(quat_to_matrix(qq), p) for qq, p in zip(q, pos, strict=True)])
+    return t, T
+
+
+def test_simulated_sensor_with_bias() -> None:
+    t, poses = _tumbling()
+    noise = ImuNoise(gyr_bias=np.deg2rad(0.5))  # |bias| well within the 2°/s clip
+    rec = simulate_imu(t, poses, noise=noise, rng=3)
+    moving = t > 10.0
+    q9, bias, rest = orientation_filter(rec.gyr, rec.acc, rec.mag, frequency=FS)
+    q6, _, _ = orientation_filter(rec.gyr, rec.acc, None, frequency=FS)
+    e9 = orientation_errors(q9, rec.quat_ref, moving)
+    e6 = orientation_errors(q6, rec.quat_ref, moving)
+    assert e9["total_deg"] < 2.5
+    assert e6["inclination_deg"] < 1.0
+    # rest is detected at the start and the bias learnt there
+    assert rest[int(7.5 * FS)] and not rest[int(30 * FS)]
+    true_bias = rec.meta["true_gyr_bias"]
+    k = int(7.9 * FS)
+    assert np.linalg.norm(bias[k] - true_bias[k]) < 0.3 * np.linalg.norm(true_bias[k])
+    # a plain Madgwick with the same data is clearly worse (it has no bias estimation)
+    qm = madgwick(rec.gyr, rec.acc, rec.mag, beta=0.12, frequency=FS, frame="ENU")
+    assert orientation_errors(qm, rec.quat_ref, moving)["total_deg"] > e9["total_deg"]
+
+
+def test_magnetic_disturbance_is_rejected() -> None:
+    t, poses = _tumbling(60.0)
+    dist = np.zeros((len(t), 3))
+    on = (t > 20) & (t < 35)
+    dist[on] = [30.0, -25.0, 10.0]  # a nearby ferromagnetic object
+    clean = simulate_imu(t, poses, rng=5)
+    dirty = simulate_imu(t, poses, mag_disturbance=dist, rng=5)
+    after = (t > 20) & (t < 40)
+    q_clean, _, _ = orientation_filter(clean.gyr, clean.acc, clean.mag, frequency=FS)
+    q_dirty, _, _ = orientation_filter(dirty.gyr, dirty.acc, dirty.mag, frequency=FS)
+    e_clean = orientation_errors(q_clean, clean.quat_ref, after)["heading_deg"]
+    e_dirty = orientation_errors(q_dirty, dirty.quat_ref, after)["heading_deg"]
+    qm = madgwick(dirty.gyr, dirty.acc, dirty.mag, beta=0.12, frequency=FS, frame="ENU")
+    e_madg = orientation_errors(qm, dirty.quat_ref, after)["heading_deg"]
+    assert e_dirty < 3.0
+    assert e_dirty < e_clean + 2.0
+    assert e_madg > 3 * e_dirty
+
+
+@pytest.mark.parametrize("trial", ["16_undisturbed_fast_translation_B",
+                                   "33_disturbed_attached_magnet_2cm"])
+def test_broad_trials(shared_data: Path, trial: str) -> None:
+    rec = load_broad(shared_data / "imu" / "broad" / f"{trial}.hdf5")
+    assert rec.mag is not None and rec.quat_ref is not None
+    f = OrientationFilter(rec.frequency).fit(rec.gyr, rec.acc, rec.mag)
+    assert f.quat_ is not None
+    e9 = orientation_errors(f.quat_, rec.quat_ref, rec.movement)
+    q6, _, _ = orientation_filter(rec.gyr, rec.acc, None, frequency=rec.frequency)
+    e6 = orientation_errors(q6, rec.quat_ref, rec.movement)
+    qm = madgwick(rec.gyr, rec.acc, rec.mag, beta=0.12, frequency=rec.frequency)
+    em = orientation_errors(to_enu(qm), rec.quat_ref, rec.movement)
+    # measured: 0.77° / 2.17° total, 0.54° / 0.56° inclination; Madgwick 4.4° / 10.2°
+    assert e9["total_deg"] < 2.5
+    assert e6["inclination_deg"] < 0.7
+    assert e9["total_deg"] < 0.5 * em["total_deg"]
+
+
+def test_filter_errors_and_params() -> None:
+    g = np.zeros((10, 3))
+    with pytest.raises(InputError, match="shape"):
+        orientation_filter(g, g[:4], frequency=100.0)
+    with pytest.raises(InputError, match="frequency"):
+        orientation_filter(g, g, frequency=-1.0)
+    assert OrientationFilter(100.0, FilterParams(tau_acc=2.0)).get_params()["tau_acc"] == 2.0
