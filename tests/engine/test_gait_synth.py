@@ -59,8 +59,10 @@ def synth_walk(step_length: float = 0.7, step_width: float = 0.12, step_time: fl
             s_k, xk, yk, tk = place[k]
             if s_k != side or k - 2 not in place:
                 continue
-            _, xp, yp, _ = place[k - 2]
-            t_lift = tk - Ts + ds  # other foot landed at tk - Ts
+            _, xp, yp, tp = place[k - 2]
+            # Lift-off ds after the other foot lands; the same expression as the stance
+            # end below so that no sample falls between stance and swing.
+            t_lift = tp + Ts + ds
             sw = (t >= t_lift) & (t < tk)
             st = (t >= tk) & (t < tk + Ts + ds)
             s = (t[sw] - t_lift) / (tk - t_lift)
@@ -203,3 +205,35 @@ def observe(truth: FloatArray, times_true: FloatArray, T_world_sensor: FloatArra
     P[states == TrackingState.NOT_TRACKED] = np.nan
     t_local = clock_offset_s + (1 + clock_drift_ppm * 1e-6) * times_true
     return SkeletonSeries(t_local, P, states, KINECT_V2, {})
+
+
+def sample_truth(w: SynthWalk, truth: FloatArray, times: FloatArray) -> FloatArray:
+    """World skeleton ``truth`` (on ``w.times``) linearly sampled at ``times``."""
+    out = np.empty((len(times), *truth.shape[1:]))
+    for j in range(truth.shape[1]):
+        for c in range(3):
+            out[:, j, c] = np.interp(times, w.times, truth[:, j, c])
+    return out
+
+
+def six_sensor_streams(w: SynthWalk, rng: np.random.Generator, noise_m: float = 0.01,
+                       occluded_bias_m: float = 0.04, clocks: bool = True,
+                       inferred_frac: float = 0.05,
+                       drop: tuple[float, float] | None = None) -> list:  # list[SensorStream]
+    """Six avenue sensors observing the walk at ~30 Hz (jittered) on their own clocks."""
+    from engine.integration import SensorStream
+
+    truth = walk_skeleton(w)
+    streams = []
+    for sid, T in avenue_poses():
+        off = float(rng.uniform(-0.5, 0.5)) if clocks else 0.0
+        drift = float(rng.uniform(-100, 100)) if clocks else 0.0
+        n = int((w.times[-1] - w.times[0]) * 30) + 5
+        tt = w.times[0] + rng.uniform(0, 0.03) + np.cumsum(
+            np.full(n, 1 / 30) * (1 + 0.05 * rng.standard_normal(n)))
+        tt = tt[tt < w.times[-1]]
+        s = observe(sample_truth(w, truth, tt), tt, T, rng, noise_m=noise_m,
+                    occluded_bias_m=occluded_bias_m, clock_offset_s=off,
+                    clock_drift_ppm=drift, inferred_frac=inferred_frac, drop=drop)
+        streams.append(SensorStream(s, T, off, drift, sid))
+    return streams

@@ -1,0 +1,151 @@
+"""Multi-sensor skeleton integration against synthetic ground truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine.errors import InputError, InsufficientDataError
+from engine.gait import GaitAnalysis
+from engine.integration import (
+    SensorStream,
+    correct_timestamps,
+    integrate_skeletons,
+    lowpass,
+)
+from engine.mocap import feet_from_skeleton
+from engine.skeleton import AZURE_KINECT, KINECT_V2, SkeletonSeries, TrackingState
+from tests.engine.test_gait_synth import (
+    sample_truth,
+    six_sensor_streams,
+    synth_walk,
+    walk_skeleton,
+)
+
+
+@pytest.fixture(scope="module")
+def walk():  # type: ignore[no-untyped-def]
+    return synth_walk(step_length=0.7, step_width=0.12, step_time=0.55, n_steps=16,
+                      rate=120.0, origin=(-1.0, 0.0, 0.0))
+
+
+def _rms_vs_truth(w, fused: SkeletonSeries, joint: str) -> float:  # type: ignore[no-untyped-def]
+    truth = sample_truth(w, walk_skeleton(w), fused.times)
+    j = KINECT_V2.index(joint)
+    e = np.linalg.norm(fused.positions[:, j] - truth[:, j], axis=1)
+    return float(np.sqrt(np.nanmean(e**2)))
+
+
+def test_clock_offsets_and_drift_are_corrected(walk) -> None:  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(3)
+    streams = six_sensor_streams(walk, rng, occluded_bias_m=0.0, inferred_frac=0.0)
+    assert max(abs(s.clock_offset_s) for s in streams) > 0.2
+    fused, rep = integrate_skeletons(streams, "mean")
+    assert np.allclose(np.diff(fused.times), 1 / 30)
+    assert np.allclose(fused.times * 30, np.round(fused.times * 30))
+    assert rep.clock_offsets_s == {s.sensor_id: s.clock_offset_s for s in streams}
+    ok = _rms_vs_truth(walk, fused, "AnkleLeft")
+    # The same data with the clock model ignored: sensors disagree by up to ~1 s.
+    for s in streams:
+        s.clock_offset_s, s.clock_drift_ppm = 0.0, 0.0
+    bad, _ = integrate_skeletons(streams, "mean")
+    assert ok < 0.012
+    assert _rms_vs_truth(walk, bad, "SpineBase") > 0.08
+
+
+def test_correct_timestamps_inverts_clock_model() -> None:
+    t = np.linspace(0, 100, 11)
+    local = 0.37 + (1 + 80e-6) * t
+    np.testing.assert_allclose(correct_timestamps(local, 0.37, 80.0), t, atol=1e-12)
+
+
+def test_short_gaps_filled_and_reported_long_gaps_left(walk) -> None:  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(4)
+    short = six_sensor_streams(walk, rng, inferred_frac=0.0, clocks=False, drop=(2.0, 2.12))
+    fused, rep = integrate_skeletons(short, "mean")
+    assert rep.tracked_pct["AnkleLeft"] < 100.0
+    gaps = [g for g in rep.gaps_filled if g.joint == "AnkleLeft"]
+    # every sensor that saw the subject around t = 2 s reports its bridged gap
+    assert len({g.source for g in gaps}) >= 2
+    for g in gaps:
+        assert g.t_start < 2.0 + 1e-6 and g.t_end > 2.12 - 1e-6 and g.t_end - g.t_start <= 0.2
+    m = (fused.times > 2.01) & (fused.times < 2.11)
+    j = KINECT_V2.index("AnkleLeft")
+    assert np.all(fused.states[m, j] == TrackingState.INFERRED)
+    assert np.isfinite(fused.positions[m, j]).all()
+    assert np.all(fused.states[~m, j][5:-5] == TrackingState.TRACKED)
+    assert rep.filled_pct["AnkleLeft"] > 0 and not rep.gaps_unfilled
+
+    long_ = six_sensor_streams(walk, rng, inferred_frac=0.0, clocks=False, drop=(2.0, 2.5))
+    fused, rep = integrate_skeletons(long_, "mean")
+    m = (fused.times > 2.01) & (fused.times < 2.49)
+    assert np.isnan(fused.positions[m, j]).all()
+    assert np.all(fused.states[m, j] == TrackingState.NOT_TRACKED)
+    assert any(g.joint == "AnkleLeft" and g.t_end - g.t_start > 0.2 for g in rep.gaps_unfilled)
+
+
+def test_inferred_joints_are_missing_values(walk) -> None:  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(5)
+    streams = six_sensor_streams(walk, rng, occluded_bias_m=0.0, inferred_frac=0.0)
+    s0 = streams[0].series
+    j = KINECT_V2.index("KneeLeft")
+    s0.positions[:, j] += 1.0  # a wild inferred guess ...
+    s0.states[:, j] = TrackingState.INFERRED  # ... flagged as such
+    fused, rep = integrate_skeletons(streams, "mean")
+    assert _rms_vs_truth(walk, fused, "KneeLeft") < 0.02
+    assert rep.sensors_per_sample < 6
+
+
+def test_weighted_removes_side_bias_that_mean_keeps(walk) -> None:  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(6)
+    streams = six_sensor_streams(walk, rng, occluded_bias_m=0.04)
+    res = {}
+    for est in ("mean", "weighted"):
+        fused, _ = integrate_skeletons(streams, est)  # type: ignore[arg-type]
+        g = GaitAnalysis("crossing").fit(feet_from_skeleton(fused))
+        res[est] = (np.mean([s.width_m for s in g.steps_]) - 0.12,
+                    np.mean([s.length_m for s in g.steps_]) - 0.7, len(g.steps_))
+    # occluded-side estimates pulled 4 cm toward the far sensor: the mean narrows steps
+    assert res["mean"][0] < -0.025
+    assert abs(res["weighted"][0]) < 0.008
+    assert abs(res["weighted"][1]) < 0.01 and res["weighted"][2] >= 10
+
+
+def test_weighted_rejects_an_outlier_sensor(walk) -> None:  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(7)
+    streams = six_sensor_streams(walk, rng, occluded_bias_m=0.0, inferred_frac=0.0,
+                                 clocks=False)
+    j = KINECT_V2.index("AnkleRight")
+    bad = streams[3].series  # a right-side sensor swaps feet: 25 cm off, "tracked"
+    bad.positions[:, j] += np.array([0.0, 0.25, 0.0])
+    e_mean = _rms_vs_truth(walk, integrate_skeletons(streams, "mean")[0], "AnkleRight")
+    e_w = _rms_vs_truth(walk, integrate_skeletons(streams, "weighted")[0], "AnkleRight")
+    assert e_mean > 0.03
+    assert e_w < 0.015
+
+
+def test_lowpass_zero_phase() -> None:
+    t = np.arange(0, 10, 1 / 30)
+    slow = np.sin(2 * np.pi * 1.0 * t)
+    fast = 0.3 * np.sin(2 * np.pi * 12.0 * t)
+    y = lowpass((slow + fast)[:, None], 30.0, 6.0)[:, 0]
+    inner = slice(30, -30)
+    assert np.max(np.abs(y[inner] - slow[inner])) < 0.03  # no lag, 12 Hz removed
+    with pytest.raises(InputError):
+        lowpass(slow[:, None], 30.0, 20.0)
+
+
+def test_bad_input() -> None:
+    with pytest.raises(InputError):
+        integrate_skeletons([])
+    s = SkeletonSeries(np.arange(3) / 30, np.zeros((3, 25, 3)), np.full((3, 25), 2), KINECT_V2)
+    a = SkeletonSeries(np.arange(3) / 30, np.zeros((3, 32, 3)), np.full((3, 32), 2), AZURE_KINECT)
+    with pytest.raises(InputError, match="joint set"):
+        integrate_skeletons([SensorStream(s, np.eye(4)), SensorStream(a, np.eye(4))])
+    with pytest.raises(InputError, match="estimator"):
+        integrate_skeletons([SensorStream(s, np.eye(4))], "median")  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="4×4"):
+        integrate_skeletons([SensorStream(s, np.eye(3))])
+    one = SkeletonSeries(np.array([0.0]), np.zeros((1, 25, 3)), np.full((1, 25), 2), KINECT_V2)
+    with pytest.raises(InsufficientDataError):
+        integrate_skeletons([SensorStream(one, np.eye(4))])
