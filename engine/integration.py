@@ -29,6 +29,7 @@ sensors", plus our estimator):
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
@@ -219,7 +220,8 @@ def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float
                    n_iter: int = 4) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Weighted robust fusion of ``(S, G, J, 3)`` estimates → ``(G, J, 3)``, used mask."""
     have = np.asarray(np.isfinite(E).all(axis=-1), dtype=bool)  # (S, G, J)
-    with np.errstate(all="ignore"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices: no sensor
         init = np.nanmedian(E, axis=0)  # robust start: the per-coordinate median
     lat = _lateral_axis(init, js, rate)  # (G, 3)
     sides = _joint_sides(js)  # (J,)
@@ -240,7 +242,8 @@ def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float
         # Residuals from the current (initially: median) estimate, robust scale, Tukey
         # biweights, then the weighted mean with the new weights.
         r = np.linalg.norm(E - est[None], axis=-1)  # (S, G, J), NaN where missing
-        with np.errstate(all="ignore"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices: no sensor
             scale = np.maximum(1.4826 * np.nanmedian(r, axis=0), MIN_SCALE_M)
         z = r / (TUKEY_C * scale)[None]
         rho = np.where(z < 1.0, (1.0 - z**2) ** 2, 0.0)
@@ -364,7 +367,8 @@ def integrate_skeletons(
         report.gaps_filled += f
     have = np.asarray(np.isfinite(E).all(axis=-1), dtype=bool)
     if estimator == "mean":
-        with np.errstate(all="ignore"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices: no sensor
             X = np.nanmean(E, axis=0)
         used = have
     else:

@@ -9,6 +9,9 @@ turn the file's axes into the project's Z-up convention when an analysis needs i
 from __future__ import annotations
 
 import re
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,6 +24,14 @@ from engine.errors import InputError
 UNIT_SCALE: dict[str, float] = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0}
 
 AXES = ("x", "y", "z")
+
+
+@contextmanager
+def _quiet() -> Iterator[None]:
+    """Silence numpy's all-NaN warnings (missing markers are expected in mocap data)."""
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        yield
 
 
 @dataclass(frozen=True)
@@ -157,7 +168,7 @@ def characteristic_length(positions: ArrayLike, labels: list[str]) -> float:
     P = np.asarray(positions, dtype=float)
     up = _group(labels, _UPPER_PATTERNS[:9])
     feet = _group(labels, _FOOT_PATTERNS)
-    with np.errstate(all="ignore"):
+    with _quiet():
         if up and feet:
             d = np.nanmean(P[:, up], axis=1) - np.nanmean(P[:, feet], axis=1)
             L = float(np.nanmedian(np.linalg.norm(d, axis=-1)))
@@ -204,7 +215,7 @@ def detect_vertical_axis(positions: ArrayLike, labels: list[str]) -> str:
     P = np.asarray(positions, dtype=float)
     up = _group(labels, _UPPER_PATTERNS)
     feet = _group(labels, _FOOT_PATTERNS)
-    with np.errstate(all="ignore"):
+    with _quiet():
         if up and feet:
             d = np.nanmedian(np.nanmean(P[:, up], axis=1) - np.nanmean(P[:, feet], axis=1),
                              axis=0)
