@@ -61,26 +61,26 @@ def _node(hub: Any, node_id: str) -> NodeSession:
 
 
 @router.get("", response_model=list[NodeHealth])
-def list_nodes(user: CurrentUser, hub: HubDep) -> list[dict[str, Any]]:
+async def list_nodes(user: CurrentUser, hub: HubDep) -> list[dict[str, Any]]:
     """Every node seen since the server started, with its health."""
     return [hub.registry.health(s) for s in sorted(hub.registry.nodes.values(),
                                                    key=lambda s: s.id)]
 
 
 @router.get("/{node_id}", response_model=NodeHealth)
-def get_node(node_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+async def get_node(node_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
     """Health of one node."""
     return hub.registry.health(_node(hub, node_id))
 
 
 @router.get("/{node_id}/sensor")
-def get_sensor(node_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+async def get_sensor(node_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
     """What the node reported about its sensor (sizes, intrinsics, known pose)."""
     return _node(hub, node_id).sensor.model_dump()
 
 
 @router.get("/{node_id}/skeleton")
-def get_skeleton(node_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+async def get_skeleton(node_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
     """Newest skeleton frame (sensor frame, metres; ``t`` in server time)."""
     sk = _node(hub, node_id).skeleton
     if sk is None:
@@ -99,7 +99,7 @@ async def subscribe(node_id: str, body: SubscribeIn, user: CurrentUser, hub: Hub
 
 
 @router.get("/{node_id}/images/{stream}")
-def get_image(node_id: str, stream: Literal["depth", "color", "body_index"], user: CurrentUser,
+async def get_image(node_id: str, stream: Literal["depth", "color", "body_index"], user: CurrentUser,
               hub: HubDep) -> Response:
     """Newest image of a subscribed stream (JPEG or PNG)."""
     img = _node(hub, node_id).images.get(stream)

@@ -20,14 +20,14 @@ class StartIn(BaseModel):
 
 
 @router.get("")
-def list_recordings(user: CurrentUser, hub: HubDep) -> list[dict[str, Any]]:
+async def list_recordings(user: CurrentUser, hub: HubDep) -> list[dict[str, Any]]:
     """All recordings, newest first, with per-node part states."""
     recs = sorted(hub.recordings.recordings.values(), key=lambda r: r.created, reverse=True)
     return [hub.recordings.to_dict(r) for r in recs]
 
 
 @router.post("", status_code=201)
-def start_recording(body: StartIn, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+async def start_recording(body: StartIn, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
     """Start recording on every connected node at a common server time."""
     try:
         rec = hub.recordings.start(list(body.streams), body.image_every)
@@ -37,7 +37,7 @@ def start_recording(body: StartIn, user: CurrentUser, hub: HubDep) -> dict[str, 
 
 
 @router.get("/{rec_id}")
-def get_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+async def get_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
     """One recording."""
     rec = hub.recordings.recordings.get(rec_id)
     if rec is None:
@@ -46,7 +46,7 @@ def get_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]
 
 
 @router.post("/{rec_id}/stop")
-def stop_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+async def stop_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
     """Stop a recording now on all its nodes."""
     if rec_id not in hub.recordings.recordings:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no recording {rec_id!r}")

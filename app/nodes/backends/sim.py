@@ -1,0 +1,199 @@
+"""``sim`` backend: one simulated Kinect v2 of the simulated lab (:mod:`engine.sim`).
+
+All sim nodes share one simulated world without talking to each other: the walker's
+true time is the host clock modulo :data:`WORLD_CYCLE_S` (a new walk — standing start,
+then back and forth along the corridor — begins every ten minutes on the wall clock), so
+six node processes on one machine, or in six containers, see the same person at the same
+instant. Each node's local clock gets the sensor's offset and drift (``NodeClock``), which
+is what the server has to measure.
+
+Skeletons come from :func:`engine.sim.skeleton_model.observe_skeletons`, evaluated on
+chunks of :data:`CHUNK_S` seconds of jittered frame times ahead of real time (the error
+model's slowly varying errors restart at chunk boundaries). Frames are released at their
+capture instants. Images are rendered only when asked for (recording with images or a
+subscription) by :class:`engine.sim.render.SensorRenderer`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.nodes.backends.base import Backend, Frame
+from app.nodes.clock import NodeClock
+from app.nodes.protocol import SensorInfo
+from engine.errors import InputError
+
+WORLD_CYCLE_S = 600.0
+CHUNK_S = 10.0
+
+
+def world_time(t_host: float) -> float:
+    """True simulation time (s into the current walk) at host time ``t_host``."""
+    return t_host % WORLD_CYCLE_S
+
+
+class SimBackend(Backend):
+    """A simulated sensor.
+
+    Args:
+        sensor_id: sensor of the rig (``S1`` .. ``S6`` in the default avenue).
+        rig_path: rig file (TOML/JSON); default :func:`engine.sim.rig.default_avenue_rig`.
+        seed: seed of the rig, the walker and the errors (the same for all nodes of a demo,
+            so they simulate the same subject).
+        clock_offset_s: override the sensor's clock offset (s).
+        clock_drift_ppm: override its drift (ppm).
+        images: render images on demand (False: skeletons only, for light test runs).
+        report_truth: expose the true clock offset through :meth:`diagnostics` (tests).
+    """
+
+    name = "sim"
+
+    def __init__(self, sensor_id: str, rig_path: Path | str | None = None, seed: int = 0,
+                 clock_offset_s: float | None = None, clock_drift_ppm: float | None = None,
+                 images: bool = True, report_truth: bool = False) -> None:
+        from engine.sim.rig import default_avenue_rig, load_rig
+
+        self.rig = load_rig(rig_path) if rig_path is not None else default_avenue_rig(seed)
+        self.sensor = self.rig.sensor(sensor_id)
+        if clock_offset_s is not None:
+            if abs(clock_offset_s) > 10.0:
+                raise InputError("--clock-offset must be within ±10 s")
+            self.sensor.clock_offset_s = clock_offset_s
+        if clock_drift_ppm is not None:
+            if abs(clock_drift_ppm) > 1000.0:
+                raise InputError("--clock-drift-ppm must be within ±1000 ppm")
+            self.sensor.clock_drift_ppm = clock_drift_ppm
+        self.seed = seed
+        self.clock = NodeClock(self.sensor.clock_offset_s, self.sensor.clock_drift_ppm * 1e-6,
+                               t_ref=time.time())
+        self.render_images = images
+        self.report_truth = report_truth
+        self._closed = threading.Event()
+        self._walker: Any = None
+        self._renderer: Any = None
+        self._render_lock = threading.Lock()
+        self._img_rng = np.random.default_rng([seed, 7, sum(ord(c) for c in sensor_id)])
+        # sensor-specific stream of randomness, reproducible per (seed, sensor)
+        self._rng = np.random.default_rng([seed, sum(ord(c) for c in sensor_id)])
+
+    def open(self) -> SensorInfo:
+        from engine.sim.walker import Walker, WalkerParams
+
+        w = self.rig.walkway
+        self._walker = Walker(WalkerParams.random(np.random.default_rng(self.seed)), w.start,
+                              w.end, start_time=0.0, seed=self.seed,
+                              horizon_s=WORLD_CYCLE_S + CHUNK_S)
+        self._chunk(time.time())  # warm up (imports, caches) so the first frames are on time
+        m = self.sensor.model
+        return SensorInfo(
+            model="simulated Kinect v2",
+            depth_size=(m.depth_width, m.depth_height),
+            color_size=(m.color_render_width, m.color_render_height),
+            depth_K=m.depth_intrinsics().tolist(), color_K=m.color_intrinsics().tolist(),
+            fov_deg=(m.depth_hfov_deg, m.depth_vfov_deg), rate_hz=self.sensor.fps_nominal,
+            joint_set="kinect_v2", T_world_sensor=np.asarray(self.sensor.T_world_sensor).tolist(),
+        )
+
+    def now(self) -> float:
+        return self.clock.now()
+
+    def close(self) -> None:
+        self._closed.set()
+
+    def diagnostics(self, t_host: float) -> dict[str, float]:
+        if not self.report_truth:
+            return {}
+        return {"true_offset_s": self.clock.true_offset(t_host), "t_host": t_host,
+                "true_offset_at_ref_s": self.clock.offset_s, "true_drift": self.clock.drift,
+                "clock_t_ref": self.clock.t_ref}
+
+    def _chunk(self, t_host0: float) -> tuple[NDArray[np.float64], Any, float]:
+        """Host capture times in [t_host0, t_host0 + CHUNK_S) and their observed skeletons."""
+        from engine.sim.clock import frame_times
+        from engine.sim.skeleton_model import observe_skeletons
+
+        w0 = world_time(t_host0)
+        w1 = min(w0 + CHUNK_S, WORLD_CYCLE_S)  # a walk ends at the cycle boundary
+        tw = frame_times(w0, w1, self._rng, fps=self.sensor.fps_nominal,
+                         jitter=self.sensor.fps_jitter)
+        series = observe_skeletons(self.sensor, self.rig, self._walker, tw, self._rng)
+        return t_host0 + (tw - w0), series, t_host0
+
+    def frames(self) -> Iterator[Frame]:
+        if self._walker is None:
+            raise InputError("SimBackend.open() must be called before frames()")
+        period = 1.0 / self.sensor.fps_nominal
+        # The next chunk is simulated in a helper thread while this one plays, so frames
+        # keep their pace.
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim") as pool:
+            fut = pool.submit(self._chunk, time.time() + 0.3)
+            while not self._closed.is_set():
+                hosts, series, t0 = fut.result()
+                if len(hosts) == 0:  # the chunk began in the last frame of a walk
+                    fut = pool.submit(self._chunk, t0 + WORLD_CYCLE_S - world_time(t0) + 1e-3)
+                    continue
+                hosts_end = float(hosts[-1]) + period
+                fut = pool.submit(self._chunk, hosts_end)
+                tracked = series.meta["body_tracked"]
+                for k, t_host in enumerate(hosts):
+                    delay = t_host - time.time()
+                    if delay > 0 and self._closed.wait(delay):
+                        return
+                    if tracked[k]:
+                        pos = series.positions[k : k + 1].astype(np.float32)
+                        st = series.states[k : k + 1]
+                        ids = [0]
+                    else:
+                        pos = np.zeros((0, 25, 3), np.float32)
+                        st = np.zeros((0, 25), np.uint8)
+                        ids = []
+                    yield Frame(self.clock.from_host(float(t_host)), pos, st, ids,
+                                self._image_fn(float(t_host)))
+
+    def _image_fn(self, t_host: float) -> Any:
+        if not self.render_images:
+            return _no_images
+        t_world = world_time(t_host)
+
+        def images(streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
+            return self.render(t_world, streams)
+
+        return images
+
+    def render(self, t_world: float,
+               streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
+        """Depth (uint16 mm), body index (uint8, 255 = none) and colour (RGB) at ``t_world``.
+
+        Called from the agent's image thread; the renderer (room ray-cast once) is built on
+        first use.
+        """
+        from engine.sim.render import SensorRenderer
+
+        with self._render_lock:
+            if self._renderer is None:
+                m = self.sensor.model
+                self._renderer = SensorRenderer(
+                    self.sensor, self.rig, (m.color_render_width, m.color_render_height))
+            want_color = "color" in streams
+            frame = self._renderer.render([self._walker.body_mesh(t_world)], self._img_rng,
+                                          with_color=want_color)
+        out: dict[str, NDArray[np.uint8] | NDArray[np.uint16]] = {}
+        if "depth" in streams:
+            out["depth"] = frame.depth
+        if "body_index" in streams:
+            out["body_index"] = frame.body_index
+        if want_color and frame.color is not None:
+            out["color"] = frame.color
+        return out
+
+
+def _no_images(streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
+    return {}

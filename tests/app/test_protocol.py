@@ -1,0 +1,91 @@
+"""Wire protocol: round trips and rejection of malformed input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from app.nodes.protocol import (
+    Hello,
+    Ping,
+    Pong,
+    ProtocolError,
+    RecStart,
+    decode_binary,
+    decode_skeletons,
+    dump,
+    encode_binary,
+    encode_skeletons,
+    parse_node_message,
+    parse_server_message,
+)
+
+
+def test_skeleton_round_trip() -> None:
+    rng = np.random.default_rng(1)
+    pos = rng.normal(size=(2, 25, 3)).astype(np.float32)
+    st = rng.integers(0, 3, size=(2, 25)).astype(np.uint8)
+    msg = encode_skeletons(7, 1234.5678, pos, st, [11, 12])
+    header, payload = decode_binary(msg)
+    assert header["seq"] == 7 and header["t"] == 1234.5678 and header["bodies"] == [11, 12]
+    p2, s2 = decode_skeletons(header, payload)
+    np.testing.assert_array_equal(p2, pos)
+    np.testing.assert_array_equal(s2, st)
+
+
+def test_control_round_trip() -> None:
+    hello = Hello(node_id="S1", token="t" * 10)
+    assert parse_node_message(dump(hello)) == hello
+    pong = Pong(seq=3, t1=1.0, t2=2.0, t3=2.5)
+    assert parse_node_message(dump(pong)) == pong
+    cmd = RecStart(rec_id="R1", t_start_server=10.0, t_start_local=10.5)
+    assert parse_server_message(dump(cmd)) == cmd
+    assert parse_server_message(dump(Ping(seq=1, t1=3.0))).t1 == 3.0
+
+
+@pytest.mark.parametrize(
+    ("text", "fragment"),
+    [
+        ("not json", "not valid JSON"),
+        ("[1, 2]", "JSON object"),
+        (json.dumps({"type": "pong", "seq": 1}), "invalid 'pong'"),
+        (json.dumps({"type": "launch"}), "invalid 'launch'"),
+        (json.dumps({"v": 9, "type": "pong"}), "protocol version 9"),
+        (json.dumps({"type": "hello", "node_id": "../etc", "token": "x"}), "node_id"),
+    ],
+)
+def test_malformed_control_rejected(text: str, fragment: str) -> None:
+    with pytest.raises(ProtocolError, match=fragment.replace("(", r"\(")):
+        parse_node_message(text)
+
+
+def test_oversized_control_rejected() -> None:
+    big = json.dumps({"type": "error", "reason": "x" * 1000})
+    with pytest.raises(ProtocolError, match="exceeds"):
+        parse_node_message(big, limit=500)
+
+
+@pytest.mark.parametrize(
+    ("data", "fragment"),
+    [
+        (b"abc", "shorter"),
+        (b"XXXX\x00\x00\x00\x00", "magic"),
+        (b"GRB\x07\x00\x00\x00\x00", "version"),
+        (b"GRB\x01\xff\x00\x00\x00{}", "inconsistent"),
+        (encode_binary({"kind": "video"}), "kind"),
+    ],
+)
+def test_malformed_binary_rejected(data: bytes, fragment: str) -> None:
+    with pytest.raises(ProtocolError, match=fragment):
+        decode_binary(data)
+
+
+def test_skeleton_payload_size_checked() -> None:
+    msg = encode_skeletons(1, 0.0, np.zeros((1, 25, 3)), np.zeros((1, 25)))
+    header, payload = decode_binary(msg)
+    with pytest.raises(ProtocolError, match="payload"):
+        decode_skeletons(header, payload[:-1])
+    with pytest.raises(ProtocolError, match="limit"):
+        decode_binary(msg, limit=len(msg) - 1)
