@@ -62,6 +62,11 @@ class SimFrame:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
+def _tensor(a: NDArray[Any]) -> Any:
+    """numpy → Open3D tensor (shares memory; the stubs do not type this)."""
+    return o3d.core.Tensor.from_numpy(np.ascontiguousarray(a))  # type: ignore[no-untyped-call]
+
+
 def _pixel_rays(K: FloatArray, width: int, height: int) -> FloatArray:
     """Unit ray directions ``(H, W, 3)`` in the camera frame; ray z-component kept."""
     u, v = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
@@ -92,7 +97,7 @@ def _marker_texture(marker_id: int) -> NDArray[np.uint8]:
     if marker_id >= 50:
         raise InputError(f"floor marker id {marker_id} is not in DICT_4X4_50 (ids 0–49)")
     img = cv2.aruco.generateImageMarker(dictionary, marker_id, _MARKER_PX, borderBits=1)
-    pad = int(round(_MARKER_PX * QUIET_ZONE))
+    pad = round(_MARKER_PX * QUIET_ZONE)
     return np.pad(img, pad, constant_values=255)
 
 
@@ -107,7 +112,8 @@ class _Room:
         self.floor_v = np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]],
                                 dtype=np.float32)
         self.floor_f = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.uint32)
-        wv, wf = [], []
+        wv: list[list[float]] = []
+        wf: list[list[int]] = []
         corners = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
         for i in range(4):
             (ax, ay), (bx, by) = corners[i], corners[(i + 1) % 4]
@@ -121,8 +127,8 @@ class _Room:
 
     def scene(self) -> tuple[o3d.t.geometry.RaycastingScene, int, int]:
         sc = o3d.t.geometry.RaycastingScene()
-        fid = sc.add_triangles(o3d.core.Tensor(self.floor_v), o3d.core.Tensor(self.floor_f))
-        wid = sc.add_triangles(o3d.core.Tensor(self.wall_v), o3d.core.Tensor(self.wall_f))
+        fid = sc.add_triangles(_tensor(self.floor_v), _tensor(self.floor_f))
+        wid = sc.add_triangles(_tensor(self.wall_v), _tensor(self.wall_f))
         return sc, fid, wid
 
     def floor_colour(self, p: FloatArray) -> FloatArray:
@@ -168,7 +174,7 @@ class SensorRenderer:
         self._rays_d = self._world_rays(sensor.T_world_sensor, self.K_depth, m.depth_width,
                                         m.depth_height)
         self._dz_d = _pixel_rays(self.K_depth, m.depth_width, m.depth_height)[..., 2]
-        ans = scene.cast_rays(o3d.core.Tensor(self._rays_d))
+        ans = scene.cast_rays(_tensor(self._rays_d))
         self._bg_t = ans["t_hit"].numpy().astype(float)  # distance along the unit ray
         self.color_size = color_size
         if color_size is not None:
@@ -178,7 +184,7 @@ class SensorRenderer:
             self.K_color = m.color_intrinsics(w, h)
             T_wc = sensor.T_world_color
             self._rays_c = self._world_rays(T_wc, self.K_color, w, h)
-            ans = scene.cast_rays(o3d.core.Tensor(self._rays_c))
+            ans = scene.cast_rays(_tensor(self._rays_c))
             self._bg_c_t = ans["t_hit"].numpy().astype(float)
             self._bg_color = self._shade_static(self._rays_c, ans)
 
@@ -221,10 +227,10 @@ class SensorRenderer:
                      window: tuple[slice, slice]) -> dict[str, NDArray[Any]]:
         sc = o3d.t.geometry.RaycastingScene()
         for V, F, _ in bodies:
-            sc.add_triangles(o3d.core.Tensor(np.asarray(V, dtype=np.float32)),
-                             o3d.core.Tensor(np.asarray(F, dtype=np.uint32)))
+            sc.add_triangles(_tensor(np.asarray(V, dtype=np.float32)),
+                             _tensor(np.asarray(F, dtype=np.uint32)))
         sub = np.ascontiguousarray(rays[window])
-        ans = sc.cast_rays(o3d.core.Tensor(sub))
+        ans = sc.cast_rays(_tensor(sub))
         return {k: v.numpy() for k, v in ans.items()}
 
     def render(self, bodies: list[BodyMesh], rng: np.random.Generator | None = None,

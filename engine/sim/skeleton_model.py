@@ -49,9 +49,9 @@ from scipy.signal import lfilter
 
 from engine.errors import InputError
 from engine.geometry import transform_points
-from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
 from engine.sim.rig import Rig, SimSensor
 from engine.sim.walker import Walker
+from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
 
 FloatArray = NDArray[np.float64]
 _JS = KINECT_V2
@@ -312,7 +312,7 @@ def observe_skeletons(
 
     # ---- occlusion → inferred / not tracked
     recent = np.zeros_like(occl)
-    hang = max(int(round(m.occlusion_hangover_s / dt)), 0)
+    hang = max(round(m.occlusion_hangover_s / dt), 0)
     for s in range(hang + 1):
         recent[s:] |= occl[: T - s] if s else occl
     inferred = recent & in_view
