@@ -69,9 +69,10 @@ def detect_spikes(
 ) -> FloatArray:
     """Times of the ``n_jumps`` landing spikes in an acceleration-like signal.
 
-    Among all peaks at least ``min_interval`` apart, the run of ``n_jumps`` consecutive
-    peaks with the largest summed height whose time span is at most ``max_span`` is chosen
-    (jumps come in one series; isolated impacts elsewhere in the recording are ignored).
+    Among all peaks at least ``min_interval`` apart, the ``n_jumps`` highest peaks within a
+    time span of at most ``max_span`` are chosen, the span with the largest summed height
+    winning (jumps come in one series; take-off pushes are lower than landing impacts, and
+    isolated impacts elsewhere in the recording are ignored).
 
     Args:
         times: ``(T,)`` s, increasing.
@@ -109,17 +110,23 @@ def detect_spikes(
             "contains the jump series and covers it completely")
     span = 2.5 * n_jumps if max_span is None else max_span
     heights = props["peak_heights"]
-    best, best_score = -1, -np.inf
-    for k in range(len(peaks) - n_jumps + 1):
-        if t[peaks[k + n_jumps - 1]] - t[peaks[k]] > span:
+    tp = t[peaks]
+    best: NDArray[np.intp] | None = None
+    best_score = -np.inf
+    for k in range(len(peaks)):
+        # the n highest peaks of the window starting at this one (take-off pushes and
+        # steps between the landings are lower and drop out)
+        win = np.flatnonzero((tp >= tp[k]) & (tp <= tp[k] + span))
+        if len(win) < n_jumps:
             continue
-        score = float(np.sum(heights[k:k + n_jumps]))
+        top = win[np.argsort(heights[win])[::-1][:n_jumps]]
+        score = float(np.sum(heights[top]))
         if score > best_score:
-            best, best_score = k, score
-    if best < 0:
+            best, best_score = np.sort(top), score
+    if best is None:
         raise InsufficientDataError(
             f"no series of {n_jumps} landing spikes within {span:.1f} s")
-    sel = peaks[best:best + n_jumps]
+    sel = peaks[best]
     return np.interp([_refine_peak(y, int(i)) for i in sel], np.arange(len(t)), t)
 
 

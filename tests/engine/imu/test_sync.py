@@ -1,0 +1,98 @@
+"""Jump synchronisation: recovers known clock offsets between IMUs and the depth skeleton."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine.errors import InputError, InsufficientDataError
+from engine.geometry import make_transform, quat_from_axis_angle, quat_to_matrix
+from engine.imu.sync import detect_spikes, shift_recording, synchronize
+from engine.sim.imu import simulate_imu
+from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
+
+G = 9.80665
+JUMPS = np.array([3.0, 4.3, 5.5, 6.9, 8.1])  # take-off starts (true clock)
+PUSH, FLIGHT_V, LAND = 0.25, 2.2, 0.06       # push duration, take-off speed, impact time
+
+
+def _height(t: np.ndarray) -> np.ndarray:
+    """Torso height: stand, push up (constant acc.), fly ballistically, land sharply."""
+    z = np.full_like(t, 1.0)
+    a_push = FLIGHT_V / PUSH
+    flight = 2 * FLIGHT_V / G
+    a_land = np.pi * FLIGHT_V / (2 * LAND)  # half-sine impact deceleration, peak at LAND/2
+    for t0 in JUMPS:
+        s = t - t0
+        push = (s >= 0) & (s < PUSH)
+        z[push] += 0.5 * a_push * s[push] ** 2
+        h_push = 0.5 * a_push * PUSH ** 2
+        fl = (s >= PUSH) & (s < PUSH + flight)
+        u = s[fl] - PUSH
+        z[fl] += h_push + FLIGHT_V * u - 0.5 * G * u ** 2
+        ld = (s >= PUSH + flight) & (s < PUSH + flight + 2 * LAND)
+        u = s[ld] - PUSH - flight
+        # decelerate to rest (half-sine impact), then return to standing height smoothly
+        w = np.minimum(u, LAND)
+        z[ld] += h_push - FLIGHT_V * w + a_land * LAND / np.pi * (
+            w - LAND / np.pi * np.sin(np.pi * w / LAND))
+        rec = (s >= PUSH + flight + 2 * LAND) & (s < PUSH + flight + 0.6)
+        u = (s[rec] - PUSH - flight - 2 * LAND) / (0.6 - 2 * LAND)
+        h0 = h_push - FLIGHT_V * LAND + a_land * LAND ** 2 / np.pi
+        z[rec] += h0 * (1 - u ** 3 * (10 - 15 * u + 6 * u ** 2))
+    return z
+
+
+def _landings() -> np.ndarray:
+    return JUMPS + PUSH + 2 * FLIGHT_V / G
+
+
+def _imu(offset: float, tilt: float, seed: int):  # type: ignore[no-untyped-def]
+    t = np.arange(0.0, 12.0, 1 / 256)
+    R = quat_to_matrix(quat_from_axis_angle([1.0, 0.3, 0.0], tilt))
+    poses = np.stack([make_transform(R, [0.0, 0.0, z]) for z in _height(t)])
+    rec = simulate_imu(t, poses, rng=seed)
+    # the sensor's own clock runs `offset` seconds behind the true clock
+    return shift_recording(rec, -offset)
+
+
+def _skeleton(noise: float = 0.004) -> SkeletonSeries:
+    t = np.arange(0.5, 11.5, 1 / 30)
+    P = np.zeros((len(t), 25, 3))
+    rng = np.random.default_rng(2)
+    P[:, :, 2] = _height(t)[:, None] + rng.normal(0, noise, (len(t), 25))
+    return SkeletonSeries(t, P, np.full((len(t), 25), TrackingState.TRACKED, np.uint8),
+                          KINECT_V2)
+
+
+def test_offsets_recovered() -> None:
+    imus = {"thigh": _imu(0.37, 0.4, 1), "chest": _imu(-1.25, 1.2, 2)}
+    res = synchronize(imus, _skeleton(), n_jumps=5)
+    assert res.reference == "skeleton"
+    assert res.offsets["skeleton"] == 0.0
+    assert res.offsets["thigh"] == pytest.approx(0.37, abs=0.02)
+    assert res.offsets["chest"] == pytest.approx(-1.25, abs=0.02)
+    # the impacts (touch-down + half the impact time) are found in the skeleton within
+    # one depth frame
+    impacts = _landings() + 0.5 * LAND
+    assert np.max(np.abs(res.spike_times["skeleton"] - impacts)) < 1 / 30
+    assert res.max_residual() < 0.03
+    assert res.warnings == []
+    # IMU-only: offsets between IMUs are exact to a sample
+    res2 = synchronize(imus, None, reference="chest")
+    assert res2.offsets["thigh"] - res2.offsets["chest"] == pytest.approx(0.37 + 1.25, abs=0.005)
+
+
+def test_missing_jumps_and_bad_reference() -> None:
+    t = np.arange(0.0, 12.0, 1 / 256)
+    still = simulate_imu(t, np.tile(np.eye(4), (len(t), 1, 1)), rng=4)
+    with pytest.raises(InsufficientDataError, match="IMU 'a'"):
+        synchronize({"a": still})
+    imus = {"a": _imu(0.0, 0.0, 3)}
+    with pytest.raises(InputError, match="reference"):
+        synchronize(imus, reference="nope")
+    with pytest.raises(InputError):
+        synchronize({})
+    t = np.linspace(0, 10, 1000)
+    with pytest.raises(InsufficientDataError):
+        detect_spikes(t, np.sin(t), n_jumps=5)
