@@ -19,8 +19,8 @@ def _motion(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     rng = np.random.default_rng(seed)
     t = np.arange(N) / FS
     gyr = np.stack([np.sin(3 * t), np.cos(2 * t), 0.5 * np.sin(t)], 1) * 2.0
-    acc = rng.normal(0, 0.5, (N, 3)) + [0.0, 0.0, G]
-    mag = rng.normal(0, 0.3, (N, 3)) + [20.0, 0.0, -44.0]
+    acc = rng.normal(0, 0.5, (N, 3)) + np.array([0.0, 0.0, G])
+    mag = rng.normal(0, 0.3, (N, 3)) + np.array([20.0, 0.0, -44.0])
     return t, gyr, acc, mag
 
 
@@ -42,7 +42,7 @@ def _xio_header(mag: bool = True) -> list[str]:
 
 
 def test_xio_csv_converts_units(tmp_path: Path) -> None:
-    t, gyr, acc, mag = _motion()
+    _, gyr, acc, mag = _motion()
     p = _write(tmp_path / "imu.csv", _xio_header(),
                [np.arange(N), np.rad2deg(gyr), acc / G, mag / 100.0])
     rec = load_xio_csv(p, frequency=FS)
@@ -73,7 +73,7 @@ def test_xio_csv_missing_group_and_extra_columns(tmp_path: Path) -> None:
 def _generic(tmp_path: Path, gyr_scale: float = 1.0, acc_scale: float = 1.0,
              t_override: np.ndarray | None = None, nan_row: int | None = None,
              extra: bool = False) -> Path:
-    t, gyr, acc, mag = _motion()
+    _, gyr, acc, mag = _motion()
     g = gyr * gyr_scale
     if nan_row is not None:
         g = g.copy()
