@@ -73,7 +73,7 @@ def test_xio_csv_missing_group_and_extra_columns(tmp_path: Path) -> None:
 def _generic(tmp_path: Path, gyr_scale: float = 1.0, acc_scale: float = 1.0,
              t_override: np.ndarray | None = None, nan_row: int | None = None,
              extra: bool = False) -> Path:
-    _, gyr, acc, mag = _motion()
+    t, gyr, acc, mag = _motion()
     g = gyr * gyr_scale
     if nan_row is not None:
         g = g.copy()
