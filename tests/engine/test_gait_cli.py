@@ -1,0 +1,90 @@
+"""``gaitrig gait`` end to end (in-process through app.cli.main and as a subprocess)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from engine.io.c3d import write_c3d
+from engine.io.markers import MarkerTrajectories
+from engine.io.trc import write_trc
+from tests.engine.test_gait_synth import synth_walk, walk_markers
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    rc = main(["gait", *argv])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def test_json_output_on_synthetic_trc(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    p = tmp_path / "walk.trc"
+    write_trc(p, walk_markers(synth_walk(step_length=0.66, step_width=0.13), up="y"), units="mm")
+    rc, out, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and err == ""
+    doc = json.loads(out)
+    assert set(doc) == {"events", "steps", "strides", "summary"}
+    assert all(e["kind"] == "placement" and e["side"] in "LR" for e in doc["events"])
+    assert np.median([s["length_m"] for s in doc["steps"]]) == pytest.approx(0.66, abs=0.005)
+    assert np.median([s["width_m"] for s in doc["steps"]]) == pytest.approx(0.13, abs=0.005)
+    assert doc["summary"]["walking_speed_m_s"] == pytest.approx(0.66 / 0.55, rel=0.01)
+
+
+def test_table_output_and_overrides(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    names = {"ankleL": "sub:LeftFoot_Marker", "ankleR": "sub:RightFoot_Marker"}
+    m = walk_markers(synth_walk(), labels=names)
+    m.times = np.round(m.times * 100) / 100
+    p = tmp_path / "odd.c3d"
+    write_c3d(p, m, units="m")
+    rc, out, err = _run([str(p), "--left", "LeftFoot_Marker", "--right", "sub:RightFoot_Marker",
+                         "--up", "z", "--units", "m", "--method", "heelstrike"], capsys)
+    assert rc == 0, err
+    assert "walking speed: 1.27 m/s" in out and "step length cm" in out and "stance %" in out
+
+
+@pytest.mark.parametrize("case", ["missing", "no_feet", "too_short", "garbage"])
+def test_errors_are_one_line_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                    case: str) -> None:
+    w = synth_walk()
+    if case == "missing":
+        p = tmp_path / "nope.c3d"
+        expect = "not found"
+    elif case == "no_feet":
+        m = walk_markers(w)
+        keep = [i for i, lab in enumerate(m.labels) if lab.endswith(("ASI", "PSI"))]
+        m2 = MarkerTrajectories(m.times, m.positions[:, keep], [m.labels[i] for i in keep],
+                                m.rate, "m")
+        p = tmp_path / "pelvis_only.trc"
+        write_trc(p, m2)
+        expect = "no usable left ankle or heel and no right ankle or heel"
+    elif case == "too_short":
+        p = tmp_path / "short.trc"
+        write_trc(p, walk_markers(synth_walk(n_steps=2)))
+        expect = "at least two steps"
+    else:
+        p = tmp_path / "garbage.c3d"
+        p.write_bytes(b"\x00\x01garbage" * 10)
+        expect = "cannot read"
+    rc, out, err = _run([str(p), "--json"], capsys)
+    assert rc == 2 and out == ""
+    assert err.count("\n") == 1 and expect in err and "Traceback" not in err
+
+
+def test_subprocess_on_vicon_file(shared_data: Path) -> None:
+    f = shared_data / "mocap" / "kineticstoolkit" / "walk.c3d"
+    r = subprocess.run([sys.executable, "-m", "app.cli", "gait", str(f), "--method",
+                        "heelstrike", "--json"], capture_output=True, text=True, cwd=ROOT,
+                       timeout=60, check=False)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    strikes = [e for e in doc["events"] if e["kind"] == "foot_strike"]
+    assert len(strikes) == 4
+    assert doc["summary"]["n_steps"] == 3
