@@ -67,9 +67,11 @@ def _tensor(a: NDArray[Any]) -> Any:
     return o3d.core.Tensor.from_numpy(np.ascontiguousarray(a))  # type: ignore[no-untyped-call]
 
 
-def _pixel_rays(K: FloatArray, width: int, height: int) -> FloatArray:
-    """Unit ray directions ``(H, W, 3)`` in the camera frame; ray z-component kept."""
-    u, v = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
+def _pixel_rays(K: FloatArray, width: int, height: int, du: float = 0.0, dv: float = 0.0
+                ) -> FloatArray:
+    """Unit ray directions ``(H, W, 3)`` in the camera frame through pixel centres
+    (integer coordinates, OpenCV convention) shifted by ``(du, dv)`` pixels."""
+    u, v = np.meshgrid(np.arange(width, dtype=float) + du, np.arange(height, dtype=float) + dv)
     d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1)
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
@@ -160,10 +162,12 @@ class SensorRenderer:
         sensor: The sensor.
         rig: The rig (room and markers).
         color_size: ``(width, height)`` of the colour image, or ``None`` for no colour.
+        supersample: Samples per pixel axis for the static colour background.
     """
 
     def __init__(self, sensor: SimSensor, rig: Rig,
-                 color_size: tuple[int, int] | None = (640, 360)) -> None:
+                 color_size: tuple[int, int] | None = (640, 360), supersample: int = 2
+                 ) -> None:
         self.sensor = sensor
         self.model = sensor.model
         self.room = _Room(rig)
@@ -186,11 +190,20 @@ class SensorRenderer:
             self._rays_c = self._world_rays(T_wc, self.K_color, w, h)
             ans = scene.cast_rays(_tensor(self._rays_c))
             self._bg_c_t = ans["t_hit"].numpy().astype(float)
-            self._bg_color = self._shade_static(self._rays_c, ans)
+            # the static background is anti-aliased by supersampling (cast once), so
+            # marker corners are located with sub-pixel accuracy as in a real image
+            acc = np.zeros((h, w, 3))
+            offs = (np.arange(supersample) + 0.5) / supersample - 0.5
+            for dv in offs:
+                for du in offs:
+                    rays = self._world_rays(T_wc, self.K_color, w, h, du, dv)
+                    acc += self._shade_static(rays, scene.cast_rays(_tensor(rays)))
+            self._bg_color = np.round(acc / supersample**2).astype(np.uint8)
 
     @staticmethod
-    def _world_rays(T_wc: FloatArray, K: FloatArray, w: int, h: int) -> NDArray[np.float32]:
-        d = _pixel_rays(K, w, h) @ T_wc[:3, :3].T
+    def _world_rays(T_wc: FloatArray, K: FloatArray, w: int, h: int, du: float = 0.0,
+                    dv: float = 0.0) -> NDArray[np.float32]:
+        d = _pixel_rays(K, w, h, du, dv) @ T_wc[:3, :3].T
         o = np.broadcast_to(T_wc[:3, 3], d.shape)
         return np.concatenate([o, d], axis=-1).astype(np.float32)
 
