@@ -360,7 +360,12 @@ class NodeAgent:
                 log.warning("recording %s started %.2f s before the ring buffer's oldest frame",
                             msg.rec_id, self.ring.oldest - msg.t_start_local)
             self._send_now(dump(RecState(part=writer.info())))
-            log.info("recording %s from local %.3f", msg.rec_id, msg.t_start_local)
+            late = self.backend.now() - msg.t_start_local
+            if late > 0:
+                log.info("recording %s: command arrived %.0f ms after the start; %d frames "
+                         "taken from the ring buffer", msg.rec_id, late * 1e3, writer.n_frames)
+            else:
+                log.info("recording %s starts in %.0f ms", msg.rec_id, -late * 1e3)
         else:
             rec_ = self._recs.get(msg.rec_id)
             if rec_ is None:

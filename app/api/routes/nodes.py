@@ -99,8 +99,8 @@ async def subscribe(node_id: str, body: SubscribeIn, user: CurrentUser, hub: Hub
 
 
 @router.get("/{node_id}/images/{stream}")
-async def get_image(node_id: str, stream: Literal["depth", "color", "body_index"], user: CurrentUser,
-              hub: HubDep) -> Response:
+async def get_image(node_id: str, stream: Literal["depth", "color", "body_index"],
+                    user: CurrentUser, hub: HubDep) -> Response:
     """Newest image of a subscribed stream (JPEG or PNG)."""
     img = _node(hub, node_id).images.get(stream)
     if img is None:

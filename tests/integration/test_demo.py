@@ -1,0 +1,71 @@
+"""``gaitrig demo`` (what ``make demo`` runs): six nodes online within 30 s, clean Ctrl-C."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.integration.conftest import free_port, http, wait_for
+
+pytestmark = pytest.mark.slow
+
+
+def _children(pid: int) -> set[int]:
+    kids = set()
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            if ppid == pid:
+                kids.add(int(d.name))
+    return kids
+
+
+def test_demo_six_nodes_online_and_clean_stop(tmp_path: Path) -> None:
+    port, vport = free_port(), free_port()
+    gaitrig = Path(sys.executable).parent / "gaitrig"
+    cmd = [str(gaitrig), "demo", "--port", str(port), "--viewer-port", str(vport),
+           "--data-dir", str(tmp_path), "--no-images"]
+    log = tmp_path / "demo.log"
+    with open(log, "wb") as f:
+        demo = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT,
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    kids: set[int] = set()
+    try:
+        t0 = time.time()
+        password = wait_for(lambda: (tmp_path / "demo-login.txt").read_text().strip(), 15,
+                            "the demo password")
+        token = wait_for(lambda: http(f"http://127.0.0.1:{port}/api/auth/login",
+                                      {"username": "admin", "password": password})["token"],
+                         30, "the server")
+
+        def six_online() -> bool:
+            nodes = http(f"http://127.0.0.1:{port}/api/nodes", token=token)
+            return sum(n["connected"] for n in nodes) == 6
+
+        wait_for(six_online, max(1.0, 30 - (time.time() - t0)), "six nodes online")
+        out = log.read_text()
+        assert f"console at http://127.0.0.1:{port}/" in out and password in out
+        system = http(f"http://127.0.0.1:{port}/api/system", token=token)
+        assert system["viewer_url"].endswith(f":{vport}/")
+        kids = _children(demo.pid)
+        assert len(kids) == 7  # server + six nodes
+    finally:
+        demo.send_signal(signal.SIGINT)
+        try:
+            demo.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            demo.kill()
+            raise
+    alive = [k for k in kids if Path(f"/proc/{k}").exists()
+             and "Z" not in (Path(f"/proc/{k}") / "stat").read_text().rsplit(")", 1)[1][:3]]
+    assert alive == [], f"processes left behind: {alive}"
+    assert demo.returncode == 0
