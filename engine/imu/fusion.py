@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -244,6 +245,24 @@ class FusedSkeleton:
     sensor_world: dict[str, FloatArray]
 
 
+def _fit_segment_vector(v_world: FloatArray, q_ws: FloatArray) -> FloatArray | None:
+    """Robust mean of a joint offset expressed in the sensor frame over many frames.
+
+    ``v_world`` ``(T, 3)`` offsets (NaN where untracked), ``q_ws`` ``(T, 4)`` sensor-to-world
+    orientations at the same times. Outliers (e.g. left/right label swaps of the depth
+    tracker) are rejected beyond three robust standard deviations from the median.
+    """
+    ok = np.isfinite(v_world).all(axis=1) & np.isfinite(q_ws).all(axis=1)
+    if ok.sum() < 3:
+        return None
+    v_s = quat_rotate(quat_conj(q_ws[ok]), v_world[ok])
+    med = np.median(v_s, axis=0)
+    d = np.linalg.norm(v_s - med, axis=1)
+    mad = 1.4826 * float(np.median(d)) + 1e-9
+    keep = d <= 3.0 * mad
+    return np.asarray(v_s[keep].mean(axis=0) if keep.sum() >= 3 else med)
+
+
 def _interp_positions(times: FloatArray, P: FloatArray, t: FloatArray) -> FloatArray:
     ok = np.isfinite(P).all(axis=1)
     if ok.sum() < 2:
@@ -259,6 +278,7 @@ def fuse_skeleton(
     reference_index: int | None = None,
     sensors: Mapping[str, tuple[str, str]] | None = None,
     reference_window: float = 0.5,
+    bone_fit: Literal["all", "reference"] = "all",
 ) -> FusedSkeleton:
     """Build the fused skeleton (Kinect position, IMU rotations) on the IMU time grid.
 
@@ -274,6 +294,12 @@ def fuse_skeleton(
             then NaN).
         reference_window: seconds of depth frames around the reference frame averaged
             into the reference skeleton (the subject stands still then).
+        bone_fit: how each joint's offset in its sensor frame is obtained. ``"reference"``
+            is the paper's: from the reference skeleton alone, so the depth error of that
+            one moment becomes a constant joint-angle offset. ``"all"`` (default) fits it
+            to every tracked depth frame of the recording (robust mean of the offset
+            rotated into the sensor frame), which averages the slowly varying depth
+            errors out; the reference skeleton is the fallback for joints never tracked.
 
     Returns:
         :class:`FusedSkeleton`; its skeleton's times are the IMU times inside the depth
@@ -284,6 +310,8 @@ def fuse_skeleton(
             reference frame or torso track.
     """
     smap = dict(sensors or PAPER_SENSORS)
+    if bone_fit not in ("all", "reference"):
+        raise InputError(f"bone_fit must be 'all' or 'reference', got {bone_fit!r}")
     if "chest" not in orientations:
         raise InputError("the chest (torso) sensor is required for the fused skeleton")
     js: JointSet = skeleton.joint_set
@@ -313,6 +341,9 @@ def fuse_skeleton(
             else skeleton.positions[reference_index]
     ref = np.where(np.isfinite(ref), ref, skeleton.positions[reference_index])
     q_ref = {n: _interp_quat(t, q, t_ref) for n, q in q_world.items()}
+    tracked = skeleton.tracked_positions()
+    inside_d = (skeleton.times >= t[0]) & (skeleton.times <= t[-1])
+    tracked[~inside_d] = np.nan
 
     P = np.full((len(t), len(js.joints), 3), np.nan)
     torso = js.role_index(smap["chest"][0])
@@ -326,11 +357,20 @@ def fuse_skeleton(
             continue  # the parent segment has no sensor
         carried = {js.role_index(r) for r in (smap[name][1], *_CARRIED.get(name, ()))}
         carried.discard(root)
-        # q(t) ⊗ q_ref*: world-frame rotation of the segment since the reference frame
-        dq = quat_mul(q_world[name], quat_conj(q_ref[name]))
-        for j in sorted(carried):
-            if np.isfinite(ref[j]).all() and np.isfinite(ref[root]).all():
-                P[:, j] = P[:, root] + quat_rotate(dq, ref[j] - ref[root])
+        if bone_fit == "reference":
+            # q(t) ⊗ q_ref*: world rotation of the segment since the reference frame
+            dq = quat_mul(q_world[name], quat_conj(q_ref[name]))
+            for j in sorted(carried):
+                if np.isfinite(ref[j]).all() and np.isfinite(ref[root]).all():
+                    P[:, j] = P[:, root] + quat_rotate(dq, ref[j] - ref[root])
+        else:
+            q_d = _interp_quat(t, q_world[name], skeleton.times)
+            for j in sorted(carried):
+                b_s = _fit_segment_vector(tracked[:, j] - tracked[:, root], q_d)
+                if b_s is None and np.isfinite(ref[j]).all() and np.isfinite(ref[root]).all():
+                    b_s = quat_rotate(quat_conj(q_ref[name]), ref[j] - ref[root])
+                if b_s is not None:
+                    P[:, j] = P[:, root] + quat_rotate(q_world[name], b_s)
     states = np.where(np.isfinite(P).all(axis=2), TrackingState.TRACKED,
                       TrackingState.NOT_TRACKED).astype(np.uint8)
     fused = SkeletonSeries(t, P, states, js, {"source": "imu-depth fusion",
