@@ -43,7 +43,8 @@ def test_body_index_marks_the_walker(rig):
     f = r.render([w.body_mesh(t)], rng=None)
     K = s.model.depth_intrinsics()
     p = transform_points(s.T_sensor_world, w.joints([t])[0, KINECT_V2.index("SpineMid")])
-    u, v = (int(round(K[0, 0] * p[0] / p[2] + K[0, 2])), int(round(K[1, 1] * p[1] / p[2] + K[1, 2])))
+    u = round(K[0, 0] * p[0] / p[2] + K[0, 2])
+    v = round(K[1, 1] * p[1] / p[2] + K[1, 2])
     assert f.body_index[v, u] == 0
     # the surface is in front of the spine joint, by less than the trunk's depth
     assert 0.03 < p[2] - f.depth[v, u] / 1000.0 < 0.2

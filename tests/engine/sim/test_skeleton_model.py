@@ -73,7 +73,7 @@ def test_nothing_outside_view_and_late_acquisition(scene):
 
 
 def test_occluded_joints_are_inferred_or_not_tracked(scene):
-    rig, walker, t, obs = scene
+    _rig, _walker, _t, obs = scene
     n_occ = 0
     for ser in obs.values():
         occ = ser.meta["occluded"] & ser.meta["body_tracked"][:, None]
@@ -108,7 +108,7 @@ def test_errors_grow_with_distance(scene):
 
 
 def test_left_ankle_bias_has_opposite_sign_from_each_side(scene):
-    rig, walker, t, obs = scene
+    rig, walker, _t, obs = scene
     mean_y = {}
     for group in (LEFT_SENSORS, RIGHT_SENSORS):
         errs = []
