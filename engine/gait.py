@@ -381,12 +381,11 @@ class GaitAnalysis:
             vec = pb - pa if self.method == "crossing" else pb - ob
             steps.append(Step(sb, tb, float(vec @ d), float(abs(vec @ lat)), float(tb - ta), k))
         strides: list[Stride] = []
-        last: dict[str, tuple[float, FloatArray]] = {}
-        for s, tt, p, _ in pl:
-            if s in last:
-                t0, p0 = last[s]
-                strides.append(Stride(s, tt, float((p - p0) @ d), float(tt - t0), k))
-            last[s] = (tt, p)
+        for j in range(2, len(pl)):
+            (s0, t0, p0, _), (s1, _, _, _), (s2, t2, p2, _) = pl[j - 2], pl[j - 1], pl[j]
+            # Only s, other, s: a stride over a missed event would be two strides long.
+            if s0 == s2 != s1:
+                strides.append(Stride(s2, t2, float((p2 - p0) @ d), float(t2 - t0), k))
         excl = wp.excluded_first if self.exclude_first == "auto" else bool(self.exclude_first)
         if excl and pl:
             steps = steps[1:]
