@@ -29,7 +29,9 @@ from scipy.ndimage import uniform_filter1d
 from scipy.signal import find_peaks
 
 from engine.errors import InputError, InsufficientDataError
-from engine.mocap import FeetTrajectories
+from engine.io.markers import MarkerTrajectories
+from engine.mocap import FeetTrajectories, feet_from_markers, feet_from_skeleton
+from engine.skeleton import SkeletonSeries
 
 FloatArray = NDArray[np.float64]
 Method = Literal["crossing", "heelstrike"]
@@ -222,12 +224,24 @@ class GaitAnalysis:
         self.min_event_period_s = float(min_event_period_s)
 
     # ------------------------------------------------------------------ fitting
-    def fit(self, feet: FeetTrajectories) -> GaitAnalysis:
+    def fit(self, trajectories: FeetTrajectories | SkeletonSeries | MarkerTrajectories
+            ) -> GaitAnalysis:
         """Detect passes, events, steps and strides; compute the summary.
 
+        Args:
+            trajectories: per-foot trajectories (:mod:`engine.mocap`), or a world-frame
+                Z-up skeleton, or mocap markers (mapped automatically).
+
         Raises:
+            InputError: no usable foot data.
             InsufficientDataError: no straight walking found or fewer than two steps.
         """
+        if isinstance(trajectories, SkeletonSeries):
+            feet = feet_from_skeleton(trajectories)
+        elif isinstance(trajectories, MarkerTrajectories):
+            feet = feet_from_markers(trajectories)
+        else:
+            feet = trajectories
         t = np.asarray(feet.times, dtype=float)
         if len(t) < 5:
             raise InsufficientDataError(f"only {len(t)} frames; a gait analysis needs a walk "

@@ -166,3 +166,16 @@ def test_json_schema_is_stable() -> None:
         assert k in doc["summary"]
     assert set(doc["summary"]["step_length_m"]) == {"mean", "sd", "cv_pct", "left_mean",
                                                     "right_mean", "asymmetry_pct"}
+
+
+def test_fit_accepts_markers_and_skeletons() -> None:
+    from engine.skeleton import KINECT_V2, SkeletonSeries
+    from tests.engine.test_gait_synth import walk_skeleton
+
+    w = synth_walk(step_width=0.15)
+    a = GaitAnalysis("crossing").fit(walk_markers(w))
+    P = walk_skeleton(w)
+    s = SkeletonSeries(w.times, P, np.full(P.shape[:2], 2, dtype=np.uint8), KINECT_V2)
+    b = GaitAnalysis("crossing").fit(s)
+    for g in (a, b):
+        assert np.median([x.width_m for x in g.steps_]) == pytest.approx(0.15, abs=0.003)
