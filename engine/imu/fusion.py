@@ -52,6 +52,7 @@ __all__ = [
     "delta_quaternions",
     "flexion_angles",
     "fuse_skeleton",
+    "interp_quat",
     "joint_rotation",
     "ncc",
     "plank_calibration",
@@ -110,8 +111,9 @@ class PlankCalibration:
         return quat_mul(self.q_world_earth[name], np.asarray(q, dtype=float))
 
 
-def _interp_quat(times: FloatArray, q: FloatArray, t: ArrayLike) -> FloatArray:
-    """Slerp a quaternion series at times ``t`` (clamped to the series' span)."""
+def interp_quat(times: FloatArray, q: FloatArray, t: ArrayLike) -> FloatArray:
+    """Slerp a ``(T, 4)`` quaternion series sampled at ``times`` at the times ``t``
+    (clamped to the series' span)."""
     tq = np.clip(np.asarray(t, dtype=float), times[0], times[-1])
     i = np.clip(np.searchsorted(times, tq, side="right") - 1, 0, len(times) - 2)
     u = (tq - times[i]) / (times[i + 1] - times[i])
@@ -143,7 +145,7 @@ def plank_calibration(
         raise InputError(f"plank time {plank_time:.3f} s is outside the IMU recording "
                          f"[{t[0]:.3f}, {t[-1]:.3f}] s")
     qp = quat_normalize(np.asarray(q_world_plank, dtype=float))
-    q_at = {n: quat_normalize(_interp_quat(t, np.asarray(q, dtype=float), plank_time))
+    q_at = {n: quat_normalize(interp_quat(t, np.asarray(q, dtype=float), plank_time))
             for n, q in orientations.items()}
     # All sensors share their attitude on the plank: compare each one's "up" seen in the
     # sensor frame (independent of each filter's arbitrary heading).
@@ -340,7 +342,7 @@ def fuse_skeleton(
         ref = np.nanmean(skeleton.tracked_positions()[near], axis=0) if near.sum() > 1 \
             else skeleton.positions[reference_index]
     ref = np.where(np.isfinite(ref), ref, skeleton.positions[reference_index])
-    q_ref = {n: _interp_quat(t, q, t_ref) for n, q in q_world.items()}
+    q_ref = {n: interp_quat(t, q, t_ref) for n, q in q_world.items()}
     tracked = skeleton.tracked_positions()
     inside_d = (skeleton.times >= t[0]) & (skeleton.times <= t[-1])
     tracked[~inside_d] = np.nan
@@ -364,7 +366,7 @@ def fuse_skeleton(
                 if np.isfinite(ref[j]).all() and np.isfinite(ref[root]).all():
                     P[:, j] = P[:, root] + quat_rotate(dq, ref[j] - ref[root])
         else:
-            q_d = _interp_quat(t, q_world[name], skeleton.times)
+            q_d = interp_quat(t, q_world[name], skeleton.times)
             for j in sorted(carried):
                 b_s = _fit_segment_vector(tracked[:, j] - tracked[:, root], q_d)
                 if b_s is None and np.isfinite(ref[j]).all() and np.isfinite(ref[root]).all():
