@@ -63,11 +63,19 @@ class Rig:
                     "PYTHONUNBUFFERED": "1", **(env_extra or {})}
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.logs: dict[str, Path] = {}
+        self.start_server()
+
+    def start_server(self) -> None:
         self._spawn("server", ["serve", "--port", str(self.port), "--no-viewer", "--data-dir",
-                               str(tmp / "server"), "--log-level", "info"])
+                               str(self.tmp / "server"), "--log-level", "info"])
         wait_for(lambda: http(self.base + "/healthz"), 30, "the server")
         self.token = http(self.base + "/api/auth/login",
                           {"username": "admin", "password": PASSWORD})["token"]
+
+    def kill_server(self) -> None:
+        p = self.procs["server"]
+        p.kill()
+        p.wait()
 
     def _spawn(self, name: str, args: list[str], env: dict[str, str] | None = None
                ) -> subprocess.Popen[bytes]:
@@ -83,10 +91,11 @@ class Rig:
         return self.tmp / "nodes" / node_id
 
     def start_node(self, node_id: str, *extra: str, token: str | None = None,
-                   name: str | None = None) -> subprocess.Popen[bytes]:
+                   name: str | None = None, images: bool = False) -> subprocess.Popen[bytes]:
         args = ["node", "--id", node_id, "--server", f"ws://127.0.0.1:{self.port}",
-                "--data-dir", str(self.node_dir(node_id)), "--no-images", "--report-true-clock",
-                *extra]
+                "--data-dir", str(self.node_dir(node_id)), "--report-true-clock", *extra]
+        if not images:
+            args.append("--no-images")
         if token is not None:
             args += ["--token", token]
         return self._spawn(name or node_id, args)

@@ -1,0 +1,73 @@
+"""The viser 3D view: floor, sensor frustums, and its life in the FastAPI lifespan."""
+
+from __future__ import annotations
+
+import json
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+import viser
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.main import create_app
+from app.nodes.protocol import Hello, SensorInfo, dump
+from app.viewer.scene import SensorView, populate_floor, populate_sensors
+from engine.geometry import look_at, quat_to_matrix
+
+
+def _names(server: viser.ViserServer) -> set[str]:
+    # viser keeps its scene handles by node name (private, but the only read-back there is)
+    return set(server.scene._handle_from_node_name)
+
+
+@pytest.fixture
+def server() -> viser.ViserServer:
+    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    yield s
+    s.stop()
+
+
+def test_floor_and_sensors(server: viser.ViserServer) -> None:
+    populate_floor(server)
+    T1 = look_at([0.0, 1.0, 1.2], [3.0, 0.0, 0.9])
+    T2 = look_at([2.5, -1.0, 1.2], [5.0, 0.0, 0.9])
+    populate_sensors(server, [SensorView("S1", T1), SensorView("S2", T2, connected=False)])
+    names = _names(server)
+    assert {"/floor/grid", "/floor/origin", "/sensors/S1", "/sensors/S1/frustum",
+            "/sensors/S1/label", "/sensors/S2/frustum"} <= names
+    h = server.scene._handle_from_node_name["/sensors/S1"]
+    np.testing.assert_allclose(h.position, T1[:3, 3], atol=1e-6)
+    np.testing.assert_allclose(quat_to_matrix(h.wxyz), T1[:3, :3], atol=1e-6)
+    label = server.scene._handle_from_node_name["/sensors/S2/label"]
+    assert "offline" in label.text
+    populate_sensors(server, [SensorView("S2", T2)])  # redraw replaces the panel
+    names = _names(server)
+    assert "/sensors/S1" not in names and "/sensors/S2" in names
+
+
+def _port_open(port: int) -> bool:
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def test_viewer_lives_in_the_lifespan(tmp_path: Path) -> None:
+    settings = Settings(data_dir=tmp_path, viewer_enabled=True, viewer_port=0,
+                        node_token="tok-tok-tok", admin_password="pw")
+    T = look_at([0.0, 1.0, 1.2], [3.0, 0.0, 0.9])
+    with TestClient(create_app(settings)) as client:
+        viewer = client.app.state.viewer  # type: ignore[attr-defined]
+        assert viewer is not None and _port_open(viewer.port)
+        with client.websocket_connect("/ws/node") as ws:
+            info = SensorInfo(T_world_sensor=T.tolist())
+            ws.send_text(dump(Hello(node_id="S1", token="tok-tok-tok", sensor=info)))
+            assert json.loads(ws.receive_text())["type"] == "welcome"
+            assert "/sensors/S1/frustum" in _names(viewer.server)
+        port = viewer.port
+        tok = client.post("/api/auth/login", json={"username": "admin", "password": "pw"})
+        sysinfo = client.get("/api/system", headers={"Authorization": "Bearer "
+                                                     + tok.json()["token"]}).json()
+        assert sysinfo["viewer_url"].endswith(f":{port}/")
+    assert not _port_open(port)
