@@ -95,7 +95,7 @@ class Hello(_Msg):
     token: str = Field(max_length=256)
     protocol: int = PROTOCOL_VERSION
     backend: str = "unknown"
-    agent_started: float = Field(0.0, description="Node-local start time of the agent process.")
+    agent_started: float = Field(default=0.0, description="Node-local start of the agent.")
     sensor: SensorInfo = Field(default_factory=lambda: SensorInfo())
     parts: list[PartInfo] = Field(default_factory=list, max_length=10000)
 
@@ -163,7 +163,7 @@ class RecStart(_Msg):
     t_start_server: float
     t_start_local: float
     streams: list[StreamName] = Field(default_factory=list)
-    image_every: int = Field(1, ge=1, le=1000)
+    image_every: int = Field(default=1, ge=1, le=1000)
     clock: dict[str, float] = Field(
         default_factory=dict, description="Server's clock model of this node, kept in the part."
     )
@@ -185,7 +185,7 @@ class Subscribe(_Msg):
     type: Literal["subscribe"] = "subscribe"
     streams: list[StreamName]
     fps: float = Field(ge=0, le=30)
-    scale: float = Field(0.5, gt=0, le=1)
+    scale: float = Field(default=0.5, gt=0, le=1)
     format: Literal["jpeg", "png"] = "jpeg"
 
 
@@ -193,7 +193,7 @@ class Snapshot(_Msg):
     type: Literal["snapshot"] = "snapshot"
     req_id: int
     streams: list[StreamName]
-    scale: float = Field(1.0, gt=0, le=1)
+    scale: float = Field(default=1.0, gt=0, le=1)
     format: Literal["jpeg", "png"] = "png"
 
 

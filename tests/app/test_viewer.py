@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import socket
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ def _names(server: viser.ViserServer) -> set[str]:
 
 
 @pytest.fixture
-def server() -> viser.ViserServer:
+def server() -> Iterator[viser.ViserServer]:
     s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     yield s
     s.stop()
@@ -42,7 +43,7 @@ def test_floor_and_sensors(server: viser.ViserServer) -> None:
     np.testing.assert_allclose(h.position, T1[:3, 3], atol=1e-6)
     np.testing.assert_allclose(quat_to_matrix(h.wxyz), T1[:3, :3], atol=1e-6)
     label = server.scene._handle_from_node_name["/sensors/S2/label"]
-    assert "offline" in label.text
+    assert "offline" in label.text  # type: ignore[attr-defined]
     populate_sensors(server, [SensorView("S2", T2)])  # redraw replaces the panel
     names = _names(server)
     assert "/sensors/S1" not in names and "/sensors/S2" in names

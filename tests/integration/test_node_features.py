@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 import urllib.request
+from typing import Any
 
 import cv2
 import numpy as np
@@ -31,12 +32,12 @@ def test_images_reconnect_and_replay(make_rig: object) -> None:
     rig.api("/api/nodes/S2/subscribe", {"streams": ["depth"], "fps": 5, "scale": 0.5,
                                         "format": "png"})
     png, t_server = wait_for(lambda: _image(rig, "S2", "depth"), 20, "a depth image")
-    depth = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    depth: Any = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
     assert depth.shape == (212, 256) and depth.dtype == np.uint16
     # ground truth: render the same sensor at the same instant here, downsample alike
     sim = SimBackend("S2", images=True)
     sim.open()
-    truth = sim.render(world_time(t_server), ["depth"])["depth"]
+    truth: Any = sim.render(world_time(t_server), ["depth"])["depth"]
     truth = cv2.resize(truth, (256, 212), interpolation=cv2.INTER_NEAREST)
     both = (depth > 0) & (truth > 0)
     assert np.mean((depth > 0) == (truth > 0)) > 0.97

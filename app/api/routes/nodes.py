@@ -47,8 +47,8 @@ class NodeHealth(BaseModel):
 
 class SubscribeIn(BaseModel):
     streams: list[Literal["depth", "color", "body_index"]]
-    fps: float = Field(2.0, ge=0, le=30)
-    scale: float = Field(0.5, gt=0, le=1)
+    fps: float = Field(default=2.0, ge=0, le=30)
+    scale: float = Field(default=0.5, gt=0, le=1)
     format: Literal["jpeg", "png"] = "jpeg"
 
 

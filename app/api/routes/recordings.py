@@ -16,7 +16,7 @@ router = APIRouter(prefix="/recordings", tags=["recordings"])
 class StartIn(BaseModel):
     streams: list[Literal["depth", "color", "body_index"]] = Field(
         default_factory=list, description="Image streams to record besides skeletons.")
-    image_every: int = Field(1, ge=1, le=1000, description="Record images of every N-th frame.")
+    image_every: int = Field(default=1, ge=1, le=1000, description="Images of every N-th frame.")
 
 
 @router.get("")
