@@ -18,6 +18,7 @@ The gyroscope sample ``k`` is the mean rate over ``[t_{k-1}, t_k]`` (rotation ve
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -153,4 +154,49 @@ def simulate_imus(
         bone: simulate_imu(times, frames, mounts.get(bone), noise=noise,
                            earth_field=earth_field, rng=seed + i, name=bone)
         for i, (bone, frames) in enumerate(bone_frames.items())
+    }
+
+
+#: The seed paper's nine sensors (``engine.imu.fusion.PAPER_SENSORS``) -> walker bone.
+WALKER_BONE_OF_SENSOR: dict[str, str] = {
+    "chest": "trunk",
+    "upperarm_l": "upperarm_l", "forearm_l": "forearm_l",
+    "upperarm_r": "upperarm_r", "forearm_r": "forearm_r",
+    "thigh_l": "thigh_l", "shank_l": "shank_l",
+    "thigh_r": "thigh_r", "shank_r": "shank_r",
+}
+
+
+def simulate_walker_imus(
+    walker: Any,
+    times: ArrayLike,
+    mounts: dict[str, FloatArray] | None = None,
+    *,
+    sensors: dict[str, str] | None = None,
+    noise: ImuNoise = ImuNoise(),
+    earth_field: ArrayLike = EARTH_FIELD_ENU,
+    seed: int = 0,
+) -> dict[str, ImuRecording]:
+    """The paper's nine IMUs worn by a simulated walker (``engine.sim.walker.Walker``).
+
+    Args:
+        walker: anything with ``bone_frames(t) -> dict[bone, (T, 4, 4)]`` (world = ENU).
+        times: ``(T,)`` s, uniformly spaced (e.g. 256 Hz as the x-IMUs of the paper).
+        mounts: sensor name -> ``T_bone_sensor`` (identity where missing).
+        sensors: sensor name -> walker bone (default :data:`WALKER_BONE_OF_SENSOR`).
+        noise, earth_field, seed: as in :func:`simulate_imus`.
+
+    Returns:
+        sensor name -> recording (with ``quat_ref`` ground truth).
+    """
+    smap = sensors or WALKER_BONE_OF_SENSOR
+    frames = walker.bone_frames(np.asarray(times, dtype=float))
+    missing = [b for b in smap.values() if b not in frames]
+    if missing:
+        raise InputError(f"walker has no bone(s) {missing}; it has {sorted(frames)}")
+    mounts = mounts or {}
+    return {
+        name: simulate_imu(times, frames[bone], mounts.get(name), noise=noise,
+                           earth_field=earth_field, rng=seed + i, name=name)
+        for i, (name, bone) in enumerate(smap.items())
     }
