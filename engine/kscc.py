@@ -27,13 +27,20 @@ Input frames. Rotating "about the vertical" needs to know where up is:
   sensor's accelerometer), for a tilted sensor;
 * or ``T_world_sensor`` — a full 4×4 pose into a Z-up world (overrides ``frame``).
 
-Stillness (documented thresholds). A frame counts as still when the mean joint speed,
-measured over ``speed_window_s`` (0.2 s — long enough that ~1 cm per-frame Kinect jitter
-reads as < 0.1 m/s), is below ``speed_threshold_mps`` (0.15 m/s; slow swaying stays
-below, a step or an arm swing exceeds it), and the median joint has drifted less than
-``max_drift_m`` (5 cm) from its mean over the frames collected so far (catches slow
-drifts). Both shoulders must be present (not NaN, not NOT_TRACKED). A moving or lost
-user restarts the collection.
+Stillness (documented thresholds). KSCC needs a stable centre and facing, so stillness
+is judged on those, averaged over joints (a Kinect's per-joint fitting error of a few cm,
+which wanders within fractions of a second, would make per-joint speeds useless). A frame
+is still when (1) the centre of the joints moves slower than ``speed_threshold_mps``
+(0.15 m/s, measured over ``speed_window_s`` = 0.3 s: a step, a lean or walking exceeds
+it, postural sway of a few mm/s does not), (2) that centre is within ``max_drift_m``
+(5 cm) of its mean over the frames collected so far (slow drifts), and (3) the shoulder
+line, averaged over the speed window, is within ``max_turn_deg`` (20°) of its collected
+mean (turning on the spot; checked while both shoulders are visible). The joints of the
+facing method (:func:`facing_left`; for the paper's, both shoulders) must be present (not
+NaN, not NOT_TRACKED), and at least half the joints. A moving or lost user restarts the
+collection. Tuned so that
+the simulated Kinect v2 skeleton (``engine.sim.skeleton_model``: ≈ 3 cm slowly varying
+joint error) standing still at 2.5 m is collected without restarts.
 """
 
 from __future__ import annotations
@@ -144,29 +151,80 @@ def _valid_positions(series: SkeletonSeries, use_inferred: bool) -> FloatArray:
     return p
 
 
+def _nanmean0(P: FloatArray) -> FloatArray:
+    """Mean over axis 0 ignoring NaN, NaN where nothing is left (no warnings)."""
+    ok = np.isfinite(P)
+    n = ok.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, np.where(ok, P, 0.0).sum(axis=0) / np.maximum(n, 1), np.nan)
+
+
+FacingMode = Literal["shoulders", "trunk"]
+
+
+def facing_left(pose: ArrayLike, joint_set: JointSet, mode: FacingMode = "shoulders",
+                min_width_m: float = 0.05) -> FloatArray | None:
+    """Unit horizontal vector towards the user's left, from one level-frame pose (J, 3).
+
+    ``"shoulders"``: the paper's shoulder line (right → left shoulder). ``"trunk"``: the
+    mean direction of the shoulder and hip lines that are visible; when neither line is
+    complete (a shoulder and a hip hidden behind the body at large angles), the half
+    lines from the spine top / pelvis to the visible shoulder / hip. ``None`` when the
+    required joints are missing or closer than ``min_width_m`` seen from above.
+    """
+    P = np.asarray(pose, dtype=float)
+
+    def j(role: str) -> FloatArray:
+        return P[joint_set.role_index(role)]
+
+    def unit(v: FloatArray, min_len: float) -> FloatArray | None:
+        h = np.array([v[0], v[1], 0.0])
+        n = float(np.hypot(h[0], h[1]))
+        return h / n if np.isfinite(n) and n >= min_len else None
+
+    full = [unit(j("shoulder_left") - j("shoulder_right"), min_width_m)]
+    if mode == "shoulders":
+        return full[0]
+    full.append(unit(j("hip_left") - j("hip_right"), min_width_m))
+    lines = [v for v in full if v is not None]
+    if not lines:
+        half = [unit(j("shoulder_left") - j("spine_top"), min_width_m / 2),
+                unit(j("spine_top") - j("shoulder_right"), min_width_m / 2),
+                unit(j("hip_left") - j("pelvis"), min_width_m / 2),
+                unit(j("pelvis") - j("hip_right"), min_width_m / 2)]
+        lines = [v for v in half if v is not None]
+    if not lines:
+        return None
+    return unit(np.sum(lines, axis=0), 1e-9)
+
+
 class StillnessCollector:
     """Streaming collection of consecutive still frames (see the module docstring).
 
     Args:
         joint_set: Joint set of the frames.
         n_frames: Still frames to collect.
-        speed_threshold_mps: Mean joint speed above which the user is moving.
+        speed_threshold_mps: Speed of the joints' centre above which the user is moving.
         speed_window_s: Time base of the speed estimate.
-        max_drift_m: Largest median joint displacement from the collected mean.
+        max_drift_m: Largest shift of the joints' centre from the collected mean.
+        max_turn_deg: Largest turn of the facing (from the pose averaged over the speed
+            window) from the collected mean.
+        facing: Facing method (:func:`facing_left`); its joints must be visible.
     """
 
     def __init__(self, joint_set: JointSet, n_frames: int = N_STILL_FRAMES,
-                 speed_threshold_mps: float = 0.15, speed_window_s: float = 0.2,
-                 max_drift_m: float = 0.05) -> None:
-        if n_frames < 1 or speed_threshold_mps <= 0 or speed_window_s <= 0 or max_drift_m <= 0:
+                 speed_threshold_mps: float = 0.15, speed_window_s: float = 0.3,
+                 max_drift_m: float = 0.05, max_turn_deg: float = 20.0,
+                 facing: FacingMode = "shoulders") -> None:
+        if min(n_frames, speed_threshold_mps, speed_window_s, max_drift_m, max_turn_deg) <= 0:
             raise InputError("stillness parameters must be positive")
+        self.max_turn_deg = float(max_turn_deg)
+        self.facing: FacingMode = facing
         self.joint_set = joint_set
         self.n_frames = int(n_frames)
         self.speed_threshold_mps = float(speed_threshold_mps)
         self.speed_window_s = float(speed_window_s)
         self.max_drift_m = float(max_drift_m)
-        self._ls = joint_set.role_index("shoulder_left")
-        self._rs = joint_set.role_index("shoulder_right")
         self.reset()
 
     def reset(self) -> None:
@@ -226,24 +284,41 @@ class StillnessCollector:
                    self._hist[0] if self._hist else None)
         self._hist.append((t, p))
         valid = np.isfinite(p).all(axis=1)
-        if not (valid[self._ls] and valid[self._rs]) or valid.sum() < len(valid) / 2:
+        face = facing_left(p, self.joint_set, self.facing)
+        if face is None or valid.sum() < len(valid) / 2:
             had = bool(self._frames)
             self._restart()
-            what = ("both shoulders" if not (valid[self._ls] and valid[self._rs])
-                    else "the body")
+            what = ("the body" if valid.sum() < len(valid) / 2 else
+                    "both shoulders" if self.facing == "shoulders" else "the shoulders or hips")
             return self._progress("moved" if had else "waiting",
                                   f"{what} not visible — face the sensor"
                                   + (", restarting" if had else ""))
         if ref is None or t - ref[0] < 0.5 * self.speed_window_s:
             return self._progress("waiting", "stand still facing the sensor")
         both = valid & np.isfinite(ref[1]).all(axis=1)
-        speed = float(np.mean(np.linalg.norm(p[both] - ref[1][both], axis=1))) / (t - ref[0])
+        if both.sum() < len(valid) / 2:  # the body was just acquired: no speed yet
+            return self._progress("waiting", "stand still facing the sensor")
+        # speed of the centre of the joints seen in both frames: averaging over joints
+        # keeps per-joint fitting noise out of it
+        speed = float(np.linalg.norm(np.mean(p[both] - ref[1][both], axis=0))) / (t - ref[0])
         moving = speed > self.speed_threshold_mps
         if not moving and self._frames:
-            have = self._cnt > 0
-            m = valid & have
+            m = valid & (self._cnt > 0)
             mean = self._sum[m] / self._cnt[m, None]
-            moving = float(np.median(np.linalg.norm(p[m] - mean, axis=1))) > self.max_drift_m
+            drift = float(np.linalg.norm(np.mean(p[m] - mean, axis=0)))
+            # the turn is judged on the shoulder line only: hip and half lines are too
+            # short for a per-window check against a Kinect's few-cm fitting noise
+            now = facing_left(_nanmean0(np.array([h[1] for h in self._hist])),
+                              self.joint_set, "shoulders")
+            ref_face = facing_left(self._sum / np.maximum(self._cnt, 1)[:, None],
+                                   self.joint_set, "shoulders")
+            turn = 0.0
+            # compare with the collected mean only once it averages as many frames as the
+            # window does; a single noisy frame is no reference
+            if now is not None and ref_face is not None and len(self._frames) >= len(self._hist):
+                turn = abs(float(np.degrees(np.arctan2(
+                    now[0] * ref_face[1] - now[1] * ref_face[0], now @ ref_face))))
+            moving = drift > self.max_drift_m or turn > self.max_turn_deg
         if moving:
             had = bool(self._frames)
             self._restart()
@@ -262,7 +337,8 @@ class StillnessCollector:
 
 def find_still_window(series: SkeletonSeries, n_frames: int = N_STILL_FRAMES,
                       frame: str | ArrayLike = "kinect", T_world_sensor: ArrayLike | None = None,
-                      use_inferred: bool = True, **stillness: float) -> NDArray[np.int64]:
+                      use_inferred: bool = True, facing: FacingMode = "shoulders",
+                      **stillness: float) -> NDArray[np.int64]:
     """Indices of the first ``n_frames`` consecutive still frames of a recording.
 
     Raises:
@@ -277,20 +353,21 @@ def find_still_window(series: SkeletonSeries, n_frames: int = N_STILL_FRAMES,
             f"KSCC needs {n_frames} still frames (about {n_frames / 30:.0f} s at 30 fps); "
             f"the recording has only {len(series)} frames"
         )
-    for role in ("shoulder_left", "shoulder_right"):
-        if not np.isfinite(P[:, js.role_index(role)]).all(axis=1).any():
-            raise InputError(
-                f"{js.roles[role]} is missing (NaN or not tracked) in every frame; the user "
-                "must stand facing the sensor with both shoulders visible"
-            )
-    col = StillnessCollector(js, n_frames, **stillness)
+    if facing == "shoulders":
+        for role in ("shoulder_left", "shoulder_right"):
+            if not np.isfinite(P[:, js.role_index(role)]).all(axis=1).any():
+                raise InputError(
+                    f"{js.roles[role]} is missing (NaN or not tracked) in every frame; the "
+                    "user must stand facing the sensor with both shoulders visible"
+                )
+    col = StillnessCollector(js, n_frames, facing=facing, **stillness)
     for t, p in zip(series.times, P, strict=True):
         if col.update(t, p).state == "done":
             return np.array(col.indices, dtype=np.int64)
     raise InsufficientDataError(
         f"the user never stood still for {n_frames} consecutive frames (longest still "
         f"stretch: {max(col.longest, len(col.frames))} frames, restarted {col.restarts} times "
-        "after moving or losing a shoulder); ask them to stand still, facing the sensor, "
+        "after moving or losing the shoulders); ask them to stand still, facing the sensor, "
         f"for about {n_frames / 30:.0f} s"
     )
 
@@ -304,8 +381,11 @@ class KsccCalibrator:
         T_world_sensor: Pose into a Z-up world; overrides ``frame``.
         centre: ``"all"`` — mean of all joints (the paper); ``"roles"`` — mean of the 20
             role joints every joint set has, so Kinect v1/v2/Azure centres agree.
+        facing: ``"shoulders"`` — the paper's shoulder line; ``"trunk"`` — shoulder and
+            hip lines, with half lines when a shoulder/hip is hidden (:func:`facing_left`).
         use_inferred: Use INFERRED joints (the SDK's guesses); NOT_TRACKED/NaN never.
-        speed_threshold_mps, speed_window_s, max_drift_m: Stillness thresholds.
+        speed_threshold_mps, speed_window_s, max_drift_m, max_turn_deg: Stillness
+            thresholds (:class:`StillnessCollector`).
 
     Attributes (after fit / a completed stream):
         centre_: Initial centre ``C`` in input coordinates (m).
@@ -321,18 +401,23 @@ class KsccCalibrator:
 
     def __init__(self, n_frames: int = N_STILL_FRAMES, frame: str | ArrayLike = "kinect",
                  T_world_sensor: ArrayLike | None = None,
-                 centre: Literal["all", "roles"] = "all", use_inferred: bool = True,
-                 speed_threshold_mps: float = 0.15, speed_window_s: float = 0.2,
-                 max_drift_m: float = 0.05) -> None:
+                 centre: Literal["all", "roles"] = "all",
+                 facing: FacingMode = "shoulders", use_inferred: bool = True,
+                 speed_threshold_mps: float = 0.15, speed_window_s: float = 0.3,
+                 max_drift_m: float = 0.05, max_turn_deg: float = 20.0) -> None:
         if centre not in ("all", "roles"):
             raise InputError("centre must be 'all' or 'roles'")
+        if facing not in ("shoulders", "trunk"):
+            raise InputError("facing must be 'shoulders' or 'trunk'")
+        self.facing: FacingMode = facing
         self.n_frames = n_frames
         self.frame = frame
         self.T_world_sensor = T_world_sensor
         self.centre = centre
         self.use_inferred = use_inferred
         self.stillness = {"speed_threshold_mps": speed_threshold_mps,
-                          "speed_window_s": speed_window_s, "max_drift_m": max_drift_m}
+                          "speed_window_s": speed_window_s, "max_drift_m": max_drift_m,
+                          "max_turn_deg": max_turn_deg}
         self._T_level, self._axis = level_transform(frame, T_world_sensor)
         self._collector: StillnessCollector | None = None
 
@@ -341,7 +426,7 @@ class KsccCalibrator:
     def fit(self, series: SkeletonSeries) -> KsccCalibrator:
         """Calibrate from the first still window of a recording."""
         idx = find_still_window(series, self.n_frames, self.frame, self.T_world_sensor,
-                                self.use_inferred, **self.stillness)
+                                self.use_inferred, self.facing, **self.stillness)
         P = _valid_positions(series, self.use_inferred)[idx]
         self._fit_level(P @ self._T_level[:3, :3].T + self._T_level[:3, 3], series.joint_set)
         self.still_indices_ = idx
@@ -360,7 +445,8 @@ class KsccCalibrator:
         p = np.array(positions, dtype=float)
         if self._collector is None:
             js = joint_set or _joint_set_by_count(p.shape[0] if p.ndim == 2 else -1)
-            self._collector = StillnessCollector(js, self.n_frames, **self.stillness)
+            self._collector = StillnessCollector(js, self.n_frames, facing=self.facing,
+                                                 **self.stillness)
         col = self._collector
         if states is not None:
             s = np.asarray(states)
@@ -389,17 +475,16 @@ class KsccCalibrator:
             cols = np.arange(len(js.joints))
         else:
             cols = np.array([js.role_index(r) for r in CENTRE_ROLES])
-        with np.errstate(invalid="ignore"):
-            per_frame = np.nanmean(W[:, cols], axis=1)  # paper's A(t)
-        c = np.nanmean(per_frame, axis=0)  # paper's C
-        ls = np.nanmean(W[:, js.role_index("shoulder_left")], axis=0)
-        rs = np.nanmean(W[:, js.role_index("shoulder_right")], axis=0)
-        if not (np.isfinite(c).all() and np.isfinite(ls).all() and np.isfinite(rs).all()):
-            raise InputError("no usable shoulder or centre positions in the still frames")
-        left = ls - rs
-        if np.hypot(left[0], left[1]) < 0.05:
+        per_frame = _nanmean0(np.swapaxes(W[:, cols], 0, 1))  # paper's A(t), (n, 3)
+        c = _nanmean0(per_frame)  # paper's C
+        if not np.isfinite(c).all():
+            raise InputError("no usable joint positions in the still frames")
+        left = facing_left(_nanmean0(W), js, self.facing)
+        if left is None:
             raise InputError(
-                "the shoulders are less than 5 cm apart seen from above (user side-on to the "
+                "cannot tell which way the user faces: the shoulders"
+                + (" and hips are" if self.facing == "trunk" else " are")
+                + " missing or less than 5 cm apart seen from above (user side-on to the "
                 "sensor?); ask the user to turn towards the sensor"
             )
         heading = float(np.arctan2(-left[0], left[1]))  # forward = left × up = (ly, −lx)
@@ -470,6 +555,6 @@ def kscc_calibrate(series: SkeletonSeries, **kwargs: object) -> KsccCalibrator:
 
 
 __all__ = [
-    "CENTRE_ROLES", "N_STILL_FRAMES", "KsccCalibrator", "KsccProgress", "StillnessCollector",
-    "find_still_window", "kscc_calibrate", "level_transform",
+    "CENTRE_ROLES", "N_STILL_FRAMES", "FacingMode", "KsccCalibrator", "KsccProgress",
+    "StillnessCollector", "facing_left", "find_still_window", "kscc_calibrate", "level_transform",
 ]
