@@ -43,6 +43,11 @@ MAX_STRAIGHT_TURN_RATE = 60.0
 #: A pass shorter than this (s) or travelling less than MIN_PASS_M is dropped.
 MIN_PASS_S = 0.8
 MIN_PASS_M = 0.5
+#: Consecutive foot placements closer than this fraction of the median step time, or
+#: than MIN_STEP_S, are a glitch (a step is ≥ 0.25 s even at a running cadence of
+#: 240 steps/min; step-time CV in gait is ≈ 3-10 %, so 40 % of the median is never a step).
+MIN_STEP_FRACTION = 0.4
+MIN_STEP_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -314,6 +319,27 @@ class GaitAnalysis:
                     del cross[j: j + 2]
                     changed = True
                     break
+        # Remove glitches: two crossings much closer in time than the typical step (a
+        # brief left/right label swap or a jump of one ankle) are dropped in pairs.
+        # The extra pair is not always the two ends of the shortest interval: of the pairs
+        # touching it, the one whose removal leaves the most regular step times goes.
+        while len(cross) >= 3:
+            times_c = np.array([c[1] for c in cross])
+            gaps = np.diff(times_c)
+            med = float(np.median(gaps))
+            j = int(np.argmin(gaps))
+            if gaps[j] >= max(MIN_STEP_S, MIN_STEP_FRACTION * med):
+                break
+            best, best_cost = j, np.inf
+            for a in (j - 1, j, j + 1):
+                if a < 0 or a + 1 >= len(cross):
+                    continue
+                rest = np.delete(times_c, [a, a + 1])
+                cost = (float(np.sum(np.log(np.diff(rest) / med) ** 2))
+                        if len(rest) >= 2 else 0.0)
+                if cost < best_cost:
+                    best, best_cost = a, cost
+            del cross[best: best + 2]
         pe = _PassEvents()
         for _i, tc in cross:
             # The foot on the floor is the one moving slower along the direction.

@@ -179,3 +179,19 @@ def test_fit_accepts_markers_and_skeletons() -> None:
     b = GaitAnalysis("crossing").fit(s)
     for g in (a, b):
         assert np.median([x.width_m for x in g.steps_]) == pytest.approx(0.15, abs=0.003)
+
+
+def test_brief_leg_label_swap_is_ignored() -> None:
+    w = synth_walk(step_length=0.7, step_width=0.12, step_time=0.55)
+    m = walk_markers(w)
+    iL, iR = m.labels.index("LANK"), m.labels.index("RANK")
+    sw = (m.times > 2.1) & (m.times < 2.28)  # a tracker swapping the legs for 0.18 s
+    m.positions[sw, iL], m.positions[sw, iR] = (m.positions[sw, iR].copy(),
+                                                m.positions[sw, iL].copy())
+    g = GaitAnalysis("crossing").fit(feet_from_markers(m))
+    placements = [e.time_s for e in g.events_]
+    assert not any(2.05 < t < 2.35 for t in placements)
+    assert len(g.steps_) >= 7
+    for s in g.steps_:
+        assert s.length_m == pytest.approx(0.7, abs=0.003)
+        assert s.duration_s == pytest.approx(0.55, abs=0.011)
