@@ -141,10 +141,13 @@ class Hub:
 
     async def _ping_loop(self, ws: WebSocket, s: NodeSession) -> None:
         seq = 0
-        while ws.application_state == WebSocketState.CONNECTED:
-            seq += 1
-            await ws.send_text(dump(Ping(seq=seq, t1=time.time())))
-            await asyncio.sleep(self.settings.clock_ping_interval_s)
+        try:
+            while ws.application_state == WebSocketState.CONNECTED:
+                seq += 1
+                await ws.send_text(dump(Ping(seq=seq, t1=time.time())))
+                await asyncio.sleep(self.settings.clock_ping_interval_s)
+        except (WebSocketDisconnect, RuntimeError, OSError):
+            pass  # the message loop notices the disconnect and cleans up
 
     async def _reject(self, ws: WebSocket, s: NodeSession, reason: str) -> None:
         s.rejected_messages += 1

@@ -33,7 +33,7 @@ def test_demo_six_nodes_online_and_clean_stop(tmp_path: Path) -> None:
     port, vport = free_port(), free_port()
     gaitrig = Path(sys.executable).parent / "gaitrig"
     cmd = [str(gaitrig), "demo", "--port", str(port), "--viewer-port", str(vport),
-           "--data-dir", str(tmp_path), "--no-images"]
+           "--data-dir", str(tmp_path)]
     log = tmp_path / "demo.log"
     with open(log, "wb") as f:
         demo = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT,

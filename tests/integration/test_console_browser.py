@@ -1,0 +1,51 @@
+"""The minimal console in headless Debian Chromium: log in by keyboard, see the nodes."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from tests.integration.conftest import PASSWORD, Rig
+
+CHROMIUM = Path("/usr/bin/chromium")
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's /usr/bin/chromium")
+def test_login_and_rig_page(make_rig: object, artifacts_dir: Path) -> None:
+    from playwright.sync_api import sync_playwright
+
+    rig: Rig = make_rig()  # type: ignore[operator]
+    rig.start_node("S1", "--clock-offset", "0.2", "--clock-drift-ppm", "0")
+    rig.start_node("S2", "--clock-offset", "0.0", "--clock-drift-ppm", "0")
+    rig.wait_online(["S1", "S2"])
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=["--no-sandbox"])
+        page = browser.new_page()
+        page.goto(rig.base + "/rig.html")
+        page.wait_for_url("**/index.html")  # not logged in → login page
+        page.keyboard.type("admin")  # the user name field has focus
+        page.keyboard.press("Tab")
+        page.keyboard.type("wrong")
+        page.keyboard.press("Enter")
+        page.wait_for_selector("#login-error:has-text('Wrong user name or password')")
+        page.fill("#password", PASSWORD)
+        page.keyboard.press("Enter")
+        page.wait_for_url("**/rig.html")
+        page.wait_for_selector("tr[data-node='S2']")
+        page.wait_for_selector("#summary:has-text('2 of 2 sensors online')")
+        s1 = page.inner_text("tr[data-node='S1']")
+        assert "online" in s1 and "fps" in s1
+        # S1's clock is 200 ms off: shown, with the plain-words note; S2 needs no note
+        assert re.search(r"(199\.[5-9]|200\.[0-4]\d) ms ± 0\.\d+ ms", s1), s1
+        assert re.search(r"differs from the server by \+(199\.[5-9]|200\.[0-4]) ms", s1), s1
+        assert page.inner_text("tr[data-node='S2'] td:last-child") == "OK"
+        page.screenshot(path=str(artifacts_dir / "console-rig.png"))
+        rig.procs["S2"].terminate()
+        page.wait_for_selector("tr[data-node='S2']:has-text('offline')", timeout=15000)
+        page.click("#logout")
+        page.wait_for_url("**/index.html")
+        browser.close()
