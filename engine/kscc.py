@@ -45,9 +45,11 @@ joint error) standing still at 2.5 m is collected without restarts.
 
 from __future__ import annotations
 
+import json
 from collections import deque
 from dataclasses import dataclass
-from typing import Literal
+from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -506,6 +508,55 @@ class KsccCalibrator:
             d = -left  # RS − LS
             self.initial_angle_ = float(np.arctan2(d @ a, d @ sensor_left))
 
+    # ------------------------------------------------------------ persistence
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready calibration (to keep it while the sensor stays put, or to send it)."""
+        self._check_fitted()
+        return {
+            "kind": "kscc", "version": 1, "joint_set": self.joint_set_.name,
+            "frame": (self.frame if isinstance(self.frame, str)
+                      else np.asarray(self.frame, dtype=float).tolist()),
+            "T_world_sensor": (None if self.T_world_sensor is None
+                               else np.asarray(self.T_world_sensor, float).tolist()),
+            "centre_mode": self.centre, "facing": self.facing, "n_frames": self.n_frames,
+            "centre": self.centre_.tolist(), "heading": self.heading_,
+            "initial_angle": self.initial_angle_,
+            "T_universal_input": self.T_universal_input_.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> KsccCalibrator:
+        """Inverse of :meth:`to_dict`.
+
+        Raises:
+            InputError: not a KSCC calibration, or malformed.
+        """
+        from engine.skeleton import JOINT_SETS
+
+        try:
+            if d.get("kind") != "kscc":
+                raise InputError("not a KSCC calibration (kind != 'kscc')")
+            cal = cls(int(d["n_frames"]), d["frame"], d["T_world_sensor"], d["centre_mode"],
+                      d["facing"])
+            T = np.asarray(d["T_universal_input"], dtype=float)
+            if T.shape != (4, 4) or not np.isfinite(T).all():
+                raise InputError("T_universal_input must be a finite 4×4 matrix")
+            cal.joint_set_ = JOINT_SETS[d["joint_set"]]
+            cal.heading_ = float(d["heading"])
+            cal.angle_ = -cal.heading_
+            cal.quaternion_ = quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), cal.angle_)
+            cal.centre_ = np.asarray(d["centre"], dtype=float).reshape(3)
+            ia = d["initial_angle"]
+            cal.initial_angle_ = None if ia is None else float(ia)
+            cal.T_universal_input_ = T
+            cal.still_indices_ = np.zeros(0, dtype=np.int64)
+        except (KeyError, TypeError, ValueError) as e:
+            if isinstance(e, InputError):
+                raise
+            raise InputError(f"malformed KSCC calibration: {e!r}") from None
+        return cal
+
     @property
     def initial_angle_deg_(self) -> float | None:
         """The paper's initial angle θ in degrees (``None`` if the sensor axis is unknown)."""
@@ -549,6 +600,26 @@ def _joint_set_by_count(n: int) -> JointSet:
                      "v1), 25 (Kinect v2) or 32 (Azure Kinect), or pass joint_set=")
 
 
+def save_kscc(path: str | Path, cal: KsccCalibrator) -> None:
+    """Write a fitted calibration as JSON."""
+    Path(path).write_text(json.dumps(cal.to_dict(), indent=1))
+
+
+def load_kscc(path: str | Path) -> KsccCalibrator:
+    """Read a calibration written by :func:`save_kscc`.
+
+    Raises:
+        InputError: unreadable or not a KSCC calibration file.
+    """
+    try:
+        d = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as e:
+        raise InputError(f"cannot read KSCC calibration {path}: {e}") from None
+    if not isinstance(d, dict):
+        raise InputError(f"{path} is not a KSCC calibration file")
+    return KsccCalibrator.from_dict(d)
+
+
 def kscc_calibrate(series: SkeletonSeries, **kwargs: object) -> KsccCalibrator:
     """Batch KSCC: ``KsccCalibrator(**kwargs).fit(series)``."""
     return KsccCalibrator(**kwargs).fit(series)  # type: ignore[arg-type]
@@ -557,4 +628,5 @@ def kscc_calibrate(series: SkeletonSeries, **kwargs: object) -> KsccCalibrator:
 __all__ = [
     "CENTRE_ROLES", "N_STILL_FRAMES", "FacingMode", "KsccCalibrator", "KsccProgress",
     "StillnessCollector", "facing_left", "find_still_window", "kscc_calibrate", "level_transform",
+    "load_kscc", "save_kscc",
 ]

@@ -2,13 +2,23 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from engine.compare import common_joints, compare_motions, dtw, frame_costs
 from engine.errors import InputError, InsufficientDataError
 from engine.geometry import make_transform, quat_from_axis_angle, quat_to_matrix
-from engine.kscc import KsccCalibrator, find_still_window, kscc_calibrate, level_transform
+from engine.kscc import (
+    KsccCalibrator,
+    facing_left,
+    find_still_window,
+    kscc_calibrate,
+    level_transform,
+    load_kscc,
+    save_kscc,
+)
 from engine.skeleton import (
     AZURE_KINECT,
     JOINT_SETS,
@@ -347,3 +357,58 @@ def test_transform_helpers_consistent() -> None:
     assert np.allclose(cal.transform_points(P), P @ T[:3, :3].T + T[:3, 3])
     assert np.allclose(quat_to_matrix(cal.quaternion_), T[:3, :3])
     assert np.allclose(make_transform(T[:3, :3], T[:3, 3]), T)
+
+
+def test_trunk_facing_survives_a_hidden_far_shoulder() -> None:
+    js = KINECT_V2
+    body = standing_frames(js, n=150)
+    body[:, js.index("ShoulderRight")] = np.nan  # hidden behind the body
+    ref = KsccCalibrator(frame="world", facing="trunk").fit(series(body, js))
+    U_ref = ref.transform(series(body, js)).positions
+    with pytest.raises(InputError, match="ShoulderRight is missing"):
+        kscc_calibrate(series(body, js), frame="world")
+    for yaw in (-2.5, 0.7, 3.0):
+        moved = place(body, yaw, np.array([5.0, -3.0, 0.2]))
+        cal = KsccCalibrator(frame="world", facing="trunk").fit(series(moved, js))
+        U = cal.transform(series(moved, js)).positions
+        assert np.nanmax(np.abs(U - U_ref)) < 1e-3
+        assert abs(np.degrees(np.angle(np.exp(1j * (cal.heading_ - yaw))))) < 0.1
+    # half lines only (right shoulder and right hip hidden): still the right heading
+    pose = body_pose(js)
+    pose[[js.index("ShoulderRight"), js.index("HipRight")]] = np.nan
+    left = facing_left(place(pose, 1.0, np.zeros(3)), js, "trunk")
+    assert left is not None
+    assert np.degrees(np.arctan2(left[1], left[0])) == pytest.approx(90.0 + np.degrees(1.0),
+                                                                     abs=0.1)
+    assert facing_left(pose, js, "shoulders") is None
+
+
+def test_turning_on_the_spot_restarts_collection() -> None:
+    js = KINECT_V2
+    base = body_pose(js)
+    # still for 60 frames, then a slow 60° turn at 15°/s (the centre hardly moves)
+    yaw = np.r_[np.zeros(60), np.radians(np.arange(1, 121) * 0.5)]
+    P = np.array([place(base, a, np.zeros(3)) for a in yaw])
+    cal = KsccCalibrator(frame="world")
+    seen = [cal.update(t, p) for t, p in zip(np.arange(len(P)) / FPS, P, strict=True)]
+    assert any(s.state == "moved" for s in seen[60:])
+    assert not any(s.state == "done" for s in seen)
+    assert all(s.state != "moved" for s in seen[:60])
+
+
+def test_calibration_round_trips_through_json(tmp_path: Path) -> None:
+    js = AZURE_KINECT
+    P = place(standing_frames(js, n=130), 0.4, np.array([1.0, 2.0, 0.0]))
+    M_cv = level_transform("opencv")[0][:3, :3]
+    cal = KsccCalibrator(frame="opencv", centre="roles").fit(series(P @ M_cv, js))
+    save_kscc(tmp_path / "k.json", cal)
+    back = load_kscc(tmp_path / "k.json")
+    x = np.random.default_rng(0).normal(size=(10, 3))
+    assert np.allclose(back.transform_points(x), cal.transform_points(x))
+    assert back.joint_set_ is js and back.initial_angle_ == pytest.approx(cal.initial_angle_)
+    (tmp_path / "bad.json").write_text('{"kind": "other"}')
+    with pytest.raises(InputError, match="not a KSCC"):
+        load_kscc(tmp_path / "bad.json")
+    (tmp_path / "worse.json").write_text("[1, 2")
+    with pytest.raises(InputError, match="cannot read"):
+        load_kscc(tmp_path / "worse.json")
