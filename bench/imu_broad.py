@@ -1,5 +1,8 @@
 """BROAD orientation benchmark: our Madgwick and our filter vs ``ahrs`` and ``vqf``.
 
+``ours_best_*`` is our causal filter against causal VQF (``vqf.VQF``); the offline keys
+compare our two-pass mode with ``vqf.offlineVQF``.
+
 Usage: ``python bench/imu_broad.py [PATH ...]`` — BROAD trial files (.hdf5/.mat) or
 folders of them; default ``../shared/data/imu/broad``. Prints ONE JSON line: mean over the
 trials of the BROAD error measure (9D total RMSE, 6D inclination RMSE, degrees), and
@@ -65,7 +68,8 @@ def main(argv: list[str]) -> int:
 
     res: dict[str, list[float]] = {k: [] for k in (
         "ours_madgwick_total", "ahrs_madgwick_total", "ours_best_total", "ours_best_incl",
-        "vqf_total", "vqf_incl", "madgwick_max_abs_diff_deg")}
+        "vqf_total", "vqf_incl", "madgwick_max_abs_diff_deg", "ours_offline_total",
+        "ours_offline_incl", "vqf_offline_total", "vqf_offline_incl")}
     secs = {"ours_madgwick": 0.0, "ours_best": 0.0, "ahrs": 0.0, "vqf": 0.0}
     n_total = 0
     for r in recs:
@@ -100,6 +104,17 @@ def main(argv: list[str]) -> int:
         res["ours_best_incl"].append(orientation_errors(q6[0], ref, mov)["inclination_deg"])
         res["vqf_total"].append(orientation_errors(vo["quat9D"], ref, mov)["total_deg"])
         res["vqf_incl"].append(orientation_errors(vo6["quat6D"], ref, mov)["inclination_deg"])
+        # offline (non-causal) variants, compared with VQF's own offline version
+        q9o, _, _ = orientation_filter(g, a, m, frequency=fs, offline=True)
+        q6o, _, _ = orientation_filter(g, a, None, frequency=fs, offline=True)
+        gc, ac, mc = (np.ascontiguousarray(x) for x in (g, a, m))
+        vo9o = vqf.offlineVQF(gc, ac, mc, 1.0 / fs)
+        vo6o = vqf.offlineVQF(gc, ac, None, 1.0 / fs)
+        res["ours_offline_total"].append(orientation_errors(q9o, ref, mov)["total_deg"])
+        res["ours_offline_incl"].append(orientation_errors(q6o, ref, mov)["inclination_deg"])
+        res["vqf_offline_total"].append(orientation_errors(vo9o["quat9D"], ref, mov)["total_deg"])
+        res["vqf_offline_incl"].append(
+            orientation_errors(vo6o["quat6D"], ref, mov)["inclination_deg"])
 
     sps = {k: (n_total * (2 if k in ("ours_best", "vqf") else 1)) / v for k, v in secs.items()}
     out = {
@@ -113,6 +128,10 @@ def main(argv: list[str]) -> int:
         "ours_best_incl_deg": round(float(np.mean(res["ours_best_incl"])), 3),
         "vqf_total_deg": round(float(np.mean(res["vqf_total"])), 3),
         "vqf_incl_deg": round(float(np.mean(res["vqf_incl"])), 3),
+        "ours_offline_total_deg": round(float(np.mean(res["ours_offline_total"])), 3),
+        "ours_offline_incl_deg": round(float(np.mean(res["ours_offline_incl"])), 3),
+        "vqf_offline_total_deg": round(float(np.mean(res["vqf_offline_total"])), 3),
+        "vqf_offline_incl_deg": round(float(np.mean(res["vqf_offline_incl"])), 3),
         "ours_samples_per_s": round(min(sps["ours_madgwick"], sps["ours_best"])),
         "ours_madgwick_samples_per_s": round(sps["ours_madgwick"]),
         "ours_best_samples_per_s": round(sps["ours_best"]),

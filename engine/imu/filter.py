@@ -17,6 +17,9 @@ Ideas (after Laidig & Seel 2023, "VQF", implemented independently here):
   ``rest_min_t``) averages the raw rate into the bias; during motion, the corrections
   applied by inclination (and heading) are fed back as an integral term.
 
+* ``offline=True`` (recorded data) adds a time-reversed pass and averages the two passes'
+  inclination.
+
 Output frame: ENU (x east, y north, z up), quaternions w-first, sensor-to-earth.
 """
 
@@ -30,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.signal import butter
 
 from engine.errors import InputError
+from engine.geometry import quat_conj, quat_mul, quat_normalize, quat_rotate
 from engine.imu.madgwick import as_sensor_array
 
 FloatArray = NDArray[np.float64]
@@ -306,6 +310,7 @@ def orientation_filter(
     *,
     frequency: float,
     params: FilterParams | None = None,
+    offline: bool = False,
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Estimate sensor-to-ENU orientation (9D) or inclination (6D) of whole recordings.
 
@@ -315,6 +320,10 @@ def orientation_filter(
         mag: same shape (any unit) or ``None`` for 6D; 6D heading is arbitrary.
         frequency: sampling rate, Hz.
         params: tuning; defaults suit human motion at 50-1000 Hz.
+        offline: for recorded data: also run the filter backwards in time and average the
+            two passes' inclination (each pass' low-pass lag and settling errors partly
+            cancel); heading stays the forward pass'. ``False`` gives the causal
+            (real-time equivalent) estimate.
 
     Returns:
         ``(quat, bias, rest)``: quaternions ``(T, [S,] 4)``, gyro bias ``(T, [S,] 3)``
@@ -342,9 +351,30 @@ def orientation_filter(
     use_mag = mag is not None
     qf, bias, rest = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv)
     q = qf
+    if offline:
+        # Time-reversed pass: sample k of the reversed series is reached from k-1 by the
+        # negated rate of the original later sample.
+        g_rev = np.ascontiguousarray(-np.concatenate([g[1:], g[-1:]])[::-1])
+        qb, _, _ = _filter_loop(g_rev, np.ascontiguousarray(a[::-1]),
+                                np.ascontiguousarray(m[::-1]), use_mag, dt, bb, ba, pv)
+        q = _blend_inclination(qf, qb[::-1])
     if single:
         return q[:, 0], bias[:, 0], rest[:, 0]
     return q, bias, rest
+
+
+def _blend_inclination(qf: FloatArray, qb: FloatArray, w: float = 0.5) -> FloatArray:
+    """``qf`` tilted so that its up axis (in sensor coordinates) is the weighted mean of
+    the up axes of ``qf`` and ``qb``; ``(T, S, 4)`` each, headings may differ."""
+    z = np.array([0.0, 0.0, 1.0])
+    uf = quat_rotate(quat_conj(qf), z)
+    ub = quat_rotate(quat_conj(qb), z)
+    u = w * uf + (1.0 - w) * ub
+    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    # sensor-frame rotation r taking u onto uf; then (q ⊗ r)ᵀ z = u
+    r = np.concatenate([1.0 + np.sum(u * uf, axis=-1, keepdims=True), np.cross(u, uf)],
+                       axis=-1)
+    return quat_mul(qf, quat_normalize(r))
 
 
 class OrientationFilter:
@@ -356,9 +386,11 @@ class OrientationFilter:
         rest_: rest-detection flags.
     """
 
-    def __init__(self, frequency: float, params: FilterParams | None = None) -> None:
+    def __init__(self, frequency: float, params: FilterParams | None = None,
+                 offline: bool = False) -> None:
         self.frequency = frequency
         self.params = params or FilterParams()
+        self.offline = offline
         self.quat_: FloatArray | None = None
         self.bias_: FloatArray | None = None
         self.rest_: NDArray[np.bool_] | None = None
@@ -367,7 +399,7 @@ class OrientationFilter:
             ) -> OrientationFilter:
         """Filter a recording; results go to ``quat_``, ``bias_``, ``rest_``."""
         self.quat_, self.bias_, self.rest_ = orientation_filter(
-            gyr, acc, mag, frequency=self.frequency, params=self.params)
+            gyr, acc, mag, frequency=self.frequency, params=self.params, offline=self.offline)
         return self
 
     def get_params(self) -> dict[str, float]:
