@@ -331,6 +331,39 @@ def _width_at(poly: FloatArray, x: float) -> float:
     return float(max(ys) - min(ys)) if ys else 0.0
 
 
+def _floor_polygon(A: FloatArray, b: FloatArray, centre_xy: FloatArray, half_size: float,
+                   body_height_m: float, body_radius_m: float) -> FloatArray:
+    """Floor region (K, 2) where the body cylinder satisfies all half-spaces ``A p ≤ b``.
+
+    Each end-disc constraint is linear in the floor position, so the region is the
+    intersection of half-planes: a convex polygon (empty (0, 2) when there is none).
+    """
+    cx, cy = centre_xy
+    h = half_size
+    poly = np.array([[cx - h, cy - h], [cx + h, cy - h], [cx + h, cy + h], [cx - h, cy + h]])
+    rad = body_radius_m * np.hypot(A[:, 0], A[:, 1])
+    for z in (0.0, body_height_m):
+        for a, bb, r in zip(A, b, rad, strict=True):
+            poly = _clip_polygon(poly, a[:2], bb - r - a[2] * z)
+            if len(poly) < 3:
+                return np.zeros((0, 2))
+    return _drop_collinear(poly)
+
+
+def active_area_polygon(sensor: SensorLike, body_height_m: float = 1.8,
+                        body_radius_m: float = 0.2) -> FloatArray:
+    """World floor polygon ``(K, 3)`` (z = 0, counter-clockwise) where a placed sensor
+    sees a whole standing body — the active area to draw on the floor of the 3D view.
+
+    Returns an empty ``(0, 3)`` array when there is no such spot (e.g. tilted too far).
+    """
+    s = as_sensor(sensor)
+    A, b = _frustum_halfspaces(s)
+    poly = _floor_polygon(A, b, s.T_world_sensor[:2, 3], 2.0 * s.max_range_m + 1.0,
+                          body_height_m, body_radius_m)
+    return np.column_stack([poly, np.zeros(len(poly))])
+
+
 def active_area_trapezoid(height_m: float, vfov_deg: float, hfov_deg: float,
                           min_range_m: float, max_range_m: float, body_height_m: float = 1.8,
                           tilt_deg: float = 0.0, body_radius_m: float = 0.0) -> Trapezoid:
@@ -364,19 +397,14 @@ def active_area_trapezoid(height_m: float, vfov_deg: float, hfov_deg: float,
                    hfov_deg, vfov_deg, min_range_m, max_range_m)
     A, b = _frustum_halfspaces(s)
     # body at floor point (x, y): each disc constraint is linear in (x, y)
-    big = 10.0 * max_range_m + 10.0
-    poly = np.array([[0.0, -big], [big, -big], [big, big], [0.0, big]])
-    rad = body_radius_m * np.hypot(A[:, 0], A[:, 1])
-    for z in (0.0, body_height_m):
-        for a, bb, r in zip(A, b, rad, strict=True):
-            poly = _clip_polygon(poly, a[:2], bb - r - a[2] * z)
-            if len(poly) < 3:
-                raise InputError(
-                    f"no floor spot where a {body_height_m} m body is fully visible from "
-                    f"{height_m} m height with {hfov_deg}°×{vfov_deg}° and range "
-                    f"{min_range_m}–{max_range_m} m; lower the tilt or raise the sensor"
-                )
-    poly = _drop_collinear(poly)
+    poly = _floor_polygon(A, b, np.zeros(2), 2.0 * max_range_m + 1.0, body_height_m,
+                          body_radius_m)
+    if len(poly) < 3:
+        raise InputError(
+            f"no floor spot where a {body_height_m} m body is fully visible from "
+            f"{height_m} m height with {hfov_deg}°×{vfov_deg}° and range "
+            f"{min_range_m}–{max_range_m} m; lower the tilt or raise the sensor"
+        )
     near, far = float(poly[:, 0].min()), float(poly[:, 0].max())
     return Trapezoid(near, far, _width_at(poly, near), _width_at(poly, far), poly)
 
@@ -625,9 +653,25 @@ def format_placement_table(rows: Sequence[PlacementRow]) -> str:
 
 
 __all__ = [
-    "BLIND_RGB", "SENSOR_MODELS", "CoverageMap", "CoverageModel", "Grid", "PlacementRow",
-    "SensorModel", "SensorSpec", "Trapezoid", "active_area_trapezoid", "as_sensor",
-    "avenue_rig", "coverage_image", "coverage_map", "format_placement_table",
-    "placement_table", "preset_trapezoid", "sensor_pose", "sensors_from_rig",
+    "BLIND_RGB",
+    "SENSOR_MODELS",
+    "CoverageMap",
+    "CoverageModel",
+    "Grid",
+    "PlacementRow",
+    "SensorModel",
+    "SensorSpec",
+    "Trapezoid",
+    "active_area_polygon",
+    "active_area_trapezoid",
+    "as_sensor",
+    "avenue_rig",
+    "coverage_image",
+    "coverage_map",
+    "format_placement_table",
+    "placement_table",
+    "preset_trapezoid",
+    "sensor_pose",
+    "sensors_from_rig",
 ]
 

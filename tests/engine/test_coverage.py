@@ -13,6 +13,7 @@ from engine.coverage import (
     CoverageModel,
     Grid,
     SensorSpec,
+    active_area_polygon,
     active_area_trapezoid,
     avenue_rig,
     coverage_image,
@@ -231,3 +232,27 @@ def test_sensors_from_rig_duck_typed() -> None:
     assert s.id == "S9" and s.hfov_deg == 70.6 and np.array_equal(s.T_world_sensor, T)
     with pytest.raises(InputError, match="no sensors"):
         sensors_from_rig(SimpleNamespace())
+
+
+def test_active_area_polygon_matches_coverage_cells() -> None:
+    T = sensor_pose((2.0, -1.0, 1.1), 40.0, -6.0)
+    s = SensorSpec.from_model("k", T, "kinect_v2")
+    poly = active_area_polygon(s, body_height_m=1.75, body_radius_m=0.15)
+    assert poly.shape[1] == 3 and len(poly) >= 4 and np.allclose(poly[:, 2], 0.0)
+    grid = Grid(-2.0, 8.0, -4.0, 6.0, 0.1)
+    cm = coverage_map([s], grid, body_height_m=1.75, body_radius_m=0.15)
+    x, y = grid.centres()
+    X, Y = np.meshgrid(x, y)
+    # signed distance to each edge of the counter-clockwise polygon (> 0 inside)
+    P = poly[:, :2]
+    E = np.roll(P, -1, axis=0) - P
+    L = np.hypot(E[:, 0], E[:, 1])
+    cross = (E[:, 0, None, None] * (Y - P[:, 1, None, None])
+             - E[:, 1, None, None] * (X - P[:, 0, None, None])) / L[:, None, None]
+    inside = (cross.min(axis=0) > 1e-9)
+    border = np.abs(cross).min(axis=0) < 1e-6
+    assert np.array_equal(inside[~border], (cm.counts == 1)[~border])
+    assert inside.sum() > 100
+    # tilted so far down that the head never fits: empty
+    steep = SensorSpec.from_model("s", sensor_pose((0.0, 0.0, 1.0), 0.0, -45.0), "kinect_v2")
+    assert active_area_polygon(steep).shape == (0, 3)
