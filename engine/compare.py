@@ -62,7 +62,11 @@ def _usable(s: SkeletonSeries) -> FloatArray:
     return p
 
 
-def frame_costs(a: ArrayLike, b: ArrayLike, block: int = 64) -> FloatArray:
+#: Largest DTW problem (N·M cells, ≈ 200 MB of float64 for the accumulated cost).
+MAX_DTW_CELLS = 25_000_000
+
+
+def frame_costs(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """``(N, M)`` mean joint distance between every frame of ``a`` (N, J, 3) and ``b``.
 
     Joints missing (NaN) in either frame are left out of that pair's mean; a pair with
@@ -72,8 +76,13 @@ def frame_costs(a: ArrayLike, b: ArrayLike, block: int = 64) -> FloatArray:
     B = np.asarray(b, dtype=float)
     if A.ndim != 3 or B.ndim != 3 or A.shape[1:] != B.shape[1:] or A.shape[2] != 3:
         raise InputError(f"frames must be (N, J, 3) and (M, J, 3), got {A.shape}, {B.shape}")
+    if A.shape[0] * B.shape[0] > MAX_DTW_CELLS:
+        raise InputError(f"motions of {A.shape[0]} and {B.shape[0]} frames are too long to "
+                         "align at once; cut them into repetitions or downsample")
     out = np.empty((A.shape[0], B.shape[0]))
-    for i in range(0, A.shape[0], block):  # blocks bound the (n, M, J, 3) temporary
+    # blocks bound the (n, M, J, 3) temporary to about 1e6 × 3 floats
+    block = max(1, 1_000_000 // max(1, B.shape[0] * A.shape[1]))
+    for i in range(0, A.shape[0], block):
         d = np.linalg.norm(A[i:i + block, None] - B[None], axis=-1)
         ok = np.isfinite(d)
         n = ok.sum(-1)
@@ -138,6 +147,9 @@ def dtw(cost: ArrayLike, band: float = 0.2) -> DtwResult:
     if np.any(C < 0) or np.isnan(C).any():
         raise InputError("DTW costs must be non-negative numbers")
     n, m = C.shape
+    if n * m > MAX_DTW_CELLS:
+        raise InputError(f"a {n}×{m} DTW problem is too large; cut the motions into "
+                         "repetitions or downsample them")
     w = band if band >= 1 else band * max(n, m)
     slope = max((m - 1) / (n - 1) if n > 1 else m, (n - 1) / (m - 1) if m > 1 else n)
     w = int(np.ceil(max(w, slope, 1.0)))
@@ -258,16 +270,16 @@ def joint_distances(a: SkeletonSeries, b: SkeletonSeries, *, by_role: bool = Fal
         raise InsufficientDataError("the second stream has no frames")
     A = _usable(a)[:, ia]
     B = _usable(b)[:, ib]
-    k = np.clip(np.searchsorted(b.times, a.times), 1, max(len(b) - 1, 1)) if len(b) > 1 else \
-        np.zeros(len(a), dtype=np.int64)
-    if len(b) > 1:
-        k = np.where(np.abs(b.times[k - 1] - a.times) <= np.abs(b.times[k] - a.times), k - 1, k)
+    # nearest frame of b for each frame of a
+    hi = np.clip(np.searchsorted(b.times, a.times), 0, len(b) - 1)
+    lo = np.clip(hi - 1, 0, len(b) - 1)
+    k = np.where(np.abs(b.times[lo] - a.times) <= np.abs(b.times[hi] - a.times), lo, hi)
     d = np.linalg.norm(A - B[k], axis=-1)
     d[np.abs(b.times[k] - a.times) > max_gap_s] = np.nan
     return a.times.copy(), names, d
 
 
 __all__ = [
-    "ComparisonResult", "DtwResult", "common_joints", "compare_motions", "dtw",
+    "MAX_DTW_CELLS", "ComparisonResult", "DtwResult", "common_joints", "compare_motions", "dtw",
     "frame_costs", "joint_distances", "similarity_score",
 ]

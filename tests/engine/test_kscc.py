@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine.compare import common_joints, compare_motions, dtw, frame_costs
+from engine.compare import common_joints, compare_motions, dtw, frame_costs, joint_distances
 from engine.errors import InputError, InsufficientDataError
 from engine.geometry import make_transform, quat_from_axis_angle, quat_to_matrix
 from engine.kscc import (
@@ -412,3 +412,22 @@ def test_calibration_round_trips_through_json(tmp_path: Path) -> None:
     (tmp_path / "worse.json").write_text("[1, 2")
     with pytest.raises(InputError, match="cannot read"):
         load_kscc(tmp_path / "worse.json")
+
+
+def test_joint_distances_pair_frames_by_time() -> None:
+    js = KINECT_V2
+    P = standing_frames(js, n=40)
+    a = series(P, js)
+    # the second site's clock is 10 ms late, its frames 2 cm to the left, one frame lost
+    Q = P + np.array([0.0, 0.02, 0.0])
+    b = SkeletonSeries(np.delete(np.arange(40) / FPS + 0.010, 20), np.delete(Q, 20, 0),
+                       np.full((39, 25), TrackingState.TRACKED, np.uint8), js)
+    t, names, d = joint_distances(a, b, max_gap_s=0.02)
+    assert names == list(js.joints) and d.shape == (40, 25) and np.array_equal(t, a.times)
+    good = np.asarray(np.isfinite(d).all(axis=1))
+    assert good.sum() == 39 and not good[20]  # the lost frame's neighbours are > 20 ms away
+    assert np.allclose(d[good], 0.02, atol=2e-3)
+    with pytest.raises(InputError, match="different joint sets"):
+        joint_distances(a, series(standing_frames(AZURE_KINECT, n=5), AZURE_KINECT))
+    with pytest.raises(InputError, match="too large"):
+        dtw(np.zeros((6000, 6000), dtype=np.float32), band=0.1)
