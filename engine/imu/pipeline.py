@@ -108,6 +108,7 @@ def process_imu_session(
     use_magnetometer: bool = True,
     params: FilterParams | None = None,
     up: ArrayLike = (0.0, 0.0, 1.0),
+    offline: bool = True,
 ) -> ImuSessionResult:
     """Fuse IMU recordings with a depth skeleton (seed 002 end to end).
 
@@ -123,6 +124,7 @@ def process_imu_session(
         use_magnetometer: 9D fusion when every recording has a magnetometer.
         params: filter tuning.
         up: world up direction for the skeleton's jump detection.
+        offline: use the filter's two-pass (non-causal) mode — the session is recorded.
 
     Raises:
         InputError: unknown sensor names or missing chest sensor.
@@ -151,7 +153,7 @@ def process_imu_session(
     rest: dict[str, FloatArray] = {}
     for n, r in recs.items():
         q, _, rs = orientation_filter(r.gyr, r.acc, r.mag if nine_d else None,
-                                      frequency=r.frequency, params=params)
+                                      frequency=r.frequency, params=params, offline=offline)
         ori[n] = interp_quat(r.time, q, grid)
         rest[n] = np.interp(grid, r.time, rs.astype(float)) > 0.5
     if plank_time is None:

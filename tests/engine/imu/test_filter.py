@@ -101,3 +101,17 @@ def test_filter_errors_and_params() -> None:
     with pytest.raises(InputError, match="frequency"):
         orientation_filter(g, g, frequency=-1.0)
     assert OrientationFilter(100.0, FilterParams(tau_acc=2.0)).get_params()["tau_acc"] == 2.0
+
+
+def test_missing_samples_are_bridged() -> None:
+    t, poses = _tumbling(30.0)
+    rec = simulate_imu(t, poses, rng=8)
+    g, a, m = rec.gyr.copy(), rec.acc.copy(), rec.mag.copy()
+    assert m is not None
+    g[3000:3003] = np.nan
+    a[4000:4100] = np.nan
+    m[5000:5400] = np.nan
+    q, _, _ = orientation_filter(g, a, m, frequency=FS)
+    assert np.all(np.isfinite(q))
+    e = orientation_errors(q, rec.quat_ref, t > 10)
+    assert e["total_deg"] < 3.0
