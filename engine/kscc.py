@@ -38,9 +38,8 @@ line, averaged over the speed window, is within ``max_turn_deg`` (20°) of its c
 mean (turning on the spot; checked while both shoulders are visible). The joints of the
 facing method (:func:`facing_left`; for the paper's, both shoulders) must be present (not
 NaN, not NOT_TRACKED), and at least half the joints. A moving or lost user restarts the
-collection. Tuned so that
-the simulated Kinect v2 skeleton (``engine.sim.skeleton_model``: ≈ 3 cm slowly varying
-joint error) standing still at 2.5 m is collected without restarts.
+collection. Tuned so that the simulated Kinect v2 skeleton (``engine.sim.skeleton_model``:
+≈ 3 cm slowly varying joint error) standing still at 2.5 m is collected without restarts.
 """
 
 from __future__ import annotations
@@ -102,6 +101,12 @@ class KsccProgress:
     @property
     def fraction(self) -> float:
         return self.n_collected / self.n_required
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form for a live UI."""
+        return {"state": self.state, "n_collected": self.n_collected,
+                "n_required": self.n_required, "fraction": self.fraction,
+                "message": self.message}
 
 
 def level_transform(frame: str | ArrayLike = "kinect", T_world_sensor: ArrayLike | None = None
