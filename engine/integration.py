@@ -14,12 +14,16 @@ sensors", plus our estimator):
 
    * ``"mean"`` — the paper's equal-weight mean of the tracked estimates;
    * ``"weighted"`` — ours: each sensor is weighted by how squarely it sees the joint's
-     side of the body (the cosine between the joint→sensor line of sight and the
-     outward normal of that body side, from the fused hip/shoulder axes: left joints are
-     best seen by sensors on the subject's left, which do not look through the body),
-     by the inverse square of its distance (depth noise grows with distance), and by a
-     Tukey biweight of its residual from the current estimate (iteratively reweighted,
-     so a sensor that mislabels or misplaces a joint is rejected).
+     side of the body, ``(1 + cos θ) / 2`` with θ the angle between the joint→sensor
+     line of sight and the outward normal of that body side (from the fused hip and
+     shoulder axes): 1 for a sensor facing that side squarely, ½ side-on, 0 from the
+     opposite side (plus a small floor), so left joints are mostly taken from sensors on
+     the subject's left, which do not look through the body, while the far view still
+     averages noise down; midline joints are not angle-weighted. Each sensor is further
+     weighted by the inverse square of its distance (joint noise grows ~linearly with
+     range), and by a Tukey biweight of its residual from the current estimate
+     (iteratively reweighted from the per-coordinate median, so a sensor that swaps or
+     misplaces a joint is rejected).
 4. Fused gaps up to ``max_gap_s`` are interpolated (reported), then each trajectory is
    low-pass filtered with a zero-phase 4th-order Butterworth (``filtfilt``) at 6 Hz by
    default: walking kinematics have their power below ~6 Hz (Winter, *Biomechanics and
@@ -45,8 +49,8 @@ from engine.skeleton import JointSet, SkeletonSeries, TrackingState
 FloatArray = NDArray[np.float64]
 Estimator = Literal["mean", "weighted"]
 
-#: Weight of a sensor seeing a joint's side from behind (cosine ≤ 0): small but non-zero
-#: so that a joint seen only from the wrong side still gets an estimate.
+#: Added to every side weight so that a joint seen only from the opposite side still
+#: gets an estimate.
 ANGLE_WEIGHT_FLOOR = 0.05
 #: Distance (m) at which the distance weight is 1.
 REF_DISTANCE_M = 2.5
@@ -230,7 +234,7 @@ def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float
     los = to_sensor / np.maximum(dist, 1e-9)[..., None]
     normal = sides[None, :, None] * lat[:, None, :]  # (G, J, 3) outward side normal
     cos = np.einsum("sgjk,gjk->sgj", los, np.nan_to_num(normal))
-    w_angle = np.where(sides[None, None, :] != 0, ANGLE_WEIGHT_FLOOR + np.clip(cos, 0.0, None),
+    w_angle = np.where(sides[None, None, :] != 0, ANGLE_WEIGHT_FLOOR + 0.5 * (1.0 + cos),
                        1.0)
     w_angle = np.where(np.isfinite(lat[None, :, :1].repeat(len(sides), axis=2)), w_angle, 1.0)
     w_base = w_angle * (REF_DISTANCE_M / np.maximum(dist, 0.3)) ** 2

@@ -165,14 +165,15 @@ def avenue_poses() -> list[tuple[str, FloatArray]]:
 
 def observe(truth: FloatArray, times_true: FloatArray, T_world_sensor: FloatArray,
             rng: np.random.Generator, noise_m: float = 0.01, occluded_bias_m: float = 0.0,
+            near_bias_m: float = 0.0,
             clock_offset_s: float = 0.0, clock_drift_ppm: float = 0.0,
             drop: tuple[float, float] | None = None, max_range_m: float = 4.5,
             inferred_frac: float = 0.0) -> SkeletonSeries:
     """One sensor's view of a world skeleton: sensor frame, local clock.
 
-    Joints on the body side facing away from the sensor are shifted by
-    ``occluded_bias_m`` toward the sensor's side (the Kinect self-occlusion bias the
-    seed paper shows in its Fig. 5B); ``drop`` blanks a true-time interval; joints
+    Joints are pulled toward the sensor's side (the seed paper's Fig. 5B: each sensor's
+    joints lie closer to the surface it sees): by ``occluded_bias_m`` on the body half
+    facing away from the sensor, by ``near_bias_m`` on the half facing it; ``drop`` blanks a true-time interval; joints
     beyond ``max_range_m`` are NOT_TRACKED; a random fraction is INFERRED.
     """
     c = T_world_sensor[:3, 3]
@@ -191,7 +192,8 @@ def observe(truth: FloatArray, times_true: FloatArray, T_world_sensor: FloatArra
     occl = cos < 0
     # The sensor's side of the body, as a unit lateral vector.
     sensor_side = np.sign(np.einsum("tk,tk->t", c - pel, lat))[:, None] * lat
-    obs = truth + np.where(occl[..., None], occluded_bias_m * sensor_side[:, None, :], 0.0)
+    pull = np.where(occl, occluded_bias_m, np.where(sides[None] != 0, near_bias_m, 0.0))
+    obs = truth + pull[..., None] * sensor_side[:, None, :]
     obs = obs + rng.normal(0.0, noise_m, obs.shape)
     states = np.full((T, J), TrackingState.TRACKED, dtype=np.uint8)
     dist = np.linalg.norm(c - pel, axis=1)
@@ -217,7 +219,8 @@ def sample_truth(w: SynthWalk, truth: FloatArray, times: FloatArray) -> FloatArr
 
 
 def six_sensor_streams(w: SynthWalk, rng: np.random.Generator, noise_m: float = 0.01,
-                       occluded_bias_m: float = 0.04, clocks: bool = True,
+                       occluded_bias_m: float = 0.04, near_bias_m: float = 0.0,
+                       clocks: bool = True,
                        inferred_frac: float = 0.05,
                        drop: tuple[float, float] | None = None) -> list:  # list[SensorStream]
     """Six avenue sensors observing the walk at ~30 Hz (jittered) on their own clocks."""
@@ -233,7 +236,8 @@ def six_sensor_streams(w: SynthWalk, rng: np.random.Generator, noise_m: float = 
             np.full(n, 1 / 30) * (1 + 0.05 * rng.standard_normal(n)))
         tt = tt[tt < w.times[-1]]
         s = observe(sample_truth(w, truth, tt), tt, T, rng, noise_m=noise_m,
-                    occluded_bias_m=occluded_bias_m, clock_offset_s=off,
+                    occluded_bias_m=occluded_bias_m, near_bias_m=near_bias_m,
+                    clock_offset_s=off,
                     clock_drift_ppm=drift, inferred_frac=inferred_frac, drop=drop)
         streams.append(SensorStream(s, T, off, drift, sid))
     return streams
