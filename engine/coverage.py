@@ -557,6 +557,27 @@ class CoverageModel:
         self._side[i] = self._sides(s.T_world_sensor[None, :3, 3])[0]
         return self.map()
 
+    def add_sensor(self, sensor: SensorLike) -> CoverageMap:
+        """Add a tripod (planning mode) and return the updated map."""
+        s = as_sensor(sensor)
+        if any(o.id == s.id for o in self.sensors):
+            raise InputError(f"a sensor {s.id!r} is already in the coverage model")
+        A, b = _frustum_halfspaces(s)
+        vis = _visible_layers(A[None], b[None], self._X, self._Y, self.body_height_m,
+                              self.body_radius_m)
+        self.sensors.append(s)
+        self._vis = np.concatenate([self._vis, vis])
+        self._side = np.concatenate([self._side, self._sides(s.T_world_sensor[None, :3, 3])])
+        return self.map()
+
+    def remove_sensor(self, sensor_id: str) -> CoverageMap:
+        """Remove a tripod and return the updated map."""
+        i = self.index(sensor_id)
+        del self.sensors[i]
+        self._vis = np.delete(self._vis, i, axis=0)
+        self._side = np.delete(self._side, i, axis=0)
+        return self.map()
+
     def map(self) -> CoverageMap:
         """Aggregate the per-sensor layers into a :class:`CoverageMap`."""
         counts = self._vis.sum(axis=0, dtype=np.int64)

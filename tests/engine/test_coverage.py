@@ -256,3 +256,20 @@ def test_active_area_polygon_matches_coverage_cells() -> None:
     # tilted so far down that the head never fits: empty
     steep = SensorSpec.from_model("s", sensor_pose((0.0, 0.0, 1.0), 0.0, -45.0), "kinect_v2")
     assert active_area_polygon(steep).shape == (0, 3)
+
+
+def test_add_and_remove_sensors_in_planning_mode() -> None:
+    rig = avenue_rig()
+    grid = Grid(-3.0, 7.0, -2.0, 2.0, 0.1)
+    model = CoverageModel(rig[:4], grid)
+    added = model.add_sensor(rig[4])
+    assert added.sensor_ids == ("S1", "S2", "S3", "S4", "S5")
+    assert np.array_equal(added.counts, coverage_map(rig[:5], grid).counts)
+    with pytest.raises(InputError, match="already"):
+        model.add_sensor(rig[4])
+    removed = model.remove_sensor("S2")
+    expected = coverage_map([s for s in rig[:5] if s.id != "S2"], grid)
+    assert np.array_equal(removed.counts, expected.counts)
+    assert np.array_equal(removed.two_sided, expected.two_sided)
+    empty = CoverageModel([], grid).map()
+    assert empty.blind.all() and not empty.two_sided.any()
