@@ -173,8 +173,9 @@ def observe(truth: FloatArray, times_true: FloatArray, T_world_sensor: FloatArra
 
     Joints are pulled toward the sensor's side (the seed paper's Fig. 5B: each sensor's
     joints lie closer to the surface it sees): by ``occluded_bias_m`` on the body half
-    facing away from the sensor, by ``near_bias_m`` on the half facing it; ``drop`` blanks a true-time interval; joints
-    beyond ``max_range_m`` are NOT_TRACKED; a random fraction is INFERRED.
+    facing away from the sensor, by ``near_bias_m`` on the half facing it. ``drop``
+    blanks a true-time interval; joints beyond ``max_range_m`` are NOT_TRACKED; a random
+    fraction is INFERRED.
     """
     c = T_world_sensor[:3, 3]
     T, J = truth.shape[:2]
