@@ -4,7 +4,10 @@ Six Kinect v2 sensors in the seed-000 avenue, a 5 cm grid over a 10 × 4 m floor
 the incremental update after one sensor moves (what the planning UI calls per drag
 event), a full recomputation, and a peer in the same run: the straightforward method that
 projects sampled feet-to-head cylinder points (9 heights × 16 around) of every cell into
-every sensor. Prints one JSON line.
+every sensor. Also cross-checks the map against the simulated lab
+(``engine.sim.rig.default_avenue_rig``): for a standing walker's 25 joints placed at every
+cell, the sim's own pixel-based view test (``SimSensor.in_depth_view``) must agree with
+the map's whole-body test. Prints one JSON line.
 """
 
 from __future__ import annotations
@@ -38,6 +41,36 @@ def _sampled_peer(sensors: list, grid: Grid, H: float, r: float) -> np.ndarray:
               & (zc >= s.min_range_m) & (zc <= s.max_range_m))
         counts += ok.all(axis=-1)
     return counts
+
+
+def _sim_agreement() -> dict[str, float]:
+    """Map vs the simulator's per-joint view test, over all sensors and cells."""
+    from engine.coverage import sensors_from_rig
+    from engine.sim.rig import default_avenue_rig
+    from engine.sim.walker import Walker, WalkerParams
+
+    rig = default_avenue_rig(seed=None)
+    grid = Grid(-3.0, 7.0, -2.0, 2.0, 0.1)
+    walker = Walker(WalkerParams(), [0.0, 0.0, 0.0], [10.0, 0.0, 0.0], start_time=0.0,
+                    back_and_forth=False, horizon_s=1.0)
+    J = walker.joints(np.array([0.0]))[0]  # standing at the start, facing +X
+    J[:, :2] -= J[0, :2]
+    # the cylinder that holds this body: its joints' reach around the spine base
+    r = float(np.hypot(J[:, 0], J[:, 1]).max())
+    cm = coverage_map(sensors_from_rig(rig), grid, body_height_m=1.8, body_radius_m=r)
+    x, y = grid.centres()
+    X, Y = np.meshgrid(x, y)
+    P = J[None, None] + np.stack([X, Y, np.zeros_like(X)], -1)[:, :, None, :]
+    map_only = sim_only = same = 0
+    for i, s in enumerate(rig.sensors):
+        sim = s.in_depth_view(P.reshape(-1, 3)).reshape(P.shape[:3]).all(-1)
+        pred = cm.visible[i]
+        map_only += int((pred & ~sim).sum())
+        sim_only += int((sim & ~pred).sum())
+        same += int((pred == sim).sum())
+    n = len(rig.sensors) * X.size
+    return {"sim_agreement": round(same / n, 4), "sim_map_only_cells": map_only,
+            "sim_joints_only_cells": sim_only, "sim_body_radius_m": round(r, 3)}
 
 
 def _best(f, n: int) -> float:  # type: ignore[no-untyped-def]
@@ -78,6 +111,7 @@ def main() -> None:
         "cells_disagreeing_with_peer": int((exact.counts != peer).sum()),
         "two_sided_fraction": round(exact.fraction(exact.two_sided), 3),
         "blind_fraction": round(exact.fraction(exact.blind), 3),
+        **_sim_agreement(),
     }))
 
 
