@@ -138,6 +138,22 @@ def test_node_health_malformed_messages_and_recording(client: TestClient) -> Non
     assert not node["connected"] and node["warnings"]
 
 
+def test_skeleton_with_missing_joints_is_valid_json(client: TestClient) -> None:
+    h = _login(client)
+    pos = np.zeros((1, 25, 3), np.float32)
+    pos[0, 3] = np.nan  # a joint without an estimate
+    with client.websocket_connect("/ws/node") as ws:
+        ws.send_text(dump(Hello(node_id="S4", token=TOKEN, agent_started=2.0)))
+        assert json.loads(ws.receive_text())["type"] == "welcome"
+        _recv_until(ws, "ping")
+        ws.send_bytes(encode_skeletons(1, time.time(), pos, np.full((1, 25), 2)))
+        _recv_until(ws, "ping")
+        r = client.get("/api/nodes/S4/skeleton", headers=h)
+    assert r.status_code == 200
+    sk = r.json()
+    assert sk["positions"][0][3] == [None, None, None] and sk["positions"][0][0] == [0, 0, 0]
+
+
 def test_start_without_nodes_is_a_clear_409(client: TestClient) -> None:
     r = client.post("/api/recordings", json={}, headers=_login(client))
     assert r.status_code == 409 and "no connected node" in r.json()["detail"]

@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from app.nodes.backends.sim import SimBackend, world_time
+from app.nodes.protocol import decode_skeletons
+from app.nodes.store import NodeStore
 from tests.integration.conftest import Rig, wait_for
 
 pytestmark = pytest.mark.slow
@@ -64,6 +66,14 @@ def test_images_reconnect_and_replay(make_rig: object) -> None:
     part = rig.node_dir("S2") / "recordings" / rec["id"]
     rig.start_node("R1", "--backend", "replay", "--recording", str(part), "--loop")
     ns = rig.wait_online(["R1"])
-    wait_for(lambda: rig.nodes()["R1"]["fps"] > 20, 10, "replay at the recorded rate")
+    store = NodeStore(rig.node_dir("S2") / "recordings")
+    recorded = [decode_skeletons(h, p) for h, p in store.read(rec["id"])]
+    ts = [h["t"] for h, _ in store.read(rec["id"])]
+    rate = (len(ts) - 1) / (ts[-1] - ts[0])
+    wait_for(lambda: abs(rig.nodes()["R1"]["fps"] / rate - 1) < 0.1, 10,
+             f"replay at the recorded rate {rate:.1f} Hz")
     sk = rig.api("/api/nodes/R1/skeleton")
-    assert sk["t"] is not None and np.asarray(sk["states"]).ndim == 2
+    assert sk["t"] is not None
+    pos = np.asarray(sk["positions"], dtype=np.float32).reshape(-1, 25, 3)
+    assert any(p.shape == pos.shape and np.array_equal(p, pos, equal_nan=True)
+               for p, _ in recorded), "the replayed frame is not one of the recorded frames"

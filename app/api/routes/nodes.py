@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
+import numpy as np
 from fastapi import APIRouter, HTTPException, Response, status
 from pydantic import BaseModel, Field
 
@@ -85,8 +86,11 @@ async def get_skeleton(node_id: str, user: CurrentUser, hub: HubDep) -> dict[str
     sk = _node(hub, node_id).skeleton
     if sk is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"node {node_id} sent no skeleton yet")
+    # JSON has no NaN: joints without an estimate become null
+    pos = np.where(np.isfinite(sk.positions), sk.positions, np.nan).astype(object)
+    pos[~np.isfinite(sk.positions)] = None
     return {"seq": sk.seq, "t": sk.t_server, "t_local": sk.t_local, "body_ids": sk.body_ids,
-            "positions": sk.positions.tolist(), "states": sk.states.tolist()}
+            "positions": pos.tolist(), "states": sk.states.tolist()}
 
 
 @router.post("/{node_id}/subscribe", status_code=202)
