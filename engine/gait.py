@@ -29,7 +29,7 @@ from scipy.ndimage import uniform_filter1d
 from scipy.signal import find_peaks
 
 from engine.errors import InputError, InsufficientDataError
-from engine.io.markers import MarkerTrajectories
+from engine.io.markers import MarkerEvent, MarkerTrajectories
 from engine.mocap import FeetTrajectories, feet_from_markers, feet_from_skeleton
 from engine.skeleton import SkeletonSeries
 
@@ -537,6 +537,12 @@ class GaitAnalysis:
             "strides": [strip(asdict(s)) for s in self.strides_],
             "summary": self.summary_,
         })
+
+    def marker_events(self) -> list[MarkerEvent]:
+        """Detected events in the form the C3D/TRC writers take (``EVENT`` group)."""
+        labels = {"foot_strike": "Foot Strike", "foot_off": "Foot Off",
+                  "placement": "Foot Placement"}
+        return [MarkerEvent(e.time_s, e.side, e.kind, labels[e.kind]) for e in self.events_]
 
     def to_json(self, indent: int | None = None) -> str:
         """:meth:`to_dict` serialised as one JSON object."""

@@ -41,7 +41,8 @@ class MarkerEvent:
     Attributes:
         time_s: seconds on the file's time axis.
         side: ``"L"``, ``"R"`` or ``""`` (general / unknown).
-        kind: ``"foot_strike"``, ``"foot_off"`` or the file's label lower-cased.
+        kind: ``"foot_strike"``, ``"foot_off"``, ``"placement"`` or the file's label
+            lower-cased.
         label: the label as written in the file.
     """
 
@@ -60,6 +61,8 @@ def normalise_event(label: str, context: str, time_s: float) -> MarkerEvent:
         kind = "foot_strike"
     elif key in ("footoff", "toeoff", "finalcontact", "fo", "to"):
         kind = "foot_off"
+    elif key in ("footplacement", "placement"):
+        kind = "placement"
     else:
         kind = label.strip().lower().replace(" ", "_")
     return MarkerEvent(float(time_s), side, kind, label)

@@ -187,3 +187,13 @@ def test_y_up_trc_in_mm_without_units_gives_same_gait(tmp_path: Path) -> None:
 def load_feet_from(m: MarkerTrajectories, path: Path):  # type: ignore[no-untyped-def]
     write_trc(path, m)
     return load_feet(path)
+
+
+def test_skeleton_c3d_with_detected_gait_events(tmp_path: Path) -> None:
+    s = _skeleton(np.random.default_rng(2))
+    g = GaitAnalysis("crossing").fit(s.slice_time(s.times[0], s.times[-1]))
+    write_skeleton_c3d(tmp_path / "g.c3d", s, g.marker_events())
+    r = read_c3d(tmp_path / "g.c3d")
+    assert [(e.side, e.kind) for e in r.events] == [(e.side, e.kind) for e in g.events_]
+    np.testing.assert_allclose([e.time_s for e in r.events], [e.time_s for e in g.events_],
+                               atol=1e-5)
