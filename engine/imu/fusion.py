@@ -188,7 +188,8 @@ def select_reference_frame(
 
     Args:
         skeleton: the depth skeleton.
-        roles: joint roles that must be stable (default: every joint the fusion uses).
+        roles: joint roles that must be stable (default: the end points of the sensor
+            bones and the hips).
         window: window length, s.
         t_min, t_max: restrict the search to this time range (e.g. the IMU recording).
 
@@ -196,7 +197,9 @@ def select_reference_frame(
         InsufficientDataError: no window with all needed joints tracked.
     """
     js = skeleton.joint_set
-    rl = roles or tuple({r for s in PAPER_SENSORS for r in (*PAPER_SENSORS[s], *_CARRIED[s])})
+    # the bone end points must be tracked; hands, feet and head are often only inferred
+    rl = roles or tuple(sorted({r for s in PAPER_SENSORS for r in PAPER_SENSORS[s]}
+                               | {"pelvis", "hip_left", "hip_right"}))
     idx = [js.role_index(r) for r in rl]
     P = skeleton.tracked_positions()[:, idx, :]
     t = skeleton.times
