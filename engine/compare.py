@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from engine.errors import InputError, InsufficientDataError
+from engine.kscc import check_metres
 from engine.skeleton import JointSet, SkeletonSeries, TrackingState
 
 FloatArray = NDArray[np.float64]
@@ -243,6 +244,8 @@ def compare_motions(a: SkeletonSeries, b: SkeletonSeries, *, by_role: bool = Fal
         raise InsufficientDataError("both motions need at least one frame")
     A = _usable(a)[:, ia]
     B = _usable(b)[:, ib]
+    for P in (A, B):
+        check_metres(P[len(P) // 2])
     if align:
         path = dtw(frame_costs(A, B), band).path
     else:

@@ -205,6 +205,25 @@ def facing_left(pose: ArrayLike, joint_set: JointSet, mode: FacingMode = "should
     return unit(np.sum(lines, axis=0), 1e-9)
 
 
+#: A skeleton wider or taller than this is not in metres (Azure Kinect writes millimetres).
+MAX_BODY_EXTENT_M = 4.0
+
+
+def check_metres(pose: ArrayLike) -> None:
+    """Raise when a skeleton frame (J, 3) is clearly not in metres.
+
+    Raises:
+        InputError: the joints span more than ``MAX_BODY_EXTENT_M``.
+    """
+    P = np.asarray(pose, dtype=float)
+    P = P[np.isfinite(P).all(axis=-1)]
+    if len(P) >= 2 and float(np.max(P.max(axis=0) - P.min(axis=0))) > MAX_BODY_EXTENT_M:
+        raise InputError(
+            f"the skeleton spans more than {MAX_BODY_EXTENT_M:g} m; positions must be in "
+            "metres (Azure Kinect Body Tracking writes millimetres: divide by 1000)"
+        )
+
+
 class StillnessCollector:
     """Streaming collection of consecutive still frames (see the module docstring).
 
@@ -290,6 +309,7 @@ class StillnessCollector:
         ref = next((h for h in reversed(self._hist) if t - h[0] >= self.speed_window_s),
                    self._hist[0] if self._hist else None)
         self._hist.append((t, p))
+        check_metres(p)
         valid = np.isfinite(p).all(axis=1)
         face = facing_left(p, self.joint_set, self.facing)
         if face is None or valid.sum() < len(valid) / 2:
@@ -631,7 +651,18 @@ def kscc_calibrate(series: SkeletonSeries, **kwargs: object) -> KsccCalibrator:
 
 
 __all__ = [
-    "CENTRE_ROLES", "N_STILL_FRAMES", "FacingMode", "KsccCalibrator", "KsccProgress",
-    "StillnessCollector", "facing_left", "find_still_window", "kscc_calibrate", "level_transform",
-    "load_kscc", "save_kscc",
+    "CENTRE_ROLES",
+    "MAX_BODY_EXTENT_M",
+    "N_STILL_FRAMES",
+    "FacingMode",
+    "KsccCalibrator",
+    "KsccProgress",
+    "StillnessCollector",
+    "check_metres",
+    "facing_left",
+    "find_still_window",
+    "kscc_calibrate",
+    "level_transform",
+    "load_kscc",
+    "save_kscc",
 ]

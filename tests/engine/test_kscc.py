@@ -431,3 +431,14 @@ def test_joint_distances_pair_frames_by_time() -> None:
         joint_distances(a, series(standing_frames(AZURE_KINECT, n=5), AZURE_KINECT))
     with pytest.raises(InputError, match="too large"):
         dtw(np.zeros((6000, 6000), dtype=np.float32), band=0.1)
+
+
+def test_millimetre_skeletons_are_rejected() -> None:
+    js = AZURE_KINECT
+    P_mm = 1000.0 * standing_frames(js, n=150)
+    with pytest.raises(InputError, match="millimetres"):
+        kscc_calibrate(series(P_mm, js), frame="opencv")
+    with pytest.raises(InputError, match="millimetres"):
+        compare_motions(series(P_mm[:20], js), series(P_mm[:20], js))
+    cal = kscc_calibrate(series(P_mm / 1000.0, js), frame="world")  # metres are fine
+    assert cal.joint_set_ is js
