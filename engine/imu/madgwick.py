@@ -1,7 +1,8 @@
 """Madgwick's gradient-descent orientation filter (IMU 6D and MARG 9D variants).
 
 Implements S. O. H. Madgwick, "An efficient orientation filter for inertial and
-inertial/magnetic sensor arrays" (2010), eqs. (12), (13), (25)-(34), (45)-(46), the filter
+inertial/magnetic sensor arrays" (2010), eqs. (12), (13), (25)-(34), (45)-(46) and the
+optional gyroscope bias drift compensation (47)-(49) (gain ζ, off by default), the filter
 used by the IMU-fusion seed paper (002). The update order and initial-state handling match
 ``ahrs.filters.Madgwick`` so that both produce the same quaternions for the same input.
 
@@ -112,7 +113,7 @@ def initial_orientation(
 @njit(cache=True, fastmath=False)
 def _madgwick_loop(
     gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, q0: FloatArray,
-    beta: float, dt: float,
+    beta: float, dt: float, zeta: float,
 ) -> FloatArray:
     """Per-sample Madgwick update for ``S`` sensors; row 0 is ``q0`` (as in ``ahrs``)."""
     T, S = gyr.shape[0], gyr.shape[1]
@@ -122,17 +123,14 @@ def _madgwick_loop(
         n = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
         qw, qx, qy, qz = qw / n, qx / n, qy / n, qz / n
         out[0, s, 0], out[0, s, 1], out[0, s, 2], out[0, s, 3] = qw, qx, qy, qz
+        bx_, by_, bz_ = 0.0, 0.0, 0.0  # gyro bias (MARG drift compensation, eq. 48)
         for t in range(1, T):
             gx, gy, gz = gyr[t, s, 0], gyr[t, s, 1], gyr[t, s, 2]
             if not (np.isfinite(gx) and np.isfinite(gy) and np.isfinite(gz)):
                 # No rate measurement: hold the last orientation.
                 out[t, s, 0], out[t, s, 1], out[t, s, 2], out[t, s, 3] = qw, qx, qy, qz
                 continue
-            # Rate of change from the gyroscope, q̇ = ½ q ⊗ (0, ω)  (eq. 12)
-            dw = 0.5 * (-qx * gx - qy * gy - qz * gz)
-            dx = 0.5 * (qw * gx + qy * gz - qz * gy)
-            dy = 0.5 * (qw * gy - qx * gz + qz * gx)
-            dz = 0.5 * (qw * gz + qx * gy - qy * gx)
+            g0, g1, g2, g3, gn = 0.0, 0.0, 0.0, 0.0, 0.0
             ax, ay, az = acc[t, s, 0], acc[t, s, 1], acc[t, s, 2]
             an = np.sqrt(ax * ax + ay * ay + az * az)
             if an > 0.0 and np.isfinite(an):
@@ -172,12 +170,26 @@ def _madgwick_loop(
                     g3 += (-4.0 * bx * qz + 2.0 * bz * qx) * f3 \
                         + (-2.0 * bx * qw + 2.0 * bz * qy) * f4 + 2.0 * bx * qx * f5
                 gn = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2 + g3 * g3)
-                if gn > 0.0:
-                    # Normalised gradient step (eqs. 33-34)
-                    dw -= beta * g0 / gn
-                    dx -= beta * g1 / gn
-                    dy -= beta * g2 / gn
-                    dz -= beta * g3 / gn
+            if gn > 0.0 and zeta > 0.0:
+                # Gyro bias drift compensation (eqs. 47-49): ω_ε = 2 q* ⊗ ∇f/|∇f|
+                ex = 2.0 * (qw * g1 - qx * g0 - qy * g3 + qz * g2) / gn
+                ey = 2.0 * (qw * g2 + qx * g3 - qy * g0 - qz * g1) / gn
+                ez = 2.0 * (qw * g3 - qx * g2 + qy * g1 - qz * g0) / gn
+                bx_ += zeta * ex * dt
+                by_ += zeta * ey * dt
+                bz_ += zeta * ez * dt
+                gx, gy, gz = gx - bx_, gy - by_, gz - bz_
+            # Rate of change from the gyroscope, q̇ = ½ q ⊗ (0, ω)  (eq. 12)
+            dw = 0.5 * (-qx * gx - qy * gy - qz * gz)
+            dx = 0.5 * (qw * gx + qy * gz - qz * gy)
+            dy = 0.5 * (qw * gy - qx * gz + qz * gx)
+            dz = 0.5 * (qw * gz + qx * gy - qy * gx)
+            if gn > 0.0:
+                # Normalised gradient step (eqs. 33-34)
+                dw -= beta * g0 / gn
+                dx -= beta * g1 / gn
+                dy -= beta * g2 / gn
+                dz -= beta * g3 / gn
             # Integrate (eq. 13) and renormalise
             qw, qx, qy, qz = qw + dw * dt, qx + dx * dt, qy + dy * dt, qz + dz * dt
             n = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
@@ -195,6 +207,7 @@ def madgwick(
     frequency: float = 100.0,
     q0: ArrayLike | None = None,
     frame: Frame = "NWU",
+    zeta: float = 0.0,
 ) -> FloatArray:
     """Run Madgwick's filter over whole recordings (pure function).
 
@@ -207,6 +220,8 @@ def madgwick(
         q0: ``(4,)`` or ``(S, 4)`` initial sensor-to-earth quaternion in ``frame``; by
             default computed from the first accelerometer (and magnetometer) sample.
         frame: earth frame of ``q0`` and of the result, ``"NWU"`` or ``"ENU"``.
+        zeta: gain ζ of the report's gyroscope bias drift compensation (eqs. 47-49, rad/s²
+            scale); 0 (default, as ``ahrs``) disables it.
 
     Returns:
         ``(T, 4)`` or ``(T, S, 4)`` quaternions (same leading shape as ``gyr``), w-first.
@@ -224,6 +239,8 @@ def madgwick(
         raise InputError(f"mag shape {m.shape} differs from gyr shape {g.shape}")
     if not (np.isfinite(beta) and beta >= 0):
         raise InputError(f"beta must be a finite non-negative gain, got {beta}")
+    if not (np.isfinite(zeta) and zeta >= 0):
+        raise InputError(f"zeta must be a finite non-negative gain, got {zeta}")
     if not (np.isfinite(frequency) and frequency > 0):
         raise InputError(f"frequency must be positive (Hz), got {frequency}")
     if frame not in ("NWU", "ENU"):
@@ -240,7 +257,7 @@ def madgwick(
         if frame == "ENU":
             init = from_enu(init)
     q = _madgwick_loop(g, a, m, mag is not None, np.ascontiguousarray(init), float(beta),
-                       1.0 / float(frequency))
+                       1.0 / float(frequency), float(zeta))
     if frame == "ENU":
         q = to_enu(q)
     return q[:, 0] if single else q
@@ -257,8 +274,9 @@ class Madgwick:
     """
 
     def __init__(self, beta: float = 0.041, frequency: float = 100.0,
-                 frame: Frame = "NWU") -> None:
+                 frame: Frame = "NWU", zeta: float = 0.0) -> None:
         self.beta = beta
+        self.zeta = zeta
         self.frequency = frequency
         self.frame: Frame = frame
         self.quat_: FloatArray | None = None
@@ -267,5 +285,5 @@ class Madgwick:
             q0: ArrayLike | None = None) -> Madgwick:
         """Filter a recording; the result is stored in ``quat_``. Returns ``self``."""
         self.quat_ = madgwick(gyr, acc, mag, beta=self.beta, frequency=self.frequency, q0=q0,
-                              frame=self.frame)
+                              frame=self.frame, zeta=self.zeta)
         return self

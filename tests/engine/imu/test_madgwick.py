@@ -96,3 +96,27 @@ def test_nan_gyro_holds_orientation() -> None:
     q = madgwick(g, a, beta=0.0, frequency=100.0, q0=[1, 0, 0, 0])
     assert np.allclose(q[10], q[9])
     assert np.all(np.isfinite(q))
+
+
+def test_bias_drift_compensation_zeta() -> None:
+    from engine.geometry import make_transform, quat_to_matrix
+    from engine.imu.metrics import orientation_errors
+    from engine.sim.imu import ImuNoise, simulate_imu
+
+    fs = 100.0
+    t = np.arange(0.0, 120.0, 1 / fs)
+    rv = np.stack([0.8 * np.sin(0.5 * t), 0.6 * np.sin(0.3 * t + 1.0), 1.2 * np.sin(0.2 * t)], 1)
+    q = np.stack([quat_from_axis_angle(r / max(np.linalg.norm(r), 1e-12), np.linalg.norm(r))
+                  for r in rv])
+    poses = np.stack([make_transform(quat_to_matrix(qq), [0.0, 0.0, 0.0]) for qq in q])
+    noise = ImuNoise(gyr_noise=0.002, gyr_bias=np.deg2rad(1.5), gyr_bias_walk=0.0)
+    rec = simulate_imu(t, poses, noise=noise, rng=2)
+    late = t > 60
+    errs = {}
+    for zeta in (0.0, 0.015):
+        qe = madgwick(rec.gyr, rec.acc, rec.mag, beta=0.01, frequency=fs, frame="ENU",
+                      q0=rec.quat_ref[0], zeta=zeta)
+        errs[zeta] = orientation_errors(qe, rec.quat_ref, late)["total_deg"]
+    assert errs[0.015] < 0.7 * errs[0.0]
+    with pytest.raises(InputError, match="zeta"):
+        madgwick(rec.gyr, rec.acc, zeta=-1.0)
