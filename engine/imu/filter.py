@@ -11,12 +11,15 @@ Ideas (after Laidig & Seel 2023, "VQF", implemented independently here):
   inclination correction ``q_inc`` rotates it onto +z at every sample.
 * Heading is a separate rotation ``δ`` about z, fused from the magnetometer's horizontal
   direction with time constant ``tau_mag``; samples whose field norm or dip angle leave
-  the learnt reference (magnetic disturbance) are rejected, and a new persistent field is
-  adopted after ``mag_new_time`` seconds.
+  the learnt reference (magnetic disturbance) are rejected. A new field is adopted only
+  when it stays homogeneous (constant norm and dip) for ``mag_new_time`` seconds while the
+  sensor rotates — a magnet carried with the sensor changes norm and dip with orientation
+  and is never adopted. After a rejection the field must be clean for
+  ``mag_min_undisturbed_t`` before it is used again, then a raised gain catches up on the
+  heading drift accumulated meanwhile.
 * Gyroscope bias: a rest detector (low gyro and acceleration variation for
   ``rest_min_t``) averages the raw rate into the bias; during motion, the corrections
   applied by inclination (and heading) are fed back as an integral term.
-
 * ``offline=True`` (recorded data) adds a time-reversed pass and averages the two passes'
   inclination.
 
@@ -41,7 +44,28 @@ FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class FilterParams:
-    """Tuning of :class:`OrientationFilter` (SI units: s, rad/s, m/s²)."""
+    """Tuning of :class:`OrientationFilter` (SI units: s, rad/s, m/s²).
+
+    Attributes:
+        tau_acc: time constant of the inertial-frame acceleration low-pass (inclination).
+        tau_mag: time constant of the heading correction from the magnetometer.
+        bias_tau_motion: time constant of the bias integral fed by corrections in motion.
+        bias_tau_rest: time constant of the bias average at rest.
+        bias_clip: largest plausible gyroscope bias norm, rad/s.
+        rest_min_t: how long the rest conditions must hold before rest is declared.
+        rest_tau: low-pass time constant of the rest detector's gyro/acc references.
+        rest_th_gyr: largest gyro deviation from its low-pass at rest, rad/s.
+        rest_th_acc: largest acceleration deviation from its low-pass at rest, m/s².
+        mag_current_tau: smoothing of the current field norm and dip.
+        mag_ref_tau: learning time constant of the reference norm and dip.
+        mag_norm_th: relative norm deviation that counts as a disturbance.
+        mag_dip_th: dip-angle deviation that counts as a disturbance, rad.
+        mag_new_time: how long a new homogeneous field must persist to be adopted.
+        mag_init_time: initial period of fast (averaging) heading convergence.
+        mag_new_min_gyr: rotation rate that counts as "moving" for adopting a new field.
+        mag_rejection_factor: gain multiplier after a disturbance ends.
+        mag_min_undisturbed_t: clean time needed before the field is used again.
+    """
 
     tau_acc: float = 3.0
     tau_mag: float = 9.0
