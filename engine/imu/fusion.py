@@ -23,6 +23,10 @@ Pipeline:
    accumulation of rounding over thousands of samples). Because the bone vector is
    expressed in the sensor frame at the reference time, a sensor need not be aligned with
    its bone (the mounting convention of Fig. 1b only matters for reading axes).
+   By default (``bone_fit="all"``, our extension) that sensor-frame bone vector is fitted
+   to every tracked depth frame instead of the reference frame alone, which averages the
+   depth tracker's slowly varying errors out of the constant joint-angle offset the paper
+   observed; ``bone_fit="reference"`` is the paper's method.
 5. **Joint angles**: :func:`joint_rotation` is q_prox* ⊗ q_dist (eq. 7);
    :func:`flexion_angles` gives knee and elbow flexion (degrees, 0 = straight) from any
    skeleton, so depth-only, fused and reference are measured the same way; :func:`rmse`
