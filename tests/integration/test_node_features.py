@@ -47,8 +47,21 @@ def test_images_reconnect_and_replay(make_rig: object) -> None:
     assert np.median(np.abs(depth[both].astype(int) - truth[both])) < 15  # mm (sensor noise)
     rig.api("/api/nodes/S2/subscribe", {"streams": [], "fps": 0})
 
-    # a short recording to replay later
-    rec = rig.api("/api/recordings", {})
+    # a one-off snapshot: full-size colour and body index of the same instant
+    snap = rig.api("/api/nodes/S2/snapshot", {"streams": ["color", "body_index"]})
+    assert set(snap["images"]) == {"color", "body_index"}
+    bi: Any = cv2.imdecode(np.frombuffer(_image(rig, "S2", "body_index")[0], np.uint8),
+                           cv2.IMREAD_UNCHANGED)
+    col: Any = cv2.imdecode(np.frombuffer(_image(rig, "S2", "color")[0], np.uint8),
+                            cv2.IMREAD_COLOR)
+    assert bi.shape == (424, 512) and bi.dtype == np.uint8
+    assert col.shape == (360, 640, 3)
+    truth_bi = sim.render(world_time(snap["images"]["body_index"]["t"]),
+                          ["body_index"])["body_index"]
+    assert np.mean(bi == truth_bi) > 0.99
+
+    # a short recording, with every 10th depth frame, to replay later
+    rec = rig.api("/api/recordings", {"streams": ["depth"], "image_every": 10})
     time.sleep(1.5)
     rec = rig.api(f"/api/recordings/{rec['id']}/stop", method="POST")
     wait_for(lambda: rig.api(f"/api/recordings/{rec['id']}")["state"] == "on_nodes", 15,
@@ -67,8 +80,14 @@ def test_images_reconnect_and_replay(make_rig: object) -> None:
     rig.start_node("R1", "--backend", "replay", "--recording", str(part), "--loop")
     ns = rig.wait_online(["R1"])
     store = NodeStore(rig.node_dir("S2") / "recordings")
-    recorded = [decode_skeletons(h, p) for h, p in store.read(rec["id"])]
-    ts = [h["t"] for h, _ in store.read(rec["id"])]
+    records = list(store.read(rec["id"]))
+    recorded = [decode_skeletons(h, p) for h, p in records if h["kind"] == "skeleton"]
+    ts = [h["t"] for h, _ in records if h["kind"] == "skeleton"]
+    images = [(h, p) for h, p in records if h["kind"] == "image"]
+    assert len(images) == (len(ts) + 9) // 10  # frames 1, 11, 21, ...
+    assert {h["t"] for h, _ in images} == set(ts[::10])
+    d = cv2.imdecode(np.frombuffer(images[0][1], np.uint8), cv2.IMREAD_UNCHANGED)
+    assert d is not None and d.shape == (424, 512) and d.dtype == np.uint16
     rate = (len(ts) - 1) / (ts[-1] - ts[0])
     wait_for(lambda: abs(rig.nodes()["R1"]["fps"] / rate - 1) < 0.1, 10,
              f"replay at the recorded rate {rate:.1f} Hz")

@@ -7,6 +7,8 @@
 
 from __future__ import annotations
 
+import asyncio
+import itertools
 from typing import Any, Literal
 
 import numpy as np
@@ -14,7 +16,7 @@ from fastapi import APIRouter, HTTPException, Response, status
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentUser, HubDep
-from app.nodes.protocol import Subscribe, dump
+from app.nodes.protocol import Snapshot, Subscribe, dump
 from app.server.registry import NodeSession
 
 router = APIRouter(prefix="/nodes", tags=["nodes"])
@@ -100,6 +102,37 @@ async def subscribe(node_id: str, body: SubscribeIn, user: CurrentUser, hub: Hub
     if s.send is None:
         raise HTTPException(status.HTTP_409_CONFLICT, f"node {node_id} is offline")
     await s.send(dump(Subscribe(**body.model_dump())))
+
+
+class SnapshotIn(BaseModel):
+    streams: list[Literal["depth", "color", "body_index"]] = Field(min_length=1)
+    scale: float = Field(default=1.0, gt=0, le=1)
+    format: Literal["jpeg", "png"] = "png"
+
+
+_snapshot_ids = itertools.count(1)
+
+
+@router.post("/{node_id}/snapshot")
+async def snapshot(node_id: str, body: SnapshotIn, user: CurrentUser,
+                   hub: HubDep) -> dict[str, Any]:
+    """Ask a node for one image of each stream now; waits (≤ 10 s) until they arrived."""
+    s = _node(hub, node_id)
+    if s.send is None:
+        raise HTTPException(status.HTTP_409_CONFLICT, f"node {node_id} is offline")
+    req_id = next(_snapshot_ids)
+    await s.send(dump(Snapshot(req_id=req_id, **body.model_dump())))
+    deadline = asyncio.get_running_loop().time() + 10.0
+    while asyncio.get_running_loop().time() < deadline:
+        got = {k: v for k, v in s.images.items() if v.header.get("req_id") == req_id}
+        if len(got) == len(set(body.streams)):
+            return {"req_id": req_id, "images": {
+                k: {"t": v.t_server, "format": v.format,
+                    "url": f"/api/nodes/{node_id}/images/{k}"} for k, v in got.items()}}
+        await asyncio.sleep(0.05)
+    raise HTTPException(status.HTTP_504_GATEWAY_TIMEOUT,
+                        f"node {node_id} sent no {', '.join(body.streams)} image within 10 s "
+                        "(a node started with --no-images has none)")
 
 
 @router.get("/{node_id}/images/{stream}")
