@@ -28,16 +28,18 @@ Input frames. Rotating "about the vertical" needs to know where up is:
 * or ``T_world_sensor`` — a full 4×4 pose into a Z-up world (overrides ``frame``).
 
 Stillness (documented thresholds). KSCC needs a stable centre and facing, so stillness
-is judged on those, averaged over joints (a Kinect's per-joint fitting error of a few cm,
-which wanders within fractions of a second, would make per-joint speeds useless). A frame
-is still when (1) the centre of the joints moves slower than ``speed_threshold_mps``
-(0.15 m/s, measured over ``speed_window_s`` = 0.3 s: a step, a lean or walking exceeds
-it, postural sway of a few mm/s does not), (2) that centre is within ``max_drift_m``
-(5 cm) of its mean over the frames collected so far (slow drifts), and (3) the shoulder
-line, averaged over the speed window, is within ``max_turn_deg`` (20°) of its collected
-mean (turning on the spot; checked while both shoulders are visible). The joints of the
-facing method (:func:`facing_left`; for the paper's, both shoulders) must be present (not
-NaN, not NOT_TRACKED), and at least half the joints. A moving or lost user restarts the
+is judged on the body as a whole, pooled over joints with a median (a Kinect's per-joint
+fitting error of a few cm, which wanders within fractions of a second, would make single
+joint speeds useless, and an occasional wild joint must not count as movement). A frame
+is still when (1) the body — the median joint displacement — moves slower than
+``speed_threshold_mps`` (0.15 m/s, measured over ``speed_window_s`` = 0.3 s: a step, a
+lean or walking exceeds it, postural sway of a few mm/s does not), (2) the median joint
+displacement from the joints' means over the frames collected so far is below
+``max_drift_m`` (5 cm; slow drifts), and (3) the shoulder line, averaged over the speed
+window, is within ``max_turn_deg`` (20°) of its collected mean (turning on the spot;
+checked while both shoulders are visible). The joints of the facing method
+(:func:`facing_left`; for the paper's, both shoulders) must be present (not NaN, not
+NOT_TRACKED), and at least half the joints. A moving or lost user restarts the
 collection. Tuned so that the simulated Kinect v2 skeleton (``engine.sim.skeleton_model``:
 ≈ 3 cm slowly varying joint error) standing still at 2.5 m is collected without restarts.
 """
@@ -205,23 +207,30 @@ def facing_left(pose: ArrayLike, joint_set: JointSet, mode: FacingMode = "should
     return unit(np.sum(lines, axis=0), 1e-9)
 
 
-#: A skeleton wider or taller than this is not in metres (Azure Kinect writes millimetres).
-MAX_BODY_EXTENT_M = 4.0
+#: Median joint distance from the skeleton's median above which it cannot be in metres
+#: (≈ 0.4 m for an adult in metres; Azure Kinect Body Tracking writes millimetres).
+MAX_BODY_SPREAD_M = 1.5
 
 
 def check_metres(pose: ArrayLike) -> None:
     """Raise when a skeleton frame (J, 3) is clearly not in metres.
 
+    Uses the median joint distance from the median joint position, so one wild joint
+    (a fitting failure) does not trigger it.
+
     Raises:
-        InputError: the joints span more than ``MAX_BODY_EXTENT_M``.
+        InputError: the spread exceeds ``MAX_BODY_SPREAD_M``.
     """
     P = np.asarray(pose, dtype=float)
     P = P[np.isfinite(P).all(axis=-1)]
-    if len(P) >= 2 and float(np.max(P.max(axis=0) - P.min(axis=0))) > MAX_BODY_EXTENT_M:
-        raise InputError(
-            f"the skeleton spans more than {MAX_BODY_EXTENT_M:g} m; positions must be in "
-            "metres (Azure Kinect Body Tracking writes millimetres: divide by 1000)"
-        )
+    if len(P) >= 3:
+        spread = float(np.median(np.linalg.norm(P - np.median(P, axis=0), axis=1)))
+        if spread > MAX_BODY_SPREAD_M:
+            raise InputError(
+                f"the skeleton's joints lie {spread:.3g} units apart on average; positions "
+                "must be in metres (Azure Kinect Body Tracking writes millimetres: divide by "
+                "1000)"
+            )
 
 
 class StillnessCollector:
@@ -230,9 +239,10 @@ class StillnessCollector:
     Args:
         joint_set: Joint set of the frames.
         n_frames: Still frames to collect.
-        speed_threshold_mps: Speed of the joints' centre above which the user is moving.
+        speed_threshold_mps: Body speed (median joint displacement per second) above
+            which the user is moving.
         speed_window_s: Time base of the speed estimate.
-        max_drift_m: Largest shift of the joints' centre from the collected mean.
+        max_drift_m: Largest median joint shift from the collected means.
         max_turn_deg: Largest turn of the facing (from the pose averaged over the speed
             window) from the collected mean.
         facing: Facing method (:func:`facing_left`); its joints must be visible.
@@ -325,14 +335,14 @@ class StillnessCollector:
         both = valid & np.isfinite(ref[1]).all(axis=1)
         if both.sum() < len(valid) / 2:  # the body was just acquired: no speed yet
             return self._progress("waiting", "stand still facing the sensor")
-        # speed of the centre of the joints seen in both frames: averaging over joints
-        # keeps per-joint fitting noise out of it
-        speed = float(np.linalg.norm(np.mean(p[both] - ref[1][both], axis=0))) / (t - ref[0])
+        # speed of the body from the median joint displacement: pooling joints keeps the
+        # per-joint fitting noise out, the median ignores a few wild joints
+        speed = float(np.linalg.norm(np.median(p[both] - ref[1][both], axis=0))) / (t - ref[0])
         moving = speed > self.speed_threshold_mps
         if not moving and self._frames:
             m = valid & (self._cnt > 0)
             mean = self._sum[m] / self._cnt[m, None]
-            drift = float(np.linalg.norm(np.mean(p[m] - mean, axis=0)))
+            drift = float(np.linalg.norm(np.median(p[m] - mean, axis=0)))
             # the turn is judged on the shoulder line only: hip and half lines are too
             # short for a per-window check against a Kinect's few-cm fitting noise
             now = facing_left(_nanmean0(np.array([h[1] for h in self._hist])),
@@ -652,7 +662,7 @@ def kscc_calibrate(series: SkeletonSeries, **kwargs: object) -> KsccCalibrator:
 
 __all__ = [
     "CENTRE_ROLES",
-    "MAX_BODY_EXTENT_M",
+    "MAX_BODY_SPREAD_M",
     "N_STILL_FRAMES",
     "FacingMode",
     "KsccCalibrator",

@@ -442,3 +442,11 @@ def test_millimetre_skeletons_are_rejected() -> None:
         compare_motions(series(P_mm[:20], js), series(P_mm[:20], js))
     cal = kscc_calibrate(series(P_mm / 1000.0, js), frame="world")  # metres are fine
     assert cal.joint_set_ is js
+
+
+def test_one_wild_joint_is_not_a_unit_error() -> None:
+    js = KINECT_V2
+    P = standing_frames(js, n=150)
+    P[50, js.index("HandLeft")] += np.array([0.0, 6.0, 0.0])  # a fitting failure
+    cal = kscc_calibrate(series(P, js), frame="world")
+    assert cal.joint_set_ is js
