@@ -19,7 +19,10 @@ sensors", plus our estimator):
      shoulder axes): 1 for a sensor facing that side squarely, ½ side-on, 0 from the
      opposite side (plus a small floor), so left joints are mostly taken from sensors on
      the subject's left, which do not look through the body, while the far view still
-     averages noise down; midline joints are not angle-weighted. Each sensor is further
+     averages noise down; midline joints are not angle-weighted. The view-dependent pull
+     of a sensor is towards its side of the body, so these side weights decide only the
+     joint's coordinate along the body's lateral axis (step width); its forward and
+     vertical coordinates average all sensors equally by angle. Each sensor is further
      weighted by the inverse square of its distance (joint noise grows ~linearly with
      range), and by a Tukey biweight of its residual from the current estimate
      (iteratively reweighted from the per-coordinate median, so a sensor that swaps or
@@ -237,28 +240,38 @@ def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float
     w_angle = np.where(sides[None, None, :] != 0, ANGLE_WEIGHT_FLOOR + 0.5 * (1.0 + cos),
                        1.0)
     w_angle = np.where(np.isfinite(lat[None, :, :1].repeat(len(sides), axis=2)), w_angle, 1.0)
-    w_base = w_angle * (REF_DISTANCE_M / np.maximum(dist, 0.3)) ** 2
-    w_base = np.where(have, w_base, 0.0)
+    w_angle = np.where(have, w_angle, 0.0)
+    w_dist = np.where(have, (REF_DISTANCE_M / np.maximum(dist, 0.3)) ** 2, 0.0)
     Ez = np.where(have[..., None], E, 0.0)
-    w = w_base.copy()
+    lat_j = np.where(sides[None, :, None] != 0, np.nan_to_num(lat)[:, None, :], 0.0)  # (G,J,3)
+
+    def wmean(w: FloatArray) -> FloatArray:
+        sw = w.sum(axis=0)
+        return np.einsum("sgj,sgjk->gjk", w, Ez) / np.where(sw > 0, sw, np.nan)[..., None]
+
+    def combine(rho: FloatArray) -> FloatArray:
+        # The view-dependent pull is towards the sensor's side of the body, i.e. along
+        # the body's lateral axis: the side weights decide the lateral coordinate only;
+        # forward and vertical coordinates average every sensor (less noise).
+        est_d = wmean(w_dist * rho)
+        est_a = wmean(w_dist * w_angle * rho)
+        return est_d + np.einsum("gjk,gjk->gj", est_a - est_d, lat_j)[..., None] * lat_j
+
+    rho = np.ones_like(w_dist)
     est = init
     for _ in range(n_iter):
         # Residuals from the current (initially: median) estimate, robust scale, Tukey
-        # biweights, then the weighted mean with the new weights.
+        # biweights, then the weighted means with the new weights.
         r = np.linalg.norm(E - est[None], axis=-1)  # (S, G, J), NaN where missing
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices: no sensor
             scale = np.maximum(1.4826 * np.nanmedian(r, axis=0), MIN_SCALE_M)
         z = r / (TUKEY_C * scale)[None]
-        rho = np.where(z < 1.0, (1.0 - z**2) ** 2, 0.0)
-        w_new = np.where(have, w_base * rho, 0.0)
+        rho_new = np.where(have & (z < 1.0), (1.0 - np.nan_to_num(z) ** 2) ** 2, 0.0)
         # If every sensor would be rejected, keep the previous weights.
-        w = np.where((w_new.sum(axis=0) > 0)[None], w_new, w)
-        sw = w.sum(axis=0)
-        est = np.einsum("sgj,sgjk->gjk", w, Ez) / np.where(sw > 0, sw, np.nan)[..., None]
-    sw = w.sum(axis=0)
-    est = np.einsum("sgj,sgjk->gjk", w, Ez) / np.where(sw > 0, sw, np.nan)[..., None]
-    used = have & (w > 0)
+        rho = np.where(((w_dist * rho_new).sum(axis=0) > 0)[None], rho_new, rho)
+        est = combine(rho)
+    used = have & (w_dist * rho > 0)
     return est, used
 
 
