@@ -82,8 +82,13 @@ class SkeletonErrorModel:
     Attributes:
         ref_distance_m: Distance at which the SDs below apply; errors scale linearly with
             distance (pixel footprint ∝ range; Otte 2016, Wang 2015).
-        slow_sd_m: SD per axis of the slowly varying fitting error of an ankle at the
-            reference distance (derived from seed 000 Tables 2–3, see module doc).
+        slow_sd_m: SD along the line of sight of the slowly varying fitting error of an
+            ankle at the reference distance (derived from seed 000 Tables 2–3, see module
+            doc).
+        lateral_ratio: SD across the line of sight relative to along it: the silhouette
+            fixes a joint's image position better than its depth inside the body (Kinect
+            v2 joint offsets are largest along the optical axis: Xu & McGorry 2015, Int J
+            Ind Ergon 46:36; Otte 2016).
         slow_tau_s: Correlation time of that error (≈ the duration of a stance phase:
             the fit error follows the pose, which changes within a gait phase).
         jitter_sd_m: Frame-to-frame white jitter per axis at the reference distance
@@ -94,9 +99,16 @@ class SkeletonErrorModel:
             (larger: Wang 2015, self-occluded half is less accurate).
         surface_bias_mid_m: Bias of midline (spine/head) joints.
         far_noise_gain: Extra noise factor for joints on the turned-away half (×(1+g·far)).
+        partial_occlusion_gain: Extra noise factor for joints whose sight line grazes
+            another body part (partly hidden limb; Wang 2015: self-occlusion degrades the
+            fit before the joint is lost).
         inferred_sd_m: SD per axis of the extra error of INFERRED joints (inferred
             positions are guesses from the rest of the body; Kinect v2 inferred ankle
             errors ≈ 5–10 cm, Otte 2016).
+        occlusion_depth_m: A joint counts as hidden when its sight line passes this deep
+            inside another body part: the tracker still fits a limb of which a few cm of
+            its ≈ 10 cm wide surface are visible (seed 000 Fig. 5: the far leg is tracked,
+            though biased, unless covered).
         inferred_to_untracked_s: An occlusion lasting longer than this turns INFERRED into
             NOT_TRACKED (seed 000).
         occlusion_hangover_s: A joint stays INFERRED this long after it reappears (the
@@ -107,8 +119,11 @@ class SkeletonErrorModel:
         min_joints_in_view: Fraction of the 25 joints that must be in the frustum for a
             body to be detected (Kinect v2 tracks partially visible bodies but needs the
             trunk).
-        leg_swap_rate_hz: Rate of brief left/right lower-leg label swaps (per second of
-            tracking; Geerse 2015, Springer 2016 report occasional leg-swap outliers).
+        leg_swap_rate_hz: Rate of brief left/right lower-leg label swaps per second of
+            tracking; a swap starts only while the ankles are within 15 cm of each other
+            and one of them is partly hidden by the other leg (legs crossing in view),
+            where Kinect v2 gait studies report leg-swap outliers (Geerse 2015, Springer
+            2016).
         leg_swap_duration_s: (min, max) duration of a swap.
         mirror_back_facing: Report a subject seen from behind mirrored (left/right
             labels swapped), as the Kinect v2 SDK does.
@@ -116,20 +131,23 @@ class SkeletonErrorModel:
     """
 
     ref_distance_m: float = 2.5
-    slow_sd_m: float = 0.028
+    slow_sd_m: float = 0.024
+    lateral_ratio: float = 0.6
     slow_tau_s: float = 0.3
     jitter_sd_m: float = 0.006
     surface_bias_near_m: float = 0.015
     surface_bias_far_m: float = 0.035
     surface_bias_mid_m: float = 0.01
     far_noise_gain: float = 0.8
+    partial_occlusion_gain: float = 0.5
     inferred_sd_m: float = 0.06
+    occlusion_depth_m: float = 0.025
     inferred_to_untracked_s: float = 0.4
     occlusion_hangover_s: float = 0.07
     acquisition_median_s: float = 0.4
     acquisition_sigma: float = 0.4
     min_joints_in_view: float = 0.5
-    leg_swap_rate_hz: float = 0.05
+    leg_swap_rate_hz: float = 0.01
     leg_swap_duration_s: tuple[float, float] = (0.1, 0.3)
     mirror_back_facing: bool = True
     back_facing_noise_gain: float = 1.5
@@ -174,9 +192,9 @@ def _point_seg_dist(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
     return np.linalg.norm(p - (a + ab * t[..., None]), axis=-1)
 
 
-def occluded_joints(origin: FloatArray, joints: FloatArray, A: FloatArray, B: FloatArray,
-                    radii: FloatArray) -> NDArray[np.bool_]:
-    """Which joints are hidden from ``origin`` by a body capsule they are not part of.
+def occlusion_clearance(origin: FloatArray, joints: FloatArray, A: FloatArray, B: FloatArray,
+                        radii: FloatArray) -> FloatArray:
+    """How far each joint's line of sight passes outside the other body parts.
 
     Args:
         origin: (3,) viewpoint (world).
@@ -184,7 +202,8 @@ def occluded_joints(origin: FloatArray, joints: FloatArray, A: FloatArray, B: Fl
         A, B: (T, C, 3) capsule axis end points; radii: (C,).
 
     Returns:
-        (T, J) bool.
+        (T, J) clearance (m): the smallest distance between the sight line and the surface
+        of a capsule the joint is not part of; negative when the line passes inside one.
     """
     # a capsule the joint lies in (its own limb) cannot occlude it
     inside = _point_seg_dist(joints[:, :, None, :], A[:, None], B[:, None]) <= radii + 0.02
@@ -193,9 +212,16 @@ def occluded_joints(origin: FloatArray, joints: FloatArray, A: FloatArray, B: Fl
     dist = np.linalg.norm(v, axis=-1, keepdims=True)
     end = joints - v / dist * 0.06
     o = np.broadcast_to(origin, end.shape)
-    d = _seg_seg_dist(o[:, :, None], end[:, :, None], A[:, None], B[:, None])
-    blocked = (d < radii - 0.005) & ~inside
-    return np.asarray(blocked.any(axis=-1))
+    d = _seg_seg_dist(o[:, :, None], end[:, :, None], A[:, None], B[:, None]) - radii
+    d = np.where(inside, np.inf, d)
+    return np.asarray(d.min(axis=-1))
+
+
+def occluded_joints(origin: FloatArray, joints: FloatArray, A: FloatArray, B: FloatArray,
+                    radii: FloatArray, depth_m: float = 0.025) -> NDArray[np.bool_]:
+    """Joints whose sight line passes more than ``depth_m`` inside another body part
+    (``(T, J)`` bool; see :func:`occlusion_clearance`)."""
+    return occlusion_clearance(origin, joints, A, B, radii) < -depth_m
 
 
 # ---------------------------------------------------------------------- observation
@@ -247,7 +273,8 @@ def observe_skeletons(
         frame; frames without a tracked body have every joint NOT_TRACKED and NaN.
         ``times`` are the sensor's LOCAL clock times; ``meta`` holds ``sensor_id``,
         ``frame`` ("sensor"), ``times_true``, ``times_local``, ``body_tracked`` (T,) bool,
-        ``mirrored`` (T,) bool (labels swapped because seen from behind), ``occluded``
+        ``mirrored`` (T,) bool (labels swapped because seen from behind),
+        ``leg_swapped`` (T,) bool (lower-leg labels swapped by a fitting failure), ``occluded``
         (T, 25) bool (ground-truth occlusion) and ``body_id``.
     """
     m = model or SkeletonErrorModel()
@@ -259,7 +286,10 @@ def observe_skeletons(
     J = walker.joints(t)
     A, B, radii = walker.capsule_segments(t)
     in_view = sensor.in_depth_view(J, margin_px=2.0)
-    occl = occluded_joints(o, J, A, B, radii) & in_view
+    clearance = occlusion_clearance(o, J, A, B, radii)
+    occl = (clearance < -m.occlusion_depth_m) & in_view
+    # partly hidden joints (sight line grazing another part) are fitted less well
+    partial = np.clip((m.occlusion_depth_m + 0.05 - clearance) / 0.075, 0.0, 1.0)
     dist = np.linalg.norm(J - o, axis=-1)
 
     # ---- body detection with acquisition delay
@@ -293,17 +323,25 @@ def observe_skeletons(
     u_h[..., 2] = 0.0
     u_h /= np.maximum(np.linalg.norm(u_h, axis=-1, keepdims=True), 1e-9)
     facing_side = np.einsum("tjk,tk->tj", u_h, left) * _SIDE  # >0: joint's half faces sensor
-    far = np.clip(-facing_side, 0.0, 1.0)
-    near = np.clip(facing_side, 0.0, 1.0)
+    # a limb counts as fully turned away/towards once seen ≥ 30° from the side (the view
+    # angles at which Wang 2015 found the turned-away half degraded)
+    far = np.clip(-2.0 * facing_side, 0.0, 1.0)
+    near = np.clip(2.0 * facing_side, 0.0, 1.0)
     back = np.einsum("tk,tk->t", u_h[:, _IDX["SpineBase"]], fwd) < -0.2
 
     # ---- errors (world frame)
     scale = dist / m.ref_distance_m * _JOINT_SCALE
-    gain = (1.0 + m.far_noise_gain * far) * np.where(back, m.back_facing_noise_gain, 1.0)[:, None]
+    gain = ((1.0 + m.far_noise_gain * far + m.partial_occlusion_gain * partial)
+            * np.where(back, m.back_facing_noise_gain, 1.0)[:, None])
     dt = float(np.median(np.diff(t))) if T > 1 else 1.0 / 30.0
     a = float(np.exp(-dt / m.slow_tau_s)) if m.slow_tau_s > 0 else 0.0
-    slow = _ar1(rng, (T, _N, 3), a) * (m.slow_sd_m * scale * gain)[..., None]
-    jitter = rng.standard_normal((T, _N, 3)) * (m.jitter_sd_m * scale * gain)[..., None]
+    def aniso(n: FloatArray) -> FloatArray:
+        # full SD along the line of sight, lateral_ratio × SD across it
+        return m.lateral_ratio * n + (1.0 - m.lateral_ratio) * np.sum(n * u, -1,
+                                                                      keepdims=True) * u
+
+    slow = aniso(_ar1(rng, (T, _N, 3), a)) * (m.slow_sd_m * scale * gain)[..., None]
+    jitter = aniso(rng.standard_normal((T, _N, 3))) * (m.jitter_sd_m * scale * gain)[..., None]
     beta = np.where(_SIDE == 0, m.surface_bias_mid_m,
                     m.surface_bias_near_m * near + m.surface_bias_far_m * far
                     + m.surface_bias_near_m * (1 - near - far))
@@ -329,17 +367,22 @@ def observe_skeletons(
     mirrored = back & tracked if m.mirror_back_facing else np.zeros(T, dtype=bool)
     est[mirrored] = est[mirrored][:, _MIRROR]
     states[mirrored] = states[mirrored][:, _MIRROR]
+    swapped = np.zeros(T, dtype=bool)
     if m.leg_swap_rate_hz > 0 and T > 1:
-        span = float(t[-1] - t[0])
-        n_ev = rng.poisson(m.leg_swap_rate_hz * span)
+        gap = np.linalg.norm(J[:, _IDX["AnkleLeft"], :2] - J[:, _IDX["AnkleRight"], :2], axis=1)
+        hidden = np.maximum(partial[:, _IDX["AnkleLeft"]], partial[:, _IDX["AnkleRight"]])
+        cand = np.nonzero(tracked & (gap < 0.15) & (hidden > 0.5))[0]
+        n_ev = rng.poisson(m.leg_swap_rate_hz * dt * int(tracked.sum())) if len(cand) else 0
         for _ in range(n_ev):
-            t0 = t[0] + rng.uniform(0, span)
+            t0 = t[rng.choice(cand)]
             dur = rng.uniform(*m.leg_swap_duration_s)
             sel = (t >= t0) & (t < t0 + dur) & tracked
-            if np.any(sel):
-                idx = np.nonzero(sel)[0][:, None]
-                le, ri = est[idx, _LOWER_LEG].copy(), est[idx, _LOWER_LEG_R].copy()
-                est[idx, _LOWER_LEG], est[idx, _LOWER_LEG_R] = ri, le
+            swapped |= sel
+            idx = np.nonzero(sel)[0][:, None]
+            le, ri = est[idx, _LOWER_LEG].copy(), est[idx, _LOWER_LEG_R].copy()
+            est[idx, _LOWER_LEG], est[idx, _LOWER_LEG_R] = ri, le
+            sl, sr = states[idx, _LOWER_LEG].copy(), states[idx, _LOWER_LEG_R].copy()
+            states[idx, _LOWER_LEG], states[idx, _LOWER_LEG_R] = sr, sl
 
     states[~tracked] = TrackingState.NOT_TRACKED
     est[states == TrackingState.NOT_TRACKED] = np.nan
@@ -348,7 +391,7 @@ def observe_skeletons(
     meta: dict[str, Any] = {
         "sensor_id": sensor.id, "frame": "sensor", "units": "m", "body_id": body_id,
         "times_true": t.copy(), "times_local": t_local, "body_tracked": tracked,
-        "mirrored": mirrored, "occluded": occl,
+        "mirrored": mirrored, "leg_swapped": swapped, "occluded": occl,
     }
     return SkeletonSeries(times=t_local, positions=pos, states=states, joint_set=_JS,
                           meta=meta)

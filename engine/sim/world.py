@@ -106,7 +106,8 @@ class SimWorld:
             tt = np.concatenate([p.meta["times_true"] for p in parts])
             m = (tt >= t0) & (tt <= t1)
             meta = dict(parts[0].meta)
-            for key in ("times_true", "times_local", "body_tracked", "mirrored", "occluded"):
+            for key in ("times_true", "times_local", "body_tracked", "mirrored", "leg_swapped",
+                        "occluded"):
                 meta[key] = np.concatenate([p.meta[key] for p in parts])[m]
             out.append(SkeletonSeries(
                 times=np.concatenate([p.times for p in parts])[m],
