@@ -73,8 +73,42 @@ const gaitrig = (() => {
           (clockBad ? ` ${clockBad} with a clock uncertainty above ${sys.clock_warn_ms} ms.` : "");
       } catch (e) { document.getElementById("summary").textContent = "Cannot reach the server: " + e.message; }
     }
+    const recBtn = document.getElementById("record");
+    let active = null;
+    recBtn.addEventListener("click", async () => {
+      const status = document.getElementById("record-status");
+      recBtn.disabled = true;
+      try {
+        if (active) { await api(`/api/recordings/${active}/stop`, { method: "POST" }); status.textContent = "Stopped."; }
+        else { const r = await api("/api/recordings", { method: "POST", body: "{}" }); status.textContent = `Recording ${r.id}…`; }
+      } catch (e) { status.textContent = e.message; }
+      recBtn.disabled = false;
+      await refreshRecordings();
+    });
+    const STATES = { recording: "recording", stopping: "stopping…", on_nodes: "complete on the sensors",
+      incomplete: "incomplete", on_node: "on the sensor", pending: "starting" };
+    async function refreshRecordings() {
+      try {
+        const recs = await api("/api/recordings");
+        active = (recs.find((r) => r.state === "recording") || {}).id || null;
+        recBtn.textContent = active ? "Stop recording" : "Start recording";
+        document.getElementById("recordings").replaceChildren(...recs.slice(0, 10).map((r) => {
+          const parts = el("ul", { class: "parts" });
+          for (const p of r.parts) {
+            parts.append(el("li", { class: p.state === "incomplete" ? "warn" : "" },
+              `${p.node_id}: ${STATES[p.state] || p.state}, ${p.n_frames} frames` + (p.reason ? ` — ${p.reason}` : "")));
+          }
+          const len = r.t_stop ? (r.t_stop - r.t_start).toFixed(1) + " s" : "running";
+          return el("tr", { "data-recording": r.id }, el("th", { scope: "row" }, r.id),
+            el("td", {}, new Date(r.t_start * 1000).toISOString().slice(0, 19).replace("T", " ")),
+            el("td", { class: "num" }, len), el("td", { class: "state" }, STATES[r.state] || r.state), el("td", {}, parts));
+        }));
+      } catch (e) { /* shown by the node refresh */ }
+    }
     await refresh();
+    await refreshRecordings();
     setInterval(refresh, 1000);
+    setInterval(refreshRecordings, 1000);
   }
   return { api, loginPage, rigPage };
 })();

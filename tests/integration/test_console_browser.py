@@ -40,10 +40,18 @@ def test_login_and_rig_page(make_rig: object, artifacts_dir: Path) -> None:
         s1 = page.inner_text("tr[data-node='S1']")
         assert "online" in s1 and "fps" in s1
         # S1's clock is 200 ms off: shown, with the plain-words note; S2 needs no note
-        assert re.search(r"(199\.[5-9]|200\.[0-4]\d) ms ± 0\.\d+ ms", s1), s1
+        assert re.search(r"(199\.[5-9]\d|200\.[0-4]\d) ms ± 0\.\d+ ms", s1), s1
         assert re.search(r"differs from the server by \+(199\.[5-9]|200\.[0-4]) ms", s1), s1
         assert page.inner_text("tr[data-node='S2'] td:last-child") == "OK"
-        page.screenshot(path=str(artifacts_dir / "console-rig.png"))
+        # record from the console: both sensors, complete on the nodes after stop
+        page.click("#record")
+        page.wait_for_selector("#record:has-text('Stop recording')")
+        page.wait_for_timeout(1000)
+        page.click("#record")
+        row = "tr[data-recording] td.state:has-text('complete on the sensors')"
+        page.wait_for_selector(row, timeout=15000)
+        assert page.locator("tr[data-recording] li").count() == 2
+        page.screenshot(path=str(artifacts_dir / "console-rig.png"), full_page=True)
         rig.procs["S2"].terminate()
         page.wait_for_selector("tr[data-node='S2']:has-text('offline')", timeout=15000)
         page.click("#logout")
