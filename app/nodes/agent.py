@@ -139,6 +139,7 @@ class NodeAgent:
         self.dropped = 0
         self._frame_times: deque[float] = deque(maxlen=120)
         self._recs: dict[str, _Rec] = {}
+        self._early_stops: dict[str, RecStop] = {}
         self._ws: ClientConnection | None = None
         self._out: asyncio.Queue[str | bytes] = asyncio.Queue(maxsize=256)
         self._stop = asyncio.Event()
@@ -352,10 +353,15 @@ class NodeAgent:
                 return
             rec = _Rec(msg, writer)
             self._recs[msg.rec_id] = rec
+            early = self._early_stops.pop(msg.rec_id, None)
+            if early is not None:  # the stop overtook the start (reordered delivery)
+                rec.stop_cmd, rec.t_stop_local = early, early.t_stop_local
             # The command may arrive after its start time: take the past from the ring.
             for _t, fr in self.ring.since(msg.t_start_local):
                 self._record_frame(rec, fr, encode_skeletons(0, fr.t_local, fr.positions,
                                                              fr.states, fr.body_ids))
+                if msg.rec_id not in self._recs:
+                    return
             if self.ring.oldest is not None and self.ring.oldest > msg.t_start_local:
                 log.warning("recording %s started %.2f s before the ring buffer's oldest frame",
                             msg.rec_id, self.ring.oldest - msg.t_start_local)
@@ -369,6 +375,8 @@ class NodeAgent:
         else:
             rec_ = self._recs.get(msg.rec_id)
             if rec_ is None:
+                if not any(p.rec_id == msg.rec_id for p in self.store.parts()):
+                    self._early_stops[msg.rec_id] = msg
                 return
             rec_.stop_cmd = msg
             rec_.t_stop_local = msg.t_stop_local

@@ -165,3 +165,18 @@ def test_console_pages_served(client: TestClient) -> None:
     assert client.get("/", follow_redirects=False).status_code in (302, 307)
     for page in ("/index.html", "/rig.html", "/console.js", "/style.css"):
         assert client.get(page).status_code == 200, page
+
+
+def test_first_run_generates_and_prints_admin_password(tmp_path: Path,
+                                                      capfd: pytest.CaptureFixture[str]) -> None:
+    import re
+
+    settings = Settings(data_dir=tmp_path, viewer_enabled=False, node_token=TOKEN)
+    with TestClient(create_app(settings)) as c:
+        out = capfd.readouterr().err
+        m = re.search(r"created console account 'admin' with password '([^']+)'", out)
+        assert m, out
+        r = c.post("/api/auth/login", json={"username": "admin", "password": m.group(1)})
+        assert r.status_code == 200
+    with TestClient(create_app(settings)):  # second run: the account exists, nothing printed
+        assert "created console account" not in capfd.readouterr().err
