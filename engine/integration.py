@@ -190,6 +190,20 @@ def resample_stream(stream: SensorStream, grid: FloatArray, max_gap_s: float = 0
     return out, bridged, filled
 
 
+def _nanmedian0(x: FloatArray) -> FloatArray:
+    """``np.nanmedian(x, axis=0)`` for a short first axis, without its Python overhead.
+
+    NaN sorts last, so the median of the ``n`` finite values sits at ``(n−1)//2`` and
+    ``n//2``; all-NaN slices give NaN.
+    """
+    xs = np.sort(x, axis=0)
+    n = np.isfinite(x).sum(axis=0)
+    lo = np.take_along_axis(xs, np.maximum((n - 1) // 2, 0)[None], axis=0)[0]
+    hi = np.take_along_axis(xs, np.maximum(n // 2, 0)[None], axis=0)[0]
+    hi = np.where(n % 2 == 1, lo, hi)
+    return np.where(n > 0, 0.5 * (lo + hi), np.nan)
+
+
 def _joint_sides(js: JointSet) -> FloatArray:
     """+1 for left-side joints, −1 for right-side, 0 for midline joints."""
     out = np.zeros(len(js.joints))
@@ -227,9 +241,7 @@ def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float
                    n_iter: int = 4) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Weighted robust fusion of ``(S, G, J, 3)`` estimates → ``(G, J, 3)``, used mask."""
     have = np.asarray(np.isfinite(E).all(axis=-1), dtype=bool)  # (S, G, J)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices: no sensor
-        init = np.nanmedian(E, axis=0)  # robust start: the per-coordinate median
+    init = _nanmedian0(E)  # robust start: the per-coordinate median
     lat = _lateral_axis(init, js, rate)  # (G, 3)
     sides = _joint_sides(js)  # (J,)
     to_sensor = centres[:, None, None, :] - E  # (S, G, J, 3)
@@ -263,9 +275,7 @@ def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float
         # Residuals from the current (initially: median) estimate, robust scale, Tukey
         # biweights, then the weighted means with the new weights.
         r = np.linalg.norm(E - est[None], axis=-1)  # (S, G, J), NaN where missing
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices: no sensor
-            scale = np.maximum(1.4826 * np.nanmedian(r, axis=0), MIN_SCALE_M)
+        scale = np.maximum(1.4826 * np.nan_to_num(_nanmedian0(r)), MIN_SCALE_M)
         z = r / (TUKEY_C * scale)[None]
         rho_new = np.where(have & (z < 1.0), (1.0 - np.nan_to_num(z) ** 2) ** 2, 0.0)
         # If every sensor would be rejected, keep the previous weights.
@@ -312,9 +322,12 @@ def lowpass(X: FloatArray, rate: float, cutoff_hz: float, order: int = 4) -> Flo
     pad = 3 * max(len(a), len(b))
     out = X.copy()
     flat = out.reshape(len(X), -1)
-    for c in range(flat.shape[1]):
-        ok = np.isfinite(flat[:, c])
-        idx = np.flatnonzero(ok)
+    fin = np.isfinite(flat)
+    full = fin.all(axis=0)
+    if full.any() and len(X) > pad:
+        flat[:, full] = filtfilt(b, a, flat[:, full], axis=0)  # one call for gap-free columns
+    for c in np.flatnonzero(~full):
+        idx = np.flatnonzero(fin[:, c])
         if len(idx) == 0:
             continue
         for r in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
