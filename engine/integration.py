@@ -37,7 +37,8 @@ sensors", plus our estimator):
 from __future__ import annotations
 
 import warnings
-from dataclasses import asdict, dataclass, field
+from collections.abc import Collection
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -342,6 +343,7 @@ def integrate_skeletons(
     rate_hz: float = 30.0,
     max_gap_s: float = 0.2,
     cutoff_hz: float | None = 6.0,
+    sensors: Collection[str] | None = None,
 ) -> tuple[SkeletonSeries, FusionReport]:
     """Fuse several sensors' skeletons of one subject into one world-frame skeleton.
 
@@ -351,6 +353,8 @@ def integrate_skeletons(
         rate_hz: output sampling rate (the paper: 30 Hz).
         max_gap_s: longest gap bridged by interpolation.
         cutoff_hz: low-pass cut-off; None disables filtering.
+        sensors: ids of the sensors to use (e.g. only those on the subject's left, for
+            the paper's one-sided analysis of the same recording); None uses all.
 
     Returns:
         The fused skeleton (world frame, reference clock; TRACKED where sensors gave an
@@ -358,11 +362,23 @@ def integrate_skeletons(
         the quality report.
 
     Raises:
-        InputError: no streams, mixed joint sets, unknown estimator or bad transform.
+        InputError: no streams, mixed joint sets, unknown estimator, bad transform or
+            unknown sensor ids.
         InsufficientDataError: the streams do not overlap a single output sample.
     """
     if not streams:
         raise InputError("no sensor streams to integrate")
+    # Name unnamed streams (without touching the caller's objects).
+    streams = [s if s.sensor_id else replace(s, sensor_id=f"sensor{k + 1}")
+               for k, s in enumerate(streams)]
+    if sensors is not None:
+        unknown = sorted(set(sensors) - {s.sensor_id for s in streams})
+        if unknown:
+            raise InputError(f"unknown sensor id(s) {', '.join(unknown)}; streams are "
+                             + ", ".join(s.sensor_id for s in streams))
+        streams = [s for s in streams if s.sensor_id in set(sensors)]
+        if not streams:
+            raise InputError("no sensors selected")
     if estimator not in ("mean", "weighted"):
         raise InputError(f"estimator must be 'mean' or 'weighted', got {estimator!r}")
     js = streams[0].series.joint_set
@@ -373,9 +389,7 @@ def integrate_skeletons(
         T = np.asarray(s.T_world_sensor, dtype=float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise InputError(f"stream {s.sensor_id or k}: T_world_sensor must be a finite 4×4")
-    ids = [s.sensor_id or f"sensor{k + 1}" for k, s in enumerate(streams)]
-    for s, i in zip(streams, ids, strict=True):
-        s.sensor_id = i
+    ids = [s.sensor_id for s in streams]
     spans = [correct_timestamps(s.series.times[[0, -1]], s.clock_offset_s, s.clock_drift_ppm)
              for s in streams if len(s.series) >= 2]
     if not spans:

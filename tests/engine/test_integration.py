@@ -164,3 +164,18 @@ def test_bad_input() -> None:
     one = SkeletonSeries(np.array([0.0]), np.zeros((1, 25, 3)), np.full((1, 25), 2), KINECT_V2)
     with pytest.raises(InsufficientDataError):
         integrate_skeletons([SensorStream(one, np.eye(4))])
+
+
+def test_sensor_subset_one_sided(walk) -> None:  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(10)
+    streams = six_sensor_streams(walk, rng, occluded_bias_m=0.035, near_bias_m=0.015)
+    left = [s.sensor_id for s in streams if s.T_world_sensor[1, 3] > 0]
+    one, rep1 = integrate_skeletons(streams, "mean", sensors=left)
+    two, rep2 = integrate_skeletons(streams, "mean")
+    assert set(rep1.sensors_contributing) == set(left) and len(rep2.sensors_contributing) == 6
+    # seen from the left only, the right ankle is biased (pulled toward the left sensors)
+    e1 = _rms_vs_truth(walk, one, "AnkleRight")
+    e2 = _rms_vs_truth(walk, two, "AnkleRight")
+    assert e1 > e2
+    with pytest.raises(InputError, match="unknown sensor"):
+        integrate_skeletons(streams, sensors=["S9"])
