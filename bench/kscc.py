@@ -41,7 +41,7 @@ from engine.skeleton import SkeletonSeries
 FPS = 30.0
 DIST_M = 2.5
 STEP_M = 0.5
-N_CAL = 240  # frames standing still at the start (acquisition delay + 120 still frames)
+N_CAL = 300  # frames standing at the start: acquisition delay + 120 still frames + a restart
 N_LOC_TOTAL = 75  # frames at each location (the body is acquired again after a step) …
 N_LOC = 30  # … of which the last 30 (1 s) make one recording
 VARIANTS: dict[str, FacingMode] = {"paper": "shoulders", "trunk": "trunk"}

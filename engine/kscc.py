@@ -35,13 +35,15 @@ is still when (1) the body — the median joint displacement — moves slower th
 ``speed_threshold_mps`` (0.15 m/s, measured over ``speed_window_s`` = 0.3 s: a step, a
 lean or walking exceeds it, postural sway of a few mm/s does not), (2) the median joint
 displacement from the joints' means over the frames collected so far is below
-``max_drift_m`` (5 cm; slow drifts), and (3) the shoulder line, averaged over the speed
-window, is within ``max_turn_deg`` (20°) of its collected mean (turning on the spot;
-checked while both shoulders are visible). The joints of the facing method
-(:func:`facing_left`; for the paper's, both shoulders) must be present (not NaN, not
-NOT_TRACKED), and at least half the joints. A moving or lost user restarts the
-collection. Tuned so that the simulated Kinect v2 skeleton (``engine.sim.skeleton_model``:
-≈ 3 cm slowly varying joint error) standing still at 2.5 m is collected without restarts.
+``max_drift_m`` (5 cm; slow drifts), and (3) the body, averaged over the speed window, is
+turned less than ``max_turn_deg`` (20°) about the vertical from its collected mean pose
+(turning on the spot; a 2-D Procrustes fit over all joints, far steadier than the
+shoulder line). The joints of the facing method (:func:`facing_left`; for the paper's,
+both shoulders) must be present (not NaN, not NOT_TRACKED), and at least half the joints.
+A moving or lost user restarts the collection, and the message says why. Tuned so that
+the simulated Kinect v2 skeleton (``engine.sim.skeleton_model``, slowly varying joint
+errors of several cm) standing still 2.5–4 m away at initial angles up to 40° is
+collected without restarts.
 """
 
 from __future__ import annotations
@@ -233,6 +235,21 @@ def check_metres(pose: ArrayLike) -> None:
             )
 
 
+def _body_yaw_deg(ref: FloatArray, pose: FloatArray) -> float:
+    """Rotation about the vertical (deg) best aligning ``ref`` to ``pose`` (2-D Procrustes).
+
+    Pools every joint present in both (centred on their medians), so it is far less noisy
+    than the shoulder line alone; 0 when fewer than three joints are shared.
+    """
+    ok = np.isfinite(ref).all(axis=1) & np.isfinite(pose).all(axis=1)
+    if ok.sum() < 3:
+        return 0.0
+    a = ref[ok, :2] - np.median(ref[ok, :2], axis=0)
+    b = pose[ok, :2] - np.median(pose[ok, :2], axis=0)
+    return float(np.degrees(np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]),
+                                       np.sum(a * b))))
+
+
 class StillnessCollector:
     """Streaming collection of consecutive still frames (see the module docstring).
 
@@ -243,8 +260,8 @@ class StillnessCollector:
             which the user is moving.
         speed_window_s: Time base of the speed estimate.
         max_drift_m: Largest median joint shift from the collected means.
-        max_turn_deg: Largest turn of the facing (from the pose averaged over the speed
-            window) from the collected mean.
+        max_turn_deg: Largest turn about the vertical of the pose averaged over the speed
+            window from the collected mean pose.
         facing: Facing method (:func:`facing_left`); its joints must be visible.
     """
 
@@ -274,6 +291,8 @@ class StillnessCollector:
         self._k = -1
         self.restarts = 0
         self.longest = 0
+        #: why the last restart happened: "moved", "drifted", "turned" or "lost"
+        self.last_reason = ""
 
     @property
     def frames(self) -> FloatArray:
@@ -325,6 +344,8 @@ class StillnessCollector:
         if face is None or valid.sum() < len(valid) / 2:
             had = bool(self._frames)
             self._restart()
+            if had:
+                self.last_reason = "lost"
             what = ("the body" if valid.sum() < len(valid) / 2 else
                     "both shoulders" if self.facing == "shoulders" else "the shoulders or hips")
             return self._progress("moved" if had else "waiting",
@@ -338,29 +359,25 @@ class StillnessCollector:
         # speed of the body from the median joint displacement: pooling joints keeps the
         # per-joint fitting noise out, the median ignores a few wild joints
         speed = float(np.linalg.norm(np.median(p[both] - ref[1][both], axis=0))) / (t - ref[0])
-        moving = speed > self.speed_threshold_mps
-        if not moving and self._frames:
+        why = "moved" if speed > self.speed_threshold_mps else ""
+        if not why and self._frames:
             m = valid & (self._cnt > 0)
             mean = self._sum[m] / self._cnt[m, None]
             drift = float(np.linalg.norm(np.median(p[m] - mean, axis=0)))
-            # the turn is judged on the shoulder line only: hip and half lines are too
-            # short for a per-window check against a Kinect's few-cm fitting noise
-            now = facing_left(_nanmean0(np.array([h[1] for h in self._hist])),
-                              self.joint_set, "shoulders")
-            ref_face = facing_left(self._sum / np.maximum(self._cnt, 1)[:, None],
-                                   self.joint_set, "shoulders")
             turn = 0.0
             # compare with the collected mean only once it averages as many frames as the
             # window does; a single noisy frame is no reference
-            if now is not None and ref_face is not None and len(self._frames) >= len(self._hist):
-                turn = abs(float(np.degrees(np.arctan2(
-                    now[0] * ref_face[1] - now[1] * ref_face[0], now @ ref_face))))
-            moving = drift > self.max_drift_m or turn > self.max_turn_deg
-        if moving:
+            if len(self._frames) >= len(self._hist):
+                turn = abs(_body_yaw_deg(self._sum / np.maximum(self._cnt, 1)[:, None],
+                                         _nanmean0(np.array([h[1] for h in self._hist]))))
+            why = ("drifted" if drift > self.max_drift_m
+                   else "turned" if turn > self.max_turn_deg else "")
+        if why:
             had = bool(self._frames)
             self._restart()
+            self.last_reason = why
             if had:
-                return self._progress("moved", "moved — restarting; please stand still")
+                return self._progress("moved", f"{why} — restarting; please stand still")
             return self._progress("waiting", "stand still facing the sensor")
         self._frames.append(p)
         self._index.append(self._k)
