@@ -68,7 +68,7 @@ def _reference(w: Walker, t_end: float) -> GaitAnalysis:
     t = np.arange(0.0, t_end, 0.01)
     J = w.joints(t)
     s = SkeletonSeries(t, J, np.full(J.shape[:2], TrackingState.TRACKED, np.uint8), KINECT_V2)
-    return GaitAnalysis("crossing").fit(feet_from_skeleton(s))
+    return GaitAnalysis("crossing", exclude_first=True).fit(feet_from_skeleton(s))
 
 
 def _observe(w: Walker, t_end: float, rig: Any, rng: np.random.Generator) -> list[SensorStream]:
@@ -116,7 +116,9 @@ def main() -> None:
                                                      if s.sensor_id in ONE_SIDED]
                 try:
                     fused, _ = integrate_skeletons(use, est)  # type: ignore[arg-type]
-                    g = GaitAnalysis("crossing").fit(feet_from_skeleton(fused))
+                    # every walk starts from standing: the paper's exclusion rule applies
+                    g = GaitAnalysis("crossing", exclude_first=True).fit(
+                        feet_from_skeleton(fused))
                 except GaitrigError as exc:
                     key = type(exc).__name__
                     failures[key] = failures.get(key, 0) + 1

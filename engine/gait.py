@@ -154,9 +154,15 @@ def find_passes(times: FloatArray, centre: FloatArray, rate: float) -> list[Walk
         u = vt[0] / np.linalg.norm(vt[0])
         if u @ travel < 0:
             u = -u
-        # A pass that begins at the first sample with the subject already at speed did
-        # not start from standing: its first step is a normal one.
-        started_moving = bool(r[0] == np.argmax(ok) and speed[r[0]] > 0.5 * np.median(speed[r]))
+        # A pass that begins at the first sample with the subject already at speed (its
+        # first 0.5 s cover ≥ 80 % of the distance the pass's mean speed would) did not
+        # start from standing: its first step is a normal one. Raw positions, not the
+        # smoothed ones, whose edge padding slows the first samples down.
+        t_a = min(t0 + 0.5, t1)
+        k_a = int(np.searchsorted(times, t_a))
+        v_start = float((c[min(k_a, r[-1])] - c[r[0]]) @ u) / max(t_a - t0, 1e-9)
+        v_pass = float((c[r[-1]] - c[r[0]]) @ u) / (t1 - t0)
+        started_moving = bool(r[0] == np.argmax(ok) and v_start >= 0.8 * v_pass)
         passes.append(WalkPass(float(t0), float(t1), (float(u[0]), float(u[1])),
                                excluded_first=not started_moving))
     return passes

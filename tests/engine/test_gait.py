@@ -195,3 +195,21 @@ def test_brief_leg_label_swap_is_ignored() -> None:
     for s in g.steps_:
         assert s.length_m == pytest.approx(0.7, abs=0.003)
         assert s.duration_s == pytest.approx(0.55, abs=0.011)
+
+
+def test_auto_exclusion_when_recording_starts_while_accelerating() -> None:
+    w = synth_walk(n_steps=12)
+    m = walk_markers(w)
+    dt = 0.01
+    tau = np.arange(0.0, 6.0, dt)
+    rate = 0.3 + 0.7 * np.minimum(tau / 1.5, 1.0)  # speeding up from 30 % over 1.5 s
+    g = np.cumsum(rate) * dt
+    tau, g = tau[g < w.times[-1]], g[g < w.times[-1]]
+    P = np.stack([np.stack([np.interp(g, w.times, m.positions[:, i, k]) for k in range(3)], -1)
+                  for i in range(len(m.labels))], 1)
+    acc = MarkerTrajectories(tau, P, m.labels, 100.0, "m")
+    ga = GaitAnalysis("crossing").fit(feet_from_markers(acc))
+    assert ga.passes_[0].excluded_first
+    steady = GaitAnalysis("crossing").fit(feet_from_markers(m))
+    assert not steady.passes_[0].excluded_first
+    assert len(ga.steps_) == len(ga.events_) - 2  # first step dropped
