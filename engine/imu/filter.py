@@ -20,8 +20,8 @@ Ideas (after Laidig & Seel 2023, "VQF", implemented independently here):
 * Gyroscope bias: a rest detector (low gyro and acceleration variation for
   ``rest_min_t``) averages the raw rate into the bias; during motion, the corrections
   applied by inclination (and heading) are fed back as an integral term.
-* ``offline=True`` (recorded data) adds a time-reversed pass and averages the two passes'
-  inclination.
+* ``offline=True`` (recorded data): the bias is averaged from a forward and a time-reversed
+  pass, and the inclination and heading corrections are low-passed zero-phase (no lag).
 
 Output frame: ENU (x east, y north, z up), quaternions w-first, sensor-to-earth.
 """
@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.signal import butter
 
 from engine.errors import InputError
-from engine.geometry import quat_conj, quat_mul, quat_normalize, quat_rotate
+from engine.geometry import quat_mul, quat_normalize, quat_rotate
 from engine.imu.madgwick import as_sensor_array
 
 FloatArray = NDArray[np.float64]
@@ -125,8 +125,12 @@ def _qmul(aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: 
 def _filter_loop(
     gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, dt: float,
     bb: FloatArray, ba: FloatArray, p: FloatArray,
-) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
-    """Causal filter over ``(T, S, 3)`` inputs; returns quats (T,S,4), bias (T,S,3), rest."""
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], NDArray[np.bool_]]:
+    """Causal filter over ``(T, S, 3)`` inputs.
+
+    Returns quaternions (T,S,4), bias (T,S,3), rest flags (T,S) and flags of the
+    magnetometer samples used for heading (T,S).
+    """
     tau_mag, bias_tau_motion, bias_tau_rest, bias_clip = p[0], p[1], p[2], p[3]
     rest_min_t, rest_tau, rest_th_gyr, rest_th_acc = p[4], p[5], p[6], p[7]
     mag_cur_tau, mag_ref_tau, mag_norm_th, mag_dip_th = p[8], p[9], p[10], p[11]
@@ -136,6 +140,7 @@ def _filter_loop(
     out = np.empty((T, S, 4))
     bias_out = np.empty((T, S, 3))
     rest_out = np.zeros((T, S), dtype=np.bool_)
+    mag_ok_out = np.zeros((T, S), dtype=np.bool_)
     k_rest = 1.0 - np.exp(-dt / rest_tau)
     k_bias_rest = 1.0 - np.exp(-dt / bias_tau_rest)
     k_mag = 1.0 - np.exp(-dt / tau_mag)
@@ -287,6 +292,7 @@ def _filter_loop(
                         ref_norm += k_magref * (cur_norm - ref_norm)
                         ref_dip += k_magref * (cur_dip - ref_dip)
                     if not disturbed and undist_t >= mag_min_undisturbed_t and hh > 0.0:
+                        mag_ok_out[t, s] = True
                         target = 0.5 * np.pi - np.arctan2(hy, hx)
                         mag_seen += dt
                         k = k_mag
@@ -316,7 +322,7 @@ def _filter_loop(
                 qw, qx, qy, qz = _qmul(hw, 0.0, 0.0, hzz, qw, qx, qy, qz)
             out[t, s, 0], out[t, s, 1], out[t, s, 2], out[t, s, 3] = qw, qx, qy, qz
             bias_out[t, s, 0], bias_out[t, s, 1], bias_out[t, s, 2] = b0, b1, b2
-    return out, bias_out, rest_out
+    return out, bias_out, rest_out, mag_ok_out
 
 
 def _params_vector(p: FilterParams) -> FloatArray:
@@ -344,10 +350,9 @@ def orientation_filter(
         mag: same shape (any unit) or ``None`` for 6D; 6D heading is arbitrary.
         frequency: sampling rate, Hz.
         params: tuning; defaults suit human motion at 50-1000 Hz.
-        offline: for recorded data: also run the filter backwards in time and average the
-            two passes' inclination (each pass' low-pass lag and settling errors partly
-            cancel); heading stays the forward pass'. ``False`` gives the causal
-            (real-time equivalent) estimate.
+        offline: for recorded data: bias from a forward and a time-reversed pass, then
+            zero-phase (lag-free) inclination and heading corrections. ``False`` gives the
+            causal (real-time equivalent) estimate.
 
     Returns:
         ``(quat, bias, rest)``: quaternions ``(T, [S,] 4)``, gyro bias ``(T, [S,] 3)``
@@ -373,32 +378,112 @@ def orientation_filter(
     bb, ba = _butter_coeffs(p.tau_acc, float(frequency))
     pv = _params_vector(p)
     use_mag = mag is not None
-    qf, bias, rest = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv)
-    q = qf
+    q, bias, rest, mag_ok = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv)
     if offline:
-        # Time-reversed pass: sample k of the reversed series is reached from k-1 by the
-        # negated rate of the original later sample.
-        g_rev = np.ascontiguousarray(-np.concatenate([g[1:], g[-1:]])[::-1])
-        qb, _, _ = _filter_loop(g_rev, np.ascontiguousarray(a[::-1]),
-                                np.ascontiguousarray(m[::-1]), use_mag, dt, bb, ba, pv)
-        q = _blend_inclination(qf, qb[::-1])
+        q, bias = _offline(g, a, m, use_mag, dt, bb, ba, pv, p, bias, mag_ok)
     if single:
         return q[:, 0], bias[:, 0], rest[:, 0]
     return q, bias, rest
 
 
-def _blend_inclination(qf: FloatArray, qb: FloatArray, w: float = 0.5) -> FloatArray:
-    """``qf`` tilted so that its up axis (in sensor coordinates) is the weighted mean of
-    the up axes of ``qf`` and ``qb``; ``(T, S, 4)`` each, headings may differ."""
-    z = np.array([0.0, 0.0, 1.0])
-    uf = quat_rotate(quat_conj(qf), z)
-    ub = quat_rotate(quat_conj(qb), z)
-    u = w * uf + (1.0 - w) * ub
-    u /= np.linalg.norm(u, axis=-1, keepdims=True)
-    # sensor-frame rotation r taking u onto uf; then (q ⊗ r)ᵀ z = u
-    r = np.concatenate([1.0 + np.sum(u * uf, axis=-1, keepdims=True), np.cross(u, uf)],
-                       axis=-1)
-    return quat_mul(qf, quat_normalize(r))
+@njit(cache=True)
+def _strapdown(gyr: FloatArray, bias: FloatArray, dt: float) -> FloatArray:
+    """Integrate bias-corrected rates ``(T, S, 3)`` from identity; quaternions (T, S, 4)."""
+    T, S = gyr.shape[0], gyr.shape[1]
+    out = np.empty((T, S, 4))
+    for s in range(S):
+        w, x, y, z = 1.0, 0.0, 0.0, 0.0
+        for t in range(T):
+            if t > 0:
+                ox = gyr[t, s, 0] - bias[t, s, 0]
+                oy = gyr[t, s, 1] - bias[t, s, 1]
+                oz = gyr[t, s, 2] - bias[t, s, 2]
+                n = np.sqrt(ox * ox + oy * oy + oz * oz)
+                if np.isfinite(n) and n * dt > 1e-12:
+                    c = np.cos(0.5 * n * dt)
+                    sn = np.sin(0.5 * n * dt) / n
+                    w, x, y, z = _qmul(w, x, y, z, c, sn * ox, sn * oy, sn * oz)
+                    nn = np.sqrt(w * w + x * x + y * y + z * z)
+                    w, x, y, z = w / nn, x / nn, y / nn, z / nn
+            out[t, s, 0], out[t, s, 1], out[t, s, 2], out[t, s, 3] = w, x, y, z
+    return out
+
+
+def _fill_gaps(x: FloatArray, ok: NDArray[np.bool_]) -> FloatArray:
+    """Linearly interpolate rows of ``x`` (T, S, k) where ``ok`` (T, S) is False."""
+    out = x.copy()
+    idx = np.arange(len(x))
+    for s in range(x.shape[1]):
+        good = ok[:, s]
+        if good.all() or not good.any():
+            continue
+        for k in range(x.shape[2]):
+            out[~good, s, k] = np.interp(idx[~good], idx[good], x[good, s, k])
+    return out
+
+
+def _zero_phase(x: FloatArray, tau: float, fs: float) -> FloatArray:
+    """Forward-backward 2nd-order Butterworth low-pass along time (no lag)."""
+    from scipy.signal import filtfilt
+
+    b, a = _butter_coeffs(tau, fs)
+    return np.asarray(filtfilt(b, a, x, axis=0, padlen=min(len(x) - 1, int(3 * tau * fs))))
+
+
+def _offline(
+    g: FloatArray, a: FloatArray, m: FloatArray, use_mag: bool, dt: float, bb: FloatArray,
+    ba: FloatArray, pv: FloatArray, p: FilterParams, bias_f: FloatArray,
+    mag_ok_f: NDArray[np.bool_],
+) -> tuple[FloatArray, FloatArray]:
+    """Non-causal estimate from a forward and a time-reversed causal pass.
+
+    The bias is the mean of both passes' estimates; the gyroscope is integrated once with
+    it, and the inclination and heading corrections are low-passed *zero-phase* in the
+    almost-inertial frame, so the causal filter's lag disappears. Magnetometer samples
+    are used where both passes accepted them.
+    """
+    # time reversal: reversed sample k is reached from k-1 by the negated later rate
+    g_rev = np.ascontiguousarray(-np.concatenate([g[1:], g[-1:]])[::-1])
+    _, bias_b, _, mag_ok_b = _filter_loop(g_rev, np.ascontiguousarray(a[::-1]),
+                                          np.ascontiguousarray(m[::-1]), use_mag, dt, bb, ba,
+                                          pv)
+    bias = 0.5 * (bias_f - bias_b[::-1])
+    qg = _strapdown(g, np.ascontiguousarray(bias), dt)
+    fs = 1.0 / dt
+    acc_ok = np.all(np.isfinite(a), axis=-1) & (np.linalg.norm(a, axis=-1) > 0)
+    if not acc_ok.any():
+        raise InputError("no finite accelerometer sample")
+    a_i = _fill_gaps(quat_rotate(qg, np.where(acc_ok[..., None], a, 0.0)), acc_ok)
+    up = _zero_phase(a_i, p.tau_acc, fs)
+    up /= np.linalg.norm(up, axis=-1, keepdims=True)
+    cw = np.sqrt(np.maximum(0.5 * (up[..., 2] + 1.0), 1e-12))
+    q_inc = np.stack([cw, 0.5 * up[..., 1] / cw, -0.5 * up[..., 0] / cw, np.zeros_like(cw)],
+                     axis=-1)
+    q = quat_mul(q_inc, qg)
+    if use_mag:
+        ok = mag_ok_f & mag_ok_b[::-1] & np.all(np.isfinite(m), axis=-1)
+        h = quat_rotate(q, np.where(ok[..., None], m, 0.0))
+        target = 0.5 * np.pi - np.arctan2(h[..., 1], h[..., 0])
+        delta = np.zeros_like(target)
+        for s in range(q.shape[1]):
+            good = ok[:, s]
+            if good.sum() < 2:
+                continue
+            d = np.unwrap(target[good, s])
+            d_full = np.interp(np.arange(len(q)), np.flatnonzero(good), d)
+            # normalised convolution: a few accepted samples inside a disturbed stretch
+            # weigh as little as they are many, instead of defining the whole gap
+            w = _zero_phase(good.astype(float), p.tau_mag, fs)
+            num = _zero_phase(np.where(good, d_full, 0.0), p.tau_mag, fs)
+            solid = w > 0.05
+            if not solid.any():
+                continue
+            est = num[solid] / w[solid]
+            delta[:, s] = np.interp(np.arange(len(q)), np.flatnonzero(solid), est)
+        qz = np.stack([np.cos(0.5 * delta), np.zeros_like(delta), np.zeros_like(delta),
+                       np.sin(0.5 * delta)], axis=-1)
+        q = quat_mul(qz, q)
+    return quat_normalize(q), bias
 
 
 class OrientationFilter:
