@@ -65,7 +65,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         hub = app.state.hub
         viewer = None
         if settings.viewer_enabled:
-            from app.viewer.scene import Viewer, populate_sensors
+            from app.viewer.scene import Viewer, populate_sensors, populate_skeleton
 
             viewer = Viewer(settings.viewer_host, settings.viewer_port)
 
@@ -76,6 +76,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     log.exception("could not update the 3D view")
 
             hub.registry.listeners.append(redraw)
+            last_draw: dict[str, float] = {}
+
+            def draw_skeleton(s: NodeSession) -> None:
+                # ≤ 10 Hz per sensor: enough to watch, cheap for six sensors at 30 Hz
+                sk = s.skeleton
+                if sk is None or sk.t_local - last_draw.get(s.id, -1e9) < 0.1:
+                    return
+                last_draw[s.id] = sk.t_local
+                try:
+                    populate_skeleton(viewer.server, s.id, sk.positions, sk.states)
+                except Exception:
+                    log.exception("could not draw the skeleton of %s", s.id)
+
+            hub.skeleton_listeners.append(draw_skeleton)
         app.state.viewer = viewer
         try:
             yield

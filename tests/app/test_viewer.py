@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from app.config import Settings
 from app.main import create_app
 from app.nodes.protocol import Hello, SensorInfo, dump
-from app.viewer.scene import SensorView, populate_floor, populate_sensors
+from app.viewer.scene import SensorView, populate_floor, populate_sensors, populate_skeleton
 from engine.geometry import look_at, quat_to_matrix
 
 
@@ -47,6 +47,28 @@ def test_floor_and_sensors(server: viser.ViserServer) -> None:
     populate_sensors(server, [SensorView("S2", T2)])  # redraw replaces the panel
     names = _names(server)
     assert "/sensors/S1" not in names and "/sensors/S2" in names
+
+
+def test_skeleton_panel(server: viser.ViserServer) -> None:
+    from engine.skeleton import KINECT_V2, TrackingState
+
+    populate_sensors(server, [SensorView("S1", np.eye(4))])
+    J = len(KINECT_V2.joints)
+    pos = np.random.default_rng(0).normal(size=(1, J, 3)).astype(np.float32)
+    st = np.full((1, J), TrackingState.TRACKED, np.uint8)
+    st[0, KINECT_V2.index("AnkleLeft")] = TrackingState.INFERRED
+    pos[0, KINECT_V2.index("Head")] = np.nan
+    populate_skeleton(server, "S1", pos, st)
+    h = server.scene._handle_from_node_name["/sensors/S1/skeleton"]
+    segs = np.asarray(h.points)  # type: ignore[attr-defined]
+    # 24 bones; the head's one is missing (no estimate)
+    assert segs.shape == (23, 2, 3)
+    ankle = pos[0, KINECT_V2.index("AnkleLeft")]
+    cols = np.asarray(h.colors)  # type: ignore[attr-defined]
+    grey = [np.allclose(s[1], ankle) or np.allclose(s[0], ankle) for s in segs]
+    assert sum(grey) == 2 and all((cols[i] == 150).all() for i, g in enumerate(grey) if g)
+    populate_skeleton(server, "S1", pos[:0], st[:0])  # body gone
+    assert "/sensors/S1/skeleton" not in _names(server)
 
 
 def _port_open(port: int) -> bool:
