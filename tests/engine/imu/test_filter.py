@@ -116,3 +116,16 @@ def test_missing_samples_are_bridged() -> None:
         assert np.all(np.isfinite(q))
         e = orientation_errors(q, rec.quat_ref, t > 10)
         assert e["total_deg"] < 3.0
+
+
+def test_conventions_w_first_sensor_to_enu() -> None:
+    # A sensor lying flat with its x axis pointing north: sensor-to-ENU is +90° about z,
+    # i.e. w-first (cos 45°, 0, 0, sin 45°); it sees +g on z and the field's north part on x.
+    T = 2000
+    acc = np.tile([0.0, 0.0, 9.81], (T, 1))
+    mag = np.tile([20.0, 0.0, -44.0], (T, 1))
+    q, _, _ = orientation_filter(np.zeros((T, 3)), acc, mag, frequency=100.0)
+    expected = np.array([np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)])
+    assert np.allclose(q[-1] * np.sign(q[-1, 0]), expected, atol=1e-3)
+    qm = madgwick(np.zeros((T, 3)), acc, mag, beta=0.1, frequency=100.0, frame="ENU")
+    assert np.allclose(qm[-1] * np.sign(qm[-1, 0]), expected, atol=1e-3)
