@@ -478,6 +478,19 @@ class CoverageMap:
         """Fraction of the grid's cells where ``mask`` is true."""
         return float(np.mean(mask))
 
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready summary and per-cell arrays (rows = y increasing) for a browser."""
+        g = self.grid
+        return {
+            "grid": {"x0": g.x0, "x1": g.x1, "y0": g.y0, "y1": g.y1, "cell": g.cell,
+                     "nx": g.shape[1], "ny": g.shape[0]},
+            "sensor_ids": list(self.sensor_ids),
+            "counts": self.counts.tolist(),
+            "two_sided": self.two_sided.astype(int).tolist(),
+            "covered_fraction": self.fraction(~self.blind),
+            "two_sided_fraction": self.fraction(self.two_sided),
+        }
+
 
 class CoverageModel:
     """Coverage map with an incremental path for live tripod dragging.
@@ -600,6 +613,17 @@ _RAMP = np.array([  # 1, 2, 3, 4, 5, 6+ sensors: pale yellow → green → blue
     [8, 64, 129],
 ], dtype=np.uint8)
 BLIND_RGB = (215, 25, 28)
+
+
+def coverage_legend() -> list[tuple[str, tuple[int, int, int]]]:
+    """(label, RGB) pairs explaining :func:`coverage_image` colours."""
+    out: list[tuple[str, tuple[int, int, int]]] = [("blind spot (no sensor sees the whole "
+                                                    "body)", BLIND_RGB)]
+    for k, c in enumerate(_RAMP, start=1):
+        label = f"{k} sensor" + ("s" if k > 1 else "") + (" or more" if k == len(_RAMP) else "")
+        out.append((label, (int(c[0]), int(c[1]), int(c[2]))))
+    out.append(("white hatch: seen from both sides of the walkway", (255, 255, 255)))
+    return out
 
 
 def coverage_image(cmap: CoverageMap, pixels_per_cell: int = 4) -> NDArray[np.uint8]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -17,6 +18,7 @@ from engine.coverage import (
     active_area_trapezoid,
     avenue_rig,
     coverage_image,
+    coverage_legend,
     coverage_map,
     format_placement_table,
     placement_table,
@@ -273,3 +275,18 @@ def test_add_and_remove_sensors_in_planning_mode() -> None:
     assert np.array_equal(removed.two_sided, expected.two_sided)
     empty = CoverageModel([], grid).map()
     assert empty.blind.all() and not empty.two_sided.any()
+
+
+def test_map_to_dict_and_legend() -> None:
+    rig = avenue_rig()
+    cm = coverage_map(rig, Grid(-3.0, 7.0, -2.0, 2.0, 0.25))
+    d = cm.to_dict()
+    assert d["grid"]["nx"] == 40 and d["grid"]["ny"] == 16  # type: ignore[index]
+    assert np.array_equal(np.array(d["counts"]), cm.counts)
+    assert d["two_sided_fraction"] == pytest.approx(cm.two_sided.mean())
+    json.dumps(d)  # serialisable
+    legend = coverage_legend()
+    assert legend[0][1] == BLIND_RGB and len(legend) == 8
+    img = coverage_image(cm, 1)
+    colours = {tuple(int(v) for v in c) for c in img.reshape(-1, 3)}
+    assert colours <= {c for _, c in legend}
