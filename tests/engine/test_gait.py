@@ -213,3 +213,15 @@ def test_auto_exclusion_when_recording_starts_while_accelerating() -> None:
     steady = GaitAnalysis("crossing").fit(feet_from_markers(m))
     assert not steady.passes_[0].excluded_first
     assert len(ga.steps_) == len(ga.events_) - 2  # first step dropped
+
+
+def test_events_missed_on_both_feet_do_not_make_a_giant_step() -> None:
+    w = synth_walk(step_length=0.7, step_time=0.55, n_steps=12)
+    m = walk_markers(w)
+    # both ankles lost for 0.9 s (longer than any gap bridging): two placements missed
+    gone = (m.times > 2.3) & (m.times < 3.2)
+    m.positions[gone] = np.nan
+    g = GaitAnalysis("crossing", exclude_first=False).fit(feet_from_markers(m))
+    assert all(s.duration_s == pytest.approx(0.55, abs=0.011) for s in g.steps_)
+    assert all(s.duration_s == pytest.approx(1.1, abs=0.011) for s in g.strides_)
+    assert all(s.length_m == pytest.approx(0.7, abs=0.005) for s in g.steps_)
