@@ -211,7 +211,7 @@ class SensorRenderer:
         t = ans["t_hit"].numpy()
         gid = ans["geometry_ids"].numpy()
         H, W = t.shape
-        col = np.zeros((H, W, 3))
+        col = np.full((H, W, 3), 70.0)  # no surface hit (e.g. above the walls): dark ceiling
         hit = np.isfinite(t)
         p = (rays[..., :3] + rays[..., 3:] * t[..., None]).astype(float)
         fl = hit & (gid == self._floor_id)

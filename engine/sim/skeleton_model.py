@@ -395,13 +395,12 @@ def observe_skeletons(
         for _ in range(n_ev):
             t0 = t[rng.choice(cand)]
             dur = rng.uniform(*m.leg_swap_duration_s)
-            sel = (t >= t0) & (t < t0 + dur) & tracked
-            swapped |= sel
-            idx = np.nonzero(sel)[0][:, None]
-            le, ri = est[idx, _LOWER_LEG].copy(), est[idx, _LOWER_LEG_R].copy()
-            est[idx, _LOWER_LEG], est[idx, _LOWER_LEG_R] = ri, le
-            sl, sr = states[idx, _LOWER_LEG].copy(), states[idx, _LOWER_LEG_R].copy()
-            states[idx, _LOWER_LEG], states[idx, _LOWER_LEG_R] = sr, sl
+            swapped |= (t >= t0) & (t < t0 + dur) & tracked
+        idx = np.nonzero(swapped)[0][:, None]
+        le, ri = est[idx, _LOWER_LEG].copy(), est[idx, _LOWER_LEG_R].copy()
+        est[idx, _LOWER_LEG], est[idx, _LOWER_LEG_R] = ri, le
+        sl, sr = states[idx, _LOWER_LEG].copy(), states[idx, _LOWER_LEG_R].copy()
+        states[idx, _LOWER_LEG], states[idx, _LOWER_LEG_R] = sr, sl
 
     states[~tracked] = TrackingState.NOT_TRACKED
     est[states == TrackingState.NOT_TRACKED] = np.nan

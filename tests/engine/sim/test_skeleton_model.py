@@ -156,3 +156,26 @@ def test_occlusion_geometry():
     # a joint inside the capsule (its own limb) is never occluded by it
     inside = np.array([[[0.0, 0.3, 1.5]]])
     assert not occluded_joints(origin, inside, A, B, r)[0, 0]
+
+
+def test_leg_swaps_happen_only_when_legs_cross(scene):
+    rig, walker, t, _ = scene
+    s = rig.sensor("S1")
+    model = SkeletonErrorModel(leg_swap_rate_hz=2.0, leg_swap_duration_s=(0.05, 0.06))
+    ser = observe_skeletons(s, rig, walker, t, np.random.default_rng(5), model)
+    sw = ser.meta["leg_swapped"]
+    assert sw.sum() >= 5
+    J = walker.joints(t)
+    gap = np.linalg.norm(J[:, AL, :2] - J[:, AR, :2], axis=1)
+    # a swap starts with the ankles close together and lasts ≤ 60 ms
+    starts = np.nonzero(sw & ~np.r_[False, sw[:-1]])[0]
+    assert np.all(gap[starts] < 0.15)
+    # during a swap the reported left knee/ankle/foot are the right ones of the same
+    # observation without swaps (swap draws come after all noise draws)
+    ref = observe_skeletons(s, rig, walker, t, np.random.default_rng(5),
+                            SkeletonErrorModel(leg_swap_rate_hz=0.0))
+    pairs = [(KINECT_V2.index(a), KINECT_V2.index(a.replace("Left", "Right")))
+             for a in ("KneeLeft", "AnkleLeft", "FootLeft")]
+    for li, ri in pairs:
+        assert np.array_equal(ser.positions[sw, li], ref.positions[sw, ri], equal_nan=True)
+        assert np.array_equal(ser.positions[~sw, li], ref.positions[~sw, li], equal_nan=True)
