@@ -241,3 +241,32 @@ def shift_recording(rec: ImuRecording, offset: float) -> ImuRecording:
                         frequency=rec.frequency, name=rec.name, quat_ref=rec.quat_ref,
                         movement=rec.movement, meta={**rec.meta, "time_offset_s": offset},
                         warnings=list(rec.warnings))
+
+
+def sync_signals(
+    imus: Mapping[str, ImuRecording],
+    skeleton: SkeletonSeries | None = None,
+    result: SyncResult | None = None,
+    up: ArrayLike = (0.0, 0.0, 1.0),
+) -> dict[str, tuple[FloatArray, FloatArray]]:
+    """The signals the jump detection looks at, for plotting the synchronisation.
+
+    Args:
+        imus: name -> recording.
+        skeleton: depth skeleton (stream ``"skeleton"``) or ``None``.
+        result: if given, times are shifted onto the reference clock.
+        up: the skeleton world frame's up direction.
+
+    Returns:
+        stream name -> ``(times, signal)``: IMU acceleration norm and torso vertical
+        acceleration (+ g, so both read ≈ 9.81 m/s² at rest), m/s².
+    """
+    out: dict[str, tuple[FloatArray, FloatArray]] = {}
+    for name, rec in imus.items():
+        off = result.offsets.get(name, 0.0) if result else 0.0
+        out[name] = (rec.time + off, np.linalg.norm(rec.acc, axis=1))
+    if skeleton is not None:
+        t, a = torso_vertical_acceleration(skeleton, up)
+        off = result.offsets.get("skeleton", 0.0) if result else 0.0
+        out["skeleton"] = (t + off, a + G)
+    return out

@@ -7,7 +7,7 @@ import pytest
 
 from engine.errors import InputError, InsufficientDataError
 from engine.geometry import make_transform, quat_from_axis_angle, quat_to_matrix
-from engine.imu.sync import detect_spikes, shift_recording, synchronize
+from engine.imu.sync import detect_spikes, shift_recording, sync_signals, synchronize
 from engine.sim.imu import simulate_imu
 from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
 
@@ -78,6 +78,13 @@ def test_offsets_recovered() -> None:
     assert np.max(np.abs(res.spike_times["skeleton"] - impacts)) < 1 / 30
     assert res.max_residual() < 0.03
     assert res.warnings == []
+    # plotted signals on the common clock: the landing peaks line up
+    sig = sync_signals(imus, _skeleton(), res)
+    for name in ("thigh", "chest"):
+        ts_, y = sig[name]
+        k = np.argmax(np.where(np.abs(ts_ - impacts[0]) < 0.5, y, -np.inf))
+        assert abs(ts_[k] - impacts[0]) < 0.02
+    assert np.median(sig["skeleton"][1]) == pytest.approx(G, abs=0.5)
     # IMU-only: offsets between IMUs are exact to a sample
     res2 = synchronize(imus, None, reference="chest")
     assert res2.offsets["thigh"] - res2.offsets["chest"] == pytest.approx(0.37 + 1.25, abs=0.005)
