@@ -68,6 +68,8 @@ class SensorModel:
         depth_noise_a_m: Constant part of the axial depth-noise SD (m).
         depth_noise_b_per_m: Quadratic part: SD = a + b·z² (m, z in m).
         depth_dropout: Fraction of pixels randomly without return.
+        flying_pixel_prob: Probability that a pixel at a depth edge reads a mixed,
+            intermediate depth (ToF flying pixels; Sarbolandi et al. 2015).
     """
 
     depth_width: int = 512
@@ -86,6 +88,7 @@ class SensorModel:
     depth_noise_a_m: float = 0.0010
     depth_noise_b_per_m: float = 0.00015
     depth_dropout: float = 0.002
+    flying_pixel_prob: float = 0.3
 
     def depth_intrinsics(self) -> FloatArray:
         """3×3 pinhole matrix of the depth camera."""

@@ -124,7 +124,8 @@ class SimWorld:
             sensor_id: Sensor id.
             t_true: True time (s), ≥ the world's first frame.
             render: Ray-cast depth/body index (and colour); otherwise the images are empty
-                (0 × 0) and only the skeletons are returned.
+                (0 × 0) and only the skeletons are returned. The body index marks only
+                bodies whose skeleton is tracked in that frame, as the Kinect SDK does.
             with_color: Also render colour (when ``render``).
 
         Returns:
@@ -159,6 +160,10 @@ class SimWorld:
             rng = np.random.default_rng([self.seed, st.index, 1_000_000 + offset + i])
             meshes = [w.body_mesh(t) for w in self.walkers]
             fr = st.renderer.render(meshes, rng, with_color=with_color)
+            # like the Kinect SDK, the body-index image shows tracked bodies only
+            for b, ser in enumerate(chunk.series):
+                if not ser.meta["body_tracked"][i]:
+                    fr.body_index[fr.body_index == b] = 255
         else:
             empty = np.zeros((0, 0), dtype=np.uint16)
             fr = SimFrame(sensor_id=sensor_id, depth=empty,

@@ -81,3 +81,14 @@ def test_bad_color_size():
     rig = default_avenue_rig()
     with pytest.raises(InputError, match="color_size"):
         SensorRenderer(rig.sensors[0], rig, color_size=(4, 4))
+
+
+def test_flying_pixels_only_at_depth_edges():
+    from engine.sim.render import _flying_pixels
+
+    z = np.ones((20, 30))
+    z[:, 15:] = 3.0
+    out = _flying_pixels(z, np.random.default_rng(0), prob=1.0)
+    changed = out != z
+    assert changed[:, 15].all() and changed.sum() == 20  # the far side of the edge only
+    assert np.all((out[:, 15] > 1.0) & (out[:, 15] < 3.0))

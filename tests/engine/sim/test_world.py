@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from engine.errors import InputError
+from engine.sim.render import SensorRenderer
 from engine.sim.rig import default_avenue_rig
 from engine.sim.walker import Walker, WalkerParams
 from engine.sim.world import SimWorld
@@ -40,6 +41,18 @@ def test_frame_sequence_and_rendering():
     assert idx == [idx[0], idx[0] + 1, idx[0] + 2]
     f = frames[0]
     assert f.depth.shape == (424, 512) and f.color is not None and f.color.shape == (90, 160, 3)
+    assert len(f.meta["skeletons"]) == 1 and (f.body_index == 0).sum() > 500
+    # a body in view but not (yet) tracked has no body-index pixels, as with the SDK
+    raw = SensorRenderer(world.rig.sensor("S1"), world.rig, color_size=None)
+    checked = 0
+    for t in world.frame_times("S1", 0.0, 4.0)[::2]:
+        f = world.frame("S1", t, with_color=False)
+        if f.meta["skeletons"]:
+            continue
+        if (raw.render([world.walkers[0].body_mesh(t)]).body_index == 0).sum() > 300:
+            assert np.all(f.body_index == 255)
+            checked += 1
+    assert checked >= 1
     # across a chunk boundary (5 s) the frame period stays within 25–35 Hz
     assert np.all(np.diff(world.frame_times("S3", 4.0, 6.0)) < 1 / 25 + 1e-9)
     with pytest.raises(InputError, match="no sensor"):
