@@ -1,8 +1,9 @@
 """The seed paper's validation protocol in simulation (Tables 1–3), one JSON line.
 
 10 simulated subjects (``WalkerParams.random``) × 10 walks of 7 m (from standing, left
-foot first, walking on past the end so that there is no slowing down) through the six-sensor avenue (``default_avenue_rig``), skeletons observed
-with the SIM error model (``observe_skeletons``) on each sensor's own jittered ~30 Hz
+foot first, walking on past the end so that there is no slowing down) through the
+six-sensor avenue (``default_avenue_rig``), skeletons observed with the SIM error model
+(``observe_skeletons``) on each sensor's own jittered ~30 Hz
 clock. The Kinect side: integration (clock correction, 30 Hz, fusion, 6 Hz filter) with
 the paper's equal-weight ``mean`` and our ``weighted`` estimator, from the left sensors
 only (one-sided) and from all six (two-sided); the reference ("Vicon") side: the same
