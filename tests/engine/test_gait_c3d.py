@@ -45,6 +45,15 @@ def test_every_annotated_foot_strike_detected_within_20ms(walk: Path) -> None:
         assert err <= 0.020, f"{ref.side} strike at {ref.time_s:.3f}s: nearest off by {err:.3f}s"
 
 
+def test_annotated_foot_offs_detected_within_20ms(walk: Path) -> None:
+    f = load_feet(walk)
+    g = GaitAnalysis("heelstrike").fit(f)
+    det = [e for e in g.events_ if e.kind == "foot_off"]
+    for ref in (e for e in f.events if e.kind == "foot_off"):
+        err = min(abs(e.time_s - ref.time_s) for e in det if e.side == ref.side)
+        assert err <= 0.020, f"{ref.side} foot off at {ref.time_s:.3f}s: off by {err:.3f}s"
+
+
 def test_step_lengths_and_widths_match_annotated_events(walk: Path) -> None:
     f = load_feet(walk)
     g = GaitAnalysis("heelstrike", exclude_first=False).fit(f)

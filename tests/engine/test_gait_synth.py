@@ -2,9 +2,10 @@
 
 Kinematics: feet are placed alternately (left first) at ``k·step_length`` along the
 walking direction, ``±step_width/2`` to the side; each foot swings with a minimum-jerk
-horizontal profile and a sin² heel lift (zero vertical velocity at landing), leaving the
-floor ``double_support_s`` after the other foot lands. The pelvis moves at the mean
-speed. Exact ground truth: step length/width/time, strike and off times.
+horizontal profile, a sin² heel lift (zero vertical velocity at landing) and a sin toe
+lift (fastest rise at lift-off), leaving the floor ``double_support_s`` after the other
+foot lands. The pelvis moves at the mean speed. Exact ground truth: step length, width
+and time, strike and off times.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ def synth_walk(step_length: float = 0.7, step_width: float = 0.12, step_time: fl
         x = np.zeros_like(t)
         y = np.zeros_like(t)
         lift = np.zeros_like(t)
+        toe_lift = np.zeros_like(t)
         for k in ks:
             s_k, xk, yk, tk = place[k]
             if s_k != side or k - 2 not in place:
@@ -70,11 +72,14 @@ def synth_walk(step_length: float = 0.7, step_width: float = 0.12, step_time: fl
             x[sw] = xp + (xk - xp) * h
             y[sw] = yp + (yk - yp) * h
             lift[sw] = np.sin(np.pi * s) ** 2
+            # The toe leaves the floor at its fastest rise (the foot-velocity algorithm's
+            # toe-off) and touches down after the heel.
+            toe_lift[sw] = np.sin(np.pi * s)
             x[st] = xk
             y[st] = yk
         ankle = np.stack([x, y, 0.08 + 0.10 * lift], axis=1)
         local[f"heel{side}"] = ankle + np.array([-0.05, 0.0, -0.05])
-        local[f"toe{side}"] = np.stack([x + 0.15, y, 0.03 + 0.10 * lift], axis=1)
+        local[f"toe{side}"] = np.stack([x + 0.15, y, 0.03 + 0.10 * toe_lift], axis=1)
         local[f"ankle{side}"] = ankle
     px = v * t - Ls / 2
     sway = 0.02 * np.sin(np.pi * t / Ts)
