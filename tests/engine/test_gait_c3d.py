@@ -85,3 +85,14 @@ def test_crossing_method_on_vicon(walk: Path) -> None:
     # ≈ 2 m walked in ≈ 2 s by an adult: plausible ranges
     assert 0.4 < g.summary_["step_length_m"]["mean"] < 0.7
     assert 0.6 < g.summary_["walking_speed_m_s"] < 1.3
+
+
+def test_stance_matches_annotated_events(walk: Path) -> None:
+    f = load_feet(walk)
+    g = GaitAnalysis("heelstrike").fit(f)
+    for side, key in (("L", "left_mean"), ("R", "right_mean")):
+        fs = sorted(e.time_s for e in f.events if e.side == side and e.kind == "foot_strike")
+        fo = [e.time_s for e in f.events if e.side == side and e.kind == "foot_off"
+              and fs[0] < e.time_s < fs[1]]
+        ref = 100.0 * (fo[0] - fs[0]) / (fs[1] - fs[0])
+        assert g.summary_["stance_pct"][key] == pytest.approx(ref, abs=2.0)
