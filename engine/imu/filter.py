@@ -127,9 +127,9 @@ def _qmul(aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: 
 @njit(cache=True)
 def _filter_loop(
     gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, dt: float,
-    bb: FloatArray, ba: FloatArray, p: FloatArray,
+    bb: FloatArray, ba: FloatArray, p: FloatArray, bias0: FloatArray,
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], NDArray[np.bool_]]:
-    """Causal filter over ``(T, S, 3)`` inputs.
+    """Causal filter over ``(T, S, 3)`` inputs, starting from gyro bias ``bias0`` (S, 3).
 
     Returns quaternions (T,S,4), bias (T,S,3), rest flags (T,S) and flags of the
     magnetometer samples used for heading (T,S).
@@ -153,7 +153,7 @@ def _filter_loop(
         gw, gx, gy, gz = 1.0, 0.0, 0.0, 0.0          # strapdown q_g (sensor -> I)
         iw, ix, iy, iz = 1.0, 0.0, 0.0, 0.0          # inclination correction (I -> I')
         delta = 0.0                                   # heading (I' -> ENU) about z
-        b0, b1, b2 = 0.0, 0.0, 0.0                    # gyro bias estimate
+        b0, b1, b2 = bias0[s, 0], bias0[s, 1], bias0[s, 2]  # gyro bias estimate
         # Butterworth state (direct form II transposed) per axis
         z1 = np.zeros(3)
         z2 = np.zeros(3)
@@ -381,7 +381,8 @@ def orientation_filter(
     bb, ba = _butter_coeffs(p.tau_acc, float(frequency))
     pv = _params_vector(p)
     use_mag = mag is not None
-    q, bias, rest, mag_ok = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv)
+    q, bias, rest, mag_ok = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
+                                         np.zeros((g.shape[1], 3)))
     if offline:
         q, bias = _offline(g, a, m, use_mag, dt, bb, ba, pv, p, bias, mag_ok)
     if single:
@@ -440,16 +441,23 @@ def _offline(
 ) -> tuple[FloatArray, FloatArray]:
     """Non-causal estimate from a forward and a time-reversed causal pass.
 
-    The bias is the mean of both passes' estimates; the gyroscope is integrated once with
+    The bias is the mean of a backward and a second forward pass' estimates (each started
+    from the other's final bias); the gyroscope is integrated once with
     it, and the inclination and heading corrections are low-passed *zero-phase* in the
     almost-inertial frame, so the causal filter's lag disappears. Magnetometer samples
     are used where both passes accepted them.
     """
-    # time reversal: reversed sample k is reached from k-1 by the negated later rate
+    # time reversal: reversed sample k is reached from k-1 by the negated later rate (so
+    # the bias appears negated). The backward pass starts from the bias the forward pass
+    # ended with, and a second forward pass from the bias the backward pass ended with:
+    # both then know the bias from their first sample, even if the recording starts or
+    # ends in motion (no rest to learn it from).
     g_rev = np.ascontiguousarray(-np.concatenate([g[1:], g[-1:]])[::-1])
-    _, bias_b, _, mag_ok_b = _filter_loop(g_rev, np.ascontiguousarray(a[::-1]),
-                                          np.ascontiguousarray(m[::-1]), use_mag, dt, bb, ba,
-                                          pv)
+    a_rev, m_rev = np.ascontiguousarray(a[::-1]), np.ascontiguousarray(m[::-1])
+    _, bias_b, _, mag_ok_b = _filter_loop(g_rev, a_rev, m_rev, use_mag, dt, bb, ba, pv,
+                                          np.ascontiguousarray(-bias_f[-1]))
+    _, bias_f, _, mag_ok_f = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
+                                          np.ascontiguousarray(-bias_b[-1]))
     bias = 0.5 * (bias_f - bias_b[::-1])
     qg = _strapdown(g, np.ascontiguousarray(bias), dt)
     fs = 1.0 / dt

@@ -8,6 +8,7 @@ import pytest
 from engine.errors import InputError
 from engine.imu.fusion import flexion_angles, rmse
 from engine.imu.pipeline import angles_csv, process_imu_session
+from engine.imu.sync import shift_recording
 from engine.skeleton import KINECT_V2, SkeletonSeries
 from tests.engine.imu.test_fusion import T_PLANK, T_STILL, T_STRAP, scenario  # noqa: F401
 
@@ -42,3 +43,71 @@ def test_session_input_errors(scenario: dict) -> None:  # noqa: F811
     imus.pop("chest")
     with pytest.raises(InputError, match="chest"):
         process_imu_session(imus, scenario["depth"], synchronise=False)
+
+
+def test_session_with_jump_sync() -> None:
+    """Full protocol: plank, strapping, five jumps, standing, walking; every IMU clock and
+    the depth clock disagree. Sync, plank, fusion and angles run in one call."""
+    from engine.geometry import (
+        make_transform,
+        quat_from_axis_angle,
+        quat_from_matrix,
+        quat_slerp,
+        quat_to_matrix,
+    )
+    from engine.imu.fusion import PAPER_SENSORS
+    from engine.sim.imu import simulate_imu
+    from engine.sim.walker import Walker, WalkerParams
+    from engine.skeleton import TrackingState
+    from tests.engine.imu.test_sync import _height
+
+    fs, t_jump0, t_walk, t_end = 100.0, 5.0, 15.0, 19.0
+    walker = Walker(WalkerParams(), [0.0, 0.0, 0.0], [6.0, 0.3, 0.0], start_time=t_walk, seed=5)
+    t = np.arange(0.0, t_end, 1 / fs)
+    tw = np.maximum(t, t_walk)
+    dz = np.where(t >= t_jump0, _height(t - t_jump0) - 1.0, 0.0)  # whole-body jumps
+    frames = walker.bone_frames(tw)
+    q_plank = quat_from_axis_angle([0.0, 1.0, 0.0], 0.3)
+    offsets = {}
+    recs = {}
+    rng = np.random.default_rng(4)
+    for i, sensor in enumerate(PAPER_SENSORS):
+        bone = frames["trunk" if sensor == "chest" else sensor].copy()
+        bone[:, 2, 3] += dz
+        T_bs = make_transform(quat_to_matrix(quat_from_axis_angle(rng.normal(size=3), 0.5)),
+                              [0.0, 0.04, -0.1])
+        T_ws = bone @ T_bs
+        k0 = int(t_jump0 * fs)
+        q_body = quat_from_matrix(T_ws[k0, :3, :3])
+        p_plank = np.array([1.0, -1.0 + 0.08 * i, 0.8])
+        for k in range(k0):
+            if t[k] < 3.0:
+                q, p = q_plank, p_plank
+            else:
+                s = (t[k] - 3.0) / 2.0
+                s = s ** 3 * (10 - 15 * s + 6 * s ** 2)
+                q, p = quat_slerp(q_plank, q_body, s), (1 - s) * p_plank + s * T_ws[k0, :3, 3]
+            T_ws[k] = make_transform(quat_to_matrix(q), p)
+        rec = simulate_imu(t, T_ws, rng=50 + i, name=sensor)
+        offsets[sensor] = float(rng.uniform(-2.0, 2.0))
+        recs[sensor] = shift_recording(rec, -offsets[sensor])  # the IMU's own clock
+    td = np.arange(t_jump0 + 0.3, t_end - 0.1, 1 / 30)
+    J = walker.joints(np.maximum(td, t_walk))
+    J[:, :, 2] += np.where(td >= t_jump0, _height(td - t_jump0) - 1.0, 0.0)[:, None]
+    J += np.random.default_rng(9).normal(0, 0.01, J.shape)
+    depth = SkeletonSeries(td, J, np.full(J.shape[:2], TrackingState.TRACKED, np.uint8),
+                           KINECT_V2)
+
+    res = process_imu_session(recs, depth, q_world_plank=q_plank)
+    assert res.sync is not None
+    for sensor, off in offsets.items():
+        # waveform matching: a few ms (the 30 Hz landing peaks alone are ~15 ms off)
+        assert res.sync.offsets[sensor] == pytest.approx(off, abs=0.005)
+    assert res.calibration.time < 3.0
+    fsk = res.fused.skeleton
+    walk = fsk.times > t_walk
+    truth = SkeletonSeries(fsk.times, walker.joints(np.maximum(fsk.times, t_walk)),
+                           fsk.states, KINECT_V2)
+    ang_t = flexion_angles(truth)
+    for j in ("knee_left", "knee_right"):
+        assert rmse(res.angles_fused[j][walk], ang_t[j][walk]) < 4.0
