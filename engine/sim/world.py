@@ -107,7 +107,7 @@ class SimWorld:
             m = (tt >= t0) & (tt <= t1)
             meta = dict(parts[0].meta)
             for key in ("times_true", "times_local", "body_tracked", "mirrored", "leg_swapped",
-                        "occluded"):
+                        "occluded", "hidden_tracked"):
                 meta[key] = np.concatenate([p.meta[key] for p in parts])[m]
             out.append(SkeletonSeries(
                 times=np.concatenate([p.times for p in parts])[m],

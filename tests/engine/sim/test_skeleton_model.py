@@ -81,7 +81,9 @@ def test_occluded_joints_are_inferred_or_not_tracked(scene):
         mirrored = ser.meta["mirrored"] | ser.meta["leg_swapped"]
         occ = occ & ~mirrored[:, None]
         n_occ += occ.sum()
-        assert np.all(ser.states[occ] != TrackingState.TRACKED)
+        # unnoticed occlusions (a model option) are the only hidden joints reported TRACKED
+        assert np.all(ser.states[occ & ~ser.meta["hidden_tracked"]] != TrackingState.TRACKED)
+        assert ser.meta["hidden_tracked"][occ].mean() <= 0.5
     assert n_occ > 100
     # the far (right) ankle seen from a left sensor is hidden far more often than the near one
     ser = obs["S3"]
@@ -179,3 +181,14 @@ def test_leg_swaps_happen_only_when_legs_cross(scene):
     for li, ri in pairs:
         assert np.array_equal(ser.positions[sw, li], ref.positions[sw, ri], equal_nan=True)
         assert np.array_equal(ser.positions[~sw, li], ref.positions[~sw, li], equal_nan=True)
+
+
+def test_unnoticed_occlusions_are_reported_tracked(scene):
+    rig, walker, t, _ = scene
+    s = rig.sensor("S3")
+    ser = observe_skeletons(s, rig, walker, t, np.random.default_rng(7),
+                            SkeletonErrorModel(hidden_reported_tracked=1.0, leg_swap_rate_hz=0))
+    occ = ser.meta["occluded"] & ser.meta["body_tracked"][:, None] & ~ser.meta["mirrored"][:, None]
+    assert occ.sum() > 10
+    assert np.all(ser.meta["hidden_tracked"][occ])
+    assert np.all(ser.states[occ] == TrackingState.TRACKED)
