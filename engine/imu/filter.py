@@ -24,7 +24,7 @@ Ideas (after Laidig & Seel 2023, "VQF", implemented independently here):
   ``rest_min_t``) averages the raw rate into the bias; during motion, the corrections
   applied by inclination (and heading) are fed back as an integral term.
 * ``offline=True`` (recorded data): the bias is averaged from a forward and a time-reversed
-  pass, and the inclination and heading corrections are low-passed zero-phase (no lag).
+  pass, and the inclination correction is low-passed zero-phase (no lag).
 
 Output frame: ENU (x east, y north, z up), quaternions w-first, sensor-to-earth.
 """
@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.signal import butter
 
 from engine.errors import InputError
-from engine.geometry import quat_mul, quat_normalize, quat_rotate
+from engine.geometry import quat_conj, quat_mul, quat_normalize, quat_rotate
 from engine.imu.madgwick import as_sensor_array
 
 FloatArray = NDArray[np.float64]
@@ -353,9 +353,9 @@ def orientation_filter(
         mag: same shape (any unit) or ``None`` for 6D; 6D heading is arbitrary.
         frequency: sampling rate, Hz.
         params: tuning; defaults suit human motion at 50-1000 Hz.
-        offline: for recorded data: bias from a forward and a time-reversed pass, then
-            zero-phase (lag-free) inclination and heading corrections. ``False`` gives the
-            causal (real-time equivalent) estimate.
+        offline: for recorded data: bias from a forward and a time-reversed pass, then a
+            zero-phase (lag-free) inclination correction; heading from the forward pass.
+            ``False`` gives the causal (real-time equivalent) estimate.
 
     Returns:
         ``(quat, bias, rest)``: quaternions ``(T, [S,] 4)``, gyro bias ``(T, [S,] 3)``
@@ -381,10 +381,10 @@ def orientation_filter(
     bb, ba = _butter_coeffs(p.tau_acc, float(frequency))
     pv = _params_vector(p)
     use_mag = mag is not None
-    q, bias, rest, mag_ok = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
-                                         np.zeros((g.shape[1], 3)))
+    q, bias, rest, _ = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
+                                    np.zeros((g.shape[1], 3)))
     if offline:
-        q, bias = _offline(g, a, m, use_mag, dt, bb, ba, pv, p, bias, mag_ok)
+        q, bias = _offline(g, a, m, use_mag, dt, bb, ba, pv, p, bias)
     if single:
         return q[:, 0], bias[:, 0], rest[:, 0]
     return q, bias, rest
@@ -434,30 +434,47 @@ def _zero_phase(x: FloatArray, tau: float, fs: float) -> FloatArray:
     return np.asarray(filtfilt(b, a, x, axis=0, padlen=min(len(x) - 1, int(3 * tau * fs))))
 
 
+def _tilt_to(q: FloatArray, u: FloatArray) -> FloatArray:
+    """``q`` minimally re-tilted so that its up axis in sensor coordinates becomes ``u``."""
+    uq = quat_rotate(quat_conj(q), np.array([0.0, 0.0, 1.0]))
+    # sensor-frame rotation r taking u onto uq; then (q ⊗ r)ᵀ z = u
+    r = np.concatenate([1.0 + np.sum(u * uq, axis=-1, keepdims=True), np.cross(u, uq)],
+                       axis=-1)
+    return quat_mul(q, quat_normalize(r))
+
+
+def _yaw_between(q_a: FloatArray, q_b: FloatArray) -> FloatArray:
+    """Heading angle about earth z from ``q_b`` to ``q_a`` (twist of ``q_a ⊗ q_b*``)."""
+    e = quat_mul(q_a, quat_conj(q_b))
+    return 2.0 * np.arctan2(e[..., 3], e[..., 0])
+
+
 def _offline(
     g: FloatArray, a: FloatArray, m: FloatArray, use_mag: bool, dt: float, bb: FloatArray,
     ba: FloatArray, pv: FloatArray, p: FilterParams, bias_f: FloatArray,
-    mag_ok_f: NDArray[np.bool_],
 ) -> tuple[FloatArray, FloatArray]:
-    """Non-causal estimate from a forward and a time-reversed causal pass.
+    """Non-causal estimate from forward and time-reversed causal passes.
 
-    The bias is the mean of a backward and a second forward pass' estimates (each started
-    from the other's final bias); the gyroscope is integrated once with
-    it, and the inclination and heading corrections are low-passed *zero-phase* in the
-    almost-inertial frame, so the causal filter's lag disappears. Magnetometer samples
-    are used where both passes accepted them.
+    * Bias: mean of a backward and a second forward pass' estimates, each started from
+      the bias the other pass ended with, so both know it from their first sample even
+      when the recording starts or ends in motion.
+    * Inclination: the bias-corrected gyroscope is integrated once and the acceleration is
+      low-passed *zero-phase* in that almost-inertial frame (no lag). Within a few
+      ``tau_acc`` of either end, where a zero-phase filter lacks data on one side, the
+      inclination fades to the causal pass that has settled there (backward at the
+      start, forward at the end).
+    * Heading (9D): the forward causal pass' (its rejection logic needs the causal
+      history; zero-phase heading gave no gain on BROAD).
     """
     # time reversal: reversed sample k is reached from k-1 by the negated later rate (so
-    # the bias appears negated). The backward pass starts from the bias the forward pass
-    # ended with, and a second forward pass from the bias the backward pass ended with:
-    # both then know the bias from their first sample, even if the recording starts or
-    # ends in motion (no rest to learn it from).
+    # the bias appears negated)
     g_rev = np.ascontiguousarray(-np.concatenate([g[1:], g[-1:]])[::-1])
     a_rev, m_rev = np.ascontiguousarray(a[::-1]), np.ascontiguousarray(m[::-1])
-    _, bias_b, _, mag_ok_b = _filter_loop(g_rev, a_rev, m_rev, use_mag, dt, bb, ba, pv,
-                                          np.ascontiguousarray(-bias_f[-1]))
-    _, bias_f, _, mag_ok_f = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
-                                          np.ascontiguousarray(-bias_b[-1]))
+    q_b, bias_b, _, _ = _filter_loop(g_rev, a_rev, m_rev, use_mag, dt, bb, ba, pv,
+                                     np.ascontiguousarray(-bias_f[-1]))
+    q_f, bias_f, _, _ = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
+                                     np.ascontiguousarray(-bias_b[-1]))
+    q_b = q_b[::-1]
     bias = 0.5 * (bias_f - bias_b[::-1])
     qg = _strapdown(g, np.ascontiguousarray(bias), dt)
     fs = 1.0 / dt
@@ -471,28 +488,19 @@ def _offline(
     q_inc = np.stack([cw, 0.5 * up[..., 1] / cw, -0.5 * up[..., 0] / cw, np.zeros_like(cw)],
                      axis=-1)
     q = quat_mul(q_inc, qg)
+    # edge fading of the inclination towards the settled causal pass
+    t = np.arange(len(q)) * dt
+    e_start = np.exp(-t / p.tau_acc)[:, None, None]
+    e_end = np.exp(-(t[-1] - t) / p.tau_acc)[:, None, None]
+    e_start, e_end = e_start * (1.0 - e_end), e_end * (1.0 - e_start)
+    z = np.array([0.0, 0.0, 1.0])
+    u = ((1.0 - e_start - e_end) * quat_rotate(quat_conj(q), z)
+         + e_start * quat_rotate(quat_conj(q_b), z) + e_end * quat_rotate(quat_conj(q_f), z))
+    q = _tilt_to(q, u / np.linalg.norm(u, axis=-1, keepdims=True))
     if use_mag:
-        ok = mag_ok_f & mag_ok_b[::-1] & np.all(np.isfinite(m), axis=-1)
-        h = quat_rotate(q, np.where(ok[..., None], m, 0.0))
-        target = 0.5 * np.pi - np.arctan2(h[..., 1], h[..., 0])
-        delta = np.zeros_like(target)
-        for s in range(q.shape[1]):
-            good = ok[:, s]
-            if good.sum() < 2:
-                continue
-            d = np.unwrap(target[good, s])
-            d_full = np.interp(np.arange(len(q)), np.flatnonzero(good), d)
-            # normalised convolution: a few accepted samples inside a disturbed stretch
-            # weigh as little as they are many, instead of defining the whole gap
-            w = _zero_phase(good.astype(float), p.tau_mag, fs)
-            num = _zero_phase(np.where(good, d_full, 0.0), p.tau_mag, fs)
-            solid = w > 0.05
-            if not solid.any():
-                continue
-            est = num[solid] / w[solid]
-            delta[:, s] = np.interp(np.arange(len(q)), np.flatnonzero(solid), est)
-        qz = np.stack([np.cos(0.5 * delta), np.zeros_like(delta), np.zeros_like(delta),
-                       np.sin(0.5 * delta)], axis=-1)
+        yaw = _yaw_between(q_f, q)
+        qz = np.stack([np.cos(0.5 * yaw), np.zeros_like(yaw), np.zeros_like(yaw),
+                       np.sin(0.5 * yaw)], axis=-1)
         q = quat_mul(qz, q)
     return quat_normalize(q), bias
 

@@ -108,7 +108,7 @@ def process_imu_session(
     use_magnetometer: bool = True,
     params: FilterParams | None = None,
     up: ArrayLike = (0.0, 0.0, 1.0),
-    offline: bool = False,
+    offline: bool = True,
 ) -> ImuSessionResult:
     """Fuse IMU recordings with a depth skeleton (seed 002 end to end).
 
@@ -124,10 +124,8 @@ def process_imu_session(
         use_magnetometer: 9D fusion when every recording has a magnetometer.
         params: filter tuning.
         up: world up direction for the skeleton's jump detection.
-        offline: use the filter's zero-phase (non-causal) mode. Off by default: it is
-            more accurate inside long recordings (BROAD), but its zero-phase filters need
-            a few time constants of data after the last movement of interest, and gait
-            sessions often end mid-walk.
+        offline: use the filter's non-causal mode (the session is recorded): bias known
+            from the first sample and lag-free inclination.
 
     Raises:
         InputError: unknown sensor names or missing chest sensor.
