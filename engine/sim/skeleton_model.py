@@ -37,14 +37,15 @@ one-sided; step-width error SD ≈ 2–2.5 cm two-sided, 4–6.5 cm one-sided), 
 3–4 sensors averaged two-sided, implies per-sensor slowly varying ankle errors of
 ≈ 3–4 cm along and ≈ 2.5–3 cm across the walkway.
 
-Check against the paper with its own averaging (``bench/gait_study.py``: 10 random
-subjects × 6 walks, equal-weight mean of TRACKED joints, 6 Hz filter, crossing events),
-step-level ICC(A,1) / bias (cm), simulation vs paper:
+Check against the paper with its own averaging (``bench/gait_study.py``, full protocol:
+10 random subjects × 10 walks of 7 m, equal-weight mean of TRACKED joints, 6 Hz filter,
+crossing events), step-level ICC(A,1) / bias (cm), simulation vs paper:
 
-* two-sided: step length L 0.83 / −0.2 vs 0.83 / 0.41, R 0.82 / 0.3 vs 0.80 / 0.34;
-  step width L 0.61 / −1.1 vs 0.675 / −1.57, R 0.62 / −1.1 vs 0.65 / 2.24.
-* one-sided (left sensors): step length L 0.73 / −2.0 vs 0.649 / −1.10, R 0.67 / 2.3 vs
-  0.434 / 1.73; step width L 0.40 / −1.3 vs 0.493 / −1.49, R 0.48 / −1.2 vs 0.297 / 2.68.
+* two-sided: step length L 0.83 / 0.29 vs 0.83 / 0.41, R 0.82 / −0.27 vs 0.80 / 0.34;
+  step width L 0.69 / −0.94 vs 0.675 / −1.57, R 0.63 / −0.82 vs 0.65 / 2.24.
+* one-sided (left sensors): step length L 0.71 / −1.24 vs 0.649 / −1.10, R 0.71 / 1.16
+  vs 0.434 / 1.73; step width L 0.49 / −0.67 vs 0.493 / −1.49, R 0.46 / −0.66 vs
+  0.297 / 2.68. One-sided is worse than two-sided in every row, as in the paper.
 
 Known gaps: the paper's positive step-width bias of right steps (in both set-ups, so not
 a view effect) and its much worse one-sided right-step agreement are not reproduced —
