@@ -137,17 +137,41 @@ def find_passes(times: FloatArray, centre: FloatArray, rate: float) -> list[Walk
     c[: np.argmax(ok)] = c[np.argmax(ok)]
     win = max(3, round(0.8 * rate))
     cs = uniform_filter1d(c, win, axis=0, mode="nearest")
-    v = np.gradient(cs, times, axis=0)
+    # Velocity and turn rate over ±0.25 s baselines: per-sample derivatives of noisy
+    # positions would split a straight pass at every noise spike.
+    k = max(1, round(0.25 * rate))
+    n = len(times)
+    ia = np.clip(np.arange(n) - k, 0, n - 1)
+    ib = np.clip(np.arange(n) + k, 0, n - 1)
+    dt = np.maximum(times[ib] - times[ia], 1e-9)
+    v = (cs[ib] - cs[ia]) / dt[:, None]
     speed = np.linalg.norm(v, axis=1)
     heading = np.unwrap(np.arctan2(v[:, 1], v[:, 0]))
-    turn = np.degrees(np.abs(np.gradient(heading, times)))
+    turn = np.degrees(np.abs(heading[ib] - heading[ia]) / dt)
     straight = (speed > MIN_WALK_SPEED) & (turn < MAX_STRAIGHT_TURN_RATE) & ok
     passes: list[WalkPass] = []
     idx = np.flatnonzero(straight)
     if len(idx) == 0:
         return []
     runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    # Re-join runs split by a short interruption (< 0.3 s) without a change of heading.
+    merged = [runs[0]]
+    for r in runs[1:]:
+        prev = merged[-1]
+        dh = np.degrees(abs(np.angle(np.exp(1j * (heading[r[0]] - heading[prev[-1]])))))
+        if times[r[0]] - times[prev[-1]] < 0.3 and dh < 30.0:
+            merged[-1] = np.arange(prev[0], r[-1] + 1)
+        else:
+            merged.append(r)
+    runs = merged
     for r in runs:
+        # The ±k baselines blur a run's ends into the standing/turning around it.
+        if r[0] > 0:
+            r = r[k:]
+        if r[-1] < n - 1 and len(r) > k:
+            r = r[:-k]
+        if len(r) < 3:
+            continue
         t0, t1 = times[r[0]], times[r[-1]]
         seg = c[r]
         travel = cs[r[-1]] - cs[r[0]]
@@ -219,6 +243,10 @@ class GaitAnalysis:
             speed at the start of the recording.
         min_event_period_s: two events of the same kind and foot are at least this far
             apart (a stride is ≥ 0.6 s even when running slowly).
+        placement_window_s: crossing method: the placed foot's position is the median
+            over ± this window around the crossing (mid-stance, when the foot stands
+            still for ≳ 0.3 s at walking speeds) instead of its position at the crossing
+            instant (0: the paper's rule).
 
     Attributes (after :meth:`fit`):
         passes_: straight passes with their directions.
@@ -229,7 +257,7 @@ class GaitAnalysis:
     """
 
     def __init__(self, method: Method = "crossing", exclude_first: bool | str = "auto",
-                 min_event_period_s: float = 0.4) -> None:
+                 min_event_period_s: float = 0.4, placement_window_s: float = 0.1) -> None:
         if method not in ("crossing", "heelstrike"):
             raise InputError(f"method must be 'crossing' or 'heelstrike', got {method!r}")
         if exclude_first not in (True, False, "auto"):
@@ -237,6 +265,9 @@ class GaitAnalysis:
         self.method: Method = method
         self.exclude_first = exclude_first
         self.min_event_period_s = float(min_event_period_s)
+        if not 0.0 <= placement_window_s <= 0.3:
+            raise InputError("placement_window_s must be within [0, 0.3] s")
+        self.placement_window_s = float(placement_window_s)
 
     # ------------------------------------------------------------------ fitting
     def fit(self, trajectories: FeetTrajectories | SkeletonSeries | MarkerTrajectories
@@ -279,6 +310,8 @@ class GaitAnalysis:
         for k, wp in enumerate(self.passes_):
             pe = (self._crossing_events(feet, wp) if self.method == "crossing"
                   else self._zeni_events(feet, wp, centre))
+            wp = self._progression_line(pe, wp)
+            self.passes_[k] = wp
             kind = "placement" if self.method == "crossing" else "foot_strike"
             events += [GaitEvent(s, kind, tt, k) for s, tt, _, _ in pe.placements]
             events += [GaitEvent(s, "foot_off", tt, k) for s, tt in pe.offs]
@@ -308,8 +341,7 @@ class GaitAnalysis:
         pL, pR = feet.foot("L"), feet.foot("R")
         diff = (pL - pR) @ d
         diff[~m] = np.nan
-        vL = np.gradient(pL @ d, t)
-        vR = np.gradient(pR @ d, t)
+        xL, xR = pL @ d, pR @ d
         cross: list[tuple[int, float]] = []
         for i in np.flatnonzero(np.isfinite(diff[:-1]) & np.isfinite(diff[1:])):
             a, b = diff[i], diff[i + 1]
@@ -353,11 +385,14 @@ class GaitAnalysis:
             del cross[best: best + 2]
         pe = _PassEvents()
         for _i, tc in cross:
-            # The foot on the floor is the one moving slower along the direction.
-            vl = np.interp(tc, t, vL)
-            vr = np.interp(tc, t, vR)
+            # The foot on the floor is the one moving slower along the direction; speeds
+            # over ±0.1 s (not per sample, which measurement noise would dominate).
+            h = 0.1
+            okL, okR = np.isfinite(xL), np.isfinite(xR)
+            vl = np.interp(tc + h, t[okL], xL[okL]) - np.interp(tc - h, t[okL], xL[okL])
+            vr = np.interp(tc + h, t[okR], xR[okR]) - np.interp(tc - h, t[okR], xR[okR])
             side = "L" if vl < vr else "R"
-            placed = _interp_rows(t, feet.foot(side), tc)
+            placed = self._stance_position(t, feet.foot(side), tc)
             other = _interp_rows(t, feet.foot("R" if side == "L" else "L"), tc)
             pe.placements.append((side, tc, placed, other))
         return pe
@@ -397,6 +432,45 @@ class GaitAnalysis:
             pe.placements.append((side, tt, placed, opp))
         pe.offs.sort(key=lambda x: x[1])
         return pe
+
+    @staticmethod
+    def _progression_line(pe: _PassEvents, wp: WalkPass) -> WalkPass:
+        """Refine a pass's direction to the line of progression of its footprints.
+
+        Midpoints of consecutive left/right placements lie on the line of progression
+        whatever the step width, while the body centre sways by a few cm each step;
+        their principal axis therefore gives the direction along which lengths and
+        widths are measured. Kept unchanged with fewer than three midpoints.
+        """
+        mids = [0.5 * (a[2][:2] + b[2][:2]) for a, b in zip(pe.placements[:-1],
+                                                         pe.placements[1:], strict=True)
+                if a[0] != b[0]]
+        if len(mids) < 3:
+            return wp
+        M = np.array(mids)
+        _, _, vt = np.linalg.svd(M - M.mean(axis=0), full_matrices=False)
+        u = vt[0] / np.linalg.norm(vt[0])
+        if u @ np.array(wp.direction) < 0:
+            u = -u
+        if u @ np.array(wp.direction) < np.cos(np.radians(20.0)):
+            return wp  # footprints disagree with the body's travel: keep the latter
+        return WalkPass(wp.t_start, wp.t_end, (float(u[0]), float(u[1])), wp.excluded_first)
+
+    def _stance_position(self, t: FloatArray, x: FloatArray, tc: float) -> FloatArray:
+        """The placed foot's position at a crossing.
+
+        With ``placement_window_s = 0`` the position at the crossing instant (the
+        paper). Otherwise the median over ±window around it: the crossing is mid-stance,
+        when the foot stands still for ~0.3 s, so the median averages measurement noise
+        down without moving the estimate.
+        """
+        p = _interp_rows(t, x, tc)
+        if self.placement_window_s <= 0:
+            return p
+        m = (t >= tc - self.placement_window_s) & (t <= tc + self.placement_window_s)
+        w = x[m]
+        w = w[np.isfinite(w).all(axis=1)]
+        return np.median(w, axis=0) if len(w) >= 3 else p
 
     @staticmethod
     def _refine_strike(t: FloatArray, heel: FloatArray, t_zeni: float) -> float:

@@ -76,10 +76,10 @@ def test_back_and_forth_passes_and_turns() -> None:
     b = synth_walk(n_steps=9, origin=(a.joints["pelvis"][-1, 0] + 0.4, 0.3, 0.0),
                    heading_deg=180.0)
     m1, m2 = walk_markers(a), walk_markers(b)
-    # stand still 1.5 s (turning on the spot) between the passes
+    # stand still 1.5 s between the passes (turning on the spot while standing)
     stand_t = a.times[-1] + np.arange(1, 151) / 100.0
-    mid = 0.5 * (m1.positions[-1] + m2.positions[0])
-    stand = np.repeat(mid[None], len(stand_t), axis=0)
+    stand = np.concatenate([np.repeat(m1.positions[-1:], 75, axis=0),
+                            np.repeat(m2.positions[:1], 75, axis=0)])
     t = np.concatenate([a.times, stand_t, stand_t[-1] + 0.01 + b.times])
     P = np.concatenate([m1.positions, stand, m2.positions])
     m = MarkerTrajectories(t, P, m1.labels, 100.0, "m")
@@ -229,3 +229,20 @@ def test_events_missed_on_both_feet_do_not_make_a_giant_step() -> None:
     assert all(s.duration_s == pytest.approx(0.55, abs=0.011) for s in g.steps_)
     assert all(s.duration_s == pytest.approx(1.1, abs=0.011) for s in g.strides_)
     assert all(s.length_m == pytest.approx(0.7, abs=0.005) for s in g.steps_)
+
+
+def test_stance_median_placement_reduces_noise() -> None:
+    w = synth_walk(step_width=0.12, n_steps=30)
+    m = walk_markers(w)
+    rng = np.random.default_rng(0)
+    m.positions = m.positions + rng.normal(0, 0.01, m.positions.shape)  # 1 cm jitter
+    f = feet_from_markers(m)
+    sd = {}
+    for win in (0.0, 0.1):
+        g = GaitAnalysis("crossing", placement_window_s=win).fit(f)
+        widths = np.array([s.width_m for s in g.steps_])
+        assert abs(widths.mean() - 0.12) < 0.004
+        sd[win] = widths.std()
+    assert sd[0.1] < 0.6 * sd[0.0]
+    with pytest.raises(InputError):
+        GaitAnalysis(placement_window_s=1.0)
