@@ -158,6 +158,34 @@ def main() -> None:
         if len(speed[(side, est)][0]) >= 3:
             res["AV walking_speed"] = _row(agreement(*speed[(side, est)]), 100.0)
         out[f"{side}_sided_{est}"] = res
+    # Realism band of issue 8 (paper's method vs Tables 2-3: ICC within ±0.1, bias within
+    # ±1 cm at step level) and the acceptance of our estimator (two-sided, step level:
+    # ICC(A,1) ≥ 0.90 for step length, width and time; |step-width bias| ≤ 0.5 cm).
+    band: dict[str, Any] = {}
+    for side in ("one", "two"):
+        for row, (icc_p, bias_p) in PAPER[side].items():
+            if not row.startswith(("step_length", "step_width")):
+                continue
+            sim = out[f"{side}_sided_mean"].get(row)
+            if sim:
+                band[f"{side}-sided {row}"] = {
+                    "d_icc": round(sim["icc"] - icc_p, 3),
+                    "d_bias_cm": round(sim["bias"] - bias_p, 2),
+                    "within": abs(sim["icc"] - icc_p) <= 0.1 and abs(sim["bias"] - bias_p) <= 1.0}
+    out["realism_band"] = band
+    two, one = out["two_sided_mean"], out["one_sided_mean"]
+    out["one_sided_worse"] = all(one[r]["icc"] < two[r]["icc"] for r in
+                                 ("step_length L", "step_length R", "step_width L",
+                                  "step_width R") if r in one and r in two)
+    ours = out["two_sided_weighted"]
+    rows = [f"{p} {s}" for p in ("step_length", "step_width", "step_time") for s in "LR"]
+    out["ours_acceptance"] = {
+        "min_step_icc": min(ours[r]["icc"] for r in rows if r in ours),
+        "max_abs_step_width_bias_cm": max(abs(ours[r]["bias"]) for r in rows[2:4] if r in ours),
+    }
+    out["ours_acceptance"]["met"] = (out["ours_acceptance"]["min_step_icc"] >= 0.90
+                                     and out["ours_acceptance"]["max_abs_step_width_bias_cm"]
+                                     <= 0.5)
     out["paper"] = {"one_sided_step_level": PAPER["one"], "two_sided_step_level": PAPER["two"],
                     "step_time": PAPER["step_time"], "units": "(ICC(A,1), bias cm)"}
     out["elapsed_s"] = round(time.perf_counter() - t_start, 1)
