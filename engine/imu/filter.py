@@ -24,7 +24,8 @@ Ideas (after Laidig & Seel 2023, "VQF", implemented independently here):
   ``rest_min_t``) averages the raw rate into the bias; during motion, the corrections
   applied by inclination (and heading) are fed back as an integral term.
 * ``offline=True`` (recorded data): the bias is averaged from a forward and a time-reversed
-  pass, and the inclination correction is low-passed zero-phase (no lag).
+  pass, and the inclination (and, in clean magnetic field, heading) corrections are
+  low-passed zero-phase (no lag).
 
 Output frame: ENU (x east, y north, z up), quaternions w-first, sensor-to-earth.
 """
@@ -68,6 +69,9 @@ class FilterParams:
         mag_new_min_gyr: rotation rate that counts as "moving" for adopting a new field.
         mag_rejection_factor: gain multiplier after a disturbance ends.
         mag_min_undisturbed_t: clean time needed before the field is used again.
+        mag_clean_fraction: offline mode: the zero-phase heading is used where at least
+            this fraction of the magnetometer samples nearby (within ~``tau_mag``) was
+            accepted by both passes; elsewhere the forward pass' heading.
     """
 
     tau_acc: float = 3.0
@@ -88,6 +92,7 @@ class FilterParams:
     mag_new_min_gyr: float = np.deg2rad(20.0)
     mag_rejection_factor: float = 2.0
     mag_min_undisturbed_t: float = 0.5
+    mag_clean_fraction: float = 0.95
 
 
 def _butter_coeffs(tau: float, fs: float) -> tuple[FloatArray, FloatArray]:
@@ -354,7 +359,7 @@ def orientation_filter(
         frequency: sampling rate, Hz.
         params: tuning; defaults suit human motion at 50-1000 Hz.
         offline: for recorded data: bias from a forward and a time-reversed pass, then a
-            zero-phase (lag-free) inclination correction; heading from the forward pass.
+            zero-phase (lag-free) inclination and, where the field is clean, heading.
             ``False`` gives the causal (real-time equivalent) estimate.
 
     Returns:
@@ -463,17 +468,19 @@ def _offline(
       ``tau_acc`` of either end, where a zero-phase filter lacks data on one side, the
       inclination fades to the causal pass that has settled there (backward at the
       start, forward at the end).
-    * Heading (9D): the forward causal pass' (its rejection logic needs the causal
-      history; zero-phase heading gave no gain on BROAD).
+    * Heading (9D): the zero-phase low-pass of the magnetometer heading over the samples
+      both passes accepted (normalised convolution), where the field nearby was clean;
+      near rejected stretches the forward pass' heading, which has the causal rejection
+      history and starts with the right bias.
     """
     # time reversal: reversed sample k is reached from k-1 by the negated later rate (so
     # the bias appears negated)
     g_rev = np.ascontiguousarray(-np.concatenate([g[1:], g[-1:]])[::-1])
     a_rev, m_rev = np.ascontiguousarray(a[::-1]), np.ascontiguousarray(m[::-1])
-    q_b, bias_b, _, _ = _filter_loop(g_rev, a_rev, m_rev, use_mag, dt, bb, ba, pv,
-                                     np.ascontiguousarray(-bias_f[-1]))
-    q_f, bias_f, _, _ = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
-                                     np.ascontiguousarray(-bias_b[-1]))
+    q_b, bias_b, _, mag_ok_b = _filter_loop(g_rev, a_rev, m_rev, use_mag, dt, bb, ba, pv,
+                                            np.ascontiguousarray(-bias_f[-1]))
+    q_f, bias_f, _, mag_ok_f = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
+                                            np.ascontiguousarray(-bias_b[-1]))
     q_b = q_b[::-1]
     bias = 0.5 * (bias_f - bias_b[::-1])
     qg = _strapdown(g, np.ascontiguousarray(bias), dt)
@@ -499,6 +506,27 @@ def _offline(
     q = _tilt_to(q, u / np.linalg.norm(u, axis=-1, keepdims=True))
     if use_mag:
         yaw = _yaw_between(q_f, q)
+        ok = mag_ok_f & mag_ok_b[::-1] & np.all(np.isfinite(m), axis=-1)
+        h = quat_rotate(q, np.where(ok[..., None], m, 0.0))
+        target = 0.5 * np.pi - np.arctan2(h[..., 1], h[..., 0])
+        w0 = p.mag_clean_fraction
+        # the zero-phase heading lacks data on one side near the ends: fade out there
+        edge_mag = (1.0 - np.exp(-t / p.tau_mag)) * (1.0 - np.exp(-(t[-1] - t) / p.tau_mag))
+        for s in range(q.shape[1]):
+            good = ok[:, s]
+            if good.sum() < 2:
+                continue
+            # zero-phase heading (normalised convolution over the accepted samples) where
+            # nearly all nearby samples were accepted; near rejected stretches the forward
+            # pass' heading, whose rejection logic has the causal history, is kept
+            d = np.unwrap(target[good, s])
+            d_full = np.interp(np.arange(len(q)), np.flatnonzero(good), d)
+            w = np.clip(_zero_phase(good.astype(float), p.tau_mag, fs), 0.0, 1.0)
+            num = _zero_phase(np.where(good, d_full, 0.0), p.tau_mag, fs)
+            zp = np.where(w > 1e-3, num / np.maximum(w, 1e-3), 0.0)
+            diff = (zp - yaw[:, s] + np.pi) % (2 * np.pi) - np.pi
+            alpha = np.clip((w - w0) / (1.0 - w0), 0.0, 1.0) * edge_mag
+            yaw[:, s] = yaw[:, s] + alpha * diff
         qz = np.stack([np.cos(0.5 * yaw), np.zeros_like(yaw), np.zeros_like(yaw),
                        np.sin(0.5 * yaw)], axis=-1)
         q = quat_mul(qz, q)
