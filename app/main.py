@@ -4,13 +4,16 @@
 node hub with its websocket endpoint ``/ws/node``, the REST routers under ``/api`` (all but
 login require a login), the static console at ``/``, and — in the lifespan — the viser 3D
 view on its own port. To add a resource: write ``app/api/routes/<name>.py`` with an
-``APIRouter`` and add it to :data:`ROUTERS`; to add a console page drop an HTML file into
+``APIRouter`` named ``router`` (it is discovered, see :func:`api_routers`); to add a
+console page drop an HTML file into
 ``static/``; to add a 3D panel write a ``populate_*`` function in :mod:`app.viewer`.
 """
 
 from __future__ import annotations
 
+import importlib
 import logging
+import pkgutil
 import sys
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -22,7 +25,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
-from app.api.routes import auth, nodes, recordings, system
+import app.api.routes as routes_pkg
+from app.api.routes import auth
 from app.api.security import ensure_admin
 from app.config import Settings, get_settings
 from app.db.base import make_engine, make_session_factory
@@ -35,8 +39,21 @@ log = logging.getLogger("gaitrig.server")
 
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
 
-#: Routers mounted under ``/api`` (each declares its own prefix and requires a login).
-ROUTERS: list[APIRouter] = [nodes.router, recordings.router, system.router]
+def api_routers() -> list[APIRouter]:
+    """Every ``router`` in ``app/api/routes/`` except login, mounted under ``/api``.
+
+    Each declares its own prefix and requires a login; discovery lets a resource be added
+    without editing this file.
+    """
+    routers: list[APIRouter] = []
+    for info in sorted(pkgutil.iter_modules(routes_pkg.__path__), key=lambda i: i.name):
+        if info.name == "auth" or info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{routes_pkg.__name__}.{info.name}")
+        router = getattr(module, "router", None)
+        if isinstance(router, APIRouter):
+            routers.append(router)
+    return routers
 
 
 def _sensor_views(hub: Hub) -> list[SensorView]:
@@ -110,7 +127,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     api = APIRouter(prefix="/api")
     api.include_router(auth.router)
-    for r in ROUTERS:
+    for r in api_routers():
         api.include_router(r)
     app.include_router(api)
 
