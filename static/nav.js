@@ -1,0 +1,56 @@
+// Shared console navigation. A page declares <header id="nav" data-page="NAME"></header>
+// and loads this script; the header is built from PAGES so every page lists the same
+// sections in the same order. Add a section here, nowhere else.
+"use strict";
+(() => {
+  const PAGES = [
+    ["rig", "Rig", "/rig.html"],
+    ["live", "Live", "/live.html"],
+    ["calibrate", "Calibrate", "/calibrate.html"],
+    ["record", "Record", "/record.html"],
+    ["subjects", "Subjects & recordings", "/subjects.html"],
+    ["reports", "Reports", "/reports.html"],
+    ["imu", "IMU", "/imu.html"],
+    ["kscc", "KSCC", "/kscc.html"],
+  ];
+  function build() {
+    const header = document.getElementById("nav");
+    if (!header) return;
+    const current = header.dataset.page;
+    header.setAttribute("role", "banner");
+    const brand = document.createElement("span");
+    brand.className = "brand";
+    brand.textContent = "gaitrig";
+    const nav = document.createElement("nav");
+    nav.setAttribute("aria-label", "Console sections");
+    for (const [name, label, href] of PAGES) {
+      const a = document.createElement("a");
+      a.href = href;
+      a.textContent = label;
+      if (name === current) a.setAttribute("aria-current", "page");
+      nav.append(a);
+    }
+    const view3d = document.createElement("a");
+    view3d.id = "viewer-link";
+    view3d.textContent = "3D view";
+    view3d.target = "_blank";
+    view3d.rel = "noopener";
+    view3d.hidden = true;
+    const logout = document.createElement("button");
+    logout.className = "secondary";
+    logout.id = "logout";
+    logout.type = "button";
+    logout.textContent = "Log out";
+    logout.addEventListener("click", async () => {
+      await fetch("/api/auth/logout", { method: "POST", credentials: "same-origin" }).catch(() => {});
+      window.location.href = "/index.html";
+    });
+    header.replaceChildren(brand, nav, view3d, logout);
+    fetch("/api/system", { credentials: "same-origin" })
+      .then((r) => (r.ok ? r.json() : null))
+      .then((sys) => { if (sys && sys.viewer_url) { view3d.href = sys.viewer_url; view3d.hidden = false; } })
+      .catch(() => {});
+  }
+  if (document.readyState === "loading") document.addEventListener("DOMContentLoaded", build);
+  else build();
+})();
