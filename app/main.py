@@ -20,12 +20,13 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 
 import numpy as np
-from fastapi import APIRouter, FastAPI, Request, WebSocket
+from fastapi import APIRouter, Depends, FastAPI, Request, WebSocket
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
 import app.api.routes as routes_pkg
+from app.api.deps import get_current_user
 from app.api.routes import auth
 from app.api.security import ensure_admin
 from app.config import Settings, get_settings
@@ -128,7 +129,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     api = APIRouter(prefix="/api")
     api.include_router(auth.router)
     for r in api_routers():
-        api.include_router(r)
+        # enforced here, so a new resource cannot forget it
+        api.include_router(r, dependencies=[Depends(get_current_user)])
     app.include_router(api)
 
     @app.websocket("/ws/node")

@@ -58,6 +58,18 @@ def test_every_api_route_needs_login(client: TestClient) -> None:
         assert r.status_code == 401, path
         assert "log" in r.json()["detail"]
     assert client.post("/api/recordings", json={}).status_code == 401
+    # every route under /api, present and future, except logging in
+    from fastapi.routing import APIRoute
+
+    for route in client.app.routes:  # type: ignore[attr-defined]
+        if not isinstance(route, APIRoute) or not route.path.startswith("/api/"):
+            continue
+        if route.path == "/api/auth/login":
+            continue
+        path = route.path.replace("{", "").replace("}", "")  # any value for path parameters
+        for method in route.methods:
+            r = client.request(method, path, json={})
+            assert r.status_code == 401, f"{method} {route.path} answers {r.status_code}"
     assert client.get("/openapi.json").status_code == 200
     assert client.get("/docs").status_code == 200
 
