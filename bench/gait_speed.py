@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from engine.gait import GaitAnalysis
 from engine.integration import integrate_skeletons
 from engine.mocap import feet_from_skeleton
-from tests.engine.test_gait_synth import six_sensor_streams, synth_walk
+from engine.sim.straight_walk import six_sensor_streams, synth_walk
 
 GOAL_S = 0.2
 

@@ -11,7 +11,7 @@ from engine.errors import InputError, InsufficientDataError
 from engine.gait import GaitAnalysis
 from engine.io.markers import MarkerTrajectories
 from engine.mocap import feet_from_markers
-from tests.engine.test_gait_synth import synth_walk, walk_markers
+from engine.sim.straight_walk import synth_walk, walk_markers
 
 
 @pytest.mark.parametrize("heading", [0.0, 37.0, 200.0])
@@ -173,8 +173,8 @@ def test_json_schema_is_stable() -> None:
 
 
 def test_fit_accepts_markers_and_skeletons() -> None:
+    from engine.sim.straight_walk import walk_skeleton
     from engine.skeleton import KINECT_V2, SkeletonSeries
-    from tests.engine.test_gait_synth import walk_skeleton
 
     w = synth_walk(step_width=0.15)
     a = GaitAnalysis("crossing").fit(walk_markers(w))

@@ -14,7 +14,7 @@ from app.cli import main
 from engine.io.c3d import write_c3d
 from engine.io.markers import MarkerTrajectories
 from engine.io.trc import write_trc
-from tests.engine.test_gait_synth import synth_walk, walk_markers
+from engine.sim.straight_walk import synth_walk, walk_markers
 
 ROOT = Path(__file__).resolve().parents[2]
 

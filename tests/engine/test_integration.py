@@ -14,13 +14,13 @@ from engine.integration import (
     lowpass,
 )
 from engine.mocap import feet_from_skeleton
-from engine.skeleton import AZURE_KINECT, KINECT_V2, SkeletonSeries, TrackingState
-from tests.engine.test_gait_synth import (
+from engine.sim.straight_walk import (
     sample_truth,
     six_sensor_streams,
     synth_walk,
     walk_skeleton,
 )
+from engine.skeleton import AZURE_KINECT, KINECT_V2, SkeletonSeries, TrackingState
 
 
 @pytest.fixture(scope="module")

@@ -22,8 +22,8 @@ from engine.io.markers import (
 )
 from engine.io.trc import read_trc, write_trc
 from engine.mocap import load_feet
+from engine.sim.straight_walk import synth_walk, walk_markers, walk_skeleton
 from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
-from tests.engine.test_gait_synth import synth_walk, walk_markers, walk_skeleton
 
 
 def _skeleton(rng: np.random.Generator) -> SkeletonSeries:

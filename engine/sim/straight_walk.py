@@ -1,4 +1,4 @@
-"""Synthetic walkers with exact ground truth (helpers for gait/integration tests, bench).
+"""Synthetic straight walks with exact ground truth (minimum-jerk feet; for tests and benches).
 
 Kinematics: feet are placed alternately (left first) at ``k·step_length`` along the
 walking direction, ``±step_width/2`` to the side; each foot swings with a minimum-jerk
