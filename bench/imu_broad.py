@@ -65,12 +65,15 @@ def main(argv: list[str]) -> int:
     madgwick(r0.gyr[:10], r0.acc[:10], r0.mag[:10], beta=BETA, frequency=r0.frequency)
     orientation_filter(r0.gyr[:10], r0.acc[:10], r0.mag[:10], frequency=r0.frequency)
     orientation_filter(r0.gyr[:10], r0.acc[:10], None, frequency=r0.frequency)
+    orientation_filter(r0.gyr[:100], r0.acc[:100], r0.mag[:100], frequency=r0.frequency,
+                       offline=True)
 
     res: dict[str, list[float]] = {k: [] for k in (
         "ours_madgwick_total", "ahrs_madgwick_total", "ours_best_total", "ours_best_incl",
         "vqf_total", "vqf_incl", "madgwick_max_abs_diff_deg", "ours_offline_total",
         "ours_offline_incl", "vqf_offline_total", "vqf_offline_incl")}
-    secs = {"ours_madgwick": 0.0, "ours_best": 0.0, "ahrs": 0.0, "vqf": 0.0}
+    secs = {"ours_madgwick": 0.0, "ours_best": 0.0, "ahrs": 0.0, "vqf": 0.0,
+            "ours_offline": 0.0}
     n_total = 0
     for r in recs:
         assert r.mag is not None and r.quat_ref is not None and r.movement is not None
@@ -105,8 +108,9 @@ def main(argv: list[str]) -> int:
         res["vqf_total"].append(orientation_errors(vo["quat9D"], ref, mov)["total_deg"])
         res["vqf_incl"].append(orientation_errors(vo6["quat6D"], ref, mov)["inclination_deg"])
         # offline (non-causal) variants, compared with VQF's own offline version
-        q9o, _, _ = orientation_filter(g, a, m, frequency=fs, offline=True)
-        q6o, _, _ = orientation_filter(g, a, None, frequency=fs, offline=True)
+        (q9o, _, _), dto9 = _timed(orientation_filter, g, a, m, frequency=fs, offline=True)
+        (q6o, _, _), dto6 = _timed(orientation_filter, g, a, None, frequency=fs, offline=True)
+        secs["ours_offline"] += dto9 + dto6
         gc, ac, mc = (np.ascontiguousarray(x) for x in (g, a, m))
         vo9o = vqf.offlineVQF(gc, ac, mc, 1.0 / fs)
         vo6o = vqf.offlineVQF(gc, ac, None, 1.0 / fs)
@@ -116,7 +120,8 @@ def main(argv: list[str]) -> int:
         res["vqf_offline_incl"].append(
             orientation_errors(vo6o["quat6D"], ref, mov)["inclination_deg"])
 
-    sps = {k: (n_total * (2 if k in ("ours_best", "vqf") else 1)) / v for k, v in secs.items()}
+    sps = {k: (n_total * (2 if k in ("ours_best", "vqf", "ours_offline") else 1)) / v
+           for k, v in secs.items()}
     out = {
         "trials": len(recs),
         "samples": n_total,
@@ -135,6 +140,7 @@ def main(argv: list[str]) -> int:
         "ours_samples_per_s": round(min(sps["ours_madgwick"], sps["ours_best"])),
         "ours_madgwick_samples_per_s": round(sps["ours_madgwick"]),
         "ours_best_samples_per_s": round(sps["ours_best"]),
+        "ours_offline_samples_per_s": round(sps["ours_offline"]),
         "ahrs_samples_per_s": round(sps["ahrs"]),
         "vqf_samples_per_s": round(sps["vqf"]),
         "ours_madgwick_vs_ahrs_speed": round(sps["ours_madgwick"] / sps["ahrs"], 1),

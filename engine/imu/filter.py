@@ -40,7 +40,6 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.signal import butter
 
 from engine.errors import InputError
-from engine.geometry import quat_conj, quat_mul, quat_normalize, quat_rotate
 from engine.imu.madgwick import as_sensor_array
 
 FloatArray = NDArray[np.float64]
@@ -386,10 +385,11 @@ def orientation_filter(
     bb, ba = _butter_coeffs(p.tau_acc, float(frequency))
     pv = _params_vector(p)
     use_mag = mag is not None
-    q, bias, rest, _ = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
-                                    np.zeros((g.shape[1], 3)))
     if offline:
-        q, bias = _offline(g, a, m, use_mag, dt, bb, ba, pv, p, bias)
+        q, bias, rest = _offline(g, a, m, use_mag, dt, bb, ba, pv, p)
+    else:
+        q, bias, rest, _ = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
+                                        np.zeros((g.shape[1], 3)))
     if single:
         return q[:, 0], bias[:, 0], rest[:, 0]
     return q, bias, rest
@@ -418,6 +418,90 @@ def _strapdown(gyr: FloatArray, bias: FloatArray, dt: float) -> FloatArray:
     return out
 
 
+@njit(cache=True)
+def _rotate_series(q: FloatArray, v: FloatArray) -> FloatArray:
+    """``q ⊗ v ⊗ q*`` for (T, S, 4) quaternions and (T, S, 3) vectors."""
+    out = np.empty(v.shape)
+    for t in range(v.shape[0]):
+        for s in range(v.shape[1]):
+            out[t, s, 0], out[t, s, 1], out[t, s, 2] = _rotate(
+                q[t, s, 0], q[t, s, 1], q[t, s, 2], q[t, s, 3], v[t, s, 0], v[t, s, 1],
+                v[t, s, 2])
+    return out
+
+
+@njit(cache=True)
+def _up_of(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    # earth +z in sensor coordinates: third row of the rotation matrix
+    return 2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)
+
+
+@njit(cache=True)
+def _compose_inclination(qg: FloatArray, up: FloatArray, q_f: FloatArray, q_b: FloatArray,
+                         e_start: FloatArray, e_end: FloatArray) -> FloatArray:
+    """Tilt the strapdown ``qg`` so that the zero-phase ``up`` (inertial frame) is +z,
+    fading to the causal passes' tilt (``q_b`` at the start, ``q_f`` at the end)."""
+    T, S = qg.shape[0], qg.shape[1]
+    out = np.empty((T, S, 4))
+    for t in range(T):
+        for s in range(S):
+            ux, uy, uz = up[t, s, 0], up[t, s, 1], up[t, s, 2]
+            n = np.sqrt(ux * ux + uy * uy + uz * uz)
+            ux, uy, uz = ux / n, uy / n, uz / n
+            cw = np.sqrt(max(0.5 * (uz + 1.0), 1e-12))
+            w, x, y, z = _qmul(cw, 0.5 * uy / cw, -0.5 * ux / cw, 0.0,
+                               qg[t, s, 0], qg[t, s, 1], qg[t, s, 2], qg[t, s, 3])
+            a0, a1, a2 = _up_of(w, x, y, z)
+            f0, f1, f2 = _up_of(q_f[t, s, 0], q_f[t, s, 1], q_f[t, s, 2], q_f[t, s, 3])
+            b0, b1, b2 = _up_of(q_b[t, s, 0], q_b[t, s, 1], q_b[t, s, 2], q_b[t, s, 3])
+            es, ee = e_start[t], e_end[t]
+            ez = 1.0 - es - ee
+            v0 = ez * a0 + es * b0 + ee * f0
+            v1 = ez * a1 + es * b1 + ee * f1
+            v2 = ez * a2 + es * b2 + ee * f2
+            n = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+            v0, v1, v2 = v0 / n, v1 / n, v2 / n
+            # sensor-frame rotation r taking v onto the current up a; (q ⊗ r)ᵀ z = v
+            rw = 1.0 + v0 * a0 + v1 * a1 + v2 * a2
+            rx, ry, rz = v1 * a2 - v2 * a1, v2 * a0 - v0 * a2, v0 * a1 - v1 * a0
+            n = np.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
+            w, x, y, z = _qmul(w, x, y, z, rw / n, rx / n, ry / n, rz / n)
+            n = np.sqrt(w * w + x * x + y * y + z * z)
+            out[t, s, 0], out[t, s, 1], out[t, s, 2], out[t, s, 3] = w / n, x / n, y / n, z / n
+    return out
+
+
+@njit(cache=True)
+def _heading_terms(q: FloatArray, q_f: FloatArray, mag: FloatArray
+                   ) -> tuple[FloatArray, FloatArray]:
+    """Heading of ``q_f`` relative to ``q`` about earth z, and the heading that would put
+    the magnetometer's horizontal part on north, both (T, S) rad."""
+    T, S = q.shape[0], q.shape[1]
+    yaw = np.empty((T, S))
+    target = np.empty((T, S))
+    for t in range(T):
+        for s in range(S):
+            w, x, y, z = q[t, s, 0], q[t, s, 1], q[t, s, 2], q[t, s, 3]
+            ew, _, _, ez = _qmul(q_f[t, s, 0], q_f[t, s, 1], q_f[t, s, 2], q_f[t, s, 3],
+                                 w, -x, -y, -z)
+            yaw[t, s] = 2.0 * np.arctan2(ez, ew)
+            hx, hy, _ = _rotate(w, x, y, z, mag[t, s, 0], mag[t, s, 1], mag[t, s, 2])
+            target[t, s] = 0.5 * np.pi - np.arctan2(hy, hx)
+    return yaw, target
+
+
+@njit(cache=True)
+def _apply_yaw(q: FloatArray, yaw: FloatArray) -> FloatArray:
+    """Rotate (T, S, 4) quaternions by ``yaw`` (T, S) about earth z."""
+    out = np.empty(q.shape)
+    for t in range(q.shape[0]):
+        for s in range(q.shape[1]):
+            c, sn = np.cos(0.5 * yaw[t, s]), np.sin(0.5 * yaw[t, s])
+            out[t, s, 0], out[t, s, 1], out[t, s, 2], out[t, s, 3] = _qmul(
+                c, 0.0, 0.0, sn, q[t, s, 0], q[t, s, 1], q[t, s, 2], q[t, s, 3])
+    return out
+
+
 def _fill_gaps(x: FloatArray, ok: NDArray[np.bool_]) -> FloatArray:
     """Linearly interpolate rows of ``x`` (T, S, k) where ``ok`` (T, S) is False."""
     out = x.copy()
@@ -431,38 +515,24 @@ def _fill_gaps(x: FloatArray, ok: NDArray[np.bool_]) -> FloatArray:
     return out
 
 
-def _zero_phase(x: FloatArray, tau: float, fs: float) -> FloatArray:
-    """Forward-backward 2nd-order Butterworth low-pass along time (no lag)."""
+def _zero_phase(x: FloatArray, ba: tuple[FloatArray, FloatArray], tau: float,
+                fs: float) -> FloatArray:
+    """Forward-backward 2nd-order Butterworth low-pass ``ba`` along time (no lag)."""
     from scipy.signal import filtfilt
 
-    b, a = _butter_coeffs(tau, fs)
-    return np.asarray(filtfilt(b, a, x, axis=0, padlen=min(len(x) - 1, int(3 * tau * fs))))
-
-
-def _tilt_to(q: FloatArray, u: FloatArray) -> FloatArray:
-    """``q`` minimally re-tilted so that its up axis in sensor coordinates becomes ``u``."""
-    uq = quat_rotate(quat_conj(q), np.array([0.0, 0.0, 1.0]))
-    # sensor-frame rotation r taking u onto uq; then (q ⊗ r)ᵀ z = u
-    r = np.concatenate([1.0 + np.sum(u * uq, axis=-1, keepdims=True), np.cross(u, uq)],
-                       axis=-1)
-    return quat_mul(q, quat_normalize(r))
-
-
-def _yaw_between(q_a: FloatArray, q_b: FloatArray) -> FloatArray:
-    """Heading angle about earth z from ``q_b`` to ``q_a`` (twist of ``q_a ⊗ q_b*``)."""
-    e = quat_mul(q_a, quat_conj(q_b))
-    return 2.0 * np.arctan2(e[..., 3], e[..., 0])
+    return np.asarray(filtfilt(ba[0], ba[1], x, axis=0,
+                               padlen=min(len(x) - 1, int(3 * tau * fs))))
 
 
 def _offline(
     g: FloatArray, a: FloatArray, m: FloatArray, use_mag: bool, dt: float, bb: FloatArray,
-    ba: FloatArray, pv: FloatArray, p: FilterParams, bias_f: FloatArray,
-) -> tuple[FloatArray, FloatArray]:
+    ba: FloatArray, pv: FloatArray, p: FilterParams,
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Non-causal estimate from forward and time-reversed causal passes.
 
-    * Bias: mean of a backward and a second forward pass' estimates, each started from
-      the bias the other pass ended with, so both know it from their first sample even
-      when the recording starts or ends in motion.
+    * Bias: a time-reversed pass learns the bias up to the start of the recording; the
+      forward pass starts from it, so it knows the bias from its first sample even when
+      the recording starts in motion (no rest to learn it from).
     * Inclination: the bias-corrected gyroscope is integrated once and the acceleration is
       low-passed *zero-phase* in that almost-inertial frame (no lag). Within a few
       ``tau_acc`` of either end, where a zero-phase filter lacks data on one side, the
@@ -477,39 +547,30 @@ def _offline(
     # the bias appears negated)
     g_rev = np.ascontiguousarray(-np.concatenate([g[1:], g[-1:]])[::-1])
     a_rev, m_rev = np.ascontiguousarray(a[::-1]), np.ascontiguousarray(m[::-1])
+    zero = np.zeros((g.shape[1], 3))
     q_b, bias_b, _, mag_ok_b = _filter_loop(g_rev, a_rev, m_rev, use_mag, dt, bb, ba, pv,
-                                            np.ascontiguousarray(-bias_f[-1]))
-    q_f, bias_f, _, mag_ok_f = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
-                                            np.ascontiguousarray(-bias_b[-1]))
+                                            zero)
+    q_f, bias, rest, mag_ok_f = _filter_loop(g, a, m, use_mag, dt, bb, ba, pv,
+                                             np.ascontiguousarray(-bias_b[-1]))
     q_b = q_b[::-1]
-    bias = 0.5 * (bias_f - bias_b[::-1])
     qg = _strapdown(g, np.ascontiguousarray(bias), dt)
     fs = 1.0 / dt
     acc_ok = np.all(np.isfinite(a), axis=-1) & (np.linalg.norm(a, axis=-1) > 0)
     if not acc_ok.any():
         raise InputError("no finite accelerometer sample")
-    a_i = _fill_gaps(quat_rotate(qg, np.where(acc_ok[..., None], a, 0.0)), acc_ok)
-    up = _zero_phase(a_i, p.tau_acc, fs)
-    up /= np.linalg.norm(up, axis=-1, keepdims=True)
-    cw = np.sqrt(np.maximum(0.5 * (up[..., 2] + 1.0), 1e-12))
-    q_inc = np.stack([cw, 0.5 * up[..., 1] / cw, -0.5 * up[..., 0] / cw, np.zeros_like(cw)],
-                     axis=-1)
-    q = quat_mul(q_inc, qg)
+    a_i = _fill_gaps(_rotate_series(qg, np.where(acc_ok[..., None], a, 0.0)), acc_ok)
+    up = np.ascontiguousarray(_zero_phase(a_i, (bb, ba), p.tau_acc, fs))
     # edge fading of the inclination towards the settled causal pass
-    t = np.arange(len(q)) * dt
-    e_start = np.exp(-t / p.tau_acc)[:, None, None]
-    e_end = np.exp(-(t[-1] - t) / p.tau_acc)[:, None, None]
+    t = np.arange(len(g)) * dt
+    e_start = np.exp(-t / p.tau_acc)
+    e_end = np.exp(-(t[-1] - t) / p.tau_acc)
     e_start, e_end = e_start * (1.0 - e_end), e_end * (1.0 - e_start)
-    z = np.array([0.0, 0.0, 1.0])
-    u = ((1.0 - e_start - e_end) * quat_rotate(quat_conj(q), z)
-         + e_start * quat_rotate(quat_conj(q_b), z) + e_end * quat_rotate(quat_conj(q_f), z))
-    q = _tilt_to(q, u / np.linalg.norm(u, axis=-1, keepdims=True))
+    q = _compose_inclination(qg, up, q_f, np.ascontiguousarray(q_b), e_start, e_end)
     if use_mag:
-        yaw = _yaw_between(q_f, q)
         ok = mag_ok_f & mag_ok_b[::-1] & np.all(np.isfinite(m), axis=-1)
-        h = quat_rotate(q, np.where(ok[..., None], m, 0.0))
-        target = 0.5 * np.pi - np.arctan2(h[..., 1], h[..., 0])
+        yaw, target = _heading_terms(q, q_f, np.where(ok[..., None], m, 0.0))
         w0 = p.mag_clean_fraction
+        ba_mag = _butter_coeffs(p.tau_mag, fs)
         # the zero-phase heading lacks data on one side near the ends: fade out there
         edge_mag = (1.0 - np.exp(-t / p.tau_mag)) * (1.0 - np.exp(-(t[-1] - t) / p.tau_mag))
         for s in range(q.shape[1]):
@@ -521,16 +582,14 @@ def _offline(
             # pass' heading, whose rejection logic has the causal history, is kept
             d = np.unwrap(target[good, s])
             d_full = np.interp(np.arange(len(q)), np.flatnonzero(good), d)
-            w = np.clip(_zero_phase(good.astype(float), p.tau_mag, fs), 0.0, 1.0)
-            num = _zero_phase(np.where(good, d_full, 0.0), p.tau_mag, fs)
+            w = np.clip(_zero_phase(good.astype(float), ba_mag, p.tau_mag, fs), 0.0, 1.0)
+            num = _zero_phase(np.where(good, d_full, 0.0), ba_mag, p.tau_mag, fs)
             zp = np.where(w > 1e-3, num / np.maximum(w, 1e-3), 0.0)
             diff = (zp - yaw[:, s] + np.pi) % (2 * np.pi) - np.pi
             alpha = np.clip((w - w0) / (1.0 - w0), 0.0, 1.0) * edge_mag
             yaw[:, s] = yaw[:, s] + alpha * diff
-        qz = np.stack([np.cos(0.5 * yaw), np.zeros_like(yaw), np.zeros_like(yaw),
-                       np.sin(0.5 * yaw)], axis=-1)
-        q = quat_mul(qz, q)
-    return quat_normalize(q), bias
+        q = _apply_yaw(q, np.ascontiguousarray(yaw))
+    return q, bias, rest
 
 
 class OrientationFilter:
