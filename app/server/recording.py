@@ -115,8 +115,9 @@ class RecordingManager:
             for r in raw:
                 parts = {k: Part(**v) for k, v in r.pop("parts").items()}
                 rec = Recording(**r, parts=parts)
-                if rec.t_stop is None:  # the server died during it
-                    rec.t_stop = rec.created
+                if rec.t_stop is None:  # the server died during it: nodes that kept
+                    # recording are stopped now (they get rec_stop when they reconnect)
+                    rec.t_stop = max(time.time(), rec.t_start)
                     for p in rec.parts.values():
                         if p.state in ("pending", "recording"):
                             p.state, p.reason = "incomplete", "server restarted during recording"

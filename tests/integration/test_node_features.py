@@ -96,3 +96,27 @@ def test_images_reconnect_and_replay(make_rig: object) -> None:
     pos = np.asarray(sk["positions"], dtype=np.float32).reshape(-1, 25, 3)
     assert any(p.shape == pos.shape and np.array_equal(p, pos, equal_nan=True)
                for p, _ in recorded), "the replayed frame is not one of the recorded frames"
+
+
+def test_server_crash_during_recording(make_rig: object) -> None:
+    rig: Rig = make_rig()  # type: ignore[operator]
+    rig.start_node("S5")
+    rig.wait_online(["S5"])
+    rec = rig.api("/api/recordings", {})
+    time.sleep(1.5)
+    rig.kill_server()
+    time.sleep(1.0)  # the node keeps recording while the server is away
+    t_restart = time.time()
+    rig.start_server()
+    rig.wait_online(["S5"], timeout=20)
+
+    def stopped() -> dict[str, Any] | None:
+        r = rig.api(f"/api/recordings/{rec['id']}")
+        return r if r["parts"][0]["state"] == "on_node" else None
+
+    r = wait_for(stopped, 15, "the node to close its part")
+    part = r["parts"][0]
+    assert "server restarted" in part["reason"]
+    # the node recorded through the outage, up to the stop the new server set
+    assert part["t_first"] - r["t_start"] < 0.05
+    assert t_restart < r["t_stop"] and abs(part["t_last"] - r["t_stop"]) < 0.05
