@@ -23,9 +23,9 @@ Ideas (after Laidig & Seel 2023, "VQF", implemented independently here):
 * Gyroscope bias: a rest detector (low gyro and acceleration variation for
   ``rest_min_t``) averages the raw rate into the bias; during motion, the corrections
   applied by inclination (and heading) are fed back as an integral term.
-* ``offline=True`` (recorded data): the bias is averaged from a forward and a time-reversed
-  pass, and the inclination (and, in clean magnetic field, heading) corrections are
-  low-passed zero-phase (no lag).
+* ``offline=True`` (recorded data): a time-reversed pass supplies the bias at the start,
+  and the inclination (and, in clean magnetic field, heading) corrections are low-passed
+  zero-phase (no lag), see :func:`_offline`.
 
 Output frame: ENU (x east, y north, z up), quaternions w-first, sensor-to-earth.
 """
@@ -357,8 +357,9 @@ def orientation_filter(
         mag: same shape (any unit) or ``None`` for 6D; 6D heading is arbitrary.
         frequency: sampling rate, Hz.
         params: tuning; defaults suit human motion at 50-1000 Hz.
-        offline: for recorded data: bias from a forward and a time-reversed pass, then a
-            zero-phase (lag-free) inclination and, where the field is clean, heading.
+        offline: for recorded data: bias known from the first sample (time-reversed
+            pass), then zero-phase (lag-free) inclination and, where the field is clean,
+            heading.
             ``False`` gives the causal (real-time equivalent) estimate.
 
     Returns:
