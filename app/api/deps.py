@@ -22,6 +22,7 @@ from app.api.security import user_for_token
 from app.config import Settings
 from app.db.models import User
 from app.server.hub import Hub
+from app.server.registry import NodeRegistry
 
 SESSION_COOKIE = "gaitrig_session"
 
@@ -45,8 +46,14 @@ def get_db(request: Request) -> Iterator[Session]:
         yield db
 
 
+def get_registry(request: Request) -> NodeRegistry:
+    """The node registry (health, clocks, latest data of every node)."""
+    return get_hub(request).registry
+
+
 SettingsDep = Annotated[Settings, Depends(get_app_settings)]
 HubDep = Annotated[Hub, Depends(get_hub)]
+RegistryDep = Annotated[NodeRegistry, Depends(get_registry)]
 DbDep = Annotated[Session, Depends(get_db)]
 
 

@@ -148,6 +148,7 @@ class NodeAgent:
         self._sub: Subscribe | None = None
         self._sub_last = 0.0
         self._sub_busy = False
+        self._dropped_capture = 0  # written by the capture thread only
         self._submitted = 0  # written by the capture thread only
         self._handled = 0  # written by the loop only
 
@@ -186,7 +187,7 @@ class NodeAgent:
                     break
                 if self._submitted - self._handled > 30:
                     # The loop is >1 s behind: drop rather than grow without bound.
-                    self.dropped += 1
+                    self._dropped_capture += 1
                     continue
                 self._submitted += 1
                 self._loop.call_soon_threadsafe(self._on_frame, frame)
@@ -206,6 +207,9 @@ class NodeAgent:
                 raise
             except (OSError, ConnectionClosed, InvalidHandshake, TimeoutError) as exc:
                 log.info("server unreachable (%s); retrying in %.1f s", exc, backoff)
+            except ProtocolError as exc:
+                log.warning("server spoke an unexpected protocol (%s); retrying in %.1f s", exc,
+                            backoff)
             except InvalidURI as exc:
                 raise NodeRefusedError(f"bad server address {self.server_url!r}: {exc}") from exc
             finally:
@@ -441,7 +445,8 @@ class NodeAgent:
             diag = self.backend.diagnostics(time.time()) if self.report_true_clock else {}
             free = await asyncio.to_thread(self.store.disk_free)
             await ws.send(dump(Status(fps=self.fps(), frames=self.frames_total,
-                                      dropped=self.dropped, disk_free_bytes=free,
+                                      dropped=self.dropped + self._dropped_capture,
+                                      disk_free_bytes=free,
                                       ring_seconds=self.ring.span, diag=diag)))
             for rec in self._recs.values():
                 await ws.send(dump(RecState(part=rec.writer.info())))
