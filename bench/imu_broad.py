@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-# Running "python bench/x.py" puts bench/ first on sys.path, where bench/coverage.py would
-# shadow the coverage package that numba imports; use the project root instead.
+# Running "python bench/x.py" puts bench/ first on sys.path, where a bench script could
+# shadow an installed package of the same name; import from the project root instead.
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != ROOT / "bench"]
 sys.path.insert(0, str(ROOT))
 
