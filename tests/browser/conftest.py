@@ -1,0 +1,236 @@
+"""Browser-test harness: a real server with simulated nodes, and a logged-in Chromium page.
+
+Fixtures:
+
+* ``live_server`` (session): ``gaitrig demo`` on free ports with six simulated sensor nodes
+  in a temporary data folder, waited on until every node is online. Gives the console URL,
+  the 3D-view URL, the admin password and a logged-in :meth:`LiveServer.api` helper.
+  Stopped (nodes, then server) at the end of the session; the demo's children die with it.
+* ``browser`` (session): headless Debian Chromium (``/usr/bin/chromium``; never a
+  downloaded browser) with a fresh profile. Skips every browser test with a reason when
+  Chromium or Playwright is missing.
+* ``page`` (function): a new browser context already logged in through the login form
+  (so every test also exercises the login), on the Rig page.
+
+Helpers for what a person sees: :func:`screenshot` saves a PNG into ``artifacts_dir`` and
+returns it as an RGB array; :func:`color_fraction`, :func:`changed_fraction` and
+:func:`saturated_fraction` measure pixels. Mark tests ``@pytest.mark.browser``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+ROOT = Path(__file__).resolve().parents[2]
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync"]
+N_NODES = int(os.environ.get("GAITRIG_TEST_NODES", "6"))
+START_TIMEOUT_S = 90.0
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that is free right now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class LiveServer:
+    """A running ``gaitrig demo`` (server + simulated nodes) for browser tests."""
+
+    base_url: str
+    viewer_url: str
+    password: str
+    data_dir: Path
+    n_nodes: int
+    process: subprocess.Popen[bytes]
+    token: str = ""
+
+    def api(self, path: str, data: dict[str, Any] | None = None, method: str | None = None,
+            timeout: float = 15.0) -> Any:
+        """Call the REST API as the admin (bearer token); returns the decoded JSON or bytes."""
+        headers = {"Content-Type": "application/json"}
+        if self.token:
+            headers["Authorization"] = f"Bearer {self.token}"
+        body = json.dumps(data).encode() if data is not None else None
+        req = urllib.request.Request(self.base_url + path, data=body, headers=headers,
+                                     method=method)
+        with urllib.request.urlopen(req, timeout=timeout) as r:
+            raw = r.read()
+            if r.headers.get_content_type() == "application/json":
+                return json.loads(raw) if raw else None
+            return raw
+
+    def login(self) -> None:
+        """Get a bearer token for :meth:`api`."""
+        self.token = ""
+        self.token = self.api("/api/auth/login", {"username": "admin",
+                                                  "password": self.password})["token"]
+
+    def online(self) -> list[str]:
+        """Ids of the nodes currently online."""
+        return [n["id"] for n in self.api("/api/nodes") if n["connected"]]
+
+
+def _wait_http(url: str, proc: subprocess.Popen[bytes], timeout: float) -> None:
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"gaitrig demo exited with {proc.returncode} before serving")
+        try:
+            with urllib.request.urlopen(url, timeout=2):
+                return
+        except (urllib.error.URLError, OSError):
+            time.sleep(0.2)
+    raise TimeoutError(f"{url} did not answer within {timeout:.0f} s")
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)  # the demo stops its nodes, then the server
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture(scope="session")
+def live_server() -> Iterator[LiveServer]:
+    """``gaitrig demo`` with ``GAITRIG_TEST_NODES`` (default 6) sim nodes, all online."""
+    from app.commands.demo import demo_password
+
+    tmp = Path(tempfile.mkdtemp(prefix="gaitrig-browser-"))
+    port, vport = free_port(), free_port()
+    password = demo_password(tmp)
+    log = (tmp / "demo.log").open("wb")
+    cmd = [sys.executable, "-m", "app.cli", "demo", "--port", str(port), "--viewer-port",
+           str(vport), "--data-dir", str(tmp), "--nodes", str(N_NODES)]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    server = LiveServer(f"http://127.0.0.1:{port}", f"http://127.0.0.1:{vport}", password, tmp,
+                        N_NODES, proc)
+    try:
+        _wait_http(server.base_url + "/healthz", proc, START_TIMEOUT_S)
+        server.login()
+        deadline = time.time() + START_TIMEOUT_S
+        while len(server.online()) < N_NODES:
+            if time.time() > deadline or proc.poll() is not None:
+                raise RuntimeError(f"only {server.online()} of {N_NODES} nodes came online; "
+                                   f"log: {(tmp / 'demo.log').read_text()[-3000:]}")
+            time.sleep(0.3)
+        yield server
+    finally:
+        _stop(proc)
+        log.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator[Any]:
+    """Headless Debian Chromium (skips with a reason when it or Playwright is missing)."""
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium package to run "
+                    "browser tests")
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        pytest.skip("the playwright Python package is not installed")
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS,
+                               headless=True)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+def login(page: Any, server: LiveServer) -> None:
+    """Log in through the console's login form and land on the Rig page."""
+    page.goto(server.base_url + "/index.html")
+    page.fill("#username", "admin")
+    page.fill("#password", server.password)
+    page.click("button[type=submit]")
+    page.wait_for_url("**/rig.html", timeout=15000)
+
+
+@pytest.fixture
+def page(browser: Any, live_server: LiveServer) -> Iterator[Any]:
+    """A fresh browser context (own cookies), logged in, 1400×900, on the Rig page."""
+    context = browser.new_context(viewport={"width": 1400, "height": 900})
+    p = context.new_page()
+    p.set_default_timeout(20000)
+    errors: list[str] = []
+    p.on("pageerror", lambda e: errors.append(str(e)))
+    p.js_errors = errors  # tests may assert the page raised no JavaScript error
+    try:
+        login(p, live_server)
+        yield p
+    finally:
+        context.close()
+
+
+def screenshot(page: Any, artifacts_dir: Path, name: str,
+               selector: str | None = None) -> NDArray[np.uint8]:
+    """Save a PNG of the page (or of one element) as ``<artifacts>/browser/<name>.png``.
+
+    Returns:
+        The screenshot as an ``(H, W, 3)`` RGB uint8 array.
+    """
+    out = artifacts_dir / "browser"
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{name}.png"
+    target = page.locator(selector) if selector else page
+    png = target.screenshot(path=str(path))
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def decode_png(data: bytes) -> NDArray[np.uint8]:
+    """PNG/JPEG bytes → ``(H, W, 3)`` RGB array."""
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ValueError("not a decodable image")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def color_fraction(img: NDArray[np.uint8], rgb: tuple[int, int, int], tol: int = 40) -> float:
+    """Fraction of pixels within ``tol`` (max per channel) of the colour ``rgb``."""
+    d = np.abs(img[..., :3].astype(np.int16) - np.asarray(rgb, np.int16)).max(axis=-1)
+    return float((d <= tol).mean())
+
+
+def changed_fraction(a: NDArray[np.uint8], b: NDArray[np.uint8], tol: int = 12) -> float:
+    """Fraction of pixels whose colour differs by more than ``tol`` between two images."""
+    if a.shape != b.shape:
+        return 1.0
+    d = np.abs(a.astype(np.int16) - b.astype(np.int16)).max(axis=-1)
+    return float((d > tol).mean())
+
+
+def saturated_fraction(img: NDArray[np.uint8], min_sat: int = 80) -> float:
+    """Fraction of strongly coloured (not grey/white/black) pixels — e.g. a colour map."""
+    hsv = cv2.cvtColor(np.ascontiguousarray(img[..., :3]), cv2.COLOR_RGB2HSV)
+    return float(((hsv[..., 1] >= min_sat) & (hsv[..., 2] >= 40)).mean())
