@@ -32,8 +32,12 @@ def make_engine(path: Path | str) -> Engine:
         cur.close()
 
     import app.db.models  # noqa: F401  (register the tables)
+    from app.db.data import DATA_TABLES, upgrade_database
 
-    Base.metadata.create_all(engine)
+    # The data tables are versioned by alembic (app.db.data); the rest is created here.
+    Base.metadata.create_all(engine, tables=[t for n, t in Base.metadata.tables.items()
+                                             if n not in DATA_TABLES])
+    upgrade_database(engine)
     return engine
 
 
