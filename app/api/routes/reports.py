@@ -1,0 +1,437 @@
+"""Gait analysis of recordings and gait reports (console HTML fragment and PDF download).
+
+Routes (all under ``/api/reports``, login required):
+
+* ``GET  /recordings`` — recordings with data on the server, their sensors and subject;
+* ``GET  /recordings/{rec_id}/sensors`` — the recording's sensors, their positions and
+  which side of the walkway they stand on (for one- vs two-sided analysis);
+* ``GET  /recordings/{rec_id}/analysis`` — gait analysis JSON (``sensors=S1,S3`` for a
+  subset, ``method``, ``estimator``);
+* ``GET  /recordings/{rec_id}/compare`` — the same recording analysed with two sensor
+  subsets (``a``, ``b``), e.g. one side against both sides;
+* ``GET  /recordings/{rec_id}/report`` — report of one recording (``format=html|pdf``);
+* ``GET/POST/DELETE /recordings/{rec_id}/reference`` — a reference recording (C3D, TRC
+  or skeleton CSV) for the agreement section;
+* ``GET  /subjects/{subject_id}`` — report of a subject from all its complete recordings,
+  or of one session (``session_id``);
+* ``POST /upload`` — report of an uploaded C3D/TRC/CSV file (research engineers).
+
+Heavy work (fusion, gait, PDF) runs in FastAPI's thread pool (plain ``def`` routes).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from fastapi import APIRouter, HTTPException, Query, Request, UploadFile, status
+from fastapi.responses import HTMLResponse, Response
+
+from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
+from app.db.data import Recording as DbRecording
+from app.db.data import Session as DbSession
+from app.db.data import Subject
+from app.server import analysis as an
+from engine.errors import GaitrigError, InputError, InsufficientDataError
+from engine.report.render import ReportData, render_html, render_pdf
+
+router = APIRouter(prefix="/reports", tags=["reports"])
+
+#: Largest accepted upload (C3D of a long Vicon session with analog data is ~100 MB).
+MAX_UPLOAD_BYTES = 200 * 1024 * 1024
+UPLOAD_TYPES = (".c3d", ".trc", ".csv")
+_COPY_CHUNK = 1024 * 1024
+_SENSOR_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+Fmt = Literal["html", "pdf"]
+MethodQ = Literal["crossing", "heelstrike"]
+EstimatorQ = Literal["weighted", "mean"]
+
+
+# ---------------------------------------------------------------------------- helpers
+
+
+def _rec_dir(settings: Any, rec_id: str) -> Path:
+    try:
+        d = an.recording_dir(settings.data_dir, rec_id)
+    except InputError as exc:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    if not an.part_dirs(d):
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"recording {rec_id} has no sensor data on the server; transfer "
+                            "it from the nodes first (Subjects page)")
+    return d
+
+
+def _sensors_param(value: str | None) -> tuple[str, ...] | None:
+    """``"S1,S3"`` → ``("S1", "S3")``; empty or ``all`` → None (every sensor)."""
+    if value is None or value.strip() in ("", "all"):
+        return None
+    out = tuple(dict.fromkeys(s.strip() for s in value.split(",") if s.strip()))
+    for s in out:
+        if not _SENSOR_RE.match(s):
+            raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                                f"sensor id {s!r} must be 1-64 characters of A-Z a-z 0-9 _ . -")
+    return out
+
+
+def _live_poses(hub: Any) -> dict[str, Any]:
+    """Sensor poses known now: the nodes' reported poses (calibration replaces them)."""
+    out: dict[str, Any] = {}
+    for node_id, s in hub.registry.nodes.items():
+        T = s.sensor.T_world_sensor
+        if T is not None:
+            out[node_id] = {"T_world_sensor": T, "source": "node"}
+    return out
+
+
+def _analyse(settings: Any, hub: Any, rec_id: str, sensors: tuple[str, ...] | None,
+             method: str, estimator: str) -> dict[str, Any]:
+    d = _rec_dir(settings, rec_id)
+    try:
+        return an.analyse_recording(d, an.AnalysisOptions(method, estimator, sensors),
+                                    _live_poses(hub))
+    except InsufficientDataError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc)) from exc
+    except InputError as exc:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+
+
+def _filename(*parts: str) -> str:
+    stem = "-".join(re.sub(r"[^A-Za-z0-9_.-]+", "_", p).strip("_.") for p in parts if p)
+    return (stem or "report")[:120]
+
+
+def _respond(data: ReportData, fmt: str, name: str) -> Response:
+    try:
+        if fmt == "pdf":
+            pdf = render_pdf(data)
+            return Response(pdf, media_type="application/pdf", headers={
+                "Content-Disposition": f'attachment; filename="{_filename(name)}.pdf"'})
+        return HTMLResponse(render_html(data, standalone=False))
+    except GaitrigError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc)) from exc
+
+
+def _reference_file(rec_dir: Path) -> tuple[Path, dict[str, Any]] | None:
+    folder = rec_dir / "reference"
+    meta_path = folder / "meta.json"
+    if not meta_path.is_file():
+        return None
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    f = folder / f"reference{meta.get('ext', '')}"
+    return (f, meta) if f.is_file() else None
+
+
+def _references(rec_dirs: dict[str, Path], method: str) -> dict[str, list[dict[str, Any]]]:
+    """rec_id → reference steps shifted onto the recording's time axis."""
+    out: dict[str, list[dict[str, Any]]] = {}
+    for rec_id, d in rec_dirs.items():
+        ref = _reference_file(d)
+        if ref is None:
+            continue
+        path, meta = ref
+        steps = an.reference_steps(path, method)
+        off = float(meta.get("offset_s") or 0.0)
+        out[rec_id] = [{**s, "time_s": s["time_s"] + off} for s in steps]
+    return out
+
+
+async def _save_upload(request: Request, file: UploadFile, dest_dir: Path) -> Path:
+    """Copy an upload to ``dest_dir/upload<ext>`` within :data:`MAX_UPLOAD_BYTES`."""
+    name = file.filename or ""
+    ext = Path(name).suffix.lower()
+    if ext not in UPLOAD_TYPES:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                            f"file {name!r}: choose a .c3d, .trc or skeleton .csv file")
+    declared = request.headers.get("content-length")
+    if declared and declared.isdigit() and int(declared) > MAX_UPLOAD_BYTES + 64 * 1024:
+        raise HTTPException(status.HTTP_413_REQUEST_ENTITY_TOO_LARGE,
+                            f"the upload is larger than {MAX_UPLOAD_BYTES // 2**20} MB")
+    dest = dest_dir / f"upload{ext}"
+    size = 0
+    with open(dest, "wb") as f:
+        while chunk := await file.read(_COPY_CHUNK):
+            size += len(chunk)
+            if size > MAX_UPLOAD_BYTES:
+                raise HTTPException(status.HTTP_413_REQUEST_ENTITY_TOO_LARGE,
+                                    f"{name} is larger than {MAX_UPLOAD_BYTES // 2**20} MB")
+            f.write(chunk)
+    if size == 0:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, f"{name} is empty")
+    return dest
+
+
+def _subject_info(subject: Any) -> dict[str, Any]:
+    info: dict[str, Any] = {}
+    if getattr(subject, "height_m", None):
+        info["Height"] = f"{subject.height_m * 100:.0f} cm"
+    if getattr(subject, "leg_length_m", None):
+        info["Leg length"] = f"{subject.leg_length_m * 100:.0f} cm"
+    if getattr(subject, "sex", "unknown") not in (None, "", "unknown"):
+        info["Sex"] = subject.sex
+    if getattr(subject, "birth_year", None):
+        info["Born"] = str(subject.birth_year)
+    return info
+
+
+def _side_groups(sensors: dict[str, list[float]]) -> dict[str, str]:
+    """Which side of the walkway each sensor stands on ("A"/"B", "" when on the axis).
+
+    The walkway axis is the principal direction of the sensor positions on the floor
+    (sensors line the walkway); a sensor's side is the sign of its offset across it.
+    """
+    ids = list(sensors)
+    if len(ids) < 2:
+        return dict.fromkeys(ids, "")
+    P = np.array([sensors[i][:2] for i in ids], dtype=float)
+    c = P.mean(axis=0)
+    _, _, vt = np.linalg.svd(P - c)
+    d = vt[0]
+    across = (P - c) @ np.array([-d[1], d[0]])
+    tol = 0.1 * max(1e-9, float(np.ptp(across)))
+    # Orient so that side A holds the first sensor in id order, for stable labels.
+    sign = 1.0 if across[0] >= 0 else -1.0
+    return {i: ("" if abs(a) <= tol else "A" if sign * a > 0 else "B")
+            for i, a in zip(ids, across, strict=True)}
+
+
+# ---------------------------------------------------------------------------- routes
+
+
+@router.get("/recordings")
+def list_recordings(user: CurrentUser, settings: SettingsDep, hub: HubDep,
+                    db: DbDep) -> list[dict[str, Any]]:
+    """Recordings with sensor data on the server, newest first, with their subject."""
+    root = Path(settings.data_dir) / an.RECORDINGS_DIR
+    out: list[dict[str, Any]] = []
+    links = _recording_links(db)
+    if root.is_dir():
+        for d in root.iterdir():
+            parts = an.part_dirs(d) if d.is_dir() else {}
+            if not parts:
+                continue
+            rec = hub.recordings.recordings.get(d.name)
+            created = rec.created if rec is not None else d.stat().st_mtime
+            out.append({"id": d.name, "created": created, "sensors": list(parts),
+                        "has_reference": _reference_file(d) is not None,
+                        **links.get(d.name, {})})
+    out.sort(key=lambda r: r["created"], reverse=True)
+    return out
+
+
+def _recording_links(db: Any) -> dict[str, dict[str, Any]]:
+    """rec_id → subject/session of the data-management tables."""
+    rows = (db.query(DbRecording.id, DbRecording.state, DbSession.id, DbSession.label,
+                     DbSession.date, Subject.id, Subject.code)
+            .join(DbSession, DbRecording.session_id == DbSession.id)
+            .join(Subject, DbSession.subject_id == Subject.id).all())
+    return {r[0]: {"db_state": r[1], "session_id": r[2], "session_label": r[3],
+                   "session_date": str(r[4]) if r[4] else "", "subject_id": r[5],
+                   "subject_code": r[6]} for r in rows}
+
+
+@router.get("/recordings/{rec_id}/sensors")
+def recording_sensors(rec_id: str, user: CurrentUser, settings: SettingsDep,
+                      hub: HubDep) -> dict[str, Any]:
+    """The recording's sensors, positions and walkway sides (for subset presets)."""
+    d = _rec_dir(settings, rec_id)
+    poses = an.sensor_poses(d, _live_poses(hub))
+    pos = {k: list(np.asarray(v["T_world_sensor"], dtype=float)[:3, 3])
+           for k, v in poses.items() if k in an.part_dirs(d)}
+    sides = _side_groups(pos)
+    sensors = [{"id": k, "position": [round(float(x), 3) for x in pos[k]] if k in pos else None,
+                "side": sides.get(k, ""), "has_pose": k in pos} for k in an.part_dirs(d)]
+    return {"rec_id": rec_id, "sensors": sensors}
+
+
+@router.get("/recordings/{rec_id}/analysis")
+def recording_analysis(rec_id: str, user: CurrentUser, settings: SettingsDep, hub: HubDep,
+                       sensors: str | None = Query(None, max_length=2000,
+                                                   description="e.g. S1,S3,S5; empty = all"),
+                       method: MethodQ = "crossing",
+                       estimator: EstimatorQ = "weighted") -> dict[str, Any]:
+    """Gait analysis of one recording (cached beside the recording)."""
+    return _analyse(settings, hub, rec_id, _sensors_param(sensors), method, estimator)
+
+
+def _brief(a: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in a.items() if k not in ("ankles", "placements")}
+
+
+@router.get("/recordings/{rec_id}/compare")
+def compare_subsets(rec_id: str, user: CurrentUser, settings: SettingsDep, hub: HubDep,
+                    a: str = Query(..., max_length=2000, description="first subset, e.g. S1,S3,S5"),
+                    b: str | None = Query(None, max_length=2000,
+                                          description="second subset; empty = all sensors"),
+                    method: MethodQ = "crossing",
+                    estimator: EstimatorQ = "weighted") -> dict[str, Any]:
+    """The same recording analysed with two sensor subsets (one- vs two-sided)."""
+    ra = _analyse(settings, hub, rec_id, _sensors_param(a), method, estimator)
+    rb = _analyse(settings, hub, rec_id, _sensors_param(b), method, estimator)
+    return {"rec_id": rec_id, "a": _brief(ra), "b": _brief(rb)}
+
+
+@router.get("/recordings/{rec_id}/report", response_model=None)
+def recording_report(rec_id: str, user: CurrentUser, settings: SettingsDep, hub: HubDep,
+                     db: DbDep, format: Fmt = "html",
+                     sensors: str | None = Query(None, max_length=2000),
+                     method: MethodQ = "crossing",
+                     estimator: EstimatorQ = "weighted") -> Response:
+    """Report of one recording (optionally from a sensor subset)."""
+    sub = _sensors_param(sensors)
+    res = _analyse(settings, hub, rec_id, sub, method, estimator)
+    link = _recording_links(db).get(rec_id, {})
+    code = str(link.get("subject_code") or "unassigned")
+    title = "Gait report" + ("" if sub is None else f" — sensors {an.subset_label(sub)}")
+    try:
+        refs = _references({rec_id: _rec_dir(settings, rec_id)}, method)
+        data = an.build_report(code, [res], title=title,
+                               session_label=str(link.get("session_label") or ""),
+                               session_date=str(link.get("session_date") or ""),
+                               references=refs)
+    except InsufficientDataError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc)) from exc
+    except InputError as exc:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    return _respond(data, format, f"gait-report-{code}-{rec_id}")
+
+
+@router.get("/subjects/{subject_id}", response_model=None)
+def subject_report(subject_id: int, user: CurrentUser, settings: SettingsDep, hub: HubDep,
+                   db: DbDep, format: Fmt = "html",
+                   session_id: int | None = None,
+                   sensors: str | None = Query(None, max_length=2000),
+                   method: MethodQ = "crossing",
+                   estimator: EstimatorQ = "weighted") -> Response:
+    """Report of a subject from all complete recordings (or those of one session)."""
+    subject = db.get(Subject, subject_id)
+    if subject is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no subject with id {subject_id}")
+    sessions = list(subject.sessions)
+    if session_id is not None:
+        sessions = [s for s in sessions if s.id == session_id]
+        if not sessions:
+            raise HTTPException(status.HTTP_404_NOT_FOUND,
+                                f"subject {subject.code} has no session with id {session_id}")
+    sub = _sensors_param(sensors)
+    analyses: list[dict[str, Any]] = []
+    skipped: list[str] = []
+    rec_dirs: dict[str, Path] = {}
+    for se in sessions:
+        for rec in se.recordings:
+            d = an.recording_dir(settings.data_dir, rec.id)
+            if rec.state != "complete" or not an.part_dirs(d):
+                skipped.append(f"{rec.id} ({rec.state})")
+                continue
+            rec_dirs[rec.id] = d
+            try:
+                analyses.append(an.analyse_recording(d, an.AnalysisOptions(method, estimator, sub),
+                                                     _live_poses(hub)))
+            except GaitrigError as exc:
+                analyses.append({"rec_id": rec.id, "ok": False, "error": str(exc)})
+    where = (f"session {sessions[0].label or sessions[0].date}" if session_id is not None
+             else f"subject {subject.code}")
+    if not analyses:
+        more = f" (not complete on the server: {', '.join(skipped)})" if skipped else ""
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY,
+                            f"{where} has no complete recording to report on{more}; record a "
+                            "walk and transfer it to the server first")
+    sess = sessions[0] if session_id is not None else None
+    try:
+        data = an.build_report(
+            subject.code, analyses,
+            title="Gait report" + ("" if sub is None else f" — sensors {an.subset_label(sub)}"),
+            subject_info=_subject_info(subject),
+            session_label=(sess.label if sess else f"all sessions ({len(sessions)})"),
+            session_date=(str(sess.date) if sess else ", ".join(
+                sorted({str(s.date) for s in sessions if s.date}))),
+            references=_references(rec_dirs, method))
+    except InsufficientDataError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, f"{where}: {exc}") from exc
+    except InputError as exc:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    for s in skipped:
+        data.quality.notes.append(f"Recording {s} was not used: it is not complete on the "
+                                  "server.")
+    stamp = str(sess.date) if sess else _dt.date.today().isoformat()
+    return _respond(data, format, f"gait-report-{subject.code}-{stamp}")
+
+
+@router.get("/recordings/{rec_id}/reference")
+def get_reference(rec_id: str, user: CurrentUser, settings: SettingsDep) -> dict[str, Any]:
+    """The reference attached to a recording (``attached`` False when none)."""
+    ref = _reference_file(_rec_dir(settings, rec_id))
+    if ref is None:
+        return {"rec_id": rec_id, "attached": False}
+    return {"rec_id": rec_id, "attached": True, **ref[1]}
+
+
+@router.post("/recordings/{rec_id}/reference", status_code=201)
+async def put_reference(rec_id: str, request: Request, file: UploadFile, user: CurrentUser,
+                        settings: SettingsDep, offset_s: float = Query(0.0, ge=-3600, le=3600,
+                        description="reference time of the recording's start")
+                        ) -> dict[str, Any]:
+    """Attach a reference recording (C3D/TRC/CSV); it must contain a walk with steps."""
+    d = _rec_dir(settings, rec_id)
+    with tempfile.TemporaryDirectory(dir=d) as tmp:
+        path = await _save_upload(request, file, Path(tmp))
+        import anyio
+
+        try:
+            steps = await anyio.to_thread.run_sync(an.reference_steps, path)
+        except GaitrigError as exc:
+            raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+        folder = d / "reference"
+        shutil.rmtree(folder, ignore_errors=True)
+        folder.mkdir()
+        os.replace(path, folder / f"reference{path.suffix}")
+    meta = {"filename": (file.filename or "")[-200:], "ext": path.suffix,
+            "offset_s": offset_s, "n_steps": len(steps)}
+    (folder / "meta.json").write_text(json.dumps(meta))
+    return {"rec_id": rec_id, "attached": True, **meta}
+
+
+@router.delete("/recordings/{rec_id}/reference")
+def delete_reference(rec_id: str, user: CurrentUser, settings: SettingsDep) -> dict[str, Any]:
+    """Detach the reference recording."""
+    d = _rec_dir(settings, rec_id)
+    shutil.rmtree(d / "reference", ignore_errors=True)
+    return {"rec_id": rec_id, "attached": False}
+
+
+@router.post("/upload", response_model=None)
+async def upload_report(request: Request, file: UploadFile, user: CurrentUser,
+                        format: Fmt = "html",
+                        subject: str = Query("upload", min_length=1, max_length=40),
+                        method: MethodQ = "crossing",
+                        left: str | None = Query(None, max_length=64),
+                        right: str | None = Query(None, max_length=64),
+                        up: Literal["x", "y", "z", "-x", "-y", "-z"] | None = None) -> Response:
+    """Report of an uploaded C3D/TRC/skeleton-CSV file (kept only while analysed)."""
+    import anyio
+
+    with tempfile.TemporaryDirectory(prefix="gaitrig-upload-") as tmp:
+        path = await _save_upload(request, file, Path(tmp))
+
+        def work() -> Response:
+            try:
+                res = an.analyse_file(path, method, left, right, up)
+                res["rec_id"] = Path(file.filename or "upload").name[-80:]
+                data = an.build_report(subject, [res], title="Gait report (uploaded file)")
+            except GaitrigError as exc:
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY,
+                                    f"{file.filename}: {exc}") from exc
+            return _respond(data, format, f"gait-report-{subject}")
+
+        return await anyio.to_thread.run_sync(work)
