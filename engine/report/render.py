@@ -147,9 +147,13 @@ def _collect(param: Parameter, trials: list[TrialData], side: str | None) -> np.
         res = tr.result
         if param.source == "summary":
             summ = res.get("summary", {}) or {}
-            key = param.field if side is None else f"{param.field}_{side}"
-            v = summ.get(key)
-            if v is not None:
+            v = summ.get(param.field)
+            if isinstance(v, dict):
+                # Gait JSON phases: {"mean", "left_mean", "right_mean"} (docs/gait-json.md).
+                v = v.get({None: "mean", "L": "left_mean", "R": "right_mean"}[side])
+            elif side is not None:
+                v = summ.get(f"{param.field}_{side}")
+            if isinstance(v, int | float):
                 vals.append(float(v))
         else:
             for item in res.get(param.source, []) or []:
