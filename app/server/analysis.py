@@ -629,7 +629,9 @@ def analyse_file(path: Path, method: str = "crossing", left: str | None = None,
 
     try:
         feet = load_feet(path, left=left, right=right, up=up)
-    except (OSError, ValueError, KeyError, IndexError) as exc:
+    except GaitrigError:
+        raise
+    except (OSError, ValueError, KeyError, IndexError) as exc:  # a malformed file
         raise InputError(f"cannot read {path.name}: {exc}") from exc
     res = analyse_series(feet, method)
     return {"rec_id": path.name, "ok": True, "error": None, "sensors": {}, "fusion": None,
