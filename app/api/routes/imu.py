@@ -1,0 +1,239 @@
+"""IMU page API: upload IMU files (and a depth skeleton), sync, fusion, plots, CSV.
+
+``POST /api/imu/sessions`` (multipart) → a processed session: ``files`` (x-IMU CSV,
+Madgwick ``.mat``, BROAD ``.hdf5``/``.mat``, generic CSV with declared units), ``sensors``
+(one name per file, e.g. ``chest``, ``thigh_l``; default the file name), optional
+``skeleton`` (skeleton CSV, ``engine.io.csv``), ``filter`` (``ours`` | ``madgwick``),
+``beta``, ``synchronise``, ``n_jumps`` and, for generic CSV, ``gyr_unit``, ``acc_unit``,
+``mag_unit``, ``time_unit``, ``frequency``.
+
+``POST /api/imu/simulate`` runs a simulated session (no hardware needed) with ground truth.
+``GET /api/imu/sessions/{id}`` (summary), ``/plots/{name}.png`` and ``/data.csv``.
+Results stay in server memory (last few sessions), never on disk.
+"""
+
+from __future__ import annotations
+
+import re
+import tempfile
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, File, Form, HTTPException, Request, Response, UploadFile, status
+from fastapi.concurrency import run_in_threadpool
+from pydantic import BaseModel, Field
+
+from app.api.deps import CurrentUser
+from app.server.imu_analysis import (
+    FilterName,
+    ImuJob,
+    ImuStore,
+    fused_job,
+    imu_only_job,
+    simulated_job,
+)
+from engine.errors import InputError
+from engine.imu.fusion import PAPER_SENSORS
+from engine.imu.io import ImuRecording, load_imu
+from engine.io.csv import read_skeleton_csv
+
+router = APIRouter(prefix="/imu", tags=["imu"])
+
+MAX_FILE_BYTES = 64 * 1024 * 1024
+MAX_FILES = 12
+_ALLOWED_SUFFIXES = (".csv", ".txt", ".tsv", ".mat", ".hdf5", ".h5")
+_NAME_RE = re.compile(r"^[A-Za-z0-9_\-]{1,40}$")
+_ID_RE = re.compile(r"^[0-9a-f]{16}$")
+
+
+def _store(request: Request) -> ImuStore:
+    store: ImuStore | None = getattr(request.app.state, "imu_store", None)
+    if store is None:
+        store = ImuStore()
+        request.app.state.imu_store = store
+    return store
+
+
+def _view(job: ImuJob) -> dict[str, Any]:
+    base = f"/api/imu/sessions/{job.id}"
+    return {"id": job.id, **job.summary,
+            "plots": {n: f"{base}/plots/{n}.png" for n in job.plots},
+            "csv_url": f"{base}/data.csv"}
+
+
+async def _save(upload: UploadFile, folder: Path, stem: str) -> Path:
+    """Copy an upload into ``folder`` under a safe name, at most ``MAX_FILE_BYTES``."""
+    name = upload.filename or ""
+    suffix = Path(name).suffix.lower()
+    if suffix not in _ALLOWED_SUFFIXES:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                            f"{name or 'a file'}: unsupported type {suffix or '(none)'}; upload "
+                            ".csv (x-IMU or generic), .mat (Madgwick or BROAD) or .hdf5 (BROAD)")
+    path = folder / f"{stem}{suffix}"  # never the client's name: no path traversal
+    size = 0
+    with path.open("wb") as fh:
+        while chunk := await upload.read(1 << 20):
+            size += len(chunk)
+            if size > MAX_FILE_BYTES:
+                raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
+                                    f"{name}: larger than {MAX_FILE_BYTES // 2**20} MB; split "
+                                    "the recording")
+            fh.write(chunk)
+    if size == 0:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, f"{name}: the file is empty")
+    return path
+
+
+def _sensor_names(files: list[UploadFile], sensors: list[str]) -> list[str]:
+    if sensors and len(sensors) != len(files):
+        raise InputError(f"give one sensor name per file ({len(files)} files, "
+                         f"{len(sensors)} names)")
+    names = sensors or [re.sub(r"[^A-Za-z0-9_\-]", "_", Path(f.filename or "imu").stem)[:40]
+                        or "imu" for f in files]
+    for n in names:
+        if not _NAME_RE.match(n):
+            raise InputError(f"sensor name {n!r}: use letters, digits, '_' or '-' (e.g. chest, "
+                             "thigh_l)")
+    if len(set(names)) != len(names):
+        raise InputError(f"sensor names must differ; got {names}")
+    return names
+
+
+@router.post("/sessions")
+async def upload_session(
+    request: Request,
+    user: CurrentUser,
+    files: Annotated[list[UploadFile], File(description="IMU recordings")],
+    sensors: Annotated[list[str], Form()] = [],  # noqa: B006 - FastAPI form default
+    skeleton: Annotated[UploadFile | None, File(description="depth skeleton CSV")] = None,
+    filter: Annotated[Literal["ours", "madgwick"], Form()] = "ours",
+    beta: Annotated[float, Form(gt=0, le=5)] = 0.041,
+    synchronise: Annotated[bool, Form()] = True,
+    n_jumps: Annotated[int, Form(ge=2, le=20)] = 5,
+    gyr_unit: Annotated[str | None, Form()] = None,
+    acc_unit: Annotated[str | None, Form()] = None,
+    mag_unit: Annotated[str | None, Form()] = None,
+    time_unit: Annotated[Literal["s", "ms"], Form()] = "s",
+    frequency: Annotated[float | None, Form(gt=0, le=10000)] = None,
+) -> dict[str, Any]:
+    """Process uploaded IMU files (and optionally a depth skeleton); see the module doc."""
+    files = [f for f in files if f.filename]
+    if not files:
+        raise InputError("choose at least one IMU file")
+    if len(files) > MAX_FILES:
+        raise InputError(f"at most {MAX_FILES} IMU files per session")
+    names = _sensor_names(files, [s.strip() for s in sensors if s.strip()])
+    kwargs: dict[str, Any] = {"time_unit": time_unit}
+    if gyr_unit:
+        kwargs["gyr_unit"] = gyr_unit
+    if acc_unit:
+        kwargs["acc_unit"] = acc_unit
+    if mag_unit and mag_unit != "none":
+        kwargs["mag_unit"] = mag_unit
+    if frequency:
+        kwargs["frequency"] = frequency
+    filt: FilterName = filter
+    with tempfile.TemporaryDirectory(prefix="gaitrig-imu-") as tmp:
+        folder = Path(tmp)
+        paths = [await _save(f, folder, f"imu{i}") for i, f in enumerate(files)]
+        skel_path = None
+        skel_name = skeleton.filename if skeleton is not None and skeleton.filename else ""
+        if skeleton is not None and skeleton.filename:
+            if Path(skeleton.filename).suffix.lower() != ".csv":
+                raise InputError(f"{skeleton.filename}: the depth skeleton must be a skeleton "
+                                 "CSV (time, SpineBase_x, ...)")
+            skel_path = await _save(skeleton, folder, "skeleton")
+
+        def work() -> ImuJob:
+            recs: dict[str, ImuRecording] = {}
+            for name, path, up in zip(names, paths, files, strict=True):
+                try:
+                    rec = _load(path, kwargs)
+                except InputError as e:
+                    # the engine names our temporary file; name the user's instead
+                    msg = str(e).replace(path.name, up.filename or name).replace(
+                        path.stem, Path(up.filename or name).stem).replace(str(folder) + "/", "")
+                    raise InputError(msg) from None
+                except Exception as e:  # a damaged file can trip any reader library
+                    raise InputError(f"{up.filename}: cannot read the file ({e}); check that it "
+                                     "is a complete, unmodified export") from None
+                rec.name = name
+                recs[name] = rec
+            if skel_path is None:
+                return imu_only_job(recs, filt=filt, beta=beta, n_jumps=n_jumps,
+                                    synchronise=synchronise)
+            try:
+                sk = read_skeleton_csv(skel_path)
+            except InputError as e:
+                raise InputError(str(e).replace(str(skel_path), skel_name)
+                                 .replace(skel_path.name, skel_name)) from None
+            except Exception as e:  # damaged file
+                raise InputError(f"{skel_name}: cannot read the skeleton CSV ({e})"
+                                 ) from None
+            missing = [n for n in recs if n not in PAPER_SENSORS]
+            if missing:
+                raise InputError(f"to fuse with the depth skeleton name every sensor after its "
+                                 f"bone: {', '.join(PAPER_SENSORS)} (not {', '.join(missing)})")
+            return fused_job(recs, sk, filt=filt, beta=beta, n_jumps=n_jumps,
+                             synchronise=synchronise)
+
+        job = await run_in_threadpool(work)
+    _store(request).add(job)
+    return _view(job)
+
+
+def _load(path: Path, kwargs: dict[str, Any]) -> ImuRecording:
+    if path.suffix in (".csv", ".txt", ".tsv"):
+        return load_imu(path, **kwargs)
+    return load_imu(path)
+
+
+class SimulateIn(BaseModel):
+    """Options of a simulated session."""
+
+    filter: Literal["ours", "madgwick"] = "ours"
+    beta: float = Field(default=0.041, gt=0, le=5)
+    seed: int = Field(default=0, ge=0, le=10_000)
+
+
+@router.post("/simulate")
+async def simulate(request: Request, user: CurrentUser, body: SimulateIn) -> dict[str, Any]:
+    """A whole simulated session (plank, jumps, walking) with ground-truth RMSE."""
+    job = await run_in_threadpool(simulated_job, body.seed, body.filter, body.beta)
+    _store(request).add(job)
+    return _view(job)
+
+
+def _job(request: Request, job_id: str) -> ImuJob:
+    job = _store(request).get(job_id) if _ID_RE.match(job_id) else None
+    if job is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            "no such IMU session (results are kept for the last few sessions "
+                            "only); upload the files again")
+    return job
+
+
+@router.get("/sessions/{job_id}")
+async def get_session(request: Request, job_id: str, user: CurrentUser) -> dict[str, Any]:
+    """Summary of a processed session."""
+    return _view(_job(request, job_id))
+
+
+@router.get("/sessions/{job_id}/plots/{name}.png")
+async def get_plot(request: Request, job_id: str, name: str, user: CurrentUser) -> Response:
+    """One plot (``sync``, ``angles`` or ``orientation``) as PNG."""
+    job = _job(request, job_id)
+    if name not in job.plots:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"no {name!r} plot; this session has {sorted(job.plots)}")
+    return Response(job.plots[name], media_type="image/png",
+                    headers={"Cache-Control": "no-store"})
+
+
+@router.get("/sessions/{job_id}/data.csv")
+async def get_csv(request: Request, job_id: str, user: CurrentUser) -> Response:
+    """Joint angles (fused and depth) or orientations as CSV."""
+    job = _job(request, job_id)
+    return Response(job.csv_text, media_type="text/csv",
+                    headers={"Content-Disposition": f'attachment; filename="{job.csv_name}"',
+                             "Cache-Control": "no-store"})

@@ -1,0 +1,138 @@
+"""IMU page API in-process: uploads (real x-IMU data, bad files, generic CSV with unit
+mistakes), a fused session from a skeleton CSV, the simulated session against ground truth."""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.main import create_app
+
+
+@pytest.fixture
+def client(tmp_path: Path) -> Iterator[TestClient]:
+    s = Settings(data_dir=tmp_path, viewer_enabled=False, node_token="imu-test-token",
+                 admin_password="imu-pw")
+    with TestClient(create_app(s)) as c:
+        r = c.post("/api/auth/login", json={"username": "admin", "password": "imu-pw"})
+        c.headers["Authorization"] = f"Bearer {r.json()['token']}"
+        yield c
+
+
+def test_needs_login(tmp_path: Path) -> None:
+    s = Settings(data_dir=tmp_path, viewer_enabled=False, admin_password="imu-pw")
+    with TestClient(create_app(s)) as c:
+        assert c.post("/api/imu/simulate", json={}).status_code == 401
+
+
+def test_upload_madgwick_example_data(client: TestClient, shared_data: Path) -> None:
+    mat = shared_data / "imu" / "madgwick" / "ExampleData.mat"
+    for filt in ("madgwick", "ours"):
+        with mat.open("rb") as fh:
+            r = client.post("/api/imu/sessions",
+                            files={"files": ("ExampleData.mat", fh, "application/octet-stream")},
+                            data={"filter": filt, "beta": "0.041"})
+        assert r.status_code == 200, r.text
+        d = r.json()
+        assert d["kind"] == "imu_only" and d["filter"] == filt
+        (sensor,) = d["sensors"]
+        assert sensor["name"] == "ExampleData" and sensor["samples"] == 6959
+        assert sensor["frequency_hz"] == pytest.approx(256.0, abs=0.5)
+        assert sensor["magnetometer"] is True
+        png = client.get(d["plots"]["orientation"])
+        assert png.status_code == 200 and png.content[:8] == b"\x89PNG\r\n\x1a\n"
+        text = client.get(d["csv_url"]).text
+        rows = list(csv.reader(io.StringIO(text)))
+        assert rows[0][:2] == ["sensor_time_s", "ExampleData_qw"]
+        assert len(rows) == 6960
+        q = np.array(rows[100][1:5], dtype=float)
+        assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-3)
+    # the two filters give different but close orientations once settled
+    assert client.get(f"/api/imu/sessions/{d['id']}").json()["id"] == d["id"]
+
+
+def test_bad_files_give_clear_400(client: TestClient, tmp_path: Path) -> None:
+    r = client.post("/api/imu/sessions", files={"files": ("notes.docx", b"xx", "text/plain")})
+    assert r.status_code == 400 and "unsupported type .docx" in r.json()["detail"]
+    r = client.post("/api/imu/sessions", files={"files": ("bad.mat", b"not a mat file", "x")})
+    assert r.status_code == 400 and "bad.mat" in r.json()["detail"]
+    assert "gaitrig-imu" not in r.json()["detail"]  # no server temp paths shown
+    # generic CSV without declared units
+    t = np.arange(200) / 100
+    rows = ["time,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z"]
+    rows += [f"{ti},0.01,0,0,0,0,1.0" for ti in t]  # acc in g
+    data = "\n".join(rows).encode()
+    r = client.post("/api/imu/sessions", files={"files": ("mine.csv", data, "text/csv")})
+    assert r.status_code == 400 and "declared units" in r.json()["detail"]
+    # declared m/s² but the numbers are in g: the unit mistake is named
+    r = client.post("/api/imu/sessions", files={"files": ("mine.csv", data, "text/csv")},
+                    data={"gyr_unit": "rad/s", "acc_unit": "m/s2"})
+    assert r.status_code == 400
+    assert "probably in g" in r.json()["detail"] and "mine" in r.json()["detail"]
+    # right units: accepted; NaN samples become a plain-words warning
+    rows[50] = "0.49,nan,nan,nan,0,0,1.0"
+    r = client.post("/api/imu/sessions",
+                    files={"files": ("mine.csv", "\n".join(rows).encode(), "text/csv")},
+                    data={"gyr_unit": "rad/s", "acc_unit": "g"})
+    assert r.status_code == 200, r.text
+    assert any("NaN" in w for w in r.json()["warnings"])
+    # a skeleton needs sensors named after bones
+    r = client.post("/api/imu/sessions",
+                    files=[("files", ("mine.csv", "\n".join(rows).encode(), "text/csv")),
+                           ("skeleton", ("walk.csv", b"time,SpineBase_x\n0,0\n", "text/csv"))],
+                    data={"gyr_unit": "rad/s", "acc_unit": "g"})
+    assert r.status_code == 400
+    assert client.get("/api/imu/sessions/0123456789abcdef").status_code == 404
+    assert client.get("/api/imu/sessions/..%2F..%2Fetc/data.csv").status_code == 404
+
+
+def test_simulated_session_fused_beats_depth(client: TestClient) -> None:
+    r = client.post("/api/imu/simulate", json={"filter": "ours"})
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["kind"] == "fused" and d["source"] == "simulation"
+    for j in ("knee_left", "knee_right", "elbow_left", "elbow_right"):
+        acc = d["accuracy"][j]
+        assert acc["fused_rmse_deg"] < 0.5 * acc["depth_rmse_deg"], (j, acc)
+    # jump sync recovered the simulated IMU clock offsets (±2 s) to a few ms
+    assert max(d["sync_error_ms"].values()) < 10.0
+    assert len(d["sync"]) == 10  # nine IMUs + the skeleton
+    assert set(d["plots"]) == {"sync", "angles"}
+    assert client.get(d["plots"]["angles"]).content[:4] == b"\x89PNG"
+    lines = client.get(d["csv_url"]).text.splitlines()
+    assert lines[0].startswith("time_s,knee_left_fused_deg,knee_left_depth_deg")
+    assert len(lines) > 1000
+
+
+def test_fused_upload_from_files(client: TestClient, tmp_path: Path) -> None:
+    """The simulated session written as files (generic CSVs + skeleton CSV) and uploaded."""
+    from app.server.imu_analysis import simulate_session
+    from engine.io.csv import write_skeleton_csv
+
+    sim = simulate_session(seed=1)
+    files = []
+    for name, rec in sim["recordings"].items():
+        buf = io.StringIO()
+        buf.write("time,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z\n")
+        np.savetxt(buf, np.column_stack([rec.time, np.degrees(rec.gyr), rec.acc, rec.mag]),
+                   delimiter=",", fmt="%.6f")
+        files.append(("files", (f"{name}.csv", buf.getvalue().encode(), "text/csv")))
+    write_skeleton_csv(tmp_path / "depth.csv", sim["depth"])
+    files.append(("skeleton", ("depth.csv", (tmp_path / "depth.csv").read_bytes(), "text/csv")))
+    r = client.post("/api/imu/sessions", files=files,
+                    data={"gyr_unit": "deg/s", "acc_unit": "m/s2", "mag_unit": "uT",
+                          "filter": "madgwick", "beta": "0.1"})
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["kind"] == "fused" and d["filter"] == "madgwick"
+    offs = {row["stream"]: row["offset_s"] for row in d["sync"]}
+    for n, off in sim["true_offsets"].items():
+        assert offs[n] == pytest.approx(off, abs=0.01)
+    assert d["angles"]["knee_left"]["depth_vs_fused_rmse_deg"] is not None
