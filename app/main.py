@@ -50,7 +50,12 @@ def api_routers() -> list[APIRouter]:
     for info in sorted(pkgutil.iter_modules(routes_pkg.__path__), key=lambda i: i.name):
         if info.name == "auth" or info.name.startswith("_"):
             continue
-        module = importlib.import_module(f"{routes_pkg.__name__}.{info.name}")
+        try:
+            module = importlib.import_module(f"{routes_pkg.__name__}.{info.name}")
+        except ImportError:
+            # A broken optional resource must not take the node link and recording down.
+            log.exception("API resource %s could not be loaded and is disabled", info.name)
+            continue
         router = getattr(module, "router", None)
         if isinstance(router, APIRouter):
             routers.append(router)

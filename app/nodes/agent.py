@@ -33,7 +33,9 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 
 from app.nodes.backends.base import Backend, Frame
 from app.nodes.protocol import (
+    ChunkRequest,
     Hello,
+    ManifestRequest,
     NodeError,
     Ping,
     Pong,
@@ -55,6 +57,8 @@ from app.nodes.protocol import (
 )
 from app.nodes.ringbuffer import RingBuffer
 from app.nodes.store import NodeStore, PartWriter
+from app.transfer import Manifest, TransferError, build_manifest, read_chunk
+from engine.errors import GaitrigError, InputError
 
 log = logging.getLogger("gaitrig.node")
 
@@ -140,6 +144,8 @@ class NodeAgent:
         self._frame_times: deque[float] = deque(maxlen=120)
         self._recs: dict[str, _Rec] = {}
         self._early_stops: dict[str, RecStop] = {}
+        self._manifests: dict[str, Manifest] = {}
+        self._tasks: set[asyncio.Future[None]] = set()
         self._ws: ClientConnection | None = None
         self._out: asyncio.Queue[str | bytes] = asyncio.Queue(maxsize=256)
         self._stop = asyncio.Event()
@@ -277,10 +283,56 @@ class NodeAgent:
                 if latest is not None:
                     self._pool.submit(self._send_images, latest[1], msg.streams, msg.scale,
                                       msg.format, {"req_id": msg.req_id})
+            elif isinstance(msg, ManifestRequest):
+                self._spawn(self._serve_manifest(ws, msg))
+            elif isinstance(msg, ChunkRequest):
+                self._spawn(self._serve_chunks(ws, msg))
             elif isinstance(msg, ServerError):
                 log.warning("server reported: %s", msg.reason)
             elif isinstance(msg, Refused):
                 raise NodeRefusedError(msg.reason)
+
+    # ------------------------------------------------------------------ transfer
+
+    def _spawn(self, coro: Any) -> None:
+        task = asyncio.ensure_future(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    def _manifest(self, rec_id: str) -> Manifest:
+        """Manifest of a closed part (cached: closed parts never change)."""
+        if rec_id in self._recs:
+            raise InputError(f"recording {rec_id} is still being recorded on {self.node_id}")
+        meta = self.store.meta(rec_id)
+        if meta.get("state") == "recording":
+            raise InputError(f"recording {rec_id} was not closed on {self.node_id}")
+        if rec_id not in self._manifests:
+            folder = self.store.root / rec_id
+            names = [n for n in ("meta.json", "index.json", "frames.bin")
+                     if (folder / n).exists()]
+            self._manifests[rec_id] = build_manifest(folder, rec_id, self.node_id, names)
+        return self._manifests[rec_id]
+
+    async def _serve_manifest(self, ws: ClientConnection, msg: ManifestRequest) -> None:
+        header: dict[str, Any] = {"kind": "manifest", "req_id": msg.req_id, "rec_id": msg.rec_id}
+        try:
+            m = await asyncio.to_thread(self._manifest, msg.rec_id)
+            await ws.send(encode_binary(header, m.to_json().encode()))
+        except (GaitrigError, TransferError, OSError) as exc:
+            await ws.send(encode_binary({**header, "error": str(exc)}))
+
+    async def _serve_chunks(self, ws: ClientConnection, msg: ChunkRequest) -> None:
+        folder = self.store.root / msg.rec_id
+        for idx in msg.indices:
+            header: dict[str, Any] = {"kind": "chunk", "req_id": msg.req_id,
+                                      "file": msg.file, "index": idx}
+            try:
+                m = await asyncio.to_thread(self._manifest, msg.rec_id)
+                data = await asyncio.to_thread(read_chunk, folder, m, msg.file, idx)
+                await ws.send(encode_binary(header, data))
+            except (GaitrigError, TransferError, OSError) as exc:
+                await ws.send(encode_binary({**header, "error": str(exc)}))
+                return
 
     # ------------------------------------------------------------------ frames
 

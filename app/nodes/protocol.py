@@ -6,11 +6,12 @@ Two kinds of websocket messages:
   pydantic models below (:data:`NodeMessage` node→server, :data:`ServerMessage`
   server→node). Bounded by ``Settings.max_control_bytes``.
 * **Bulk** — binary messages: ``b"GRB" + version byte``, a little-endian ``uint32``
-  header length, a JSON header (``kind`` = ``skeleton`` | ``image``, ``seq``, ``t`` =
-  node-local capture time in seconds, ...) and a raw payload. Skeleton payloads are
-  ``float32 (B, J, 3)`` positions in metres in the sensor frame followed by ``uint8 (B, J)``
-  tracking states; image payloads are PNG/JPEG bytes. Bounded by
-  ``Settings.max_binary_bytes``.
+  header length, a JSON header (``kind`` = ``skeleton`` | ``image`` | ``manifest`` |
+  ``chunk``, ``seq``, ``t`` = node-local capture time in seconds, ...) and a raw payload.
+  Skeleton payloads are ``float32 (B, J, 3)`` positions in metres in the sensor frame
+  followed by ``uint8 (B, J)`` tracking states; image payloads are PNG/JPEG bytes;
+  ``manifest`` and ``chunk`` carry a recording part's transfer (:mod:`app.transfer`).
+  Bounded by ``Settings.max_binary_bytes``.
 
 Time: every node timestamp on the wire is in the node's **local** clock. The server
 estimates each node's offset (``t_local - t_server``) from ``ping``/``pong`` four-timestamp
@@ -42,6 +43,7 @@ PROTOCOL_VERSION = 1
 BINARY_MAGIC = b"GRB" + bytes([PROTOCOL_VERSION])
 _HDR = struct.Struct("<4sI")
 MAX_BINARY_HEADER = 16 * 1024
+BINARY_KINDS = ("skeleton", "image", "manifest", "chunk")
 
 StreamName = Literal["depth", "color", "body_index"]
 PartState = Literal["pending", "recording", "on_node", "incomplete"]
@@ -197,13 +199,32 @@ class Snapshot(_Msg):
     format: Literal["jpeg", "png"] = "png"
 
 
+class ManifestRequest(_Msg):
+    """Describe a closed part for transfer; the node answers with a binary ``manifest``."""
+
+    type: Literal["manifest_request"] = "manifest_request"
+    req_id: int
+    rec_id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
+
+
+class ChunkRequest(_Msg):
+    """Send these chunks of one file of a part, in order, as binary ``chunk`` messages."""
+
+    type: Literal["chunk_request"] = "chunk_request"
+    req_id: int
+    rec_id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
+    file: str = Field(min_length=1, max_length=256)
+    indices: list[int] = Field(min_length=1, max_length=4096)
+
+
 class ServerError(_Msg):
     type: Literal["error"] = "error"
     reason: str
 
 
 ServerMessage = Annotated[
-    Welcome | Refused | Ping | RecStart | RecStop | Subscribe | Snapshot | ServerError,
+    Welcome | Refused | Ping | RecStart | RecStop | Subscribe | Snapshot | ManifestRequest
+    | ChunkRequest | ServerError,
     Field(discriminator="type"),
 ]
 
@@ -284,8 +305,9 @@ def decode_binary(data: bytes, limit: int = 16 * 1024 * 1024) -> tuple[dict[str,
         header = json.loads(data[_HDR.size : _HDR.size + hlen])
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ProtocolError(f"binary header is not valid JSON: {exc}") from exc
-    if not isinstance(header, dict) or header.get("kind") not in ("skeleton", "image"):
-        raise ProtocolError("binary header must be an object with kind 'skeleton' or 'image'")
+    if not isinstance(header, dict) or header.get("kind") not in BINARY_KINDS:
+        raise ProtocolError(
+            f"binary header must be an object with kind in {', '.join(BINARY_KINDS)}")
     return header, data[_HDR.size + hlen :]
 
 

@@ -39,6 +39,7 @@ from app.nodes.protocol import (
 )
 from app.server.recording import RecordingManager
 from app.server.registry import LatestImage, LatestSkeleton, NodeRegistry, NodeSession
+from app.server.transfer import TransferManager
 
 log = logging.getLogger("gaitrig.hub")
 
@@ -61,12 +62,14 @@ class Hub:
         self.recordings = RecordingManager(self.registry, settings.data_dir,
                                            settings.record_start_margin_s,
                                            settings.test_command_delay_max_s)
+        self.transfers = TransferManager(self.registry, self.recordings, settings.data_dir)
         self._sockets: dict[str, WebSocket] = {}
         self._agent_started: dict[str, float] = {}
         self.skeleton_listeners: list[Callable[[NodeSession], None]] = []
 
     async def close(self) -> None:
         """Close every node connection (server shutdown)."""
+        await self.transfers.close()
         for ws in list(self._sockets.values()):
             with contextlib.suppress(Exception):
                 await ws.close(code=1001, reason="server shutting down")
@@ -197,6 +200,8 @@ class Hub:
                                         [int(b) for b in header["bodies"]])
             for cb in self.skeleton_listeners:
                 cb(s)
+        elif header["kind"] in ("manifest", "chunk"):
+            self.transfers.on_binary(header, payload)
         else:
             stream = header.get("stream")
             if stream not in ("depth", "color", "body_index"):

@@ -10,7 +10,9 @@ are cut. So every part covers the same server-time interval to within one frame 
 (plus the clock uncertainty), whatever the command latency.
 
 Part states: ``pending`` (command sent) → ``recording`` → ``on_node`` (complete on the
-node's disk) or ``incomplete`` (with a reason, e.g. the node disconnected or crashed).
+node's disk) or ``incomplete`` (with a reason, e.g. the node disconnected or crashed) →
+``transferring`` → ``complete`` (verified copy on the server; :mod:`app.server.transfer`).
+An incomplete part can be transferred too; it stays ``incomplete`` with ``on_server``.
 This module keeps recordings in memory and in ``<data_dir>/recordings.json``; the data
 management database builds on :meth:`RecordingManager.to_dict`.
 """
@@ -50,6 +52,8 @@ class Part:
     t_first: float | None = None
     t_last: float | None = None
     clock: dict[str, float] = field(default_factory=dict)
+    on_server: bool = False
+    transfer_progress: float | None = None
 
 
 @dataclass
@@ -66,13 +70,18 @@ class Recording:
 
     @property
     def state(self) -> str:
-        """``recording`` | ``stopping`` | ``on_nodes`` | ``incomplete``."""
+        """``recording`` | ``stopping`` | ``on_nodes`` | ``transferring`` | ``complete`` |
+        ``incomplete``."""
         if self.t_stop is None:
             return "recording"
         states = {p.state for p in self.parts.values()}
+        if "transferring" in states:
+            return "transferring"
         if "incomplete" in states:
             return "incomplete"
-        if states <= {"on_node"}:
+        if states <= {"complete"}:
+            return "complete"
+        if states <= {"on_node", "complete"}:
             return "on_nodes"
         return "stopping"
 
@@ -219,6 +228,8 @@ class RecordingManager:
             return
         part = rec.parts.setdefault(node_id, Part(node_id))
         prev = part.state
+        if prev in ("transferring", "complete") or part.on_server:
+            return  # the server's copy is authoritative now
         part.n_frames, part.bytes = info.n_frames, info.bytes
         part.t_first_local, part.t_last_local = info.t_first, info.t_last
         if part.clock:

@@ -67,13 +67,26 @@ def test_images_reconnect_and_replay(make_rig: object) -> None:
     wait_for(lambda: rig.api(f"/api/recordings/{rec['id']}")["state"] == "on_nodes", 15,
              "the recording on the node")
 
+    # transfer to the server: verified, byte-identical copy; the state says complete
+    rig.api(f"/api/recordings/{rec['id']}/transfer", {})
+    done = wait_for(lambda: rig.api(f"/api/recordings/{rec['id']}")["state"] == "complete", 30,
+                    "the transfer")
+    assert done
+    node_part = rig.node_dir("S2") / "recordings" / rec["id"]
+    server_part = rig.tmp / "server" / "recordings" / rec["id"] / "S2"
+    for name in ("frames.bin", "index.json", "meta.json"):
+        assert (server_part / name).read_bytes() == (node_part / name).read_bytes(), name
+    assert (server_part / "manifest.json").exists()
+    p2 = rig.api(f"/api/recordings/{rec['id']}")["parts"][0]
+    assert p2["on_server"] and p2["transfer_progress"] == 1.0
+
     # the server dies; the node keeps running and reconnects to the new server
     rig.kill_server()
     time.sleep(1.0)
     rig.start_server()
     ns = rig.wait_online(["S2"], timeout=20)
     assert ns["S2"]["frames"] > 0
-    assert rig.api(f"/api/recordings/{rec['id']}")["state"] == "on_nodes"  # persisted
+    assert rig.api(f"/api/recordings/{rec['id']}")["state"] == "complete"  # persisted
 
     # replay the part as a live node
     part = rig.node_dir("S2") / "recordings" / rec["id"]

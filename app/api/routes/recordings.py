@@ -45,6 +45,19 @@ async def get_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[str
     return hub.recordings.to_dict(rec)
 
 
+@router.post("/{rec_id}/transfer", status_code=202)
+async def transfer_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+    """Copy every closed part to the server, verified chunk by chunk (runs in background;
+    follow the parts' ``state`` and ``transfer_progress``)."""
+    if rec_id not in hub.recordings.recordings:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no recording {rec_id!r}")
+    try:
+        hub.transfers.start(rec_id)
+    except InputError as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from exc
+    return hub.recordings.to_dict(hub.recordings.recordings[rec_id])
+
+
 @router.post("/{rec_id}/stop")
 async def stop_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
     """Stop a recording now on all its nodes."""

@@ -1,0 +1,156 @@
+"""Pulling recording parts from the nodes into the server's data folder.
+
+Over the node websocket: ``manifest_request`` → binary ``manifest`` (the node hashes the
+closed part with :func:`app.transfer.build_manifest`), then ``chunk_request`` for the
+missing chunks of each file → binary ``chunk`` messages. :func:`app.transfer.pull` checks
+every chunk and every whole file against the manifest and resumes an interrupted
+transfer, so a part is accepted only complete and intact. Parts land in
+``<data_dir>/recordings/<rec_id>/<node_id>/`` (``manifest.json`` beside the files).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+from app.nodes.protocol import ChunkRequest, ManifestRequest, dump
+from app.server.recording import Recording, RecordingManager
+from app.server.registry import NodeRegistry, NodeSession
+from app.transfer import Manifest, TransferError, TransferSink, pull
+from engine.errors import InputError
+
+log = logging.getLogger("gaitrig.transfer")
+
+_BATCH = 256  # chunk indices per request
+
+
+class TransferManager:
+    """Transfers parts of recordings from their nodes.
+
+    Args:
+        registry: connected nodes.
+        recordings: recording manager (part states are updated here).
+        data_dir: server data folder.
+        timeout_s: longest wait for one reply from a node.
+    """
+
+    def __init__(self, registry: NodeRegistry, recordings: RecordingManager, data_dir: Path,
+                 timeout_s: float = 30.0) -> None:
+        self.registry = registry
+        self.recordings = recordings
+        self.root = Path(data_dir) / "recordings"
+        self.timeout_s = timeout_s
+        self._ids = itertools.count(1)
+        self._queues: dict[int, asyncio.Queue[tuple[dict[str, Any], bytes]]] = {}
+        self._tasks: dict[str, asyncio.Task[None]] = {}
+
+    def on_binary(self, header: dict[str, Any], payload: bytes) -> None:
+        """A ``manifest`` or ``chunk`` message arrived (from the hub)."""
+        q = self._queues.get(header.get("req_id", -1))
+        if q is not None:
+            q.put_nowait((header, payload))
+
+    def part_dir(self, rec_id: str, node_id: str) -> Path:
+        """Where a transferred part lives on the server."""
+        return self.root / rec_id / node_id
+
+    async def _send(self, s: NodeSession, text: str) -> None:
+        if s.send is None:
+            raise ConnectionError(f"node {s.id} is offline")
+        await s.send(text)
+
+    async def manifest(self, s: NodeSession, rec_id: str) -> Manifest:
+        """Ask a node for the manifest of its part of ``rec_id``."""
+        req_id = next(self._ids)
+        q: asyncio.Queue[tuple[dict[str, Any], bytes]] = asyncio.Queue()
+        self._queues[req_id] = q
+        try:
+            await self._send(s, dump(ManifestRequest(req_id=req_id, rec_id=rec_id)))
+            header, payload = await asyncio.wait_for(q.get(), self.timeout_s)
+        finally:
+            del self._queues[req_id]
+        if header.get("error"):
+            raise TransferError(f"node {s.id}: {header['error']}")
+        return Manifest.from_json(payload)
+
+    def _fetcher(self, s: NodeSession, rec_id: str) -> Any:
+        async def fetch(name: str, indices: list[int]) -> AsyncIterator[tuple[int, bytes]]:
+            for k in range(0, len(indices), _BATCH):
+                batch = indices[k : k + _BATCH]
+                req_id = next(self._ids)
+                q: asyncio.Queue[tuple[dict[str, Any], bytes]] = asyncio.Queue()
+                self._queues[req_id] = q
+                try:
+                    await self._send(s, dump(ChunkRequest(req_id=req_id, rec_id=rec_id,
+                                                          file=name, indices=batch)))
+                    for _ in batch:
+                        header, payload = await asyncio.wait_for(q.get(), self.timeout_s)
+                        if header.get("error"):
+                            raise ConnectionError(f"node {s.id}: {header['error']}")
+                        yield int(header["index"]), payload
+                finally:
+                    del self._queues[req_id]
+
+        return fetch
+
+    async def transfer_part(self, rec: Recording, node_id: str) -> Path:
+        """Pull one node's part of ``rec`` (resumes a partial copy); returns its folder."""
+        s = self.registry.get(node_id)
+        if s is None or not s.connected:
+            raise ConnectionError(f"node {node_id} is offline")
+        part = rec.parts[node_id]
+        m = await self.manifest(s, rec.id)
+        sink = await asyncio.to_thread(TransferSink, self.part_dir(rec.id, node_id), m)
+
+        def progress(done: int, total: int) -> None:
+            part.transfer_progress = done / total if total else 1.0
+
+        return await pull(sink, self._fetcher(s, rec.id), concurrency=2, on_progress=progress)
+
+    def start(self, rec_id: str) -> None:
+        """Transfer every part of a stopped recording in the background.
+
+        Raises:
+            InputError: unknown, still running or already transferring.
+        """
+        rec = self.recordings.recordings.get(rec_id)
+        if rec is None:
+            raise InputError(f"no recording {rec_id!r}")
+        if rec.t_stop is None:
+            raise InputError(f"recording {rec_id} is still running; stop it first")
+        if rec_id in self._tasks:
+            raise InputError(f"recording {rec_id} is already being transferred")
+        todo = [n for n, p in rec.parts.items()
+                if p.state in ("on_node", "incomplete") and not p.on_server and p.n_frames]
+        if not todo:
+            raise InputError(f"recording {rec_id} has no part to transfer (parts must be "
+                             "closed on their nodes)")
+        task = asyncio.create_task(self._run(rec, todo))
+        self._tasks[rec_id] = task
+        task.add_done_callback(lambda _t: self._tasks.pop(rec_id, None))
+
+    async def _run(self, rec: Recording, nodes: list[str]) -> None:
+        for node_id in nodes:
+            part = rec.parts[node_id]
+            was = part.state
+            part.state, part.transfer_progress = "transferring", 0.0
+            try:
+                await self.transfer_part(rec, node_id)
+            except (TransferError, ConnectionError, TimeoutError, OSError, InputError) as exc:
+                part.state = was
+                part.reason = f"transfer failed ({exc}); retry when the node is online"
+                log.warning("recording %s: %s", rec.id, part.reason)
+            else:
+                part.on_server, part.transfer_progress = True, 1.0
+                part.state = "complete" if was == "on_node" else "incomplete"
+                log.info("recording %s: part of %s on the server", rec.id, node_id)
+            self.recordings.save()
+
+    async def close(self) -> None:
+        """Cancel running transfers (server shutdown; they resume on the next request)."""
+        for t in list(self._tasks.values()):
+            t.cancel()
