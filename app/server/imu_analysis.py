@@ -206,7 +206,7 @@ def sync_plot(recordings: dict[str, ImuRecording], sync: SyncResult | None,
               skeleton: SkeletonSeries | None, spikes: dict[str, FloatArray]) -> bytes:
     """Acceleration of every stream on the common clock, detected jump spikes marked."""
     names = list(recordings) + (["skeleton"] if skeleton is not None else [])
-    fig, axes = _figure(len(names), height=1.3)
+    fig, axes = _figure(len(names), height=0.85)
     for ax, n in zip(axes[:, 0], names, strict=True):
         off = sync.offsets.get(n, 0.0) if sync is not None else 0.0
         if n == "skeleton":
