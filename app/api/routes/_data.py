@@ -1,0 +1,155 @@
+"""Helpers shared by the data-management routes (projects, subjects, sessions, storage,
+exports): lookups that answer 404 with a clear message, JSON views, deletion, the
+storage layout and the background sync (started by the storage router's lifespan)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import HTTPException, Request, status
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session as DbSession
+
+from app.db import data as m
+from app.server.datasync import DataSync
+from app.server.hub import Hub
+from app.server.storage import StorageLayout
+
+
+def layout_of(request: Request) -> StorageLayout:
+    """The server's storage layout."""
+    return StorageLayout(request.app.state.settings.data_dir)
+
+
+def datasync_of(request: Request) -> DataSync:
+    """The running :class:`DataSync` (created on first use if the lifespan did not run)."""
+    ds: DataSync | None = getattr(request.app.state, "datasync", None)
+    if ds is None:
+        ds = DataSync(request.app.state.hub, request.app.state.db_sessions, layout_of(request))
+        request.app.state.datasync = ds
+    return ds
+
+
+def not_found(what: str) -> HTTPException:
+    return HTTPException(status.HTTP_404_NOT_FOUND, what)
+
+
+def get_project(db: DbSession, pid: int) -> m.Project:
+    p = db.get(m.Project, pid)
+    if p is None:
+        raise not_found(f"no project {pid}")
+    return p
+
+
+def get_subject(db: DbSession, sid: int) -> m.Subject:
+    s = db.get(m.Subject, sid)
+    if s is None:
+        raise not_found(f"no subject {sid}")
+    return s
+
+
+def get_session(db: DbSession, sid: int) -> m.Session:
+    s = db.get(m.Session, sid)
+    if s is None:
+        raise not_found(f"no session {sid}")
+    return s
+
+
+def get_recording(db: DbSession, rec_id: str) -> m.Recording:
+    r = db.get(m.Recording, rec_id)
+    if r is None:
+        raise not_found(f"no recording {rec_id!r} in the database (start recordings from the "
+                        "Record page, or attach one to a session)")
+    return r
+
+
+def check_confirm(expected: str, given: str | None, what: str) -> None:
+    """Deletion needs the subject code (or project name) typed again."""
+    if given is None or given.strip() != expected:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                            f"to delete {what}, type {expected!r} exactly in the confirmation "
+                            "field")
+
+
+def part_json(p: m.RecordingPart) -> dict[str, Any]:
+    return {"node_id": p.node_id, "state": p.state, "reason": p.reason,
+            "n_frames": p.n_frames, "bytes_total": p.bytes_total, "bytes_done": p.bytes_done,
+            "progress": round(p.progress, 4), "manifest_sha256": p.manifest_sha256,
+            "attempts": p.attempts}
+
+
+def recording_json(r: m.Recording, layout: StorageLayout | None = None) -> dict[str, Any]:
+    d: dict[str, Any] = {
+        "id": r.id, "session_id": r.session_id, "label": r.label, "notes": r.notes,
+        "state": r.state, "reason": r.reason, "t_start": r.t_start, "t_stop": r.t_stop,
+        "duration_s": r.duration_s, "streams": [s for s in r.streams.split(",") if s],
+        "created_at": r.created_at.isoformat(), "parts": [part_json(p) for p in r.parts],
+        "references": [reference_json(x) for x in r.references],
+    }
+    if layout is not None:
+        d["bytes_on_server"] = layout.recording_bytes(r.id)
+    return d
+
+
+def reference_json(x: m.ReferenceImport) -> dict[str, Any]:
+    return {"id": x.id, "filename": x.filename, "format": x.format, "size": x.size,
+            "rate_hz": x.rate_hz, "n_frames": x.n_frames, "labels": x.labels,
+            "created_at": x.created_at.isoformat()}
+
+
+def session_json(s: m.Session, layout: StorageLayout | None = None,
+                 recordings: bool = True) -> dict[str, Any]:
+    d: dict[str, Any] = {"id": s.id, "subject_id": s.subject_id, "date": s.date.isoformat(),
+                         "label": s.label, "notes": s.notes,
+                         "n_recordings": len(s.recordings)}
+    if recordings:
+        d["recordings"] = [recording_json(r, layout) for r in s.recordings]
+    return d
+
+
+def subject_json(s: m.Subject, layout: StorageLayout | None = None,
+                 sessions: bool = False) -> dict[str, Any]:
+    d: dict[str, Any] = {
+        "id": s.id, "project_id": s.project_id, "code": s.code, "height_m": s.height_m,
+        "leg_length_m": s.leg_length_m, "sex": s.sex, "birth_year": s.birth_year,
+        "notes": s.notes, "n_sessions": len(s.sessions),
+        "n_recordings": sum(len(x.recordings) for x in s.sessions),
+    }
+    if layout is not None:
+        d["bytes_on_server"] = subject_bytes(s, layout)
+    if sessions:
+        d["sessions"] = [session_json(x, layout) for x in s.sessions]
+    return d
+
+
+def subject_bytes(s: m.Subject, layout: StorageLayout) -> int:
+    return sum(layout.recording_bytes(r.id) for x in s.sessions for r in x.recordings)
+
+
+def project_json(db: DbSession, p: m.Project) -> dict[str, Any]:
+    n = db.scalar(select(func.count()).select_from(m.Subject).where(m.Subject.project_id == p.id))
+    return {"id": p.id, "name": p.name, "description": p.description, "n_subjects": n or 0,
+            "created_at": p.created_at.isoformat()}
+
+
+def delete_recordings(db: DbSession, hub: Hub, layout: StorageLayout,
+                      recs: list[m.Recording]) -> int:
+    """Delete recordings: refuse one still running; remove files, live entries and rows.
+
+    Returns:
+        Number of recordings deleted.
+    """
+    for r in recs:
+        live = hub.recordings.recordings.get(r.id)
+        if live is not None and live.t_stop is None:
+            raise HTTPException(status.HTTP_409_CONFLICT,
+                                f"recording {r.id} is still running; stop it first")
+        if r.state == "transferring":
+            raise HTTPException(status.HTTP_409_CONFLICT,
+                                f"recording {r.id} is being transferred; wait until it ends")
+    for r in recs:
+        layout.delete_recording(r.id)
+        if hub.recordings.recordings.pop(r.id, None) is not None:
+            hub.recordings.save()
+        db.delete(r)
+    return len(recs)

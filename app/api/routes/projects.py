@@ -1,0 +1,84 @@
+"""Projects (studies / clinics) that group pseudonymised subjects."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, HTTPException, Request, status
+from pydantic import BaseModel, Field
+from sqlalchemy import select
+
+from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.routes._data import (
+    check_confirm,
+    delete_recordings,
+    get_project,
+    layout_of,
+    project_json,
+)
+from app.db import data as m
+
+router = APIRouter(prefix="/projects", tags=["data"])
+
+
+class ProjectIn(BaseModel):
+    name: str = Field(min_length=1, max_length=120, description="Unique project name.")
+    description: str = Field(default="", max_length=4000)
+
+
+class ProjectPatch(BaseModel):
+    name: str | None = Field(default=None, min_length=1, max_length=120)
+    description: str | None = Field(default=None, max_length=4000)
+
+
+class Confirm(BaseModel):
+    confirm: str = Field(max_length=200, description="The project name typed again.")
+
+
+@router.get("")
+def list_projects(user: CurrentUser, db: DbDep) -> list[dict[str, Any]]:
+    """All projects with their number of subjects."""
+    return [project_json(db, p) for p in db.scalars(select(m.Project).order_by(m.Project.name))]
+
+
+@router.post("", status_code=201)
+def create_project(body: ProjectIn, user: CurrentUser, db: DbDep) -> dict[str, Any]:
+    """Create a project."""
+    name = body.name.strip()
+    if db.scalar(select(m.Project).where(m.Project.name == name)) is not None:
+        raise HTTPException(status.HTTP_409_CONFLICT, f"a project named {name!r} exists already")
+    p = m.Project(name=name, description=body.description)
+    db.add(p)
+    db.commit()
+    return project_json(db, p)
+
+
+@router.patch("/{pid}")
+def update_project(pid: int, body: ProjectPatch, user: CurrentUser, db: DbDep) -> dict[str, Any]:
+    """Rename or describe a project."""
+    p = get_project(db, pid)
+    if body.name is not None and body.name.strip() != p.name:
+        if db.scalar(select(m.Project).where(m.Project.name == body.name.strip())) is not None:
+            raise HTTPException(status.HTTP_409_CONFLICT,
+                                f"a project named {body.name.strip()!r} exists already")
+        p.name = body.name.strip()
+    if body.description is not None:
+        p.description = body.description
+    db.commit()
+    return project_json(db, p)
+
+
+@router.post("/{pid}/delete")
+def delete_project(pid: int, body: Confirm, request: Request, user: CurrentUser, db: DbDep,
+                   hub: HubDep) -> dict[str, Any]:
+    """Delete a project with all its subjects, sessions, recordings and their files.
+
+    The body must repeat the project name (``{"confirm": "<name>"}``).
+    """
+    p = get_project(db, pid)
+    check_confirm(p.name, body.confirm, f"project {p.name!r} and everything in it")
+    recs = [r for s in p.subjects for x in s.sessions for r in x.recordings]
+    n = delete_recordings(db, hub, layout_of(request), recs)
+    db.delete(p)
+    db.commit()
+    return {"deleted": "project", "id": pid, "recordings_deleted": n}

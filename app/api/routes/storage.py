@@ -1,0 +1,111 @@
+"""Server storage: disk usage per subject, recording detail with transfer progress,
+transfer retry, deletion with confirmation, recordings not yet filed under a session.
+
+The router's lifespan runs :class:`app.server.datasync.DataSync` (automatic transfer
+after stop, retries, database mirror of every recording's state).
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import APIRouter, FastAPI, HTTPException, Request, status
+from pydantic import BaseModel, Field
+from sqlalchemy import select
+
+from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.routes._data import (
+    check_confirm,
+    datasync_of,
+    delete_recordings,
+    get_recording,
+    layout_of,
+    recording_json,
+    subject_bytes,
+)
+from app.db import data as m
+from app.server.datasync import DataSync
+from app.server.storage import StorageLayout
+from engine.errors import InputError
+
+
+@asynccontextmanager
+async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    ds = DataSync(app.state.hub, app.state.db_sessions, StorageLayout(app.state.settings.data_dir))
+    app.state.datasync = ds
+    ds.start()
+    try:
+        yield
+    finally:
+        await ds.stop()
+
+
+router = APIRouter(prefix="/storage", tags=["data"], lifespan=_lifespan)
+
+
+class Confirm(BaseModel):
+    confirm: str = Field(max_length=200, description="The subject code typed again.")
+
+
+@router.get("")
+def usage(request: Request, user: CurrentUser, db: DbDep) -> dict[str, Any]:
+    """Disk of the data folder and bytes stored per subject."""
+    layout = layout_of(request)
+    subjects = []
+    for s in db.scalars(select(m.Subject).order_by(m.Subject.project_id, m.Subject.code)):
+        subjects.append({"id": s.id, "project_id": s.project_id, "code": s.code,
+                         "bytes": subject_bytes(s, layout),
+                         "n_recordings": sum(len(x.recordings) for x in s.sessions)})
+    return {"disk": layout.disk(), "data_dir": str(layout.data_dir), "subjects": subjects}
+
+
+@router.get("/recordings/{rec_id}")
+def recording(rec_id: str, request: Request, user: CurrentUser, db: DbDep) -> dict[str, Any]:
+    """A filed recording: state (with the reason), parts, transfer progress, references."""
+    r = get_recording(db, rec_id)
+    d = recording_json(r, layout_of(request))
+    s = r.session
+    d["session"] = {"id": s.id, "date": s.date.isoformat(), "label": s.label}
+    d["subject"] = {"id": s.subject.id, "code": s.subject.code,
+                    "project_id": s.subject.project_id}
+    return d
+
+
+@router.post("/recordings/{rec_id}/transfer", status_code=202)
+async def retry_transfer(rec_id: str, request: Request, user: CurrentUser, db: DbDep
+                   ) -> dict[str, Any]:
+    """Transfer the parts of a recording that are not on the server yet, now."""
+    r = get_recording(db, rec_id)
+    try:
+        datasync_of(request).retry(rec_id)
+    except InputError as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from exc
+    return recording_json(r)
+
+
+@router.post("/recordings/{rec_id}/delete")
+def delete_recording(rec_id: str, body: Confirm, request: Request, user: CurrentUser,
+                     db: DbDep, hub: HubDep) -> dict[str, Any]:
+    """Delete a recording's rows and files on the server (confirm = the subject code).
+
+    The nodes' own copies are not touched.
+    """
+    r = get_recording(db, rec_id)
+    check_confirm(r.session.subject.code, body.confirm, f"recording {rec_id}")
+    delete_recordings(db, hub, layout_of(request), [r])
+    db.commit()
+    return {"deleted": "recording", "id": rec_id}
+
+
+@router.get("/unfiled")
+def unfiled(user: CurrentUser, db: DbDep, hub: HubDep) -> list[dict[str, Any]]:
+    """Recordings the server knows that belong to no session yet (attach them to one)."""
+    filed = set(db.scalars(select(m.Recording.id)))
+    out = []
+    for r in sorted(hub.recordings.recordings.values(), key=lambda r: r.created, reverse=True):
+        if r.id not in filed:
+            out.append({"id": r.id, "state": r.state, "t_start": r.t_start, "t_stop": r.t_stop,
+                        "nodes": sorted(r.parts)})
+    return out

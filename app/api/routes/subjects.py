@@ -1,0 +1,133 @@
+"""Pseudonymised subjects of a project (code, height, leg length, sex, birth year, notes).
+
+Lengths are metres in the API (the console shows cm). No names: the code is chosen by
+the clinic and unique within a project.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from typing import Any, Literal
+
+from fastapi import APIRouter, HTTPException, Request, status
+from pydantic import BaseModel, Field
+from sqlalchemy import select
+
+from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.routes._data import (
+    check_confirm,
+    delete_recordings,
+    get_project,
+    get_subject,
+    layout_of,
+    subject_json,
+)
+from app.db import data as m
+
+router = APIRouter(prefix="/subjects", tags=["data"])
+
+Sex = Literal["female", "male", "other", "unknown"]
+CODE_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,39}$"
+
+
+def _year_ok(y: int | None) -> int | None:
+    if y is not None and not 1900 <= y <= dt.date.today().year:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY,
+                            f"birth_year {y} must be between 1900 and {dt.date.today().year}")
+    return y
+
+
+class SubjectIn(BaseModel):
+    project_id: int
+    code: str = Field(pattern=CODE_PATTERN, description="Pseudonym, e.g. P017 (no names).")
+    height_m: float | None = Field(default=None, ge=0.4, le=2.6)
+    leg_length_m: float | None = Field(default=None, ge=0.2, le=1.5)
+    sex: Sex = "unknown"
+    birth_year: int | None = None
+    notes: str = Field(default="", max_length=4000)
+
+
+class SubjectPatch(BaseModel):
+    code: str | None = Field(default=None, pattern=CODE_PATTERN)
+    height_m: float | None = Field(default=None, ge=0.4, le=2.6)
+    leg_length_m: float | None = Field(default=None, ge=0.2, le=1.5)
+    sex: Sex | None = None
+    birth_year: int | None = None
+    notes: str | None = Field(default=None, max_length=4000)
+
+
+class Confirm(BaseModel):
+    confirm: str = Field(max_length=200, description="The subject code typed again.")
+
+
+def _code_free(db: DbDep, project_id: int, code: str) -> None:
+    if db.scalar(select(m.Subject).where(m.Subject.project_id == project_id,
+                                         m.Subject.code == code)) is not None:
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"subject code {code!r} is already used in this project")
+
+
+@router.get("")
+def list_subjects(request: Request, user: CurrentUser, db: DbDep,
+                  project_id: int | None = None) -> list[dict[str, Any]]:
+    """Subjects (of one project if ``project_id`` is given) with disk usage."""
+    q = select(m.Subject).order_by(m.Subject.code)
+    if project_id is not None:
+        get_project(db, project_id)
+        q = q.where(m.Subject.project_id == project_id)
+    layout = layout_of(request)
+    return [subject_json(s, layout) for s in db.scalars(q)]
+
+
+@router.post("", status_code=201)
+def create_subject(body: SubjectIn, request: Request, user: CurrentUser,
+                   db: DbDep) -> dict[str, Any]:
+    """Add a subject to a project."""
+    get_project(db, body.project_id)
+    _code_free(db, body.project_id, body.code)
+    s = m.Subject(project_id=body.project_id, code=body.code, height_m=body.height_m,
+                  leg_length_m=body.leg_length_m, sex=body.sex,
+                  birth_year=_year_ok(body.birth_year), notes=body.notes)
+    db.add(s)
+    db.commit()
+    return subject_json(s, layout_of(request))
+
+
+@router.get("/{sid}")
+def get_one(sid: int, request: Request, user: CurrentUser, db: DbDep) -> dict[str, Any]:
+    """A subject with its sessions and their recordings (states, parts, progress)."""
+    return subject_json(get_subject(db, sid), layout_of(request), sessions=True)
+
+
+@router.patch("/{sid}")
+def update_subject(sid: int, body: SubjectPatch, request: Request, user: CurrentUser,
+                   db: DbDep) -> dict[str, Any]:
+    """Change a subject's fields (only those given)."""
+    s = get_subject(db, sid)
+    fields = body.model_dump(exclude_unset=True)
+    if "code" in fields and fields["code"] != s.code:
+        _code_free(db, s.project_id, fields["code"])
+    if "birth_year" in fields:
+        _year_ok(fields["birth_year"])
+    if "sex" in fields and fields["sex"] is None:
+        fields["sex"] = "unknown"
+    for k, v in fields.items():
+        setattr(s, k, v if k != "notes" or v is not None else "")
+    db.commit()
+    return subject_json(s, layout_of(request))
+
+
+@router.post("/{sid}/delete")
+def delete_subject(sid: int, body: Confirm, request: Request, user: CurrentUser, db: DbDep,
+                   hub: HubDep) -> dict[str, Any]:
+    """Delete a subject, its sessions, recordings and their files on the server.
+
+    The body must repeat the subject code (``{"confirm": "<code>"}``).
+    """
+    s = get_subject(db, sid)
+    check_confirm(s.code, body.confirm, f"subject {s.code} and all its recordings")
+    n = delete_recordings(db, hub, layout_of(request),
+                          [r for x in s.sessions for r in x.recordings])
+    db.delete(s)
+    db.commit()
+    return {"deleted": "subject", "id": sid, "recordings_deleted": n}

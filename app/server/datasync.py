@@ -1,0 +1,223 @@
+"""Keeps the data-management database in step with live recordings and their transfers.
+
+The backbone's :class:`app.server.recording.RecordingManager` knows the node parts of
+every recording and :class:`app.server.transfer.TransferManager` copies them to the
+server. :class:`DataSync` runs beside them (twice a second) and
+
+* starts the transfer of every closed part as soon as a recording is stopped, and
+  retries a failed one when its node reconnects or after ``retry_s`` (or at once on
+  request, :meth:`DataSync.retry`);
+* mirrors states, reasons, sizes and progress into the :mod:`app.db.data` tables, so
+  the console shows which node failed and why, and a restarted server still knows;
+* derives the recording state: ``recording`` → ``on_nodes`` → ``transferring`` →
+  ``complete`` only when every part is verified on the server (``manifest.json`` in its
+  folder), otherwise ``incomplete`` with the reasons.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from typing import Any
+
+from sqlalchemy import select
+from sqlalchemy.orm import sessionmaker
+
+from app.db import data as m
+from app.server.hub import Hub
+from app.server.recording import Part
+from app.server.recording import Recording as LiveRecording
+from app.server.storage import StorageLayout
+from engine.errors import InputError
+
+log = logging.getLogger("gaitrig.datasync")
+
+TRANSFER_FAILED = "transfer failed"
+
+
+def part_state(p: Part, complete_on_disk: bool) -> tuple[str, str | None]:
+    """Database state and reason of one live part."""
+    if p.state == "transferring":
+        return "transferring", None
+    if p.on_server and p.state == "complete" and complete_on_disk:
+        return "complete", None
+    if p.state == "incomplete":
+        return "incomplete", p.reason or "the node reported the part incomplete"
+    if p.state == "on_node" and p.reason and p.reason.startswith(TRANSFER_FAILED):
+        return "incomplete", p.reason
+    if p.state == "on_node" and p.n_frames == 0:
+        return "incomplete", f"node {p.node_id} recorded no frame"
+    if p.state == "complete" and not complete_on_disk:
+        return "incomplete", "the server's copy is missing or unfinished; transfer again"
+    return p.state, p.reason
+
+
+def recording_state(rec: LiveRecording, parts: dict[str, tuple[str, str | None]]
+                    ) -> tuple[str, str | None]:
+    """Database state and reason of a recording from its parts' states."""
+    if rec.t_stop is None:
+        return "recording", None
+    states = {s for s, _ in parts.values()}
+    if "transferring" in states:
+        return "transferring", None
+    if parts and states == {"complete"}:
+        return "complete", None
+    bad = [f"{n}: {r}" for n, (s, r) in sorted(parts.items()) if s == "incomplete"]
+    if bad:
+        return "incomplete", "; ".join(bad)
+    return "on_nodes", None
+
+
+class DataSync:
+    """Background mirror of live recordings into the database (see module docstring).
+
+    Args:
+        hub: the server's hub (recordings, transfers, registry).
+        db_sessions: session factory of the database.
+        layout: the server's storage layout.
+        retry_s: retry a failed transfer of a connected node this often.
+    """
+
+    def __init__(self, hub: Hub, db_sessions: sessionmaker[Any], layout: StorageLayout,
+                 retry_s: float = 10.0) -> None:
+        self.hub = hub
+        self.db_sessions = db_sessions
+        self.layout = layout
+        self.retry_s = retry_s
+        self._last_try: dict[str, float] = {}
+        self._connected: dict[str, bool] = {}
+        self._task: asyncio.Task[None] | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self, interval_s: float = 0.5) -> None:
+        """Run :meth:`step` every ``interval_s`` in the running event loop."""
+
+        async def loop() -> None:
+            while True:
+                try:
+                    self.step()
+                except Exception:  # a bad row must not stop the sync of the others
+                    log.exception("data sync step failed")
+                await asyncio.sleep(interval_s)
+
+        self._task = asyncio.create_task(loop())
+
+    async def stop(self) -> None:
+        """Stop the background loop."""
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+
+    # ------------------------------------------------------------------ work
+
+    def retry(self, rec_id: str) -> None:
+        """Transfer the missing parts of a recording now.
+
+        Raises:
+            InputError: nothing to transfer, still running or already transferring.
+        """
+        self._last_try[rec_id] = time.time()
+        self.hub.transfers.start(rec_id)
+
+    def _running(self, rec_id: str) -> bool:
+        tasks: dict[str, Any] = getattr(self.hub.transfers, "_tasks", {})
+        return rec_id in tasks
+
+    def _maybe_transfer(self, rec: LiveRecording, reconnected: set[str]) -> None:
+        if rec.t_stop is None or self._running(rec.id):
+            return
+        reg = self.hub.registry
+        todo = [n for n, p in rec.parts.items()
+                if p.state in ("on_node", "incomplete") and not p.on_server and p.n_frames
+                and (s := reg.get(n)) is not None and s.connected]
+        if not todo:
+            return
+        due = (rec.id not in self._last_try or bool(reconnected & set(todo))
+               or time.time() - self._last_try[rec.id] >= self.retry_s)
+        if not due:
+            return
+        self._last_try[rec.id] = time.time()
+        try:
+            self.hub.transfers.start(rec.id)
+            log.info("recording %s: transferring %s", rec.id, ", ".join(todo))
+        except InputError as exc:
+            log.info("recording %s: no transfer now (%s)", rec.id, exc)
+
+    def _repair(self, rec: LiveRecording) -> None:
+        # A part left "transferring" by a server that died mid-transfer: nothing is
+        # transferring it now, so it is back to being on its node (resumed later).
+        if self._running(rec.id):
+            return
+        for p in rec.parts.values():
+            if p.state == "transferring":
+                p.state = "on_node" if not p.reason or p.reason.startswith(TRANSFER_FAILED) \
+                    else "incomplete"
+                p.transfer_progress = None
+
+    def step(self) -> None:
+        """One pass: start/retry transfers and write every tracked recording's state."""
+        reconnected = set()
+        for s in self.hub.registry.nodes.values():
+            if s.connected and not self._connected.get(s.id, False):
+                reconnected.add(s.id)
+            self._connected[s.id] = s.connected
+        live = self.hub.recordings.recordings
+        with self.db_sessions() as db:
+            rows = db.scalars(select(m.Recording).where(
+                m.Recording.state != "complete")).all()
+            for row in rows:
+                rec = live.get(row.id)
+                if rec is None:
+                    if row.state != "incomplete":
+                        row.state = "incomplete"
+                        row.reason = ("the server lost track of this recording (its "
+                                      "recordings.json is gone); the data may still be on the "
+                                      "nodes")
+                    continue
+                self._repair(rec)
+                self._maybe_transfer(rec, reconnected)
+                self.write(db, row, rec)
+            db.commit()
+
+    def write(self, db: Any, row: m.Recording, rec: LiveRecording) -> None:
+        """Copy one live recording's state into its row and part rows."""
+        complete = set(self.layout.complete_parts(rec.id)) if rec.t_stop is not None else set()
+        states: dict[str, tuple[str, str | None]] = {}
+        by_node = {p.node_id: p for p in row.parts}
+        for node_id, p in rec.parts.items():
+            st, reason = part_state(p, node_id in complete)
+            states[node_id] = (st, reason)
+            pr = by_node.get(node_id)
+            if pr is None:
+                pr = m.RecordingPart(node_id=node_id, state=st, n_frames=0, bytes_total=0,
+                                     bytes_done=0, attempts=0)
+                row.parts.append(pr)
+            if pr.state != "transferring" and st == "transferring":
+                pr.attempts = (pr.attempts or 0) + 1
+            done = (p.bytes if st == "complete" else
+                    int(p.bytes * p.transfer_progress) if p.transfer_progress is not None else 0)
+            new = {"state": st, "reason": reason, "n_frames": p.n_frames,
+                   "bytes_total": p.bytes, "bytes_done": done}
+            if st == "complete" and pr.manifest_sha256 is None:
+                new["manifest_sha256"] = _manifest_sha(self.layout, rec.id, node_id)
+            for k, v in new.items():
+                if getattr(pr, k) != v:
+                    setattr(pr, k, v)
+        state, reason = recording_state(rec, states)
+        if (row.state, row.reason, row.t_start, row.t_stop) != (state, reason, rec.t_start,
+                                                                rec.t_stop):
+            row.state, row.reason, row.t_start, row.t_stop = state, reason, rec.t_start, rec.t_stop
+
+
+def _manifest_sha(layout: StorageLayout, rec_id: str, node_id: str) -> str | None:
+    import hashlib
+
+    path = layout.part_dir(rec_id, node_id) / "manifest.json"
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return None

@@ -1,0 +1,240 @@
+"""Server-side storage of recordings: layout, reading parts, disk usage, deletion, exports.
+
+Layout under the server's data folder (see ``docs/storage.md``)::
+
+    recordings/<rec_id>/<node_id>/manifest.json   # the node's manifest (sizes, SHA-256)
+    recordings/<rec_id>/<node_id>/meta.json       # part parameters (clock model, times)
+    recordings/<rec_id>/<node_id>/frames.bin      # the node's records, byte-identical
+    recordings/<rec_id>/<node_id>/index.json      # [t_local, offset, kind] per record
+    recordings/<rec_id>/<node_id>/.incoming/      # only while a transfer is unfinished
+    references/<rec_id>/<n>.<c3d|trc|csv>         # imported reference recordings
+
+A part folder is complete exactly when ``manifest.json`` exists and ``.incoming`` does
+not (:meth:`app.transfer.TransferSink.is_complete`). Reading a part converts node-local
+times to server time with the clock model the part carries, so parts of one recording
+share one time axis.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import shutil
+import zipfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from app.nodes.protocol import ProtocolError, decode_skeletons
+from app.nodes.store import NodeStore
+from app.server.clock import ClockEstimate
+from app.transfer import TransferSink
+from engine.errors import InputError, InsufficientDataError
+from engine.skeleton import JOINT_SETS, SkeletonSeries, TrackingState
+
+_SAFE = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_.-")
+MAX_EXPORT_FRAMES = 3000  # depth frames per PNG/NPZ export (≈ 100 s at 30 Hz)
+
+
+def check_id(value: str, what: str = "id") -> str:
+    """A recording or node id that is safe as a folder name (no path traversal).
+
+    Raises:
+        InputError: empty, too long, or with characters other than A-Z a-z 0-9 _ . -
+    """
+    if not value or len(value) > 64 or set(value) - _SAFE or value in (".", ".."):
+        raise InputError(f"{what} {value!r} must be 1-64 characters of A-Z a-z 0-9 _ . -")
+    return value
+
+
+@dataclass(frozen=True)
+class StorageLayout:
+    """Paths of the server's data folder."""
+
+    data_dir: Path
+
+    @property
+    def recordings(self) -> Path:
+        return self.data_dir / "recordings"
+
+    @property
+    def references(self) -> Path:
+        return self.data_dir / "references"
+
+    def recording_dir(self, rec_id: str) -> Path:
+        return self.recordings / check_id(rec_id, "recording id")
+
+    def part_dir(self, rec_id: str, node_id: str) -> Path:
+        return self.recording_dir(rec_id) / check_id(node_id, "node id")
+
+    def reference_dir(self, rec_id: str) -> Path:
+        return self.references / check_id(rec_id, "recording id")
+
+    def complete_parts(self, rec_id: str) -> list[str]:
+        """Node ids whose part of ``rec_id`` is completely and verifiably on the server."""
+        d = self.recording_dir(rec_id)
+        if not d.is_dir():
+            return []
+        return sorted(p.name for p in d.iterdir() if p.is_dir() and TransferSink.is_complete(p))
+
+    def recording_bytes(self, rec_id: str) -> int:
+        """Bytes used by a recording (parts, unfinished transfers and references)."""
+        return dir_bytes(self.recording_dir(rec_id)) + dir_bytes(self.reference_dir(rec_id))
+
+    def delete_recording(self, rec_id: str) -> None:
+        """Remove every file of a recording on the server (parts and references)."""
+        for d in (self.recording_dir(rec_id), self.reference_dir(rec_id)):
+            if d.exists():
+                shutil.rmtree(d)
+
+    def disk(self) -> dict[str, int]:
+        """Total / used / free bytes of the file system holding the data folder."""
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        u = shutil.disk_usage(self.data_dir)
+        return {"total": u.total, "used": u.used, "free": u.free}
+
+
+def dir_bytes(path: Path) -> int:
+    """Bytes of every file below ``path`` (0 if it does not exist)."""
+    if not path.exists():
+        return 0
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+
+
+# --------------------------------------------------------------------------- reading parts
+
+
+def _records(part_dir: Path) -> Iterator[tuple[dict[str, Any], bytes]]:
+    # The node store's reader: same record format, stops at the first damaged record.
+    it = NodeStore(part_dir.parent).read(part_dir.name)
+    while True:
+        try:
+            yield next(it)
+        except (StopIteration, ProtocolError):
+            return
+
+
+def part_meta(part_dir: Path) -> dict[str, Any]:
+    """The part's ``meta.json``.
+
+    Raises:
+        InputError: the part is not (completely) on the server.
+    """
+    if not TransferSink.is_complete(part_dir):
+        raise InputError(f"part {part_dir.name} of {part_dir.parent.name} is not completely on "
+                         "the server yet; transfer it first")
+    try:
+        meta: dict[str, Any] = json.loads((part_dir / "meta.json").read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InputError(f"part {part_dir.name}: unreadable meta.json ({exc})") from exc
+    return meta
+
+
+def _clock(meta: dict[str, Any]) -> ClockEstimate | None:
+    c = meta.get("clock_start") or meta.get("clock_stop")
+    if not c or "offset_s" not in c:
+        return None
+    return ClockEstimate(float(c["offset_s"]), float(c.get("drift", 0.0)),
+                         float(c.get("t_ref", 0.0)), float(c.get("uncertainty_s", 0.0)), 0, 0.0)
+
+
+def read_part_skeleton(part_dir: Path) -> SkeletonSeries:
+    """One node's skeleton of a recording, in the sensor frame, on the server clock.
+
+    Several bodies in view: each frame keeps the body with the most TRACKED joints (a gait
+    recording has one subject; bystanders are rarely tracked as well).
+
+    Raises:
+        InputError: the part is not on the server.
+        InsufficientDataError: it holds no skeleton frame.
+    """
+    meta = part_meta(part_dir)
+    clock = _clock(meta)
+    times: list[float] = []
+    pos: list[NDArray[np.float32]] = []
+    st: list[NDArray[np.uint8]] = []
+    for header, payload in _records(part_dir):
+        if header.get("kind") != "skeleton":
+            continue
+        p, s = decode_skeletons(header, payload)
+        t = float(header["t"])
+        t = clock.to_server(t) if clock is not None else t
+        if times and t <= times[-1]:
+            continue  # a replayed ring-buffer frame: keep time strictly increasing
+        J = int(header["joints"])
+        if p.shape[0] == 0:
+            pos.append(np.full((J, 3), np.nan, np.float32))
+            st.append(np.zeros(J, np.uint8))
+        else:
+            best = int(np.argmax((s == TrackingState.TRACKED).sum(axis=1)))
+            pos.append(p[best])
+            st.append(s[best])
+        times.append(t)
+    if not times:
+        raise InsufficientDataError(f"part {part_dir.name} of {part_dir.parent.name} has no "
+                                    "skeleton frame")
+    J = len(pos[0])
+    js = next((j for j in JOINT_SETS.values() if len(j.joints) == J), None)
+    if js is None:
+        raise InputError(f"part {part_dir.name}: skeletons with {J} joints match no known "
+                         "joint set")
+    positions = np.asarray(pos, dtype=float)
+    states = np.asarray(st, dtype=np.uint8)
+    positions[states == TrackingState.NOT_TRACKED] = np.nan
+    return SkeletonSeries(np.asarray(times), positions, states, js,
+                          {"sensor": part_dir.name, "recording": part_dir.parent.name,
+                           "frame": "sensor", "clock": "server"})
+
+
+def depth_frames(part_dir: Path, t0: float | None, t1: float | None,
+                 limit: int = MAX_EXPORT_FRAMES) -> list[tuple[float, NDArray[np.uint16]]]:
+    """Recorded depth images (server time, 16-bit millimetres) between ``t0`` and ``t1``.
+
+    Raises:
+        InputError: not on the server, no depth stream recorded, or too many frames.
+    """
+    meta = part_meta(part_dir)
+    clock = _clock(meta)
+    out: list[tuple[float, NDArray[np.uint16]]] = []
+    for header, payload in _records(part_dir):
+        if header.get("kind") != "image" or header.get("stream") != "depth":
+            continue
+        t = float(header["t"])
+        t = clock.to_server(t) if clock is not None else t
+        if (t0 is not None and t < t0) or (t1 is not None and t > t1):
+            continue
+        if len(out) >= limit:
+            raise InputError(f"more than {limit} depth frames in the range; choose a shorter "
+                             "time range")
+        img = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_UNCHANGED)
+        if img is None or img.dtype != np.uint16:
+            continue  # a preview JPEG is not depth data
+        out.append((t, np.asarray(img, dtype=np.uint16)))
+    if not out:
+        raise InputError(f"no depth frames of {part_dir.name} in that range (record with the "
+                         "depth stream enabled to export depth)")
+    return out
+
+
+def depth_zip(frames: list[tuple[float, NDArray[np.uint16]]]) -> bytes:
+    """16-bit PNGs (millimetres) in a zip, named by frame number and server time."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as z:
+        for k, (t, img) in enumerate(frames):
+            ok, png = cv2.imencode(".png", img)
+            if ok:
+                z.writestr(f"depth_{k:05d}_{t:.4f}.png", png.tobytes())
+    return buf.getvalue()
+
+
+def depth_npz(frames: list[tuple[float, NDArray[np.uint16]]]) -> bytes:
+    """``times`` (s, server clock) and ``depth_mm`` ``(N, H, W)`` uint16 in one NPZ."""
+    buf = io.BytesIO()
+    np.savez_compressed(buf, times=np.array([t for t, _ in frames]),
+                        depth_mm=np.stack([d for _, d in frames]))
+    return buf.getvalue()
