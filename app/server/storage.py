@@ -20,6 +20,7 @@ from __future__ import annotations
 import io
 import json
 import shutil
+import tempfile
 import zipfile
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -34,7 +35,13 @@ from app.nodes.protocol import ProtocolError, decode_skeletons
 from app.nodes.store import NodeStore
 from app.server.clock import ClockEstimate
 from app.transfer import TransferSink
-from engine.errors import InputError, InsufficientDataError
+from engine.errors import GaitrigError, InputError, InsufficientDataError
+from engine.gait import GaitAnalysis
+from engine.integration import SensorStream, integrate_skeletons, resample_stream
+from engine.io.c3d import read_c3d, skeleton_to_markers, write_skeleton_c3d
+from engine.io.csv import read_skeleton_csv, write_skeleton_csv
+from engine.io.markers import MarkerEvent, MarkerTrajectories
+from engine.io.trc import read_trc, write_trc
 from engine.skeleton import JOINT_SETS, SkeletonSeries, TrackingState
 
 _SAFE = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_.-")
@@ -238,3 +245,91 @@ def depth_npz(frames: list[tuple[float, NDArray[np.uint16]]]) -> bytes:
     np.savez_compressed(buf, times=np.array([t for t, _ in frames]),
                         depth_mm=np.stack([d for _, d in frames]))
     return buf.getvalue()
+
+
+# --------------------------------------------------------------------------- exports
+
+
+def uniform_series(series: SkeletonSeries, rate_hz: float | None = None) -> SkeletonSeries:
+    """A sensor's skeleton on a uniform time grid (C3D and TRC need one rate).
+
+    TRACKED samples are interpolated across gaps ≤ 0.2 s (those become INFERRED); longer
+    gaps stay NaN / NOT_TRACKED.
+    """
+    if len(series) < 2:
+        raise InsufficientDataError("need at least two skeleton frames to export")
+    rate = rate_hz or float(round(1.0 / float(np.median(np.diff(series.times)))))
+    grid = series.times[0] + np.arange(int((series.times[-1] - series.times[0]) * rate) + 1) / rate
+    P, bridged, _ = resample_stream(SensorStream(series, np.eye(4), sensor_id="s"), grid)
+    states = np.where(np.isfinite(P[..., 0]), TrackingState.TRACKED, TrackingState.NOT_TRACKED)
+    states[bridged & np.isfinite(P[..., 0])] = TrackingState.INFERRED
+    return SkeletonSeries(grid, P, states.astype(np.uint8), series.joint_set, dict(series.meta))
+
+
+def sensor_streams(layout: StorageLayout, rec_id: str,
+                   poses: dict[str, NDArray[np.float64] | None]) -> list[SensorStream]:
+    """Every complete part of a recording with its sensor's pose (for fusion).
+
+    Raises:
+        InputError: no part on the server, or a part's sensor has no calibrated pose.
+    """
+    nodes = layout.complete_parts(rec_id)
+    if not nodes:
+        raise InputError(f"no part of recording {rec_id} is on the server yet")
+    missing = [n for n in nodes if poses.get(n) is None]
+    if missing:
+        raise InputError(f"sensor(s) {', '.join(missing)} have no calibrated pose; calibrate "
+                         "the rig (Calibrate page) or export the sensors one by one")
+    out = []
+    for n in nodes:
+        pose = poses[n]
+        assert pose is not None
+        out.append(SensorStream(read_part_skeleton(layout.part_dir(rec_id, n)),
+                                np.asarray(pose, dtype=float), sensor_id=n))
+    return out
+
+
+def fused_skeleton(streams: list[SensorStream]) -> tuple[SkeletonSeries, list[MarkerEvent]]:
+    """Fused world-frame skeleton (30 Hz) and its gait events when a walk is detected."""
+    fused, _report = integrate_skeletons(streams)
+    try:
+        events = GaitAnalysis().fit(fused).marker_events()
+    except GaitrigError:
+        events = []  # no walk in the recording (e.g. a calibration pose): no events
+    return fused, events
+
+
+def export_skeleton(series: SkeletonSeries, fmt: str, events: list[MarkerEvent] | None = None
+                    ) -> bytes:
+    """A skeleton as C3D (mm, labelled points, events), TRC (mm) or CSV (m, states).
+
+    Raises:
+        InputError: unknown format.
+    """
+    if fmt not in ("c3d", "trc", "csv"):
+        raise InputError(f"export format {fmt!r} is not c3d, trc or csv")
+    with tempfile.TemporaryDirectory(prefix="gaitrig-export-") as d:
+        path = Path(d) / f"export.{fmt}"
+        if fmt == "csv":
+            write_skeleton_csv(path, series)
+        elif fmt == "c3d":
+            write_skeleton_c3d(path, series, events or [])
+        else:
+            write_trc(path, skeleton_to_markers(series, units="mm"), "mm")
+        return path.read_bytes()
+
+
+def read_reference(path: Path, fmt: str) -> MarkerTrajectories:
+    """Parse an uploaded reference recording (C3D, TRC or skeleton CSV).
+
+    Raises:
+        InputError: the file is not a valid file of that format.
+    """
+    if fmt == "c3d":
+        return read_c3d(path)
+    if fmt == "trc":
+        return read_trc(path)
+    if fmt == "csv":
+        s = read_skeleton_csv(path)
+        return skeleton_to_markers(s, units="m")
+    raise InputError(f"reference format {fmt!r} is not c3d, trc or csv")

@@ -5,14 +5,30 @@ refused; deletion needs the subject code."""
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import time
 import urllib.error
+import urllib.request
+import zipfile
 from pathlib import Path
 from typing import Any
 
+import ezc3d
+import numpy as np
 import pytest
 
+from app.server.storage import (
+    StorageLayout,
+    export_skeleton,
+    read_part_skeleton,
+    read_reference,
+    uniform_series,
+)
+from engine.io.c3d import read_c3d
+from engine.io.csv import read_skeleton_csv
+from engine.io.trc import read_trc
+from engine.skeleton import KINECT_V2
 from tests.integration.conftest import Rig, wait_for
 
 
@@ -56,11 +72,12 @@ def http_error(fn: Any) -> tuple[int, str]:
 @pytest.mark.timeout(120)
 def test_recording_is_filed_transferred_and_verified(make_rig: Any, tmp_path: Path) -> None:
     rig: Rig = make_rig()
-    rig.start_node("S1")
+    rig.start_node("S1", images=True)
     rig.start_node("S2", "--seed", "1")
     rig.wait_online(["S1", "S2"])
     ids = setup_session(rig)
-    rec_id = rig.api(f"/api/sessions/{ids['session']['id']}/recordings", {})["id"]
+    rec_id = rig.api(f"/api/sessions/{ids['session']['id']}/recordings",
+                     {"streams": ["depth"], "image_every": 5})["id"]
     # a second recording while one runs is refused with a clear message
     code, msg = http_error(lambda: rig.api(f"/api/sessions/{ids['session']['id']}/recordings",
                                            {}))
@@ -84,6 +101,8 @@ def test_recording_is_filed_transferred_and_verified(make_rig: Any, tmp_path: Pa
     usage = rig.api("/api/storage")
     assert usage["subjects"][0]["bytes"] == subj["bytes_on_server"]
 
+    check_exports(rig, tmp_path / "server", rec_id)
+
     # deletion needs the subject code typed again
     code, msg = http_error(lambda: rig.api(f"/api/storage/recordings/{rec_id}/delete",
                                            {"confirm": "P00"}))
@@ -91,3 +110,81 @@ def test_recording_is_filed_transferred_and_verified(make_rig: Any, tmp_path: Pa
     rig.api(f"/api/storage/recordings/{rec_id}/delete", {"confirm": "P001"})
     assert not (tmp_path / "server" / "recordings" / rec_id).exists()
     assert rig.api(f"/api/subjects/{ids['subject']['id']}")["n_recordings"] == 0
+
+
+def download(rig: Rig, path: str) -> bytes:
+    req = urllib.request.Request(rig.base + path,
+                                 headers={"Authorization": f"Bearer {rig.token}"})
+    with urllib.request.urlopen(req, timeout=30) as r:
+        data: bytes = r.read()
+    return data
+
+
+def upload(rig: Rig, path: str, name: str, data: bytes) -> Any:
+    boundary = "gaitrigboundary"
+    body = (f"--{boundary}\r\nContent-Disposition: form-data; name=\"file\"; "
+            f"filename=\"{name}\"\r\nContent-Type: application/octet-stream\r\n\r\n"
+            ).encode() + data + f"\r\n--{boundary}--\r\n".encode()
+    req = urllib.request.Request(rig.base + path, data=body, method="POST", headers={
+        "Authorization": f"Bearer {rig.token}",
+        "Content-Type": f"multipart/form-data; boundary={boundary}"})
+    with urllib.request.urlopen(req, timeout=30) as r:
+        return json.loads(r.read())
+
+
+def check_exports(rig: Rig, server_dir: Path, rec_id: str) -> None:
+    tmp = server_dir.parent / "exports"
+    tmp.mkdir()
+    # per-sensor CSV: exactly the transferred skeleton (times on the server clock)
+    truth = read_part_skeleton(StorageLayout(server_dir).part_dir(rec_id, "S2"))
+    (tmp / "s2.csv").write_bytes(download(rig, f"/api/exports/{rec_id}/skeleton?format=csv"
+                                               "&source=S2"))
+    back = read_skeleton_csv(tmp / "s2.csv")
+    assert back.joint_set.joints == KINECT_V2.joints
+    np.testing.assert_array_equal(back.times, truth.times)
+    np.testing.assert_allclose(back.positions, truth.positions, atol=1e-12, equal_nan=True)
+    np.testing.assert_array_equal(back.states, truth.states)
+    # per-sensor C3D: uniform rate, labels = joint names, mm → m within float32 precision
+    (tmp / "s2.c3d").write_bytes(download(rig, f"/api/exports/{rec_id}/skeleton?format=c3d"
+                                               "&source=S2"))
+    u = uniform_series(truth)
+    c = ezc3d.c3d(str(tmp / "s2.c3d"))
+    assert c["parameters"]["POINT"]["LABELS"]["value"][:25] == list(KINECT_V2.joints)
+    assert c["parameters"]["POINT"]["RATE"]["value"][0] == pytest.approx(30.0)
+    m_c3d = read_c3d(tmp / "s2.c3d")
+    assert len(m_c3d) == len(u)
+    np.testing.assert_allclose(m_c3d.positions, u.positions, atol=1e-5, equal_nan=True)
+    # fused TRC and C3D (world frame from the sensors' poses)
+    (tmp / "fused.trc").write_bytes(download(rig, f"/api/exports/{rec_id}/skeleton?format=trc"
+                                                  "&source=fused"))
+    trc = read_trc(tmp / "fused.trc")
+    assert trc.labels == list(KINECT_V2.joints) and trc.rate == pytest.approx(30.0)
+    assert np.isfinite(trc.positions).mean() > 0.5
+    fused_c3d = download(rig, f"/api/exports/{rec_id}/skeleton?format=c3d&source=fused")
+    (tmp / "fused.c3d").write_bytes(fused_c3d)
+    mf = read_c3d(tmp / "fused.c3d")
+    np.testing.assert_allclose(mf.positions, trc.positions, atol=1e-5, equal_nan=True)
+    # the in-process writer gives the same bytes' content for the same series
+    assert export_skeleton(truth, "csv") == (tmp / "s2.csv").read_bytes()
+    # depth frames of S1 (recorded every 5th frame) as 16-bit PNGs and as NPZ
+    npz = np.load(io.BytesIO(download(rig, f"/api/exports/{rec_id}/depth?node=S1&format=npz")))
+    assert npz["depth_mm"].dtype == np.uint16 and npz["depth_mm"].shape[0] >= 3
+    z = zipfile.ZipFile(io.BytesIO(download(rig, f"/api/exports/{rec_id}/depth?node=S1")))
+    assert len(z.namelist()) == npz["depth_mm"].shape[0]
+    code, msg = http_error(lambda: download(rig, f"/api/exports/{rec_id}/depth?node=S2"))
+    assert code == 400 and "depth" in msg
+    code, _ = http_error(lambda: download(rig, f"/api/exports/{rec_id}/skeleton?source=..%2Fx"))
+    assert code == 400
+    # reference import: a C3D is attached with its labels and rate; junk is refused
+    ref = upload(rig, f"/api/exports/{rec_id}/references", "vicon walk.c3d", fused_c3d)
+    assert ref["format"] == "c3d" and ref["rate_hz"] == pytest.approx(30.0)
+    assert ref["labels"][:25] == list(KINECT_V2.joints) and ref["n_frames"] == len(mf)
+    assert read_reference(server_dir / "references" / rec_id / next(
+        p.name for p in (server_dir / "references" / rec_id).iterdir()), "c3d").labels
+    code, msg = http_error(lambda: upload(rig, f"/api/exports/{rec_id}/references", "x.c3d",
+                                          b"not a c3d file" * 10))
+    assert code == 400 and "not a readable C3D" in msg
+    code, msg = http_error(lambda: upload(rig, f"/api/exports/{rec_id}/references", "x.txt",
+                                          b"1,2,3"))
+    assert code == 400 and ".c3d" in msg
+    assert len(rig.api(f"/api/exports/{rec_id}/references")) == 1

@@ -1,0 +1,184 @@
+"""Exports of a recording (skeleton C3D / TRC / CSV, fused or per sensor; depth frames
+as PNG zip or NPZ) and imports of reference recordings (C3D, TRC, CSV) attached to it.
+
+Skeleton exports: ``source=fused`` integrates every sensor with its calibrated pose
+(world frame, Z up, 30 Hz; C3D carries the gait events when a walk is detected);
+``source=<node id>`` exports that sensor's own skeleton in its camera frame (CSV at the
+recorded times; C3D/TRC resampled to a uniform rate). CSV columns are
+``time,<Joint>_x,<Joint>_y,<Joint>_z,<Joint>_state`` in metres with Kinect v2 names.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import secrets
+from pathlib import PurePath
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from fastapi import APIRouter, File, HTTPException, Query, Request, Response, UploadFile, status
+
+from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.routes._data import get_recording, layout_of, reference_json
+from app.db import data as m
+from app.server.storage import (
+    check_id,
+    depth_frames,
+    depth_npz,
+    depth_zip,
+    export_skeleton,
+    fused_skeleton,
+    read_part_skeleton,
+    read_reference,
+    sensor_streams,
+    uniform_series,
+)
+from engine.errors import GaitrigError
+
+router = APIRouter(prefix="/exports", tags=["data"])
+
+MAX_REFERENCE_BYTES = 100 * 1024 * 1024
+_MEDIA = {"c3d": "application/octet-stream", "trc": "text/plain", "csv": "text/csv",
+          "zip": "application/zip", "npz": "application/octet-stream"}
+
+
+def _download(data: bytes, filename: str, ext: str) -> Response:
+    return Response(data, media_type=_MEDIA[ext],
+                    headers={"Content-Disposition": f'attachment; filename="{filename}"'})
+
+
+@router.get("/{rec_id}/skeleton")
+async def skeleton(rec_id: str, request: Request, user: CurrentUser, db: DbDep, hub: HubDep,
+                   format: Annotated[Literal["c3d", "trc", "csv"], Query()] = "c3d",
+                   source: Annotated[str, Query(max_length=64)] = "fused") -> Response:
+    """Skeleton trajectories of a recording (see the module docstring)."""
+    rec = get_recording(db, rec_id)
+    layout = layout_of(request)
+    if source == "fused":
+        poses: dict[str, Any] = {}
+        for n in layout.complete_parts(rec.id):
+            s = hub.registry.get(n)
+            pose = s.sensor.T_world_sensor if s is not None else None
+            poses[n] = np.asarray(pose, dtype=float) if pose is not None else None
+
+        def work() -> bytes:
+            series, events = fused_skeleton(sensor_streams(layout, rec.id, poses))
+            return export_skeleton(series, format, events)
+    else:
+        node = check_id(source, "sensor id")
+        if node not in layout.complete_parts(rec.id):
+            raise HTTPException(status.HTTP_404_NOT_FOUND,
+                                f"sensor {node}'s part of {rec.id} is not on the server")
+
+        def work() -> bytes:
+            series = read_part_skeleton(layout.part_dir(rec.id, node))
+            return export_skeleton(series if format == "csv" else uniform_series(series), format)
+
+    data = await asyncio.to_thread(work)
+    return _download(data, f"{rec.id}_{source}.{format}", format)
+
+
+@router.get("/{rec_id}/depth")
+async def depth(rec_id: str, request: Request, user: CurrentUser, db: DbDep,
+                node: Annotated[str, Query(max_length=64)],
+                format: Annotated[Literal["zip", "npz"], Query()] = "zip",
+                t0: Annotated[float | None, Query(ge=0, description="s after the start")] = None,
+                t1: Annotated[float | None, Query(ge=0, description="s after the start")] = None
+                ) -> Response:
+    """Recorded depth frames of one sensor between ``t0`` and ``t1`` (seconds after the
+    recording's start): 16-bit PNGs in millimetres (zip) or one NPZ."""
+    rec = get_recording(db, rec_id)
+    layout = layout_of(request)
+    node = check_id(node, "sensor id")
+    if node not in layout.complete_parts(rec.id):
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"sensor {node}'s part of {rec.id} is not on the server")
+    if t0 is not None and t1 is not None and t1 < t0:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, "t1 must not be before t0")
+    base = rec.t_start or 0.0
+    a = base + t0 if t0 is not None else None
+    b = base + t1 if t1 is not None else None
+
+    def work() -> bytes:
+        frames = depth_frames(layout.part_dir(rec.id, node), a, b)
+        return depth_zip(frames) if format == "zip" else depth_npz(frames)
+
+    data = await asyncio.to_thread(work)
+    return _download(data, f"{rec.id}_{node}_depth.{format}", format)
+
+
+@router.get("/{rec_id}/references")
+def references(rec_id: str, user: CurrentUser, db: DbDep) -> list[dict[str, Any]]:
+    """Reference recordings attached to a recording."""
+    return [reference_json(x) for x in get_recording(db, rec_id).references]
+
+
+@router.post("/{rec_id}/references", status_code=201)
+async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db: DbDep,
+                           file: Annotated[UploadFile, File(description="C3D, TRC or CSV")]
+                           ) -> dict[str, Any]:
+    """Attach a reference recording (e.g. Vicon C3D) for the agreement analysis."""
+    rec = get_recording(db, rec_id)
+    name = PurePath(file.filename or "reference").name[:255]
+    ext = name.rsplit(".", 1)[-1].lower() if "." in name else ""
+    if ext not in m.REFERENCE_FORMATS:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                            f"{name!r}: upload a .c3d, .trc or .csv file")
+    folder = layout_of(request).reference_dir(rec.id)
+    folder.mkdir(parents=True, exist_ok=True)
+    stored = f"{secrets.token_hex(8)}.{ext}"
+    path = folder / stored
+    size = 0
+    try:
+        with open(path, "wb") as f:
+            while chunk := await file.read(1 << 20):
+                size += len(chunk)
+                if size > MAX_REFERENCE_BYTES:
+                    raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
+                                        f"{name!r} is larger than "
+                                        f"{MAX_REFERENCE_BYTES // 2**20} MB")
+                f.write(chunk)
+        try:
+            traj = await asyncio.to_thread(read_reference, path, ext)
+        except (GaitrigError, ValueError, OSError, RuntimeError) as exc:
+            raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                                f"{name!r} is not a readable {ext.upper()} file: {exc}") from exc
+    except BaseException:
+        path.unlink(missing_ok=True)
+        raise
+    ref = m.ReferenceImport(recording_id=rec.id, filename=name, format=ext, stored_name=stored,
+                            size=size, rate_hz=float(traj.rate), n_frames=len(traj),
+                            labels_json=json.dumps(traj.labels))
+    db.add(ref)
+    db.commit()
+    return reference_json(ref)
+
+
+def _ref(db: DbDep, rec_id: str, ref_id: int) -> m.ReferenceImport:
+    ref = db.get(m.ReferenceImport, ref_id)
+    if ref is None or ref.recording_id != rec_id:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"no reference {ref_id} attached to {rec_id}")
+    return ref
+
+
+@router.get("/{rec_id}/references/{ref_id}")
+def download_reference(rec_id: str, ref_id: int, request: Request, user: CurrentUser,
+                       db: DbDep) -> Response:
+    """The uploaded reference file as it was uploaded."""
+    ref = _ref(db, rec_id, ref_id)
+    path = layout_of(request).reference_dir(rec_id) / check_id(ref.stored_name, "file")
+    return _download(path.read_bytes(), ref.filename, ref.format)
+
+
+@router.post("/{rec_id}/references/{ref_id}/delete")
+def delete_reference(rec_id: str, ref_id: int, request: Request, user: CurrentUser,
+                     db: DbDep) -> dict[str, Any]:
+    """Detach and delete a reference recording."""
+    ref = _ref(db, rec_id, ref_id)
+    (layout_of(request).reference_dir(rec_id) / check_id(ref.stored_name, "file")).unlink(
+        missing_ok=True)
+    db.delete(ref)
+    db.commit()
+    return {"deleted": "reference", "id": ref_id}
