@@ -68,7 +68,7 @@ class Rig:
     def start_server(self) -> None:
         self._spawn("server", ["serve", "--port", str(self.port), "--no-viewer", "--data-dir",
                                str(self.tmp / "server"), "--log-level", "info"])
-        wait_for(lambda: http(self.base + "/healthz"), 30, "the server")
+        wait_for(lambda: http(self.base + "/healthz"), 90, "the server")
         self.token = http(self.base + "/api/auth/login",
                           {"username": "admin", "password": PASSWORD})["token"]
 
