@@ -1,0 +1,147 @@
+// Record page: pick (or create) project / subject / session, start and stop a recording
+// on every connected sensor, watch the elapsed time, each sensor's part and, after the
+// stop, the verified transfer to the server until the recording is complete.
+"use strict";
+(() => {
+  const api = gaitrig.api;
+  const $ = (id) => document.getElementById(id);
+  function el(tag, attrs = {}, ...children) {
+    const e = document.createElement(tag);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+    for (const c of children) if (c !== null && c !== undefined) e.append(c);
+    return e;
+  }
+  function say(id, text, good = false) { const m = $(id); m.textContent = text; m.className = "msg " + (good ? "good" : "bad"); }
+  const STATE_TEXT = { recording: "recording", on_nodes: "on the sensors, waiting for transfer", transferring: "transferring to the server",
+    complete: "complete — every part verified on the server", incomplete: "incomplete", on_node: "on the node", pending: "starting" };
+  const PART_TEXT = { ...STATE_TEXT, complete: "complete", on_nodes: "on the sensors" };
+  const mb = (n) => n >= 2 ** 20 ? (n / 2 ** 20).toFixed(1) + " MB" : (n / 1024).toFixed(0) + " kB";
+
+  let recId = null, recStart = null, recStop = null, subjectId = null;
+
+  async function fillProjects(want) {
+    const ps = await api("/api/projects");
+    const sel = $("project");
+    sel.replaceChildren(...ps.map((p) => el("option", { value: p.id }, p.name)));
+    if (!ps.length) {
+      const p = await api("/api/projects", { method: "POST", body: JSON.stringify({ name: "Default project" }) });
+      sel.append(el("option", { value: p.id }, p.name));
+    }
+    if (want) sel.value = want;
+    await fillSubjects();
+  }
+  async function fillSubjects(want) {
+    const ss = await api(`/api/subjects?project_id=${$("project").value}`);
+    const sel = $("subject");
+    sel.replaceChildren(...ss.map((s) => el("option", { value: s.id }, s.code)));
+    if (!ss.length) sel.append(el("option", { value: "" }, "— add a subject —"));
+    if (want) sel.value = want;
+    await fillSessions();
+  }
+  async function fillSessions(want) {
+    const sel = $("session");
+    subjectId = $("subject").value ? Number($("subject").value) : null;
+    if (subjectId === null) { sel.replaceChildren(el("option", { value: "" }, "— add a subject first —")); return; }
+    const ss = await api(`/api/sessions?subject_id=${subjectId}`);
+    sel.replaceChildren(...ss.slice().reverse().map((s) => el("option", { value: s.id }, `${s.date}${s.label ? " — " + s.label : ""} (${s.n_recordings} rec.)`)));
+    if (!ss.length) sel.append(el("option", { value: "" }, "— add a session —"));
+    if (want) sel.value = want;
+  }
+
+  $("project").addEventListener("change", () => fillSubjects());
+  $("subject").addEventListener("change", () => fillSessions());
+  $("new-subject").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    try {
+      const s = await api("/api/subjects", { method: "POST", body: JSON.stringify({ project_id: Number($("project").value), code: ev.target.elements.code.value.trim() }) });
+      ev.target.reset(); await fillSubjects(s.id); say("who-msg", `Subject ${s.code} added; now add a session.`, true);
+    } catch (e) { say("who-msg", e.message); }
+  });
+  $("new-session").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    if (subjectId === null) { say("who-msg", "Choose or add a subject first."); return; }
+    try {
+      const s = await api("/api/sessions", { method: "POST", body: JSON.stringify({ subject_id: subjectId, label: ev.target.elements.label.value.trim() }) });
+      ev.target.reset(); await fillSessions(s.id); say("who-msg", "Session added.", true);
+    } catch (e) { say("who-msg", e.message); }
+  });
+
+  async function refreshNodes() {
+    try {
+      const ns = await api("/api/nodes");
+      const ready = ns.filter((n) => n.connected && n.clock_offset_ms !== null);
+      $("nodes-summary").textContent = ns.length
+        ? `${ready.length} of ${ns.length} sensors ready to record (${ready.map((n) => n.id).join(", ") || "none"}).`
+        : "No sensor has connected yet; start the nodes (see the Rig page).";
+    } catch (e) { $("nodes-summary").textContent = "Cannot reach the server: " + e.message; }
+  }
+
+  function fmtTime(s) { const m = Math.floor(s / 60); return `${m}:${(s - m * 60).toFixed(1).padStart(4, "0")}`; }
+  function tick() {
+    if (recStart !== null) $("elapsed").textContent = fmtTime(Math.max(0, (recStop ?? Date.now() / 1000) - recStart));
+  }
+
+  function partRow(p) {
+    const prog = el("progress", { max: "1", value: String(p.progress), "aria-label": `transfer of ${p.node_id}` });
+    return el("tr", { "data-node": p.node_id, "data-state": p.state },
+      el("th", { scope: "row" }, p.node_id), el("td", {}, el("span", { class: "badge st-" + p.state }, PART_TEXT[p.state] || p.state)),
+      el("td", { class: "num" }, String(p.n_frames)),
+      el("td", { class: "num" }, prog, ` ${Math.round(p.progress * 100)} % of ${mb(p.bytes_total)}`),
+      el("td", { class: "reason" }, p.state === "complete" ? "" : (p.reason || "")));
+  }
+
+  async function follow() {
+    if (recId === null) return;
+    try {
+      const r = await api(`/api/storage/recordings/${recId}`);
+      recStart = r.t_start; recStop = r.t_stop;
+      $("rec-state").replaceChildren(el("span", { class: "badge st-" + r.state, id: "state-badge", "data-state": r.state }, STATE_TEXT[r.state] || r.state),
+        r.reason ? el("span", { class: "reason" }, " " + r.reason) : "");
+      $("parts").replaceChildren(...r.parts.map(partRow));
+      const running = r.state === "recording";
+      $("start").disabled = running; $("stop").disabled = !running;
+      if (!running) {
+        $("done-link").hidden = false;
+        $("open-subject").href = `/subjects.html#subject=${r.subject.id}`;
+      }
+      if (r.state !== "complete") setTimeout(follow, running ? 500 : 700);
+    } catch (e) { say("rec-msg", e.message); setTimeout(follow, 2000); }
+  }
+
+  $("start").addEventListener("click", async () => {
+    const sid = $("session").value;
+    if (!sid) { say("rec-msg", "Choose a subject and a session first (or add them on the left)."); return; }
+    const streams = ["depth", "color"].filter((s) => $(s).checked);
+    $("start").disabled = true;
+    try {
+      const r = await api(`/api/sessions/${sid}/recordings`, { method: "POST", body: JSON.stringify({
+        label: $("label").value.trim(), streams, image_every: Number($("every").value) || 1 }) });
+      recId = r.id; recStart = r.t_start; recStop = null; $("done-link").hidden = true;
+      say("rec-msg", `Recording ${r.id} started on ${r.parts.map((p) => p.node_id).join(", ")}.`, true);
+      $("stop").disabled = false; $("stop").focus();
+      follow();
+    } catch (e) { say("rec-msg", e.message); $("start").disabled = false; }
+  });
+  $("stop").addEventListener("click", async () => {
+    $("stop").disabled = true;
+    try { await api(`/api/recordings/${recId}/stop`, { method: "POST" }); say("rec-msg", `Recording ${recId} stopped; the server now copies every sensor's part.`, true); }
+    catch (e) { say("rec-msg", e.message); $("stop").disabled = false; }
+  });
+
+  (async () => {
+    const m = /subject=(\d+)/.exec(location.hash);
+    try {
+      if (m) { const s = await api(`/api/subjects/${m[1]}`); await fillProjects(s.project_id); await fillSubjects(s.id); }
+      else await fillProjects();
+    } catch (e) { say("who-msg", e.message); }
+    // A recording already running (started before this page was opened) is followed.
+    try {
+      const live = (await api("/api/recordings")).find((r) => r.state === "recording");
+      if (live) {
+        try { await api(`/api/storage/recordings/${live.id}`); recId = live.id; follow(); }
+        catch (e) { say("rec-msg", `Recording ${live.id} is running (started elsewhere, not filed under a session).`); }
+      }
+    } catch (e) { /* the list is optional */ }
+    refreshNodes(); setInterval(refreshNodes, 2000); setInterval(tick, 100);
+  })();
+})();

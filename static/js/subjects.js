@@ -1,0 +1,211 @@
+// Subjects & recordings page: projects, subjects (CRUD), sessions, recordings with their
+// states, reasons and transfer progress, disk usage, exports, reference upload, deletion
+// with the subject code typed again. Plain JS; data from /api/{projects,subjects,
+// sessions,storage,exports}.
+"use strict";
+(() => {
+  const api = gaitrig.api;
+  const $ = (id) => document.getElementById(id);
+  function el(tag, attrs = {}, ...children) {
+    const e = document.createElement(tag);
+    for (const [k, v] of Object.entries(attrs)) {
+      if (k.startsWith("on")) e.addEventListener(k.slice(2), v); else e.setAttribute(k, v);
+    }
+    for (const c of children) if (c !== null && c !== undefined) e.append(c);
+    return e;
+  }
+  const bytes = (n) => n >= 2 ** 30 ? (n / 2 ** 30).toFixed(2) + " GB" : n >= 2 ** 20 ? (n / 2 ** 20).toFixed(1) + " MB" : (n / 1024).toFixed(0) + " kB";
+  const cm = (m) => m === null || m === undefined ? "" : (m * 100).toFixed(1);
+  const num = (v) => v === "" || v === null || v === undefined ? null : Number(v);
+  function say(id, text, good = false) { const m = $(id); m.textContent = text; m.className = "msg " + (good ? "good" : "bad"); }
+  const STATE_TEXT = { recording: "recording", on_nodes: "on the nodes", transferring: "transferring",
+    complete: "complete", incomplete: "incomplete", on_node: "on the node", pending: "starting" };
+  const badge = (s) => el("span", { class: "badge st-" + s }, STATE_TEXT[s] || s);
+
+  let projectId = null, subjectId = null, subject = null, timer = null;
+
+  function subjectBody(form) {
+    const f = form.elements;
+    return { code: f.code.value.trim(), sex: f.sex.value, birth_year: num(f.birth_year.value),
+      height_m: num(f.height_cm.value) === null ? null : num(f.height_cm.value) / 100,
+      leg_length_m: num(f.leg_cm.value) === null ? null : num(f.leg_cm.value) / 100,
+      notes: f.notes.value };
+  }
+
+  async function loadDisk() {
+    try {
+      const u = await api("/api/storage");
+      $("disk").textContent = `Server disk: ${bytes(u.disk.free)} free of ${bytes(u.disk.total)}.`;
+    } catch (e) { $("disk").textContent = "Disk usage unavailable: " + e.message; }
+  }
+
+  async function loadProjects(select) {
+    const ps = await api("/api/projects");
+    const sel = $("project");
+    sel.replaceChildren(...ps.map((p) => el("option", { value: p.id }, `${p.name} (${p.n_subjects})`)));
+    if (!ps.length) { sel.append(el("option", { value: "" }, "— create a project first —")); projectId = null; }
+    else {
+      projectId = select ?? (ps.some((p) => p.id === projectId) ? projectId : ps[0].id);
+      sel.value = projectId;
+    }
+    await loadSubjects();
+  }
+
+  async function loadSubjects() {
+    const body = $("subjects");
+    if (projectId === null) { body.replaceChildren(); return; }
+    const ss = await api(`/api/subjects?project_id=${projectId}`);
+    body.replaceChildren(...ss.map((s) => {
+      const tr = el("tr", { class: "clickable" + (s.id === subjectId ? " selected" : ""), "data-subject": s.code },
+        el("th", { scope: "row" }, el("a", { href: `#subject=${s.id}`, onclick: (ev) => { ev.preventDefault(); select(s.id); } }, s.code)),
+        el("td", { class: "num" }, String(s.n_sessions)), el("td", { class: "num" }, String(s.n_recordings)),
+        el("td", { class: "num" }, bytes(s.bytes_on_server)));
+      tr.addEventListener("click", () => select(s.id));
+      return tr;
+    }));
+    if (!ss.length) body.append(el("tr", {}, el("td", { colspan: "4", class: "hint" }, "No subjects in this project yet.")));
+  }
+
+  async function select(id) {
+    subjectId = id;
+    history.replaceState(null, "", `#subject=${id}`);
+    await loadSubjects();
+    await loadDetail(true);
+  }
+
+  function partLine(recId, p) {
+    const line = el("div", { class: "part", "data-node": p.node_id },
+      el("strong", {}, p.node_id), badge(p.state),
+      el("progress", { max: "1", value: String(p.progress), "aria-label": `transfer of ${p.node_id}` }),
+      el("span", { class: "num" }, `${Math.round(p.progress * 100)} % of ${bytes(p.bytes_total)}, ${p.n_frames} frames`));
+    if (p.reason && p.state !== "complete") line.append(el("span", { class: "reason" }, p.reason));
+    return line;
+  }
+
+  function exportLinks(r) {
+    const box = el("div", { class: "actions" }, el("span", { class: "hint" }, "Export:"));
+    for (const f of ["c3d", "trc", "csv"])
+      box.append(el("a", { class: "button", href: `/api/exports/${r.id}/skeleton?format=${f}&source=fused`, download: "" }, `fused ${f.toUpperCase()}`));
+    for (const p of r.parts.filter((p) => p.state === "complete")) {
+      box.append(el("a", { class: "button", href: `/api/exports/${r.id}/skeleton?format=csv&source=${encodeURIComponent(p.node_id)}`, download: "" }, `${p.node_id} CSV`));
+      if (r.streams.includes("depth"))
+        box.append(el("a", { class: "button", href: `/api/exports/${r.id}/depth?node=${encodeURIComponent(p.node_id)}&format=zip`, download: "" }, `${p.node_id} depth PNG`));
+    }
+    return box;
+  }
+
+  function referenceBox(r) {
+    const box = el("div", { class: "actions" });
+    for (const x of r.references)
+      box.append(el("a", { class: "button", href: `/api/exports/${r.id}/references/${x.id}` },
+        `reference ${x.filename} (${x.format.toUpperCase()}, ${x.rate_hz.toFixed(0)} Hz, ${x.labels.length} labels)`));
+    const input = el("input", { type: "file", accept: ".c3d,.trc,.csv", id: `ref-${r.id}` });
+    const msg = el("span", { class: "msg", role: "status" });
+    const up = el("button", { type: "button", class: "secondary small", onclick: async () => {
+      if (!input.files.length) { msg.textContent = "Choose a C3D, TRC or CSV file first."; msg.className = "msg bad"; return; }
+      const fd = new FormData(); fd.append("file", input.files[0]);
+      msg.textContent = "Uploading…"; msg.className = "msg";
+      const res = await fetch(`/api/exports/${r.id}/references`, { method: "POST", body: fd, credentials: "same-origin" });
+      if (res.ok) { msg.textContent = "Attached."; msg.className = "msg good"; await loadDetail(false); }
+      else { let d = res.statusText; try { d = (await res.json()).detail; } catch (e) {} msg.textContent = d; msg.className = "msg bad"; }
+    } }, "Attach reference");
+    box.append(el("label", { for: `ref-${r.id}`, class: "hint" }, "Reference (Vicon C3D, TRC, CSV):"), input, up, msg);
+    return box;
+  }
+
+  function recordingRow(r) {
+    const when = r.t_start ? new Date(r.t_start * 1000).toLocaleTimeString() : "";
+    const dur = r.duration_s !== null ? `${r.duration_s.toFixed(1)} s` : "running";
+    const head = el("div", { class: "part" }, el("strong", {}, r.label || r.id), badge(r.state),
+      el("span", { class: "hint" }, `${r.id} · ${when} · ${dur} · ${bytes(r.bytes_on_server || 0)} on the server`));
+    const box = el("div", { class: "recording", "data-recording": r.id, "data-state": r.state }, head);
+    if (r.reason) box.append(el("p", { class: "reason" }, r.reason));
+    for (const p of r.parts) box.append(partLine(r.id, p));
+    const acts = el("div", { class: "actions" });
+    if (r.state === "incomplete" || r.state === "on_nodes")
+      acts.append(el("button", { type: "button", class: "secondary small", onclick: async () => {
+        try { await api(`/api/storage/recordings/${r.id}/transfer`, { method: "POST" }); say("session-msg", `Transfer of ${r.id} started.`, true); }
+        catch (e) { say("session-msg", e.message); }
+        await loadDetail(false);
+      } }, "Transfer again"));
+    const confirm = el("input", { "aria-label": `type ${subject.code} to delete ${r.id}`, placeholder: `type ${subject.code}`, size: "8", autocomplete: "off" });
+    acts.append(confirm, el("button", { type: "button", class: "danger small", onclick: async () => {
+      try { await api(`/api/storage/recordings/${r.id}/delete`, { method: "POST", body: JSON.stringify({ confirm: confirm.value }) });
+        say("session-msg", `Recording ${r.id} deleted.`, true); await loadDetail(false); await loadSubjects(); }
+      catch (e) { say("session-msg", e.message); }
+    } }, "Delete recording"));
+    box.append(acts);
+    if (r.state === "complete" || r.parts.some((p) => p.state === "complete")) box.append(exportLinks(r));
+    box.append(referenceBox(r));
+    return box;
+  }
+
+  async function loadDetail(fillForm) {
+    if (subjectId === null) return;
+    try { subject = await api(`/api/subjects/${subjectId}`); }
+    catch (e) { $("detail-h").textContent = "Select a subject"; $("detail-body").hidden = true; subjectId = null; return; }
+    $("detail-h").textContent = `Subject ${subject.code}`;
+    $("detail-hint").textContent = `${subject.n_sessions} session(s), ${subject.n_recordings} recording(s), ${bytes(subject.bytes_on_server)} on the server.`;
+    $("detail-body").hidden = false;
+    $("record-link").href = `/record.html#subject=${subject.id}`;
+    if (fillForm) {
+      const f = $("edit-form").elements;
+      f.code.value = subject.code; f.sex.value = subject.sex; f.birth_year.value = subject.birth_year ?? "";
+      f.height_cm.value = cm(subject.height_m); f.leg_cm.value = cm(subject.leg_length_m); f.notes.value = subject.notes;
+      $("session-form").elements.date.value = new Date().toISOString().slice(0, 10);
+    }
+    const box = $("sessions");
+    box.replaceChildren(...subject.sessions.slice().reverse().map((s) => el("div", { class: "session", "data-session": s.id },
+      el("h3", {}, `${s.date}${s.label ? " — " + s.label : ""}`),
+      ...(s.recordings.length ? s.recordings.map(recordingRow) : [el("p", { class: "hint" }, "No recordings yet.")]))));
+    if (!subject.sessions.length) box.append(el("p", { class: "hint" }, "No sessions yet: add one above, then record it."));
+    const busy = subject.sessions.some((s) => s.recordings.some((r) => ["recording", "on_nodes", "transferring"].includes(r.state)));
+    clearTimeout(timer);
+    if (busy) timer = setTimeout(() => loadDetail(false), 1000);
+  }
+
+  $("project").addEventListener("change", async (ev) => { projectId = Number(ev.target.value); subjectId = null; $("detail-body").hidden = true; await loadSubjects(); });
+  $("project-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    try { const p = await api("/api/projects", { method: "POST", body: JSON.stringify({ name: ev.target.elements.name.value.trim() }) });
+      ev.target.reset(); say("project-msg", `Project ${p.name} created.`, true); await loadProjects(p.id); }
+    catch (e) { say("project-msg", e.message); }
+  });
+  $("subject-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    if (projectId === null) { say("subject-msg", "Create a project first."); return; }
+    try { const s = await api("/api/subjects", { method: "POST", body: JSON.stringify({ project_id: projectId, ...subjectBody(ev.target) }) });
+      ev.target.reset(); say("subject-msg", `Subject ${s.code} added.`, true); await select(s.id); }
+    catch (e) { say("subject-msg", e.message); }
+  });
+  $("edit-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    try { await api(`/api/subjects/${subjectId}`, { method: "PATCH", body: JSON.stringify(subjectBody(ev.target)) });
+      say("edit-msg", "Saved.", true); await loadSubjects(); await loadDetail(true); }
+    catch (e) { say("edit-msg", e.message); }
+  });
+  $("session-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const f = ev.target.elements;
+    try { await api("/api/sessions", { method: "POST", body: JSON.stringify({ subject_id: subjectId, date: f.date.value, label: f.label.value }) });
+      f.label.value = ""; say("session-msg", "Session added.", true); await loadDetail(false); await loadSubjects(); }
+    catch (e) { say("session-msg", e.message); }
+  });
+  $("delete-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    try { const r = await api(`/api/subjects/${subjectId}/delete`, { method: "POST", body: JSON.stringify({ confirm: ev.target.elements.confirm.value }) });
+      ev.target.reset(); subjectId = null; $("detail-body").hidden = true; $("detail-h").textContent = "Select a subject";
+      say("delete-msg", `Subject deleted with ${r.recordings_deleted} recording(s).`, true); await loadProjects(); await loadDisk(); }
+    catch (e) { say("delete-msg", e.message); }
+  });
+
+  (async () => {
+    await loadDisk();
+    const m = /subject=(\d+)/.exec(location.hash);
+    if (m) {
+      try { const s = await api(`/api/subjects/${m[1]}`); await loadProjects(s.project_id); await select(s.id); return; }
+      catch (e) { /* unknown subject: show the list */ }
+    }
+    await loadProjects();
+  })();
+})();
