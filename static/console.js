@@ -86,7 +86,14 @@ const gaitrig = (() => {
       await refreshRecordings();
     });
     const STATES = { recording: "recording", stopping: "stopping…", on_nodes: "complete on the sensors",
-      incomplete: "incomplete", on_node: "on the sensor", pending: "starting" };
+      incomplete: "incomplete", on_node: "on the sensor", pending: "starting",
+      transferring: "copying to the server…", complete: "complete on the server" };
+    async function transfer(id) {
+      const status = document.getElementById("record-status");
+      try { await api(`/api/recordings/${id}/transfer`, { method: "POST", body: "{}" }); status.textContent = `Copying ${id} to the server…`; }
+      catch (e) { status.textContent = e.message; }
+      await refreshRecordings();
+    }
     async function refreshRecordings() {
       try {
         const recs = await api("/api/recordings");
@@ -96,12 +103,21 @@ const gaitrig = (() => {
           const parts = el("ul", { class: "parts" });
           for (const p of r.parts) {
             parts.append(el("li", { class: p.state === "incomplete" ? "warn" : "" },
-              `${p.node_id}: ${STATES[p.state] || p.state}, ${p.n_frames} frames` + (p.reason ? ` — ${p.reason}` : "")));
+              `${p.node_id}: ${STATES[p.state] || p.state}, ${p.n_frames} frames` +
+              (p.state === "transferring" && p.transfer_progress !== null ? ` (${Math.round(p.transfer_progress * 100)} %)` : "") +
+              (p.on_server && p.state === "incomplete" ? " (copy on the server)" : "") +
+              (p.reason ? ` — ${p.reason}` : "")));
           }
           const len = r.t_stop ? (r.t_stop - r.t_start).toFixed(1) + " s" : "running";
+          const state = el("td", { class: "state" }, STATES[r.state] || r.state);
+          if (r.parts.some((p) => (p.state === "on_node" || p.state === "incomplete") && !p.on_server && p.n_frames)) {
+            const b = el("button", { class: "secondary transfer" }, "Copy to server");
+            b.addEventListener("click", () => transfer(r.id));
+            state.append(" ", b);
+          }
           return el("tr", { "data-recording": r.id }, el("th", { scope: "row" }, r.id),
             el("td", {}, new Date(r.t_start * 1000).toISOString().slice(0, 19).replace("T", " ")),
-            el("td", { class: "num" }, len), el("td", { class: "state" }, STATES[r.state] || r.state), el("td", {}, parts));
+            el("td", { class: "num" }, len), state, el("td", {}, parts));
         }));
       } catch (e) { /* shown by the node refresh */ }
     }

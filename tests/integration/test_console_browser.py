@@ -51,6 +51,9 @@ def test_login_and_rig_page(make_rig: object, artifacts_dir: Path) -> None:
         row = "tr[data-recording] td.state:has-text('complete on the sensors')"
         page.wait_for_selector(row, timeout=15000)
         assert page.locator("tr[data-recording] li").count() == 2
+        page.click("tr[data-recording] button.transfer")
+        page.wait_for_selector("tr[data-recording] td.state:has-text('complete on the server')",
+                               timeout=30000)
         page.screenshot(path=str(artifacts_dir / "console-rig.png"), full_page=True)
         rig.procs["S2"].terminate()
         page.wait_for_selector("tr[data-node='S2']:has-text('offline')", timeout=15000)
