@@ -121,7 +121,10 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, on_signal)
     base = f"http://{args.host}:{args.port}"
     try:
-        procs.append(subprocess.Popen(serve, env=env, preexec_fn=_die_with_parent))
+        # Own sessions: a Ctrl-C in the terminal reaches only this process, which then
+        # stops the children in order (no half-imported tracebacks from the children).
+        procs.append(subprocess.Popen(serve, env=env, preexec_fn=_die_with_parent,
+                                      start_new_session=True))
         while True:  # wait for the API
             if stopping or procs[0].poll() is not None:
                 raise SystemExit("gaitrig demo: the server did not start (see messages above)")
@@ -137,7 +140,8 @@ def run(args: argparse.Namespace) -> int:
                          "--log-level", "warning"]
             if args.no_images:
                 node.append("--no-images")
-            procs.append(subprocess.Popen(node, env=env, preexec_fn=_die_with_parent))
+            procs.append(subprocess.Popen(node, env=env, preexec_fn=_die_with_parent,
+                                          start_new_session=True))
         print(f"\ngaitrig demo: console at {base}/  (login: admin / {password})", flush=True)
         print(f"gaitrig demo: {args.nodes} simulated sensors starting; Ctrl-C stops everything",
               flush=True)
