@@ -99,7 +99,7 @@ def _analyse(settings: Any, hub: Any, rec_id: str, sensors: tuple[str, ...] | No
         return an.analyse_recording(d, an.AnalysisOptions(method, estimator, sensors),
                                     _live_poses(hub))
     except InsufficientDataError as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc)) from exc
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
     except InputError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
 
@@ -117,7 +117,7 @@ def _respond(data: ReportData, fmt: str, name: str) -> Response:
                 "Content-Disposition": f'attachment; filename="{_filename(name)}.pdf"'})
         return HTMLResponse(render_html(data, standalone=False))
     except GaitrigError as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc)) from exc
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
 
 
 def _reference_file(rec_dir: Path) -> tuple[Path, dict[str, Any]] | None:
@@ -156,7 +156,7 @@ async def _save_upload(request: Request, file: UploadFile, dest_dir: Path) -> Pa
                             f"file {name!r}: choose a .c3d, .trc or skeleton .csv file")
     declared = request.headers.get("content-length")
     if declared and declared.isdigit() and int(declared) > MAX_UPLOAD_BYTES + 64 * 1024:
-        raise HTTPException(status.HTTP_413_REQUEST_ENTITY_TOO_LARGE,
+        raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
                             f"the upload is larger than {MAX_UPLOAD_BYTES // 2**20} MB")
     dest = dest_dir / f"upload{ext}"
     size = 0
@@ -164,7 +164,7 @@ async def _save_upload(request: Request, file: UploadFile, dest_dir: Path) -> Pa
         while chunk := await file.read(_COPY_CHUNK):
             size += len(chunk)
             if size > MAX_UPLOAD_BYTES:
-                raise HTTPException(status.HTTP_413_REQUEST_ENTITY_TOO_LARGE,
+                raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
                                     f"{name} is larger than {MAX_UPLOAD_BYTES // 2**20} MB")
             f.write(chunk)
     if size == 0:
@@ -301,7 +301,7 @@ def recording_report(rec_id: str, user: CurrentUser, settings: SettingsDep, hub:
                                session_date=str(link.get("session_date") or ""),
                                references=refs)
     except InsufficientDataError as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, str(exc)) from exc
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
     except InputError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
     return _respond(data, format, f"gait-report-{code}-{rec_id}")
@@ -344,7 +344,7 @@ def subject_report(subject_id: int, user: CurrentUser, settings: SettingsDep, hu
              else f"subject {subject.code}")
     if not analyses:
         more = f" (not complete on the server: {', '.join(skipped)})" if skipped else ""
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY,
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"{where} has no complete recording to report on{more}; record a "
                             "walk and transfer it to the server first")
     sess = sessions[0] if session_id is not None else None
@@ -358,7 +358,7 @@ def subject_report(subject_id: int, user: CurrentUser, settings: SettingsDep, hu
                 sorted({str(s.date) for s in sessions if s.date}))),
             references=_references(rec_dirs, method))
     except InsufficientDataError as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, f"{where}: {exc}") from exc
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{where}: {exc}") from exc
     except InputError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
     for s in skipped:
@@ -430,7 +430,7 @@ async def upload_report(request: Request, file: UploadFile, user: CurrentUser,
                 res["rec_id"] = Path(file.filename or "upload").name[-80:]
                 data = an.build_report(subject, [res], title="Gait report (uploaded file)")
             except GaitrigError as exc:
-                raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY,
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                                     f"{file.filename}: {exc}") from exc
             return _respond(data, format, f"gait-report-{subject}")
 

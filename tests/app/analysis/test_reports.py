@@ -1,0 +1,434 @@
+"""Gait reports end to end: a real recording by six simulated sensor nodes, analysed by
+the server (all sensors and one side), reported as HTML and PDF per recording, subject
+and session, with an agreement section against the simulation's ground truth; uploads
+and bad input.
+
+The recording is made once per module by ``gaitrig demo`` (server + six sim node
+processes over loopback websockets), ~14 s of the simulated walker's back-and-forth walk;
+its parts are then placed where the server's transfer puts them
+(``<data_dir>/recordings/<rec_id>/<node_id>/``).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.api.routes import reports as reports_route
+from app.config import Settings
+from app.main import create_app
+
+ROOT = Path(__file__).resolve().parents[3]
+RECORD_S = 14.0
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class Recorded:
+    base: str
+    token: str
+    data_dir: Path  # the demo's server data folder
+    rec_id: str
+    t_start: float
+
+    def get(self, path: str, timeout: float = 60.0) -> tuple[int, Any, dict[str, str]]:
+        req = urllib.request.Request(self.base + path,
+                                     headers={"Authorization": f"Bearer {self.token}"})
+        try:
+            with urllib.request.urlopen(req, timeout=timeout) as r:
+                raw = r.read()
+                hdr = dict(r.headers.items())
+                if r.headers.get_content_type() == "application/json":
+                    return r.status, json.loads(raw), hdr
+                return r.status, raw, hdr
+        except urllib.error.HTTPError as e:
+            return e.code, json.loads(e.read() or b"null"), dict(e.headers.items())
+
+
+def _req(base: str, path: str, body: Any = None, token: str = "") -> Any:
+    h = {"Content-Type": "application/json"}
+    if token:
+        h["Authorization"] = f"Bearer {token}"
+    r = urllib.request.Request(base + path, headers=h,
+                               data=json.dumps(body).encode() if body is not None else None)
+    with urllib.request.urlopen(r, timeout=10) as f:
+        return json.loads(f.read())
+
+
+@pytest.fixture(scope="module")
+def recorded() -> Iterator[Recorded]:
+    """A ~14 s recording of six sim nodes, on the server; the demo keeps running."""
+    from app.commands.demo import demo_password
+
+    tmp = Path(tempfile.mkdtemp(prefix="gaitrig-report-"))
+    port = _free_port()
+    pw = demo_password(tmp)
+    log = (tmp / "demo.log").open("wb")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", "demo", "--no-viewer", "--no-images", "--port",
+         str(port), "--data-dir", str(tmp)], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"}, start_new_session=True)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.time() + 90
+        while True:
+            assert proc.poll() is None, (tmp / "demo.log").read_text()[-2000:]
+            try:
+                _req(base, "/healthz")
+                break
+            except OSError:
+                assert time.time() < deadline, "server did not start"
+                time.sleep(0.2)
+        token = _req(base, "/api/auth/login", {"username": "admin", "password": pw})["token"]
+        while True:
+            nodes = _req(base, "/api/nodes", token=token)
+            if sum(1 for n in nodes if n["connected"] and n["clock_offset_ms"] is not None) == 6:
+                break
+            assert time.time() < deadline, f"nodes not online: {nodes}"
+            time.sleep(0.3)
+        rec = _req(base, "/api/recordings", {}, token=token)
+        time.sleep(RECORD_S)
+        _req(base, f"/api/recordings/{rec['id']}/stop", {}, token=token)
+        while True:
+            r = _req(base, f"/api/recordings/{rec['id']}", token=token)
+            if r["state"] == "on_nodes":
+                break
+            assert r["state"] == "stopping" and time.time() < deadline + 60, r
+            time.sleep(0.3)
+        server = tmp / "server"
+        for k in range(1, 7):  # what the transfer does: parts land beside each other
+            shutil.copytree(tmp / "nodes" / f"S{k}" / "recordings" / rec["id"],
+                            server / "recordings" / rec["id"] / f"S{k}")
+        yield Recorded(base, token, server, rec["id"], float(r["t_start"]))
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        log.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _summary(a: dict[str, Any]) -> dict[str, Any]:
+    s: dict[str, Any] = a["gait"]["summary"]
+    return s
+
+
+def test_analysis_of_a_real_recording(recorded: Recorded) -> None:
+    code, a, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/analysis")
+    assert code == 200, a
+    assert a["ok"], a["error"]
+    assert a["sensors_used"] == [f"S{k}" for k in range(1, 7)]
+    s = _summary(a)
+    # The sim walker walks at 1.0-1.5 m/s with 0.55-0.85 m steps.
+    assert s["n_steps"] >= 4
+    assert 0.8 < s["walking_speed_m_s"] < 1.7
+    assert 0.5 < s["step_length_m"]["mean"] < 0.9
+    assert 0.03 < s["step_width_m"]["mean"] < 0.25
+    assert 9.0 < a["fusion"]["duration_s"] < RECORD_S + 1.0
+    # Clock offsets of the simulated nodes are tens to hundreds of ms, measured to a few ms.
+    offs = [f["clock_offset_ms"] for f in a["sensors"].values()]
+    assert max(abs(o) for o in offs) > 5.0
+    unc = [f["clock_uncertainty_ms"] for f in a["sensors"].values()]
+    assert all(0.0 <= u < 20.0 for u in unc), unc
+    # The walker is seen from behind by every sensor on one of its passes: labels fixed.
+    assert any(f["mirrored_pct"] > 10 for f in a["sensors"].values())
+    # Poses snapshotted beside the recording, result cached.
+    d = recorded.data_dir / "recordings" / recorded.rec_id
+    assert set(json.loads((d / "sensors.json").read_text())) == {f"S{k}" for k in range(1, 7)}
+    assert len(list((d / "analysis").glob("*.json"))) == 1
+    code2, again, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/analysis")
+    assert again == a
+
+
+def test_one_sided_vs_two_sided(recorded: Recorded) -> None:
+    code, sens, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/sensors")
+    assert code == 200
+    sides: dict[str, list[str]] = {}
+    for s in sens["sensors"]:
+        sides.setdefault(s["side"], []).append(s["id"])
+    # The avenue: S1, S3, S5 on one side of the walkway, S2, S4, S6 on the other.
+    assert sorted(sides) == ["A", "B"]
+    assert sorted(sides["A"]) == ["S1", "S3", "S5"] and sorted(sides["B"]) == ["S2", "S4", "S6"]
+    code, cmp, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/compare"
+                                "?a=S1,S3,S5&b=")
+    assert code == 200, cmp
+    a, b = cmp["a"], cmp["b"]
+    assert a["sensors_used"] == ["S1", "S3", "S5"]
+    assert b["sensors_used"] == [f"S{k}" for k in range(1, 7)]
+    assert a["ok"] and b["ok"], (a["error"], b["error"])
+    assert a["fusion"]["sensors_per_sample"] < b["fusion"]["sensors_per_sample"]
+    wa = [s["width_m"] for s in a["gait"]["steps"]]
+    wb = [s["width_m"] for s in b["gait"]["steps"]]
+    assert wa != wb
+    # Both subsets describe the same walk.
+    assert abs(_summary(a)["walking_speed_m_s"] - _summary(b)["walking_speed_m_s"]) < 0.15
+
+
+def _truth_reference(recorded: Recorded, path: Path) -> None:
+    """Ground-truth joints of the simulated walker on the recording's time axis (CSV)."""
+    from app.nodes.backends.sim import CHUNK_S, WORLD_CYCLE_S, world_time
+    from engine.io.csv import write_skeleton_csv
+    from engine.sim.rig import default_avenue_rig
+    from engine.sim.walker import Walker, WalkerParams
+    from engine.skeleton import KINECT_V2, SkeletonSeries
+
+    rig = default_avenue_rig(0)
+    w = Walker(WalkerParams.random(np.random.default_rng(0)), rig.walkway.start,
+               rig.walkway.end, start_time=0.0, seed=0, horizon_s=WORLD_CYCLE_S + CHUNK_S)
+    tau = np.arange(0.0, RECORD_S + 0.5, 0.01)
+    tw = np.array([world_time(recorded.t_start + x) for x in tau])
+    if np.any(np.diff(tw) <= 0):
+        pytest.skip("the recording crossed the simulated walk's 10-minute cycle boundary")
+    P = w.joints(tw)
+    write_skeleton_csv(path, SkeletonSeries(tau, P, np.full(P.shape[:2], 2, np.uint8),
+                                            KINECT_V2))
+
+
+def _pdf_pages(pdf: bytes, tmp: Path) -> list[np.ndarray]:
+    f = tmp / "report.pdf"
+    f.write_bytes(pdf)
+    subprocess.run(["pdftoppm", "-r", "60", "-png", str(f), str(tmp / "page")], check=True,
+                   timeout=60)
+    pages = sorted(tmp.glob("page-*.png"))
+    return [cv2.imread(str(p)) for p in pages]
+
+
+def _pdf_text(pdf: bytes, tmp: Path) -> str:
+    f = tmp / "t.pdf"
+    f.write_bytes(pdf)
+    out = subprocess.run(["pdftotext", "-layout", str(f), "-"], check=True, timeout=60,
+                         capture_output=True, text=True)
+    return out.stdout
+
+
+def test_recording_report_html_pdf_and_agreement(recorded: Recorded, tmp_path: Path,
+                                                 artifacts_dir: Path) -> None:
+    rid = recorded.rec_id
+    # Attach the ground truth as the reference recording.
+    ref = tmp_path / "truth.csv"
+    _truth_reference(recorded, ref)
+    import httpx
+
+    h = {"Authorization": f"Bearer {recorded.token}"}
+    with open(ref, "rb") as f:
+        r = httpx.post(f"{recorded.base}/api/reports/recordings/{rid}/reference", headers=h,
+                       files={"file": ("truth.csv", f, "text/csv")}, timeout=60)
+    assert r.status_code == 201, r.text
+    assert r.json()["n_steps"] >= 6
+    code, html, hdr = recorded.get(f"/api/reports/recordings/{rid}/report?format=html")
+    assert code == 200, html
+    text = html.decode()
+    assert "<html" not in text.lower()  # a fragment for the console
+    for word in ("Gait report", "Step length", "Step width", "Data quality", "S1", "S6",
+                 "Bland", "data:image/png;base64,"):
+        assert word in text, word
+    assert text.count("data:image/png;base64,") >= 4  # placements, ankles, steps, B–A
+    code, pdf, hdr = recorded.get(f"/api/reports/recordings/{rid}/report?format=pdf")
+    assert code == 200
+    assert hdr["content-type"] == "application/pdf"
+    assert hdr["content-disposition"].startswith("attachment; filename=")
+    assert hdr["content-disposition"].endswith('.pdf"')
+    pages = _pdf_pages(pdf, tmp_path)
+    assert len(pages) >= 2
+    shutil.copy(tmp_path / "report.pdf", artifacts_dir / "report_recording.pdf")
+    cv2.imwrite(str(artifacts_dir / "report_recording_p1.png"), pages[0])
+    for p in pages:
+        assert (p.min(axis=2) < 200).mean() > 0.03  # no blank page
+    # Plots are coloured (tables and text are black on white).
+    colour = [(np.ptp(p.astype(int), axis=2) > 60).mean() for p in pages]
+    assert max(colour) > 0.005, colour
+    txt = _pdf_text(pdf, tmp_path)
+    for word in ("Gait report", "Spatiotemporal", "Walking speed", "Step length",
+                 "Agreement", "ICC"):
+        assert word in txt, word
+    # Agreement against the truth: the fused recording's step lengths are close to it.
+    rows = [ln for ln in txt.splitlines() if "Step length" in ln and "single steps" in ln]
+    assert rows, txt[-3000:]
+
+
+def test_uploaded_file_report(recorded: Recorded, tmp_path: Path) -> None:
+    import httpx
+
+    from engine.io.csv import write_skeleton_csv
+    from engine.sim.straight_walk import synth_walk, walk_skeleton
+    from engine.skeleton import KINECT_V2, SkeletonSeries
+
+    w = synth_walk(n_steps=12, rate=30.0)
+    P = walk_skeleton(w)
+    f = tmp_path / "walk.csv"
+    write_skeleton_csv(f, SkeletonSeries(w.times, P, np.full(P.shape[:2], 2, np.uint8),
+                                         KINECT_V2))
+    h = {"Authorization": f"Bearer {recorded.token}"}
+    r = httpx.post(f"{recorded.base}/api/reports/upload?subject=P07&format=html", headers=h,
+                   files={"file": ("walk.csv", f.read_bytes(), "text/csv")}, timeout=60)
+    assert r.status_code == 200, r.text
+    assert "P07" in r.text and "Step length" in r.text
+    # synth_walk: 0.70 m steps, 0.12 m wide, 0.55 s.
+    assert "70.0" in r.text and "12.0" in r.text
+    r = httpx.post(f"{recorded.base}/api/reports/upload?subject=P07&format=pdf", headers=h,
+                   files={"file": ("walk.csv", f.read_bytes(), "text/csv")}, timeout=60)
+    assert r.status_code == 200
+    assert r.headers["content-disposition"] == 'attachment; filename="gait-report-P07.pdf"'
+    assert r.content.startswith(b"%PDF")
+
+
+def test_bad_input_over_http(recorded: Recorded, tmp_path: Path) -> None:
+    import httpx
+
+    h = {"Authorization": f"Bearer {recorded.token}"}
+    rid = recorded.rec_id
+    code, body, _ = recorded.get("/api/reports/recordings/R19990101-000000-dead/analysis")
+    assert code == 404 and "transfer" in body["detail"]
+    code, body, _ = recorded.get("/api/reports/recordings/..%2F..%2Fetc/analysis")
+    assert code in (400, 404)
+    code, body, _ = recorded.get(f"/api/reports/recordings/{rid}/analysis?sensors=S9")
+    assert code == 400 and "S9" in body["detail"] and "S1" in body["detail"]
+    code, body, _ = recorded.get(f"/api/reports/recordings/{rid}/analysis?sensors=../x")
+    assert code == 400
+    code, body, _ = recorded.get(f"/api/reports/recordings/{rid}/analysis?method=magic")
+    assert code == 422
+    # A file without ankles: the message names what is missing.
+    noank = tmp_path / "noankle.csv"
+    noank.write_text("time,Head_x,Head_y,Head_z\n0,0,0,1.7\n0.1,0.1,0,1.7\n0.2,0.2,0,1.7\n")
+    r = httpx.post(f"{recorded.base}/api/reports/upload", headers=h,
+                   files={"file": ("noankle.csv", noank.read_bytes(), "text/csv")}, timeout=30)
+    assert r.status_code in (400, 422), r.text
+    assert "ankle" in r.json()["detail"].lower()
+    r = httpx.post(f"{recorded.base}/api/reports/upload", headers=h,
+                   files={"file": ("notes.txt", b"hello", "text/plain")}, timeout=30)
+    assert r.status_code == 400 and ".c3d" in r.json()["detail"]
+    r = httpx.post(f"{recorded.base}/api/reports/upload", headers=h,
+                   files={"file": ("empty.c3d", b"", "application/octet-stream")}, timeout=30)
+    assert r.status_code == 400 and "empty" in r.json()["detail"]
+    r = httpx.post(f"{recorded.base}/api/reports/upload", timeout=30,
+                   files={"file": ("walk.csv", b"x", "text/csv")})
+    assert r.status_code == 401
+
+
+# ---------------------------------------------------------------- in-process server, DB
+
+
+@pytest.fixture
+def client(recorded: Recorded, tmp_path: Path) -> Iterator[TestClient]:
+    """The API on a copy of the recording's server data, without nodes."""
+    data = tmp_path / "server"
+    shutil.copytree(recorded.data_dir / "recordings", data / "recordings")
+    s = Settings(data_dir=data, viewer_enabled=False, admin_password="report-pw",
+                 node_token="report-node-token")
+    with TestClient(create_app(s)) as c:
+        r = c.post("/api/auth/login", json={"username": "admin", "password": "report-pw"})
+        c.headers["Authorization"] = f"Bearer {r.json()['token']}"
+        yield c
+
+
+def _add_subject(client: TestClient, rec_id: str, state: str = "complete"
+                 ) -> tuple[int, int, int]:
+    from app.db.data import Project, Recording, Session, Subject
+
+    factory = client.app.state.db_sessions  # type: ignore[attr-defined]
+    with factory() as db:
+        p = Project(name="Gait study")
+        subj = Subject(project=p, code="P01", height_m=1.74, sex="female", birth_year=1980)
+        s1 = Session(subject=subj, date=dt.date(2026, 11, 20), label="baseline")
+        s2 = Session(subject=subj, date=dt.date(2026, 11, 22), label="follow-up")
+        db.add_all([p, subj, s1, s2])
+        db.add(Recording(id=rec_id, session=s1, state=state))
+        empty = Subject(project=p, code="P02")
+        db.add(empty)
+        db.add(Session(subject=empty, date=dt.date(2026, 11, 21), label="baseline"))
+        db.commit()
+        return subj.id, s1.id, empty.id
+
+
+def test_subject_and_session_reports(client: TestClient, recorded: Recorded) -> None:
+    sid, sess_id, empty_id = _add_subject(client, recorded.rec_id)
+    lst = client.get("/api/reports/recordings").json()
+    assert [r["id"] for r in lst] == [recorded.rec_id]
+    assert lst[0]["subject_code"] == "P01" and lst[0]["session_label"] == "baseline"
+    assert isinstance(lst[0]["has_reference"], bool)
+    r = client.get(f"/api/reports/subjects/{sid}")
+    assert r.status_code == 200, r.text
+    assert "P01" in r.text and "174 cm" in r.text and "all sessions (2)" in r.text
+    r = client.get(f"/api/reports/subjects/{sid}?session_id={sess_id}&format=pdf")
+    assert r.status_code == 200
+    assert r.headers["content-disposition"] == \
+        'attachment; filename="gait-report-P01-2026-11-20.pdf"'
+    # Bad input: clear messages, never 500.
+    r = client.get("/api/reports/subjects/9999")
+    assert r.status_code == 404 and "9999" in r.json()["detail"]
+    r = client.get(f"/api/reports/subjects/{empty_id}")
+    assert r.status_code == 422 and "no complete recording" in r.json()["detail"]
+    r = client.get(f"/api/reports/subjects/{sid}?session_id=12345")
+    assert r.status_code == 404 and "session" in r.json()["detail"]
+
+
+def test_incomplete_recording_is_not_reported(client: TestClient, recorded: Recorded) -> None:
+    sid, _, _ = _add_subject(client, recorded.rec_id, state="on_nodes")
+    r = client.get(f"/api/reports/subjects/{sid}")
+    assert r.status_code == 422
+    detail = r.json()["detail"]
+    assert recorded.rec_id in detail and "not complete on the server" in detail
+
+
+def test_recording_without_a_walk_gives_a_clear_message(client: TestClient,
+                                                        recorded: Recorded) -> None:
+    """A recording whose frames hold no body: 200 with ok=False and the reason."""
+    from app.nodes.protocol import encode_skeletons
+    from app.nodes.store import NodeStore
+
+    src = client.app.state.settings.data_dir / "recordings" / recorded.rec_id  # type: ignore[attr-defined]
+    dst = src.parent / "R20260101-000000-0000"
+    store = NodeStore(dst)
+    for node in ("S1", "S2"):
+        meta = json.loads((src / node / "meta.json").read_text())
+        w = store.create_part(node, **{k: v for k, v in meta.items()
+                                       if k in ("t_start_server", "clock_start")})
+        for k in range(60):
+            t = meta["t_start_local"] + k / 30
+            w.append(t, "skeleton", encode_skeletons(k, t, np.zeros((0, 25, 3)),
+                                                      np.zeros((0, 25), np.uint8)))
+        w.close()
+    (dst / "sensors.json").write_text((src / "sensors.json").read_text())
+    r = client.get(f"/api/reports/recordings/{dst.name}/analysis")
+    assert r.status_code == 200
+    a = r.json()
+    assert a["ok"] is False
+    assert "body" in a["error"], a["error"]
+    r = client.get(f"/api/reports/recordings/{dst.name}/report")
+    assert r.status_code == 422 and "no recording gave a gait result" in r.json()["detail"]
+
+
+def test_oversized_upload_is_refused(client: TestClient, monkeypatch: pytest.MonkeyPatch
+                                     ) -> None:
+    monkeypatch.setattr(reports_route, "MAX_UPLOAD_BYTES", 1000)
+    r = client.post("/api/reports/upload",
+                    files={"file": ("big.c3d", b"\0" * 5000, "application/octet-stream")})
+    assert r.status_code == 413 and "MB" in r.json()["detail"]
