@@ -1,0 +1,305 @@
+"""Live depth panels for the console, streamed over a websocket as JPEG.
+
+While anyone watches (a Live page websocket or the 3D view's point cloud), every connected
+node is subscribed to ``depth`` + ``body_index`` as lossless PNG at ``scale`` and ``fps``
+(the node throttles, and renders one image set at a time). The server decodes each new
+pair once, colourises the depth (turbo, 0.5–4.5 m, black = no measurement), paints the
+pixels of tracked bodies in :data:`HIGHLIGHT_RGB` (a magenta the turbo map never uses) and
+encodes one JPEG that all watchers share. The raw depth also feeds the merged point cloud
+of the 3D view (:mod:`app.viewer.live`).
+
+Each watcher has one slot per node holding only the newest panel: a slow browser skips
+frames (counted in ``dropped``) instead of queueing them, and a panel is sent only when a
+new image arrived. Messages are binary: ``uint32`` little-endian header length, a JSON
+header (``node``, ``seq``, ``t_capture`` = capture time in server seconds, ``t_sent``,
+``fps``, ``body_pixels``, ``width``, ``height``) and the JPEG. Text messages carry
+``{"type": "time", "t": server_time, "echo": ...}`` answers to the page's clock pings so
+the page can put the capture time on its own clock and show the end-to-end latency.
+When nobody has watched for :data:`IDLE_UNSUBSCRIBE_S`, the nodes are told to stop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import struct
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from app.nodes.protocol import Subscribe, dump
+from app.server.hub import Hub
+from app.server.registry import LatestImage, NodeSession
+
+log = logging.getLogger("gaitrig.streaming")
+
+HIGHLIGHT_RGB = (255, 0, 200)
+DEPTH_RANGE_MM = (500.0, 4500.0)
+IDLE_UNSUBSCRIBE_S = 5.0
+PAIR_WAIT_S = 0.2  # how long a depth image waits for its body-index image
+
+
+@dataclass
+class DepthFrame:
+    """One decoded depth + body-index pair of a node (images at the subscribed scale)."""
+
+    node: str
+    seq: int
+    t_local: float
+    t_capture: float | None
+    depth_mm: NDArray[np.uint16]
+    body: NDArray[np.bool_] | None
+    scale: float
+
+
+@dataclass
+class Panel:
+    """The newest encoded panel of one node, shared by all watchers."""
+
+    node: str
+    seq: int
+    message: bytes
+    t_capture: float | None
+
+
+def colourise(depth_mm: NDArray[np.uint16], body: NDArray[np.bool_] | None) -> NDArray[np.uint8]:
+    """Depth (mm) → BGR turbo image; body pixels in the highlight colour, no data black."""
+    lo, hi = DEPTH_RANGE_MM
+    norm = np.clip((depth_mm.astype(np.float32) - lo) * (255.0 / (hi - lo)), 0, 255)
+    img = cv2.applyColorMap(norm.astype(np.uint8), cv2.COLORMAP_TURBO)
+    img[depth_mm == 0] = 0
+    if body is not None and body.any():
+        # keep a little depth shading so the body's shape stays readable
+        shade = (0.75 + 0.25 * (1.0 - norm[body] / 255.0))[:, None]
+        img[body] = (np.array(HIGHLIGHT_RGB[::-1], np.float32) * shade).astype(np.uint8)
+    return img
+
+
+def encode_panel(frame: DepthFrame, fps: float, quality: int = 80) -> bytes:
+    """The websocket message of one panel (header + JPEG)."""
+    img = colourise(frame.depth_mm, frame.body)
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise ValueError("JPEG encoding failed")
+    header = {"node": frame.node, "seq": frame.seq, "t_capture": frame.t_capture,
+              "t_sent": time.time(), "fps": round(fps, 2),
+              "body_pixels": int(frame.body.sum()) if frame.body is not None else 0,
+              "width": int(img.shape[1]), "height": int(img.shape[0])}
+    h = json.dumps(header, separators=(",", ":")).encode()
+    return struct.pack("<I", len(h)) + h + buf.tobytes()
+
+
+def decode_pair(node: str, seq: int, depth: LatestImage,
+                body: LatestImage | None) -> DepthFrame:
+    """Decode a node's PNG depth (uint16) and body index (255 = no body)."""
+    d = cv2.imdecode(np.frombuffer(depth.data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if d is None or d.dtype != np.uint16 or d.ndim != 2:
+        raise ValueError(f"node {node} sent a depth image that is not 16-bit PNG")
+    mask = None
+    if body is not None:
+        b = cv2.imdecode(np.frombuffer(body.data, np.uint8), cv2.IMREAD_UNCHANGED)
+        if b is not None and b.shape == d.shape:
+            mask = b != 255
+    return DepthFrame(node, seq, depth.t_local, depth.t_server, d, mask,
+                      float(depth.header.get("scale", 1.0)))
+
+
+@dataclass(eq=False)
+class Watcher:
+    """One browser: newest undelivered panel per node, woken when one arrives.
+
+    Flow control is by credit: at most ``window`` panels may be unacknowledged (the page
+    acknowledges each panel once drawn), so a slow page never has a backlog in the
+    socket buffers; meanwhile newer panels replace older ones in :attr:`pending`.
+    """
+
+    send: Callable[[bytes], Any]
+    window: int = 4
+    pending: dict[str, Panel] = field(default_factory=dict)
+    wake: asyncio.Event = field(default_factory=asyncio.Event)
+    in_flight: int = 0
+    sent: int = 0
+    dropped: int = 0
+
+    def offer(self, panel: Panel) -> None:
+        if panel.node in self.pending:
+            self.dropped += 1  # the browser is behind: replace, never queue
+        self.pending[panel.node] = panel
+        self.wake.set()
+
+    def ack(self, n: int = 1) -> None:
+        """The page drew ``n`` panels."""
+        self.in_flight = max(0, self.in_flight - max(0, n))
+        self.wake.set()
+
+    async def run(self) -> None:
+        """Deliver panels until the socket fails (the caller cancels on disconnect)."""
+        while True:
+            await self.wake.wait()
+            self.wake.clear()
+            while self.pending and self.in_flight < self.window:
+                node = next(iter(self.pending))
+                panel = self.pending.pop(node)
+                self.in_flight += 1
+                await self.send(panel.message)
+                self.sent += 1
+
+
+class LiveStreams:
+    """Subscriptions, decoding and fan-out of the live depth panels.
+
+    Args:
+        hub: the node hub (registry with every node's newest images).
+        fps: requested image rate per node.
+        scale: image downscale factor requested from the nodes.
+    """
+
+    def __init__(self, hub: Hub, fps: float = 15.0, scale: float = 0.5) -> None:
+        self.hub = hub
+        self.fps = fps
+        self.scale = scale
+        self.watchers: set[Watcher] = set()
+        self.cloud_consumers = 0
+        self.panels: dict[str, Panel] = {}
+        self.frames: dict[str, DepthFrame] = {}
+        self.frame_listeners: list[Callable[[DepthFrame], None]] = []
+        # node → the last depth image handled (kept, so identity comparison is safe)
+        self._seen: dict[str, LatestImage] = {}
+        self._seq: dict[str, int] = {}
+        self._rate: dict[str, list[float]] = {}
+        self._subscribed: dict[str, float | None] = {}  # node → connected_at when subscribed
+        self._idle_since: float | None = time.time()
+        self._task: asyncio.Task[None] | None = None
+        self._busy: set[str] = set()
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> None:
+        """Start the pump on the running event loop (idempotent)."""
+        if self._task is None or self._task.done():
+            self._task = asyncio.get_running_loop().create_task(self._pump())
+
+    async def stop(self) -> None:
+        """Stop the pump and unsubscribe the nodes."""
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+        await self._set_subscriptions(False)
+
+    @property
+    def watched(self) -> bool:
+        """Whether anybody needs images now."""
+        return bool(self.watchers) or self.cloud_consumers > 0
+
+    def add_watcher(self, w: Watcher) -> None:
+        """Register a browser; it gets every node's current panel at once."""
+        self.watchers.add(w)
+        for p in self.panels.values():
+            w.offer(p)
+        self.start()
+
+    def remove_watcher(self, w: Watcher) -> None:
+        self.watchers.discard(w)
+
+    def node_fps(self, node: str) -> float:
+        """Panels per second of a node over the last ~2 s."""
+        ts = self._rate.get(node, [])
+        if len(ts) < 2 or ts[-1] <= ts[0]:
+            return 0.0
+        return (len(ts) - 1) / (ts[-1] - ts[0])
+
+    def stats(self) -> dict[str, Any]:
+        """Rates and watcher counters (for the API and the page)."""
+        return {"fps_requested": self.fps, "scale": self.scale, "watchers": len(self.watchers),
+                "nodes": {n: {"fps": round(self.node_fps(n), 2), "seq": self._seq.get(n, 0),
+                              "body_pixels": int(f.body.sum()) if f.body is not None else 0}
+                          for n, f in sorted(self.frames.items())},
+                "sent": sum(w.sent for w in self.watchers),
+                "dropped": sum(w.dropped for w in self.watchers)}
+
+    # ------------------------------------------------------------------ pump
+
+    async def _set_subscriptions(self, on: bool) -> None:
+        for s in list(self.hub.registry.nodes.values()):
+            want = on and s.connected and s.send is not None
+            have = self._subscribed.get(s.id, "none") == s.connected_at
+            if want and not have and s.send is not None:
+                msg = Subscribe(streams=["depth", "body_index"], fps=self.fps, scale=self.scale,
+                                format="png")
+                try:
+                    await s.send(dump(msg))
+                    self._subscribed[s.id] = s.connected_at
+                except Exception as exc:  # a node that just left: retried next round
+                    log.info("could not subscribe %s: %s", s.id, exc)
+            elif not want and s.id in self._subscribed:
+                del self._subscribed[s.id]
+                if s.connected and s.send is not None:
+                    with contextlib.suppress(Exception):
+                        await s.send(dump(Subscribe(streams=["depth"], fps=0)))
+
+    async def _pump(self) -> None:
+        last_sub_check = 0.0
+        while True:
+            now = time.time()
+            if now - last_sub_check > 0.5:
+                last_sub_check = now
+                if self.watched:
+                    self._idle_since = None
+                    await self._set_subscriptions(True)
+                else:
+                    self._idle_since = self._idle_since or now
+                    if now - self._idle_since > IDLE_UNSUBSCRIBE_S and self._subscribed:
+                        await self._set_subscriptions(False)
+            for s in list(self.hub.registry.nodes.values()):
+                self._check(s, now)
+            await asyncio.sleep(0.01)
+
+    def _check(self, s: NodeSession, now: float) -> None:
+        depth = s.images.get("depth")
+        if depth is None or depth.format != "png" or depth is self._seen.get(s.id):
+            return
+        if s.id in self._busy:
+            return
+        body = s.images.get("body_index")
+        paired = body is not None and body.t_local == depth.t_local
+        if not paired and depth.t_server is not None and now - depth.t_server < PAIR_WAIT_S:
+            return  # its body-index image is probably on the wire
+        self._seen[s.id] = depth
+        self._busy.add(s.id)
+        seq = self._seq.get(s.id, 0) + 1
+        self._seq[s.id] = seq
+        asyncio.get_running_loop().create_task(
+            self._process(s.id, seq, depth, body if paired else None))
+
+    async def _process(self, node: str, seq: int, depth: LatestImage,
+                       body: LatestImage | None) -> None:
+        try:
+            rate = self._rate.setdefault(node, [])
+            rate.append(time.time())
+            while rate and rate[0] < rate[-1] - 2.0:
+                rate.pop(0)
+            frame = await asyncio.to_thread(decode_pair, node, seq, depth, body)
+            msg = await asyncio.to_thread(encode_panel, frame, self.node_fps(node))
+        except Exception as exc:
+            log.warning("could not make the live panel of %s: %s", node, exc)
+            return
+        finally:
+            self._busy.discard(node)
+        self.frames[node] = frame
+        panel = Panel(node, seq, msg, frame.t_capture)
+        self.panels[node] = panel
+        for w in list(self.watchers):
+            w.offer(panel)
+        for cb in self.frame_listeners:
+            try:
+                cb(frame)
+            except Exception:
+                log.exception("live frame listener failed")

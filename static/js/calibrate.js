@@ -1,0 +1,101 @@
+// Calibrate page: the sensor poses the rig reports and the planning tools (coverage map
+// from /api/planning, moves through PUT /api/planning/sensors/{id}, save, placement sheet).
+"use strict";
+(() => {
+  function el(tag, attrs = {}, ...children) {
+    const e = document.createElement(tag);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+    for (const c of children) e.append(c);
+    return e;
+  }
+  const $ = (id) => document.getElementById(id);
+  let plan = null;
+  const f2 = (v) => v.toFixed(2);
+
+  function poseOf(T) {
+    const f = [T[0][2], T[1][2], T[2][2]];
+    return { x: T[0][3], y: T[1][3], z: T[2][3], yaw: Math.atan2(f[1], f[0]) * 180 / Math.PI,
+      pitch: Math.asin(Math.max(-1, Math.min(1, f[2]))) * 180 / Math.PI };
+  }
+
+  async function loadPoses() {
+    const body = $("poses");
+    const nodes = await gaitrig.api("/api/nodes");
+    body.replaceChildren();
+    for (const n of nodes) {
+      const s = await gaitrig.api(`/api/nodes/${encodeURIComponent(n.id)}/sensor`);
+      const st = n.connected ? el("span", { class: "ok" }, "online") : el("span", { class: "off" }, "offline");
+      if (!s.T_world_sensor) {
+        body.append(el("tr", {}, el("th", { scope: "row" }, n.id), el("td", {}, st),
+          el("td", { colspan: "5" }, "pose unknown: calibrate this sensor")));
+        continue;
+      }
+      const p = poseOf(s.T_world_sensor);
+      body.append(el("tr", { "data-node": n.id }, el("th", { scope: "row" }, n.id), el("td", {}, st),
+        ...[f2(p.x), f2(p.y), f2(p.z), p.yaw.toFixed(1), p.pitch.toFixed(1)].map((t) => el("td", { class: "num" }, t))));
+    }
+  }
+
+  function showPlan(p) {
+    plan = p;
+    $("pose-source").textContent = `Poses shown: ${p.source}. Marker-based calibration comes from the ` +
+      "calibration wizard (issue 3), which is not part of this console yet; until then the planner starts " +
+      "from the poses the nodes report.";
+    $("coverage").src = `/api/planning/coverage.png?v=${p.version}&t=${Date.now()}`;
+    $("coverage-stats").textContent = `Walkway seen whole by at least one sensor: ${(100 * p.walkway_covered_fraction).toFixed(0)} %; ` +
+      `from both sides: ${(100 * p.walkway_two_sided_fraction).toFixed(0)} %. Whole map: ${(100 * p.covered_fraction).toFixed(0)} % covered.`;
+    $("coverage").dataset.version = String(p.version);
+    const legend = $("legend");
+    legend.replaceChildren(...p.legend.map((l) => el("li", {},
+      el("span", { class: "swatch", style: `background:rgb(${l.rgb.join(",")})` }), " " + l.label)));
+    const sel = $("move-id"), cur = sel.value;
+    sel.replaceChildren(...p.sensors.map((s) => el("option", { value: s.id }, s.id)));
+    if (cur && p.sensors.some((s) => s.id === cur)) sel.value = cur;
+    fillForm();
+    $("planned").replaceChildren(...p.sensors.map((s) => el("tr", { class: s.moved ? "moved" : "", "data-node": s.id },
+      el("th", { scope: "row" }, s.id + (s.moved ? " (moved)" : "")),
+      ...[f2(s.position[0]), f2(s.position[1]), f2(s.position[2]), s.yaw_deg.toFixed(1), s.pitch_deg.toFixed(1)]
+        .map((t) => el("td", { class: "num" }, t)))));
+  }
+
+  function fillForm() {
+    const s = plan && plan.sensors.find((x) => x.id === $("move-id").value);
+    if (!s) return;
+    $("move-x").value = f2(s.position[0]); $("move-y").value = f2(s.position[1]);
+    $("move-z").value = f2(s.position[2]); $("move-yaw").value = s.yaw_deg.toFixed(0);
+    $("move-pitch").value = s.pitch_deg.toFixed(0);
+  }
+
+  async function guarded(fn) {
+    $("plan-error").textContent = "";
+    try { await fn(); } catch (e) { $("plan-error").textContent = e.message; }
+  }
+
+  function init() {
+    $("move-id").addEventListener("change", fillForm);
+    $("move-form").addEventListener("submit", (ev) => {
+      ev.preventDefault();
+      guarded(async () => {
+        const id = $("move-id").value;
+        showPlan(await gaitrig.api(`/api/planning/sensors/${encodeURIComponent(id)}`, { method: "PUT",
+          body: JSON.stringify({ position: [+$("move-x").value, +$("move-y").value, +$("move-z").value],
+            yaw_deg: +$("move-yaw").value, pitch_deg: +$("move-pitch").value }) }));
+      });
+    });
+    $("plan-reset").addEventListener("click", () => guarded(async () => showPlan(await gaitrig.api("/api/planning/reset", { method: "POST" }))));
+    $("save-form").addEventListener("submit", (ev) => {
+      ev.preventDefault();
+      guarded(async () => {
+        const r = await gaitrig.api("/api/planning/save", { method: "POST", body: JSON.stringify({ name: $("save-name").value }) });
+        $("save-status").textContent = `Saved ${r.file} (${r.bytes} bytes) in the server's data folder.`;
+      });
+    });
+    guarded(async () => { await loadPoses(); showPlan(await gaitrig.api("/api/planning")); });
+    // the 3D view's drag handles change the plan too: follow them
+    setInterval(() => guarded(async () => {
+      const p = await gaitrig.api("/api/planning");
+      if (!plan || p.version !== plan.version) showPlan(p);
+    }), 1500);
+  }
+  init();
+})();

@@ -1,0 +1,107 @@
+"""Live page in a real browser: depth panels over the websocket, body highlight, latency."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tests.browser.conftest import LiveServer, changed_fraction, saturated_fraction, screenshot
+
+pytestmark = pytest.mark.browser
+
+HIGHLIGHT = (255, 0, 200)
+
+
+def magenta_fraction(img: np.ndarray) -> float:
+    """Pixels in the body highlight colour (shaded magenta; turbo never has it)."""
+    r, g, b = (img[..., k].astype(int) for k in range(3))
+    return float(((r > 150) & (g < 70) & (b > 110) & (r > b)).mean())
+
+
+def _stats(page: Any) -> dict[str, Any]:
+    return page.evaluate("JSON.parse(JSON.stringify(window.liveStats))")
+
+
+@pytest.fixture
+def live_page(page: Any, live_server: LiveServer) -> Any:
+    page.goto(live_server.base_url + "/live.html")
+    n = live_server.n_nodes
+    page.wait_for_function(
+        f"window.liveStats && Object.keys(window.liveStats.nodes).length === {n} && "
+        "Object.values(window.liveStats.nodes).every(s => s.frames >= 3)", timeout=60000)
+    return page
+
+
+def test_every_depth_panel_streams_and_changes(live_page: Any, live_server: LiveServer,
+                                               artifacts_dir: Path) -> None:
+    page = live_page
+    ids = [f"S{k}" for k in range(1, live_server.n_nodes + 1)]
+    first = {i: screenshot(page, artifacts_dir, f"live_panel_{i}_a",
+                           f"figure[data-node={i}] canvas") for i in ids}
+    s0 = _stats(page)
+    page.wait_for_function(
+        "ids => ids.every(i => window.liveStats.nodes[i].frames >= "
+        f"{json.dumps({i: s0['nodes'][i]['frames'] for i in ids})}[i] + 10)", arg=ids,
+        timeout=60000)
+    full = screenshot(page, artifacts_dir, "live_page")
+    for i in ids:
+        second = screenshot(page, artifacts_dir, f"live_panel_{i}_b", f"figure[data-node={i}] canvas")
+        # a colourised depth image (not a blank/grey canvas) whose pixels change over time
+        assert saturated_fraction(second) > 0.3, f"{i}: panel is not a colour depth map"
+        assert changed_fraction(first[i], second) > 0.001, f"{i}: panel did not change"
+    s1 = _stats(page)
+    lat = [s1["nodes"][i]["latency_ms"] for i in ids]
+    fps = [s1["nodes"][i]["fps"] for i in ids]
+    assert all(v is not None and 0 < v < 5000 for v in lat), lat
+    status = live_server.api("/api/live/status")
+    (artifacts_dir / "browser" / "live_latency.json").write_text(json.dumps(
+        {"latency_ms": dict(zip(ids, lat, strict=True)), "panel_fps": dict(zip(ids, fps, strict=True)),
+         "page_latency_median_ms": s1.get("latency_ms"), "server": status}, indent=1))
+    summary = page.inner_text("#live-summary")
+    assert f"{live_server.n_nodes} sensors streaming" in summary and "latency median" in summary
+    assert full.shape[0] > 0 and saturated_fraction(full) > 0.05
+    assert not page.js_errors
+
+
+def test_tracked_body_is_highlighted(live_page: Any, artifacts_dir: Path) -> None:
+    page = live_page
+    # the simulated walker walks the walkway back and forth: wait until a sensor sees him
+    node = page.wait_for_function(
+        "(() => { for (const [k, s] of Object.entries(window.liveStats.nodes)) "
+        "if (s.body_pixels > 300) return k; return null; })()", timeout=90000).json_value()
+    img = screenshot(page, artifacts_dir, f"live_body_{node}", f"figure[data-node={node}] canvas")
+    caption = page.inner_text(f"figure[data-node={node}] figcaption")
+    empty = [k for k, s in _stats(page)["nodes"].items() if s["body_pixels"] == 0]
+    # the caption follows the newest frame, the screenshot may be one frame older
+    assert magenta_fraction(img) > 0.002, f"{node}: no highlight colour on the panel"
+    assert "body tracked" in caption or "no body tracked" in caption
+    if empty:
+        other = screenshot(page, artifacts_dir, f"live_nobody_{empty[0]}",
+                           f"figure[data-node={empty[0]}] canvas")
+        if _stats(page)["nodes"][empty[0]]["body_pixels"] == 0:
+            assert magenta_fraction(other) < 0.0005
+
+
+def test_live_websocket_requires_login(browser: Any, live_server: LiveServer) -> None:
+    ctx = browser.new_context()
+    try:
+        p = ctx.new_page()
+        p.goto(live_server.base_url + "/index.html")
+        code = p.evaluate("""() => new Promise(res => {
+            const ws = new WebSocket(location.origin.replace('http', 'ws') + '/api/live/ws');
+            ws.onmessage = () => res('message');
+            ws.onclose = (e) => res(e.code);
+            setTimeout(() => res('timeout'), 8000); })""")
+        assert code in (4401, 1006), code  # refused before accept: the browser may see 1006
+        # and the page itself sends an unauthenticated visitor to the login form
+        p.goto(live_server.base_url + "/live.html")
+        p.wait_for_url("**/index.html", timeout=15000)
+    finally:
+        ctx.close()
+    t0 = time.time()
+    assert time.time() - t0 < 1
