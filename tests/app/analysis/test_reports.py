@@ -165,7 +165,7 @@ def test_analysis_of_a_real_recording(recorded: Recorded) -> None:
     assert set(json.loads((d / "sensors.json").read_text())) == {f"S{k}" for k in range(1, 7)}
     assert len(list((d / "analysis").glob("*.json"))) == 1
     code2, again, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/analysis")
-    assert again == a
+    assert code2 == 200 and again == a
 
 
 def test_one_sided_vs_two_sided(recorded: Recorded) -> None:
@@ -217,8 +217,12 @@ def _pdf_pages(pdf: bytes, tmp: Path) -> list[np.ndarray]:
     f.write_bytes(pdf)
     subprocess.run(["pdftoppm", "-r", "60", "-png", str(f), str(tmp / "page")], check=True,
                    timeout=60)
-    pages = sorted(tmp.glob("page-*.png"))
-    return [cv2.imread(str(p)) for p in pages]
+    out = []
+    for p in sorted(tmp.glob("page-*.png")):
+        img = cv2.imread(str(p))
+        assert img is not None, p
+        out.append(np.asarray(img))
+    return out
 
 
 def _pdf_text(pdf: bytes, tmp: Path) -> str:
