@@ -33,11 +33,12 @@ from typing import Any, Literal
 import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, UploadFile, status
 from fastapi.responses import HTMLResponse, Response
+from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
 from app.db.data import Recording as DbRecording
+from app.db.data import ReferenceImport, Subject
 from app.db.data import Session as DbSession
-from app.db.data import Subject
 from app.server import analysis as an
 from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.report.render import ReportData, render_html, render_pdf
@@ -49,6 +50,7 @@ MAX_UPLOAD_BYTES = 200 * 1024 * 1024
 UPLOAD_TYPES = (".c3d", ".trc", ".csv")
 _COPY_CHUNK = 1024 * 1024
 _SENSOR_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+_STORED_RE = re.compile(r"^[0-9a-f]{8,64}\.(c3d|trc|csv)$")
 
 Fmt = Literal["html", "pdf"]
 MethodQ = Literal["crossing", "heelstrike"]
@@ -133,18 +135,36 @@ def _reference_file(rec_dir: Path) -> tuple[Path, dict[str, Any]] | None:
     return (f, meta) if f.is_file() else None
 
 
-def _references(rec_dirs: dict[str, Path], method: str) -> dict[str, list[dict[str, Any]]]:
-    """rec_id → reference steps shifted onto the recording's time axis."""
+def _references(db: Any, data_dir: Path, rec_dirs: dict[str, Path], method: str
+                ) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
+    """rec_id → reference steps on the recording's time axis, and notes on failures.
+
+    A reference attached on this page wins; otherwise the newest one imported on the
+    Subjects page (data-management ``ReferenceImport``, assumed to start with the
+    recording).
+    """
     out: dict[str, list[dict[str, Any]]] = {}
+    notes: list[str] = []
     for rec_id, d in rec_dirs.items():
         ref = _reference_file(d)
-        if ref is None:
+        if ref is not None:
+            path, off = ref[0], float(ref[1].get("offset_s") or 0.0)
+        else:
+            imp = db.scalars(select(ReferenceImport)
+                             .where(ReferenceImport.recording_id == rec_id)
+                             .order_by(ReferenceImport.created_at.desc())).first()
+            if imp is None or not _STORED_RE.match(imp.stored_name):
+                continue
+            path, off = Path(data_dir) / "references" / rec_id / imp.stored_name, 0.0
+            if not path.is_file():
+                continue
+        try:
+            steps = an.reference_steps(path, method)
+        except GaitrigError as exc:
+            notes.append(f"Recording {rec_id}: the reference could not be used — {exc}")
             continue
-        path, meta = ref
-        steps = an.reference_steps(path, method)
-        off = float(meta.get("offset_s") or 0.0)
         out[rec_id] = [{**s, "time_s": s["time_s"] + off} for s in steps]
-    return out
+    return out, notes
 
 
 async def _save_upload(request: Request, file: UploadFile, dest_dir: Path) -> Path:
@@ -294,8 +314,9 @@ def recording_report(rec_id: str, user: CurrentUser, settings: SettingsDep, hub:
     link = _recording_links(db).get(rec_id, {})
     code = str(link.get("subject_code") or "unassigned")
     title = "Gait report" + ("" if sub is None else f" — sensors {an.subset_label(sub)}")
+    refs, ref_notes = _references(db, settings.data_dir, {rec_id: _rec_dir(settings, rec_id)},
+                                  method)
     try:
-        refs = _references({rec_id: _rec_dir(settings, rec_id)}, method)
         data = an.build_report(code, [res], title=title,
                                session_label=str(link.get("session_label") or ""),
                                session_date=str(link.get("session_date") or ""),
@@ -304,6 +325,7 @@ def recording_report(rec_id: str, user: CurrentUser, settings: SettingsDep, hub:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
     except InputError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    data.quality.notes += ref_notes
     return _respond(data, format, f"gait-report-{code}-{rec_id}")
 
 
@@ -348,6 +370,7 @@ def subject_report(subject_id: int, user: CurrentUser, settings: SettingsDep, hu
                             f"{where} has no complete recording to report on{more}; record a "
                             "walk and transfer it to the server first")
     sess = sessions[0] if session_id is not None else None
+    refs, ref_notes = _references(db, settings.data_dir, rec_dirs, method)
     try:
         data = an.build_report(
             subject.code, analyses,
@@ -356,11 +379,12 @@ def subject_report(subject_id: int, user: CurrentUser, settings: SettingsDep, hu
             session_label=(sess.label if sess else f"all sessions ({len(sessions)})"),
             session_date=(str(sess.date) if sess else ", ".join(
                 sorted({str(s.date) for s in sessions if s.date}))),
-            references=_references(rec_dirs, method))
+            references=refs)
     except InsufficientDataError as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{where}: {exc}") from exc
     except InputError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    data.quality.notes += ref_notes
     for s in skipped:
         data.quality.notes.append(f"Recording {s} was not used: it is not complete on the "
                                   "server.")

@@ -1,0 +1,315 @@
+// Reports page: subject/session report (inline HTML fragment + PDF link), one- vs
+// two-sided comparison of a recording's sensor subsets, reference upload, file analysis.
+"use strict";
+(() => {
+  const $ = (id) => document.getElementById(id);
+  const el = (tag, text, attrs = {}) => {
+    const e = document.createElement(tag);
+    if (text !== undefined && text !== null) e.textContent = text;
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+    return e;
+  };
+
+  // fetch without the JSON content type (multipart uploads, HTML, PDF blobs)
+  async function call(path, options = {}) {
+    const r = await fetch(path, { credentials: "same-origin", ...options });
+    if (r.status === 401) { window.location.href = "/index.html"; throw new Error("not logged in"); }
+    if (!r.ok) {
+      let d = r.statusText;
+      try { d = (await r.json()).detail || d; } catch (e) { /* not JSON */ }
+      throw new Error(d);
+    }
+    return r;
+  }
+  const json = async (path, options) => (await call(path, options)).json();
+
+  function say(id, text, isError = false) {
+    const p = $(id);
+    p.textContent = text;
+    p.classList.toggle("error", isError);
+  }
+
+  function showReport(html) {
+    $("report").innerHTML = html; // server-rendered, escaped by the template engine
+    $("report-section").hidden = false;
+    $("report").focus();
+  }
+
+  function setLink(a, href) {
+    if (href) { a.href = href; a.removeAttribute("aria-disabled"); }
+    else { a.href = "#"; a.setAttribute("aria-disabled", "true"); }
+  }
+
+  // ------------------------------------------------------------------ subject report
+  let subjects = [];
+
+  function subjectQuery(format) {
+    const sid = $("subject").value;
+    if (!sid) return null;
+    const q = new URLSearchParams({ format, method: $("method").value,
+      estimator: $("estimator").value });
+    if ($("session").value) q.set("session_id", $("session").value);
+    return `/api/reports/subjects/${encodeURIComponent(sid)}?${q}`;
+  }
+
+  async function loadSubjects() {
+    try {
+      subjects = await json("/api/subjects");
+    } catch (e) { say("subject-msg", "Cannot load subjects: " + e.message, true); return; }
+    const sel = $("subject");
+    sel.replaceChildren(el("option", subjects.length ? "Choose a subject…" : "No subjects yet", { value: "" }));
+    for (const s of subjects) {
+      sel.append(el("option", `${s.code} — ${s.n_sessions} session(s), ${s.n_recordings} recording(s)`,
+        { value: String(s.id) }));
+    }
+    if (!subjects.length) say("subject-msg", "Add a subject and record a walk on the Record page first.");
+  }
+
+  async function subjectChanged() {
+    const sid = $("subject").value;
+    const sess = $("session");
+    sess.replaceChildren(el("option", "All sessions", { value: "" }));
+    setLink($("pdf"), null);
+    if (!sid) return;
+    try {
+      const s = await json(`/api/subjects/${encodeURIComponent(sid)}`);
+      for (const x of s.sessions || []) {
+        const done = (x.recordings || []).filter((r) => r.state === "complete").length;
+        sess.append(el("option", `${x.date} ${x.label || ""} (${done} complete recording(s))`,
+          { value: String(x.id) }));
+      }
+    } catch (e) { say("subject-msg", e.message, true); }
+    setLink($("pdf"), subjectQuery("pdf"));
+  }
+
+  async function showSubject(ev) {
+    ev.preventDefault();
+    const url = subjectQuery("html");
+    if (!url) { say("subject-msg", "Choose a subject first.", true); return; }
+    say("subject-msg", "Analysing the recordings… (a first analysis takes a few seconds)");
+    $("show").disabled = true;
+    try {
+      const r = await call(url);
+      showReport(await r.text());
+      say("subject-msg", "Report below.");
+    } catch (e) {
+      say("subject-msg", e.message, true);
+    } finally { $("show").disabled = false; }
+  }
+
+  // ------------------------------------------------------------------ one vs two sided
+  let sensors = [];
+
+  function checks(set) { return [...$(set).querySelectorAll("input[type=checkbox]")]; }
+  function chosen(set) { return checks(set).filter((c) => c.checked).map((c) => c.value); }
+  function pick(set, ids) { for (const c of checks(set)) c.checked = ids.includes(c.value); updateRecLinks(); }
+
+  function buildSubset(set, initial) {
+    const box = $(set).querySelector(".checks");
+    box.replaceChildren();
+    for (const s of sensors) {
+      const id = `${set}-${s.id}`;
+      const cb = el("input", null, { type: "checkbox", id, value: s.id });
+      cb.checked = initial.includes(s.id);
+      cb.addEventListener("change", updateRecLinks);
+      const lab = el("label", null, { for: id });
+      lab.append(cb, ` ${s.id}${s.side ? " (side " + s.side + ")" : ""}`);
+      box.append(lab);
+    }
+    const presets = $(set).querySelector(".presets");
+    presets.replaceChildren();
+    const groups = [["All", sensors.map((s) => s.id)]];
+    for (const side of ["A", "B"]) {
+      const ids = sensors.filter((s) => s.side === side).map((s) => s.id);
+      if (ids.length) groups.push([`Side ${side} only`, ids]);
+    }
+    for (const [label, ids] of groups) {
+      const b = el("button", label, { type: "button", class: "secondary" });
+      b.addEventListener("click", () => pick(set, ids));
+      presets.append(b);
+    }
+  }
+
+  function recQuery(format) {
+    const rid = $("recording").value;
+    const a = chosen("set-a");
+    if (!rid || !a.length) return null;
+    const q = new URLSearchParams({ format, sensors: a.join(","), method: $("method").value,
+      estimator: $("estimator").value });
+    return `/api/reports/recordings/${encodeURIComponent(rid)}/report?${q}`;
+  }
+  function updateRecLinks() { setLink($("rec-pdf"), recQuery("pdf")); }
+
+  async function loadRecordings() {
+    let recs = [];
+    try { recs = await json("/api/reports/recordings"); } catch (e) { say("cmp-msg", e.message, true); return; }
+    const sel = $("recording");
+    sel.replaceChildren(el("option", recs.length ? "Choose a recording…" : "No recording on the server yet", { value: "" }));
+    for (const r of recs) {
+      const who = r.subject_code ? `${r.subject_code}, ${r.session_date} ${r.session_label || ""}` : "no subject";
+      sel.append(el("option", `${r.id} — ${who} — ${r.sensors.length} sensors`, { value: r.id }));
+    }
+  }
+
+  async function recordingChanged() {
+    const rid = $("recording").value;
+    $("cmp-table").hidden = true;
+    sensors = [];
+    if (!rid) { buildSubset("set-a", []); buildSubset("set-b", []); updateRecLinks(); return; }
+    try {
+      sensors = (await json(`/api/reports/recordings/${encodeURIComponent(rid)}/sensors`)).sensors;
+    } catch (e) { say("cmp-msg", e.message, true); return; }
+    const sideA = sensors.filter((s) => s.side === "A").map((s) => s.id);
+    buildSubset("set-a", sideA.length ? sideA : sensors.slice(0, 1).map((s) => s.id));
+    buildSubset("set-b", sensors.map((s) => s.id));
+    say("cmp-msg", sideA.length ? "Subset A: the sensors on one side of the walkway; B: all sensors." : "");
+    updateRecLinks();
+    refreshReference();
+  }
+
+  const ms = (p, scale, d) => (!p || p.mean === null ? "—"
+    : `${(scale * p.mean).toFixed(d)} ± ${p.sd === null ? "—" : (scale * p.sd).toFixed(d)}`);
+
+  function cmpRows(a, b) {
+    const sa = a.ok ? a.gait.summary : null, sb = b.ok ? b.gait.summary : null;
+    const num = (s, f) => (s ? f(s) : null);
+    const rows = [
+      ["Sensors", a.sensors_used.join(", "), b.sensors_used.join(", "), null],
+      ["Sensors per joint sample", a.fusion ? a.fusion.sensors_per_sample.toFixed(2) : "—",
+        b.fusion ? b.fusion.sensors_per_sample.toFixed(2) : "—", null],
+      ["Steps analysed", num(sa, (s) => String(s.n_steps)) || "—", num(sb, (s) => String(s.n_steps)) || "—", null],
+    ];
+    const params = [
+      ["Walking speed (m/s)", (s) => s.walking_speed_m_s, 1, 2, false],
+      ["Cadence (steps/min)", (s) => s.cadence_steps_min, 1, 1, false],
+      ["Step length (cm)", (s) => s.step_length_m, 100, 1, true],
+      ["Step width (cm)", (s) => s.step_width_m, 100, 1, true],
+      ["Step time (s)", (s) => s.step_time_s, 1, 3, true],
+      ["Stride length (cm)", (s) => s.stride_length_m, 100, 1, true],
+    ];
+    for (const [label, get, scale, d, hasSd] of params) {
+      const pa = sa ? get(sa) : null, pb = sb ? get(sb) : null;
+      const mean = (p) => (p === null || p === undefined ? null : hasSd ? p.mean : p);
+      const txt = (p) => (p === null || p === undefined ? "—" : hasSd ? ms(p, scale, d) : (scale * p).toFixed(d));
+      const diff = mean(pa) !== null && mean(pb) !== null ? (scale * (mean(pb) - mean(pa))).toFixed(d) : "—";
+      rows.push([label, txt(pa), txt(pb), diff]);
+    }
+    return rows;
+  }
+
+  async function compare() {
+    const rid = $("recording").value;
+    const a = chosen("set-a"), b = chosen("set-b");
+    if (!rid) { say("cmp-msg", "Choose a recording first.", true); return; }
+    if (!a.length || !b.length) { say("cmp-msg", "Tick at least one sensor in each subset.", true); return; }
+    say("cmp-msg", "Analysing both subsets…");
+    $("compare").disabled = true;
+    try {
+      const q = new URLSearchParams({ a: a.join(","), b: b.join(","), method: $("method").value,
+        estimator: $("estimator").value });
+      const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/compare?${q}`);
+      const body = $("cmp-table").querySelector("tbody");
+      body.replaceChildren();
+      for (const [label, va, vb, d] of cmpRows(r.a, r.b)) {
+        const tr = el("tr");
+        tr.append(el("th", label, { scope: "row" }), el("td", va), el("td", vb), el("td", d === null ? "" : d));
+        body.append(tr);
+      }
+      $("cmp-a-h").textContent = `A: ${a.join(", ")}`;
+      $("cmp-b-h").textContent = `B: ${b.join(", ")}`;
+      $("cmp-table").hidden = false;
+      const errs = [r.a, r.b].filter((x) => !x.ok).map((x) => `${x.sensors_used.join(", ")}: ${x.error}`);
+      say("cmp-msg", errs.length ? "No gait result for " + errs.join("; ") : "Mean ± SD per subset.", errs.length > 0);
+    } catch (e) {
+      say("cmp-msg", e.message, true);
+    } finally { $("compare").disabled = false; }
+  }
+
+  async function recReport() {
+    const url = recQuery("html");
+    if (!url) { say("cmp-msg", "Choose a recording and at least one sensor in subset A.", true); return; }
+    say("cmp-msg", "Building the report…");
+    try {
+      showReport(await (await call(url)).text());
+      say("cmp-msg", "Report of subset A below.");
+    } catch (e) { say("cmp-msg", e.message, true); }
+  }
+
+  // ------------------------------------------------------------------ reference
+  async function refreshReference() {
+    const rid = $("recording").value;
+    if (!rid) { $("ref-state").textContent = ""; return; }
+    try {
+      const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference`);
+      $("ref-state").textContent = r.attached
+        ? `Attached: ${r.filename} (${r.n_steps} steps, starts ${r.offset_s} s into the recording).`
+        : "No reference attached on this page (a reference imported on the Subjects page is used if present).";
+      $("ref-remove").disabled = !r.attached;
+    } catch (e) { $("ref-state").textContent = e.message; }
+  }
+
+  async function attachReference(ev) {
+    ev.preventDefault();
+    const rid = $("recording").value;
+    const f = $("ref-file").files[0];
+    if (!rid || !f) { say("ref-msg", "Choose a recording and a file.", true); return; }
+    const fd = new FormData();
+    fd.append("file", f);
+    say("ref-msg", "Uploading and analysing the reference…");
+    try {
+      const q = new URLSearchParams({ offset_s: $("ref-offset").value || "0" });
+      const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference?${q}`, { method: "POST", body: fd });
+      say("ref-msg", `Attached (${r.n_steps} reference steps). Reports of this recording now include an agreement section.`);
+      refreshReference();
+    } catch (e) { say("ref-msg", e.message, true); }
+  }
+
+  async function removeReference() {
+    const rid = $("recording").value;
+    if (!rid) return;
+    try {
+      await json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference`, { method: "DELETE" });
+      say("ref-msg", "Reference removed.");
+      refreshReference();
+    } catch (e) { say("ref-msg", e.message, true); }
+  }
+
+  // ------------------------------------------------------------------ file analysis
+  async function analyseFile(format) {
+    const f = $("file").files[0];
+    if (!f) { say("file-msg", "Choose a .c3d, .trc or .csv file.", true); return; }
+    const code = $("file-subject").value.trim() || "upload";
+    const fd = new FormData();
+    fd.append("file", f);
+    const q = new URLSearchParams({ format, subject: code, method: $("file-method").value });
+    say("file-msg", `Analysing ${f.name}…`);
+    try {
+      const r = await call(`/api/reports/upload?${q}`, { method: "POST", body: fd });
+      if (format === "pdf") {
+        const blob = await r.blob();
+        const a = el("a", null, { href: URL.createObjectURL(blob), download: `gait-report-${code}.pdf` });
+        document.body.append(a); a.click(); a.remove();
+        say("file-msg", "PDF downloaded.");
+      } else {
+        showReport(await r.text());
+        say("file-msg", "Report below.");
+      }
+    } catch (e) { say("file-msg", e.message, true); }
+  }
+
+  // ------------------------------------------------------------------ wiring
+  $("subject").addEventListener("change", subjectChanged);
+  for (const id of ["session", "method", "estimator"]) {
+    $(id).addEventListener("change", () => { setLink($("pdf"), subjectQuery("pdf")); updateRecLinks(); });
+  }
+  $("subject-form").addEventListener("submit", showSubject);
+  $("recording").addEventListener("change", recordingChanged);
+  $("compare").addEventListener("click", compare);
+  $("rec-report").addEventListener("click", recReport);
+  $("ref-form").addEventListener("submit", attachReference);
+  $("ref-remove").addEventListener("click", removeReference);
+  $("file-form").addEventListener("submit", (ev) => { ev.preventDefault(); analyseFile("html"); });
+  $("file-pdf").addEventListener("click", () => analyseFile("pdf"));
+  loadSubjects();
+  loadRecordings();
+})();
