@@ -250,6 +250,8 @@ class KsccSide:
         return {"name": self.name, "source": self.source.label(), "kind": self.source.kind,
                 "link": self.link_state, "model": self.model,
                 "joint_set": self.joint_set.name if self.joint_set else None,
+                "bones": ([[int(p), j] for j, p in enumerate(self.joint_set.parent_indices)
+                           if p >= 0] if self.joint_set else []),
                 "frames": self.frames, "countdown_s": countdown, "progress": prog,
                 "calibrated": self.calibrated, "calibration": cal, "message": message,
                 "restarts": self.restarts, "skeleton": skel}
