@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import threading
 import time
 from collections import deque
@@ -57,10 +58,36 @@ from app.nodes.protocol import (
 )
 from app.nodes.ringbuffer import RingBuffer
 from app.nodes.store import NodeStore, PartWriter
-from app.transfer import Manifest, TransferError, build_manifest, read_chunk
+from app.transfer import (
+    DEFAULT_CHUNK_SIZE,
+    Manifest,
+    TransferError,
+    build_manifest,
+    read_chunk,
+)
 from engine.errors import GaitrigError, InputError
 
 log = logging.getLogger("gaitrig.node")
+
+
+_corrupted: set[tuple[str, int]] = set()
+
+
+async def _test_chunk_hooks(name: str, idx: int, data: bytes) -> bytes:
+    """TEST HOOKS of the transfer acceptance tests (environment of the node process):
+    ``GAITRIG_TEST_CHUNK_DELAY_S`` slows every chunk down (so a transfer can be
+    interrupted), ``GAITRIG_TEST_CORRUPT_CHUNK=<file>:<index>`` flips one byte of that
+    chunk the first time it is sent. ``GAITRIG_TEST_CHUNK_SIZE`` (in :meth:`_manifest`)
+    makes small parts span many chunks."""
+    delay = float(os.environ.get("GAITRIG_TEST_CHUNK_DELAY_S", "0") or 0)
+    if delay > 0:
+        await asyncio.sleep(delay)
+    target = os.environ.get("GAITRIG_TEST_CORRUPT_CHUNK")
+    if target and target == f"{name}:{idx}" and (name, idx) not in _corrupted and data:
+        _corrupted.add((name, idx))
+        log.warning("TEST HOOK: flipping one byte of %s chunk %d", name, idx)
+        data = bytes([data[0] ^ 0xFF]) + data[1:]
+    return data
 
 
 class NodeRefusedError(RuntimeError):
@@ -310,7 +337,9 @@ class NodeAgent:
             folder = self.store.root / rec_id
             names = [n for n in ("meta.json", "index.json", "frames.bin")
                      if (folder / n).exists()]
-            self._manifests[rec_id] = build_manifest(folder, rec_id, self.node_id, names)
+            chunk = int(os.environ.get("GAITRIG_TEST_CHUNK_SIZE", "0")) or DEFAULT_CHUNK_SIZE
+            self._manifests[rec_id] = build_manifest(folder, rec_id, self.node_id, names,
+                                                     chunk_size=chunk)
         return self._manifests[rec_id]
 
     async def _serve_manifest(self, ws: ClientConnection, msg: ManifestRequest) -> None:
@@ -329,6 +358,7 @@ class NodeAgent:
             try:
                 m = await asyncio.to_thread(self._manifest, msg.rec_id)
                 data = await asyncio.to_thread(read_chunk, folder, m, msg.file, idx)
+                data = await _test_chunk_hooks(msg.file, idx, data)
                 await ws.send(encode_binary(header, data))
             except (GaitrigError, TransferError, OSError) as exc:
                 await ws.send(encode_binary({**header, "error": str(exc)}))

@@ -147,6 +147,23 @@ class DataSync:
         except InputError as exc:
             log.info("recording %s: no transfer now (%s)", rec.id, exc)
 
+    def _cancel_transfers_of(self, nodes: set[str]) -> None:
+        # A node that dropped will not answer its pending chunk requests: stop waiting
+        # for the reply timeout, the verified chunks stay and are resumed on reconnect.
+        tasks: dict[str, asyncio.Task[None]] = getattr(self.hub.transfers, "_tasks", {})
+        for rec_id, task in list(tasks.items()):
+            rec = self.hub.recordings.recordings.get(rec_id)
+            if rec is None:
+                continue
+            hit = [n for n, p in rec.parts.items() if n in nodes and p.state == "transferring"]
+            if hit:
+                log.warning("recording %s: node %s dropped during the transfer; it resumes when "
+                            "the node is back", rec_id, ", ".join(hit))
+                for n in hit:
+                    rec.parts[n].reason = (f"{TRANSFER_FAILED} (node {n} disconnected during "
+                                           "the transfer); it resumes when the node is back")
+                task.cancel()
+
     def _repair(self, rec: LiveRecording) -> None:
         # A part left "transferring" by a server that died mid-transfer: nothing is
         # transferring it now, so it is back to being on its node (resumed later).
@@ -160,12 +177,17 @@ class DataSync:
 
     def step(self) -> None:
         """One pass: start/retry transfers and write every tracked recording's state."""
-        reconnected = set()
+        reconnected, dropped = set(), set()
         for s in self.hub.registry.nodes.values():
-            if s.connected and not self._connected.get(s.id, False):
+            was = self._connected.get(s.id, False)
+            if s.connected and not was:
                 reconnected.add(s.id)
+            if was and not s.connected:
+                dropped.add(s.id)
             self._connected[s.id] = s.connected
         live = self.hub.recordings.recordings
+        if dropped:
+            self._cancel_transfers_of(dropped)
         with self.db_sessions() as db:
             rows = db.scalars(select(m.Recording).where(
                 m.Recording.state != "complete")).all()
