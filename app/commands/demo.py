@@ -125,14 +125,8 @@ def run(args: argparse.Namespace) -> int:
         # stops the children in order (no half-imported tracebacks from the children).
         procs.append(subprocess.Popen(serve, env=env, preexec_fn=_die_with_parent,
                                       start_new_session=True))
-        while True:  # wait for the API
-            if stopping or procs[0].poll() is not None:
-                raise SystemExit("gaitrig demo: the server did not start (see messages above)")
-            try:
-                _request(base + "/healthz")
-                break
-            except (urllib.error.URLError, OSError):
-                time.sleep(0.2)
+        # Nodes start together with the server (they retry until it listens): their
+        # start-up overlaps the server's instead of following it.
         for k in range(1, args.nodes + 1):
             node = [*py, "node", "--id", f"S{k}", "--backend", "sim", "--server",
                          f"ws://{args.host}:{args.port}", "--data-dir",
@@ -142,6 +136,14 @@ def run(args: argparse.Namespace) -> int:
                 node.append("--no-images")
             procs.append(subprocess.Popen(node, env=env, preexec_fn=_die_with_parent,
                                           start_new_session=True))
+        while True:  # wait for the API
+            if stopping or procs[0].poll() is not None:
+                raise SystemExit("gaitrig demo: the server did not start (see messages above)")
+            try:
+                _request(base + "/healthz")
+                break
+            except (urllib.error.URLError, OSError):
+                time.sleep(0.2)
         print(f"\ngaitrig demo: console at {base}/  (login: admin / {password})", flush=True)
         print(f"gaitrig demo: {args.nodes} simulated sensors starting; Ctrl-C stops everything",
               flush=True)

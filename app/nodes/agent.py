@@ -172,6 +172,7 @@ class NodeAgent:
         self._recs: dict[str, _Rec] = {}
         self._early_stops: dict[str, RecStop] = {}
         self._manifests: dict[str, Manifest] = {}
+        self._ever_connected = False
         self._tasks: set[asyncio.Future[None]] = set()
         self._ws: ClientConnection | None = None
         self._out: asyncio.Queue[str | bytes] = asyncio.Queue(maxsize=256)
@@ -251,7 +252,8 @@ class NodeAgent:
                 break
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._stop.wait(), backoff)
-            backoff = min(backoff * 2.0, 5.0)
+            # Until the first connection (server still starting) retry quickly.
+            backoff = min(backoff * 2.0, 5.0 if self._ever_connected else 1.0)
 
     async def _session(self, ws: ClientConnection) -> None:
         assert self.info is not None
@@ -266,6 +268,7 @@ class NodeAgent:
         if not isinstance(msg, Welcome):
             raise ProtocolError(f"expected welcome, got {msg.type}")
         log.info("connected to %s", self.server_url)
+        self._ever_connected = True
         self._ws = ws
         while not self._out.empty():  # stale frames from before the reconnect
             self._out.get_nowait()
