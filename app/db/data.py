@@ -20,6 +20,7 @@ when the server opens its database.
 from __future__ import annotations
 
 import json
+import logging
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -210,6 +211,8 @@ def upgrade_database(engine: Engine) -> None:
 
     from alembic import command
 
+    # alembic announces every plugin at INFO; only the migrations themselves matter
+    logging.getLogger("alembic.runtime.plugins").setLevel(logging.WARNING)
     cfg = Config()
     cfg.set_main_option("script_location", str(ALEMBIC_DIR))
     cfg.set_main_option("sqlalchemy.url", engine.url.render_as_string(hide_password=False))

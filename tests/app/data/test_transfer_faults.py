@@ -43,27 +43,16 @@ def transferring(rig: Rig, rec_id: str) -> dict[str, Any] | None:
     return r if busy else None
 
 
-@pytest.mark.timeout(150)
-def test_corrupted_chunk_is_detected_and_refetched(make_rig: Any, tmp_path: Path) -> None:
-    rig: Rig = make_rig({"GAITRIG_TEST_CHUNK_SIZE": "1024",
+@pytest.mark.timeout(240)
+def test_corrupt_chunk_server_kill_and_node_cut_all_resume(make_rig: Any, tmp_path: Path
+                                                           ) -> None:
+    rig: Rig = make_rig({"GAITRIG_TEST_CHUNK_SIZE": "512", "GAITRIG_TEST_CHUNK_DELAY_S": "0.1",
                          "GAITRIG_TEST_CORRUPT_CHUNK": "frames.bin:1"})
-    rig.start_node("S1")
+    node = rig.start_node("S1")
     rig.wait_online(["S1"])
     ids = setup_session(rig)
-    rec_id = record(rig, ids["session"]["id"], seconds=2.0)
-    r = wait_state(rig, rec_id, {"complete", "incomplete"})
-    assert r["state"] == "complete", r
-    assert "flipping one byte of frames.bin chunk 1" in rig.log_text("S1")
-    assert_identical(rig, tmp_path / "server", rec_id, "S1")
 
-
-@pytest.mark.timeout(150)
-def test_server_killed_mid_transfer_resumes(make_rig: Any, tmp_path: Path) -> None:
-    rig: Rig = make_rig({"GAITRIG_TEST_CHUNK_SIZE": "512",
-                         "GAITRIG_TEST_CHUNK_DELAY_S": "0.2"})
-    rig.start_node("S1")
-    rig.wait_online(["S1"])
-    ids = setup_session(rig)
+    # 1. the server is killed mid-transfer and restarted: the transfer resumes
     rec_id = record(rig, ids["session"]["id"], seconds=3.0)
     wait_for(lambda: transferring(rig, rec_id), 30, "the transfer to be under way", step=0.05)
     rig.kill_server()
@@ -73,15 +62,12 @@ def test_server_killed_mid_transfer_resumes(make_rig: Any, tmp_path: Path) -> No
     r = wait_state(rig, rec_id, {"complete"}, timeout=90)
     assert r["parts"][0]["state"] == "complete"
     assert_identical(rig, tmp_path / "server", rec_id, "S1")
+    # the node flipped a byte of one chunk it sent; the part still arrived intact, so the
+    # damaged chunk was rejected and fetched again
+    assert "flipping one byte of frames.bin chunk 1" in rig.log_text("S1")
 
-
-@pytest.mark.timeout(150)
-def test_node_socket_cut_mid_transfer_resumes(make_rig: Any, tmp_path: Path) -> None:
-    rig: Rig = make_rig({"GAITRIG_TEST_CHUNK_SIZE": "512",
-                         "GAITRIG_TEST_CHUNK_DELAY_S": "0.2"})
-    node = rig.start_node("S1")
-    rig.wait_online(["S1"])
-    ids = setup_session(rig)
+    # 2. the node's socket is cut mid-transfer (killed): incomplete with the reason, then
+    # resumed when the node is back
     rec_id = record(rig, ids["session"]["id"], seconds=3.0)
     wait_for(lambda: transferring(rig, rec_id), 30, "the transfer to be under way", step=0.05)
     node.send_signal(signal.SIGKILL)  # the socket drops without a close frame
