@@ -4,7 +4,8 @@ The backbone's :class:`app.server.recording.RecordingManager` knows the node par
 every recording and :class:`app.server.transfer.TransferManager` copies them to the
 server. :class:`DataSync` runs beside them (twice a second) and
 
-* starts the transfer of every closed part as soon as a recording is stopped, and
+* starts the transfer of every closed part as soon as a recording is stopped (filed
+  under a session or not), and
   retries a failed one when its node reconnects or after ``retry_s`` (or at once on
   request, :meth:`DataSync.retry`);
 * mirrors states, reasons, sizes and progress into the :mod:`app.db.data` tables, so
@@ -189,20 +190,24 @@ class DataSync:
         if dropped:
             self._cancel_transfers_of(dropped)
         with self.db_sessions() as db:
-            rows = db.scalars(select(m.Recording).where(
-                m.Recording.state != "complete")).all()
-            for row in rows:
-                rec = live.get(row.id)
-                if rec is None:
-                    if row.state != "incomplete":
-                        row.state = "incomplete"
-                        row.reason = ("the server lost track of this recording (its "
-                                      "recordings.json is gone); the data may still be on the "
-                                      "nodes")
+            rows = {r.id: r for r in db.scalars(select(m.Recording).where(
+                m.Recording.state != "complete"))}
+            done = set(db.scalars(select(m.Recording.id).where(
+                m.Recording.state == "complete")))
+            # every stopped recording is transferred, filed under a session or not yet
+            for rec in list(live.values()):
+                if rec.id in done:
                     continue
                 self._repair(rec)
                 self._maybe_transfer(rec, reconnected)
-                self.write(db, row, rec)
+                if rec.id in rows:
+                    self.write(db, rows[rec.id], rec)
+            for row in rows.values():
+                if row.id not in live and row.state != "incomplete":
+                    row.state = "incomplete"
+                    row.reason = ("the server lost track of this recording (its "
+                                  "recordings.json is gone); the data may still be on the "
+                                  "nodes")
             db.commit()
 
     def write(self, db: Any, row: m.Recording, rec: LiveRecording) -> None:

@@ -140,6 +140,26 @@
     return box;
   }
 
+  // Recordings started without a session (e.g. from the Rig page) can be filed here.
+  async function showUnfiled(box) {
+    let recs = [];
+    try { recs = await api("/api/storage/unfiled"); } catch (e) { return; }
+    if (!recs.length || !subject.sessions.length) return;
+    const card = el("div", { class: "session", id: "unfiled" }, el("h3", {}, "Recordings not filed under a session"));
+    for (const r of recs) {
+      const sel = el("select", { "aria-label": `session for ${r.id}` },
+        ...subject.sessions.slice().reverse().map((x) => el("option", { value: x.id }, `${x.date}${x.label ? " — " + x.label : ""}`)));
+      card.append(el("div", { class: "part", "data-unfiled": r.id },
+        el("strong", {}, r.id), badge(r.state), el("span", { class: "hint" }, r.nodes.join(", ")), sel,
+        el("button", { type: "button", class: "secondary small", onclick: async () => {
+          try { await api(`/api/sessions/${sel.value}/recordings/attach`, { method: "POST", body: JSON.stringify({ rec_id: r.id }) });
+            say("session-msg", `Recording ${r.id} filed under ${subject.code}.`, true); await loadDetail(false); await loadSubjects(); }
+          catch (e) { say("session-msg", e.message); }
+        } }, `File under ${subject.code}`)));
+    }
+    box.append(card);
+  }
+
   async function loadDetail(fillForm) {
     if (subjectId === null) return;
     try { subject = await api(`/api/subjects/${subjectId}`); }
@@ -159,6 +179,7 @@
       el("h3", {}, `${s.date}${s.label ? " — " + s.label : ""}`),
       ...(s.recordings.length ? s.recordings.map(recordingRow) : [el("p", { class: "hint" }, "No recordings yet.")]))));
     if (!subject.sessions.length) box.append(el("p", { class: "hint" }, "No sessions yet: add one above, then record it."));
+    await showUnfiled(box);
     const busy = subject.sessions.some((s) => s.recordings.some((r) => ["recording", "on_nodes", "transferring"].includes(r.state)));
     clearTimeout(timer);
     if (busy) timer = setTimeout(() => loadDetail(false), 1000);
