@@ -35,6 +35,24 @@
     $("report").focus();
   }
 
+  function hideReport() { $("report-section").hidden = true; $("report").replaceChildren(); }
+
+  // PDF through fetch so that a refusal (e.g. no complete recording) shows as a message
+  // on this page instead of a raw error document.
+  async function downloadPdf(url, msgId, fallbackName) {
+    say(msgId, "Rendering the PDF…");
+    try {
+      const r = await call(url);
+      const cd = r.headers.get("Content-Disposition") || "";
+      const m = /filename="([^"]+)"/.exec(cd);
+      const blob = await r.blob();
+      const a = el("a", null, { href: URL.createObjectURL(blob), download: m ? m[1] : fallbackName });
+      document.body.append(a); a.click(); a.remove();
+      setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+      say(msgId, `PDF downloaded (${m ? m[1] : fallbackName}).`);
+    } catch (e) { say(msgId, e.message, true); }
+  }
+
   function setLink(a, href) {
     if (href) { a.href = href; a.removeAttribute("aria-disabled"); }
     else { a.href = "#"; a.setAttribute("aria-disabled", "true"); }
@@ -93,6 +111,7 @@
       showReport(await r.text());
       say("subject-msg", "Report below.");
     } catch (e) {
+      hideReport();
       say("subject-msg", e.message, true);
     } finally { $("show").disabled = false; }
   }
@@ -232,7 +251,7 @@
     try {
       showReport(await (await call(url)).text());
       say("cmp-msg", "Report of subset A below.");
-    } catch (e) { say("cmp-msg", e.message, true); }
+    } catch (e) { hideReport(); say("cmp-msg", e.message, true); }
   }
 
   // ------------------------------------------------------------------ reference
@@ -282,19 +301,24 @@
     const fd = new FormData();
     fd.append("file", f);
     const q = new URLSearchParams({ format, subject: code, method: $("file-method").value });
-    say("file-msg", `Analysing ${f.name}…`);
-    try {
-      const r = await call(`/api/reports/upload?${q}`, { method: "POST", body: fd });
-      if (format === "pdf") {
+    if (format === "pdf") {
+      // multipart POST: fetch, then hand the blob to the browser
+      say("file-msg", `Analysing ${f.name}…`);
+      try {
+        const r = await call(`/api/reports/upload?${q}`, { method: "POST", body: fd });
         const blob = await r.blob();
         const a = el("a", null, { href: URL.createObjectURL(blob), download: `gait-report-${code}.pdf` });
         document.body.append(a); a.click(); a.remove();
         say("file-msg", "PDF downloaded.");
-      } else {
-        showReport(await r.text());
-        say("file-msg", "Report below.");
-      }
-    } catch (e) { say("file-msg", e.message, true); }
+      } catch (e) { say("file-msg", e.message, true); }
+      return;
+    }
+    say("file-msg", `Analysing ${f.name}…`);
+    try {
+      const r = await call(`/api/reports/upload?${q}`, { method: "POST", body: fd });
+      showReport(await r.text());
+      say("file-msg", "Report below.");
+    } catch (e) { hideReport(); say("file-msg", e.message, true); }
   }
 
   // ------------------------------------------------------------------ wiring
@@ -303,6 +327,16 @@
     $(id).addEventListener("change", () => { setLink($("pdf"), subjectQuery("pdf")); updateRecLinks(); });
   }
   $("subject-form").addEventListener("submit", showSubject);
+  $("pdf").addEventListener("click", (ev) => {
+    ev.preventDefault();
+    const url = subjectQuery("pdf");
+    if (url) downloadPdf(url, "subject-msg", "gait-report.pdf");
+  });
+  $("rec-pdf").addEventListener("click", (ev) => {
+    ev.preventDefault();
+    const url = recQuery("pdf");
+    if (url) downloadPdf(url, "cmp-msg", "gait-report.pdf");
+  });
   $("recording").addEventListener("change", recordingChanged);
   $("compare").addEventListener("click", compare);
   $("rec-report").addEventListener("click", recReport);

@@ -5,8 +5,8 @@ and bad input.
 
 The recording is made once per module by ``gaitrig demo`` (server + six sim node
 processes over loopback websockets), ~14 s of the simulated walker's back-and-forth walk;
-its parts are then placed where the server's transfer puts them
-(``<data_dir>/recordings/<rec_id>/<node_id>/``).
+it is made as a clinic does: a subject's session is recorded, then copied to the server
+by the transfer (``<data_dir>/recordings/<rec_id>/<node_id>/``).
 """
 
 from __future__ import annotations
@@ -54,6 +54,8 @@ class Recorded:
     data_dir: Path  # the demo's server data folder
     rec_id: str
     t_start: float
+    password: str
+    subject_id: int
 
     def get(self, path: str, timeout: float = 60.0) -> tuple[int, Any, dict[str, str]]:
         req = urllib.request.Request(self.base + path,
@@ -81,7 +83,7 @@ def _req(base: str, path: str, body: Any = None, token: str = "") -> Any:
 
 @pytest.fixture(scope="module")
 def recorded() -> Iterator[Recorded]:
-    """A ~14 s recording of six sim nodes, on the server; the demo keeps running."""
+    """A ~14 s recording of six sim nodes of subject P017, transferred to the server."""
     from app.commands.demo import demo_password
 
     tmp = Path(tempfile.mkdtemp(prefix="gaitrig-report-"))
@@ -110,20 +112,34 @@ def recorded() -> Iterator[Recorded]:
                 break
             assert time.time() < deadline, f"nodes not online: {nodes}"
             time.sleep(0.3)
-        rec = _req(base, "/api/recordings", {}, token=token)
+        # The clinic's way: a subject's session, recorded, then copied to the server.
+        proj = _req(base, "/api/projects", {"name": "Report test"}, token=token)
+        subj = _req(base, "/api/subjects", {"project_id": proj["id"], "code": "P017",
+                                            "height_m": 1.74, "sex": "female"}, token=token)
+        sess = _req(base, "/api/sessions", {"subject_id": subj["id"], "date": "2026-11-22",
+                                            "label": "baseline"}, token=token)
+        rec = _req(base, f"/api/sessions/{sess['id']}/recordings", {"label": "walk"},
+                   token=token)
         time.sleep(RECORD_S)
         _req(base, f"/api/recordings/{rec['id']}/stop", {}, token=token)
         while True:
             r = _req(base, f"/api/recordings/{rec['id']}", token=token)
-            if r["state"] == "on_nodes":
+            if r["state"] not in ("recording", "stopping"):
                 break
-            assert r["state"] == "stopping" and time.time() < deadline + 60, r
+            assert time.time() < deadline + 60, r
+            time.sleep(0.3)
+        assert r["state"] in ("on_nodes", "transferring", "complete"), r
+        if r["state"] == "on_nodes":  # the server copies automatically; ask if it has not
+            _req(base, f"/api/recordings/{rec['id']}/transfer", {}, token=token)
+        while True:
+            s = _req(base, f"/api/subjects/{subj['id']}", token=token)
+            state = s["sessions"][0]["recordings"][0]["state"]
+            if state == "complete":
+                break
+            assert state in ("on_nodes", "transferring") and time.time() < deadline + 120, s
             time.sleep(0.3)
         server = tmp / "server"
-        for k in range(1, 7):  # what the transfer does: parts land beside each other
-            shutil.copytree(tmp / "nodes" / f"S{k}" / "recordings" / rec["id"],
-                            server / "recordings" / rec["id"] / f"S{k}")
-        yield Recorded(base, token, server, rec["id"], float(r["t_start"]))
+        yield Recorded(base, token, server, rec["id"], float(r["t_start"]), pw, subj["id"])
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGTERM)
@@ -335,6 +351,77 @@ def test_bad_input_over_http(recorded: Recorded, tmp_path: Path) -> None:
     r = httpx.post(f"{recorded.base}/api/reports/upload", timeout=30,
                    files={"file": ("walk.csv", b"x", "text/csv")})
     assert r.status_code == 401
+
+
+def test_subject_report_of_the_transferred_recording(recorded: Recorded) -> None:
+    code, html, _ = recorded.get(f"/api/reports/subjects/{recorded.subject_id}")
+    assert code == 200, html
+    text = html.decode()
+    assert "P017" in text and "174 cm" in text and recorded.rec_id in text
+    code, lst, _ = recorded.get("/api/reports/recordings")
+    assert [(r["id"], r["subject_code"], r["db_state"]) for r in lst] == \
+        [(recorded.rec_id, "P017", "complete")]
+
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync"]
+
+
+def test_reports_page_in_a_browser(recorded: Recorded, tmp_path: Path,
+                                   artifacts_dir: Path) -> None:
+    """What a clinician sees: subject report inline, one- vs two-sided table, errors."""
+    if not CHROMIUM.exists():
+        pytest.skip("Debian Chromium (/usr/bin/chromium) is not installed")
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 1000})
+            page.goto(recorded.base + "/index.html")
+            page.fill("input[name=username]", "admin")
+            page.fill("input[name=password]", recorded.password)
+            page.click("button[type=submit]")
+            page.wait_for_url("**/rig.html")
+            page.goto(recorded.base + "/reports.html")
+            page.wait_for_function("document.querySelectorAll('#subject option').length > 1")
+            page.select_option("#subject", str(recorded.subject_id))
+            page.wait_for_function("document.querySelectorAll('#session option').length > 1")
+            assert "1 complete recording" in page.inner_text("#session")
+            page.click("#show")
+            page.wait_for_selector("#report table", timeout=60000)
+            report = page.inner_text("#report")
+            assert "Gait report" in report and "P017" in report and "Step width" in report
+            assert page.locator("#report img").count() >= 3
+            page.screenshot(path=str(artifacts_dir / "reports_page_subject.png"), full_page=True)
+            # PDF download through the page.
+            with page.expect_download() as dl:
+                page.click("#pdf")
+            assert dl.value.suggested_filename.startswith("gait-report-P017")
+            # One- vs two-sided: side A preset against all sensors.
+            page.select_option("#recording", recorded.rec_id)
+            page.wait_for_selector("#set-a input")
+            ticked = page.eval_on_selector_all("#set-a input:checked", "e => e.map(x => x.value)")
+            assert sorted(ticked) == ["S1", "S3", "S5"]
+            page.click("#compare")
+            page.wait_for_selector("#cmp-table:not([hidden])", timeout=60000)
+            rows = page.inner_text("#cmp-table tbody").splitlines()
+            assert any(r.startswith("Sensors\tS1, S3, S5\tS1, S2, S3, S4, S5, S6") for r in rows)
+            assert any(r.startswith("Step width (cm)") for r in rows)
+            page.locator("#cmp-h").scroll_into_view_if_needed()
+            page.screenshot(path=str(artifacts_dir / "reports_page_compare.png"))
+            # A file without ankles: a message in red, the old report goes away.
+            bad = tmp_path / "noankle.csv"
+            bad.write_text("time,Head_x,Head_y,Head_z\n0,0,0,1.7\n0.1,0.1,0,1.7\n")
+            page.set_input_files("#file", str(bad))
+            page.click("#file-form button[type=submit]")
+            page.wait_for_function("document.getElementById('file-msg').classList.contains('error')")
+            assert "AnkleLeft" in page.inner_text("#file-msg")
+            assert page.locator("#report-section").is_hidden()
+            page.screenshot(path=str(artifacts_dir / "reports_page_error.png"))
+        finally:
+            browser.close()
 
 
 # ---------------------------------------------------------------- in-process server, DB
