@@ -107,7 +107,8 @@ def decode_pair(node: str, seq: int, depth: LatestImage,
         b = cv2.imdecode(np.frombuffer(body.data, np.uint8), cv2.IMREAD_UNCHANGED)
         if b is not None and b.shape == d.shape:
             mask = b != 255
-    return DepthFrame(node, seq, depth.t_local, depth.t_server, d, mask,
+    return DepthFrame(node, seq, depth.t_local, depth.t_server, d.astype(np.uint16, copy=False),
+                      mask,
                       float(depth.header.get("scale", 1.0)))
 
 
@@ -230,7 +231,7 @@ class LiveStreams:
     async def _set_subscriptions(self, on: bool) -> None:
         for s in list(self.hub.registry.nodes.values()):
             want = on and s.connected and s.send is not None
-            have = self._subscribed.get(s.id, "none") == s.connected_at
+            have = s.id in self._subscribed and self._subscribed[s.id] == s.connected_at
             if want and not have and s.send is not None:
                 msg = Subscribe(streams=["depth", "body_index"], fps=self.fps, scale=self.scale,
                                 format="png")

@@ -46,8 +46,8 @@ from engine.skeleton import KINECT_V2, TrackingState
 
 log = logging.getLogger("gaitrig.viewer.live")
 
-CLOUD_VOXEL_M = 0.03
-CLOUD_HZ = 5.0
+CLOUD_VOXEL_M = 0.04
+CLOUD_HZ = 2.0
 FUSED_RGB = (20, 20, 20)
 
 
@@ -61,13 +61,14 @@ def populate_layout(server: viser.ViserServer, layout: Rig, label: str) -> None:
     for m in layout.markers:
         T = np.asarray(m.T_world_marker, float)
         h = m.size_m / 2
-        corners = np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]]) @ T[:3, :3].T + T[:3, 3]
+        square = np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]])
+        corners = square @ T[:3, :3].T + T[:3, 3]
         corners[:, 2] += 0.003  # just above the grid
         segs = np.stack([corners, np.roll(corners, -1, axis=0)], axis=1).astype(np.float32)
         server.scene.add_line_segments(f"/layout/markers/{m.id}", segs, (20, 20, 20),
                                        thickness=3.0)
         server.scene.add_label(f"/layout/markers/{m.id}/label", f"marker {m.id}",
-                               position=tuple(float(v) for v in corners.mean(axis=0)))
+                               position=corners.mean(axis=0))
     w = layout.walkway
     a, b = np.asarray(w.start, float), np.asarray(w.end, float)
     d = (b - a) / np.linalg.norm(b - a)
@@ -77,7 +78,7 @@ def populate_layout(server: viser.ViserServer, layout: Rig, label: str) -> None:
     segs = np.stack([ring, np.roll(ring, -1, axis=0)], axis=1).astype(np.float32)
     server.scene.add_line_segments("/layout/walkway", segs, (240, 140, 0), thickness=4.0)
     server.scene.add_label("/layout/walkway/label", f"walkway ({label})",
-                           position=tuple(float(v) for v in (a + 0.3 * (b - a) + n * 1.2)))
+                           position=a + 0.3 * (b - a) + n * 1.2)
 
 
 def populate_graph(server: viser.ViserServer, layout: Rig,
@@ -170,7 +171,7 @@ def populate_fused_skeleton(server: viser.ViserServer, joints: NDArray[np.float6
     if joints is None or joints.shape[0] != len(KINECT_V2.joints):
         server.scene.remove_by_name(name)
         return
-    ok = np.isfinite(joints).all(axis=1)
+    ok: NDArray[np.bool_] = np.asarray(np.isfinite(joints).all(axis=1))
     segs = [(joints[p], joints[j]) for j, p in enumerate(KINECT_V2.parent_indices)
             if p >= 0 and ok[j] and ok[p]]
     if not segs:
@@ -243,14 +244,17 @@ class LiveServices:
         key = tuple(s.id for s in sensors)
         if self.planner is None or key != self._planner_key:
             self.planner = Planner(sensors, self.layout,
-                                   source="true poses of the simulated rig (not calibrated)"
-                                   if all(n.backend == "sim" for n in self.hub.registry.nodes.values())
-                                   else "poses reported by the nodes")
+                                   source=self._pose_source())
             self._planner_key = key
             self.planner.listeners.append(self._on_plan)
             self._on_plan(self.planner)
             self._draw_handles()
         return self.planner
+
+    def _pose_source(self) -> str:
+        if all(n.backend == "sim" for n in self.hub.registry.nodes.values()):
+            return "true poses of the simulated rig (not calibrated)"
+        return "poses reported by the nodes (not calibrated)"
 
     def _on_plan(self, planner: Planner) -> None:
         if self.viewer is None:
@@ -275,10 +279,11 @@ class LiveServices:
             h = self.viewer.scene.add_transform_controls(
                 f"/planning/{s.id}", scale=0.45, position=tuple(s.T_world_sensor[:3, 3]),
                 wxyz=tuple(_wxyz(s.T_world_sensor)), visible=visible)
-            self.viewer.scene.add_camera_frustum(f"/planning/{s.id}/frustum", fov=np.radians(s.vfov_deg),
-                                                 aspect=np.tan(np.radians(s.hfov_deg) / 2)
-                                                 / np.tan(np.radians(s.vfov_deg) / 2),
-                                                 scale=0.3, color=(255, 255, 255))
+            vfov, hfov = np.radians(s.vfov_deg), np.radians(s.hfov_deg)
+            self.viewer.scene.add_camera_frustum(
+                f"/planning/{s.id}/frustum", fov=float(vfov),
+                aspect=float(np.tan(hfov / 2) / np.tan(vfov / 2)), scale=0.3,
+                color=(255, 255, 255))
             self.viewer.scene.add_label(f"/planning/{s.id}/label", f"{s.id} (planned)",
                                         position=(0.0, 0.15, 0.0))
 
@@ -417,7 +422,8 @@ class LiveServices:
                     continue
                 self._cloud_seq[nid] = f.seq
                 visible = self._node_toggle(nid)
-                view = DepthView(f.depth_mm, scale_intrinsics(np.asarray(s.sensor.depth_K), f.scale),
+                K = scale_intrinsics(np.asarray(s.sensor.depth_K), f.scale)
+                view = DepthView(f.depth_mm, K,
                                  np.asarray(s.sensor.T_world_sensor, float), sensor_color(nid),
                                  f.body)
                 try:

@@ -76,7 +76,8 @@ class Planner:
         self.initial = {s.id: s for s in sensors}
         xy = np.array([s.T_world_sensor[:2, 3] for s in sensors])
         w = self.layout.walkway
-        pts = np.vstack([xy, np.asarray(w.start, float)[None, :2], np.asarray(w.end, float)[None, :2]])
+        ends = np.stack([np.asarray(w.start, float)[:2], np.asarray(w.end, float)[:2]])
+        pts = np.vstack([xy, ends])
         lo = np.floor(pts.min(axis=0) - 1.5)
         hi = np.ceil(pts.max(axis=0) + 1.5)
         self.grid = Grid(float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]), CELL_M)
@@ -133,7 +134,8 @@ class Planner:
             yaw, pitch = pose_angles(s.T_world_sensor)
             moved = not np.allclose(s.T_world_sensor, self.initial[s.id].T_world_sensor,
                                     atol=1e-6)
-            out.append({"id": s.id, "position": [round(float(v), 4) for v in s.T_world_sensor[:3, 3]],
+            pos = [round(float(v), 4) for v in s.T_world_sensor[:3, 3]]
+            out.append({"id": s.id, "position": pos,
                         "yaw_deg": round(yaw, 2), "pitch_deg": round(pitch, 2),
                         "moved": bool(moved)})
         g = self.grid

@@ -202,10 +202,23 @@ def screenshot(page: Any, artifacts_dir: Path, name: str,
     out = artifacts_dir / "browser"
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{name}.png"
-    target = page.locator(selector) if selector else page
-    png = target.screenshot(path=str(path))
-    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    if selector is None:
+        png = page.screenshot(path=str(path))
+        return decode_png(png)
+    # crop a viewport screenshot rather than Playwright's element screenshot, which can
+    # capture mid-scroll while the page is repainting
+    loc = page.locator(selector).first
+    loc.scroll_into_view_if_needed()
+    box = loc.bounding_box()
+    if box is None:
+        raise AssertionError(f"{selector} is not visible on the page")
+    full = decode_png(page.screenshot())
+    x0, y0 = max(0, int(box["x"])), max(0, int(box["y"]))
+    x1 = min(full.shape[1], int(box["x"] + box["width"]))
+    y1 = min(full.shape[0], int(box["y"] + box["height"]))
+    img = np.ascontiguousarray(full[y0:y1, x0:x1])
+    cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    return img
 
 
 def decode_png(data: bytes) -> NDArray[np.uint8]:
