@@ -26,6 +26,7 @@ import json
 import logging
 import secrets
 import time
+import warnings
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -307,7 +308,8 @@ class KsccSession:
         except GaitrigError as e:
             return {"ready": False, "message": str(e)}
         keep = np.unique(np.linspace(0, len(t) - 1, min(len(t), 300)).round().astype(int))
-        with np.errstate(invalid="ignore"):
+        with warnings.catch_warnings():  # frames without a pair are NaN rows
+            warnings.simplefilter("ignore", RuntimeWarning)
             mean = np.nanmean(d, axis=1)
 
         def clean(x: FloatArray) -> list[float | None]:

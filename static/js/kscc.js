@@ -127,10 +127,14 @@
     if (!A.skeleton && !B.skeleton) {
       ctx.fillStyle = "#5b6470"; ctx.fillText("The skeletons appear here once each user is calibrated.", 300, 200); return;
     }
-    drawBody(ctx, A.skeleton, A.bones, COLORS.a, 170, floor, scale);
-    drawBody(ctx, B.skeleton, B.bones, COLORS.b, 500, floor, scale);
-    drawBody(ctx, A.skeleton, A.bones, COLORS.a, 830, floor, scale);
-    drawBody(ctx, B.skeleton, B.bones, COLORS.b, 830, floor, scale);
+    // the universal origin is the body centre: put the lowest joint on the floor line
+    const zs = [A.skeleton, B.skeleton].filter(Boolean).flatMap((k) => k.positions)
+      .filter((p) => p && p[2] !== null).map((p) => p[2]);
+    const oy = floor + Math.min(...zs) * scale;
+    drawBody(ctx, A.skeleton, A.bones, COLORS.a, 170, oy, scale);
+    drawBody(ctx, B.skeleton, B.bones, COLORS.b, 500, oy, scale);
+    drawBody(ctx, A.skeleton, A.bones, COLORS.a, 830, oy, scale);
+    drawBody(ctx, B.skeleton, B.bones, COLORS.b, 830, oy, scale);
   }
 
   function drawDiff(c) {
@@ -139,7 +143,7 @@
     const L = 55, R = cv.width - 15, T = 15, Bm = cv.height - 35;
     ctx.strokeStyle = "#b8bec6"; ctx.lineWidth = 1; ctx.strokeRect(L, T, R - L, Bm - T);
     ctx.fillStyle = "#5b6470"; ctx.font = "13px system-ui";
-    ctx.fillText("cm", 10, T + 10); ctx.fillText("seconds before now", (L + R) / 2 - 60, cv.height - 8);
+    ctx.fillText("cm", 14, T + 4); ctx.fillText("seconds before now", (L + R) / 2 - 60, cv.height - 8);
     if (!c) { ctx.fillText("No comparison yet.", L + 20, (T + Bm) / 2); return; }
     const j = Number($("joint").value);
     const ys = (j < 0 ? c.mean_m : c.per_joint_m[j]).map((v) => (v === null ? null : v * 100));
@@ -147,7 +151,7 @@
     const ymax = Math.max(5, ...finite) * 1.15;
     const t0 = Math.min(...c.times, -1), t1 = 0;
     const X = (t) => L + ((t - t0) / (t1 - t0)) * (R - L), Y = (v) => Bm - (v / ymax) * (Bm - T);
-    for (let k = 0; k <= 4; k++) { const v = (ymax * k) / 4; ctx.fillText(v.toFixed(0), 20, Y(v) + 4);
+    for (let k = 0; k < 4; k++) { const v = (ymax * k) / 4; ctx.fillText(v.toFixed(ymax < 10 ? 1 : 0), 18, Y(v) + 4);
       ctx.strokeStyle = "#eef0f3"; ctx.beginPath(); ctx.moveTo(L, Y(v)); ctx.lineTo(R, Y(v)); ctx.stroke(); }
     for (let t = Math.ceil(t0 / 5) * 5; t <= 0; t += 5) ctx.fillText(String(t), X(t) - 8, Bm + 16);
     ctx.strokeStyle = "#12355b"; ctx.lineWidth = 2; ctx.beginPath();

@@ -33,7 +33,7 @@ def standing_person(at: tuple[float, float], facing_deg: float) -> np.ndarray:
     from engine.sim.walker import Walker, WalkerParams
 
     w = Walker(WalkerParams(), [0.0, 0.0, 0.0], [6.0, 0.0, 0.0], start_time=100.0, seed=1)
-    J = w.joints(np.array([0.0]))[0]
+    J = w.joints(np.array([100.0]))[0]  # standing at its start, before walking
     J[:, :2] -= J[:, :2].mean(axis=0)
     a = np.radians(facing_deg)
     R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
