@@ -69,12 +69,14 @@ def pixel_rays(K: NDArray[np.float64], width: int, height: int) -> NDArray[np.fl
 
 
 def scale_intrinsics(K: NDArray[np.float64], scale: float) -> NDArray[np.float64]:
-    """Intrinsics of an image resized by ``scale`` (pixel centres kept aligned)."""
+    """Intrinsics of a depth image the node downscaled by ``scale``.
+
+    Nodes resize depth with OpenCV's ``INTER_NEAREST``, which gives pixel ``u'`` the source
+    pixel ``floor(u' / scale)``: source coordinates are ``u' / scale``, so focal lengths
+    and principal point scale alike (no half-pixel shift, unlike area averaging).
+    """
     K2 = np.array(K, dtype=np.float64)
-    K2[0, 0] *= scale
-    K2[1, 1] *= scale
-    K2[0, 2] = (K2[0, 2] + 0.5) * scale - 0.5
-    K2[1, 2] = (K2[1, 2] + 0.5) * scale - 0.5
+    K2[:2, :3] *= scale
     return K2
 
 

@@ -111,9 +111,10 @@ def test_live_websocket_requires_login(browser: Any, live_server: LiveServer) ->
 
 def test_3d_view(browser: Any, live_server: LiveServer, artifacts_dir: Path) -> None:
     """The viser view answers with the scene: a non-blank canvas, and the live page embeds it."""
-    ctx = browser.new_context(viewport={"width": 1000, "height": 700})
+    ctx = browser.new_context(viewport={"width": 800, "height": 560})
     try:
         p = ctx.new_page()
+        p.set_default_timeout(120000)  # software WebGL on a loaded CI machine is slow
         p.goto(live_server.viewer_url + "/")
         p.wait_for_selector("canvas", timeout=60000)
         p.wait_for_timeout(4000)

@@ -1,0 +1,147 @@
+"""Live view building blocks against known answers: cloud, panels, flow control, planning."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from app.server.registry import LatestImage
+from app.server.streaming import HIGHLIGHT_RGB, Panel, Watcher, colourise, decode_pair
+from app.viewer.cloud import DepthView, merge_depth_views, scale_intrinsics, serialise_cloud
+from app.viewer.live import fuse_skeletons
+from app.viewer.planning import Planner
+from engine.coverage import sensor_pose, sensors_from_rig
+from engine.errors import InputError
+from engine.sim.rig import default_avenue_rig, load_rig
+
+
+def _floor_view(h: float = 1.2, pitch: float = -40.0) -> tuple[DepthView, np.ndarray]:
+    """Depth image of the floor (z = 0) seen by a camera at height h, by ray casting."""
+    W, H = 160, 120
+    K = np.array([[120.0, 0, 79.5], [0, 120.0, 59.5], [0, 0, 1]])
+    T = sensor_pose((0.5, -0.3, h), 20.0, pitch)
+    u, v = np.meshgrid(np.arange(W), np.arange(H))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, float)], -1)
+    dz = rays @ T[:3, :3].T[:, 2]  # world z change per unit camera z
+    with np.errstate(divide="ignore"):
+        z = np.where(dz < -1e-6, -T[2, 3] / dz, 0.0)
+    depth = np.where((z > 0.3) & (z < 8.0), np.round(z * 1000), 0).astype(np.uint16)
+    return DepthView(depth, K, T, (10, 200, 30)), T
+
+
+def test_merged_cloud_lies_on_the_floor_and_matches_open3d() -> None:
+    view, T = _floor_view()
+    pts, cols = merge_depth_views([view], voxel_m=0.05)
+    assert len(pts) > 200 and pts.dtype == np.float32
+    assert np.abs(pts[:, 2]).max() < 0.01  # depth rounding to 1 mm, voxel means
+    assert (cols == (10, 200, 30)).all()
+    h, w = view.depth_mm.shape
+    intr = o3d.camera.PinholeCameraIntrinsic(w, h, 120.0, 120.0, 79.5, 59.5)
+    pcd = o3d.geometry.PointCloud.create_from_depth_image(
+        o3d.geometry.Image(view.depth_mm), intr, depth_scale=1000.0, depth_trunc=8.0)
+    pcd.transform(T)
+    ref = pcd.voxel_down_sample(0.05)
+    assert abs(len(ref.points) - len(pts)) <= 0.02 * len(pts)
+    blob = serialise_cloud(pts, cols)
+    assert len(blob) == 4 + 15 * len(pts)
+
+
+def test_highlight_mask_and_scaled_intrinsics() -> None:
+    view, _ = _floor_view()
+    mask = np.zeros(view.depth_mm.shape, bool)
+    mask[80:, :] = True
+    pts, cols = merge_depth_views([DepthView(view.depth_mm, view.K, view.T_world_sensor,
+                                             (0, 0, 255), mask)], voxel_m=0.05)
+    assert (cols == HIGHLIGHT_RGB).all(axis=1).any() and (cols == (0, 0, 255)).all(axis=1).any()
+    K2 = scale_intrinsics(view.K, 0.5)
+    assert K2[0, 0] == 60.0 and K2[0, 2] == pytest.approx(39.75)
+    with pytest.raises(InputError):
+        merge_depth_views([view], voxel_m=0.0)
+
+
+def test_panel_colours_and_decode() -> None:
+    import cv2
+
+    depth = np.full((20, 30), 2000, np.uint16)
+    depth[:, :5] = 0
+    body = np.full((20, 30), 255, np.uint8)
+    body[5:10, 10:20] = 0
+    img = colourise(depth, body != 255)
+    assert (img[:, :5] == 0).all()  # no measurement → black
+    b, g, r = img[7, 15].astype(int)
+    assert r > 150 and g < 20 and b > 110  # body in the highlight colour
+    d = LatestImage(1.0, 2.0, "png", cv2.imencode(".png", depth)[1].tobytes(), {"scale": 0.5})
+    bi = LatestImage(1.0, 2.0, "png", cv2.imencode(".png", body)[1].tobytes(), {})
+    f = decode_pair("S1", 3, d, bi)
+    assert f.t_capture == 2.0 and f.scale == 0.5 and f.body is not None and f.body.sum() == 50
+    with pytest.raises(ValueError):
+        decode_pair("S1", 3, bi, None)  # an 8-bit image is no depth
+
+
+def test_watcher_drops_instead_of_queueing() -> None:
+    async def run() -> Watcher:
+        sent: list[bytes] = []
+
+        async def send(b: bytes) -> None:
+            sent.append(b)
+
+        w = Watcher(send=send, window=2)
+        task = asyncio.create_task(w.run())
+        for k in range(50):
+            w.offer(Panel("S1", k, bytes([k]), None))
+            w.offer(Panel("S2", k, bytes([k]), None))
+            await asyncio.sleep(0)
+        await asyncio.sleep(0.01)
+        assert w.in_flight == 2 and len(sent) == 2  # nothing more until the page acks
+        assert len(w.pending) <= 2  # at most the newest panel per node waits
+        w.ack(2)
+        await asyncio.sleep(0.01)
+        assert sent[-1] == bytes([49])  # after the acks, the newest panels go out
+        task.cancel()
+        return w
+
+    w = asyncio.run(run())
+    assert w.dropped > 90
+
+
+def test_fused_skeleton_is_the_tracked_mean_and_ignores_another_person() -> None:
+    J = 25
+    a = np.zeros((1, J, 3))
+    a[0, :, 2] = np.linspace(0, 1.7, J)
+    b = a + 0.02
+    other = a + np.array([3.0, 0, 0])
+    st = np.full((1, J), 2, np.uint8)
+    fused = fuse_skeletons({"S1": (a, st), "S2": (b, st), "S3": (other, st)})
+    assert fused is not None
+    assert np.allclose(fused, a[0] + 0.01)
+    assert fuse_skeletons({}) is None
+
+
+def test_planner_move_save_and_reload(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    rig = default_avenue_rig(None)
+    p = Planner(sensors_from_rig(rig), rig)
+    before = p.summary()
+    p.move("S1", yaw_deg=35.0)
+    after = p.summary()
+    assert after["version"] == before["version"] + 1
+    assert after["walkway_covered_fraction"] < before["walkway_covered_fraction"]
+    s1 = next(s for s in after["sensors"] if s["id"] == "S1")
+    assert s1["moved"] and s1["yaw_deg"] == pytest.approx(35.0, abs=1e-6)
+    path = p.save(tmp_path, "plan_1")
+    again = load_rig(path)
+    assert np.allclose(again.sensor("S1").T_world_sensor, p.sensors[0].T_world_sensor)
+    assert len(again.markers) == len(rig.markers)
+    with pytest.raises(InputError):
+        p.save(tmp_path, "../x")
+    with pytest.raises(InputError):
+        p.move("S9", yaw_deg=0.0)
+    with pytest.raises(InputError):
+        p.move("S1", position=(0.0, 0.0, 9.0))
+    rows = p.placement_rows()
+    assert rows[1]["id"] == "S2" and rows[1]["distance_cm"] == pytest.approx(260.0, abs=0.1)
+    assert p.png()[:4] == b"\x89PNG"
+    p.reset()
+    assert not any(s["moved"] for s in p.summary()["sensors"])
