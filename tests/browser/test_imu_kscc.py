@@ -1,0 +1,86 @@
+"""IMU and KSCC pages in a real browser against the demo server (six simulated sensors)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.browser.conftest import LiveServer, color_fraction, screenshot
+
+pytestmark = pytest.mark.browser
+
+
+def test_imu_page_simulated_session(page: Any, live_server: LiveServer,
+                                    artifacts_dir: Path) -> None:
+    page.goto(live_server.base_url + "/imu.html")
+    page.click("#simulate")
+    page.wait_for_selector("#accuracy-rows tr", timeout=120_000)
+    page.wait_for_function("document.getElementById('angles-plot').naturalWidth > 0")
+    rows = page.locator("#accuracy-rows tr")
+    assert rows.count() == 4
+    # every joint: the fused RMSE is below the depth-only one, and marked as better
+    for i in range(4):
+        cells = [c.strip() for c in rows.nth(i).locator("td").all_inner_texts()]
+        depth, fused = (float(c.rstrip("°")) for c in cells[:2])
+        assert fused < depth, cells
+        assert rows.nth(i).locator("td.better").count() == 1
+    assert page.locator("#sync-rows tr").count() == 10
+    assert "aligned to the depth skeleton's clock" in page.inner_text("#sync-text")
+    href = page.get_attribute("#csv", "href")
+    assert href and href.endswith("/data.csv")
+    page.locator("#accuracy-card").scroll_into_view_if_needed()
+    img = screenshot(page, artifacts_dir, "imu_simulated_accuracy", "#accuracy-card")
+    assert color_fraction(img, (0x1A, 0x7F, 0x37), tol=30) > 1e-4  # the green "better" cells
+    plot = screenshot(page, artifacts_dir, "imu_angles_plot", "#angles-card")
+    assert color_fraction(plot, (0x0B, 0x5C, 0xAD), tol=40) > 1e-3  # fused curves drawn
+    # a wrong file: the message says what is wrong, in the page
+    page.set_input_files("#files", files=[{"name": "notes.docx", "mimeType": "text/plain",
+                                           "buffer": b"hello"}])
+    page.click("#upload")
+    page.wait_for_function("document.getElementById('error').textContent.length > 0")
+    assert "unsupported type .docx" in page.inner_text("#error")
+    assert not page.js_errors
+
+
+def test_kscc_page_live_progress_and_active_area(page: Any, live_server: LiveServer,
+                                                 artifacts_dir: Path) -> None:
+    page.goto(live_server.base_url + "/kscc.html")
+    page.wait_for_selector("#node-b option[value=S2]", state="attached")
+    page.select_option("#node-a", "S1")
+    page.select_option("#node-b", "S2")
+    page.fill("#countdown", "1")
+    page.click("#start")
+    # the countdown runs, then each side reports a stillness state from KsccProgress
+    page.wait_for_function(
+        "[...document.querySelectorAll('#sides .state')].every(e => e.textContent.length > 0)",
+        timeout=30_000)
+    page.wait_for_function(
+        "[...document.querySelectorAll('#sides .message')].every(e => "
+        "!/Not started|Calibration starts/.test(e.textContent))", timeout=30_000)
+    s = live_server.api("/api/kscc/session")
+    for side in ("a", "b"):
+        st = s["sides"][side]
+        assert st["frames"] > 0 or "No skeleton" in st["message"], st
+        assert st["message"]
+    assert s["sides"]["a"]["source"] == "S1" and s["sides"]["b"]["source"] == "S2"
+    # active area: every sensor's trapezoid numbers from its height
+    rows = page.locator("#areas tr[data-node]")
+    rows.nth(live_server.n_nodes - 1).wait_for()
+    for i in range(rows.count()):
+        text = rows.nth(i).inner_text()
+        assert re.search(r"\d\.\d\d m", text) and text.count(" cm") == 4, text
+    # calculator: seed 004's Kinect v1 at 1 m
+    v1 = page.locator("#presets tr[data-preset=kinect_v1]").inner_text()
+    assert "254 cm" in v1 and "400 cm" in v1
+    page.fill("#height", "2.0")
+    page.wait_for_function("!document.querySelector('#presets tr[data-preset=kinect_v1]')"
+                           ".textContent.includes('254 cm')")
+    screenshot(page, artifacts_dir, "kscc_progress", "#sides")
+    screenshot(page, artifacts_dir, "kscc_active_area", "#area-h")
+    page.click("#stop")
+    page.wait_for_function("document.querySelector('#sides .message').textContent"
+                           " === 'Not started.'")
+    assert not page.js_errors
