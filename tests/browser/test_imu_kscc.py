@@ -79,7 +79,7 @@ def test_kscc_page_live_progress_and_active_area(page: Any, live_server: LiveSer
     page.wait_for_function("!document.querySelector('#presets tr[data-preset=kinect_v1]')"
                            ".textContent.includes('254 cm')")
     screenshot(page, artifacts_dir, "kscc_progress", "#sides")
-    screenshot(page, artifacts_dir, "kscc_active_area", "#area-h")
+    screenshot(page, artifacts_dir, "kscc_active_area", "section[aria-labelledby=area-h]")
     page.click("#stop")
     page.wait_for_function("document.querySelector('#sides .message').textContent"
                            " === 'Not started.'")
