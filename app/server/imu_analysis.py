@@ -29,7 +29,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from engine.errors import InputError, InsufficientDataError
+from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.imu.filter import orientation_filter
 from engine.imu.fusion import (
     PAPER_SENSORS,
@@ -40,7 +40,7 @@ from engine.imu.fusion import (
 )
 from engine.imu.io import ImuRecording
 from engine.imu.madgwick import madgwick
-from engine.imu.metrics import ncc, rmse
+from engine.imu.metrics import ncc, orientation_errors, rmse
 from engine.imu.pipeline import ImuSessionResult, angles_csv, find_plank_time
 from engine.imu.sync import (
     SyncResult,
@@ -328,8 +328,14 @@ def imu_only_job(recordings: dict[str, ImuRecording], *, filt: FilterName, beta:
         sync = synchronize(recordings, None, n_jumps=n_jumps)
         warnings += sync.warnings
     ori: dict[str, FloatArray] = {}
+    reference: dict[str, dict[str, float]] = {}
     for n, r in recordings.items():
         ori[n], _ = orientations(r, filt, beta, r.mag is not None)
+        if r.quat_ref is not None:  # BROAD: optical ground truth in the same ENU frame
+            try:
+                reference[n] = orientation_errors(ori[n], r.quat_ref, r.movement)
+            except GaitrigError as e:
+                warnings.append(f"{n}: no comparison with the optical reference ({e})")
     plots = {"orientation": orientation_plot(recordings, ori)}
     if spikes:
         plots["sync"] = sync_plot(recordings, sync, None, spikes)
@@ -352,6 +358,7 @@ def imu_only_job(recordings: dict[str, ImuRecording], *, filt: FilterName, beta:
         "sensors": _sensor_rows(recordings),
         "spikes": {n: [float(x) for x in s] for n, s in spikes.items()},
         "sync": _sync_rows(sync) if sync is not None else None,
+        "reference_errors": reference or None,
         "warnings": warnings,
         "note": "No depth skeleton was given: orientations only. Add a skeleton CSV and name "
                 "the sensors (chest, thigh_l ...) to see fused joint angles.",

@@ -33,6 +33,12 @@
     $("csv").href = d.csv_url;
     $("sensor-rows").replaceChildren(...d.sensors.map((s) => row(s.name, s.format, String(s.samples),
       s.frequency_hz.toFixed(1) + " Hz", s.duration_s.toFixed(1) + " s", s.magnetometer ? "yes" : "no")));
+    // orientation error vs an optical reference (BROAD files)
+    $("reference-card").hidden = !d.reference_errors;
+    if (d.reference_errors) {
+      $("reference-rows").replaceChildren(...Object.entries(d.reference_errors).map(([n, e]) =>
+        row(n, deg(e.total_deg), deg(e.heading_deg), deg(e.inclination_deg))));
+    }
     // accuracy (simulation)
     $("accuracy-card").hidden = !d.accuracy;
     if (d.accuracy) {

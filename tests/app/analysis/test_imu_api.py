@@ -58,6 +58,24 @@ def test_upload_madgwick_example_data(client: TestClient, shared_data: Path) -> 
     assert client.get(f"/api/imu/sessions/{d['id']}").json()["id"] == d["id"]
 
 
+def test_upload_broad_trial_against_its_optical_reference(client: TestClient,
+                                                          shared_data: Path) -> None:
+    trial = shared_data / "imu" / "broad" / "07_undisturbed_fast_rotation_B.hdf5"
+    err = {}
+    for filt in ("madgwick", "ours"):
+        with trial.open("rb") as fh:
+            r = client.post("/api/imu/sessions", data={"filter": filt, "sensors": "wrist"},
+                            files={"files": (trial.name, fh, "application/octet-stream")})
+        assert r.status_code == 200, r.text
+        d = r.json()
+        assert d["sensors"][0]["name"] == "wrist" and d["sensors"][0]["format"] == "broad"
+        err[filt] = d["reference_errors"]["wrist"]
+    # BROAD error measure on real data: both plausible, ours clearly better than β = 0.041
+    assert err["madgwick"]["total_deg"] < 15.0
+    assert err["ours"]["total_deg"] < 0.5 * err["madgwick"]["total_deg"]
+    assert err["ours"]["inclination_deg"] < err["madgwick"]["inclination_deg"]
+
+
 def test_bad_files_give_clear_400(client: TestClient, tmp_path: Path) -> None:
     r = client.post("/api/imu/sessions", files={"files": ("notes.docx", b"xx", "text/plain")})
     assert r.status_code == 400 and "unsupported type .docx" in r.json()["detail"]
