@@ -75,8 +75,9 @@ def test_unmirroring_matches_the_simulated_mirroring() -> None:
         world = _transform(s, T)
         fixed, frac = unmirror_back_facing(world, T[:3, 3])
         ankle = KINECT_V2.joints.index("AnkleLeft")
-        swapped = ~np.isclose(np.nan_to_num(fixed.positions[:, ankle]),
-                              np.nan_to_num(world.positions[:, ankle])).all(axis=1)
+        swapped = np.asarray(~np.isclose(np.nan_to_num(fixed.positions[:, ankle]),
+                                         np.nan_to_num(world.positions[:, ankle])).all(axis=1),
+                             dtype=bool)
         truth = np.asarray(s.meta["mirrored"], dtype=bool)
         tracked = np.asarray(s.meta["body_tracked"], dtype=bool)
         total_mirrored += int(truth.sum())
