@@ -80,6 +80,10 @@
     for (const f of $("files").files) fd.append("files", f);
     for (const n of $("sensors").value.split(",").map((s) => s.trim()).filter(Boolean)) fd.append("sensors", n);
     if ($("skeleton").files.length) fd.append("skeleton", $("skeleton").files[0]);
+    else if ($("recording").value) {
+      const [rec, node] = $("recording").value.split("|");
+      fd.append("recording", rec); fd.append("recording_node", node);
+    }
     fd.append("filter", $("filter").value);
     fd.append("beta", $("beta").value);
     fd.append("n_jumps", $("n_jumps").value);
@@ -101,4 +105,10 @@
     finally { busy(false); }
   });
   $("summary-h").tabIndex = -1;
+  // recordings already on the server: each sensor's skeleton can be the depth source
+  call("/api/imu/recordings").then((recs) => {
+    for (const r of recs) for (const n of r.sensors) {
+      const o = el("option", `${r.id} — sensor ${n}`); o.value = `${r.id}|${n}`; $("recording").append(o);
+    }
+  }).catch(() => {});
 })();

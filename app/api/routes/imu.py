@@ -7,6 +7,10 @@ Madgwick ``.mat``, BROAD ``.hdf5``/``.mat``, generic CSV with declared units), `
 ``beta``, ``synchronise``, ``n_jumps`` and, for generic CSV, ``gyr_unit``, ``acc_unit``,
 ``mag_unit``, ``time_unit``, ``frequency``.
 
+Instead of a skeleton file, ``recording`` and ``recording_node`` take one sensor's
+skeleton from a recording already transferred to the server (placed in the world by the
+recording's sensor pose); ``GET /api/imu/recordings`` lists them.
+
 ``POST /api/imu/simulate`` runs a simulated session (no hardware needed) with ground truth.
 ``GET /api/imu/sessions/{id}`` (summary), ``/plots/{name}.png`` and ``/data.csv``.
 Results stay in server memory (last few sessions), never on disk.
@@ -19,11 +23,12 @@ import tempfile
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 from fastapi import APIRouter, File, Form, HTTPException, Request, Response, UploadFile, status
 from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
 
-from app.api.deps import CurrentUser
+from app.api.deps import CurrentUser, HubDep, SettingsDep
 from app.server.imu_analysis import (
     FilterName,
     ImuJob,
@@ -36,6 +41,7 @@ from engine.errors import InputError
 from engine.imu.fusion import PAPER_SENSORS
 from engine.imu.io import ImuRecording, load_imu
 from engine.io.csv import read_skeleton_csv
+from engine.skeleton import SkeletonSeries
 
 router = APIRouter(prefix="/imu", tags=["imu"])
 
@@ -103,6 +109,8 @@ def _sensor_names(files: list[UploadFile], sensors: list[str]) -> list[str]:
 async def upload_session(
     request: Request,
     user: CurrentUser,
+    settings: SettingsDep,
+    hub: HubDep,
     files: Annotated[list[UploadFile], File(description="IMU recordings")],
     sensors: Annotated[list[str], Form()] = [],  # noqa: B006 - FastAPI form default
     skeleton: Annotated[UploadFile | None, File(description="depth skeleton CSV")] = None,
@@ -115,6 +123,8 @@ async def upload_session(
     mag_unit: Annotated[str | None, Form()] = None,
     time_unit: Annotated[Literal["s", "ms"], Form()] = "s",
     frequency: Annotated[float | None, Form(gt=0, le=10000)] = None,
+    recording: Annotated[str | None, Form(max_length=64)] = None,
+    recording_node: Annotated[str | None, Form(max_length=64)] = None,
 ) -> dict[str, Any]:
     """Process uploaded IMU files (and optionally a depth skeleton); see the module doc."""
     files = [f for f in files if f.filename]
@@ -144,6 +154,8 @@ async def upload_session(
                                  "CSV (time, SpineBase_x, ...)")
             skel_path = await _save(skeleton, folder, "skeleton")
 
+        use_recording = bool(recording) and skel_path is None
+
         def work() -> ImuJob:
             recs: dict[str, ImuRecording] = {}
             for name, path, up in zip(names, paths, files, strict=True):
@@ -159,6 +171,10 @@ async def upload_session(
                                      "is a complete, unmodified export") from None
                 rec.name = name
                 recs[name] = rec
+            if use_recording:
+                sk_rec = recording_skeleton(settings.data_dir, recording or "",
+                                            recording_node or "", _live_poses(hub))
+                return _fuse_named(recs, sk_rec, filt, beta, n_jumps, synchronise)
             if skel_path is None:
                 return imu_only_job(recs, filt=filt, beta=beta, n_jumps=n_jumps,
                                     synchronise=synchronise)
@@ -170,16 +186,68 @@ async def upload_session(
             except Exception as e:  # damaged file
                 raise InputError(f"{skel_name}: cannot read the skeleton CSV ({e})"
                                  ) from None
-            missing = [n for n in recs if n not in PAPER_SENSORS]
-            if missing:
-                raise InputError(f"to fuse with the depth skeleton name every sensor after its "
-                                 f"bone: {', '.join(PAPER_SENSORS)} (not {', '.join(missing)})")
-            return fused_job(recs, sk, filt=filt, beta=beta, n_jumps=n_jumps,
-                             synchronise=synchronise)
+            return _fuse_named(recs, sk, filt, beta, n_jumps, synchronise)
 
         job = await run_in_threadpool(work)
     _store(request).add(job)
     return _view(job)
+
+
+def _fuse_named(recs: dict[str, ImuRecording], sk: SkeletonSeries, filt: FilterName,
+                beta: float, n_jumps: int, synchronise: bool) -> ImuJob:
+    missing = [n for n in recs if n not in PAPER_SENSORS]
+    if missing:
+        raise InputError(f"to fuse with the depth skeleton name every sensor after its "
+                         f"bone: {', '.join(PAPER_SENSORS)} (not {', '.join(missing)})")
+    return fused_job(recs, sk, filt=filt, beta=beta, n_jumps=n_jumps, synchronise=synchronise)
+
+
+def _live_poses(hub: Any) -> dict[str, Any]:
+    return {s.id: s.sensor.T_world_sensor for s in hub.registry.nodes.values()
+            if s.sensor.T_world_sensor is not None}
+
+
+def recording_skeleton(data_dir: Path, rec_id: str, node: str,
+                       live_poses: dict[str, Any]) -> SkeletonSeries:
+    """One sensor's skeleton of a transferred recording, in the world frame (node clock).
+
+    Raises:
+        InputError: unknown recording or sensor, or no sensor pose.
+    """
+    from app.server import analysis as an
+
+    rec_dir = an.recording_dir(data_dir, rec_id)
+    parts = an.part_dirs(rec_dir)
+    if not parts:
+        raise InputError(f"recording {rec_id!r} has no sensor data on the server; transfer it "
+                         "from the nodes first (Subjects & recordings)")
+    if node not in parts:
+        raise InputError(f"recording {rec_id} has no part from sensor {node!r}; it has "
+                         f"{', '.join(parts)}")
+    poses = an.sensor_poses(rec_dir, live_poses)
+    if node not in poses:
+        raise InputError(f"sensor {node} of recording {rec_id} has no pose; calibrate the rig "
+                         "so its skeleton can be placed in the world")
+    T = np.asarray(poses[node]["T_world_sensor"], dtype=float)
+    s = an.read_part(parts[node])
+    P = s.positions @ T[:3, :3].T + T[:3, 3]
+    return SkeletonSeries(s.times, P, s.states, s.joint_set, {"recording": rec_id,
+                                                              "sensor_id": node})
+
+
+@router.get("/recordings")
+async def recordings(user: CurrentUser, settings: SettingsDep) -> list[dict[str, Any]]:
+    """Recordings on the server with skeleton parts (depth source for the fusion)."""
+    from app.server import analysis as an
+
+    root = Path(settings.data_dir) / an.RECORDINGS_DIR
+    out = []
+    if root.is_dir():
+        for d in sorted((p for p in root.iterdir() if p.is_dir()), reverse=True)[:200]:
+            parts = an.part_dirs(d)
+            if parts:
+                out.append({"id": d.name, "sensors": sorted(parts)})
+    return out
 
 
 def _load(path: Path, kwargs: dict[str, Any]) -> ImuRecording:

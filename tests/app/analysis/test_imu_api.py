@@ -154,3 +154,55 @@ def test_fused_upload_from_files(client: TestClient, tmp_path: Path) -> None:
     for n, off in sim["true_offsets"].items():
         assert offs[n] == pytest.approx(off, abs=0.01)
     assert d["angles"]["knee_left"]["depth_vs_fused_rmse_deg"] is not None
+
+
+def test_depth_skeleton_from_a_recording(client: TestClient, tmp_path: Path) -> None:
+    """The depth skeleton taken from a recording on the server (one sensor's part, sensor
+    frame, placed in the world by the recording's sensor pose)."""
+    import json
+
+    from app.nodes.protocol import encode_skeletons
+    from app.nodes.store import NodeStore
+    from app.server.imu_analysis import simulate_session
+    from engine.coverage import sensor_pose
+
+    sim = simulate_session(seed=2)
+    depth = sim["depth"]
+    T = sensor_pose((8.0, 0.3, 1.0), 180.0)  # looking back along the walkway
+    Ti = np.linalg.inv(T)
+    rec_id = "R20260102-101500-0001"
+    data_dir = client.app.state.settings.data_dir  # type: ignore[attr-defined]
+    rec_dir = data_dir / "recordings" / rec_id
+    w = NodeStore(rec_dir).create_part("S3", t_start_server=float(depth.times[0]))
+    for k, t in enumerate(depth.times):
+        P = depth.positions[k] @ Ti[:3, :3].T + Ti[:3, 3]
+        w.append(float(t), "skeleton", encode_skeletons(k, float(t), P[None],
+                                                        depth.states[k][None]))
+    w.close()
+    (rec_dir / "sensors.json").write_text(json.dumps({"S3": {"T_world_sensor": T.tolist()}}))
+    assert client.get("/api/imu/recordings").json() == [{"id": rec_id, "sensors": ["S3"]}]
+    names = ("chest", "thigh_l", "shank_l")
+    files = []
+    for name in names:
+        rec = sim["recordings"][name]
+        buf = io.StringIO()
+        buf.write("time,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z\n")
+        np.savetxt(buf, np.column_stack([rec.time, rec.gyr, rec.acc, rec.mag]), delimiter=",",
+                   fmt="%.6f")
+        files.append(("files", (f"{name}.csv", buf.getvalue().encode(), "text/csv")))
+    units = {"gyr_unit": "rad/s", "acc_unit": "m/s2", "mag_unit": "uT"}
+    r = client.post("/api/imu/sessions", files=files,
+                    data={**units, "recording": rec_id, "recording_node": "S9"})
+    assert r.status_code == 400 and "S3" in r.json()["detail"]
+    r = client.post("/api/imu/sessions", files=files,
+                    data={**units, "recording": "../../etc", "recording_node": "S3"})
+    assert r.status_code == 400
+    r = client.post("/api/imu/sessions", files=files,
+                    data={**units, "recording": rec_id, "recording_node": "S3"})
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["kind"] == "fused" and d["skeleton"]["frames"] == len(depth)
+    offs = {row["stream"]: row["offset_s"] for row in d["sync"]}
+    for n in names:
+        assert offs[n] == pytest.approx(sim["true_offsets"][n], abs=0.01)
+    assert d["angles"]["knee_left"]["fused_range_deg"] is not None
