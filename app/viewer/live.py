@@ -66,7 +66,7 @@ def populate_layout(server: viser.ViserServer, layout: Rig, label: str) -> None:
         corners[:, 2] += 0.003  # just above the grid
         segs = np.stack([corners, np.roll(corners, -1, axis=0)], axis=1).astype(np.float32)
         server.scene.add_line_segments(f"/layout/markers/{m.id}", segs, (20, 20, 20),
-                                       thickness=3.0)
+                                       thickness=0.015)
         server.scene.add_label(f"/layout/markers/{m.id}/label", f"marker {m.id}",
                                position=corners.mean(axis=0))
     w = layout.walkway
@@ -76,7 +76,7 @@ def populate_layout(server: viser.ViserServer, layout: Rig, label: str) -> None:
     ring = np.array([a + n, b + n, b - n, a - n])
     ring[:, 2] = 0.004
     segs = np.stack([ring, np.roll(ring, -1, axis=0)], axis=1).astype(np.float32)
-    server.scene.add_line_segments("/layout/walkway", segs, (240, 140, 0), thickness=4.0)
+    server.scene.add_line_segments("/layout/walkway", segs, (240, 140, 0), thickness=0.03)
     server.scene.add_label("/layout/walkway/label", f"walkway ({label})",
                            position=a + 0.3 * (b - a) + n * 1.2)
 
@@ -115,7 +115,7 @@ def populate_graph(server: viser.ViserServer, layout: Rig,
                 cols.append((c, c))
     if segs:
         server.scene.add_line_segments("/graph/edges", np.asarray(segs, np.float32),
-                                       np.asarray(cols, np.uint8), thickness=1.5)
+                                       np.asarray(cols, np.uint8), thickness=0.008)
     server.scene.add_label("/graph/label", f"sensor–marker graph: {source}",
                            position=(0.0, 0.0, 2.6))
 
@@ -177,7 +177,7 @@ def populate_fused_skeleton(server: viser.ViserServer, joints: NDArray[np.float6
     if not segs:
         server.scene.remove_by_name(name)
         return
-    server.scene.add_line_segments(name, np.asarray(segs, np.float32), FUSED_RGB, thickness=5.0)
+    server.scene.add_line_segments(name, np.asarray(segs, np.float32), FUSED_RGB, thickness=0.03)
 
 
 def populate_coverage(server: viser.ViserServer, planner: Planner, visible: bool = True) -> None:
@@ -186,7 +186,7 @@ def populate_coverage(server: viser.ViserServer, planner: Planner, visible: bool
     img = planner.image(pixels_per_cell=2)
     server.scene.add_image("/coverage/map", img, render_width=g.x1 - g.x0,
                            render_height=g.y1 - g.y0, format="png",
-                           position=((g.x0 + g.x1) / 2, (g.y0 + g.y1) / 2, -0.002),
+                           position=((g.x0 + g.x1) / 2, (g.y0 + g.y1) / 2, 0.002),  # above the grid plane
                            visible=visible)
 
 

@@ -117,7 +117,7 @@ def test_3d_view(browser: Any, live_server: LiveServer, artifacts_dir: Path) -> 
         p.set_default_timeout(120000)  # software WebGL on a loaded CI machine is slow
         p.goto(live_server.viewer_url + "/")
         p.wait_for_selector("canvas", timeout=60000)
-        p.wait_for_timeout(4000)
+        p.wait_for_timeout(12000)  # viser fades the scene in once it has loaded
         img = screenshot(p, artifacts_dir, "viewer_3d")
         # not a blank page: the grid, frustums, coverage map and clouds give varied pixels
         assert img.std() > 10

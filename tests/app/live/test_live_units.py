@@ -53,7 +53,7 @@ def test_highlight_mask_and_scaled_intrinsics() -> None:
     view, _ = _floor_view()
     mask = np.zeros(view.depth_mm.shape, bool)
     mask[80:, :] = True
-    pts, cols = merge_depth_views([DepthView(view.depth_mm, view.K, view.T_world_sensor,
+    _pts, cols = merge_depth_views([DepthView(view.depth_mm, view.K, view.T_world_sensor,
                                              (0, 0, 255), mask)], voxel_m=0.05)
     assert (cols == HIGHLIGHT_RGB).all(axis=1).any() and (cols == (0, 0, 255)).all(axis=1).any()
     K2 = scale_intrinsics(view.K, 0.5)
