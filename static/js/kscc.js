@@ -200,7 +200,10 @@
     try {
       const d = await api(`/api/kscc/trapezoid?height_m=${encodeURIComponent($("height").value)}&tilt_deg=${encodeURIComponent($("tilt").value)}`);
       $("presets").replaceChildren(...Object.entries(d.presets).map(([k, p]) => {
-        const tr = row([p.label, ...(p.trapezoid ? trapCells(p.trapezoid) : [p.problem, "", "", ""])]); tr.dataset.preset = k; return tr; }));
+        let tr;
+        if (p.trapezoid) tr = row([p.label, ...trapCells(p.trapezoid)]);
+        else { tr = row([p.label, p.problem]); tr.lastChild.colSpan = 4; tr.lastChild.className = "warn"; }
+        tr.dataset.preset = k; return tr; }));
     } catch (e) { $("presets").replaceChildren(row(["Height or tilt out of range: " + e.message, "", "", "", ""])); }
   }
   $("height").addEventListener("input", loadPresets);

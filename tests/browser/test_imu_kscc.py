@@ -84,3 +84,56 @@ def test_kscc_page_live_progress_and_active_area(page: Any, live_server: LiveSer
     page.wait_for_function("document.querySelector('#sides .message').textContent"
                            " === 'Not started.'")
     assert not page.js_errors
+
+
+def test_kscc_two_remote_users_calibrated_and_compared(page: Any, live_server: LiveServer,
+                                                       artifacts_dir: Path,
+                                                       tmp_path: Path) -> None:
+    """The demo server links to another site (a second real server on loopback) whose two
+    sensors each see a still person: both calibrate, the page draws them and scores them."""
+    from engine.coverage import sensor_pose
+    from tests.app.analysis.test_kscc_api import ScriptedNode, Site, standing_person
+
+    site = Site(tmp_path / "site-b")
+    nodes = [ScriptedNode(site, "R1", sensor_pose((0.0, 0.0, 1.0), 0.0),
+                          standing_person((2.6, 0.2), 200.0)),
+             ScriptedNode(site, "R2", sensor_pose((5.0, 4.0, 1.2), 230.0),
+                          standing_person((2.0, 1.5), 120.0))]
+    try:
+        token = "browser-link-token-0042"
+        for n in ("R1", "R2"):
+            for _ in range(100):
+                if site.http.get(f"/api/nodes/{n}/skeleton").status_code == 200:
+                    break
+                page.wait_for_timeout(100)
+            assert site.http.post("/api/kscc/shares",
+                                  json={"node_id": n, "token": token}).status_code == 201
+        page.goto(live_server.base_url + "/kscc.html")
+        for side, node in (("a", "R1"), ("b", "R2")):
+            page.check(f"input[name=kind-{side}][value=remote]")
+            page.fill(f"#url-{side}", site.base)
+            page.fill(f"#rnode-{side}", node)
+            page.fill(f"#token-{side}", token)
+        page.fill("#countdown", "0")
+        page.click("#start")
+        page.wait_for_selector(".side[data-side=a] .state.collecting", timeout=30_000)
+        page.wait_for_function("document.getElementById('score').textContent !== '—'",
+                               timeout=60_000)
+        for side in ("a", "b"):
+            assert "Done" in page.inner_text(f".side[data-side={side}] .state")
+            assert "link: connected" in page.inner_text(f".side[data-side={side}] h3")
+        score = float(page.inner_text("#score"))
+        assert score > 85 and "apart on average" in page.inner_text("#meaning")
+        page.wait_for_timeout(700)
+        img = screenshot(page, artifacts_dir, "kscc_two_users", "#skeletons")
+        assert color_fraction(img, (0x0B, 0x5C, 0xAD), tol=40) > 2e-3  # user A drawn
+        assert color_fraction(img, (0xCF, 0x22, 0x2E), tol=40) > 2e-3  # user B drawn
+        diff = screenshot(page, artifacts_dir, "kscc_difference", "#diff")
+        assert color_fraction(diff, (0x12, 0x35, 0x5B), tol=30) > 5e-4  # the curve
+        page.click("#stop")
+        assert not page.js_errors
+    finally:
+        for n in nodes:
+            n.stop.set()
+            n.thread.join(5)
+        site.close()

@@ -212,9 +212,13 @@ def presets(height_m: float, tilt_deg: float = 0.0) -> dict[str, Any]:
                                  "min_range_m": m.min_range_m, "max_range_m": m.max_range_m}
         try:
             entry["trapezoid"] = _trap(preset_trapezoid(key, height_m, tilt_deg=tilt_deg))
-        except InputError as e:
+        except InputError:
             entry["trapezoid"] = None
-            entry["problem"] = str(e)
+            # the feet enter the view farther out the higher the sensor; beyond the range
+            # limit (or with too much tilt) no spot shows the whole body
+            entry["problem"] = (f"no floor spot shows a whole 1.8 m person within its "
+                                f"{m.min_range_m:g}–{m.max_range_m:g} m range at this height "
+                                "and tilt; mount it nearer 1 m or tilt it less")
         out[key] = entry
     return out
 
