@@ -451,8 +451,20 @@ def _add_subject(client: TestClient, rec_id: str, state: str = "complete"
         return subj.id, s1.id, empty.id
 
 
-def test_subject_and_session_reports(client: TestClient, recorded: Recorded) -> None:
+def test_subject_and_session_reports(client: TestClient, recorded: Recorded,
+                                     tmp_path: Path) -> None:
     sid, sess_id, empty_id = _add_subject(client, recorded.rec_id)
+    # A reference imported on the Subjects page (data management) feeds the agreement.
+    from app.db.data import ReferenceImport
+
+    data_dir = client.app.state.settings.data_dir  # type: ignore[attr-defined]
+    shutil.rmtree(data_dir / "recordings" / recorded.rec_id / "reference", ignore_errors=True)
+    (data_dir / "references" / recorded.rec_id).mkdir(parents=True)
+    _truth_reference(recorded, data_dir / "references" / recorded.rec_id / "0123abcd4567ef89.csv")
+    with client.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        db.add(ReferenceImport(recording_id=recorded.rec_id, filename="truth.csv",
+                               format="csv", stored_name="0123abcd4567ef89.csv"))
+        db.commit()
     lst = client.get("/api/reports/recordings").json()
     assert [r["id"] for r in lst] == [recorded.rec_id]
     assert lst[0]["subject_code"] == "P01" and lst[0]["session_label"] == "baseline"
@@ -460,6 +472,7 @@ def test_subject_and_session_reports(client: TestClient, recorded: Recorded) -> 
     r = client.get(f"/api/reports/subjects/{sid}")
     assert r.status_code == 200, r.text
     assert "P01" in r.text and "174 cm" in r.text and "all sessions (2)" in r.text
+    assert "Agreement with the reference" in r.text and "single steps L+R" in r.text
     r = client.get(f"/api/reports/subjects/{sid}?session_id={sess_id}&format=pdf")
     assert r.status_code == 200
     assert r.headers["content-disposition"] == \
