@@ -374,3 +374,35 @@ def test_two_site_link(two_sites: tuple[Site, Site, list[ScriptedNode]]) -> None
     s = _wait(lambda: (d := site_a.http.get("/api/kscc/session").json())["sides"]["b"]["link"]
               in ("refused", "unreachable") and d, 15, "unshare")
     assert site_a.http.delete("/api/kscc/session").status_code == 204
+
+
+def test_3d_view_gets_active_areas_and_both_users(tmp_path: Path) -> None:
+    s = Settings(data_dir=tmp_path, viewer_enabled=True, viewer_port=0, node_token=NODE_TOKEN,
+                 admin_password=PW, clock_ping_interval_s=0.05)
+    T1 = sensor_pose((0.0, 0.0, 1.0), 0.0)
+    T2 = sensor_pose((6.0, 0.0, 1.0), 180.0)
+    person = standing_person((3.0, 0.0), 180.0)
+    st = np.full((1, 25), 2, np.uint8)
+    with TestClient(create_app(s)) as c:
+        r = c.post("/api/auth/login", json={"username": "admin", "password": PW})
+        c.headers["Authorization"] = f"Bearer {r.json()['token']}"
+        scene = c.app.state.viewer.server.scene  # type: ignore[attr-defined]
+        with c.websocket_connect("/ws/node") as w1, c.websocket_connect("/ws/node") as w2:
+            _hello(w1, "S1", T1, KINECT_V2)
+            _hello(w2, "S2", T2, KINECT_V2)
+            assert len(c.get("/api/kscc/active-area").json()) == 2
+            assert {"/active_area/S1", "/active_area/S2"} <= set(scene._handle_from_node_name)
+            c.post("/api/kscc/session", json={"a": {"kind": "node", "node_id": "S1"},
+                                              "b": {"kind": "node", "node_id": "S2"},
+                                              "countdown_s": 0})
+            t0 = time.time()
+            for k in range(170):
+                t = t0 + k / 30.0
+                w1.send_bytes(encode_skeletons(k, t, in_sensor(person, T1)[None], st))
+                w2.send_bytes(encode_skeletons(k, t, in_sensor(person, T2)[None], st))
+                if k >= 130:
+                    time.sleep(0.11)  # the 3D view is redrawn at most 10 times a second
+            _wait(lambda: c.get("/api/kscc/session").json()["comparison"]["ready"], 10,
+                  "comparison")
+            _wait(lambda: {"/kscc/side/a", "/kscc/side/b", "/kscc/overlay/b"}
+                  <= set(scene._handle_from_node_name), 10, "the 3D panels")
