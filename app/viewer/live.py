@@ -186,7 +186,8 @@ def populate_coverage(server: viser.ViserServer, planner: Planner, visible: bool
     img = planner.image(pixels_per_cell=2)
     server.scene.add_image("/coverage/map", img, render_width=g.x1 - g.x0,
                            render_height=g.y1 - g.y0, format="png",
-                           position=((g.x0 + g.x1) / 2, (g.y0 + g.y1) / 2, 0.002),  # above the grid plane
+                           # just above the floor grid
+                           position=((g.x0 + g.x1) / 2, (g.y0 + g.y1) / 2, 0.002),
                            visible=visible)
 
 
@@ -380,6 +381,8 @@ class LiveServices:
 
     def _on_nodes(self, _s: NodeSession) -> None:
         try:
+            for nid in sorted(self.hub.registry.nodes):  # per-sensor toggles in id order
+                self._node_toggle(nid)
             self._draw_graph()
             self.get_planner()
         except Exception:
