@@ -406,3 +406,31 @@ def test_3d_view_gets_active_areas_and_both_users(tmp_path: Path) -> None:
                   "comparison")
             _wait(lambda: {"/kscc/side/a", "/kscc/side/b", "/kscc/overlay/b"}
                   <= set(scene._handle_from_node_name), 10, "the 3D panels")
+
+
+def test_missing_shoulders_are_explained(client: TestClient) -> None:
+    T1 = sensor_pose((0.0, 0.0, 1.0), 0.0)
+    T2 = sensor_pose((0.0, 1.0, 1.0), -20.0)
+    person = standing_person((3.0, 0.5), 180.0)
+    st = np.full((1, 25), 2, np.uint8)
+    hidden = st.copy()
+    for j in ("ShoulderLeft", "ShoulderRight"):
+        hidden[0, KINECT_V2.index(j)] = 0  # NOT_TRACKED
+    with client.websocket_connect("/ws/node") as w1, client.websocket_connect("/ws/node") as w2:
+        _hello(w1, "S1", T1, KINECT_V2)
+        _hello(w2, "S2", T2, KINECT_V2)
+        client.post("/api/kscc/session", json={"a": {"kind": "node", "node_id": "S1"},
+                                               "b": {"kind": "node", "node_id": "S2"},
+                                               "countdown_s": 0})
+        t0 = time.time()
+        for k in range(60):
+            t = t0 + k / 30.0
+            w1.send_bytes(encode_skeletons(k, t, in_sensor(person, T1)[None], hidden))
+            w2.send_bytes(encode_skeletons(k, t, in_sensor(person, T2)[None], st))
+        s = _wait(lambda: (d := client.get("/api/kscc/session").json())["sides"]["a"]["frames"]
+                  >= 60 and d["sides"]["b"]["frames"] >= 60 and d, 10, "60 frames")
+    a, b = s["sides"]["a"], s["sides"]["b"]
+    assert a["progress"]["state"] == "waiting" and a["progress"]["n_collected"] == 0
+    assert "shoulder" in a["message"].lower()
+    assert b["progress"]["state"] == "collecting" and b["progress"]["n_collected"] > 30
+    assert not s["comparison"]["ready"] and "calibrated first" in s["comparison"]["message"]
