@@ -50,13 +50,22 @@
     try { render(await api("/api/kscc/session/restart", { method: "POST", body: JSON.stringify({ side: "both" }) })); }
     catch (e) { $("error").textContent = e.message; }
   });
+  for (const b of document.querySelectorAll("button.recal")) {
+    b.addEventListener("click", async () => {
+      try { render(await api("/api/kscc/session/restart", { method: "POST", body: JSON.stringify({ side: b.dataset.side }) })); }
+      catch (e) { $("error").textContent = e.message; }
+    });
+  }
   $("stop").addEventListener("click", async () => {
     await api("/api/kscc/session", { method: "DELETE" }).catch(() => {});
     stopPolling(); render(null);
   });
 
-  function startPolling() { if (!polling) polling = setInterval(poll, 300); $("restart").disabled = false; $("stop").disabled = false; }
-  function stopPolling() { clearInterval(polling); polling = null; $("restart").disabled = true; $("stop").disabled = true; }
+  function setRunning(on) {
+    for (const b of [$("restart"), $("stop"), ...document.querySelectorAll("button.recal")]) b.disabled = !on;
+  }
+  function startPolling() { if (!polling) polling = setInterval(poll, 300); setRunning(true); }
+  function stopPolling() { clearInterval(polling); polling = null; setRunning(false); }
   async function poll() {
     try { render(await api("/api/kscc/session")); }
     catch (e) { if (/no KSCC session/.test(e.message)) { stopPolling(); render(null); } }

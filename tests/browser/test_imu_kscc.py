@@ -130,6 +130,12 @@ def test_kscc_two_remote_users_calibrated_and_compared(page: Any, live_server: L
         assert color_fraction(img, (0xCF, 0x22, 0x2E), tol=40) > 2e-3  # user B drawn
         diff = screenshot(page, artifacts_dir, "kscc_difference", "#diff")
         assert color_fraction(diff, (0x12, 0x35, 0x5B), tol=30) > 5e-4  # the curve
+        # recalibrate user A only: A collects again, B stays calibrated
+        page.click("button.recal[data-side=a]")
+        page.wait_for_function("!document.querySelector('.side[data-side=a] .state')"
+                               ".textContent.includes('Done')", timeout=10_000)
+        assert "Done" in page.inner_text(".side[data-side=b] .state")
+        page.wait_for_selector(".side[data-side=a] .state.done", timeout=30_000)
         page.click("#stop")
         assert not page.js_errors
     finally:
