@@ -217,6 +217,8 @@ class LiveServices:
         self.coverage_draw_ms: list[float] = []
         self.streams.frame_listeners.append(self._on_frame)
         if viewer is not None:
+            self._build_gui()
+            populate_layout(viewer, self.layout, "simulated lab layout")
             hub.skeleton_listeners.append(self._on_skeleton)
             hub.registry.listeners.append(self._on_nodes)
 
@@ -226,8 +228,6 @@ class LiveServices:
         """Start streaming and the 3D panels (server lifespan)."""
         self.streams.start()
         if self.viewer is not None:
-            self._build_gui()
-            populate_layout(self.viewer, self.layout, "simulated lab layout")
             self._cloud_task = asyncio.get_running_loop().create_task(self._cloud_loop())
 
     async def stop(self) -> None:
@@ -289,22 +289,26 @@ class LiveServices:
                                         position=(0.0, 0.15, 0.0))
 
             def moved(ev: Any, sid: str = s.id) -> None:
-                T = np.eye(4)
-                from engine.geometry import quat_to_matrix
-
-                T[:3, :3] = quat_to_matrix(np.asarray(ev.target.wxyz, float))
-                T[:3, 3] = np.asarray(ev.target.position, float)
-                self._dragging = True
-                try:
-                    if self.planner is not None:
-                        self.planner.move(sid, T)
-                except Exception as exc:
-                    log.warning("planning move of %s refused: %s", sid, exc)
-                finally:
-                    self._dragging = False
+                self.apply_drag(sid, ev.target.wxyz, ev.target.position)
 
             h.on_update(moved)
             self._handles[s.id] = h
+
+    def apply_drag(self, sensor_id: str, wxyz: Any, position: Any) -> None:
+        """A planning handle moved: re-pose the planned sensor (the map follows)."""
+        from engine.geometry import quat_to_matrix
+
+        T = np.eye(4)
+        T[:3, :3] = quat_to_matrix(np.asarray(wxyz, float))
+        T[:3, 3] = np.asarray(position, float)
+        self._dragging = True  # the handle is already where the user put it
+        try:
+            if self.planner is not None:
+                self.planner.move(sensor_id, T)
+        except Exception as exc:
+            log.warning("planning move of %s refused: %s", sensor_id, exc)
+        finally:
+            self._dragging = False
 
     # ------------------------------------------------------------------ GUI
 

@@ -104,10 +104,15 @@ class Planner:
                                  float)
                 if pos.shape != (3,) or not np.isfinite(pos).all():
                     raise InputError("position must be three finite numbers (x, y, z) in metres")
-                if not 0.1 <= pos[2] <= 4.0:
-                    raise InputError(f"sensor height {pos[2]:.2f} m is outside 0.1–4 m")
                 T_world_sensor = sensor_pose(pos, yaw0 if yaw_deg is None else yaw_deg,
                                              pitch0 if pitch_deg is None else pitch_deg)
+            T_world_sensor = np.asarray(T_world_sensor, float)
+            if T_world_sensor.shape != (4, 4) or not np.isfinite(T_world_sensor).all():
+                raise InputError("a sensor pose must be a finite 4×4 matrix")
+            height = float(T_world_sensor[2, 3])
+            if not 0.1 <= height <= 4.0:
+                raise InputError(f"sensor height {height:.2f} m is outside 0.1–4 m; tripods "
+                                 "stand on the floor")
             self.map = self.model.move_sensor(sensor_id, T_world_sensor)
             self.version += 1
         for cb in list(self.listeners):

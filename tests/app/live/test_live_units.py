@@ -145,3 +145,37 @@ def test_planner_move_save_and_reload(tmp_path) -> None:  # type: ignore[no-unty
     assert p.png()[:4] == b"\x89PNG"
     p.reset()
     assert not any(s["moved"] for s in p.summary()["sensors"])
+
+
+def test_dragging_a_handle_moves_the_plan_and_redraws_the_3d_map(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import viser
+
+    from app.config import Settings
+    from app.nodes.protocol import SensorInfo
+    from app.server.hub import Hub
+    from app.viewer.live import LiveServices
+    from engine.geometry import quat_from_matrix
+
+    async def send(_t: str) -> None:
+        return None
+
+    hub = Hub(Settings(data_dir=tmp_path))
+    rig = default_avenue_rig(None)
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        live = LiveServices(hub, server)
+        for s in rig.sensors:
+            hub.registry.connect(s.id, "sim", SensorInfo(T_world_sensor=s.T_world_sensor.tolist()),
+                                 send, True)
+        planner = live.get_planner()
+        assert sorted(live._handles) == [s.id for s in rig.sensors]
+        v0, walk0 = planner.version, planner.summary()["walkway_covered_fraction"]
+        T = sensor_pose((2.4, 1.0, 1.0), 35.0, -8.0)  # S1 turned away from the walkway
+        live.apply_drag("S1", quat_from_matrix(T[:3, :3]), T[:3, 3])
+        assert planner.version == v0 + 1
+        assert planner.summary()["walkway_covered_fraction"] < walk0
+        assert len(live.coverage_draw_ms) >= 2  # initial map + the redraw after the drag
+        live.apply_drag("S1", (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 9.0))  # refused: too high
+        assert planner.version == v0 + 1
+    finally:
+        server.stop()
