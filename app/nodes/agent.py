@@ -38,6 +38,7 @@ from app.nodes.protocol import (
     Hello,
     ManifestRequest,
     NodeError,
+    PartInfo,
     Ping,
     Pong,
     ProtocolError,
@@ -176,6 +177,9 @@ class NodeAgent:
         self._tasks: set[asyncio.Future[None]] = set()
         self._ws: ClientConnection | None = None
         self._out: asyncio.Queue[str | bytes] = asyncio.Queue(maxsize=256)
+        self._control: deque[str] = deque()
+        self._wake = asyncio.Event()
+        self._finished: dict[str, tuple[PartInfo, float]] = {}
         self._stop = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="images")
@@ -370,6 +374,7 @@ class NodeAgent:
     # ------------------------------------------------------------------ frames
 
     def _send_now(self, data: str | bytes) -> bool:
+        """Queue a frame for the server; False (the frame is dropped) when the link lags."""
         if self._ws is None:
             return False
         try:
@@ -378,10 +383,28 @@ class NodeAgent:
         except asyncio.QueueFull:
             return False
 
+    def _send_control(self, text: str) -> None:
+        """Queue a control message: never dropped while connected, sent before frames."""
+        if self._ws is not None:
+            self._control.append(text)
+            self._wake.set()
+
     async def _sender(self, ws: ClientConnection) -> None:
         while True:
-            data = await self._out.get()
-            await ws.send(data)
+            while self._control:
+                await ws.send(self._control.popleft())
+            if not self._out.empty():
+                await ws.send(self._out.get_nowait())
+                continue
+            self._wake.clear()
+            getter = asyncio.ensure_future(self._out.get())
+            waker = asyncio.ensure_future(self._wake.wait())
+            done, _ = await asyncio.wait({getter, waker}, return_when=asyncio.FIRST_COMPLETED)
+            waker.cancel()
+            if getter in done:
+                await ws.send(getter.result())
+            else:
+                getter.cancel()
 
     def _on_frame(self, frame: Frame) -> None:
         self._handled += 1
@@ -438,7 +461,7 @@ class NodeAgent:
                 )
             except Exception as exc:
                 log.exception("cannot create recording %s", msg.rec_id)
-                self._send_now(dump(NodeError(reason=f"cannot record {msg.rec_id}: {exc}")))
+                self._send_control(dump(NodeError(reason=f"cannot record {msg.rec_id}: {exc}")))
                 return
             rec = _Rec(msg, writer)
             self._recs[msg.rec_id] = rec
@@ -454,7 +477,7 @@ class NodeAgent:
             if self.ring.oldest is not None and self.ring.oldest > msg.t_start_local:
                 log.warning("recording %s started %.2f s before the ring buffer's oldest frame",
                             msg.rec_id, self.ring.oldest - msg.t_start_local)
-            self._send_now(dump(RecState(part=writer.info())))
+            self._send_control(dump(RecState(part=writer.info())))
             late = self.backend.now() - msg.t_start_local
             if late > 0:
                 log.info("recording %s: command arrived %.0f ms after the start; %d frames "
@@ -514,7 +537,8 @@ class NodeAgent:
                 clock_stop=rec.stop_cmd.clock if rec.stop_cmd else {},
             )
         log.info("recording %s %s: %d frames", info.rec_id, state, info.n_frames)
-        self._send_now(dump(RecState(part=info)))
+        self._finished[info.rec_id] = (info, time.monotonic())
+        self._send_control(dump(RecState(part=info)))
 
     # ------------------------------------------------------------------ status
 
@@ -534,5 +558,13 @@ class NodeAgent:
                                       disk_free_bytes=free,
                                       ring_seconds=self.ring.span, diag=diag)))
             for rec in self._recs.values():
-                await ws.send(dump(RecState(part=rec.writer.info())))
+                self._send_control(dump(RecState(part=rec.writer.info())))
+            # Re-announce parts closed in the last 30 s (the server's update is idempotent),
+            # so a state lost with a broken connection still arrives.
+            now = time.monotonic()
+            for rec_id, (info, t_done) in list(self._finished.items()):
+                if now - t_done > 30.0:
+                    del self._finished[rec_id]
+                else:
+                    self._send_control(dump(RecState(part=info)))
             await asyncio.sleep(1.0)
