@@ -51,7 +51,7 @@ def record(rig: Rig, session_id: int, seconds: float = 1.5) -> str:
     return str(rec["id"])
 
 
-def wait_state(rig: Rig, rec_id: str, states: set[str], timeout: float = 40.0
+def wait_state(rig: Rig, rec_id: str, states: set[str], timeout: float = 90.0
                ) -> dict[str, Any]:
     def done() -> dict[str, Any] | None:
         r = rig.api(f"/api/storage/recordings/{rec_id}")
@@ -69,7 +69,7 @@ def http_error(fn: Any) -> tuple[int, str]:
     raise AssertionError("expected an HTTP error")
 
 
-@pytest.mark.timeout(120)
+@pytest.mark.timeout(300)
 def test_recording_is_filed_transferred_and_verified(make_rig: Any, tmp_path: Path) -> None:
     rig: Rig = make_rig()
     rig.start_node("S1", images=True)
@@ -102,6 +102,19 @@ def test_recording_is_filed_transferred_and_verified(make_rig: Any, tmp_path: Pa
     assert usage["subjects"][0]["bytes"] == subj["bytes_on_server"]
 
     check_exports(rig, tmp_path / "server", rec_id)
+
+    # a recording started without a session (Rig page) is transferred all the same and
+    # can be filed under a session afterwards
+    other = rig.api("/api/recordings", {})["id"]
+    time.sleep(1.0)
+    rig.api(f"/api/recordings/{other}/stop", {})
+    wait_for(lambda: rig.api(f"/api/recordings/{other}")["state"] == "complete", 40,
+             "the unfiled recording to be transferred")
+    assert [r["id"] for r in rig.api("/api/storage/unfiled")] == [other]
+    rig.api(f"/api/sessions/{ids['session']['id']}/recordings/attach", {"rec_id": other})
+    assert wait_state(rig, other, {"complete"})["state"] == "complete"
+    assert rig.api("/api/storage/unfiled") == []
+    rig.api(f"/api/storage/recordings/{other}/delete", {"confirm": "P001"})
 
     # deletion needs the subject code typed again
     code, msg = http_error(lambda: rig.api(f"/api/storage/recordings/{rec_id}/delete",
