@@ -23,7 +23,8 @@ Analysis of a recording (:func:`analyse_recording`):
 
 Results — the gait JSON (``docs/gait-json.md``), the fusion quality report, foot
 placements and ankle heights for the plots — are cached as JSON in
-``<recording>/analysis/`` keyed by the options; a failure (e.g. too few steps) is cached
+``<recording>/analysis/`` keyed by the options and by a fingerprint of the parts and
+poses (a part that arrives later makes a new analysis); a failure (e.g. too few steps) is cached
 as its message, so a clinician gets the same clear answer at once next time.
 """
 
@@ -34,6 +35,7 @@ import json
 import math
 import os
 import re
+import secrets
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -61,6 +63,24 @@ _ID_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 FACING_MIN_SPEED = 0.3
 #: Points kept for the ankle-height plot (the report shows one trial's trajectories).
 MAX_PLOT_POINTS = 1200
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    """Atomic write; the temporary name is unique so concurrent requests never collide."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    tmp.write_text(json.dumps(obj))
+    os.replace(tmp, path)
+
+
+def _fingerprint(rec_dir: Path) -> str:
+    """Changes when a part arrives or changes, or the sensor poses are replaced."""
+    h = hashlib.sha1()
+    for node, d in part_dirs(rec_dir).items():
+        h.update(f"{node}:{(d / 'frames.bin').stat().st_size};".encode())
+    poses = rec_dir / "sensors.json"
+    if poses.is_file():
+        h.update(poses.read_bytes())
+    return h.hexdigest()[:10]
 
 
 def check_id(value: str, what: str = "recording id") -> str:
@@ -267,9 +287,7 @@ def sensor_poses(rec_dir: Path, live_poses: Mapping[str, Any] | None = None
         saved[node] = {"T_world_sensor": arr.tolist(), **extra}
         changed = True
     if changed:
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(saved, indent=1))
-        os.replace(tmp, path)
+        _write_json(path, saved)
     return saved
 
 
@@ -417,14 +435,14 @@ def analyse_recording(rec_dir: Path, options: AnalysisOptions,
         if unknown:
             raise InputError(f"recording {rec_dir.name} has no sensor {', '.join(unknown)}; "
                              f"its sensors are {', '.join(available) or 'none'}")
-    cache = rec_dir / "analysis" / f"{options.key()}.json"
+    poses = sensor_poses(rec_dir, live_poses)
+    cache = rec_dir / "analysis" / f"{options.key()}-{_fingerprint(rec_dir)}.json"
     if use_cache and cache.is_file():
         try:
             cached: dict[str, Any] = json.loads(cache.read_text())
             return cached
         except (OSError, json.JSONDecodeError):
             pass
-    poses = sensor_poses(rec_dir, live_poses)
     streams, facts = load_streams(rec_dir, poses)
     ids = [s.sensor_id for s in streams]
     chosen = ids if options.sensors is None else [s for s in ids if s in options.sensors]
@@ -462,9 +480,7 @@ def analyse_recording(rec_dir: Path, options: AnalysisOptions,
         # E.g. no tracked ankles at all: the recording has no usable body.
         out["error"] = f"no usable body in the recording: {exc}"
     cache.parent.mkdir(exist_ok=True)
-    tmp = cache.with_suffix(".tmp")
-    tmp.write_text(json.dumps(out))
-    os.replace(tmp, cache)
+    _write_json(cache, out)
     return out
 
 
