@@ -119,9 +119,15 @@ def test_3d_view(browser: Any, live_server: LiveServer, artifacts_dir: Path) -> 
         p.wait_for_selector("canvas", timeout=60000)
         p.wait_for_timeout(12000)  # viser fades the scene in once it has loaded
         img = screenshot(p, artifacts_dir, "viewer_3d")
-        # not a blank page: the grid, frustums, coverage map and clouds give varied pixels
+        # the server filled the view's GUI: layer switches and one cloud toggle per sensor
+        for label in ("Point cloud", "Coverage map", "Sensor–marker graph", "Planning handles"):
+            assert p.get_by_label(label, exact=True).count() == 1, label
+        p.get_by_label(f"S{live_server.n_nodes} points", exact=True).wait_for()
+        # not a blank page: the coverage map's red blind floor is drawn (software WebGL may
+        # still be fading the scene in, so the test asks for a reddish tint, not pure red)
+        r, g, b = (img[..., k].astype(int) for k in range(3))
+        assert float(((r - g > 25) & (r - b > 25)).mean()) > 0.02
         assert img.std() > 10
-        assert saturated_fraction(img) > 0.01
     finally:
         ctx.close()
     sys_info = live_server.api("/api/system")
