@@ -1,7 +1,14 @@
 """Marker detection in colour images with sub-pixel corners, and single-marker pose.
 
-Detection uses OpenCV's ``ArucoDetector`` with sub-pixel corner refinement, which is what
-makes 3D corners from depth and the per-marker pose accurate to a fraction of a pixel.
+Detection uses OpenCV's ``ArucoDetector`` with sub-pixel corner refinement, then (by
+default) aligns the marker's known pattern to the image: an ECC homography fit
+(``cv2.findTransformECC``) of the ideal marker image, started from the detected corners.
+Corner refinement alone looks at a few pixels around each corner and is biased on small,
+foreshortened markers (a floor marker 4 m away is a thin diamond with acute corners: errors
+of 0.5–2.5 px in our simulation); the template fit uses every edge of the code and brings
+that to ≈ 0.1 px, and on real photos of a ChArUco board it lowers the per-marker
+reprojection RMS from ≤ 0.8 px to ≤ 0.2 px. The fit is kept only when it correlates well
+and moves the corners little, so it can only refine, never relocate, a detection.
 """
 
 from __future__ import annotations
@@ -103,17 +110,65 @@ def _to_gray(image: ArrayLike) -> NDArray[np.uint8]:
     return img
 
 
+_ECC_CELL_PX = 8  # template pixels per code cell
+_ECC_MIN_CORR = 0.7
+
+
+def refine_corners_template(
+    gray: NDArray[np.uint8],
+    det: MarkerDetection,
+    dictionary: str = DEFAULT_DICTIONARY,
+    max_shift_px: float | None = None,
+) -> MarkerDetection:
+    """Refine a detection by fitting the ideal marker image to ``gray`` (ECC homography).
+
+    The template is the marker with one cell of white quiet zone (printed sheets and
+    ChArUco boards have at least that). The refined corners are returned only when the
+    correlation is ≥ 0.7 and no corner moved more than ``max_shift_px`` (default: the
+    larger of 2 px and 10 % of the marker's mean edge); otherwise ``det`` unchanged.
+    """
+    from engine.calibration.markers import marker_image
+
+    d = get_dictionary(dictionary)
+    cells = int(d.markerSize) + 2
+    side = cells * _ECC_CELL_PX
+    pad = _ECC_CELL_PX
+    tpl = np.pad(marker_image(det.id, side, dictionary), pad, constant_values=255)
+    src = np.array([[pad, pad], [pad + side, pad], [pad + side, pad + side],
+                    [pad, pad + side]], np.float32) - 0.5  # outer edges, pixel-centre coords
+    H0 = cv2.getPerspectiveTransform(src, det.corners_px.astype(np.float32))
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-6)
+    try:
+        # no mask (None; the stubs do not allow it); gaussFiltSize 1 = no blur, which keeps
+        # the template sharp: the image is already band-limited by the camera
+        corr, H = cv2.findTransformECC(  # type: ignore[call-overload]
+            tpl.astype(np.float32), gray.astype(np.float32), H0.astype(np.float32),
+            cv2.MOTION_HOMOGRAPHY, crit, None, 1)
+    except cv2.error:  # did not converge (e.g. marker at the image border)
+        return det
+    c = cv2.perspectiveTransform(src.reshape(-1, 1, 2), H).reshape(4, 2).astype(float)
+    edge = det.perimeter_px / 4.0
+    limit = max_shift_px if max_shift_px is not None else max(2.0, 0.1 * edge)
+    if (not np.isfinite(c).all() or corr < _ECC_MIN_CORR
+            or np.linalg.norm(c - det.corners_px, axis=1).max() > limit):
+        return det
+    return MarkerDetection(det.id, c)
+
+
 def detect_markers(
     image: ArrayLike,
     dictionary: str = DEFAULT_DICTIONARY,
     detector: cv2.aruco.ArucoDetector | None = None,
+    refine: bool = True,
 ) -> DetectionSet:
     """Detect markers with sub-pixel corners.
 
     Args:
         image: (H, W, 3) colour (RGB or BGR: detection uses intensity only) or (H, W) grey.
-        dictionary: Dictionary name (ignored when ``detector`` is given).
+        dictionary: Dictionary name (also used for the template refinement).
         detector: A reusable detector from :func:`make_detector` (saves setup per frame).
+        refine: Refine the corners by fitting the marker's pattern
+            (:func:`refine_corners_template`).
 
     Returns:
         The unique-id detections and the list of duplicated ids.
@@ -134,6 +189,8 @@ def detect_markers(
         for i, c in zip(id_list, corners, strict=True)
         if counts[i] == 1
     ]
+    if refine:
+        found = [refine_corners_template(gray, m, dictionary) for m in found]
     found.sort(key=lambda m: m.id)
     return DetectionSet(found, dups)
 

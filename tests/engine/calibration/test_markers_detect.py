@@ -83,7 +83,10 @@ def test_rendered_markers_detected_subpixel(dictionary: str) -> None:
     ds = detect_markers(img, dictionary)
     assert ds.ids == [7] and ds.duplicates == []
     err = np.linalg.norm(ds.markers[0].corners_px - true_px, axis=1)
-    assert err.max() < 0.3, err
+    assert err.max() < 0.25, err
+    raw = detect_markers(img, dictionary, refine=False)
+    err_raw = np.linalg.norm(raw.markers[0].corners_px - true_px, axis=1)
+    assert err.mean() <= err_raw.mean()
     pose = estimate_marker_pose(ds.markers[0].corners_px, size, K)
     assert pose.rms_px < 0.3
     assert np.linalg.norm(pose.T_camera_marker[:3, 3] - T[:3, 3]) < 0.01
@@ -145,10 +148,17 @@ def test_charuco_photo_all_markers_and_reprojection(shared_data: Path) -> None:
     expected = sorted(int(i) for i in board.getIds().ravel())
     img = cv2.imread(str(d / "choriginal.jpg"))
     ds = detect_markers(img, "DICT_6X6_250", make_detector("DICT_6X6_250"))
+    raw = detect_markers(img, "DICT_6X6_250", refine=False)
     assert ds.ids == expected and ds.duplicates == []
     marker_len = board.getMarkerLength()
     rms = [estimate_marker_pose(m.corners_px, marker_len, K, dist).rms_px for m in ds.markers]
     assert max(rms) <= 0.5, rms
+    # the pattern fit refines the corner-only sub-pixel estimate on a real lens
+    assert raw.ids == ds.ids
+    rms_raw = [estimate_marker_pose(m.corners_px, marker_len, K, dist).rms_px
+               for m in raw.markers]
+    assert np.median(rms) < 0.7 * np.median(rms_raw), (rms, rms_raw)
+    assert max(rms) <= 0.25
     # corners are sub-pixel: the same pose re-projected through reprojection_rms agrees
     p0 = estimate_marker_pose(ds.markers[0].corners_px, marker_len, K, dist)
     assert reprojection_rms(p0.T_camera_marker, ds.markers[0].corners_px, marker_len, K,

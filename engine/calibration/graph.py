@@ -1,0 +1,160 @@
+"""The bipartite sensor/marker graph: per-observation Procrustes, connectivity, chaining.
+
+Nodes are sensors and markers; an edge joins a sensor to a marker it observed (an accepted
+:class:`~engine.calibration.corners3d.Observation`), carrying ``T_sensor_marker`` from a
+rigid Procrustes fit of the marker's model corners to the observed 3D corners. Marker
+``origin`` (1) defines the world. The seed paper (000) chains transforms along shortest
+paths from the origin marker; we weight each edge by its expected corner error (from the
+corner covariances, which grow with distance and viewing obliqueness) so the chain takes
+the most trustworthy path, not the fewest hops.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from engine.calibration.corners3d import Observation
+from engine.calibration.markers import marker_model_corners
+from engine.errors import CalibrationError
+from engine.geometry import invert_transform, procrustes, transform_points
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class Edge:
+    """One sensor↔marker observation used by the calibration.
+
+    Attributes:
+        sensor_id: Sensor id.
+        marker_id: Marker id.
+        T_sensor_marker: Procrustes pose of the marker in the sensor frame.
+        residual_m: RMS corner residual of that fit (m).
+        sigma_m: Expected corner error from the covariances (m), the chaining weight.
+        obs: The observation.
+    """
+
+    sensor_id: str
+    marker_id: int
+    T_sensor_marker: FloatArray
+    residual_m: float
+    sigma_m: float
+    obs: Observation
+
+
+def build_edges(observations: Sequence[Observation], marker_sizes: Mapping[int, float]
+                ) -> list[Edge]:
+    """Procrustes per accepted observation (markers of unknown size are skipped)."""
+    edges: list[Edge] = []
+    for o in observations:
+        if not o.accepted or o.marker_id not in marker_sizes:
+            continue
+        model = marker_model_corners(marker_sizes[o.marker_id])
+        T = procrustes(model, o.corners)
+        res = transform_points(T, model) - o.corners
+        rms = float(np.sqrt(np.mean(np.sum(res * res, axis=1))))
+        sigma = float(np.sqrt(np.mean(np.trace(o.cov, axis1=1, axis2=2))))
+        edges.append(Edge(o.sensor_id, o.marker_id, T, rms, sigma, o))
+    return edges
+
+
+def check_connectivity(sensor_ids: Sequence[str], edges: Sequence[Edge], origin: int = 1,
+                       rejected: Sequence[Observation] = ()) -> None:
+    """Raise :class:`CalibrationError` naming every sensor with no path to marker ``origin``.
+
+    The message says, per unreachable sensor, what it saw and why observations were
+    rejected, so the user knows which marker to move or which sensor to turn.
+    """
+    adj: dict[str, set[str]] = {}
+    for e in edges:
+        s, m = f"s:{e.sensor_id}", f"m:{e.marker_id}"
+        adj.setdefault(s, set()).add(m)
+        adj.setdefault(m, set()).add(s)
+    start = f"m:{origin}"
+    reach = {start}
+    stack = [start]
+    while stack:
+        for nb in adj.get(stack.pop(), ()):
+            if nb not in reach:
+                reach.add(nb)
+                stack.append(nb)
+    bad = [s for s in sensor_ids if f"s:{s}" not in reach]
+    if not bad:
+        return
+    lines = []
+    if start not in adj:
+        lines.append(f"marker {origin} (the world origin) is not seen by any sensor with depth")
+    for s in bad:
+        seen = sorted(e.marker_id for e in edges if e.sensor_id == s)
+        why = [f"marker {o.marker_id}: {o.reason}" for o in rejected
+               if o.sensor_id == s and not o.accepted]
+        txt = f"{s} sees markers {seen}" if seen else f"{s} sees no usable marker"
+        if why:
+            txt += " (" + "; ".join(why) + ")"
+        lines.append(txt)
+    raise CalibrationError(
+        f"sensor(s) {', '.join(bad)} have no chain of shared markers to marker {origin}: "
+        + "; ".join(lines)
+        + ". Place a marker where an unreachable sensor and a reachable one both see it.",
+        unreachable=bad,
+    )
+
+
+def chain_poses(sensor_ids: Sequence[str], edges: Sequence[Edge], origin: int = 1
+                ) -> tuple[dict[str, FloatArray], dict[int, FloatArray], list[tuple[str, int]]]:
+    """Shortest-path chaining from the origin marker (the paper's estimate).
+
+    Edge weight = the observation's expected corner error squared (variances add along a
+    chain). Each node's pose is composed along its shortest path.
+
+    Returns:
+        ``(T_world_sensor, T_world_marker, chain edges as (sensor, marker))``.
+
+    Raises:
+        CalibrationError: some sensor has no path (see :func:`check_connectivity`).
+    """
+    check_connectivity(sensor_ids, edges, origin)
+    markers = sorted({e.marker_id for e in edges})
+    nodes = [f"m:{m}" for m in markers] + [f"s:{s}" for s in sensor_ids]
+    index = {n: i for i, n in enumerate(nodes)}
+    rows, cols, w = [], [], []
+    by_pair: dict[tuple[int, int], Edge] = {}
+    for e in edges:
+        i, j = index[f"m:{e.marker_id}"], index[f"s:{e.sensor_id}"]
+        wt = max(e.sigma_m, 1e-6) ** 2
+        rows += [i, j]
+        cols += [j, i]
+        w += [wt, wt]
+        by_pair[(i, j)] = by_pair[(j, i)] = e
+    g = csr_matrix((w, (rows, cols)), shape=(len(nodes), len(nodes)))
+    src = index[f"m:{origin}"]
+    _, pred = dijkstra(g, directed=False, indices=src, return_predecessors=True)
+    T_w: dict[int, FloatArray] = {src: np.eye(4)}
+
+    def pose(i: int) -> FloatArray:
+        if i in T_w:
+            return T_w[i]
+        p = int(pred[i])
+        Tp = pose(p)
+        e = by_pair[(p, i)]
+        # marker→sensor: T_w_s = T_w_m · T_m_s ; sensor→marker: T_w_m = T_w_s · T_s_m
+        T_w[i] = (Tp @ invert_transform(e.T_sensor_marker) if nodes[i].startswith("s:")
+                  else Tp @ e.T_sensor_marker)
+        return T_w[i]
+
+    T_ws = {s: pose(index[f"s:{s}"]) for s in sensor_ids}
+    T_wm = {m: pose(index[f"m:{m}"]) for m in markers if pred[index[f"m:{m}"]] >= 0
+            or index[f"m:{m}"] == src}
+    used = []
+    for i in range(len(nodes)):
+        p = int(pred[i])
+        if p >= 0:
+            e = by_pair[(p, i)]
+            used.append((e.sensor_id, e.marker_id))
+    return T_ws, T_wm, used
