@@ -522,6 +522,13 @@ def quality_from_analyses(analyses: list[dict[str, Any]]) -> QualityInfo:
                 q.notes.append(f"Recording {a['rec_id']}: sensor {node} saw the subject from "
                                f"behind in {f['mirrored_pct']:.0f} % of its frames; left/right "
                                "labels were corrected from the walking direction.")
+        opts = a.get("options") or {}
+        if opts.get("sensors") is not None:
+            avail = a.get("sensors_available") or []
+            q.notes.append(f"Recording {a['rec_id']} was analysed with a subset of its sensors "
+                           f"({', '.join(a.get('sensors_used') or [])} of {', '.join(avail)}); "
+                           "sensors on one side of the walkway see the far leg through the "
+                           "body, so its step width and length are less accurate.")
         fus = a.get("fusion") or {}
         lb = _lower_body_tracked(fus)
         if lb is not None:

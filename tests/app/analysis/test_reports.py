@@ -203,6 +203,11 @@ def test_one_sided_vs_two_sided(recorded: Recorded) -> None:
     # The avenue: S1, S3, S5 on one side of the walkway, S2, S4, S6 on the other.
     assert sorted(sides) == ["A", "B"]
     assert sorted(sides["A"]) == ["S1", "S3", "S5"] and sorted(sides["B"]) == ["S2", "S4", "S6"]
+    # The report of a subset says so.
+    code, html, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/report"
+                                 "?sensors=S1,S3,S5")
+    assert code == 200
+    assert "sensors S1, S3, S5" in html.decode() and "subset of its sensors" in html.decode()
     code, cmp, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/compare"
                                 "?a=S1,S3,S5&b=")
     assert code == 200, cmp
