@@ -55,12 +55,6 @@ const gaitrig = (() => {
 
   async function rigPage() {
     const sys = await api("/api/system");
-    const link = document.getElementById("viewer-link");
-    if (sys.viewer_url) link.href = sys.viewer_url; else link.remove();
-    document.getElementById("logout").addEventListener("click", async () => {
-      await api("/api/auth/logout", { method: "POST" }).catch(() => {});
-      window.location.href = "/index.html";
-    });
     async function refresh() {
       try {
         const nodes = await api("/api/nodes");

@@ -51,6 +51,8 @@
       .then((sys) => { if (sys && sys.viewer_url) { view3d.href = sys.viewer_url; view3d.hidden = false; } })
       .catch(() => {});
   }
-  if (document.readyState === "loading") document.addEventListener("DOMContentLoaded", build);
-  else build();
+  // Build at once when the header is already parsed (the script follows it), so page
+  // scripts that run next find the header's elements.
+  if (document.getElementById("nav") || document.readyState !== "loading") build();
+  else document.addEventListener("DOMContentLoaded", build);
 })();
