@@ -43,7 +43,7 @@ def transferring(rig: Rig, rec_id: str) -> dict[str, Any] | None:
     return r if busy else None
 
 
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(300)
 def test_corrupt_chunk_server_kill_and_node_cut_all_resume(make_rig: Any, tmp_path: Path
                                                            ) -> None:
     rig: Rig = make_rig({"GAITRIG_TEST_CHUNK_SIZE": "512", "GAITRIG_TEST_CHUNK_DELAY_S": "0.1",
@@ -79,7 +79,7 @@ def test_corrupt_chunk_server_kill_and_node_cut_all_resume(make_rig: Any, tmp_pa
     assert_identical(rig, tmp_path / "server", rec_id, "S1")
 
 
-@pytest.mark.timeout(150)
+@pytest.mark.timeout(300)
 def test_disk_full_on_the_server(make_rig: Any, tmp_path: Path) -> None:
     recs = tmp_path / "server" / "recordings"
     recs.mkdir(parents=True)
