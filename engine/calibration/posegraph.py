@@ -112,21 +112,27 @@ def optimise_poses(
     def poses(x: FloatArray) -> list[FloatArray]:
         return [T0[k] @ _exp6(x[6 * k:6 * k + 6]) for k in range(len(T0))]
 
+    # batched arrays: one row per edge (vectorised residuals; the solver calls fun often)
+    e_s = np.array([si[e.sensor_id] for e in edges], dtype=int)
+    e_m = np.array([mi.get(e.marker_id, -1) for e in edges], dtype=int)
+    M = np.stack([models[e.marker_id] for e in edges])  # (E, 4, 3)
+    O = np.stack([e.obs.corners for e in edges])  # (E, 4, 3)
+    Wa = np.stack(W)  # (E, 4, 3, 3)
+    floor_models = np.stack([marker_model_corners(marker_sizes[m]) for m in markers]) \
+        if markers else np.zeros((0, 4, 3))
+
     def fun(x: FloatArray) -> FloatArray:
-        P = poses(x)
-        out = np.empty(n_res)
-        for j, e in enumerate(edges):
-            T_ws = P[si[e.sensor_id]]
-            T_wm = np.eye(4) if e.marker_id == origin else P[mi[e.marker_id]]
-            T_sm = invert_transform(T_ws) @ T_wm
-            r = transform_points(T_sm, models[e.marker_id]) - e.obs.corners  # (4, 3)
-            out[12 * j:12 * j + 12] = np.einsum("kij,kj->ki", W[j], r).ravel()
-        if floor_sigma_m:
-            base = 12 * len(edges)
-            for k, m in enumerate(markers):
-                z = transform_points(P[mi[m]], marker_model_corners(marker_sizes[m]))[:, 2]
-                out[base + 4 * k:base + 4 * k + 4] = z / floor_sigma_m
-        return out
+        P = np.stack(poses(x)) if T0 else np.zeros((0, 4, 4))
+        Pinv = np.stack([invert_transform(T) for T in P[:len(sensors)]])
+        allT = np.concatenate([P, np.eye(4)[None]])  # index -1 → origin (identity)
+        T_sm = np.einsum("eij,ejk->eik", Pinv[e_s], allT[e_m])
+        pred = np.einsum("eij,ekj->eki", T_sm[:, :3, :3], M) + T_sm[:, None, :3, 3]
+        r = np.einsum("ekij,ekj->eki", Wa, pred - O).ravel()
+        if not floor_sigma_m:
+            return r
+        Pm = P[len(sensors):]
+        z = np.einsum("mj,mkj->mk", Pm[:, 2, :3], floor_models) + Pm[:, None, 2, 3]
+        return np.concatenate([r, z.ravel() / floor_sigma_m])
 
     sp = lil_matrix((n_res, n_par), dtype=int)
     for j, e in enumerate(edges):
@@ -141,8 +147,8 @@ def optimise_poses(
             b = 6 * mi[m]
             sp[base + 4 * k:base + 4 * k + 4, b:b + 6] = 1
     sol = least_squares(fun, np.zeros(n_par), jac_sparsity=sp, loss="huber",
-                        f_scale=huber_scale, method="trf", x_scale="jac", xtol=1e-10,
-                        ftol=1e-10, max_nfev=200)
+                        f_scale=huber_scale, method="trf", x_scale="jac", xtol=1e-9,
+                        ftol=1e-9, max_nfev=100)
     P = poses(sol.x)
     T_ws = {s: P[si[s]] for s in sensors}
     T_wm = {origin: np.eye(4), **{m: P[mi[m]] for m in markers}}
