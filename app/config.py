@@ -89,10 +89,21 @@ class Settings(BaseSettings):
         description="TEST HOOK: delay every start/stop command by a random 0..this per node.",
     )
 
+    database_url: str | None = Field(
+        default=None,
+        description="SQLAlchemy URL of the database, e.g. postgresql+psycopg://user:pw@host/"
+        "gaitrig (needs that driver installed). Default: SQLite in the data folder.",
+    )
+
     @property
     def db_path(self) -> Path:
-        """SQLite database file."""
+        """SQLite database file (used when no database_url is set)."""
         return self.data_dir / "gaitrig.sqlite3"
+
+    @property
+    def db_url(self) -> str:
+        """The database to open: ``database_url`` or the SQLite file."""
+        return self.database_url or f"sqlite:///{self.db_path}"
 
 
 @lru_cache(maxsize=1)

@@ -78,7 +78,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        engine = make_engine(settings.db_path)
+        engine = make_engine(settings.db_url)
         app.state.db_sessions = make_session_factory(engine)
         with app.state.db_sessions() as db:
             generated = ensure_admin(db, settings.admin_user, settings.admin_password)

@@ -18,18 +18,28 @@ class Base(DeclarativeBase):
     """Declarative base of every gaitrig table."""
 
 
-def make_engine(path: Path | str) -> Engine:
-    """Open (and create if needed) the SQLite database at ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    engine = create_engine(f"sqlite:///{path}", connect_args={"check_same_thread": False})
+def make_engine(location: Path | str) -> Engine:
+    """Open (and create if needed) the database.
 
-    @event.listens_for(engine, "connect")
-    def _pragmas(conn: Any, _record: Any) -> None:
-        cur = conn.cursor()
-        cur.execute("PRAGMA journal_mode=WAL")
-        cur.execute("PRAGMA foreign_keys=ON")
-        cur.close()
+    Args:
+        location: a SQLAlchemy URL (``sqlite:///...``, ``postgresql+psycopg://...``) or
+            the path of a SQLite file.
+    """
+    url = str(location)
+    if "://" not in url:
+        Path(url).parent.mkdir(parents=True, exist_ok=True)
+        url = f"sqlite:///{url}"
+    if url.startswith("sqlite"):
+        engine = create_engine(url, connect_args={"check_same_thread": False})
+
+        @event.listens_for(engine, "connect")
+        def _pragmas(conn: Any, _record: Any) -> None:
+            cur = conn.cursor()
+            cur.execute("PRAGMA journal_mode=WAL")
+            cur.execute("PRAGMA foreign_keys=ON")
+            cur.close()
+    else:
+        engine = create_engine(url, pool_pre_ping=True)
 
     import app.db.models  # noqa: F401  (register the tables)
     from app.db.data import DATA_TABLES, upgrade_database
