@@ -1,0 +1,78 @@
+"""Calibration lifecycle on the server: versioned files under ``<data_dir>/calibrations``.
+
+The latest version is the active calibration; restoring an older one saves it again as a
+new version (history is never rewritten).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from engine.calibration.pipeline import CalibrationResult
+from engine.calibration.store import (
+    check_moved,
+    list_versions,
+    load_version,
+    result_to_dict,
+    save_version,
+)
+from engine.errors import InputError
+
+
+def calibration_dir(data_dir: Path) -> Path:
+    """Folder of the saved calibrations."""
+    return Path(data_dir) / "calibrations"
+
+
+def summary(res: CalibrationResult) -> dict[str, Any]:
+    """One row of the calibration list."""
+    worst = [v for v in res.sensor_residual_m.values() if math.isfinite(v)]
+    return {
+        "version": res.version, "created": res.created, "sensors": res.sensor_ids,
+        "markers": sorted(res.T_world_marker),
+        "max_sensor_residual_mm": round(max(worst) * 1000, 2) if worst else None,
+        "rejected": len(res.rejected),
+    }
+
+
+def list_calibrations(data_dir: Path) -> list[dict[str, Any]]:
+    """Summaries of all versions, newest first."""
+    folder = calibration_dir(data_dir)
+    return [summary(load_version(folder, v)) for v in reversed(list_versions(folder))]
+
+
+def get_calibration(data_dir: Path, version: int | None = None) -> dict[str, Any]:
+    """Full JSON of one version (default: the active, i.e. latest)."""
+    return result_to_dict(load_version(calibration_dir(data_dir), version))
+
+
+def save(data_dir: Path, res: CalibrationResult) -> int:
+    """Save a new calibration; returns its version."""
+    return save_version(res, calibration_dir(data_dir))
+
+
+def restore(data_dir: Path, version: int) -> int:
+    """Make an older version active again by saving it as the newest version."""
+    folder = calibration_dir(data_dir)
+    res = load_version(folder, version)
+    res.meta = {**res.meta, "restored_from": version}
+    return save_version(res, folder)
+
+
+def check_pose_change(data_dir: Path, poses: dict[str, Any]) -> list[dict[str, Any]]:
+    """Bumped-tripod check of fresh sensor poses against the active calibration.
+
+    Raises:
+        InputError: poses that are not 4×4 matrices.
+    """
+    new = {}
+    for s, T in poses.items():
+        a = np.asarray(T, dtype=float)
+        if a.shape != (4, 4) or not np.isfinite(a).all():
+            raise InputError(f"pose of {s!r} must be a 4×4 matrix of numbers")
+        new[str(s)] = a
+    return check_moved(load_version(calibration_dir(data_dir)), new)

@@ -1,0 +1,84 @@
+"""Calibration API in-process: marker sheet, saved versions, restore, bumped-tripod check."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.config import Settings
+from app.main import create_app
+from app.server import calibration as cal
+from engine.calibration.corners3d import Observation
+from engine.calibration.pipeline import calibrate
+from engine.geometry import transform_points
+from engine.sim.rig import default_avenue_rig, marker_visibility
+
+
+@pytest.fixture
+def settings(tmp_path: Path) -> Settings:
+    return Settings(data_dir=tmp_path, viewer_enabled=False, node_token="cal-test-token",
+                    admin_password="cal-pw")
+
+
+@pytest.fixture
+def client(settings: Settings) -> Iterator[TestClient]:
+    with TestClient(create_app(settings)) as c:
+        r = c.post("/api/auth/login", json={"username": "admin", "password": "cal-pw"})
+        c.headers["Authorization"] = f"Bearer {r.json()['token']}"
+        yield c
+
+
+def _result():  # type: ignore[no-untyped-def]
+    rig = default_avenue_rig(0)
+    obs = []
+    for mid, sids in marker_visibility(rig).items():
+        for sid in sids:
+            c = transform_points(rig.sensor(sid).T_sensor_world, rig.marker(mid).corners_world())
+            obs.append(Observation(sid, mid, True, corners=c,
+                                   cov=np.tile(np.eye(3) * 1e-6, (4, 1, 1)), distance_m=3.0))
+    return calibrate(obs, 0.4)
+
+
+def test_needs_login(settings: Settings) -> None:
+    with TestClient(create_app(settings)) as c:
+        assert c.get("/api/calibration").status_code == 401
+        assert c.get("/api/calibration/markers.pdf").status_code == 401
+
+
+def test_marker_sheet_pdf(client: TestClient) -> None:
+    r = client.get("/api/calibration/markers.pdf", params={"ids": "1-4", "size": 0.1})
+    assert r.status_code == 200 and r.content.startswith(b"%PDF")
+    assert r.headers["content-type"] == "application/pdf"
+    bad = client.get("/api/calibration/markers.pdf", params={"ids": "4-1"})
+    assert bad.status_code == 400 and "reversed" in bad.text
+    assert client.get("/api/calibration/markers.pdf", params={"ids": "0-99"}).status_code == 400
+    assert client.get("/api/calibration/markers.pdf", params={"size": 3}).status_code == 422
+
+
+def test_versions_restore_and_check(client: TestClient, settings: Settings) -> None:
+    assert client.get("/api/calibration").json() == []
+    r = client.get("/api/calibration/active")
+    assert r.status_code == 400 and "no calibration" in r.text
+    res = _result()
+    assert cal.save(settings.data_dir, res) == 1
+    assert cal.save(settings.data_dir, res) == 2
+    rows = client.get("/api/calibration").json()
+    assert [x["version"] for x in rows] == [2, 1]
+    assert rows[0]["sensors"] == ["S1", "S2", "S3", "S4", "S5", "S6"]
+    one = client.get("/api/calibration/1").json()
+    assert one["version"] == 1 and set(one["T_world_sensor"]) == set(rows[0]["sensors"])
+    assert client.get("/api/calibration/9").status_code == 400
+    r = client.post("/api/calibration/1/restore").json()
+    assert r == {"version": 3, "restored_from": 1}
+    assert client.get("/api/calibration/active").json()["meta"]["restored_from"] == 1
+    poses = {s: np.asarray(T).tolist() for s, T in res.T_world_sensor.items()}
+    assert client.post("/api/calibration/check", json={"T_world_sensor": poses}).json()["ok"]
+    poses["S4"][0][3] += 0.02
+    moved = client.post("/api/calibration/check", json={"T_world_sensor": poses}).json()
+    assert [m["sensor"] for m in moved["moved"]] == ["S4"] and not moved["ok"]
+    r = client.post("/api/calibration/check", json={"T_world_sensor": {"S1": [[1, 0], [0, 1]]}})
+    assert r.status_code == 400 and "4×4" in r.text
