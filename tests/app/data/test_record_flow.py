@@ -28,7 +28,7 @@ from app.server.storage import (
 from engine.io.c3d import read_c3d
 from engine.io.csv import read_skeleton_csv
 from engine.io.trc import read_trc
-from engine.skeleton import KINECT_V2
+from engine.skeleton import KINECT_V2, TrackingState
 from tests.integration.conftest import Rig, wait_for
 
 
@@ -172,7 +172,12 @@ def check_exports(rig: Rig, server_dir: Path, rec_id: str) -> None:
                                                   "&source=fused"))
     trc = read_trc(tmp / "fused.trc")
     assert trc.labels == list(KINECT_V2.joints) and trc.rate == pytest.approx(30.0)
-    assert np.isfinite(trc.positions).mean() > 0.5
+    # The walker's place in the corridor at recording time depends on the wall clock, so
+    # the fused export must cover what the sensors tracked, whatever that was.
+    sensor_cover = (u.states == TrackingState.TRACKED).mean()  # fusion drops inferred joints
+    fused_cover = np.isfinite(trc.positions).mean()
+    if sensor_cover > 0:
+        assert fused_cover >= 0.8 * sensor_cover, (fused_cover, sensor_cover)
     fused_c3d = download(rig, f"/api/exports/{rec_id}/skeleton?format=c3d&source=fused")
     (tmp / "fused.c3d").write_bytes(fused_c3d)
     mf = read_c3d(tmp / "fused.c3d")
