@@ -76,3 +76,20 @@ def check_pose_change(data_dir: Path, poses: dict[str, Any]) -> list[dict[str, A
             raise InputError(f"pose of {s!r} must be a 4×4 matrix of numbers")
         new[str(s)] = a
     return check_moved(load_version(calibration_dir(data_dir)), new)
+
+
+def simulate_and_save(data_dir: Path, seed: int, frames: int) -> dict[str, Any]:
+    """Run the calibration on the simulated avenue, save it, return it with true errors."""
+    from engine.calibration.pipeline import calibrate_frames
+    from engine.calibration.simcapture import pose_errors, simulate_capture
+    from engine.sim.rig import default_avenue_rig
+
+    rig = default_avenue_rig(seed)
+    res = calibrate_frames(simulate_capture(rig, frames, seed),
+                           {m.id: m.size_m for m in rig.markers})
+    res.meta["source"] = f"simulation (seed {seed}, {frames} frames)"
+    version = save(data_dir, res)
+    doc = result_to_dict(res)
+    doc["version"] = version
+    doc["true_errors"] = pose_errors(res, rig)
+    return doc

@@ -19,6 +19,13 @@ router = APIRouter(prefix="/calibration", tags=["calibration"])
 MAX_SHEET_IDS = 64
 
 
+class SimulateRequest(BaseModel):
+    """A calibration run on the simulated avenue (no sensors needed)."""
+
+    seed: int = Field(0, ge=0, le=10_000)
+    frames: int = Field(10, ge=2, le=60)
+
+
 class PoseCheck(BaseModel):
     """Fresh sensor poses (sensor id → 4×4 ``T_world_sensor``)."""
 
@@ -46,6 +53,13 @@ def marker_sheet(
         data = out.read_bytes()
     return Response(data, media_type="application/pdf", headers={
         "Content-Disposition": f'attachment; filename="markers-{size * 100:.0f}cm.pdf"'})
+
+
+@router.post("/simulate")
+def simulate(body: SimulateRequest, user: CurrentUser, settings: SettingsDep) -> dict[str, Any]:
+    """Calibrate the simulated six-sensor avenue, save it as a new version, and return it
+    with each sensor's error against the simulator's true pose."""
+    return cal.simulate_and_save(settings.data_dir, body.seed, body.frames)
 
 
 @router.get("")
