@@ -93,3 +93,48 @@ def simulate_and_save(data_dir: Path, seed: int, frames: int) -> dict[str, Any]:
     doc["version"] = version
     doc["true_errors"] = pose_errors(res, rig)
     return doc
+
+
+def active_poses(data_dir: Path) -> dict[str, dict[str, Any]]:
+    """Sensor poses of the active calibration, in the form the analysis uses
+    (``{node: {"T_world_sensor", "source", "calibration_version", "residual_mm"}}``);
+    empty when nothing is calibrated."""
+    folder = calibration_dir(data_dir)
+    if not list_versions(folder):
+        return {}
+    res = load_version(folder)
+    out: dict[str, dict[str, Any]] = {}
+    for s, T in res.T_world_sensor.items():
+        r = res.sensor_residual_m.get(s, float("nan"))
+        out[s] = {"T_world_sensor": np.asarray(T).tolist(), "source": "calibration",
+                  "calibration_version": str(res.version),
+                  "residual_mm": round(r * 1000, 3) if math.isfinite(r) else None}
+    return out
+
+
+def _set_pose(session: Any, T: list[list[float]]) -> None:
+    session.sensor = session.sensor.model_copy(update={"T_world_sensor": T})
+
+
+def apply_to_registry(registry: Any, data_dir: Path) -> list[str]:
+    """Give every known node the active calibration's pose (replacing the pose the node
+    reported), and keep doing so for nodes that (re)connect later.
+
+    Returns:
+        Ids of the nodes that got a calibrated pose now.
+    """
+    poses = active_poses(data_dir)
+    applied = []
+    for node_id, s in registry.nodes.items():
+        if node_id in poses:
+            _set_pose(s, poses[node_id]["T_world_sensor"])
+            applied.append(node_id)
+    listeners = registry.listeners
+    if not any(getattr(cb, "_gaitrig_calibration", False) for cb in listeners):
+        def on_connect(session: Any) -> None:
+            p = active_poses(data_dir).get(session.id)
+            if p is not None:
+                _set_pose(session, p["T_world_sensor"])
+        on_connect._gaitrig_calibration = True  # type: ignore[attr-defined]
+        listeners.append(on_connect)
+    return sorted(applied)

@@ -11,7 +11,7 @@ from fastapi import APIRouter, Query
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
-from app.api.deps import CurrentUser, SettingsDep
+from app.api.deps import CurrentUser, RegistryDep, SettingsDep
 from app.server import calibration as cal
 
 router = APIRouter(prefix="/calibration", tags=["calibration"])
@@ -56,10 +56,20 @@ def marker_sheet(
 
 
 @router.post("/simulate")
-def simulate(body: SimulateRequest, user: CurrentUser, settings: SettingsDep) -> dict[str, Any]:
-    """Calibrate the simulated six-sensor avenue, save it as a new version, and return it
-    with each sensor's error against the simulator's true pose."""
-    return cal.simulate_and_save(settings.data_dir, body.seed, body.frames)
+def simulate(body: SimulateRequest, user: CurrentUser, settings: SettingsDep,
+             registry: RegistryDep) -> dict[str, Any]:
+    """Calibrate the simulated six-sensor avenue, save it as a new version (the active
+    one, applied to the nodes' streams), and return it with each sensor's error against the
+    simulator's true pose."""
+    doc = cal.simulate_and_save(settings.data_dir, body.seed, body.frames)
+    doc["applied_to"] = cal.apply_to_registry(registry, settings.data_dir)
+    return doc
+
+
+@router.post("/apply")
+def apply(user: CurrentUser, settings: SettingsDep, registry: RegistryDep) -> dict[str, Any]:
+    """Give every node the active calibration's pose (also for nodes connecting later)."""
+    return {"applied_to": cal.apply_to_registry(registry, settings.data_dir)}
 
 
 @router.get("")
@@ -81,9 +91,12 @@ def get_version(version: int, user: CurrentUser, settings: SettingsDep) -> dict[
 
 
 @router.post("/{version}/restore")
-def restore(version: int, user: CurrentUser, settings: SettingsDep) -> dict[str, Any]:
-    """Make an older calibration active again (saved as a new version)."""
-    return {"version": cal.restore(settings.data_dir, version), "restored_from": version}
+def restore(version: int, user: CurrentUser, settings: SettingsDep,
+            registry: RegistryDep) -> dict[str, Any]:
+    """Make an older calibration active again (saved as a new version) and apply it."""
+    v = cal.restore(settings.data_dir, version)
+    return {"version": v, "restored_from": version,
+            "applied_to": cal.apply_to_registry(registry, settings.data_dir)}
 
 
 @router.post("/check")

@@ -73,7 +73,7 @@ def test_versions_restore_and_check(client: TestClient, settings: Settings) -> N
     assert one["version"] == 1 and set(one["T_world_sensor"]) == set(rows[0]["sensors"])
     assert client.get("/api/calibration/9").status_code == 400
     r = client.post("/api/calibration/1/restore").json()
-    assert r == {"version": 3, "restored_from": 1}
+    assert r == {"version": 3, "restored_from": 1, "applied_to": []}
     assert client.get("/api/calibration/active").json()["meta"]["restored_from"] == 1
     poses = {s: np.asarray(T).tolist() for s, T in res.T_world_sensor.items()}
     assert client.post("/api/calibration/check", json={"T_world_sensor": poses}).json()["ok"]
@@ -82,3 +82,23 @@ def test_versions_restore_and_check(client: TestClient, settings: Settings) -> N
     assert [m["sensor"] for m in moved["moved"]] == ["S4"] and not moved["ok"]
     r = client.post("/api/calibration/check", json={"T_world_sensor": {"S1": [[1, 0], [0, 1]]}})
     assert r.status_code == 400 and "4×4" in r.text
+
+
+def test_active_calibration_applied_to_node_streams(client: TestClient,
+                                                    settings: Settings) -> None:
+    from app.nodes.protocol import SensorInfo
+
+    async def send(_: str) -> None:
+        return None
+
+    registry = client.app.state.hub.registry  # type: ignore[attr-defined]
+    registry.connect("S1", "sim", SensorInfo(), send, restarted=False)
+    res = _result()
+    cal.save(settings.data_dir, res)
+    assert client.post("/api/calibration/apply").json() == {"applied_to": ["S1"]}
+    assert np.allclose(registry.get("S1").sensor.T_world_sensor, res.T_world_sensor["S1"])
+    # a node connecting later (reporting its own pose) gets the calibrated one
+    registry.connect("S2", "sim", SensorInfo(), send, restarted=False)
+    assert np.allclose(registry.get("S2").sensor.T_world_sensor, res.T_world_sensor["S2"])
+    poses = cal.active_poses(settings.data_dir)
+    assert poses["S3"]["source"] == "calibration" and poses["S3"]["calibration_version"] == "1"
