@@ -239,6 +239,8 @@ def estimate_marker_pose(
     )
     if not ok:
         raise InputError("solvePnP failed for this marker (degenerate corners)")
+    # IPPE gives the closed-form planar solution; LM then minimises the reprojection error
+    rvec, tvec = cv2.solvePnPRefineLM(marker_model_corners(size_m), c, Km, d, rvec, tvec)
     R, _ = cv2.Rodrigues(rvec)
     T = make_transform(R, np.asarray(tvec, dtype=float).ravel())
     return MarkerPose(T, reprojection_rms(T, c, size_m, Km, d))
