@@ -34,7 +34,7 @@ from app.db.base import make_engine, make_session_factory
 from app.server.hub import Hub
 from app.server.registry import NodeSession
 from app.viewer.scene import SensorView
-from engine.errors import GaitrigError
+from engine.errors import CalibrationError, GaitrigError
 
 log = logging.getLogger("gaitrig.server")
 
@@ -86,6 +86,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             print(f"gaitrig: created console account {settings.admin_user!r} with password "
                   f"{generated!r} (change it after logging in)", file=sys.stderr, flush=True)
         hub = app.state.hub
+        # The active calibration replaces the poses nodes report, now and on reconnect.
+        from app.server.calibration import apply_to_registry
+
+        apply_to_registry(hub.registry, settings.data_dir)
         viewer = None
         if settings.viewer_enabled:
             from app.viewer.scene import Viewer, populate_sensors, populate_skeleton
@@ -148,6 +152,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @app.exception_handler(GaitrigError)
     async def gaitrig_error(_req: Request, exc: GaitrigError) -> JSONResponse:
+        if isinstance(exc, CalibrationError):
+            # The request was understood but the observations cannot calibrate the rig.
+            return JSONResponse({"detail": str(exc), "unreachable": exc.unreachable},
+                                status_code=422)
         return JSONResponse({"detail": str(exc)}, status_code=400)
 
     @app.exception_handler(RequestValidationError)

@@ -85,11 +85,13 @@ def _sensors_param(value: str | None) -> tuple[str, ...] | None:
 
 
 def _live_poses(hub: Any) -> dict[str, Any]:
-    """Sensor poses known now: the nodes' reported poses (calibration replaces them)."""
-    out: dict[str, Any] = {}
+    """Sensor poses known now: the active calibration's, else the nodes' reported poses."""
+    from app.server.calibration import active_poses
+
+    out: dict[str, Any] = dict(active_poses(hub.settings.data_dir))
     for node_id, s in hub.registry.nodes.items():
         T = s.sensor.T_world_sensor
-        if T is not None:
+        if T is not None and node_id not in out:
             out[node_id] = {"T_world_sensor": T, "source": "node"}
     return out
 
