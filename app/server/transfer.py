@@ -142,7 +142,13 @@ class TransferManager:
                 await self.transfer_part(rec, node_id)
             except (TransferError, ConnectionError, TimeoutError, OSError, InputError) as exc:
                 part.state = was
-                part.reason = f"transfer failed ({exc}); retry when the node is online"
+                # Keep why the part was incomplete in the first place (e.g. the node
+                # disconnected mid-recording); only the transfer note is replaced.
+                base = (part.reason or "").split("; transfer failed", 1)[0]
+                if base.startswith("transfer failed"):
+                    base = ""
+                note = f"transfer failed ({exc}); retry when the node is online"
+                part.reason = f"{base}; {note}" if base else note
                 log.warning("recording %s: %s", rec.id, part.reason)
             else:
                 part.on_server, part.transfer_progress = True, 1.0

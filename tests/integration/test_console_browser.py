@@ -4,27 +4,23 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from tests.integration.conftest import PASSWORD, Rig
 
-CHROMIUM = Path("/usr/bin/chromium")
-
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's /usr/bin/chromium")
-def test_login_and_rig_page(make_rig: object, artifacts_dir: Path) -> None:
-    from playwright.sync_api import sync_playwright
-
+def test_login_and_rig_page(make_rig: object, artifacts_dir: Path, browser: Any) -> None:
     rig: Rig = make_rig()  # type: ignore[operator]
     rig.start_node("S1", "--clock-offset", "0.2", "--clock-drift-ppm", "0")
     rig.start_node("S2", "--clock-offset", "0.0", "--clock-drift-ppm", "0")
     rig.wait_online(["S1", "S2"])
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=["--no-sandbox"])
-        page = browser.new_page()
+    context = browser.new_context()
+    try:
+        page = context.new_page()
         page.goto(rig.base + "/rig.html")
         page.wait_for_url("**/index.html")  # not logged in → login page
         page.keyboard.type("admin")  # the user name field has focus
@@ -65,4 +61,5 @@ def test_login_and_rig_page(make_rig: object, artifacts_dir: Path) -> None:
         page.wait_for_selector("tr[data-node='S2']:has-text('offline')", timeout=15000)
         page.click("#logout")
         page.wait_for_url("**/index.html")
-        browser.close()
+    finally:
+        context.close()

@@ -92,14 +92,15 @@ def test_images_reconnect_and_replay(make_rig: object) -> None:
     rig.kill_server()
     time.sleep(1.0)
     rig.start_server()
-    ns = rig.wait_online(["S2"], timeout=20)
-    assert ns["S2"]["frames"] > 0
+    rig.wait_online(["S2"], timeout=20)
+    # frame counts arrive with the node's next status message (1 Hz) after reconnecting
+    assert wait_for(lambda: rig.nodes()["S2"]["frames"] > 0, 10, "frames after reconnecting")
     assert rig.api(f"/api/recordings/{rec['id']}")["state"] == "complete"  # persisted
 
     # replay the part as a live node
     part = rig.node_dir("S2") / "recordings" / rec["id"]
     rig.start_node("R1", "--backend", "replay", "--recording", str(part), "--loop")
-    ns = rig.wait_online(["R1"])
+    rig.wait_online(["R1"])
     store = NodeStore(rig.node_dir("S2") / "recordings")
     records = list(store.read(rec["id"]))
     recorded = [decode_skeletons(h, p) for h, p in records if h["kind"] == "skeleton"]

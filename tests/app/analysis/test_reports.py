@@ -363,67 +363,57 @@ def test_bad_input_over_http(recorded: Recorded, tmp_path: Path) -> None:
     assert r.status_code == 401
 
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                 "--no-first-run", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync"]
-
-
 def test_reports_page_in_a_browser(recorded: Recorded, tmp_path: Path,
-                                   artifacts_dir: Path) -> None:
+                                   artifacts_dir: Path, browser: Any) -> None:
     """What a clinician sees: subject report inline, one- vs two-sided table, errors."""
-    if not CHROMIUM.exists():
-        pytest.skip("Debian Chromium (/usr/bin/chromium) is not installed")
-    sync_api = pytest.importorskip("playwright.sync_api")
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 1000})
-            page.goto(recorded.base + "/index.html")
-            page.fill("input[name=username]", "admin")
-            page.fill("input[name=password]", recorded.password)
-            page.click("button[type=submit]")
-            page.wait_for_url("**/rig.html")
-            page.goto(recorded.base + "/reports.html")
-            page.wait_for_function("document.querySelectorAll('#subject option').length > 1")
-            page.select_option("#subject", str(recorded.subject_id))
-            page.wait_for_function("document.querySelectorAll('#session option').length > 1")
-            assert "1 complete recording" in page.inner_text("#session")
-            page.click("#show")
-            page.wait_for_selector("#report table", timeout=60000)
-            report = page.inner_text("#report")
-            for word in ("Gait report", "P017", "174 cm", recorded.rec_id, "Step width",
-                         "Data quality"):
-                assert word in report, word
-            assert page.locator("#report img").count() >= 3
-            page.screenshot(path=str(artifacts_dir / "reports_page_subject.png"), full_page=True)
-            # PDF download through the page.
-            with page.expect_download(timeout=120000) as dl:
-                page.click("#pdf")
-            assert dl.value.suggested_filename.startswith("gait-report-P017")
-            # One- vs two-sided: side A preset against all sensors.
-            page.select_option("#recording", recorded.rec_id)
-            page.wait_for_selector("#set-a input")
-            ticked = page.eval_on_selector_all("#set-a input:checked", "e => e.map(x => x.value)")
-            assert sorted(ticked) == ["S1", "S3", "S5"]
-            page.click("#compare")
-            page.wait_for_selector("#cmp-table:not([hidden])", timeout=60000)
-            rows = page.inner_text("#cmp-table tbody").splitlines()
-            assert any(r.startswith("Sensors\tS1, S3, S5\tS1, S2, S3, S4, S5, S6") for r in rows)
-            assert any(r.startswith("Step width (cm)") for r in rows)
-            page.locator("#cmp-h").scroll_into_view_if_needed()
-            page.screenshot(path=str(artifacts_dir / "reports_page_compare.png"))
-            # A file without ankles: a message in red, the old report goes away.
-            bad = tmp_path / "noankle.csv"
-            bad.write_text("time,Head_x,Head_y,Head_z\n0,0,0,1.7\n0.1,0.1,0,1.7\n")
-            page.set_input_files("#file", str(bad))
-            page.click("#file-form button[type=submit]")
-            page.wait_for_function("document.getElementById('file-msg').classList.contains('error')")
-            assert "AnkleLeft" in page.inner_text("#file-msg")
-            assert page.locator("#report-section").is_hidden()
-            page.screenshot(path=str(artifacts_dir / "reports_page_error.png"))
-        finally:
-            browser.close()
+    context = browser.new_context(viewport={"width": 1280, "height": 1000})
+    try:
+        page = context.new_page()
+        page.goto(recorded.base + "/index.html")
+        page.fill("input[name=username]", "admin")
+        page.fill("input[name=password]", recorded.password)
+        page.click("button[type=submit]")
+        page.wait_for_url("**/rig.html")
+        page.goto(recorded.base + "/reports.html")
+        page.wait_for_function("document.querySelectorAll('#subject option').length > 1")
+        page.select_option("#subject", str(recorded.subject_id))
+        page.wait_for_function("document.querySelectorAll('#session option').length > 1")
+        assert "1 complete recording" in page.inner_text("#session")
+        page.click("#show")
+        page.wait_for_selector("#report table", timeout=60000)
+        report = page.inner_text("#report")
+        for word in ("Gait report", "P017", "174 cm", recorded.rec_id, "Step width",
+                     "Data quality"):
+            assert word in report, word
+        assert page.locator("#report img").count() >= 3
+        page.screenshot(path=str(artifacts_dir / "reports_page_subject.png"), full_page=True)
+        # PDF download through the page.
+        with page.expect_download(timeout=120000) as dl:
+            page.click("#pdf")
+        assert dl.value.suggested_filename.startswith("gait-report-P017")
+        # One- vs two-sided: side A preset against all sensors.
+        page.select_option("#recording", recorded.rec_id)
+        page.wait_for_selector("#set-a input")
+        ticked = page.eval_on_selector_all("#set-a input:checked", "e => e.map(x => x.value)")
+        assert sorted(ticked) == ["S1", "S3", "S5"]
+        page.click("#compare")
+        page.wait_for_selector("#cmp-table:not([hidden])", timeout=60000)
+        rows = page.inner_text("#cmp-table tbody").splitlines()
+        assert any(r.startswith("Sensors\tS1, S3, S5\tS1, S2, S3, S4, S5, S6") for r in rows)
+        assert any(r.startswith("Step width (cm)") for r in rows)
+        page.locator("#cmp-h").scroll_into_view_if_needed()
+        page.screenshot(path=str(artifacts_dir / "reports_page_compare.png"))
+        # A file without ankles: a message in red, the old report goes away.
+        bad = tmp_path / "noankle.csv"
+        bad.write_text("time,Head_x,Head_y,Head_z\n0,0,0,1.7\n0.1,0.1,0,1.7\n")
+        page.set_input_files("#file", str(bad))
+        page.click("#file-form button[type=submit]")
+        page.wait_for_function("document.getElementById('file-msg').classList.contains('error')")
+        assert "AnkleLeft" in page.inner_text("#file-msg")
+        assert page.locator("#report-section").is_hidden()
+        page.screenshot(path=str(artifacts_dir / "reports_page_error.png"))
+    finally:
+        context.close()
 
 
 # ---------------------------------------------------------------- in-process server, DB

@@ -15,10 +15,6 @@ import pytest
 from app.config import Settings
 from app.main import create_app
 
-CHROMIUM = Path("/usr/bin/chromium")
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-
 
 def _free_port() -> int:
     with socket.socket() as s:
@@ -46,42 +42,35 @@ def server(tmp_path: Path) -> Iterator[str]:
         th.join(timeout=10)
 
 
-def test_wizard_runs_simulated_calibration(server: str, artifacts_dir: Path) -> None:
-    if not CHROMIUM.exists():
-        pytest.skip(f"{CHROMIUM} is missing")
-    sync_playwright: Any
+def test_wizard_runs_simulated_calibration(server: str, artifacts_dir: Path,
+                                           browser: Any) -> None:
+    b = browser.new_context(viewport={"width": 1200, "height": 1400})
     try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        pytest.skip("playwright is not installed")
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=ARGS, headless=True)
-        try:
-            page = b.new_page(viewport={"width": 1200, "height": 1400})
-            page.goto(server + "/index.html")
-            page.fill("#username", "admin")
-            page.fill("#password", "wz-pw")
-            page.click("button[type=submit]")
-            page.wait_for_url("**/rig.html", timeout=15000)
-            page.goto(server + "/calibration-wizard.html")
-            assert page.text_content("#res-summary") == "No calibration yet."
-            page.fill("#sim-frames", "2")
-            page.click("#sim-form button[type=submit]")
-            page.wait_for_function(
-                "document.querySelectorAll('#sensor-table tbody tr').length === 6",
-                timeout=240_000)
-            assert "Version 1" in (page.text_content("#res-summary") or "")
-            rows = page.query_selector_all("#sensor-table tbody tr")
-            assert all(r.query_selector(".good") for r in rows)  # every sensor ≤ 1 cm, 0.5°
-            assert len(page.query_selector_all("#edge-table tbody tr")) >= 15
-            assert "depth points" in (page.text_content("#rejected") or "")
-            assert len(page.query_selector_all("#history tbody tr")) == 1
-            page.screenshot(path=str(artifacts_dir / "calibration-wizard.png"), full_page=True)
-            # a bad sheet request shows the engine's message, not a traceback
-            page.fill("#sheet-ids", "8-1")
-            page.click("#sheet-form button[type=submit]")
-            page.wait_for_function(
-                "document.getElementById('sheet-error').textContent.length > 0")
-            assert "reversed" in (page.text_content("#sheet-error") or "")
-        finally:
-            b.close()
+        page = b.new_page()
+        page.goto(server + "/index.html")
+        page.fill("#username", "admin")
+        page.fill("#password", "wz-pw")
+        page.click("button[type=submit]")
+        page.wait_for_url("**/rig.html", timeout=15000)
+        page.goto(server + "/calibration-wizard.html")
+        assert page.text_content("#res-summary") == "No calibration yet."
+        page.fill("#sim-frames", "2")
+        page.click("#sim-form button[type=submit]")
+        page.wait_for_function(
+            "document.querySelectorAll('#sensor-table tbody tr').length === 6",
+            timeout=240_000)
+        assert "Version 1" in (page.text_content("#res-summary") or "")
+        rows = page.query_selector_all("#sensor-table tbody tr")
+        assert all(r.query_selector(".good") for r in rows)  # every sensor ≤ 1 cm, 0.5°
+        assert len(page.query_selector_all("#edge-table tbody tr")) >= 15
+        assert "depth points" in (page.text_content("#rejected") or "")
+        assert len(page.query_selector_all("#history tbody tr")) == 1
+        page.screenshot(path=str(artifacts_dir / "calibration-wizard.png"), full_page=True)
+        # a bad sheet request shows the engine's message, not a traceback
+        page.fill("#sheet-ids", "8-1")
+        page.click("#sheet-form button[type=submit]")
+        page.wait_for_function(
+            "document.getElementById('sheet-error').textContent.length > 0")
+        assert "reversed" in (page.text_content("#sheet-error") or "")
+    finally:
+        b.close()
