@@ -34,13 +34,15 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic"
                  "--disable-component-update", "--disable-sync"]
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture
 def browser() -> Iterator[Any]:
-    """Headless Debian Chromium, one per test session.
+    """Headless Debian Chromium for one test.
 
-    Playwright's sync API cannot start a second instance while one runs, so every
-    browser test uses this fixture. Skips with a reason when Chromium or Playwright is
-    missing; never downloads a browser.
+    Every browser test uses this fixture: Playwright's sync API cannot start a second
+    instance while one runs, and while one runs it keeps an asyncio loop running in the
+    main thread (so ``asyncio.run`` in later tests would fail) — hence one per test,
+    closed after it. Skips with a reason when Chromium or Playwright is missing; never
+    downloads a browser.
     """
     if not CHROMIUM.exists():
         pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium package to run "
