@@ -29,19 +29,17 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from engine.errors import GaitrigError, InputError, InsufficientDataError
+from engine.errors import GaitrigError, InsufficientDataError
 from engine.imu.filter import orientation_filter
 from engine.imu.fusion import (
     PAPER_SENSORS,
     flexion_angles,
-    fuse_skeleton,
     interp_quat,
-    plank_calibration,
 )
 from engine.imu.io import ImuRecording
 from engine.imu.madgwick import madgwick
 from engine.imu.metrics import ncc, orientation_errors, rmse
-from engine.imu.pipeline import ImuSessionResult, angles_csv, find_plank_time
+from engine.imu.pipeline import ImuSessionResult, angles_csv, process_imu_session
 from engine.imu.sync import (
     SyncResult,
     imu_jump_spikes,
@@ -135,48 +133,17 @@ def fuse_session(recordings: dict[str, ImuRecording], skeleton: SkeletonSeries, 
                  filt: FilterName = "ours", beta: float = 0.041, synchronise: bool = True,
                  n_jumps: int = 5, q_world_plank: Any = (1.0, 0.0, 0.0, 0.0),
                  plank_time: float | None = None) -> ImuSessionResult:
-    """Seed 002 end to end with a choice of filter (same steps as
-    :func:`engine.imu.pipeline.process_imu_session`).
+    """Seed 002 end to end (:func:`engine.imu.pipeline.process_imu_session`) with the
+    console's choice of orientation filter.
 
     Raises:
         InputError: unknown sensor names, no chest sensor.
         InsufficientDataError: no jumps, no overlap, no plank pose.
     """
-    unknown = [n for n in recordings if n not in PAPER_SENSORS]
-    if unknown:
-        raise InputError(f"unknown sensor name(s) {unknown}; name each file's sensor as one "
-                         f"of {', '.join(PAPER_SENSORS)}")
-    if "chest" not in recordings:
-        raise InputError("the chest sensor is required to fuse with a depth skeleton; name one "
-                         "file 'chest'")
-    warnings = [f"{n}: {w}" for n, r in recordings.items() for w in r.warnings]
-    sync: SyncResult | None = None
-    recs = dict(recordings)
-    if synchronise:
-        sync = synchronize(recs, skeleton, n_jumps=n_jumps, reference="skeleton")
-        recs = {n: shift_recording(r, sync.offsets[n]) for n, r in recs.items()}
-        warnings += sync.warnings
-    t0 = max(r.time[0] for r in recs.values())
-    t1 = min(r.time[-1] for r in recs.values())
-    if t1 - t0 < 1.0:
-        raise InsufficientDataError("the IMU recordings overlap by less than one second; "
-                                    "upload recordings of the same session")
-    base = recs["chest"]
-    grid = base.time[(base.time >= t0) & (base.time <= t1)]
-    nine_d = all(r.mag is not None for r in recs.values())
-    ori: dict[str, FloatArray] = {}
-    rest: dict[str, NDArray[np.bool_]] = {}
-    for n, r in recs.items():
-        q, rs = orientations(r, filt, beta, nine_d)
-        ori[n] = interp_quat(r.time, q, grid)
-        rest[n] = np.interp(grid, r.time, rs.astype(float)) > 0.5
-    if plank_time is None:
-        plank_time = find_plank_time(grid, ori, rest)
-    calib = plank_calibration(grid, ori, plank_time, q_world_plank)
-    fused = fuse_skeleton(skeleton, grid, ori, calib)
-    return ImuSessionResult(sync, grid, ori, calib, fused, skeleton.times.copy(),
-                            flexion_angles(skeleton, tracked_only=True),
-                            flexion_angles(fused.skeleton), warnings)
+    return process_imu_session(
+        recordings, skeleton, plank_time=plank_time, q_world_plank=q_world_plank,
+        synchronise=synchronise, n_jumps=n_jumps,
+        orientation=lambda rec, nine_d: orientations(rec, filt, beta, nine_d))
 
 
 # ------------------------------------------------------------------------------ plots

@@ -9,7 +9,7 @@ given), the fused skeleton and knee/elbow flexion for depth-only and fused skele
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +32,8 @@ from engine.imu.sync import SyncResult, shift_recording, synchronize
 from engine.skeleton import SkeletonSeries
 
 FloatArray = NDArray[np.float64]
+#: ``(recording, nine_d) -> (quaternions ENU (T, 4), rest flags (T,))``
+OrientationFn = Callable[[ImuRecording, bool], tuple[FloatArray, NDArray[np.bool_]]]
 
 
 @dataclass
@@ -109,6 +111,7 @@ def process_imu_session(
     params: FilterParams | None = None,
     up: ArrayLike = (0.0, 0.0, 1.0),
     offline: bool = True,
+    orientation: OrientationFn | None = None,
 ) -> ImuSessionResult:
     """Fuse IMU recordings with a depth skeleton (seed 002 end to end).
 
@@ -126,6 +129,9 @@ def process_imu_session(
         up: world up direction for the skeleton's jump detection.
         offline: use the filter's non-causal mode (the session is recorded): bias known
             from the first sample and lag-free inclination.
+        orientation: another orientation estimator, ``(recording, nine_d) ->
+            (quaternions ENU (T, 4), rest flags (T,))``; default our filter with
+            ``params``/``offline``.
 
     Raises:
         InputError: unknown sensor names or missing chest sensor.
@@ -133,9 +139,11 @@ def process_imu_session(
     """
     unknown = [n for n in recordings if n not in PAPER_SENSORS]
     if unknown:
-        raise InputError(f"unknown sensor name(s) {unknown}; use {list(PAPER_SENSORS)}")
+        raise InputError(f"unknown sensor name(s) {unknown}; name each recording's sensor "
+                         f"as one of {', '.join(PAPER_SENSORS)}")
     if "chest" not in recordings:
-        raise InputError("the chest sensor is required")
+        raise InputError("the chest sensor is required to fuse with a depth skeleton; name "
+                         "one recording 'chest'")
     warnings = [f"{n}: {w}" for n, r in recordings.items() for w in r.warnings]
     sync = None
     recs = dict(recordings)
@@ -153,8 +161,12 @@ def process_imu_session(
     ori: dict[str, FloatArray] = {}
     rest: dict[str, FloatArray] = {}
     for n, r in recs.items():
-        q, _, rs = orientation_filter(r.gyr, r.acc, r.mag if nine_d else None,
-                                      frequency=r.frequency, params=params, offline=offline)
+        if orientation is not None:
+            q, rs = orientation(r, nine_d)
+        else:
+            q, _, rs = orientation_filter(r.gyr, r.acc, r.mag if nine_d else None,
+                                          frequency=r.frequency, params=params,
+                                          offline=offline)
         ori[n] = interp_quat(r.time, q, grid)
         rest[n] = np.interp(grid, r.time, rs.astype(float)) > 0.5
     if plank_time is None:
