@@ -40,7 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.signal import butter
 
 from engine.errors import InputError
-from engine.imu.madgwick import as_sensor_array
+from engine.imu.madgwick import sensor_inputs
 
 FloatArray = NDArray[np.float64]
 
@@ -371,13 +371,7 @@ def orientation_filter(
     """
     p = params or FilterParams()
     single = np.ndim(gyr) == 2
-    g = as_sensor_array(gyr, "gyr")
-    a = as_sensor_array(acc, "acc")
-    if a.shape != g.shape:
-        raise InputError(f"acc shape {a.shape} differs from gyr shape {g.shape}")
-    m = np.zeros_like(g) if mag is None else as_sensor_array(mag, "mag")
-    if m.shape != g.shape:
-        raise InputError(f"mag shape {m.shape} differs from gyr shape {g.shape}")
+    g, a, m = sensor_inputs(gyr, acc, mag)
     if not (np.isfinite(frequency) and frequency > 0):
         raise InputError(f"frequency must be positive (Hz), got {frequency}")
     if len(g) < 2:

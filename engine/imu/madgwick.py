@@ -49,6 +49,24 @@ def as_sensor_array(x: ArrayLike, name: str) -> FloatArray:
     return np.ascontiguousarray(a)
 
 
+def sensor_inputs(gyr: ArrayLike, acc: ArrayLike, mag: ArrayLike | None
+                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Gyroscope, accelerometer and magnetometer as ``(T, S, 3)`` arrays of one shape
+    (magnetometer zeros when absent).
+
+    Raises:
+        InputError: the three do not have the same shape.
+    """
+    g = as_sensor_array(gyr, "gyr")
+    a = as_sensor_array(acc, "acc")
+    if a.shape != g.shape:
+        raise InputError(f"acc shape {a.shape} differs from gyr shape {g.shape}")
+    m = np.zeros_like(g) if mag is None else as_sensor_array(mag, "mag")
+    if m.shape != g.shape:
+        raise InputError(f"mag shape {m.shape} differs from gyr shape {g.shape}")
+    return g, a, m
+
+
 def to_enu(q: ArrayLike) -> FloatArray:
     """Convert sensor-to-NWU quaternions to sensor-to-ENU (``q_ENU = q_ENU_NWU ⊗ q``)."""
     return quat_mul(Q_ENU_NWU, q)
@@ -230,13 +248,7 @@ def madgwick(
         InputError: shape mismatch, non-positive gain/rate, unusable first sample.
     """
     single = np.ndim(gyr) == 2
-    g = as_sensor_array(gyr, "gyr")
-    a = as_sensor_array(acc, "acc")
-    if a.shape != g.shape:
-        raise InputError(f"acc shape {a.shape} differs from gyr shape {g.shape}")
-    m = np.zeros_like(g) if mag is None else as_sensor_array(mag, "mag")
-    if m.shape != g.shape:
-        raise InputError(f"mag shape {m.shape} differs from gyr shape {g.shape}")
+    g, a, m = sensor_inputs(gyr, acc, mag)
     if not (np.isfinite(beta) and beta >= 0):
         raise InputError(f"beta must be a finite non-negative gain, got {beta}")
     if not (np.isfinite(zeta) and zeta >= 0):
