@@ -168,7 +168,7 @@ def find_passes(times: FloatArray, centre: FloatArray, rate: float) -> list[Walk
         # The ±k baselines blur a run's ends into the standing/turning around it.
         if r[0] > 0:
             r = r[k:]
-        if r[-1] < n - 1 and len(r) > k:
+        if len(r) and r[-1] < n - 1 and len(r) > k:
             r = r[:-k]
         if len(r) < 3:
             continue
