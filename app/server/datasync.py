@@ -125,8 +125,7 @@ class DataSync:
         self.hub.transfers.start(rec_id)
 
     def _running(self, rec_id: str) -> bool:
-        tasks: dict[str, Any] = getattr(self.hub.transfers, "_tasks", {})
-        return rec_id in tasks
+        return self.hub.transfers.is_running(rec_id)
 
     def _maybe_transfer(self, rec: LiveRecording, reconnected: set[str]) -> None:
         if rec.t_stop is None or self._running(rec.id):
@@ -151,8 +150,7 @@ class DataSync:
     def _cancel_transfers_of(self, nodes: set[str]) -> None:
         # A node that dropped will not answer its pending chunk requests: stop waiting
         # for the reply timeout, the verified chunks stay and are resumed on reconnect.
-        tasks: dict[str, asyncio.Task[None]] = getattr(self.hub.transfers, "_tasks", {})
-        for rec_id, task in list(tasks.items()):
+        for rec_id in self.hub.transfers.running():
             rec = self.hub.recordings.recordings.get(rec_id)
             if rec is None:
                 continue
@@ -163,7 +161,7 @@ class DataSync:
                 for n in hit:
                     rec.parts[n].reason = (f"{TRANSFER_FAILED} (node {n} disconnected during "
                                            "the transfer); it resumes when the node is back")
-                task.cancel()
+                self.hub.transfers.cancel(rec_id)
 
     def _repair(self, rec: LiveRecording) -> None:
         # A part left "transferring" by a server that died mid-transfer: nothing is

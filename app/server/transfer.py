@@ -156,6 +156,28 @@ class TransferManager:
                 log.info("recording %s: part of %s on the server", rec.id, node_id)
             self.recordings.save()
 
+    # ------------------------------------------------------------------ running transfers
+
+    def is_running(self, rec_id: str) -> bool:
+        """True while a transfer of ``rec_id`` is under way."""
+        return rec_id in self._tasks
+
+    def running(self) -> list[str]:
+        """Ids of the recordings being transferred now."""
+        return list(self._tasks)
+
+    def cancel(self, rec_id: str) -> bool:
+        """Stop the transfer of ``rec_id`` (the verified chunks stay; it resumes later).
+
+        Returns:
+            Whether a transfer was running.
+        """
+        task = self._tasks.get(rec_id)
+        if task is None:
+            return False
+        task.cancel()
+        return True
+
     async def close(self) -> None:
         """Cancel running transfers (server shutdown; they resume on the next request)."""
         for t in list(self._tasks.values()):
