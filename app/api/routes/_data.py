@@ -6,7 +6,9 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from fastapi import HTTPException, Request, status
+from numpy.typing import NDArray
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
 
@@ -28,6 +30,29 @@ def datasync_of(request: Request) -> DataSync:
         ds = DataSync(request.app.state.hub, request.app.state.db_sessions, layout_of(request))
         request.app.state.datasync = ds
     return ds
+
+
+def recording_poses(hub: Hub, layout: StorageLayout, rec_id: str
+                    ) -> dict[str, NDArray[np.float64] | None]:
+    """The recording's own sensor poses (``T_world_sensor``) for every part on the server.
+
+    The first use snapshots the poses known now (the active calibration, else the poses
+    the nodes report) into ``sensors.json`` in the recording folder, as the analysis does
+    (:func:`app.server.analysis.sensor_poses`); later uses read that snapshot, so a
+    recalibration never changes an old recording's exports silently. A sensor without a
+    pose maps to None.
+    """
+    from app.server import analysis as an
+    from app.server.calibration import active_poses
+
+    live: dict[str, Any] = dict(active_poses(layout.data_dir))
+    for node_id, s in hub.registry.nodes.items():
+        T = s.sensor.T_world_sensor
+        if T is not None and node_id not in live:
+            live[node_id] = {"T_world_sensor": T, "source": "node"}
+    saved = an.sensor_poses(layout.recording_dir(rec_id), live)
+    return {n: (np.asarray(saved[n]["T_world_sensor"], dtype=float) if n in saved else None)
+            for n in layout.complete_parts(rec_id)}
 
 
 def not_found(what: str) -> HTTPException:

@@ -1,8 +1,9 @@
 """Exports of a recording (skeleton C3D / TRC / CSV, fused or per sensor; depth frames
 as PNG zip or NPZ) and imports of reference recordings (C3D, TRC, CSV) attached to it.
 
-Skeleton exports: ``source=fused`` integrates every sensor with its calibrated pose
-(world frame, Z up, 30 Hz; C3D carries the gait events when a walk is detected);
+Skeleton exports: ``source=fused`` integrates every sensor with the recording's own pose
+snapshot (``sensors.json``, shared with the analysis, so a later recalibration does not
+change it; world frame, Z up, 30 Hz; C3D carries the gait events when a walk is detected);
 ``source=<node id>`` exports that sensor's own skeleton in its camera frame (CSV at the
 recorded times; C3D/TRC resampled to a uniform rate). CSV columns are
 ``time,<Joint>_x,<Joint>_y,<Joint>_z,<Joint>_state`` in metres with Kinect v2 names.
@@ -16,11 +17,10 @@ import secrets
 from pathlib import PurePath
 from typing import Annotated, Any, Literal
 
-import numpy as np
 from fastapi import APIRouter, File, HTTPException, Query, Request, Response, UploadFile, status
 
 from app.api.deps import CurrentUser, DbDep, HubDep
-from app.api.routes._data import get_recording, layout_of, reference_json
+from app.api.routes._data import get_recording, layout_of, recording_poses, reference_json
 from app.db import data as m
 from app.server.storage import (
     check_id,
@@ -56,11 +56,8 @@ async def skeleton(rec_id: str, request: Request, user: CurrentUser, db: DbDep, 
     rec = get_recording(db, rec_id)
     layout = layout_of(request)
     if source == "fused":
-        poses: dict[str, Any] = {}
-        for n in layout.complete_parts(rec.id):
-            s = hub.registry.get(n)
-            pose = s.sensor.T_world_sensor if s is not None else None
-            poses[n] = np.asarray(pose, dtype=float) if pose is not None else None
+        # the recording's own poses (sensors.json), not whatever is calibrated now
+        poses = await asyncio.to_thread(recording_poses, hub, layout, rec.id)
 
         def work() -> bytes:
             series, events = fused_skeleton(sensor_streams(layout, rec.id, poses))

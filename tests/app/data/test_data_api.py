@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -114,8 +115,9 @@ def test_part_and_recording_states() -> None:
                                  "S2": ("incomplete", "x")})[0] == "transferring"
 
 
-def _make_part(tmp_path: Path) -> Path:
-    """A node part of 60 frames (two bodies, one hidden joint), copied through a sink."""
+def _make_part(tmp_path: Path, server: Path | None = None) -> Path:
+    """A node part of 60 frames (two bodies, one hidden joint), copied through a sink
+    into the data folder ``server`` (default ``tmp_path/server``)."""
     rng = np.random.default_rng(0)
     store = NodeStore(tmp_path / "node")
     w = store.create_part("R1", node_id="S1",
@@ -129,7 +131,7 @@ def _make_part(tmp_path: Path) -> Path:
     w.close()
     src = store.root / "R1"
     m = build_manifest(src, "R1", "S1", ["meta.json", "index.json", "frames.bin"])
-    dest = StorageLayout(tmp_path / "server").part_dir("R1", "S1")
+    dest = StorageLayout(server or tmp_path / "server").part_dir("R1", "S1")
     sink = TransferSink(dest, m)
     for name, idx in sink.missing_chunks():
         sink.write_chunk(name, idx, read_chunk(src, m, name, idx))
@@ -183,3 +185,35 @@ def test_reference_upload_is_bounded(client: TestClient, tmp_path: Path,
     assert r.status_code == 400 and "not a readable CSV" in r.json()["detail"]
     r = client.get("/api/exports/R1/skeleton", params={"source": "../etc"})
     assert r.status_code == 400 and "sensor id" in r.json()["detail"]
+
+
+def test_fused_export_keeps_the_recordings_own_poses(client: TestClient, tmp_path: Path
+                                                     ) -> None:
+    """A recalibration after the recording does not change its fused export."""
+    from app.db import data as m
+
+    _make_part(tmp_path / "node-side", server=tmp_path)
+    p = client.post("/api/projects", json={"name": "S"}).json()
+    s = client.post("/api/subjects", json={"project_id": p["id"], "code": "A1"}).json()
+    sess = client.post("/api/sessions", json={"subject_id": s["id"]}).json()
+    with client.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        db.add(m.Recording(id="R1", session_id=sess["id"], state="complete", streams=""))
+        db.commit()
+    r = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "fused"})
+    assert r.status_code == 400 and "no calibrated pose" in r.json()["detail"]
+    first = client.post("/api/calibration/simulate", json={"seed": 1, "frames": 2}).json()
+    before = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "fused"})
+    assert before.status_code == 200, before.text
+    snap = (tmp_path / "recordings" / "R1" / "sensors.json").read_text()
+    assert json.loads(snap)["S1"]["calibration_version"] == str(first["version"])
+    # the rig is calibrated again (another pose for S1); the old recording keeps its own
+    second = client.post("/api/calibration/simulate", json={"seed": 2, "frames": 2}).json()
+    assert second["version"] != first["version"]
+    after = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "fused"})
+    assert after.content == before.content
+    assert (tmp_path / "recordings" / "R1" / "sensors.json").read_text() == snap
+    # a recording made after the recalibration would use the new pose (the snapshot is
+    # what differs): removing the snapshot changes the export
+    (tmp_path / "recordings" / "R1" / "sensors.json").unlink()
+    again = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "fused"})
+    assert again.status_code == 200 and again.content != before.content
