@@ -34,6 +34,7 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 
 from app.nodes.backends.base import Backend, Frame
 from app.nodes.protocol import (
+    CalibrationCapture,
     ChunkRequest,
     Hello,
     ManifestRequest,
@@ -52,8 +53,10 @@ from app.nodes.protocol import (
     Status,
     Subscribe,
     Welcome,
+    calib_error,
     dump,
     encode_binary,
+    encode_calib_frame,
     encode_skeletons,
     parse_server_message,
 )
@@ -177,7 +180,7 @@ class NodeAgent:
         self._tasks: set[asyncio.Future[None]] = set()
         self._ws: ClientConnection | None = None
         self._out: asyncio.Queue[str | bytes] = asyncio.Queue(maxsize=256)
-        self._control: deque[str] = deque()
+        self._control: deque[str | bytes] = deque()
         self._wake = asyncio.Event()
         self._finished: dict[str, tuple[PartInfo, float]] = {}
         self._stop = asyncio.Event()
@@ -317,6 +320,9 @@ class NodeAgent:
                 if latest is not None:
                     self._pool.submit(self._send_images, latest[1], msg.streams, msg.scale,
                                       msg.format, {"req_id": msg.req_id})
+            elif isinstance(msg, CalibrationCapture):
+                threading.Thread(target=self._calib_capture, args=(msg,), daemon=True,
+                                 name="calib-capture").start()
             elif isinstance(msg, ManifestRequest):
                 self._spawn(self._serve_manifest(ws, msg))
             elif isinstance(msg, ChunkRequest):
@@ -383,7 +389,7 @@ class NodeAgent:
         except asyncio.QueueFull:
             return False
 
-    def _send_control(self, text: str) -> None:
+    def _send_control(self, text: str | bytes) -> None:
         """Queue a control message: never dropped while connected, sent before frames."""
         if self._ws is not None:
             self._control.append(text)
@@ -446,6 +452,63 @@ class NodeAgent:
             log.exception("could not produce images")
         finally:
             self._sub_busy = False
+
+    # ------------------------------------------------------------------ calibration
+
+    def _calib_capture(self, msg: CalibrationCapture) -> None:
+        """Send ``msg.frames`` full-size colour + depth frames with the camera model.
+
+        A backend with its own ``calibration_frames(n)`` (an iterator of ``(t_local,
+        colour, depth, colour_K, depth_K, T_depth_color, depth_scale)``, e.g. the simulator
+        rendering the colour camera at a detection-worthy size) provides them; otherwise the
+        next live frames' images are used with the intrinsics the sensor reported (colour
+        and depth assumed co-located when the backend gives no extrinsics). Runs in its own
+        thread; frames go on the never-dropped control queue, in order.
+        """
+        loop = self._loop
+        if loop is None:
+            return
+
+        def send(data: bytes) -> None:
+            loop.call_soon_threadsafe(self._send_control, data)
+
+        try:
+            own = getattr(self.backend, "calibration_frames", None)
+            frames = own(msg.frames) if callable(own) else self._live_calib_frames(msg.frames)
+            for k, (t, c, d, cK, dK, T_dc, scale) in enumerate(frames):
+                send(encode_calib_frame(msg.req_id, k, msg.frames, t, c, d, cK, dK, T_dc,
+                                        scale))
+        except Exception as exc:  # any failure must reach the waiting server
+            log.exception("calibration capture failed")
+            send(calib_error(msg.req_id, f"{self.node_id}: {exc}"))
+
+    def _live_calib_frames(self, n: int) -> Any:
+        """The next ``n`` live frames' colour + depth images (generic backends)."""
+        info = self.info
+        if info is None or info.color_K is None or info.depth_K is None:
+            raise InputError("the sensor reported no colour/depth intrinsics; calibration "
+                             "needs both")
+        T_dc = getattr(self.backend, "T_depth_color", None)
+        T_dc = np.eye(4) if T_dc is None else np.asarray(T_dc, float)
+        last = -float("inf")
+        deadline = time.monotonic() + 10.0 + n / 5.0
+        sent = 0
+        while sent < n:
+            if time.monotonic() > deadline:
+                raise InputError(f"only {sent} of {n} frames arrived in time")
+            latest = self.ring.latest()
+            if latest is None or latest[0] <= last:
+                time.sleep(0.01)
+                continue
+            last, frame = latest
+            imgs = frame.images(["color", "depth"])
+            if "color" not in imgs or "depth" not in imgs:
+                raise InputError("this node has no " + " and ".join(
+                    k for k in ("color", "depth") if k not in imgs) + " image stream "
+                    "(started with --no-images?); calibration needs colour and depth")
+            sent += 1
+            yield (frame.t_local, imgs["color"], imgs["depth"], info.color_K, info.depth_K,
+                   T_dc, 1000.0)
 
     # ------------------------------------------------------------------ recording
 

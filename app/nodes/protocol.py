@@ -10,7 +10,9 @@ Two kinds of websocket messages:
   ``chunk``, ``seq``, ``t`` = node-local capture time in seconds, ...) and a raw payload.
   Skeleton payloads are ``float32 (B, J, 3)`` positions in metres in the sensor frame
   followed by ``uint8 (B, J)`` tracking states; image payloads are PNG/JPEG bytes;
-  ``manifest`` and ``chunk`` carry a recording part's transfer (:mod:`app.transfer`).
+  ``manifest`` and ``chunk`` carry a recording part's transfer (:mod:`app.transfer`);
+  ``calib`` carries one colour + depth frame of a calibration capture with the camera model
+  (:func:`encode_calib_frame`).
   Bounded by ``Settings.max_binary_bytes``.
 
 Time: every node timestamp on the wire is in the node's **local** clock. The server
@@ -34,7 +36,7 @@ import struct
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 from engine.errors import InputError
@@ -43,7 +45,7 @@ PROTOCOL_VERSION = 1
 BINARY_MAGIC = b"GRB" + bytes([PROTOCOL_VERSION])
 _HDR = struct.Struct("<4sI")
 MAX_BINARY_HEADER = 16 * 1024
-BINARY_KINDS = ("skeleton", "image", "manifest", "chunk")
+BINARY_KINDS = ("skeleton", "image", "manifest", "chunk", "calib")
 
 StreamName = Literal["depth", "color", "body_index"]
 PartState = Literal["pending", "recording", "on_node", "incomplete"]
@@ -217,6 +219,28 @@ class ChunkRequest(_Msg):
     indices: list[int] = Field(min_length=1, max_length=4096)
 
 
+class CalibrationCapture(_Msg):
+    """Send ``frames`` synchronised colour + depth frames at full resolution with the
+    camera model, as binary ``calib`` messages (spatial calibration, bumped-tripod check).
+
+    The node answers each frame with :func:`encode_calib_frame` (``index`` 0..frames-1),
+    or once with an ``error`` header when it cannot (no colour or depth stream)."""
+
+    type: Literal["calib_capture"] = "calib_capture"
+    req_id: int
+    frames: int = Field(default=30, ge=1, le=120)
+
+
+class DeletePart(_Msg):
+    """Delete the node's copy of a part (its recording was deleted on the server). The
+    node answers on the part-request channel: a binary ``manifest`` message whose header
+    carries ``deleted: true`` (or ``error``) and no payload."""
+
+    type: Literal["delete_part"] = "delete_part"
+    req_id: int
+    rec_id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
+
+
 class ServerError(_Msg):
     type: Literal["error"] = "error"
     reason: str
@@ -224,7 +248,7 @@ class ServerError(_Msg):
 
 ServerMessage = Annotated[
     Welcome | Refused | Ping | RecStart | RecStop | Subscribe | Snapshot | ManifestRequest
-    | ChunkRequest | ServerError,
+    | ChunkRequest | CalibrationCapture | ServerError,
     Field(discriminator="type"),
 ]
 
@@ -352,3 +376,83 @@ def decode_skeletons(
     pos = np.frombuffer(payload, dtype="<f4", count=B * J * 3).reshape(B, J, 3)
     st = np.frombuffer(payload, dtype=np.uint8, offset=n_pos).reshape(B, J)
     return pos, st
+
+
+# --------------------------------------------------------------------------- calibration
+
+
+def _png(img: NDArray[Any]) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise ProtocolError(f"could not encode a {img.shape} {img.dtype} image as PNG")
+    return bytes(buf.tobytes())
+
+
+def encode_calib_frame(
+    req_id: int, index: int, frames: int, t_local: float, color: NDArray[Any],
+    depth: NDArray[Any], color_K: ArrayLike, depth_K: ArrayLike,
+    T_depth_color: ArrayLike, depth_scale: float = 1000.0,
+) -> bytes:
+    """Binary ``calib`` message: one colour + depth frame of a calibration capture.
+
+    The colour image is sent as 8-bit grey PNG (marker detection works on grey; a third
+    of the bytes), the depth as 16-bit PNG; both lossless so sub-pixel corners and depth
+    noise arrive as captured. The header carries the camera model: 3×3 intrinsics of each
+    image at its sent size, ``T_depth_color`` (colour → depth camera) and ``depth_scale``
+    (raw units per metre).
+    """
+    import cv2
+
+    c = np.asarray(color)
+    if c.ndim == 3:
+        c = cv2.cvtColor(c, cv2.COLOR_RGB2GRAY)
+    d = np.asarray(depth)
+    if d.ndim != 2 or c.ndim != 2:
+        raise ProtocolError(f"calibration frame needs 2-D depth and colour, got {d.shape}, "
+                            f"{np.asarray(color).shape}")
+    cb, db = _png(c.astype(np.uint8)), _png(d.astype(np.uint16))
+    header = {"kind": "calib", "req_id": int(req_id), "index": int(index),
+              "frames": int(frames), "t": float(t_local), "color_bytes": len(cb),
+              "color_K": np.asarray(color_K, float).tolist(),
+              "depth_K": np.asarray(depth_K, float).tolist(),
+              "T_depth_color": np.asarray(T_depth_color, float).tolist(),
+              "depth_scale": float(depth_scale)}
+    return encode_binary(header, cb + db)
+
+
+def calib_error(req_id: int, reason: str) -> bytes:
+    """Binary ``calib`` message saying why the node cannot send calibration frames."""
+    return encode_binary({"kind": "calib", "req_id": int(req_id), "error": reason[:2000]})
+
+
+def decode_calib_frame(header: dict[str, Any], payload: bytes
+                       ) -> tuple[NDArray[np.uint8], NDArray[np.uint16]]:
+    """Colour (grey) and depth images of a ``calib`` message (after :func:`decode_binary`).
+
+    Raises:
+        ProtocolError: missing fields or undecodable images.
+    """
+    import cv2
+
+    try:
+        n = int(header["color_bytes"])
+        for k in ("color_K", "depth_K"):
+            if np.asarray(header[k], float).shape != (3, 3):
+                raise ValueError(f"{k} is not 3×3")
+        if np.asarray(header["T_depth_color"], float).shape != (4, 4):
+            raise ValueError("T_depth_color is not 4×4")
+        if not float(header["depth_scale"]) > 0:
+            raise ValueError("depth_scale must be positive")
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ProtocolError(f"calib header lacks a valid field: {exc}") from exc
+    if not 0 < n < len(payload):
+        raise ProtocolError(f"calib payload of {len(payload)} bytes cannot hold a {n}-byte "
+                            "colour image and a depth image")
+    c = cv2.imdecode(np.frombuffer(payload[:n], np.uint8), cv2.IMREAD_UNCHANGED)
+    d = cv2.imdecode(np.frombuffer(payload[n:], np.uint8), cv2.IMREAD_UNCHANGED)
+    if c is None or d is None or c.dtype != np.uint8 or d.dtype != np.uint16 or d.ndim != 2:
+        raise ProtocolError("calib frame images are not an 8-bit colour/grey PNG and a "
+                            "16-bit depth PNG")
+    return np.asarray(c, np.uint8), np.asarray(d, np.uint16)

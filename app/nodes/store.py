@@ -208,9 +208,20 @@ class NodeStore:
                     return
                 yield decode_binary(rec, limit=MAX_RECORD)
 
-    def delete(self, rec_id: str) -> None:
-        """Remove a part (after the server holds a verified copy)."""
-        shutil.rmtree(self.root / _check_id(rec_id), ignore_errors=True)
+    def delete(self, rec_id: str) -> bool:
+        """Remove a part for good (its recording was deleted on the server).
+
+        Returns:
+            False when the part was not (or no longer) on this node.
+
+        Raises:
+            OSError: the files could not all be removed (a deletion is never silent).
+        """
+        folder = self.root / _check_id(rec_id)
+        if not folder.exists():
+            return False
+        shutil.rmtree(folder)
+        return True
 
     def disk_free(self) -> int:
         """Free bytes on the store's file system."""

@@ -2,16 +2,31 @@
 
 The latest version is the active calibration; restoring an older one saves it again as a
 new version (history is never rewritten).
+
+Live capture (:class:`CaptureManager`): the wizard asks every connected node for N colour
++ depth frames over the node protocol (``calib_capture``), runs detection → 3D corners →
+graph → chaining → joint optimisation → ICP on them, and keeps the result until the user
+accepts (saved as the new active version, applied to the nodes) or rejects it. The same
+capture with a few frames re-detects the markers for the bumped-tripod check.
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import itertools
+import logging
 import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from app.nodes.protocol import CalibrationCapture, decode_calib_frame, dump
+from engine.calibration.corners3d import SensorFrames
 from engine.calibration.pipeline import CalibrationResult
 from engine.calibration.store import (
     check_moved,
@@ -20,7 +35,9 @@ from engine.calibration.store import (
     result_to_dict,
     save_version,
 )
-from engine.errors import InputError
+from engine.errors import CalibrationError, GaitrigError, InputError
+
+log = logging.getLogger("gaitrig.calibration")
 
 
 def calibration_dir(data_dir: Path) -> Path:
@@ -138,3 +155,276 @@ def apply_to_registry(registry: Any, data_dir: Path) -> list[str]:
         on_connect._gaitrig_calibration = True  # type: ignore[attr-defined]
         listeners.append(on_connect)
     return sorted(applied)
+
+
+# --------------------------------------------------------------------------- live capture
+
+#: Jobs kept for the wizard (older ones are forgotten).
+MAX_JOBS = 8
+#: Seconds a node may take per requested frame before its capture counts as failed.
+CAPTURE_S_PER_FRAME = 1.5
+CAPTURE_BASE_S = 30.0
+
+
+@dataclass
+class CaptureJob:
+    """A capture from the connected nodes and what was computed from it.
+
+    ``kind`` is ``"calibrate"`` (the wizard: detection → 3D corners → graph → pose graph →
+    ICP; the result waits for the user's accept/reject) or ``"check"`` (bumped-tripod
+    check against the active calibration). ``state``: capturing → computing → done |
+    failed (``message`` says why) | accepted | rejected.
+    """
+
+    id: int
+    kind: str
+    nodes: list[str]
+    frames: int
+    marker_sizes: dict[int, float]
+    created: float = field(default_factory=time.time)
+    state: str = "capturing"
+    message: str = ""
+    unreachable: list[str] = field(default_factory=list)
+    received: dict[str, int] = field(default_factory=dict)
+    errors: dict[str, str] = field(default_factory=dict)
+    raw: dict[str, list[tuple[dict[str, Any], bytes]]] = field(default_factory=dict)
+    result: CalibrationResult | None = None
+    doc: dict[str, Any] | None = None
+    checks: list[dict[str, Any]] = field(default_factory=list)
+    version: int | None = None
+    done: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def node_finished(self, node: str) -> bool:
+        return node in self.errors or self.received.get(node, 0) >= self.frames
+
+    def to_dict(self) -> dict[str, Any]:
+        """Progress and outcome for the console."""
+        d: dict[str, Any] = {
+            "id": self.id, "kind": self.kind, "state": self.state, "message": self.message,
+            "frames": self.frames, "created": self.created, "nodes": {
+                n: {"received": self.received.get(n, 0), "error": self.errors.get(n)}
+                for n in self.nodes},
+            "marker_sizes_m": {str(k): v for k, v in self.marker_sizes.items()},
+        }
+        if self.unreachable:
+            d["unreachable"] = self.unreachable
+        if self.doc is not None:
+            d["result"] = self.doc
+        if self.kind == "check":
+            d["checks"] = self.checks
+            d["moved"] = [c["sensor"] for c in self.checks if c["status"] == "moved"]
+        if self.version is not None:
+            d["version"] = self.version
+        return d
+
+
+class CaptureManager:
+    """Runs captures over the node protocol (``calib_capture`` → binary ``calib`` frames).
+
+    One capture at a time. Frames are collected per job, decoded and processed in a
+    worker thread; the calibration result is kept unsaved until accepted.
+
+    Args:
+        hub: The node hub (sessions and the binary-message hook).
+        data_dir: Server data folder (calibrations).
+    """
+
+    def __init__(self, hub: Any, data_dir: Path) -> None:
+        self.hub = hub
+        self.data_dir = Path(data_dir)
+        self.jobs: dict[int, CaptureJob] = {}
+        self.last_check: CaptureJob | None = None
+        self._ids = itertools.count(1)
+        self._tasks: set[asyncio.Task[None]] = set()
+        hub.binary_listeners["calib"] = self.on_binary
+
+    def busy(self) -> CaptureJob | None:
+        """The job still capturing or computing, if any."""
+        return next((j for j in self.jobs.values() if j.state in ("capturing", "computing")),
+                    None)
+
+    async def start(self, kind: str, frames: int, marker_sizes: Mapping[int, float] | None,
+                    nodes: Sequence[str] | None = None) -> CaptureJob:
+        """Ask every (or the given) connected node for ``frames`` frames and process them.
+
+        Args:
+            kind: ``"calibrate"`` or ``"check"``.
+            frames: Frames per node.
+            marker_sizes: Marker id → edge length (m); for a check, None = the active
+                calibration's markers.
+            nodes: Node ids (default: every connected node).
+
+        Raises:
+            InputError: no connected node, an unknown/offline node, no active calibration
+                for a check.
+            CaptureBusyError: another capture is still running.
+        """
+        running = self.busy()
+        if running is not None:
+            raise CaptureBusyError(f"capture {running.id} is still {running.state}; wait for "
+                                   "it to finish")
+        sessions = self.hub.registry.nodes
+        online = sorted(n for n, s in sessions.items() if s.connected and s.send is not None)
+        want = sorted(set(nodes)) if nodes else online
+        if not want:
+            raise InputError("no sensor node is connected: start the nodes (Rig page) and "
+                             "capture again")
+        off = [n for n in want if n not in online]
+        if off:
+            raise InputError(f"node(s) {', '.join(off)} are not connected")
+        if kind == "check":
+            folder = calibration_dir(self.data_dir)
+            if not list_versions(folder):
+                raise InputError("no calibration yet: calibrate the rig first (calibration "
+                                 "wizard), then the live check compares against it")
+            active = load_version(folder)
+            sizes = dict(active.marker_sizes)
+        else:
+            if not marker_sizes:
+                raise InputError("give the marker ids and edge length to calibrate with")
+            sizes = {int(k): float(v) for k, v in marker_sizes.items()}
+        job = CaptureJob(next(self._ids), kind, want, frames, sizes,
+                         received={n: 0 for n in want}, raw={n: [] for n in want})
+        self.jobs[job.id] = job
+        for old in sorted(self.jobs)[:-MAX_JOBS]:
+            del self.jobs[old]
+        for n in want:
+            send = sessions[n].send
+            try:
+                await send(dump(CalibrationCapture(req_id=job.id, frames=frames)))
+            except Exception as exc:  # the socket closed between the check and the send
+                job.errors[n] = f"could not reach {n}: {exc}"
+        task = asyncio.create_task(self._run(job))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return job
+
+    def on_binary(self, session: Any, header: dict[str, Any], payload: bytes) -> None:
+        """Hub hook for binary ``calib`` messages (runs on the event loop)."""
+        try:
+            job = self.jobs.get(int(header.get("req_id", -1)))
+        except (TypeError, ValueError):
+            job = None
+        node = session.id
+        if job is None or job.state != "capturing" or node not in job.received:
+            log.warning("calibration frame from %s for unknown capture %s ignored", node,
+                        header.get("req_id"))
+            return
+        if "error" in header:
+            job.errors[node] = str(header["error"])
+        elif not job.node_finished(node):
+            job.raw[node].append((header, payload))
+            job.received[node] += 1
+        if all(job.node_finished(n) for n in job.nodes):
+            job.done.set()
+
+    async def _run(self, job: CaptureJob) -> None:
+        timeout = CAPTURE_BASE_S + CAPTURE_S_PER_FRAME * job.frames
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(job.done.wait(), timeout)
+        for n in job.nodes:
+            if not job.node_finished(n):
+                job.errors[n] = (f"{n} sent {job.received[n]} of {job.frames} frames within "
+                                 f"{timeout:.0f} s (disconnected or overloaded?)")
+        job.state = "computing"
+        try:
+            await asyncio.to_thread(self._compute, job)
+        except GaitrigError as exc:
+            job.state, job.message = "failed", str(exc)
+            if isinstance(exc, CalibrationError):
+                job.unreachable = list(exc.unreachable)
+        except Exception as exc:
+            log.exception("calibration capture %d failed", job.id)
+            job.state, job.message = "failed", f"internal error: {exc}"
+        finally:
+            job.raw = {}
+
+    def _sensor_frames(self, job: CaptureJob, node: str) -> SensorFrames:
+        items = sorted(job.raw[node], key=lambda hp: int(hp[0].get("index", 0)))
+        colors, depths = [], []
+        for h, p in items:
+            c, d = decode_calib_frame(h, p)
+            colors.append(c)
+            depths.append(d)
+        h0 = items[0][0]
+        return SensorFrames(node, colors, depths, np.asarray(h0["depth_K"], float),
+                            np.asarray(h0["color_K"], float),
+                            np.asarray(h0["T_depth_color"], float), float(h0["depth_scale"]))
+
+    def _compute(self, job: CaptureJob) -> None:
+        from engine.calibration.moved import SensorCheck, check_sensor_frames
+        from engine.calibration.pipeline import calibrate_frames
+
+        if job.kind == "check":
+            active = load_version(calibration_dir(self.data_dir))
+            checks = []
+            for n in job.nodes:
+                if n in job.errors:
+                    checks.append(SensorCheck(n, "unknown", reason=job.errors[n]).to_dict())
+                    continue
+                try:
+                    checks.append(check_sensor_frames(self._sensor_frames(job, n),
+                                                      active).to_dict())
+                except GaitrigError as exc:
+                    checks.append(SensorCheck(n, "unknown", reason=str(exc)).to_dict())
+            job.checks = checks
+            moved = [c for c in checks if c["status"] == "moved"]
+            job.message = ("; ".join(c["reason"] for c in moved) if moved else
+                           f"no sensor moved more than 1 cm / 0.5° since calibration "
+                           f"version {active.version}")
+            job.state = "done"
+            self.last_check = job
+            return
+        if job.errors:
+            raise InputError("capture failed on " + "; ".join(
+                f"{n}: {e}" for n, e in sorted(job.errors.items())) + " — fix it and capture "
+                "again")
+        frames = [self._sensor_frames(job, n) for n in job.nodes]
+        res = calibrate_frames(frames, job.marker_sizes)
+        res.meta["source"] = (f"capture {job.id}: {job.frames} frames from "
+                              f"{len(job.nodes)} connected nodes")
+        job.result = res
+        job.doc = result_to_dict(res)
+        job.state = "done"
+
+    def accept(self, job_id: int, registry: Any) -> dict[str, Any]:
+        """Save a computed calibration as the new active version and apply it."""
+        job = self._get(job_id)
+        if job.kind != "calibrate" or job.state != "done" or job.result is None:
+            raise InputError(f"capture {job_id} has no calibration waiting to be accepted "
+                             f"(state {job.state})")
+        job.version = save(self.data_dir, job.result)
+        job.state = "accepted"
+        applied = apply_to_registry(registry, self.data_dir)
+        return {"version": job.version, "applied_to": applied}
+
+    def reject(self, job_id: int) -> dict[str, Any]:
+        """Discard a computed calibration (nothing saved; the active one stays)."""
+        job = self._get(job_id)
+        if job.kind != "calibrate" or job.state != "done":
+            raise InputError(f"capture {job_id} has no calibration waiting (state {job.state})")
+        job.state, job.result = "rejected", None
+        return {"rejected": job_id}
+
+    def _get(self, job_id: int) -> CaptureJob:
+        job = self.jobs.get(job_id)
+        if job is None:
+            raise CaptureNotFoundError(f"no capture {job_id} (the server keeps the last "
+                                       f"{MAX_JOBS})")
+        return job
+
+    def get(self, job_id: int) -> CaptureJob:
+        """A job by id.
+
+        Raises:
+            CaptureNotFoundError: unknown or forgotten.
+        """
+        return self._get(job_id)
+
+
+class CaptureBusyError(InputError):
+    """Another capture is running (HTTP 409)."""
+
+
+class CaptureNotFoundError(InputError):
+    """No such capture job (HTTP 404)."""

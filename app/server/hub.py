@@ -16,6 +16,7 @@ import logging
 import secrets
 import time
 from collections.abc import Callable
+from typing import Any
 
 from fastapi import WebSocket, WebSocketDisconnect
 from starlette.websockets import WebSocketState
@@ -66,6 +67,10 @@ class Hub:
         self._sockets: dict[str, WebSocket] = {}
         self._agent_started: dict[str, float] = {}
         self.skeleton_listeners: list[Callable[[NodeSession], None]] = []
+        #: Binary kind → handler ``(session, header, payload)`` for kinds other modules own
+        #: (``calib``: :mod:`app.server.calibration`'s capture).
+        self.binary_listeners: dict[str, Callable[[NodeSession, dict[str, Any], bytes],
+                                                  None]] = {}
 
     async def close(self) -> None:
         """Close every node connection (server shutdown)."""
@@ -202,6 +207,10 @@ class Hub:
                 cb(s)
         elif header["kind"] in ("manifest", "chunk"):
             self.transfers.on_binary(header, payload)
+        elif header["kind"] in self.binary_listeners:
+            self.binary_listeners[header["kind"]](s, header, payload)
+        elif header["kind"] == "calib":
+            log.warning("node %s sent calibration frames nobody asked for; ignored", s.id)
         else:
             stream = header.get("stream")
             if stream not in ("depth", "color", "body_index"):

@@ -48,18 +48,47 @@ class Edge:
     obs: Observation
 
 
+#: Largest RMS misfit (m) of an observation's four 3D corners to the marker's square (or
+#: 4 × the corners' expected error, if larger): more means the corners are not the printed
+#: square (partly occluded, folded, a person standing on it) and the observation is
+#: rejected with that reason.
+MAX_SQUARE_RMS_M = 0.01
+#: Largest relative difference between the measured and the given edge length.
+MAX_SIZE_MISMATCH = 0.15
+
+
 def build_edges(observations: Sequence[Observation], marker_sizes: Mapping[int, float]
                 ) -> list[Edge]:
-    """Procrustes per accepted observation (markers of unknown size are skipped)."""
+    """Procrustes per accepted observation (markers of unknown size are skipped).
+
+    An observation whose corners do not fit the marker's square is marked rejected (in
+    place, with the reason): a measured edge length far from the given one says the size
+    is wrong, a large misfit says the marker is partly occluded or not flat.
+    """
     edges: list[Edge] = []
     for o in observations:
         if not o.accepted or o.marker_id not in marker_sizes:
             continue
-        model = marker_model_corners(marker_sizes[o.marker_id])
+        size = marker_sizes[o.marker_id]
+        model = marker_model_corners(size)
         T = procrustes(model, o.corners)
         res = transform_points(T, model) - o.corners
         rms = float(np.sqrt(np.mean(np.sum(res * res, axis=1))))
+        measured = float(np.mean(np.linalg.norm(o.corners - np.roll(o.corners, -1, axis=0),
+                                                axis=1)))
+        if abs(measured - size) > MAX_SIZE_MISMATCH * size:
+            o.accepted = False
+            o.reason = (f"marker {o.marker_id} measures {measured * 100:.1f} cm in depth but "
+                        f"its edge length was given as {size * 100:.1f} cm: check the size "
+                        "(the black square, without the white border)")
+            continue
         sigma = float(np.sqrt(np.mean(np.trace(o.cov, axis1=1, axis2=2))))
+        if rms > max(MAX_SQUARE_RMS_M, 4 * sigma):
+            o.accepted = False
+            o.reason = (f"the 3D corners of marker {o.marker_id} miss its square by "
+                        f"{rms * 1000:.0f} mm RMS: partly occluded, not flat, or someone "
+                        "stood on it during the capture")
+            continue
         edges.append(Edge(o.sensor_id, o.marker_id, T, rms, sigma, o))
     return edges
 

@@ -4,13 +4,17 @@
 observations (e.g. from :func:`engine.calibration.corners3d.observe_sensor` run on each
 node). Both return a :class:`CalibrationResult` with the chained (paper) and optimised
 poses, residual tables, every observation with its acceptance and reason, and the graph
-edges for display. Saving, loading and the bumped-tripod check are in
+edges for display. ``calibrate_frames`` then refines the optimised poses by ICP of the
+sensors' (temporal-median) depth clouds (:func:`engine.calibration.icp.refine_with_icp`),
+keeping a refinement only where it improves the overlap and is not degenerate; every
+sensor's ICP outcome is in ``meta["icp"]``. Saving, loading and the bumped-tripod check are in
 :mod:`engine.calibration.store`.
 """
 
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -20,9 +24,11 @@ from numpy.typing import NDArray
 
 from engine.calibration.corners3d import CornerParams, Observation, SensorFrames, observe_sensor
 from engine.calibration.graph import build_edges, chain_poses, check_connectivity
+from engine.calibration.icp import IcpReport, refine_with_icp
 from engine.calibration.markers import DEFAULT_DICTIONARY
 from engine.calibration.posegraph import optimise_poses
 from engine.errors import CalibrationError, InputError
+from engine.pointcloud import depth_to_points
 
 FloatArray = NDArray[np.float64]
 
@@ -70,6 +76,8 @@ class CalibrationResult:
         created: Unix time of the computation.
         version: Calibration version (set by the store when saved).
         meta: Free-form extra information (ICP reports, notes).
+        T_world_sensor_joint: Poses of the joint optimisation before ICP (empty when ICP
+            was not run; ``T_world_sensor`` then is the joint optimisation).
     """
 
     T_world_sensor: dict[str, FloatArray]
@@ -84,6 +92,7 @@ class CalibrationResult:
     created: float = field(default_factory=time.time)
     version: int | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    T_world_sensor_joint: dict[str, FloatArray] = field(default_factory=dict)
 
     @property
     def sensor_ids(self) -> list[str]:
@@ -170,8 +179,19 @@ def calibrate_frames(
     dictionary: str = DEFAULT_DICTIONARY,
     params: CornerParams | None = None,
     floor_sigma_m: float | None = FLOOR_SIGMA_M,
+    icp: bool = True,
 ) -> CalibrationResult:
-    """Calibrate from colour + depth frames of every sensor (detect, 3D corners, solve).
+    """Calibrate from colour + depth frames of every sensor (detect, 3D corners, solve, ICP).
+
+    Args:
+        frames: Colour + depth frames and camera model of every sensor.
+        marker_sizes: Marker id → edge length (m), or one size for all.
+        origin_marker: Marker defining the world frame.
+        dictionary: Marker dictionary.
+        params: 3D-corner thresholds.
+        floor_sigma_m: Floor prior (see :func:`calibrate`).
+        icp: Refine the optimised poses by ICP of the depth clouds (kept only where it
+            improves; see :func:`engine.calibration.icp.refine_with_icp`).
 
     Raises:
         InputError: a sensor without depth frames, mismatched frame counts.
@@ -187,4 +207,64 @@ def calibrate_frames(
     obs: list[Observation] = []
     for f in frames:
         obs.extend(observe_sensor(f, known, dictionary, params))
-    return calibrate(obs, marker_sizes, ids, origin_marker, floor_sigma_m, dictionary)
+    res = calibrate(obs, marker_sizes, ids, origin_marker, floor_sigma_m, dictionary)
+    if icp:
+        apply_icp(res, {f.sensor_id: static_cloud(f) for f in frames})
+    return res
+
+
+#: Voxel (m) of the ICP refinement's clouds.
+ICP_VOXEL_M = 0.02
+
+
+def static_cloud(frames: SensorFrames, max_frames: int = 9) -> FloatArray:
+    """The sensor's static scene as points in its (depth camera) frame: the per-pixel
+    temporal median of up to ``max_frames`` depth frames (removes noise, dropouts and a
+    person walking through), unprojected with the depth intrinsics."""
+    from engine.calibration.corners3d import _intr
+
+    if frames.depths is None or len(frames.depths) == 0:
+        return np.zeros((0, 3))
+    n = len(frames.depths)
+    idx = np.unique(np.linspace(0, n - 1, min(max_frames, n)).round().astype(int))
+    stack = np.stack([np.asarray(frames.depths[i], dtype=np.float64) for i in idx])
+    stack[stack <= 0] = np.nan
+    with warnings.catch_warnings():  # pixels without any return stay NaN → 0 below
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(stack, axis=0) if len(idx) > 1 else stack[0]
+    med = np.nan_to_num(med, nan=0.0)
+    intr = _intr(frames.depth_intrinsics, med.shape)
+    pts, _ = depth_to_points(med, intr, frames.depth_scale, max_depth=8.0)
+    return pts
+
+
+def icp_report_dict(r: IcpReport) -> dict[str, Any]:
+    """JSON-ready ICP outcome of one sensor."""
+    d: dict[str, Any] = {"sensor": r.sensor_id, "accepted": r.accepted, "reason": r.reason,
+                         "correction_mm": round(r.correction_m * 1000, 3),
+                         "correction_deg": round(r.correction_deg, 4)}
+    if r.result is not None:
+        d.update(fitness_before=round(r.result.fitness_before, 4),
+                 fitness=round(r.result.fitness, 4),
+                 inlier_rmse_before_mm=round(r.result.inlier_rmse_before * 1000, 3),
+                 inlier_rmse_mm=round(r.result.inlier_rmse * 1000, 3),
+                 eig_ratio=round(r.result.eig_ratio, 5))
+    return d
+
+
+def apply_icp(res: CalibrationResult, clouds: Mapping[str, FloatArray],
+              voxel: float = ICP_VOXEL_M) -> list[IcpReport]:
+    """Refine ``res``'s sensor poses by ICP in place (kept only where it improves).
+
+    The joint-optimisation poses are kept in ``res.T_world_sensor_joint``, the reports in
+    ``res.meta["icp"]``. Sensors without a usable cloud keep their pose (with a reason).
+    """
+    use = {s: p for s, p in clouds.items() if s in res.T_world_sensor and len(p) > 0}
+    res.T_world_sensor_joint = {s: np.asarray(T, float).copy()
+                                for s, T in res.T_world_sensor.items()}
+    poses, reports = refine_with_icp(res.T_world_sensor, use, voxel=voxel)
+    for s in sorted(set(res.T_world_sensor) - set(use)):
+        reports.append(IcpReport(s, False, "no depth points for ICP", None))
+    res.T_world_sensor = {s: np.asarray(T, float) for s, T in poses.items()}
+    res.meta["icp"] = [icp_report_dict(r) for r in sorted(reports, key=lambda r: r.sensor_id)]
+    return reports

@@ -51,6 +51,7 @@ def result_to_dict(result: CalibrationResult) -> dict[str, Any]:
         "marker_sizes_m": {str(k): v for k, v in result.marker_sizes.items()},
         "T_world_sensor": {s: _mat(T) for s, T in result.T_world_sensor.items()},
         "T_world_sensor_chained": {s: _mat(T) for s, T in result.T_world_sensor_chained.items()},
+        "T_world_sensor_joint": {s: _mat(T) for s, T in result.T_world_sensor_joint.items()},
         "T_world_marker": {str(m): _mat(T) for m, T in result.T_world_marker.items()},
         "sensor_residual_m": {s: _num(v) for s, v in result.sensor_residual_m.items()},
         "edges": [{"sensor": e.sensor_id, "marker": e.marker_id, "residual_m": _num(e.residual_m),
@@ -106,6 +107,8 @@ def result_from_dict(d: dict[str, Any]) -> CalibrationResult:
             created=float(d.get("created", 0.0)),
             version=None if d.get("version") is None else int(d["version"]),
             meta=dict(d.get("meta", {})),
+            T_world_sensor_joint={s: T(v) for s, v in d.get("T_world_sensor_joint",
+                                                             {}).items()},
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"calibration file is damaged: {exc}") from exc

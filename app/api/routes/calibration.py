@@ -1,5 +1,6 @@
-"""Spatial calibration: printable marker sheets, saved calibrations (list, view, restore)
-and the bumped-tripod check."""
+"""Spatial calibration: printable marker sheets, capture from the connected nodes with
+progress (accept/reject), saved calibrations (list, view, restore) and the bumped-tripod
+check (live re-detection from the nodes' frames, or given poses)."""
 
 from __future__ import annotations
 
@@ -7,12 +8,13 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, HTTPException, Query, Request, status
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
-from app.api.deps import CurrentUser, RegistryDep, SettingsDep
+from app.api.deps import CurrentUser, HubDep, RegistryDep, SettingsDep
 from app.server import calibration as cal
+from app.server.calibration import CaptureBusyError, CaptureManager, CaptureNotFoundError
 
 router = APIRouter(prefix="/calibration", tags=["calibration"])
 
@@ -24,6 +26,22 @@ class SimulateRequest(BaseModel):
 
     seed: int = Field(0, ge=0, le=10_000)
     frames: int = Field(10, ge=2, le=60)
+
+
+class CaptureRequest(BaseModel):
+    """Capture from the connected nodes and calibrate."""
+
+    frames: int = Field(30, ge=2, le=120, description="frames per node (averaged)")
+    ids: str = Field("1-8", max_length=200, description="marker ids in the room, e.g. 1-8")
+    size_m: float = Field(0.20, gt=0.01, le=1.0, description="marker edge length (m)")
+    nodes: list[str] | None = Field(None, max_length=64,
+                                    description="node ids (default: every connected node)")
+
+
+class LiveCheckRequest(BaseModel):
+    """Re-detect the markers from the connected nodes and compare with the calibration."""
+
+    frames: int = Field(5, ge=2, le=60)
 
 
 class PoseCheck(BaseModel):
@@ -53,6 +71,91 @@ def marker_sheet(
         data = out.read_bytes()
     return Response(data, media_type="application/pdf", headers={
         "Content-Disposition": f'attachment; filename="markers-{size * 100:.0f}cm.pdf"'})
+
+
+def _captures(request: Request, hub: HubDep, settings: SettingsDep) -> CaptureManager:
+    st = request.app.state
+    mgr: CaptureManager | None = getattr(st, "calibration_capture", None)
+    if mgr is None or mgr.hub is not hub:
+        mgr = st.calibration_capture = CaptureManager(hub, settings.data_dir)
+    return mgr
+
+
+async def _start(mgr: CaptureManager, kind: str, frames: int,
+                 sizes: dict[int, float] | None, nodes: list[str] | None) -> dict[str, Any]:
+    try:
+        job = await mgr.start(kind, frames, sizes, nodes)
+    except CaptureBusyError as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from exc
+    return job.to_dict()
+
+
+def _job(mgr: CaptureManager, job_id: int) -> Any:
+    try:
+        return mgr.get(job_id)
+    except CaptureNotFoundError as exc:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, str(exc)) from exc
+
+
+@router.post("/capture", status_code=202)
+async def capture(body: CaptureRequest, request: Request, user: CurrentUser, hub: HubDep,
+                  settings: SettingsDep) -> dict[str, Any]:
+    """Ask the connected nodes for ``frames`` colour + depth frames each and calibrate from
+    them (detection, 3D corners, graph, chaining, joint optimisation, ICP). Poll
+    ``GET /api/calibration/captures/{id}`` for progress and the result; nothing is saved
+    until ``POST .../accept``."""
+    from engine.calibration.markers import parse_ids
+
+    ids = parse_ids(body.ids)
+    mgr = _captures(request, hub, settings)
+    return await _start(mgr, "calibrate", body.frames, {i: body.size_m for i in ids},
+                        body.nodes)
+
+
+@router.post("/live-check", status_code=202)
+async def live_check(body: LiveCheckRequest, request: Request, user: CurrentUser,
+                     hub: HubDep, settings: SettingsDep) -> dict[str, Any]:
+    """Bumped-tripod check: re-detect the markers in fresh frames of every connected node
+    and compare each sensor's pose with the active calibration (warns above 1 cm / 0.5°).
+    Poll ``GET /api/calibration/captures/{id}``; the latest outcome stays at
+    ``GET /api/calibration/live-check``."""
+    return await _start(_captures(request, hub, settings), "check", body.frames, None, None)
+
+
+@router.get("/live-check")
+def last_live_check(request: Request, user: CurrentUser, hub: HubDep,
+                    settings: SettingsDep) -> dict[str, Any]:
+    """The latest bumped-tripod check (``{"checked": false}`` when none ran yet)."""
+    job = _captures(request, hub, settings).last_check
+    if job is None:
+        return {"checked": False, "moved": [], "checks": []}
+    return {"checked": True, **job.to_dict()}
+
+
+@router.get("/captures/{job_id}")
+def capture_status(job_id: int, request: Request, user: CurrentUser, hub: HubDep,
+                   settings: SettingsDep) -> dict[str, Any]:
+    """Progress (frames received per node) and, when done, the result of a capture."""
+    d: dict[str, Any] = _job(_captures(request, hub, settings), job_id).to_dict()
+    return d
+
+
+@router.post("/captures/{job_id}/accept")
+def accept_capture(job_id: int, request: Request, user: CurrentUser, hub: HubDep,
+                   settings: SettingsDep, registry: RegistryDep) -> dict[str, Any]:
+    """Save the captured calibration as the new active version and apply it to the nodes."""
+    mgr = _captures(request, hub, settings)
+    _job(mgr, job_id)
+    return mgr.accept(job_id, registry)
+
+
+@router.post("/captures/{job_id}/reject")
+def reject_capture(job_id: int, request: Request, user: CurrentUser, hub: HubDep,
+                   settings: SettingsDep) -> dict[str, Any]:
+    """Discard the captured calibration; the active one stays."""
+    mgr = _captures(request, hub, settings)
+    _job(mgr, job_id)
+    return mgr.reject(job_id)
 
 
 @router.post("/simulate")

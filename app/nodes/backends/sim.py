@@ -80,6 +80,9 @@ class SimBackend(Backend):
         self._walker: Any = None
         self._renderer: Any = None
         self._render_lock = threading.Lock()
+        self._calib_renderer: Any = None  # colour at the calibration size (lazy)
+        self._calib_lock = threading.Lock()
+        self._calib_rng = np.random.default_rng([seed, 11, sum(ord(c) for c in sensor_id)])
         self._img_rng = np.random.default_rng([seed, 7, sum(ord(c) for c in sensor_id)])
         # sensor-specific stream of randomness, reproducible per (seed, sensor)
         self._rng = np.random.default_rng([seed, sum(ord(c) for c in sensor_id)])
@@ -193,6 +196,42 @@ class SimBackend(Backend):
         if want_color and frame.color is not None:
             out["color"] = frame.color
         return out
+
+    def calibration_frames(self, n: int) -> Iterator[tuple[Any, ...]]:
+        """``n`` colour + depth frames for the spatial calibration (the agent sends them).
+
+        The colour camera is rendered at :data:`engine.calibration.simcapture.
+        CAPTURE_COLOR_SIZE` (the streaming size is too small to decode floor markers 4 m
+        away; a real Kinect's colour is 1920×1080), with depth noise and colour read
+        noise, and the walker where they are now (a person in the room occludes markers
+        as in a real lab).
+
+        Yields:
+            ``(t_local, colour RGB, depth uint16 mm, colour K, depth K, T_depth_color,
+            depth_scale)``.
+
+        Raises:
+            InputError: the node was started without images.
+        """
+        from engine.calibration.simcapture import CAPTURE_COLOR_SIZE, render_sensor_frames
+        from engine.sim.render import SensorRenderer
+
+        if not self.render_images or self._walker is None:
+            raise InputError("this simulated node was started with --no-images (or not "
+                             "opened): it has no colour or depth images to calibrate with")
+        with self._calib_lock:
+            if self._calib_renderer is None:
+                self._calib_renderer = SensorRenderer(self.sensor, self.rig, CAPTURE_COLOR_SIZE)
+            r = self._calib_renderer
+        for _ in range(n):
+            t_host = time.time()
+            meshes = [self._walker.body_mesh(world_time(t_host))]
+            with self._calib_lock:
+                sf = render_sensor_frames(self.sensor, self.rig, 1, self._calib_rng,
+                                          CAPTURE_COLOR_SIZE, bodies=meshes, renderer=r)
+            assert sf.depths is not None
+            yield (self.clock.from_host(t_host), sf.colors[0], sf.depths[0], r.K_color,
+                   r.K_depth, self.sensor.model.T_depth_color, sf.depth_scale)
 
 
 def _no_images(streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
