@@ -23,10 +23,16 @@ Pipeline:
    accumulation of rounding over thousands of samples). Because the bone vector is
    expressed in the sensor frame at the reference time, a sensor need not be aligned with
    its bone (the mounting convention of Fig. 1b only matters for reading axes).
-   By default (``bone_fit="all"``, our extension) that sensor-frame bone vector is fitted
-   to every tracked depth frame instead of the reference frame alone, which averages the
-   depth tracker's slowly varying errors out of the constant joint-angle offset the paper
-   observed; ``bone_fit="reference"`` is the paper's method.
+   The constant joint-angle offset the paper observed comes from that sensor-frame bone
+   vector: taken from the reference skeleton (``bone_fit="reference"``, the paper's
+   method) or even fitted to every depth frame (``"all"``), the depth tracker's
+   systematic bone-direction errors (a few degrees, in the sagittal plane when the
+   subject faces the sensor) become a fixed flexion error. By default
+   (``bone_fit="standing"``) we use what the protocol knows instead: in the standing
+   calibration pose (Fig. 1b: bones pointing to the ground) knees and elbows are extended,
+   so thigh and shank (upper arm and forearm) share one direction; taking that common
+   direction for both segments makes the flexion exact to second order in the depth
+   error. The reference frame is chosen where every IMU is still.
 5. **Joint angles**: :func:`joint_rotation` is q_prox* ⊗ q_dist (eq. 7);
    :func:`flexion_angles` gives knee and elbow flexion (degrees, 0 = straight) from any
    skeleton, so depth-only, fused and reference are measured the same way; :func:`rmse`
@@ -35,7 +41,7 @@ Pipeline:
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -86,6 +92,16 @@ _CARRIED: dict[str, tuple[str, ...]] = {
     "forearm_l": ("wrist_left", "hand_left"), "forearm_r": ("wrist_right", "hand_right"),
     "thigh_l": ("knee_left",), "thigh_r": ("knee_right",),
     "shank_l": ("ankle_left", "foot_left"), "shank_r": ("ankle_right", "foot_right"),
+}
+#: Limb sensors -> (root role, end role) of the limb that is straight in the standing
+#: calibration pose (knees and elbows extended, Fig. 1b): both of its segments then point
+#: along root -> end.
+STRAIGHT_LIMBS: dict[str, tuple[str, str]] = {
+    "thigh_l": ("hip_left", "ankle_left"), "shank_l": ("hip_left", "ankle_left"),
+    "thigh_r": ("hip_right", "ankle_right"), "shank_r": ("hip_right", "ankle_right"),
+    "upperarm_l": ("shoulder_left", "wrist_left"), "forearm_l": ("shoulder_left", "wrist_left"),
+    "upperarm_r": ("shoulder_right", "wrist_right"),
+    "forearm_r": ("shoulder_right", "wrist_right"),
 }
 # Order of the hierarchy: torso, then proximal limb segments, then distal ones.
 _ORDER = ("chest", "upperarm_l", "upperarm_r", "thigh_l", "thigh_r", "forearm_l",
@@ -183,6 +199,7 @@ def select_reference_frame(
     window: float = 0.5,
     t_min: float | None = None,
     t_max: float | None = None,
+    candidates: NDArray[np.bool_] | None = None,
 ) -> int:
     """Index of the most stable still depth frame (paper §2.4, automated).
 
@@ -196,6 +213,7 @@ def select_reference_frame(
             bones and the hips).
         window: window length, s.
         t_min, t_max: restrict the search to this time range (e.g. the IMU recording).
+        candidates: ``(T,)`` frames allowed as centre (e.g. where the IMUs are still).
 
     Raises:
         InsufficientDataError: no window with all needed joints tracked.
@@ -222,7 +240,7 @@ def select_reference_frame(
     c2 = np.vstack([np.zeros(X.shape[1]), np.cumsum(X * X, axis=0)])
     cbad = np.r_[0, np.cumsum(~ok_frame)]
     for k in range(h, T - h):
-        if not lo <= t[k] <= hi:
+        if not lo <= t[k] <= hi or (candidates is not None and not candidates[k]):
             continue
         a, b = k - h, k + h + 1
         if cbad[b] - cbad[a] > 0:
@@ -247,11 +265,47 @@ class FusedSkeleton:
         skeleton: fused joints on the IMU time grid (joints not driven are NaN).
         reference_index: index of the depth frame used as reference skeleton.
         sensor_world: sensor name -> ``(T, 4)`` sensor-to-world orientation.
+        warnings: calibration problems worth showing (e.g. a limb not straight in the
+            standing pose).
     """
 
     skeleton: SkeletonSeries
     reference_index: int
     sensor_world: dict[str, FloatArray]
+    warnings: list[str] = field(default_factory=list)
+
+
+def imu_still_frames(
+    times: FloatArray,
+    q_world: Mapping[str, FloatArray],
+    frame_times: FloatArray,
+    window: float,
+    max_rate: float = 0.15,
+) -> NDArray[np.bool_]:
+    """Frames around which every sensor is still for ``window`` seconds.
+
+    Args:
+        times: ``(T,)`` IMU time grid, s.
+        q_world: sensor -> ``(T, 4)`` orientations on that grid.
+        frame_times: ``(F,)`` depth frame times, s.
+        window: window length centred on each frame, s.
+        max_rate: angular speed (rad/s) above which a sensor counts as moving.
+
+    Returns:
+        ``(F,)`` bool.
+    """
+    moving = np.zeros(len(times), dtype=bool)
+    dt = np.diff(times)
+    for q in q_world.values():
+        d = quat_mul(quat_conj(q[:-1]), q[1:])
+        rate = 2.0 * np.arccos(np.clip(np.abs(d[:, 0]), 0.0, 1.0)) / np.maximum(dt, 1e-9)
+        moving[1:] |= rate > max_rate
+    cm = np.r_[0, np.cumsum(moving)]
+    a = np.searchsorted(times, frame_times - 0.5 * window, side="left")
+    b = np.searchsorted(times, frame_times + 0.5 * window, side="right")
+    inside = (frame_times - 0.5 * window >= times[0]) & (frame_times + 0.5 * window
+                                                         <= times[-1])
+    return np.asarray(inside & (cm[b] - cm[a] == 0))
 
 
 def _fit_segment_vector(v_world: FloatArray, q_ws: FloatArray) -> FloatArray | None:
@@ -272,6 +326,116 @@ def _fit_segment_vector(v_world: FloatArray, q_ws: FloatArray) -> FloatArray | N
     return np.asarray(v_s[keep].mean(axis=0) if keep.sum() >= 3 else med)
 
 
+def _standing_bone_vectors(
+    tracked: FloatArray,
+    win: NDArray[np.bool_],
+    ref: FloatArray,
+    smap: Mapping[str, tuple[str, str]],
+    js: JointSet,
+    q_world: Mapping[str, FloatArray],
+    interp_quat_fn: Callable[[FloatArray], FloatArray],
+    max_flexion_deg: float,
+    warnings: list[str],
+    flexion_estimate: Mapping[tuple[str, str], float],
+) -> dict[str, FloatArray]:
+    """Sensor-frame bone vectors of the limb segments from the straight standing pose.
+
+    Args:
+        tracked: ``(T_depth, J, 3)`` tracked depth joints (NaN elsewhere).
+        win: ``(T_depth,)`` frames of the still standing window.
+        ref: ``(J, 3)`` averaged reference skeleton.
+        smap: sensor -> (proximal role, distal role).
+        js: joint set.
+        q_world: sensor -> sensor-to-world orientation on the IMU grid.
+        interp_quat_fn: resamples an IMU-grid quaternion series at the window's frames.
+        max_flexion_deg: limbs bent more than this in the standing pose are not treated
+            as straight.
+        flexion_estimate: (root role, end role) -> flexion (degrees) of that limb in the
+            standing pose, when known better than from ``ref`` (a single depth window
+            of a distant subject is too noisy: elbows read 30° off and more).
+        warnings: appended with the limbs that were not straight.
+
+    Returns:
+        sensor -> ``(3,)`` vector from the proximal to the distal joint, sensor frame.
+    """
+    out: dict[str, FloatArray] = {}
+    bent: set[tuple[str, str]] = set()
+    if win.sum() == 0:
+        return out
+    for name, (prox, dist) in smap.items():
+        if name not in STRAIGHT_LIMBS or name not in q_world:
+            continue
+        root_r, end_r = STRAIGHT_LIMBS[name]
+        root, end = js.role_index(root_r), js.role_index(end_r)
+        ip, idist = js.role_index(prox), js.role_index(dist)
+        flex = flexion_estimate.get((root_r, end_r))
+        if flex is None:
+            mid = idist if idist != end else ip
+            u, v = ref[mid] - ref[root], ref[end] - ref[mid]
+            if not (np.isfinite(u).all() and np.isfinite(v).all()):
+                continue
+            flex = float(np.degrees(np.arccos(np.clip(
+                u @ v / (np.linalg.norm(u) * np.linalg.norm(v)), -1, 1))))
+        if flex > max_flexion_deg:
+            if (root_r, end_r) not in bent:
+                bent.add((root_r, end_r))
+                warnings.append(
+                    f"{root_r.split('_')[0]}-{end_r} limb bent by {flex:.0f}° in the "
+                    "reference (standing) pose; its segments are fitted to the whole "
+                    "recording instead — stand straight, knees and elbows extended, for "
+                    "the calibration")
+            continue
+        chain = tracked[win][:, end] - tracked[win][:, root]
+        ok = np.isfinite(chain).all(axis=1)
+        if ok.sum() == 0:
+            continue
+        d = chain[ok].mean(axis=0)
+        d /= np.linalg.norm(d)
+        q_w = interp_quat_fn(q_world[name])[ok]
+        b = quat_rotate(quat_conj(q_w), np.broadcast_to(d, (len(q_w), 3))).mean(axis=0)
+        seg = np.linalg.norm(tracked[:, idist] - tracked[:, ip], axis=1)
+        seg = seg[np.isfinite(seg)]
+        length = float(np.median(seg)) if len(seg) else float(np.linalg.norm(
+            ref[idist] - ref[ip]))
+        out[name] = length * b / np.linalg.norm(b)
+    return out
+
+
+def _standing_flexion(
+    tracked: FloatArray,
+    depth_times: FloatArray,
+    t: FloatArray,
+    q_world: Mapping[str, FloatArray],
+    q_ref: Mapping[str, FloatArray],
+    smap: Mapping[str, tuple[str, str]],
+    js: JointSet,
+) -> dict[tuple[str, str], float]:
+    """Flexion (degrees) of each straight-limb chain at the reference time, from bone
+    vectors fitted to the whole recording (all tracked frames) and the IMU orientations
+    at the reference time: far less noisy than the reference depth frames alone."""
+    out: dict[tuple[str, str], float] = {}
+    chains: dict[tuple[str, str], list[str]] = {}
+    for name, chain in STRAIGHT_LIMBS.items():
+        if name in q_world and name in smap:
+            chains.setdefault(chain, []).append(name)
+    for chain, names in chains.items():
+        if len(names) != 2:
+            continue
+        vecs = []
+        for name in sorted(names, key=lambda n: smap[n][0] != chain[0]):  # proximal first
+            prox, dist = (js.role_index(r) for r in smap[name])
+            b = _fit_segment_vector(tracked[:, dist] - tracked[:, prox],
+                                    interp_quat(t, q_world[name], depth_times))
+            if b is None:
+                break
+            vecs.append(quat_rotate(q_ref[name], b))
+        if len(vecs) == 2:
+            u, v = vecs
+            out[chain] = float(np.degrees(np.arccos(np.clip(
+                u @ v / (np.linalg.norm(u) * np.linalg.norm(v)), -1.0, 1.0))))
+    return out
+
+
 def _interp_positions(times: FloatArray, P: FloatArray, t: FloatArray) -> FloatArray:
     ok = np.isfinite(P).all(axis=1)
     if ok.sum() < 2:
@@ -287,7 +451,8 @@ def fuse_skeleton(
     reference_index: int | None = None,
     sensors: Mapping[str, tuple[str, str]] | None = None,
     reference_window: float = 0.5,
-    bone_fit: Literal["all", "reference"] = "all",
+    bone_fit: Literal["standing", "all", "reference"] = "standing",
+    max_standing_flexion_deg: float = 20.0,
 ) -> FusedSkeleton:
     """Build the fused skeleton (Kinect position, IMU rotations) on the IMU time grid.
 
@@ -305,10 +470,23 @@ def fuse_skeleton(
             into the reference skeleton (the subject stands still then).
         bone_fit: how each joint's offset in its sensor frame is obtained. ``"reference"``
             is the paper's: from the reference skeleton alone, so the depth error of that
-            one moment becomes a constant joint-angle offset. ``"all"`` (default) fits it
-            to every tracked depth frame of the recording (robust mean of the offset
-            rotated into the sensor frame), which averages the slowly varying depth
-            errors out; the reference skeleton is the fallback for joints never tracked.
+            one moment becomes a constant joint-angle offset. ``"all"`` fits it to every
+            tracked depth frame of the recording (robust mean of the offset rotated into
+            the sensor frame), which averages the random part of the depth errors out
+            but not their systematic part (surface bias, pose-dependent fitting errors).
+            ``"standing"`` (default) uses what the protocol guarantees: in the reference
+            (standing) pose every limb of :data:`STRAIGHT_LIMBS` is straight, so both its
+            segments point along the same root -> end direction (e.g. hip -> ankle,
+            averaged over the still window); each segment's bone vector is that common
+            direction seen from its sensor, times the segment length (median over all
+            tracked frames). A depth error of the limb direction then turns both segments
+            alike and the flexion angle stays exact to second order; the joint-angle
+            offset left is the subject's deviation from straight limbs. Other joints
+            (torso, hands, feet) and limbs bent by more than
+            ``max_standing_flexion_deg`` in the averaged reference skeleton (a warning
+            says so) use ``"all"``.
+        max_standing_flexion_deg: largest knee/elbow flexion of the averaged reference
+            skeleton still accepted as "straight".
 
     Returns:
         :class:`FusedSkeleton`; its skeleton's times are the IMU times inside the depth
@@ -319,8 +497,8 @@ def fuse_skeleton(
             reference frame or torso track.
     """
     smap = dict(sensors or PAPER_SENSORS)
-    if bone_fit not in ("all", "reference"):
-        raise InputError(f"bone_fit must be 'all' or 'reference', got {bone_fit!r}")
+    if bone_fit not in ("standing", "all", "reference"):
+        raise InputError(f"bone_fit must be 'standing', 'all' or 'reference', got {bone_fit!r}")
     if "chest" not in orientations:
         raise InputError("the chest (torso) sensor is required for the fused skeleton")
     js: JointSet = skeleton.joint_set
@@ -338,9 +516,20 @@ def fuse_skeleton(
                              f"got {qa.shape}")
         if name in smap:
             q_world[name] = calibration.to_world(name, qa[inside])
+    warnings: list[str] = []
     if reference_index is None:
-        reference_index = select_reference_frame(skeleton, window=reference_window,
-                                                 t_min=t[0], t_max=t[-1])
+        # the IMUs see motion far better than the depth tracker: only frames whose whole
+        # window is still for every sensor are candidates (fallback: depth stability alone)
+        still = imu_still_frames(t, q_world, skeleton.times, reference_window)
+        try:
+            reference_index = select_reference_frame(skeleton, window=reference_window,
+                                                     t_min=t[0], t_max=t[-1],
+                                                     candidates=still)
+        except InsufficientDataError:
+            reference_index = select_reference_frame(skeleton, window=reference_window,
+                                                     t_min=t[0], t_max=t[-1])
+            warnings.append("no moment where all IMUs were still while the depth skeleton "
+                            "was tracked; the reference skeleton may include motion")
     t_ref = float(skeleton.times[reference_index])
     # Average the still window around the reference frame: depth noise in a single frame
     # would otherwise become a constant bone-direction (joint-angle) offset.
@@ -354,6 +543,15 @@ def fuse_skeleton(
     inside_d = (skeleton.times >= t[0]) & (skeleton.times <= t[-1])
     tracked[~inside_d] = np.nan
 
+    standing: dict[str, FloatArray] = {}
+    if bone_fit == "standing":
+        win = near & inside_d
+        standing = _standing_bone_vectors(
+            tracked, win, ref, smap, js, q_world,
+            interp_quat_fn=lambda q: interp_quat(t, q, skeleton.times[win]),
+            max_flexion_deg=max_standing_flexion_deg, warnings=warnings,
+            flexion_estimate=_standing_flexion(tracked, skeleton.times, t, q_world, q_ref,
+                                               smap, js))
     P = np.full((len(t), len(js.joints), 3), np.nan)
     torso = js.role_index(smap["chest"][0])
     P[:, torso] = _interp_positions(skeleton.times, skeleton.tracked_positions()[:, torso], t)
@@ -375,6 +573,9 @@ def fuse_skeleton(
         else:
             q_d = interp_quat(t, q_world[name], skeleton.times)
             for j in sorted(carried):
+                if name in standing and j == js.role_index(smap[name][1]):
+                    P[:, j] = P[:, root] + quat_rotate(q_world[name], standing[name])
+                    continue
                 b_s = _fit_segment_vector(tracked[:, j] - tracked[:, root], q_d)
                 if b_s is None and np.isfinite(ref[j]).all() and np.isfinite(ref[root]).all():
                     b_s = quat_rotate(quat_conj(q_ref[name]), ref[j] - ref[root])
@@ -384,7 +585,7 @@ def fuse_skeleton(
                       TrackingState.NOT_TRACKED).astype(np.uint8)
     fused = SkeletonSeries(t, P, states, js, {"source": "imu-depth fusion",
                                               "reference_time": t_ref})
-    return FusedSkeleton(fused, reference_index, q_world)
+    return FusedSkeleton(fused, reference_index, q_world, warnings)
 
 
 def flexion_angles(skeleton: SkeletonSeries, tracked_only: bool = False) -> dict[str, FloatArray]:

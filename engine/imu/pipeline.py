@@ -173,6 +173,7 @@ def process_imu_session(
         plank_time = find_plank_time(grid, ori, rest)
     calib = plank_calibration(grid, ori, plank_time, q_world_plank)
     fused = fuse_skeleton(skeleton, grid, ori, calib)
+    warnings += fused.warnings
     return ImuSessionResult(sync, grid, ori, calib, fused, skeleton.times.copy(),
                             flexion_angles(skeleton, tracked_only=True),
                             flexion_angles(fused.skeleton), warnings)

@@ -18,13 +18,22 @@ The gyroscope sample ``k`` is the mean rate over ``[t_{k-1}, t_k]`` (rotation ve
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from engine.errors import InputError
-from engine.geometry import quat_conj, quat_from_matrix, quat_mul, quat_rotate, quat_to_rotvec
+from engine.geometry import (
+    quat_conj,
+    quat_from_axis_angle,
+    quat_from_matrix,
+    quat_mul,
+    quat_rotate,
+    quat_slerp,
+    quat_to_matrix,
+    quat_to_rotvec,
+)
 from engine.imu.io import ImuRecording
 
 FloatArray = NDArray[np.float64]
@@ -200,3 +209,194 @@ def simulate_walker_imus(
                            earth_field=earth_field, rng=seed + i, name=name)
         for i, (name, bone) in enumerate(smap.items())
     }
+
+
+def _rot_between(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Smallest rotation matrix turning unit vector ``a`` onto unit vector ``b``."""
+    v = np.cross(a, b)
+    s, c = float(np.linalg.norm(v)), float(a @ b)
+    if s < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        # opposite vectors: half turn about any axis perpendicular to a
+        p = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        return np.asarray(quat_to_matrix(quat_from_axis_angle(p, np.pi)))
+    return np.asarray(quat_to_matrix(quat_from_axis_angle(v, np.arctan2(s, c))))
+
+
+class StandingStart:
+    """A simulated walker who first stands upright, limbs straight, then starts walking.
+
+    The calibration pose of seed 002 (Fig. 1b): the subject stands still facing the
+    Kinect, every limb bone pointing towards the ground — knees and elbows extended, arms
+    hanging at the sides (slightly abducted so that they clear the trunk). Before
+    ``walker.start_time - blend_s`` the subject holds that pose at the walker's start
+    position and heading; over the next ``blend_s`` seconds every limb segment turns
+    (minimum-jerk slerp, proximal joints first) into the walker's start pose, and from
+    ``start_time`` on it is the walker itself.
+
+    It offers what the simulators need from a walker — :meth:`joints`,
+    :meth:`bone_frames`, :meth:`capsule_segments` (so ``observe_skeletons`` sees the same
+    body) — with joints and bone frames consistent at every time, so simulated IMUs and
+    the simulated depth skeleton agree.
+
+    Args:
+        walker: an ``engine.sim.walker.Walker``.
+        blend_s: duration of the transition from standing into the start pose, s.
+        arm_abduction_deg: outward tilt of the hanging arms.
+        knee_flexion_deg: knee flexion held while standing (0 = fully extended; real
+            subjects asked to stand straight keep a few degrees).
+        elbow_flexion_deg: elbow flexion held while standing (forearm forwards).
+    """
+
+    _LIMBS = (  # (bone, proximal joint, distal joint, parent bone, joints carried along)
+        ("thigh_l", "HipLeft", "KneeLeft", None, ()),
+        ("shank_l", "KneeLeft", "AnkleLeft", "thigh_l", ("FootLeft",)),
+        ("thigh_r", "HipRight", "KneeRight", None, ()),
+        ("shank_r", "KneeRight", "AnkleRight", "thigh_r", ("FootRight",)),
+        ("upperarm_l", "ShoulderLeft", "ElbowLeft", None, ()),
+        ("forearm_l", "ElbowLeft", "WristLeft", "upperarm_l",
+         ("HandLeft", "HandTipLeft", "ThumbLeft")),
+        ("upperarm_r", "ShoulderRight", "ElbowRight", None, ()),
+        ("forearm_r", "ElbowRight", "WristRight", "upperarm_r",
+         ("HandRight", "HandTipRight", "ThumbRight")),
+    )
+    #: bones carried rigidly by a limb segment: bone -> segment
+    _CHILD_BONES: ClassVar[dict[str, str]] = {
+        "foot_l": "shank_l", "foot_r": "shank_r", "hand_l": "forearm_l", "hand_r": "forearm_r"}
+
+    def __init__(self, walker: Any, blend_s: float = 1.0, arm_abduction_deg: float = 8.0,
+                 knee_flexion_deg: float = 0.0, elbow_flexion_deg: float = 0.0) -> None:
+        from engine.skeleton import KINECT_V2
+
+        if blend_s <= 0:
+            raise InputError("blend_s must be positive")
+        self.walker = walker
+        self.start_time = float(walker.start_time)
+        self.blend_s = float(blend_s)
+        self._names = list(KINECT_V2.joints)
+        ix = {n: i for i, n in enumerate(self._names)}
+        self._ix = ix
+        t0 = np.array([self.start_time])
+        J = np.asarray(walker.joints(t0))[0]
+        F = {k: np.asarray(v)[0] for k, v in walker.bone_frames(t0).items()}
+        A, B, _ = walker.capsule_segments(t0)
+        self._J, self._F, self._A, self._B = J, F, np.asarray(A)[0], np.asarray(B)[0]
+        fwd = F["pelvis"][:3, 0].copy()
+        fwd[2] = 0.0
+        fwd /= np.linalg.norm(fwd)
+        left = np.cross([0.0, 0.0, 1.0], fwd)
+        # the legs straight under the hips, feet at the stance foot's height
+        kf, ef = np.deg2rad(knee_flexion_deg), np.deg2rad(elbow_flexion_deg)
+        leg = (np.linalg.norm(J[ix["HipLeft"]] - J[ix["KneeLeft"]]) + np.linalg.norm(
+            J[ix["KneeLeft"]] - J[ix["AnkleLeft"]])) * np.cos(0.5 * kf)
+        ankle_z = min(J[ix["AnkleLeft"], 2], J[ix["AnkleRight"], 2])
+        self._lift = float(ankle_z + leg - 0.5 * (J[ix["HipLeft"], 2] + J[ix["HipRight"], 2]))
+        down = np.array([0.0, 0.0, -1.0])
+        ab = np.deg2rad(arm_abduction_deg)
+        # standing rotation of each limb segment: the smallest turn of its start-pose
+        # frame that makes the bone point down (arms tilted outwards)
+        self._q_stand: dict[str, FloatArray] = {}
+        self._q_start: dict[str, FloatArray] = {}
+        for bone, a, b, _, _ in self._LIMBS:
+            u = J[ix[b]] - J[ix[a]]
+            u /= np.linalg.norm(u)
+            side = 1.0 if bone.endswith("_l") else -1.0
+            # flexion turns a segment about the subject's left axis: positive angles move
+            # its distal end backwards (knee flexed: thigh forwards, shank backwards)
+            tilt = {"thi": -0.5 * kf, "sha": 0.5 * kf, "upp": 0.0, "for": -ef}[bone[:3]]
+            d = down if bone[:3] in ("thi", "sha") else (
+                np.cos(ab) * down + np.sin(ab) * side * left)
+            d = quat_rotate(quat_from_axis_angle(left, tilt), d)
+            R = _rot_between(u, d) @ F[bone][:3, :3]
+            self._q_stand[bone] = quat_from_matrix(R)
+            self._q_start[bone] = quat_from_matrix(F[bone][:3, :3])
+        # capsule end points that are not joints (heel, toe) move with a limb segment
+        caps = walker.capsules
+        self._cap_ends: list[tuple[str, str]] = []
+        for c in caps:
+            for e in (c.a, c.b):
+                if e in ix:
+                    self._cap_ends.append(("joint", e))
+                else:
+                    self._cap_ends.append(("shank_l" if e.endswith("Left") else "shank_r",
+                                           "Ankle" + ("Left" if e.endswith("Left")
+                                                      else "Right")))
+
+    def _standing(self, t: FloatArray) -> tuple[FloatArray, dict[str, FloatArray],
+                                                 FloatArray, FloatArray]:
+        """Joints, bone frames and capsule ends at times before ``start_time``."""
+        ix, J, F = self._ix, self._J, self._F
+        s = np.clip((t - (self.start_time - self.blend_s)) / self.blend_s, 0.0, 1.0)
+        s = s ** 3 * (10 - 15 * s + 6 * s ** 2)
+        n = len(t)
+        lift = (1.0 - s)[:, None] * np.array([0.0, 0.0, self._lift])
+        P = np.broadcast_to(J, (n, *J.shape)).copy() + lift[:, None, :]
+        frames = {k: np.broadcast_to(v, (n, 4, 4)).copy() for k, v in F.items()}
+        for k in frames:
+            frames[k][:, :3, 3] += lift
+        R_rel: dict[str, FloatArray] = {}
+        for bone, a, b, _, carried in self._LIMBS:
+            R = np.asarray(quat_to_matrix(quat_slerp(self._q_stand[bone], self._q_start[bone],
+                                                     s)))
+            R0 = F[bone][:3, :3]
+            rel = R @ R0.T  # world rotation of the segment relative to the start pose
+            R_rel[bone] = rel
+            origin = P[:, ix[a]]
+            for j in (b, *carried):
+                P[:, ix[j]] = origin + np.einsum("tij,j->ti", rel, J[ix[j]] - J[ix[a]])
+            frames[bone][:, :3, :3] = R
+            frames[bone][:, :3, 3] = origin
+        for child, seg in self._CHILD_BONES.items():
+            if child in F:
+                rel = R_rel[seg]
+                o_seg = self._J[ix[self._seg_origin(seg)]]
+                frames[child][:, :3, :3] = rel @ F[child][:3, :3]
+                frames[child][:, :3, 3] = P[:, ix[self._seg_origin(seg)]] + np.einsum(
+                    "tij,j->ti", rel, F[child][:3, 3] - o_seg)
+        ends = []
+        for k, (kind, name) in enumerate(self._cap_ends):
+            ref = self._A[k // 2] if k % 2 == 0 else self._B[k // 2]
+            if kind == "joint":
+                ends.append(P[:, ix[name]])
+            else:
+                o = J[ix["Knee" + name[len("Ankle"):]]]
+                ends.append(P[:, ix["Knee" + name[len("Ankle"):]]]
+                            + np.einsum("tij,j->ti", R_rel[kind], ref - o))
+        E = np.stack(ends, axis=1)
+        return P, frames, E[:, 0::2], E[:, 1::2]
+
+    def _seg_origin(self, seg: str) -> str:
+        return next(a for bone, a, *_ in self._LIMBS if bone == seg)
+
+    def joints(self, t: ArrayLike) -> FloatArray:
+        """``(T, 25, 3)`` world joint positions (Kinect v2 order)."""
+        tt = np.atleast_1d(np.asarray(t, dtype=float))
+        out = np.asarray(self.walker.joints(np.maximum(tt, self.start_time))).copy()
+        pre = tt < self.start_time
+        if pre.any():
+            out[pre] = self._standing(tt[pre])[0]
+        return out
+
+    def bone_frames(self, t: ArrayLike) -> dict[str, FloatArray]:
+        """World pose ``(T, 4, 4)`` of each bone (the walker's bones and frames)."""
+        tt = np.atleast_1d(np.asarray(t, dtype=float))
+        out = {k: np.asarray(v).copy() for k, v in
+               self.walker.bone_frames(np.maximum(tt, self.start_time)).items()}
+        pre = tt < self.start_time
+        if pre.any():
+            fr = self._standing(tt[pre])[1]
+            for k in out:
+                out[k][pre] = fr[k]
+        return out
+
+    def capsule_segments(self, t: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Capsule end points ``(T, C, 3)`` twice and radii ``(C,)`` (walker's capsules)."""
+        tt = np.atleast_1d(np.asarray(t, dtype=float))
+        A, B, r = self.walker.capsule_segments(np.maximum(tt, self.start_time))
+        A, B = np.asarray(A).copy(), np.asarray(B).copy()
+        pre = tt < self.start_time
+        if pre.any():
+            _, _, As, Bs = self._standing(tt[pre])
+            A[pre], B[pre] = As, Bs
+        return A, B, np.asarray(r)

@@ -27,7 +27,7 @@ from engine.imu.fusion import (
     rmse,
     select_reference_frame,
 )
-from engine.sim.imu import ImuNoise, simulate_imu
+from engine.sim.imu import ImuNoise, StandingStart, simulate_imu
 from engine.sim.walker import Walker, WalkerParams
 from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
 
@@ -43,13 +43,12 @@ def _minjerk(s: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def scenario() -> dict:
-    walker = Walker(WalkerParams(), [0.0, 0.0, 0.0], [6.0, 0.5, 0.0], start_time=T_STILL,
-                    seed=3)
+    # the subject stands straight (calibration pose) until T_STILL - 1 s, then walks
+    walker = StandingStart(Walker(WalkerParams(), [0.0, 0.0, 0.0], [6.0, 0.5, 0.0],
+                                  start_time=T_STILL, seed=3))
     t = np.arange(0.0, T_END, 1.0 / FS)
-    # the walker stands still (frozen at its start pose) before T_STILL
-    t_w = np.maximum(t, T_STILL)
-    frames = walker.bone_frames(t_w)
-    joints = walker.joints(t_w)
+    frames = walker.bone_frames(t)
+    joints = walker.joints(t)
     R_enu_world = quat_to_matrix(quat_from_axis_angle([0, 0, 1], YAW_ENU_WORLD))
     T_enu_world = make_transform(R_enu_world, [0, 0, 0])
     q_plank_world = quat_from_axis_angle([1.0, 0.0, 0.0], np.deg2rad(90.0))  # plank on edge
@@ -78,7 +77,7 @@ def scenario() -> dict:
         truth_q[sensor] = rec.quat_ref
     # depth skeleton: 30 Hz, Kinect-like joint noise, world frame
     td = np.arange(T_STRAP + 0.5, T_END - 0.1, 1.0 / 30.0)
-    Jd = walker.joints(np.maximum(td, T_STILL))
+    Jd = walker.joints(td)
     noisy = Jd + np.random.default_rng(11).normal(0.0, 0.02, Jd.shape)
     depth = SkeletonSeries(td, noisy, np.full(Jd.shape[:2], TrackingState.TRACKED, np.uint8),
                            KINECT_V2)
@@ -99,12 +98,12 @@ def test_fused_knee_flexion_beats_depth_only(scenario: dict) -> None:
     # the reference frame is chosen where the subject stands still
     assert depth.times[fused.reference_index] < T_STILL
     fs = fused.skeleton
-    truth = SkeletonSeries(fs.times, scenario["walker"].joints(np.maximum(fs.times, T_STILL)),
+    truth = SkeletonSeries(fs.times, scenario["walker"].joints(fs.times),
                            fs.states, KINECT_V2)
     walk = fs.times > T_STILL
     ang_f, ang_t = flexion_angles(fs), flexion_angles(truth)
     depth_truth = SkeletonSeries(depth.times, scenario["walker"].joints(
-        np.maximum(depth.times, T_STILL)), depth.states, KINECT_V2)
+        depth.times), depth.states, KINECT_V2)
     ang_d, ang_dt = flexion_angles(depth), flexion_angles(depth_truth)
     dwalk = depth.times > T_STILL
     for knee in ("knee_left", "knee_right"):
@@ -170,65 +169,132 @@ def test_reference_frame_and_metrics() -> None:
     assert ncc(-x, x) == pytest.approx(-1.0)
 
 
-class _StandingThenWalking:
-    """The walker frozen in its start pose before ``t0`` (it stands still there)."""
-
-    def __init__(self, walker: Walker, t0: float) -> None:
-        self.walker, self.t0 = walker, t0
-
-    def joints(self, t: np.ndarray) -> np.ndarray:
-        return self.walker.joints(np.maximum(t, self.t0))
-
-    def capsule_segments(self, t: np.ndarray) -> tuple:
-        return self.walker.capsule_segments(np.maximum(t, self.t0))
-
-    def bone_frames(self, t: np.ndarray) -> dict:
-        return self.walker.bone_frames(np.maximum(t, self.t0))
-
-
-def test_fusion_with_realistic_kinect_errors(scenario: dict) -> None:
-    """Depth skeleton from the SIM helper's Kinect error model (slow fitting errors,
-    surface bias, occlusion): fused angles track the truth far better than depth-only."""
-    from engine.geometry import transform_points
-    from engine.sim.rig import SimSensor, sensor_pose
-    from engine.sim.skeleton_model import observe_skeletons
-
-    t, imus, walker = scenario["t"], scenario["imus"], scenario["walker"]
-    sensor = SimSensor("K", sensor_pose([4.3, 0.2, 0.9], 180.0, 5.0), fps_jitter=0.0)
-    td = np.arange(T_STRAP + 0.5, T_END - 0.1, 1.0 / 30.0)
-    sk = observe_skeletons(sensor, None, _StandingThenWalking(walker, T_STILL),  # type: ignore[arg-type]
-                           td, np.random.default_rng(1))
-    depth = SkeletonSeries(sk.times, transform_points(sensor.T_world_sensor, sk.positions),
-                           sk.states, KINECT_V2)
+@pytest.fixture(scope="module")
+def filtered(scenario: dict) -> dict:
+    """Our filter's orientations of the scenario's nine IMUs and their plank calibration."""
+    t, imus = scenario["t"], scenario["imus"]
     S = list(PAPER_SENSORS)
     q, _, _ = orientation_filter(*(np.stack([getattr(imus[s], k) for s in S], axis=1)
                                    for k in ("gyr", "acc", "mag")), frequency=FS)
     ori = {s: q[:, i] for i, s in enumerate(S)}
-    calib = plank_calibration(t, ori, T_PLANK - 0.5, scenario["q_plank_world"])
+    return {"ori": ori, "calib": plank_calibration(t, ori, T_PLANK - 0.5,
+                                                   scenario["q_plank_world"])}
+
+
+def _kinect_depth(walker: object, seed: int) -> SkeletonSeries:
+    """Depth skeleton of ``walker`` from the sim's DEFAULT Kinect v2 error model (slow
+    fitting errors, surface bias, occlusion, late acquisition), in the world frame; the
+    subject walks towards the sensor."""
+    from engine.geometry import transform_points
+    from engine.sim.rig import SimSensor, sensor_pose
+    from engine.sim.skeleton_model import observe_skeletons
+
+    sensor = SimSensor("K", sensor_pose([4.3, 0.2, 0.9], 180.0, 5.0), fps_jitter=0.0)
+    td = np.arange(T_STRAP + 0.5, T_END - 0.1, 1.0 / 30.0)
+    sk = observe_skeletons(sensor, None, walker,  # type: ignore[arg-type]
+                           td, np.random.default_rng(seed))
+    return SkeletonSeries(sk.times, transform_points(sensor.T_world_sensor, sk.positions),
+                          sk.states, KINECT_V2)
+
+
+@pytest.mark.parametrize("kinect_seed", [1, 2, 3])
+def test_fusion_with_realistic_kinect_errors(scenario: dict, filtered: dict,
+                                             kinect_seed: int) -> None:
+    """Acceptance (issue 7): with the sim's realistic Kinect errors, the fused knee-flexion
+    RMSE is at most half the depth-only RMSE — with the standing-pose calibration.
+
+    Measured (seeds 1/2/3, knee L/R): see the assertion messages; the paper's
+    reference-frame method and the all-frames fit keep a constant offset of several
+    degrees from the depth tracker's systematic bone-direction errors."""
+    t, walker = scenario["t"], scenario["walker"]
+    ori, calib = filtered["ori"], filtered["calib"]
+    depth = _kinect_depth(walker, kinect_seed)
 
     def truth(tt: np.ndarray) -> SkeletonSeries:
-        return SkeletonSeries(tt, walker.joints(np.maximum(tt, T_STILL)),
+        return SkeletonSeries(tt, walker.joints(tt),
                               np.full((len(tt), 25), 2, np.uint8), KINECT_V2)
 
     ang_d = flexion_angles(depth, tracked_only=True)
     ang_dt = flexion_angles(truth(depth.times))
     seen = (depth.times > T_STILL) & np.isfinite(ang_d["knee_left"]) \
         & np.isfinite(ang_d["knee_right"])
-    errs = {}
-    for fit in ("reference", "all"):
-        fs = fuse_skeleton(depth, t, ori, calib, bone_fit=fit).skeleton
+    assert seen.sum() > 45  # at least 1.5 s of walking seen by the depth sensor
+    e_depth = {j: rmse(ang_d[j][seen], ang_dt[j][seen]) for j in ang_d}
+    errs, nccs = {}, {}
+    for fit in ("standing", "all", "reference"):
+        fused = fuse_skeleton(depth, t, ori, calib, bone_fit=fit)
+        assert fused.warnings == []
+        fs = fused.skeleton
         ang_f, ang_t = flexion_angles(fs), flexion_angles(truth(fs.times))
         walk = (fs.times > T_STILL) & (fs.times < depth.times[seen].max())
         errs[fit] = {j: rmse(ang_f[j][walk], ang_t[j][walk]) for j in ang_f}
-        for j in ang_f:
-            c_fused = ncc(ang_f[j][walk], ang_t[j][walk])
-            assert c_fused > ncc(ang_d[j][seen], ang_dt[j][seen])
-            assert fit == "reference" or c_fused > 0.95
-    e_depth = {j: rmse(ang_d[j][seen], ang_dt[j][seen]) for j in ang_d}
-    # measured (knee L/R, elbow L/R): fused 'all' 7.4/3.7/0.4/3.6°, depth-only
-    # 8.2/6.7/11.2/15.8°; the fused knee keeps a constant offset from the depth tracker's
-    # systematic (surface) bias of the bone directions (NCC 1.00 vs 0.94)
-    assert np.mean(list(errs["all"].values())) <= 0.5 * np.mean(list(e_depth.values()))
-    assert np.mean(list(errs["all"].values())) < np.mean(list(errs["reference"].values()))
+        nccs[fit] = {j: ncc(ang_f[j][walk], ang_t[j][walk]) for j in ang_f}
+    msg = f"fused {errs}, depth-only {e_depth}"
+    for j in ("knee_left", "knee_right"):
+        # the acceptance bound is 0.5; the standing calibration leaves the filter's
+        # orientation error only (~1°), so it holds with a wide margin
+        assert errs["standing"][j] <= 0.3 * e_depth[j], (j, msg)
+        assert errs["standing"][j] < 2.0, (j, msg)
+        assert nccs["standing"][j] > 0.99, (j, nccs)
     for j in ("elbow_left", "elbow_right"):
-        assert errs["all"][j] <= 0.5 * e_depth[j]
+        assert errs["standing"][j] <= 0.5 * e_depth[j], (j, msg)
+    # the calibration pose beats fitting the bone vectors to the depth data
+    assert np.mean(list(errs["standing"].values())) < np.mean(list(errs["all"].values()))
+    assert np.mean(list(errs["all"].values())) < np.mean(list(errs["reference"].values()))
+
+
+def test_standing_calibration_is_second_order_in_depth_errors(scenario: dict) -> None:
+    """With perfect IMU orientations, a grossly biased depth skeleton (every joint shifted
+    by its own constant offset of several cm) leaves the fused flexion exact; a
+    subject standing with bent knees leaves exactly that bend as offset."""
+    from engine.sim.walker import Walker, WalkerParams
+
+    t = scenario["t"]
+    for knee_deg in (0.0, 4.0):
+        rng = np.random.default_rng(5)
+        walker = StandingStart(Walker(WalkerParams(), [0.0, 0.0, 0.0], [6.0, 0.5, 0.0],
+                                      start_time=T_STILL, seed=3), knee_flexion_deg=knee_deg)
+        frames = walker.bone_frames(t)
+        ori = {s: quat_from_matrix(frames[BONE_OF.get(s, s)][:, :3, :3])
+               for s in PAPER_SENSORS}
+        calib = plank_calibration(t, ori, 1.0)  # sensors = bones, world = ENU
+        td = np.arange(T_STRAP, T_END, 1.0 / 30.0)
+        # constant bias per joint: 3 cm SD on the legs (a ~6° bone-direction error), 1.5 cm
+        # on the shorter arm segments
+        sd = np.where(np.isin(np.arange(25), [KINECT_V2.index(n) for n in (
+            "HipLeft", "KneeLeft", "AnkleLeft", "HipRight", "KneeRight", "AnkleRight")]),
+            0.03, 0.015)
+        J = walker.joints(td) + rng.normal(0.0, 1.0, (1, 25, 3)) * sd[:, None]
+        J += rng.normal(0.0, 0.005, J.shape)
+        depth = SkeletonSeries(td, J, np.full(J.shape[:2], 2, np.uint8), KINECT_V2)
+        fused = fuse_skeleton(depth, t, ori, calib)
+        assert fused.warnings == []
+        fs = fused.skeleton
+        ang_f = flexion_angles(fs)
+        ang_t = flexion_angles(SkeletonSeries(fs.times, walker.joints(fs.times), fs.states,
+                                              KINECT_V2))
+        walk = fs.times > T_STILL
+        for j in ("knee_left", "knee_right"):
+            err = ang_f[j][walk] - ang_t[j][walk]
+            assert np.sqrt(np.mean((np.abs(err) - knee_deg) ** 2)) < 0.2 + 0.1 * knee_deg, \
+                (knee_deg, j)
+        for j in ("elbow_left", "elbow_right"):
+            assert rmse(ang_f[j][walk], ang_t[j][walk]) < 0.3
+        # the all-frames fit does not have this property: a constant bias stays
+        fa = fuse_skeleton(depth, t, ori, calib, bone_fit="all").skeleton
+        if knee_deg == 0.0:
+            assert max(rmse(flexion_angles(fa)[j][walk], ang_t[j][walk])
+                       for j in ("knee_left", "knee_right")) > 1.0
+
+
+def test_bent_standing_pose_warns(scenario: dict, filtered: dict) -> None:
+    """A reference pose with bent knees is not used as 'straight': warning, fallback."""
+    depth = scenario["depth"]
+    J = depth.positions.copy()
+    ki, ai = KINECT_V2.index("KneeLeft"), KINECT_V2.index("AnkleLeft")
+    J[:, ai] = J[:, ki] + (J[:, ai] - J[:, ki]) @ quat_to_matrix(
+        quat_from_axis_angle([0, 1, 0], np.deg2rad(50.0))).T
+    bent = SkeletonSeries(depth.times, J, depth.states, KINECT_V2)
+    fused = fuse_skeleton(bent, scenario["t"], filtered["ori"], filtered["calib"])
+    assert len(fused.warnings) == 1 and "hip-ankle_left" in fused.warnings[0]
+    assert np.isfinite(fused.skeleton.positions[:, ai]).all()

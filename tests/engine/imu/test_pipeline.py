@@ -19,7 +19,7 @@ def test_session_end_to_end(scenario: dict) -> None:  # noqa: F811
     # the plank pose is found automatically (all sensors resting with equal tilt)
     assert 0.5 < res.calibration.time < T_PLANK
     fs = res.fused.skeleton
-    truth = SkeletonSeries(fs.times, scenario["walker"].joints(np.maximum(fs.times, T_STILL)),
+    truth = SkeletonSeries(fs.times, scenario["walker"].joints(fs.times),
                            fs.states, KINECT_V2)
     ang_t = flexion_angles(truth)
     walk = fs.times > T_STILL
@@ -56,15 +56,17 @@ def test_session_with_jump_sync() -> None:
         quat_to_matrix,
     )
     from engine.imu.fusion import PAPER_SENSORS
-    from engine.sim.imu import simulate_imu
+    from engine.sim.imu import StandingStart, simulate_imu
     from engine.sim.walker import Walker, WalkerParams
     from engine.skeleton import TrackingState
     from tests.engine.imu.test_sync import _height
 
     fs, t_jump0, t_walk, t_end = 100.0, 5.0, 15.0, 19.0
-    walker = Walker(WalkerParams(), [0.0, 0.0, 0.0], [6.0, 0.3, 0.0], start_time=t_walk, seed=5)
+    # stands straight after the jumps (calibration pose), walks from t_walk
+    walker = StandingStart(Walker(WalkerParams(), [0.0, 0.0, 0.0], [6.0, 0.3, 0.0],
+                                  start_time=t_walk, seed=5))
     t = np.arange(0.0, t_end, 1 / fs)
-    tw = np.maximum(t, t_walk)
+    tw = t
     dz = np.where(t >= t_jump0, _height(t - t_jump0) - 1.0, 0.0)  # whole-body jumps
     frames = walker.bone_frames(tw)
     q_plank = quat_from_axis_angle([0.0, 1.0, 0.0], 0.3)
@@ -92,7 +94,7 @@ def test_session_with_jump_sync() -> None:
         offsets[sensor] = float(rng.uniform(-2.0, 2.0))
         recs[sensor] = shift_recording(rec, -offsets[sensor])  # the IMU's own clock
     td = np.arange(t_jump0 + 0.3, t_end - 0.1, 1 / 30)
-    J = walker.joints(np.maximum(td, t_walk))
+    J = walker.joints(td)
     J[:, :, 2] += np.where(td >= t_jump0, _height(td - t_jump0) - 1.0, 0.0)[:, None]
     J += np.random.default_rng(9).normal(0, 0.01, J.shape)
     depth = SkeletonSeries(td, J, np.full(J.shape[:2], TrackingState.TRACKED, np.uint8),
@@ -106,7 +108,7 @@ def test_session_with_jump_sync() -> None:
     assert res.calibration.time < 3.0
     fsk = res.fused.skeleton
     walk = fsk.times > t_walk
-    truth = SkeletonSeries(fsk.times, walker.joints(np.maximum(fsk.times, t_walk)),
+    truth = SkeletonSeries(fsk.times, walker.joints(fsk.times),
                            fsk.states, KINECT_V2)
     ang_t = flexion_angles(truth)
     for j in ("knee_left", "knee_right"):
