@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import os
 import re
@@ -50,6 +51,8 @@ from engine.integration import SensorStream, integrate_skeletons
 from engine.mocap import FeetTrajectories, feet_from_skeleton
 from engine.report.render import AgreementRow, QualityInfo, ReportData, TrialData
 from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState, joint_set_for
+
+_log = logging.getLogger(__name__)
 
 FloatArray = NDArray[np.float64]
 
@@ -479,6 +482,17 @@ def analyse_recording(rec_dir: Path, options: AnalysisOptions,
     except InputError as exc:
         # E.g. no tracked ankles at all: the recording has no usable body.
         out["error"] = f"no usable body in the recording: {exc}"
+    except GaitrigError as exc:  # any other typed engine failure
+        out["error"] = f"the gait analysis cannot use this recording: {exc}"
+    except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as exc:
+        # An engine defect on unusual data (e.g. a walk too short for a filter window):
+        # the clinician gets a clear message instead of a server error; the trace is
+        # logged and the result is not cached, so a fixed engine retries.
+        _log.exception("gait analysis of recording %s failed", rec_dir.name)
+        out["error"] = (f"the gait analysis failed on recording {rec_dir.name} "
+                        f"({type(exc).__name__}: {exc}); record a longer, straight walk, "
+                        "and report the recording id if it persists")
+        return out
     cache.parent.mkdir(exist_ok=True)
     _write_json(cache, out)
     return out

@@ -7,10 +7,11 @@ import json
 import numpy as np
 import pytest
 
+from engine import gait
 from engine.errors import InputError, InsufficientDataError
 from engine.gait import GaitAnalysis
 from engine.io.markers import MarkerTrajectories
-from engine.mocap import feet_from_markers
+from engine.mocap import FeetTrajectories, feet_from_markers
 from engine.sim.straight_walk import synth_walk, walk_markers
 
 
@@ -246,3 +247,32 @@ def test_stance_median_placement_reduces_noise() -> None:
     assert sd[0.1] < 0.6 * sd[0.0]
     with pytest.raises(InputError):
         GaitAnalysis(placement_window_s=1.0)
+
+
+def test_find_passes_straight_run_shorter_than_baseline_after_start() -> None:
+    """Regression (IndexError → HTTP 500 on a real recording): a subject standing, then
+    shifting 13 cm within 0.4 s, then standing again gives a "straight walking" run of
+    fewer samples than the ±0.25 s baseline, starting after sample 0; trimming its ends
+    leaves nothing, which must be skipped, not indexed."""
+    from scipy.ndimage import uniform_filter1d
+
+    rate = 30.0
+    t = np.arange(0.0, 6.0, 1.0 / rate)
+    x = 0.13 * np.clip((t - 3.0) / 0.4, 0.0, 1.0)
+    centre = np.stack([x, np.zeros_like(t), np.full_like(t, 0.9)], axis=1)
+    # Precondition, with find_passes' own smoothing and baseline: the run is 1..k
+    # samples long and does not start at sample 0.
+    k = round(0.25 * rate)
+    cs = uniform_filter1d(centre[:, :2], round(0.8 * rate), axis=0, mode="nearest")
+    n = len(t)
+    ia, ib = np.clip(np.arange(n) - k, 0, n - 1), np.clip(np.arange(n) + k, 0, n - 1)
+    speed = np.linalg.norm(cs[ib] - cs[ia], axis=1) / (t[ib] - t[ia])
+    run = np.flatnonzero(speed > gait.MIN_WALK_SPEED)
+    assert 1 <= len(run) <= k and run[0] > 0
+    assert gait.find_passes(t, centre, rate) == []
+    # and the analysis says what is missing instead of crashing
+    feet = FeetTrajectories(t, rate, {"L": {"ankle": centre + np.array([0.0, 0.06, -0.8])},
+                                      "R": {"ankle": centre + np.array([0.0, -0.06, -0.8])}},
+                            {"L": "ankle", "R": "ankle"}, pelvis=centre)
+    with pytest.raises(InsufficientDataError, match="no straight walking"):
+        GaitAnalysis("crossing").fit(feet)

@@ -106,6 +106,8 @@ def _analyse(settings: Any, hub: Any, rec_id: str, sensors: tuple[str, ...] | No
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
     except InputError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    except GaitrigError as exc:  # any other typed engine failure: the data, not the server
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
 
 
 def _filename(*parts: str) -> str:
@@ -327,6 +329,8 @@ def recording_report(rec_id: str, user: CurrentUser, settings: SettingsDep, hub:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
     except InputError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    except GaitrigError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
     data.quality.notes += ref_notes
     return _respond(data, format, f"gait-report-{code}-{rec_id}")
 
@@ -386,6 +390,8 @@ def subject_report(subject_id: int, user: CurrentUser, settings: SettingsDep, hu
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{where}: {exc}") from exc
     except InputError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    except GaitrigError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{where}: {exc}") from exc
     data.quality.notes += ref_notes
     for s in skipped:
         data.quality.notes.append(f"Recording {s} was not used: it is not complete on the "
