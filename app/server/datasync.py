@@ -10,9 +10,12 @@ server. :class:`DataSync` runs beside them (twice a second) and
   request, :meth:`DataSync.retry`);
 * mirrors states, reasons, sizes and progress into the :mod:`app.db.data` tables, so
   the console shows which node failed and why, and a restarted server still knows;
+* asks the nodes to delete their copies of deleted recordings (now, or when they
+  reconnect);
 * derives the recording state: ``recording`` → ``on_nodes`` → ``transferring`` →
   ``complete`` only when every part is verified on the server (``manifest.json`` in its
-  folder), otherwise ``incomplete`` with the reasons.
+  folder), otherwise ``incomplete`` with the reasons; on ``complete`` it snapshots the
+  sensor poses of the recording (``sensors.json``, :func:`recording_poses`).
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from app.db import data as m
 from app.server.hub import Hub
 from app.server.recording import Part
 from app.server.recording import Recording as LiveRecording
-from app.server.storage import StorageLayout
+from app.server.storage import StorageLayout, recording_poses
 from engine.errors import InputError
 
 log = logging.getLogger("gaitrig.datasync")
@@ -187,6 +190,8 @@ class DataSync:
         live = self.hub.recordings.recordings
         if dropped:
             self._cancel_transfers_of(dropped)
+        # node copies of deleted recordings: ask the connected nodes (again)
+        self.hub.transfers.flush_deletions(self.retry_s)
         with self.db_sessions() as db:
             rows = {r.id: r for r in db.scalars(select(m.Recording).where(
                 m.Recording.state != "complete"))}
@@ -233,6 +238,10 @@ class DataSync:
                 if getattr(pr, k) != v:
                     setattr(pr, k, v)
         state, reason = recording_state(rec, states)
+        if state == "complete" and row.state != "complete":
+            # fix the sensor poses of this recording now (sensors.json), before anyone
+            # recalibrates: its analyses and exports always use the rig as it was
+            recording_poses(self.layout, self.hub.registry, rec.id)
         if (row.state, row.reason, row.t_start, row.t_stop) != (state, reason, rec.t_start,
                                                                 rec.t_stop):
             row.state, row.reason, row.t_start, row.t_stop = state, reason, rec.t_start, rec.t_stop

@@ -266,6 +266,30 @@ def uniform_series(series: SkeletonSeries, rate_hz: float | None = None) -> Skel
     return SkeletonSeries(grid, P, states.astype(np.uint8), series.joint_set, dict(series.meta))
 
 
+def recording_poses(layout: StorageLayout, registry: Any, rec_id: str
+                    ) -> dict[str, NDArray[np.float64] | None]:
+    """The recording's own sensor poses (``T_world_sensor``) for every part on the server.
+
+    The first use snapshots the poses known now (the active calibration, else the poses
+    the nodes report) into ``sensors.json`` in the recording folder, as the analysis does
+    (:func:`app.server.analysis.sensor_poses`); :class:`app.server.datasync.DataSync`
+    does so as soon as a recording is complete. Later uses read that snapshot, so a
+    recalibration never changes an old recording's exports or analyses silently. A
+    sensor without a pose maps to None.
+    """
+    from app.server import analysis as an
+    from app.server.calibration import active_poses
+
+    live: dict[str, Any] = dict(active_poses(layout.data_dir))
+    for node_id, s in registry.nodes.items():
+        T = s.sensor.T_world_sensor
+        if T is not None and node_id not in live:
+            live[node_id] = {"T_world_sensor": T, "source": "node"}
+    saved = an.sensor_poses(layout.recording_dir(rec_id), live)
+    return {n: (np.asarray(saved[n]["T_world_sensor"], dtype=float) if n in saved else None)
+            for n in layout.complete_parts(rec_id)}
+
+
 def sensor_streams(layout: StorageLayout, rec_id: str,
                    poses: dict[str, NDArray[np.float64] | None]) -> list[SensorStream]:
     """Every complete part of a recording with its sensor's pose (for fusion).

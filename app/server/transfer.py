@@ -6,18 +6,27 @@ missing chunks of each file → binary ``chunk`` messages. :func:`app.transfer.p
 every chunk and every whole file against the manifest and resumes an interrupted
 transfer, so a part is accepted only complete and intact. Parts land in
 ``<data_dir>/recordings/<rec_id>/<node_id>/`` (``manifest.json`` beside the files).
+
+Deleting a recording on the server also deletes the nodes' copies (health data: a
+deletion must be real): ``delete_part`` → the node removes its part and answers on the
+same request channel. Nodes that are offline are asked when they reconnect; the pending
+deletions survive a server restart in ``<data_dir>/node_deletions.json``.
 """
 
 from __future__ import annotations
 
 import asyncio
 import itertools
+import json
 import logging
-from collections.abc import AsyncIterator
+import os
+import threading
+import time
+from collections.abc import AsyncIterator, Iterable
 from pathlib import Path
 from typing import Any
 
-from app.nodes.protocol import ChunkRequest, ManifestRequest, dump
+from app.nodes.protocol import ChunkRequest, DeletePart, ManifestRequest, dump
 from app.server.recording import Recording, RecordingManager
 from app.server.registry import NodeRegistry, NodeSession
 from app.transfer import Manifest, TransferError, TransferSink, pull
@@ -47,6 +56,13 @@ class TransferManager:
         self._ids = itertools.count(1)
         self._queues: dict[int, asyncio.Queue[tuple[dict[str, Any], bytes]]] = {}
         self._tasks: dict[str, asyncio.Task[None]] = {}
+        # node copies of deleted recordings still to delete: node id -> recording ids
+        self._deletions_file = Path(data_dir) / "node_deletions.json"
+        self._lock = threading.Lock()  # routes run in worker threads
+        self._deletions: dict[str, list[str]] = self._load_deletions()
+        self._deleting: dict[tuple[str, str], asyncio.Task[None]] = {}
+        self._delete_tried: dict[tuple[str, str], float] = {}
+        self.deletion_errors: dict[tuple[str, str], str] = {}
 
     def on_binary(self, header: dict[str, Any], payload: bytes) -> None:
         """A ``manifest`` or ``chunk`` message arrived (from the hub)."""
@@ -180,5 +196,111 @@ class TransferManager:
 
     async def close(self) -> None:
         """Cancel running transfers (server shutdown; they resume on the next request)."""
-        for t in list(self._tasks.values()):
+        for t in [*self._tasks.values(), *self._deleting.values()]:
             t.cancel()
+
+    # ------------------------------------------------------------------ node deletions
+
+    def _load_deletions(self) -> dict[str, list[str]]:
+        try:
+            raw = json.loads(self._deletions_file.read_text())
+        except (OSError, ValueError):
+            return {}
+        if not isinstance(raw, dict):
+            return {}
+        return {str(n): [str(r) for r in recs] for n, recs in raw.items()
+                if isinstance(recs, list) and recs}
+
+    def _save_deletions(self) -> None:
+        self._deletions_file.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self._deletions_file.with_suffix(".tmp")
+        with open(tmp, "w") as fh:
+            json.dump(self._deletions, fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, self._deletions_file)
+
+    def request_deletion(self, rec_id: str, nodes: Iterable[str]) -> None:
+        """Remember that ``nodes`` must delete their parts of ``rec_id`` (persisted; sent
+        by :meth:`flush_deletions` now or when a node reconnects)."""
+        with self._lock:
+            for n in nodes:
+                recs = self._deletions.setdefault(n, [])
+                if rec_id not in recs:
+                    recs.append(rec_id)
+            self._save_deletions()
+
+    def pending_deletions(self) -> dict[str, list[str]]:
+        """Node id → recordings whose parts that node has not confirmed deleting yet."""
+        with self._lock:
+            return {n: list(r) for n, r in self._deletions.items() if r}
+
+    def deletion_status(self, rec_id: str, nodes: Iterable[str]) -> dict[str, str]:
+        """Per node: ``deleted``, or why its copy of ``rec_id`` is still there."""
+        pending = self.pending_deletions()
+        out = {}
+        for n in nodes:
+            if rec_id not in pending.get(n, []):
+                out[n] = "deleted"
+                continue
+            s = self.registry.get(n)
+            err = self.deletion_errors.get((n, rec_id))
+            out[n] = (f"not deleted yet: {err}; retried automatically" if err else
+                      "node offline: deleted when it reconnects" if s is None or not s.connected
+                      else "deleting")
+        return out
+
+    def flush_deletions(self, retry_s: float = 10.0) -> list[asyncio.Task[None]]:
+        """Ask every connected node to delete its pending parts (failures retried after
+        ``retry_s``, at once after a reconnect). Returns the requests started now."""
+        started = []
+        now = time.monotonic()
+        for node_id, recs in self.pending_deletions().items():
+            s = self.registry.get(node_id)
+            if s is None or not s.connected:
+                for r in recs:  # ask again as soon as it is back
+                    self._delete_tried.pop((node_id, r), None)
+                continue
+            for rec_id in recs:
+                key = (node_id, rec_id)
+                if key in self._deleting or now - self._delete_tried.get(key, -1e9) < retry_s:
+                    continue
+                self._delete_tried[key] = now
+                task = asyncio.create_task(self._delete_on(s, rec_id))
+                self._deleting[key] = task
+                task.add_done_callback(self._deletion_done(key))
+                started.append(task)
+        return started
+
+    def _deletion_done(self, key: tuple[str, str]) -> Any:
+        def done(_task: asyncio.Task[None]) -> None:
+            self._deleting.pop(key, None)
+
+        return done
+
+    async def _delete_on(self, s: NodeSession, rec_id: str) -> None:
+        req_id = next(self._ids)
+        q: asyncio.Queue[tuple[dict[str, Any], bytes]] = asyncio.Queue()
+        self._queues[req_id] = q
+        try:
+            await self._send(s, dump(DeletePart(req_id=req_id, rec_id=rec_id)))
+            header, _ = await asyncio.wait_for(q.get(), self.timeout_s)
+        except (ConnectionError, TimeoutError, OSError) as exc:
+            self.deletion_errors[(s.id, rec_id)] = f"no answer from node {s.id} ({exc})"
+            return
+        finally:
+            del self._queues[req_id]
+        if header.get("error") or not header.get("deleted"):
+            self.deletion_errors[(s.id, rec_id)] = str(header.get("error") or "no confirmation")
+            log.warning("recording %s: node %s did not delete its copy: %s", rec_id, s.id,
+                        self.deletion_errors[(s.id, rec_id)])
+            return
+        self.deletion_errors.pop((s.id, rec_id), None)
+        with self._lock:
+            recs = self._deletions.get(s.id, [])
+            if rec_id in recs:
+                recs.remove(rec_id)
+            if not recs:
+                self._deletions.pop(s.id, None)
+            self._save_deletions()
+        log.info("recording %s: node %s deleted its copy", rec_id, s.id)

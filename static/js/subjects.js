@@ -130,8 +130,9 @@
       } }, "Transfer again"));
     const confirm = el("input", { "aria-label": `type ${subject.code} to delete ${r.id}`, placeholder: `type ${subject.code}`, size: "8", autocomplete: "off" });
     acts.append(confirm, el("button", { type: "button", class: "danger small", onclick: async () => {
-      try { await api(`/api/storage/recordings/${r.id}/delete`, { method: "POST", body: JSON.stringify({ confirm: confirm.value }) });
-        say("session-msg", `Recording ${r.id} deleted.`, true); await loadDetail(false); await loadSubjects(); }
+      try { const d = await api(`/api/storage/recordings/${r.id}/delete`, { method: "POST", body: JSON.stringify({ confirm: confirm.value }) });
+        const kept = Object.entries(d.node_copies || {}).filter(([, v]) => v !== "deleted").map(([n, v]) => `${n}: ${v}`);
+        say("session-msg", `Recording ${r.id} deleted on the server and the nodes.` + (kept.length ? ` Not yet on ${kept.join("; ")}.` : ""), true); await loadDetail(false); await loadSubjects(); }
       catch (e) { say("session-msg", e.message); }
     } }, "Delete recording"));
     box.append(acts);

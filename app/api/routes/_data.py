@@ -6,9 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 from fastapi import HTTPException, Request, status
-from numpy.typing import NDArray
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
 
@@ -30,29 +28,6 @@ def datasync_of(request: Request) -> DataSync:
         ds = DataSync(request.app.state.hub, request.app.state.db_sessions, layout_of(request))
         request.app.state.datasync = ds
     return ds
-
-
-def recording_poses(hub: Hub, layout: StorageLayout, rec_id: str
-                    ) -> dict[str, NDArray[np.float64] | None]:
-    """The recording's own sensor poses (``T_world_sensor``) for every part on the server.
-
-    The first use snapshots the poses known now (the active calibration, else the poses
-    the nodes report) into ``sensors.json`` in the recording folder, as the analysis does
-    (:func:`app.server.analysis.sensor_poses`); later uses read that snapshot, so a
-    recalibration never changes an old recording's exports silently. A sensor without a
-    pose maps to None.
-    """
-    from app.server import analysis as an
-    from app.server.calibration import active_poses
-
-    live: dict[str, Any] = dict(active_poses(layout.data_dir))
-    for node_id, s in hub.registry.nodes.items():
-        T = s.sensor.T_world_sensor
-        if T is not None and node_id not in live:
-            live[node_id] = {"T_world_sensor": T, "source": "node"}
-    saved = an.sensor_poses(layout.recording_dir(rec_id), live)
-    return {n: (np.asarray(saved[n]["T_world_sensor"], dtype=float) if n in saved else None)
-            for n in layout.complete_parts(rec_id)}
 
 
 def not_found(what: str) -> HTTPException:
@@ -159,7 +134,8 @@ def project_json(db: DbSession, p: m.Project) -> dict[str, Any]:
 
 def delete_recordings(db: DbSession, hub: Hub, layout: StorageLayout,
                       recs: list[m.Recording]) -> int:
-    """Delete recordings: refuse one still running; remove files, live entries and rows.
+    """Delete recordings: refuse one still running; remove the server's files, live
+    entries and rows, and have the nodes delete their parts.
 
     Returns:
         Number of recordings deleted.
@@ -173,8 +149,17 @@ def delete_recordings(db: DbSession, hub: Hub, layout: StorageLayout,
             raise HTTPException(status.HTTP_409_CONFLICT,
                                 f"recording {r.id} is being transferred; wait until it ends")
     for r in recs:
+        # the nodes' copies go too (sent now or when a node reconnects; see
+        # TransferManager.request_deletion): deleting health data must be real
+        hub.transfers.request_deletion(r.id, recording_nodes(hub, r))
         layout.delete_recording(r.id)
         if hub.recordings.recordings.pop(r.id, None) is not None:
             hub.recordings.save()
         db.delete(r)
     return len(recs)
+
+
+def recording_nodes(hub: Hub, r: m.Recording) -> list[str]:
+    """Nodes that hold (or held) a part of a recording."""
+    live = hub.recordings.recordings.get(r.id)
+    return sorted({p.node_id for p in r.parts} | set(live.parts if live is not None else ()))

@@ -20,7 +20,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, File, HTTPException, Query, Request, Response, UploadFile, status
 
 from app.api.deps import CurrentUser, DbDep, HubDep
-from app.api.routes._data import get_recording, layout_of, recording_poses, reference_json
+from app.api.routes._data import get_recording, layout_of, reference_json
 from app.db import data as m
 from app.server.storage import (
     check_id,
@@ -31,6 +31,7 @@ from app.server.storage import (
     fused_skeleton,
     read_part_skeleton,
     read_reference,
+    recording_poses,
     sensor_streams,
     uniform_series,
 )
@@ -57,7 +58,7 @@ async def skeleton(rec_id: str, request: Request, user: CurrentUser, db: DbDep, 
     layout = layout_of(request)
     if source == "fused":
         # the recording's own poses (sensors.json), not whatever is calibrated now
-        poses = await asyncio.to_thread(recording_poses, hub, layout, rec.id)
+        poses = await asyncio.to_thread(recording_poses, layout, hub.registry, rec.id)
 
         def work() -> bytes:
             series, events = fused_skeleton(sensor_streams(layout, rec.id, poses))

@@ -7,6 +7,7 @@ after stop, retries, database mirror of every recording's state).
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -23,12 +24,15 @@ from app.api.routes._data import (
     get_recording,
     layout_of,
     recording_json,
+    recording_nodes,
     subject_bytes,
 )
 from app.db import data as m
 from app.server.datasync import DataSync
 from app.server.storage import StorageLayout
 from engine.errors import InputError
+
+NODE_DELETE_WAIT_S = 5.0
 
 
 @asynccontextmanager
@@ -50,15 +54,17 @@ class Confirm(BaseModel):
 
 
 @router.get("")
-def usage(request: Request, user: CurrentUser, db: DbDep) -> dict[str, Any]:
-    """Disk of the data folder and bytes stored per subject."""
+def usage(request: Request, user: CurrentUser, db: DbDep, hub: HubDep) -> dict[str, Any]:
+    """Disk of the data folder, bytes stored per subject, and the node copies of deleted
+    recordings still to delete (``pending_node_deletions``: node id → recording ids)."""
     layout = layout_of(request)
     subjects = []
     for s in db.scalars(select(m.Subject).order_by(m.Subject.project_id, m.Subject.code)):
         subjects.append({"id": s.id, "project_id": s.project_id, "code": s.code,
                          "bytes": subject_bytes(s, layout),
                          "n_recordings": sum(len(x.recordings) for x in s.sessions)})
-    return {"disk": layout.disk(), "data_dir": str(layout.data_dir), "subjects": subjects}
+    return {"disk": layout.disk(), "data_dir": str(layout.data_dir), "subjects": subjects,
+            "pending_node_deletions": hub.transfers.pending_deletions()}
 
 
 @router.get("/recordings/{rec_id}")
@@ -86,17 +92,21 @@ async def retry_transfer(rec_id: str, request: Request, user: CurrentUser, db: D
 
 
 @router.post("/recordings/{rec_id}/delete")
-def delete_recording(rec_id: str, body: Confirm, request: Request, user: CurrentUser,
-                     db: DbDep, hub: HubDep) -> dict[str, Any]:
-    """Delete a recording's rows and files on the server (confirm = the subject code).
-
-    The nodes' own copies are not touched.
-    """
+async def delete_recording(rec_id: str, body: Confirm, request: Request, user: CurrentUser,
+                           db: DbDep, hub: HubDep) -> dict[str, Any]:
+    """Delete a recording everywhere (confirm = the subject code): rows and files on the
+    server, and the parts on the nodes (an offline node deletes its part when it
+    reconnects). ``node_copies`` says, per node, whether its copy is gone yet."""
     r = get_recording(db, rec_id)
     check_confirm(r.session.subject.code, body.confirm, f"recording {rec_id}")
+    nodes = recording_nodes(hub, r)
     delete_recordings(db, hub, layout_of(request), [r])
     db.commit()
-    return {"deleted": "recording", "id": rec_id}
+    started = hub.transfers.flush_deletions()
+    if started:  # wait briefly so the answer can say the node copies are gone
+        await asyncio.wait(started, timeout=NODE_DELETE_WAIT_S)
+    return {"deleted": "recording", "id": rec_id,
+            "node_copies": hub.transfers.deletion_status(rec_id, nodes)}
 
 
 @router.get("/unfiled")

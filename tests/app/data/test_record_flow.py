@@ -1,6 +1,6 @@
 """End to end with real server and node processes: file a recording under a session,
 stop it, and the server pulls every node's part (verified) on its own; second start
-refused; deletion needs the subject code."""
+refused; deletion needs the subject code and deletes the nodes' copies too."""
 
 from __future__ import annotations
 
@@ -95,6 +95,10 @@ def test_recording_is_filed_transferred_and_verified(make_rig: Any, tmp_path: Pa
         for f in manifest["files"]:
             assert _sha(server_part / f["name"]) == f["sha256"] == _sha(node_part / f["name"])
         assert p["manifest_sha256"] == _sha(server_part / "manifest.json")
+    # the sensor poses of the rig at that time are kept with the complete recording
+    poses = json.loads((tmp_path / "server" / "recordings" / rec_id / "sensors.json")
+                       .read_text())
+    assert set(poses) == {"S1", "S2"} and all(p["source"] == "node" for p in poses.values())
     subj = rig.api(f"/api/subjects/{ids['subject']['id']}")
     assert subj["bytes_on_server"] > 0
     assert subj["sessions"][0]["recordings"][0]["id"] == rec_id
@@ -114,14 +118,36 @@ def test_recording_is_filed_transferred_and_verified(make_rig: Any, tmp_path: Pa
     rig.api(f"/api/sessions/{ids['session']['id']}/recordings/attach", {"rec_id": other})
     assert wait_state(rig, other, {"complete"})["state"] == "complete"
     assert rig.api("/api/storage/unfiled") == []
-    rig.api(f"/api/storage/recordings/{other}/delete", {"confirm": "P001"})
+
+    # deleting is real: the nodes delete their copies too; a node that is offline
+    # deletes its copy as soon as it is back (the request survives in node_deletions.json)
+    on_node = {n: rig.node_dir(n) / "recordings" for n in ("S1", "S2")}
+    assert (on_node["S1"] / other).is_dir() and (on_node["S2"] / other).is_dir()
+    rig.procs["S2"].terminate()
+    rig.procs["S2"].wait()
+    wait_for(lambda: not rig.nodes()["S2"]["connected"], 20, "S2 to be offline")
+    r = rig.api(f"/api/storage/recordings/{other}/delete", {"confirm": "P001"})
+    assert r["node_copies"]["S1"] == "deleted", r
+    assert "offline" in r["node_copies"]["S2"], r
+    assert not (on_node["S1"] / other).exists()
+    assert (on_node["S2"] / other).is_dir()  # still there while S2 is off
+    assert rig.api("/api/storage")["pending_node_deletions"] == {"S2": [other]}
+    rig.start_node("S2", "--seed", "1", name="S2-again")
+    rig.wait_online(["S2"])
+    wait_for(lambda: not (on_node["S2"] / other).exists(), 30, "S2 to delete its copy")
+    wait_for(lambda: rig.api("/api/storage")["pending_node_deletions"] == {}, 10,
+             "no pending node deletion")
+    assert rig.api("/api/storage/unfiled") == []  # the reconnected node did not revive it
 
     # deletion needs the subject code typed again
     code, msg = http_error(lambda: rig.api(f"/api/storage/recordings/{rec_id}/delete",
                                            {"confirm": "P00"}))
     assert code == 400 and "'P001'" in msg
-    rig.api(f"/api/storage/recordings/{rec_id}/delete", {"confirm": "P001"})
+    assert (on_node["S1"] / rec_id).is_dir()  # a refused deletion deletes nothing
+    r = rig.api(f"/api/storage/recordings/{rec_id}/delete", {"confirm": "P001"})
+    assert r["node_copies"] == {"S1": "deleted", "S2": "deleted"}, r
     assert not (tmp_path / "server" / "recordings" / rec_id).exists()
+    assert not (on_node["S1"] / rec_id).exists() and not (on_node["S2"] / rec_id).exists()
     assert rig.api(f"/api/subjects/{ids['subject']['id']}")["n_recordings"] == 0
 
 
