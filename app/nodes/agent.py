@@ -36,6 +36,7 @@ from app.nodes.backends.base import Backend, Frame
 from app.nodes.protocol import (
     CalibrationCapture,
     ChunkRequest,
+    DeletePart,
     Hello,
     ManifestRequest,
     NodeError,
@@ -327,6 +328,8 @@ class NodeAgent:
                 self._spawn(self._serve_manifest(ws, msg))
             elif isinstance(msg, ChunkRequest):
                 self._spawn(self._serve_chunks(ws, msg))
+            elif isinstance(msg, DeletePart):
+                self._spawn(self._serve_delete(ws, msg))
             elif isinstance(msg, ServerError):
                 log.warning("server reported: %s", msg.reason)
             elif isinstance(msg, Refused):
@@ -376,6 +379,22 @@ class NodeAgent:
             except (GaitrigError, TransferError, OSError) as exc:
                 await ws.send(encode_binary({**header, "error": str(exc)}))
                 return
+
+    async def _serve_delete(self, ws: ClientConnection, msg: DeletePart) -> None:
+        """Delete a part whose recording the server deleted (health data: for real)."""
+        header: dict[str, Any] = {"kind": "manifest", "req_id": msg.req_id, "rec_id": msg.rec_id}
+        try:
+            if msg.rec_id in self._recs:
+                raise InputError(f"recording {msg.rec_id} is still being recorded on "
+                                 f"{self.node_id}; stop it first")
+            self._manifests.pop(msg.rec_id, None)
+            self._finished.pop(msg.rec_id, None)
+            existed = await asyncio.to_thread(self.store.delete, msg.rec_id)
+            log.info("recording %s deleted on request of the server%s", msg.rec_id,
+                     "" if existed else " (it was not on this node)")
+            await ws.send(encode_binary({**header, "deleted": True}))
+        except (GaitrigError, OSError) as exc:
+            await ws.send(encode_binary({**header, "error": f"{self.node_id}: {exc}"}))
 
     # ------------------------------------------------------------------ frames
 

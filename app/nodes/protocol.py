@@ -248,7 +248,7 @@ class ServerError(_Msg):
 
 ServerMessage = Annotated[
     Welcome | Refused | Ping | RecStart | RecStop | Subscribe | Snapshot | ManifestRequest
-    | ChunkRequest | CalibrationCapture | ServerError,
+    | ChunkRequest | DeletePart | CalibrationCapture | ServerError,
     Field(discriminator="type"),
 ]
 
