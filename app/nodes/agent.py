@@ -450,7 +450,8 @@ class NodeAgent:
             self._record_frame(rec, frame, msg)
         sub = self._sub
         if (sub is not None and not self._sub_busy
-                and frame.t_local - self._sub_last >= 1.0 / sub.fps):
+                # 20 % slack: a frame a little early (jitter) must not wait a whole frame
+                and frame.t_local - self._sub_last >= 0.8 / sub.fps):
             self._sub_last = frame.t_local
             self._sub_busy = True
             self._pool.submit(self._send_images, frame, sub.streams, sub.scale, sub.format, {})
@@ -458,10 +459,15 @@ class NodeAgent:
     def _send_images(self, frame: Frame, streams: Sequence[str], scale: float, fmt: str,
                      extra: dict[str, Any]) -> None:
         try:
-            imgs = frame.images(streams)
+            # a backend's own preview is cheaper than rendering full size and downscaling
+            preview = frame.preview if scale != 1.0 else None
+            pre = preview is not None
+            imgs = preview(streams, scale) if preview is not None else frame.images(streams)
             for name, img in imgs.items():
-                data, f = encode_image(name, img, scale, fmt)
+                data, f = encode_image(name, img, 1.0 if pre else scale, fmt)
                 h, w = img.shape[:2]
+                if pre:  # the header gives the full image size
+                    h, w = round(h / scale), round(w / scale)
                 header = {"kind": "image", "stream": name, "t": frame.t_local, "format": f,
                           "width": w, "height": h, "scale": scale, **extra}
                 msg = encode_binary(header, data)

@@ -11,11 +11,20 @@ of the 3D view (:mod:`app.viewer.live`).
 Each watcher has one slot per node holding only the newest panel: a slow browser skips
 frames (counted in ``dropped``) instead of queueing them, and a panel is sent only when a
 new image arrived. Messages are binary: ``uint32`` little-endian header length, a JSON
-header (``node``, ``seq``, ``t_capture`` = capture time in server seconds, ``t_sent``,
+header (``node``, ``seq``, ``t_capture`` = capture time in server seconds, ``t_local`` =
+the same on the node's clock, ``t_sent``,
 ``fps``, ``body_pixels``, ``width``, ``height``) and the JPEG. Text messages carry
 ``{"type": "time", "t": server_time, "echo": ...}`` answers to the page's clock pings so
 the page can put the capture time on its own clock and show the end-to-end latency.
 When nobody has watched for :data:`IDLE_UNSUBSCRIBE_S`, the nodes are told to stop.
+
+A node holds one image subscription, so :class:`LiveStreams` is the only one that talks
+to the nodes about it: ``POST /api/nodes/{id}/subscribe`` hands its request to
+:meth:`LiveStreams.request`, and while the live view streams a node the node gets the
+union (the live view's 16-bit PNG depth and body index at its scale and rate, plus the
+API's streams, in that form, at the higher of both rates). Another request can therefore
+never stop or change the live panels, and the API's subscription comes back as asked
+when nobody watches any more.
 """
 
 from __future__ import annotations
@@ -89,7 +98,7 @@ def encode_panel(frame: DepthFrame, fps: float, quality: int = 80) -> bytes:
     if not ok:
         raise ValueError("JPEG encoding failed")
     header = {"node": frame.node, "seq": frame.seq, "t_capture": frame.t_capture,
-              "t_sent": time.time(), "fps": round(fps, 2),
+              "t_local": frame.t_local, "t_sent": time.time(), "fps": round(fps, 2),
               "body_pixels": int(frame.body.sum()) if frame.body is not None else 0,
               "width": int(img.shape[1]), "height": int(img.shape[0])}
     h = json.dumps(header, separators=(",", ":")).encode()
@@ -175,7 +184,10 @@ class LiveStreams:
         self._seen: dict[str, LatestImage] = {}
         self._seq: dict[str, int] = {}
         self._rate: dict[str, list[float]] = {}
-        self._subscribed: dict[str, float | None] = {}  # node → connected_at when subscribed
+        self.external: dict[str, Subscribe] = {}  # node → subscription asked for by the API
+        # node → (connected_at, subscription) the node was last told; None = stopped
+        self._sent: dict[str, tuple[float | None, Subscribe | None]] = {}
+        self._live_on = False  # the live view's subscription is in force
         self._idle_since: float | None = time.time()
         self._task: asyncio.Task[None] | None = None
         self._busy: set[str] = set()
@@ -193,7 +205,9 @@ class LiveStreams:
             self._task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
-        await self._set_subscriptions(False)
+        self._live_on = False
+        self.external.clear()
+        await self._sync_subscriptions()
 
     @property
     def watched(self) -> bool:
@@ -228,23 +242,56 @@ class LiveStreams:
 
     # ------------------------------------------------------------------ pump
 
-    async def _set_subscriptions(self, on: bool) -> None:
+    def live_subscription(self) -> Subscribe:
+        """What the live panels and the point cloud need from every node."""
+        return Subscribe(streams=["depth", "body_index"], fps=self.fps, scale=self.scale,
+                         format="png")
+
+    def effective(self, node: str) -> Subscribe | None:
+        """The subscription node ``node`` should have now (None: no images)."""
+        ext = self.external.get(node)
+        if not self._live_on:
+            return ext
+        own = self.live_subscription()
+        if ext is None:
+            return own
+        extra = [x for x in ext.streams if x not in own.streams]
+        return Subscribe(streams=[*own.streams, *extra], fps=max(own.fps, ext.fps),
+                         scale=own.scale, format="png")
+
+    async def request(self, node: str, sub: Subscribe) -> Subscribe | None:
+        """An API client's subscription for ``node`` (``fps`` 0 or no streams: cancel it).
+
+        Returns:
+            What the node is told now: the request itself, or — while the live view streams
+            the node — the union with the live view's subscription (see the module doc).
+        """
+        if sub.fps > 0 and sub.streams:
+            self.external[node] = sub
+        else:
+            self.external.pop(node, None)
+        await self._sync_subscriptions(only=node)
+        return self.effective(node)
+
+    async def _sync_subscriptions(self, only: str | None = None) -> None:
+        """Tell each node (or just ``only``) its effective subscription if it changed."""
         for s in list(self.hub.registry.nodes.values()):
-            want = on and s.connected and s.send is not None
-            have = s.id in self._subscribed and self._subscribed[s.id] == s.connected_at
-            if want and not have and s.send is not None:
-                msg = Subscribe(streams=["depth", "body_index"], fps=self.fps, scale=self.scale,
-                                format="png")
-                try:
-                    await s.send(dump(msg))
-                    self._subscribed[s.id] = s.connected_at
-                except Exception as exc:  # a node that just left: retried next round
-                    log.info("could not subscribe %s: %s", s.id, exc)
-            elif not want and s.id in self._subscribed:
-                del self._subscribed[s.id]
-                if s.connected and s.send is not None:
-                    with contextlib.suppress(Exception):
-                        await s.send(dump(Subscribe(streams=["depth"], fps=0)))
+            if only is not None and s.id != only:
+                continue
+            if not s.connected or s.send is None:
+                continue
+            want = self.effective(s.id)
+            last = self._sent.get(s.id)
+            if last is None and want is None:
+                continue  # never told anything: it streams nothing
+            if last is not None and last == (s.connected_at, want):
+                continue
+            msg = want if want is not None else Subscribe(streams=["depth"], fps=0)
+            try:
+                await s.send(dump(msg))
+                self._sent[s.id] = (s.connected_at, want)
+            except Exception as exc:  # a node that just left: retried next round
+                log.info("could not update the subscription of %s: %s", s.id, exc)
 
     async def _pump(self) -> None:
         last_sub_check = 0.0
@@ -254,11 +301,12 @@ class LiveStreams:
                 last_sub_check = now
                 if self.watched:
                     self._idle_since = None
-                    await self._set_subscriptions(True)
+                    self._live_on = True
                 else:
                     self._idle_since = self._idle_since or now
-                    if now - self._idle_since > IDLE_UNSUBSCRIBE_S and self._subscribed:
-                        await self._set_subscriptions(False)
+                    if now - self._idle_since > IDLE_UNSUBSCRIBE_S:
+                        self._live_on = False
+                await self._sync_subscriptions()
             for s in list(self.hub.registry.nodes.values()):
                 self._check(s, now)
             await asyncio.sleep(0.01)

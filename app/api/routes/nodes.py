@@ -12,7 +12,7 @@ import itertools
 from typing import Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, HTTPException, Response, status
+from fastapi import APIRouter, HTTPException, Request, Response, status
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentUser, HubDep
@@ -96,12 +96,28 @@ async def get_skeleton(node_id: str, user: CurrentUser, hub: HubDep) -> dict[str
 
 
 @router.post("/{node_id}/subscribe", status_code=202)
-async def subscribe(node_id: str, body: SubscribeIn, user: CurrentUser, hub: HubDep) -> None:
-    """Ask a node to stream images at ``fps`` (0 stops); read them from ``/images/{stream}``."""
+async def subscribe(node_id: str, body: SubscribeIn, user: CurrentUser, hub: HubDep,
+                    request: Request) -> dict[str, Any]:
+    """Ask a node to stream images at ``fps`` (0 stops); read them from ``/images/{stream}``.
+
+    While the Live page or the 3D view streams this node, the live view's subscription
+    stays in force (16-bit PNG depth and body index at its scale) and the requested
+    streams are added to it, at the higher rate; ``sent`` says what the node streams now.
+    Your subscription applies as asked once nobody watches the live view.
+    """
     s = _node(hub, node_id)
     if s.send is None:
         raise HTTPException(status.HTTP_409_CONFLICT, f"node {node_id} is offline")
-    await s.send(dump(Subscribe(**body.model_dump())))
+    sub = Subscribe(**body.model_dump())
+    live = getattr(request.app.state, "live", None)
+    if live is None:  # no live services (e.g. still starting): nothing to share with
+        await s.send(dump(sub))
+        sent: Subscribe | None = sub if sub.fps > 0 and sub.streams else None
+    else:
+        sent = await live.streams.request(node_id, sub)
+    return {"node": node_id, "requested": body.model_dump(),
+            "sent": sent.model_dump(exclude={"type"}) if sent is not None else None,
+            "shared_with_live_view": sent is not None and sent != sub}
 
 
 class SnapshotIn(BaseModel):

@@ -26,6 +26,8 @@ from numpy.typing import NDArray
 from app.nodes.protocol import SensorInfo
 
 ImageFn = Callable[[Sequence[str]], dict[str, NDArray[np.uint8] | NDArray[np.uint16]]]
+#: ``preview(streams, scale)``: the images already downscaled by ``scale`` (< 1).
+PreviewFn = Callable[[Sequence[str], float], dict[str, NDArray[np.uint8] | NDArray[np.uint16]]]
 
 
 def _no_images(streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
@@ -42,6 +44,11 @@ class Frame:
         states: ``(B, J)`` uint8 :class:`engine.skeleton.TrackingState` values.
         body_ids: ``B`` tracking ids.
         images: ``images(streams)`` → ``{"depth"|"color"|"body_index": array}``.
+        preview: optional ``preview(streams, scale)`` → the same images at ``scale`` of the
+            full size (nearest-neighbour geometry for depth/body index), for backends that
+            make small live previews much cheaper than full images (the simulator renders
+            them directly); ``None``: the agent downscales ``images``. Recordings always use
+            ``images``.
     """
 
     t_local: float
@@ -49,6 +56,7 @@ class Frame:
     states: NDArray[np.uint8]
     body_ids: list[int] = field(default_factory=list)
     images: ImageFn = _no_images
+    preview: PreviewFn | None = None
 
 
 class Backend(ABC):

@@ -11,7 +11,9 @@ Skeletons come from :func:`engine.sim.skeleton_model.observe_skeletons`, evaluat
 chunks of :data:`CHUNK_S` seconds of jittered frame times ahead of real time (the error
 model's slowly varying errors restart at chunk boundaries). Frames are released at their
 capture instants. Images are rendered only when asked for (recording with images or a
-subscription) by :class:`engine.sim.render.SensorRenderer`.
+subscription) by :class:`engine.sim.render.SensorRenderer`: recordings and snapshots at
+full size, the live panels' subscription directly at its scale (``Frame.preview``), which
+costs a quarter of a full frame at the usual half size.
 """
 
 from __future__ import annotations
@@ -79,6 +81,7 @@ class SimBackend(Backend):
         self._closed = threading.Event()
         self._walker: Any = None
         self._renderer: Any = None
+        self._previews: dict[float, Any] = {}  # image scale → preview renderer
         self._render_lock = threading.Lock()
         self._calib_renderer: Any = None  # colour at the calibration size (lazy)
         self._calib_lock = threading.Lock()
@@ -159,7 +162,7 @@ class SimBackend(Backend):
                         st = np.zeros((0, 25), np.uint8)
                         ids = []
                     yield Frame(self.clock.from_host(float(t_host)), pos, st, ids,
-                                self._image_fn(float(t_host)))
+                                self._image_fn(float(t_host)), self._preview_fn(float(t_host)))
 
     def _image_fn(self, t_host: float) -> Any:
         if not self.render_images:
@@ -171,23 +174,53 @@ class SimBackend(Backend):
 
         return images
 
-    def render(self, t_world: float,
-               streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
+    def _preview_fn(self, t_host: float) -> Any:
+        if not self.render_images:
+            return None
+        t_world = world_time(t_host)
+
+        def preview(streams: Sequence[str], scale: float
+                    ) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
+            return self.render(t_world, streams, scale)
+
+        return preview
+
+    def render(self, t_world: float, streams: Sequence[str], scale: float = 1.0
+               ) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
         """Depth (uint16 mm), body index (uint8, 255 = none) and colour (RGB) at ``t_world``.
 
-        Called from the agent's image thread; the renderer (room ray-cast once) is built on
-        first use.
+        Called from the agent's image thread; the renderers (room ray-cast once) are built
+        on first use.
+
+        Args:
+            t_world: simulation time (s).
+            streams: which images.
+            scale: < 1 renders depth and body index directly at this fraction of the
+                sensor's size (a live preview: the geometry of a nearest-neighbour
+                downscale, a fraction of the cost); colour, if asked for, stays full size.
         """
         from engine.sim.render import SensorRenderer
 
+        want_color = "color" in streams
+        # colour is only rendered at full size: with colour, everything is rendered at full
+        # size and downscaled below (as the agent would)
+        preview = scale != 1.0 and not want_color
         with self._render_lock:
-            if self._renderer is None:
-                m = self.sensor.model
-                self._renderer = SensorRenderer(
-                    self.sensor, self.rig, (m.color_render_width, m.color_render_height))
-            want_color = "color" in streams
-            frame = self._renderer.render([self._walker.body_mesh(t_world)], self._img_rng,
-                                          with_color=want_color)
+            mesh = self._walker.body_mesh(t_world)
+            if preview:
+                r = self._previews.get(scale)
+                if r is None:
+                    if len(self._previews) >= 4:  # a few scales at most (bounded memory)
+                        self._previews.clear()
+                    r = self._previews[scale] = SensorRenderer(self.sensor, self.rig, None,
+                                                               image_scale=scale)
+            else:
+                if self._renderer is None:
+                    m = self.sensor.model
+                    self._renderer = SensorRenderer(
+                        self.sensor, self.rig, (m.color_render_width, m.color_render_height))
+                r = self._renderer
+            frame = r.render([mesh], self._img_rng, with_color=want_color)
         out: dict[str, NDArray[np.uint8] | NDArray[np.uint16]] = {}
         if "depth" in streams:
             out["depth"] = frame.depth
@@ -195,6 +228,8 @@ class SimBackend(Backend):
             out["body_index"] = frame.body_index
         if want_color and frame.color is not None:
             out["color"] = frame.color
+        if scale != 1.0 and not preview:
+            out = {k: _downscale(k, v, scale) for k, v in out.items()}
         return out
 
     def calibration_frames(self, n: int) -> Iterator[tuple[Any, ...]]:
@@ -232,6 +267,15 @@ class SimBackend(Backend):
             assert sf.depths is not None
             yield (self.clock.from_host(t_host), sf.colors[0], sf.depths[0], r.K_color,
                    r.K_depth, self.sensor.model.T_depth_color, sf.depth_scale)
+
+def _downscale(stream: str, img: NDArray[Any], scale: float) -> NDArray[Any]:
+    """Resize like the node agent: colour by area averaging, depth/body index nearest."""
+    import cv2
+
+    h, w = img.shape[:2]
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    interp = cv2.INTER_AREA if stream == "color" else cv2.INTER_NEAREST
+    return np.asarray(cv2.resize(img, size, interpolation=interp))
 
 
 def _no_images(streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 
 import numpy as np
 import open3d as o3d
@@ -179,3 +180,96 @@ def test_dragging_a_handle_moves_the_plan_and_redraws_the_3d_map(tmp_path) -> No
         assert planner.version == v0 + 1
     finally:
         server.stop()
+
+
+def test_api_subscription_cannot_break_the_live_stream(monkeypatch: pytest.MonkeyPatch) -> None:
+    """One subscription per node: the live view's stays in force, the API's is added to it."""
+    from types import SimpleNamespace
+
+    from app.nodes.protocol import Subscribe
+    from app.server import streaming
+    from app.server.streaming import LiveStreams
+
+    monkeypatch.setattr(streaming, "IDLE_UNSUBSCRIBE_S", 0.05)
+    told: list[Subscribe] = []
+
+    async def send(raw: str) -> None:
+        told.append(Subscribe.model_validate_json(raw))
+
+    node = SimpleNamespace(id="S1", connected=True, connected_at=1.0, send=send, images={})
+    hub = SimpleNamespace(registry=SimpleNamespace(nodes={"S1": node}))
+
+    async def until(pred: Callable[[], bool]) -> None:
+        for _ in range(1000):  # the pump looks every 0.5 s; a loaded machine may be slow
+            if pred():
+                return
+            await asyncio.sleep(0.02)
+        raise AssertionError("the nodes were not told in 20 s")
+
+    async def run() -> None:
+        live = LiveStreams(hub, fps=15.0, scale=0.5)  # type: ignore[arg-type]
+        colour = Subscribe(streams=["color"], fps=2.0, scale=1.0, format="jpeg")
+        # nobody watches: the API's subscription goes to the node as asked
+        assert await live.request("S1", colour) == colour and told[-1] == colour
+        # the Live page opens: the node streams the live view's images plus the colour
+        w = Watcher(send=lambda b: asyncio.sleep(0))
+        live.add_watcher(w)
+        await until(lambda: told[-1] != colour)
+        assert told[-1].streams == ["depth", "body_index", "color"]
+        assert (told[-1].format, told[-1].scale, told[-1].fps) == ("png", 0.5, 15.0)
+        # another request, even a stop or a different form, cannot change the live part
+        n = len(told)
+        got = await live.request("S1", Subscribe(streams=["depth"], fps=0))
+        assert got == live.live_subscription() and told[-1] == got and len(told) == n + 1
+        got = await live.request("S1", Subscribe(streams=["depth"], fps=30, scale=1.0,
+                                                 format="jpeg"))
+        assert got is not None and (got.format, got.scale, got.fps) == ("png", 0.5, 30.0)
+        assert set(got.streams) == {"depth", "body_index"}
+        # the node reconnects: told again; unchanged state is not re-sent
+        n = len(told)
+        await asyncio.sleep(0.7)
+        assert len(told) == n
+        node.connected_at = 2.0
+        await until(lambda: len(told) > n)
+        assert len(told) == n + 1 and told[-1] == got
+        # the page closes: after the idle time the API's own request applies again
+        live.remove_watcher(w)
+        await until(lambda: told[-1].format == "jpeg")
+        assert told[-1] == Subscribe(streams=["depth"], fps=30, scale=1.0, format="jpeg")
+        await live.request("S1", Subscribe(streams=[], fps=0))
+        assert told[-1].fps == 0 and live.effective("S1") is None
+        await live.stop()
+
+    asyncio.run(run())
+
+
+def test_sim_preview_is_the_downscaled_frame_and_recordings_stay_full_size() -> None:
+    """The live panels' half-size depth is rendered directly, with the geometry of a
+    nearest-neighbour downscale of the full frame (what the 3D view's intrinsics assume)."""
+    import cv2
+
+    from app.nodes.backends.sim import SimBackend
+
+    sim = SimBackend("S1", images=True)
+    sim.open()
+    frame = next(iter(sim.frames()))
+    sim.close()
+    assert frame.preview is not None
+    small = frame.preview(["depth", "body_index"], 0.5)
+    full = frame.images(["depth", "body_index"])  # what a recording stores
+    assert full["depth"].shape == (424, 512) and small["depth"].shape == (212, 256)
+    assert small["depth"].dtype == np.uint16 and small["body_index"].dtype == np.uint8
+    # the walker in view of S1 (a standing start by the first pair of sensors)
+    t = 4.0
+    small = sim.render(t, ["depth", "body_index"], 0.5)
+    ref = {k: cv2.resize(v, (256, 212), interpolation=cv2.INTER_NEAREST)
+           for k, v in sim.render(t, ["depth", "body_index"]).items()}
+    both = (small["depth"] > 0) & (ref["depth"] > 0)
+    assert np.mean((small["depth"] > 0) == (ref["depth"] > 0)) > 0.97
+    assert np.median(np.abs(small["depth"][both].astype(int) - ref["depth"][both])) < 15
+    body_s, body_r = small["body_index"] != 255, ref["body_index"] != 255
+    assert body_r.sum() > 200, "the walker should be in view of S1 at t = 4 s"
+    assert (body_s & body_r).sum() > 0.9 * body_r.sum()
+    # colour cannot be previewed: rendered full size, then downscaled like the agent would
+    c = sim.render(t, ["color", "depth"], 0.5)
+    assert c["color"].shape == (180, 320, 3) and c["depth"].shape == (212, 256)
