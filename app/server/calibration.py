@@ -153,8 +153,28 @@ def apply_to_registry(registry: Any, data_dir: Path) -> list[str]:
             if p is not None:
                 _set_pose(session, p["T_world_sensor"])
         on_connect._gaitrig_calibration = True  # type: ignore[attr-defined]
-        listeners.append(on_connect)
+        # first, so the 3D view and planner listeners after it see the calibrated pose
+        listeners.insert(0, on_connect)
+    # the poses changed: let the listeners (3D view, live graph, planner) redraw
+    for node_id in applied:
+        for cb in list(listeners):
+            if getattr(cb, "_gaitrig_calibration", False):
+                continue
+            try:
+                cb(registry.nodes[node_id])
+            except Exception:  # a display must never break applying a calibration
+                log.exception("a node listener failed after applying the calibration")
     return sorted(applied)
+
+
+def active_result(data_dir: Path) -> CalibrationResult | None:
+    """The active calibration, or None when nothing is calibrated (or it is unreadable)."""
+    folder = calibration_dir(data_dir)
+    try:
+        return load_version(folder) if list_versions(folder) else None
+    except InputError:
+        log.warning("the active calibration in %s cannot be read", folder)
+        return None
 
 
 # --------------------------------------------------------------------------- live capture

@@ -32,6 +32,9 @@ def populate_calibration_graph(server: viser.ViserServer, result: CalibrationRes
     """Draw the calibration: a camera frustum-like frame per sensor, a square per marker
     (marker 1 with world axes), one line per observation coloured by its residual."""
     server.scene.add_frame(root, axes_length=0.4, axes_radius=0.01)
+    version = f"version {result.version}" if result.version is not None else "unsaved"
+    server.scene.add_label(f"{root}/label", f"calibration {version}: sensor–marker edges "
+                           "coloured by residual", position=(0.0, 0.0, 2.6))
     for sid, T in result.T_world_sensor.items():
         q = quat_from_matrix(T[:3, :3])
         server.scene.add_frame(f"{root}/sensors/{sid}", wxyz=np.asarray(q, dtype=float),

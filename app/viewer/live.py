@@ -374,6 +374,14 @@ class LiveServices:
         if not self._layer_visible("graph"):
             self.viewer.scene.remove_by_name("/graph")
             return
+        from app.server.calibration import active_result
+        from app.viewer.calibration import populate_calibration_graph
+
+        cal = active_result(self.hub.settings.data_dir)
+        if cal is not None:  # the active calibration: its sensors, markers, residual edges
+            self.viewer.scene.remove_by_name("/graph")
+            populate_calibration_graph(self.viewer, cal, root="/graph")
+            return
         poses = {s.id: np.asarray(s.sensor.T_world_sensor, float)
                  for s in self.hub.registry.nodes.values() if s.sensor.T_world_sensor is not None}
         sim = all(s.backend == "sim" for s in self.hub.registry.nodes.values())

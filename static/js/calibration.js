@@ -1,4 +1,5 @@
-// Calibration wizard: marker sheet, simulated capture, result tables, saved versions.
+// Calibration wizard: marker sheet, capture from the connected sensors (progress, graph,
+// residual tables, accept/reject), simulated run, live bumped-tripod check, saved versions.
 "use strict";
 (() => {
   const $ = (id) => document.getElementById(id);
@@ -30,20 +31,68 @@
     document.body.append(a); a.click(); a.remove();
   });
 
-  function show(doc) {
+  const SVGNS = "http://www.w3.org/2000/svg";
+  function svg(tag, attrs, text) {
+    const e = document.createElementNS(SVGNS, tag);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, String(v));
+    if (text !== undefined) e.textContent = text;
+    return e;
+  }
+  const edgeColour = (r) => (r === null || r === undefined ? "#999" : r < 0.001 ? "#28a046" : r < 0.003 ? "#dcaa14" : "#d23228");
+
+  function drawGraph(doc) {
+    const g = $("graph"); g.replaceChildren();
+    const S = Object.fromEntries(Object.entries(doc.T_world_sensor).map(([k, T]) => [k, [T[0][3], T[1][3]]]));
+    const M = Object.fromEntries(Object.entries(doc.T_world_marker).map(([k, T]) => [k, [T[0][3], T[1][3]]]));
+    const pts = [...Object.values(S), ...Object.values(M)];
+    if (!pts.length) return;
+    const xs = pts.map((p) => p[0]), ys = pts.map((p) => p[1]);
+    const x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
+    const W = 640, H = 360, pad = 40;
+    const k = Math.min((W - 2 * pad) / Math.max(x1 - x0, 0.1), (H - 2 * pad) / Math.max(y1 - y0, 0.1));
+    const P = (p) => [pad + (p[0] - x0) * k, H - pad - (p[1] - y0) * k];  // Z up: world y up on screen
+    for (const e of doc.edges) {
+      if (!S[e.sensor] || !M[String(e.marker)]) continue;
+      const [ax, ay] = P(S[e.sensor]), [bx, by] = P(M[String(e.marker)]);
+      const ln = svg("line", { x1: ax, y1: ay, x2: bx, y2: by, stroke: edgeColour(e.residual_m),
+        "stroke-width": e.in_chain ? 4 : 2, class: "edge" });
+      ln.append(svg("title", {}, `${e.sensor} – marker ${e.marker}: ${mm(e.residual_m)} mm`));
+      g.append(ln);
+    }
+    for (const [m, p] of Object.entries(M)) {
+      const [x, y] = P(p);
+      g.append(svg("rect", { x: x - 7, y: y - 7, width: 14, height: 14, fill: m === "1" ? "#111" : "#555", class: "marker" }));
+      g.append(svg("text", { x: x + 9, y: y + 4, "font-size": 12 }, m));
+    }
+    for (const [s, p] of Object.entries(S)) {
+      const [x, y] = P(p);
+      g.append(svg("circle", { cx: x, cy: y, r: 9, fill: "#0b5cad", class: "sensor" }));
+      g.append(svg("text", { x: x + 11, y: y - 8, "font-size": 13, "font-weight": 600 }, s));
+    }
+  }
+
+  function show(doc, pending) {
     const sens = Object.keys(doc.T_world_sensor).sort();
     const worst = Math.max(...sens.map((s) => doc.sensor_residual_m[s] || 0));
-    $("res-summary").textContent = `Version ${doc.version} (${doc.created_iso}, ${doc.meta.source || "captured"}): `
+    const head = pending ? "New calibration (not saved yet — accept or reject below)" : `Version ${doc.version}`;
+    $("res-summary").textContent = `${head} (${doc.created_iso}, ${doc.meta.source || "captured"}): `
       + `${sens.length} sensors, ${doc.edges.length} sensor–marker edges, worst sensor residual ${(worst * 1000).toFixed(2)} mm.`;
+    drawGraph(doc);
+    const icp = Object.fromEntries((doc.meta.icp || []).map((r) => [r.sensor, r]));
     const tb = $("sensor-table").querySelector("tbody"); tb.replaceChildren();
     for (const s of sens) {
       const T = doc.T_world_sensor[s];
       const e = (doc.true_errors || {})[s];
       const c = e ? `${(e.chained_pos_m * 1000).toFixed(1)} / ${e.chained_rot_deg.toFixed(2)}` : "—";
-      const o = el("span", e ? `${(e.optimised_pos_m * 1000).toFixed(1)} / ${e.optimised_rot_deg.toFixed(2)}` : "—");
-      if (e) o.className = e.optimised_pos_m <= 0.01 && e.optimised_rot_deg <= 0.5 ? "good" : "warn";
+      const fp = e ? (e.final_pos_m ?? e.optimised_pos_m) : null, fr = e ? (e.final_rot_deg ?? e.optimised_rot_deg) : null;
+      const o = el("span", e ? `${(fp * 1000).toFixed(1)} / ${fr.toFixed(2)}` : "—");
+      if (e) o.className = fp <= 0.01 && fr <= 0.5 ? "good" : "warn";
+      const r = icp[s];
+      const icpTxt = !r ? "—" : (r.accepted ? "kept" : "not kept") + (r.fitness !== undefined
+        ? ` (fitness ${r.fitness_before.toFixed(2)}→${r.fitness.toFixed(2)}, RMSE ${r.inlier_rmse_before_mm.toFixed(1)}→${r.inlier_rmse_mm.toFixed(1)} mm)` : "");
+      const icpCell = el("span", icpTxt, r ? { title: r.reason } : {});
       tb.append(row([s, `${T[0][3].toFixed(3)}, ${T[1][3].toFixed(3)}, ${T[2][3].toFixed(3)}`,
-        mm(doc.sensor_residual_m[s]), c, o]));
+        mm(doc.sensor_residual_m[s]), icpCell, c, o]));
     }
     const eb = $("edge-table").querySelector("tbody"); eb.replaceChildren();
     for (const e of doc.edges) {
@@ -55,6 +104,89 @@
     if (!rej.length) ul.append(el("li", "None."));
     for (const o of rej) ul.append(el("li", `${o.sensor} · marker ${o.marker}: ${o.reason}`));
   }
+
+  const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+  async function poll(id, onTick) {
+    for (;;) {
+      const j = await gaitrig.api(`/api/calibration/captures/${id}`);
+      onTick(j);
+      if (j.state !== "capturing" && j.state !== "computing") return j;
+      await sleep(700);
+    }
+  }
+
+  function progress(j) {
+    const t = $("cap-progress"); t.hidden = false;
+    const tb = t.querySelector("tbody"); tb.replaceChildren();
+    for (const [n, p] of Object.entries(j.nodes)) {
+      const bar = el("progress", null, { max: String(j.frames), value: String(p.received), "aria-label": `${n} frames` });
+      const cell = el("span"); cell.append(bar, ` ${p.received} / ${j.frames}`);
+      tb.append(row([n, cell, p.error || ""]));
+    }
+    $("cap-state").textContent = j.state === "capturing" ? "Capturing…" : j.state === "computing"
+      ? "Computing: markers → 3D corners → graph → joint optimisation → ICP…" : "";
+  }
+
+  let pendingJob = null;
+  $("cap-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    $("cap-error").textContent = ""; $("decide").hidden = true; pendingJob = null;
+    const btn = ev.target.querySelector("button"); btn.disabled = true;
+    try {
+      const j0 = await gaitrig.api("/api/calibration/capture", { method: "POST", body: JSON.stringify({
+        ids: $("cap-ids").value, size_m: Number($("cap-size").value) / 100, frames: Number($("cap-frames").value) }) });
+      const j = await poll(j0.id, progress);
+      if (j.state === "failed") {
+        $("cap-state").textContent = "Calibration failed.";
+        $("cap-error").textContent = j.message + (j.unreachable ? ` (unreachable: ${j.unreachable.join(", ")})` : "");
+      } else if (j.state === "done") {
+        $("cap-state").textContent = "Done: check the graph and the residuals, then accept or reject.";
+        show(j.result, true);
+        pendingJob = j.id; $("decide").hidden = false;
+      }
+    } catch (e) {
+      $("cap-error").textContent = String(e.message || e);
+    } finally { btn.disabled = false; }
+  });
+  $("accept").addEventListener("click", async () => {
+    if (pendingJob === null) return;
+    const r = await gaitrig.api(`/api/calibration/captures/${pendingJob}/accept`, { method: "POST" });
+    $("decide").hidden = true; pendingJob = null;
+    $("cap-state").textContent = `Saved as version ${r.version} and applied to ${r.applied_to.join(", ") || "no node"}.`;
+    await refresh();
+  });
+  $("reject").addEventListener("click", async () => {
+    if (pendingJob === null) return;
+    await gaitrig.api(`/api/calibration/captures/${pendingJob}/reject`, { method: "POST" });
+    $("decide").hidden = true; pendingJob = null;
+    $("cap-state").textContent = "Rejected: the active calibration is unchanged.";
+    await refresh();
+  });
+
+  function showCheck(j) {
+    const t = $("check-table"); t.hidden = false;
+    const tb = t.querySelector("tbody"); tb.replaceChildren();
+    for (const c of j.checks || []) {
+      const st = el("span", c.status); st.className = c.status === "ok" ? "good" : "warn";
+      tb.append(row([c.sensor, st, c.moved_mm === null ? "—" : c.moved_mm.toFixed(1),
+        c.rotated_deg === null ? "—" : c.rotated_deg.toFixed(2), (c.markers || []).join(" "), c.reason || ""]));
+    }
+    const moved = j.moved || [];
+    $("check-state").textContent = j.state === "failed" ? j.message
+      : moved.length ? `Warning: ${moved.join(", ")} moved since the calibration — recalibrate before recording.`
+      : j.message;
+    $("check-state").className = moved.length || j.state === "failed" ? "warn" : "good";
+  }
+  $("check-btn").addEventListener("click", async (ev) => {
+    const btn = ev.target; btn.disabled = true;
+    $("check-state").className = ""; $("check-state").textContent = "Capturing fresh frames…";
+    try {
+      const j0 = await gaitrig.api("/api/calibration/live-check", { method: "POST", body: JSON.stringify({ frames: 5 }) });
+      showCheck(await poll(j0.id, () => {}));
+    } catch (e) {
+      $("check-state").className = "warn"; $("check-state").textContent = String(e.message || e);
+    } finally { btn.disabled = false; }
+  });
 
   async function history() {
     const rows = await gaitrig.api("/api/calibration");
@@ -75,7 +207,7 @@
 
   async function refresh() {
     const rows = await history();
-    if (rows.length) show(await gaitrig.api("/api/calibration/active"));
+    if (rows.length && pendingJob === null) show(await gaitrig.api("/api/calibration/active"), false);
   }
 
   $("sim-form").addEventListener("submit", async (ev) => {
@@ -86,7 +218,7 @@
     try {
       const doc = await gaitrig.api("/api/calibration/simulate", { method: "POST",
         body: JSON.stringify({ frames: Number($("sim-frames").value), seed: Number($("sim-seed").value) }) });
-      show(doc);
+      show(doc, false);
       await history();
     } catch (e) {
       $("sim-error").textContent = String(e.message || e);
