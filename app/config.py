@@ -95,6 +95,14 @@ class Settings(BaseSettings):
         "gaitrig (needs that driver installed). Default: SQLite in the data folder.",
     )
 
+    kscc_peers: list[str] = Field(
+        default_factory=list,
+        description="Other sites' gaitrig servers a KSCC two-site link may connect to: base "
+        "URLs (https://lab-b.example.org:8000 — scheme, host and port must match) or "
+        "host[:port] (any scheme; any port without one). Empty: no remote site. Environment: "
+        "GAITRIG_KSCC_PEERS='[\"https://lab-b.example.org:8000\"]'.",
+    )
+
     @property
     def db_path(self) -> Path:
         """SQLite database file (used when no database_url is set)."""

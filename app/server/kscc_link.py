@@ -16,6 +16,10 @@ an unshared node is answered with ``{"type": "refused", "reason": ...}`` and clo
 and then one ``{"type": "skeleton", "seq", "t", "positions", "states"}`` per frame of the
 node's first body (``null`` for joints without an estimate), or ``{"type": "status",
 "connected": false}`` while the node is offline.
+
+Only configured peers. A remote side may only name a server listed in the setting
+``kscc_peers`` (:func:`check_peer`): otherwise any logged-in user could make this server
+open connections to any address it can reach.
 """
 
 from __future__ import annotations
@@ -28,9 +32,10 @@ import secrets
 import time
 import warnings
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
+from urllib.parse import urlsplit
 
 import numpy as np
 from numpy.typing import NDArray
@@ -91,6 +96,61 @@ def link_url(base: str) -> str:
     if b.endswith("/api/kscc/link"):
         return b
     return b + "/api/kscc/link"
+
+
+class PeerNotAllowedError(InputError):
+    """A remote site that is not in the ``kscc_peers`` setting (HTTP 403)."""
+
+
+_DEFAULT_PORTS = {"ws": 80, "wss": 443}
+
+
+def _endpoint(ws_url: str) -> tuple[str, str, int]:
+    """``(scheme, host, port)`` of a ws(s) URL, the port defaulted by the scheme."""
+    u = urlsplit(ws_url)
+    try:
+        port = u.port
+    except ValueError:
+        port = -1
+    if not u.hostname or port == -1:
+        raise InputError(f"remote server URL {ws_url!r} has no valid host and port")
+    return u.scheme, u.hostname.lower(), port if port is not None else _DEFAULT_PORTS[u.scheme]
+
+
+def _peer_matches(peer: str, target: tuple[str, str, int]) -> bool:
+    p = peer.strip()
+    if not p:
+        return False
+    try:
+        if "://" in p:  # a full base URL: scheme, host and port must all agree
+            return _endpoint(link_url(p)) == target
+        u = urlsplit("//" + p)  # host[:port], any scheme
+        return (u.hostname or "").lower() == target[1] and u.port in (None, target[2])
+    except (InputError, ValueError):
+        return False  # a malformed entry allows nothing
+
+
+def check_peer(url: str, peers: Sequence[str]) -> str:
+    """The link websocket URL of ``url`` if it names a configured peer.
+
+    Args:
+        url: The remote server address an operator typed.
+        peers: The ``kscc_peers`` setting.
+
+    Raises:
+        InputError: not an http(s)/ws(s) URL.
+        PeerNotAllowedError: the server is not among ``peers``.
+    """
+    ws = link_url(url)
+    target = _endpoint(ws)
+    if not any(_peer_matches(p, target) for p in peers):
+        allowed = ", ".join(repr(p) for p in peers) if peers else "none"
+        raise PeerNotAllowedError(
+            f"remote site {url!r} is not an allowed peer of this server; an administrator "
+            "must add it to the setting kscc_peers (environment GAITRIG_KSCC_PEERS, e.g. "
+            f"'[\"https://{target[1]}:{target[2]}\"]') and restart it. Allowed now: {allowed}"
+        )
+    return ws
 
 
 def skeleton_json(positions: FloatArray, states: NDArray[np.uint8]) -> dict[str, Any]:
@@ -376,6 +436,11 @@ class KsccManager:
         self._link_queues: dict[str, set[asyncio.Queue[str]]] = {}
         hub.skeleton_listeners.append(self._on_node_skeleton)
 
+    @property
+    def peers(self) -> list[str]:
+        """The ``kscc_peers`` setting: servers a remote side may connect to."""
+        return list(getattr(getattr(self.hub, "settings", None), "kscc_peers", None) or [])
+
     # -------------------------------------------------------------- local nodes
 
     def _on_node_skeleton(self, s: Any) -> None:
@@ -440,7 +505,7 @@ class KsccManager:
                                  f"(≥ {MIN_TOKEN_LEN} characters) its operator set when "
                                  "sharing the node")
             else:
-                link_url(src.url)
+                check_peer(src.url, self.peers)
         await self.stop()
         sess = KsccSession(a, b, countdown_s, by_role)
         for side in sess.sides.values():
@@ -467,7 +532,7 @@ class KsccManager:
         import websockets
 
         src = side.source
-        url = link_url(src.url or "")
+        url = link_url(src.url or "")  # checked against kscc_peers by start()
         while self.session is sess:
             try:
                 async with websockets.connect(url, max_size=1 << 20, open_timeout=5,

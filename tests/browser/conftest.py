@@ -125,7 +125,9 @@ def live_server() -> Iterator[LiveServer]:
     cmd = [sys.executable, "-m", "app.cli", "demo", "--port", str(port), "--viewer-port",
            str(vport), "--data-dir", str(tmp), "--nodes", str(N_NODES)]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            env={**os.environ, "PYTHONUNBUFFERED": "1",
+                                 # KSCC tests link to a second server on loopback
+                                 "GAITRIG_KSCC_PEERS": '["127.0.0.1"]'})
     server = LiveServer(f"http://127.0.0.1:{port}", f"http://127.0.0.1:{vport}", password, tmp,
                         N_NODES, proc)
     try:

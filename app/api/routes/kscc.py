@@ -22,25 +22,37 @@ from __future__ import annotations
 
 import logging
 import re
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from typing import Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, HTTPException, Query, Request, status
+from fastapi import APIRouter, FastAPI, HTTPException, Query, Request, status
 from pydantic import BaseModel, Field
 from starlette.websockets import WebSocket
 
 from app.api.deps import CurrentUser, HubDep
-from app.server.kscc_link import MIN_TOKEN_LEN, KsccManager, KsccSession, SourceSpec
+from app.server.kscc_link import (
+    MIN_TOKEN_LEN,
+    KsccManager,
+    KsccSession,
+    PeerNotAllowedError,
+    SourceSpec,
+)
+from app.viewer.active_area import (
+    ActiveArea,
+    ActiveAreaLayer,
+    model_key,
+    node_area,
+    pose_numbers,
+)
 from engine.coverage import (
     SENSOR_MODELS,
-    SensorSpec,
     Trapezoid,
-    active_area_polygon,
     preset_trapezoid,
 )
 from engine.errors import InputError
 
-router = APIRouter(prefix="/kscc", tags=["kscc"])
 log = logging.getLogger("gaitrig.kscc")
 
 _NODE_RE = r"^[A-Za-z0-9_.-]{1,64}$"
@@ -55,18 +67,20 @@ def manager(app: Any) -> KsccManager:
         viewer = getattr(app.state, "viewer", None)
         m = KsccManager(app.state.hub, _viewer_hook(viewer) if viewer is not None else None)
         app.state.kscc = m
-        if viewer is not None:
-            hub = app.state.hub
-
-            def redraw_areas(_s: Any) -> None:
-                try:
-                    _draw_areas(viewer, hub)
-                except Exception:  # never take the node link down
-                    log.exception("could not draw the active areas")
-
-            hub.registry.listeners.append(redraw_areas)
     return m
 
+
+@asynccontextmanager
+async def kscc_lifespan(app: FastAPI) -> AsyncIterator[None]:
+    """Draw every sensor's active area in the 3D view from server start (after the app's
+    own lifespan built the hub and the view), kept current as nodes come and go."""
+    viewer = getattr(app.state, "viewer", None)
+    if viewer is not None:
+        app.state.active_areas = ActiveAreaLayer(viewer.server, app.state.hub)
+    yield
+
+
+router = APIRouter(prefix="/kscc", tags=["kscc"], lifespan=kscc_lifespan)
 
 def _viewer_hook(viewer: Any) -> Any:
     from app.viewer.kscc import populate_kscc
@@ -126,7 +140,10 @@ async def start_session(request: Request, body: SessionIn, user: CurrentUser) ->
         return SourceSpec(s.kind, s.node_id, s.url if s.kind == "remote" else None,
                           s.token if s.kind == "remote" else None)
 
-    sess = await m.start(spec(body.a), spec(body.b), body.countdown_s, body.by_role)
+    try:
+        sess = await m.start(spec(body.a), spec(body.b), body.countdown_s, body.by_role)
+    except PeerNotAllowedError as e:
+        raise HTTPException(status.HTTP_403_FORBIDDEN, str(e)) from None
     return sess.status()
 
 
@@ -223,67 +240,33 @@ def presets(height_m: float, tilt_deg: float = 0.0) -> dict[str, Any]:
     return out
 
 
-def model_key(model: str) -> str:
-    """Preset of a node's reported sensor model."""
-    m = model.lower()
-    if "v1" in m or "360" in m:
-        return "kinect_v1"
-    if "azure" in m or "k4a" in m:
-        return "azure_nfov"
-    return "kinect_v2"
-
-
-def _pose_numbers(T: np.ndarray) -> tuple[float, float]:
-    axis = T[:3, 2]  # optical axis (+Z of the camera) in the world
-    tilt = float(np.degrees(np.arcsin(np.clip(-axis[2], -1.0, 1.0))))
-    return float(T[2, 3]), tilt
-
-
 def _areas(hub: Any) -> list[dict[str, Any]]:
     rows = []
     for s in sorted(hub.registry.nodes.values(), key=lambda s: s.id):
         row: dict[str, Any] = {"node_id": s.id, "connected": s.connected, "model": s.sensor.model,
                                "preset": model_key(s.sensor.model)}
-        if s.sensor.T_world_sensor is None:
-            row["height_m"] = None
-            row["problem"] = "pose unknown: calibrate the rig to get its height and area"
-            rows.append(row)
-            continue
-        T = np.asarray(s.sensor.T_world_sensor, dtype=float)
-        h, tilt = _pose_numbers(T)
-        row["height_m"], row["tilt_deg"] = h, tilt
-        if h <= 0:
-            row["problem"] = f"sensor height {h:.2f} m is not above the floor; check the pose"
+        if s.sensor.T_world_sensor is not None:
+            h, tilt = pose_numbers(np.asarray(s.sensor.T_world_sensor, dtype=float))
+            row["height_m"], row["tilt_deg"] = h, tilt
+            if h > 0:
+                row["presets"] = presets(h, tilt)
         else:
-            row["presets"] = presets(h, tilt)
-            m = SENSOR_MODELS[row["preset"]]
-            hfov, vfov = s.sensor.fov_deg
-            try:
-                poly = active_area_polygon(SensorSpec(s.id, T, float(hfov), float(vfov),
-                                                      m.min_range_m, m.max_range_m))
-                row["polygon"] = [[round(float(x), 3) for x in p[:2]] for p in poly]
-            except InputError as e:
-                row["problem"] = str(e)
+            row["height_m"] = None
+        area = node_area(s)
+        if isinstance(area, ActiveArea):
+            row["polygon"] = [[round(float(x), 3) for x in p[:2]] for p in area.polygon]
+        else:
+            row["problem"] = area
         rows.append(row)
     return rows
-
-
-def _draw_areas(viewer: Any, hub: Any) -> None:
-    from app.viewer.active_area import ActiveArea, populate_active_areas
-
-    areas = [ActiveArea(r["node_id"], np.column_stack([np.asarray(r["polygon"], dtype=float),
-                                                       np.zeros(len(r["polygon"]))]))
-             for r in _areas(hub) if r.get("polygon")]
-    populate_active_areas(viewer.server, areas)
 
 
 @router.get("/active-area")
 async def active_area(request: Request, user: CurrentUser, hub: HubDep) -> list[dict[str, Any]]:
     """Each node's active-area trapezoids from its height (and tilt); drawn in 3D too."""
-    manager(request.app)
-    viewer = getattr(request.app.state, "viewer", None)
-    if viewer is not None:
-        _draw_areas(viewer, hub)
+    layer = getattr(request.app.state, "active_areas", None)
+    if layer is not None:
+        layer.redraw()
     return _areas(hub)
 
 

@@ -262,14 +262,15 @@ def test_active_area_per_node(client: TestClient) -> None:
 class Site:
     """A real server (uvicorn on a free loopback port, in a thread) with a logged-in client."""
 
-    def __init__(self, tmp: Path) -> None:
+    def __init__(self, tmp: Path, peers: list[str] | None = None) -> None:
         import httpx
 
         with socket.socket() as s:
             s.bind(("127.0.0.1", 0))
             self.port = int(s.getsockname()[1])
         settings = Settings(data_dir=tmp, viewer_enabled=False, node_token=NODE_TOKEN,
-                            admin_password=PW, clock_ping_interval_s=0.2)
+                            admin_password=PW, clock_ping_interval_s=0.2,
+                            kscc_peers=peers or [])
         self.server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1",
                                                     port=self.port, log_level="warning"))
         self.thread = threading.Thread(target=self.server.run, daemon=True)
@@ -324,8 +325,8 @@ class ScriptedNode:
 
 @pytest.fixture
 def two_sites(tmp_path: Path) -> Iterator[tuple[Site, Site, list[ScriptedNode]]]:
-    a = Site(tmp_path / "a")
     b = Site(tmp_path / "b")
+    a = Site(tmp_path / "a", peers=[b.base])  # site A may link to site B only
     nodes: list[ScriptedNode] = []
     yield a, b, nodes
     for n in nodes:
@@ -350,6 +351,16 @@ def test_two_site_link(two_sites: tuple[Site, Site, list[ScriptedNode]]) -> None
     r = site_b.http.post("/api/kscc/shares", json={"node_id": "R1", "token": LINK_TOKEN})
     assert r.status_code == 201
     remote = {"kind": "remote", "node_id": "R1", "url": site_b.base}
+    # a server that is not in site A's kscc_peers: refused before any connection, saying
+    # which setting allows it
+    for url in (f"http://127.0.0.1:{site_b.port + 1}", f"https://127.0.0.1:{site_b.port}",
+                "http://10.11.12.13:8000"):
+        r = site_a.http.post("/api/kscc/session", json={
+            "a": {"kind": "node", "node_id": "S1"},
+            "b": {**remote, "url": url, "token": LINK_TOKEN}, "countdown_s": 0})
+        assert r.status_code == 403, r.text
+        assert "kscc_peers" in r.json()["detail"] and url in r.json()["detail"]
+    assert site_a.http.get("/api/kscc/session").status_code == 404  # nothing started
     # wrong token: refused, and the page is told why
     r = site_a.http.post("/api/kscc/session", json={
         "a": {"kind": "node", "node_id": "S1"},
@@ -376,6 +387,28 @@ def test_two_site_link(two_sites: tuple[Site, Site, list[ScriptedNode]]) -> None
     assert site_a.http.delete("/api/kscc/session").status_code == 204
 
 
+def test_peer_matching() -> None:
+    from app.server.kscc_link import PeerNotAllowedError, check_peer
+
+    peers = ["https://lab-b.example.org:8443", "10.0.0.5:8000", "Lab-C.example.org", "bad:port:x"]
+    ok = {"https://lab-b.example.org:8443": "wss://lab-b.example.org:8443/api/kscc/link",
+          "wss://LAB-B.example.org:8443/": "wss://LAB-B.example.org:8443/api/kscc/link",
+          "http://10.0.0.5:8000": "ws://10.0.0.5:8000/api/kscc/link",
+          "https://10.0.0.5:8000": "wss://10.0.0.5:8000/api/kscc/link",
+          "http://lab-c.example.org:9000": "ws://lab-c.example.org:9000/api/kscc/link"}
+    for url, ws in ok.items():
+        assert check_peer(url, peers) == ws
+    for url in ("http://lab-b.example.org:8443",  # scheme differs from the entry
+                "https://lab-b.example.org",  # default port 443 ≠ 8443
+                "http://10.0.0.5:8001", "http://10.0.0.6:8000",
+                "http://10.0.0.5:8000@evil.example.org:8000",  # user-info trick
+                "https://lab-b.example.org.evil.net:8443"):
+        with pytest.raises(PeerNotAllowedError, match="kscc_peers"):
+            check_peer(url, peers)
+    with pytest.raises(PeerNotAllowedError, match="Allowed now: none"):
+        check_peer("http://10.0.0.5:8000", [])
+
+
 def test_3d_view_gets_active_areas_and_both_users(tmp_path: Path) -> None:
     s = Settings(data_dir=tmp_path, viewer_enabled=True, viewer_port=0, node_token=NODE_TOKEN,
                  admin_password=PW, clock_ping_interval_s=0.05)
@@ -390,8 +423,18 @@ def test_3d_view_gets_active_areas_and_both_users(tmp_path: Path) -> None:
         with c.websocket_connect("/ws/node") as w1, c.websocket_connect("/ws/node") as w2:
             _hello(w1, "S1", T1, KINECT_V2)
             _hello(w2, "S2", T2, KINECT_V2)
+            # drawn from server start as the nodes connect, before any KSCC call
+            _wait(lambda: {"/active_area/S1", "/active_area/S2"}
+                  <= set(scene._handle_from_node_name), 5, "active areas at start")
+            assert not hasattr(c.app.state, "kscc")  # type: ignore[attr-defined]
+            layer = c.app.state.active_areas  # type: ignore[attr-defined]
+            layer.toggle.value = False  # the "Active areas" checkbox of the 3D view
+            _wait(lambda: not scene._handle_from_node_name["/active_area/S1"].visible, 5,
+                  "areas hidden by the toggle")
+            layer.toggle.value = True
+            _wait(lambda: scene._handle_from_node_name["/active_area/S2"].visible, 5,
+                  "areas shown again")
             assert len(c.get("/api/kscc/active-area").json()) == 2
-            assert {"/active_area/S1", "/active_area/S2"} <= set(scene._handle_from_node_name)
             c.post("/api/kscc/session", json={"a": {"kind": "node", "node_id": "S1"},
                                               "b": {"kind": "node", "node_id": "S2"},
                                               "countdown_s": 0})
