@@ -68,7 +68,7 @@ from app.transfer import (
     Manifest,
     TransferError,
     build_manifest,
-    read_chunk,
+    chunk_message,
 )
 from engine.errors import GaitrigError, InputError
 
@@ -78,21 +78,21 @@ log = logging.getLogger("gaitrig.node")
 _corrupted: set[tuple[str, int]] = set()
 
 
-async def _test_chunk_hooks(name: str, idx: int, data: bytes) -> bytes:
+async def _test_chunk_hooks(name: str, idx: int, message: bytearray, start: int) -> None:
     """TEST HOOKS of the transfer acceptance tests (environment of the node process):
     ``GAITRIG_TEST_CHUNK_DELAY_S`` slows every chunk down (so a transfer can be
     interrupted), ``GAITRIG_TEST_CORRUPT_CHUNK=<file>:<index>`` flips one byte of that
-    chunk the first time it is sent. ``GAITRIG_TEST_CHUNK_SIZE`` (in :meth:`_manifest`)
-    makes small parts span many chunks."""
+    chunk (at ``message[start]``) the first time it is sent. ``GAITRIG_TEST_CHUNK_SIZE``
+    (in :meth:`_manifest`) makes small parts span many chunks."""
     delay = float(os.environ.get("GAITRIG_TEST_CHUNK_DELAY_S", "0") or 0)
     if delay > 0:
         await asyncio.sleep(delay)
     target = os.environ.get("GAITRIG_TEST_CORRUPT_CHUNK")
-    if target and target == f"{name}:{idx}" and (name, idx) not in _corrupted and data:
+    if (target and target == f"{name}:{idx}" and (name, idx) not in _corrupted
+            and len(message) > start):
         _corrupted.add((name, idx))
         log.warning("TEST HOOK: flipping one byte of %s chunk %d", name, idx)
-        data = bytes([data[0] ^ 0xFF]) + data[1:]
-    return data
+        message[start] ^= 0xFF
 
 
 class NodeRefusedError(RuntimeError):
@@ -241,8 +241,11 @@ class NodeAgent:
         backoff = 0.2
         while not self._stop.is_set():
             try:
+                # compression=None: permessage-deflate would squeeze every transfer
+                # chunk and depth frame through zlib (tens of MB/s) for no gain
                 async with connect(self.server_url, max_size=None, open_timeout=5,
-                                   ping_interval=5, ping_timeout=10) as ws:
+                                   ping_interval=5, ping_timeout=10,
+                                   compression=None) as ws:
                     backoff = 0.2
                     await self._session(ws)
             except NodeRefusedError:
@@ -372,10 +375,14 @@ class NodeAgent:
             header: dict[str, Any] = {"kind": "chunk", "req_id": msg.req_id,
                                       "file": msg.file, "index": idx}
             try:
-                m = await asyncio.to_thread(self._manifest, msg.rec_id)
-                data = await asyncio.to_thread(read_chunk, folder, m, msg.file, idx)
-                data = await _test_chunk_hooks(msg.file, idx, data)
-                await ws.send(encode_binary(header, data))
+                m = self._manifests.get(msg.rec_id)
+                if m is None:
+                    m = await asyncio.to_thread(self._manifest, msg.rec_id)
+                # the chunk is read straight behind its header: one buffer, no copy
+                prefix = encode_binary(header)
+                data = await asyncio.to_thread(chunk_message, folder, m, msg.file, idx, prefix)
+                await _test_chunk_hooks(msg.file, idx, data, len(prefix))
+                await ws.send(data)
             except (GaitrigError, TransferError, OSError) as exc:
                 await ws.send(encode_binary({**header, "error": str(exc)}))
                 return

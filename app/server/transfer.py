@@ -22,6 +22,7 @@ import logging
 import os
 import threading
 import time
+from collections import deque
 from collections.abc import AsyncIterator, Iterable
 from pathlib import Path
 from typing import Any
@@ -34,7 +35,8 @@ from engine.errors import InputError
 
 log = logging.getLogger("gaitrig.transfer")
 
-_BATCH = 256  # chunk indices per request
+WINDOW_BYTES = 32 << 20  # bytes of one file requested ahead (bounds server memory)
+_MAX_BATCH = 4096  # chunk indices per request (protocol limit)
 
 
 class TransferManager:
@@ -93,23 +95,43 @@ class TransferManager:
             raise TransferError(f"node {s.id}: {header['error']}")
         return Manifest.from_json(payload)
 
-    def _fetcher(self, s: NodeSession, rec_id: str) -> Any:
+    def _fetcher(self, s: NodeSession, rec_id: str, chunk_size: int) -> Any:
+        # Two requests of half a window each are outstanding per file: the node always
+        # has the next chunks to send (no round-trip stall between requests) and at most
+        # WINDOW_BYTES per file wait in memory on the server.
+        batch = max(1, min(_MAX_BATCH, WINDOW_BYTES // 2 // max(1, chunk_size)))
+
         async def fetch(name: str, indices: list[int]) -> AsyncIterator[tuple[int, bytes]]:
-            for k in range(0, len(indices), _BATCH):
-                batch = indices[k : k + _BATCH]
+            batches = iter([indices[k : k + batch] for k in range(0, len(indices), batch)])
+            inflight: deque[tuple[int, asyncio.Queue[tuple[dict[str, Any], bytes]], int]] = (
+                deque())
+
+            async def request(b: list[int]) -> None:
                 req_id = next(self._ids)
                 q: asyncio.Queue[tuple[dict[str, Any], bytes]] = asyncio.Queue()
                 self._queues[req_id] = q
-                try:
-                    await self._send(s, dump(ChunkRequest(req_id=req_id, rec_id=rec_id,
-                                                          file=name, indices=batch)))
-                    for _ in batch:
+                inflight.append((req_id, q, len(b)))
+                await self._send(s, dump(ChunkRequest(req_id=req_id, rec_id=rec_id,
+                                                      file=name, indices=b)))
+
+            try:
+                for b in itertools.islice(batches, 2):
+                    await request(b)
+                while inflight:
+                    req_id, q, n = inflight[0]
+                    for _ in range(n):
                         header, payload = await asyncio.wait_for(q.get(), self.timeout_s)
                         if header.get("error"):
                             raise ConnectionError(f"node {s.id}: {header['error']}")
                         yield int(header["index"]), payload
-                finally:
+                    inflight.popleft()
                     del self._queues[req_id]
+                    nxt = next(batches, None)
+                    if nxt is not None:
+                        await request(nxt)
+            finally:
+                for req_id, _, _ in inflight:
+                    self._queues.pop(req_id, None)
 
         return fetch
 
@@ -125,7 +147,8 @@ class TransferManager:
         def progress(done: int, total: int) -> None:
             part.transfer_progress = done / total if total else 1.0
 
-        return await pull(sink, self._fetcher(s, rec.id), concurrency=2, on_progress=progress)
+        return await pull(sink, self._fetcher(s, rec.id, m.chunk_size), concurrency=2,
+                          on_progress=progress)
 
     def start(self, rec_id: str) -> None:
         """Transfer every part of a stopped recording in the background.
@@ -150,26 +173,33 @@ class TransferManager:
         task.add_done_callback(lambda _t: self._tasks.pop(rec_id, None))
 
     async def _run(self, rec: Recording, nodes: list[str]) -> None:
-        for node_id in nodes:
-            part = rec.parts[node_id]
-            was = part.state
-            part.state, part.transfer_progress = "transferring", 0.0
-            try:
-                await self.transfer_part(rec, node_id)
-            except (TransferError, ConnectionError, TimeoutError, OSError, InputError) as exc:
-                part.state = was
-                # Keep why the part was incomplete in the first place (e.g. the node
-                # disconnected mid-recording); only the transfer note is replaced.
-                base = (part.reason or "").split("; transfer failed", 1)[0]
-                if base.startswith("transfer failed"):
-                    base = ""
-                note = f"transfer failed ({exc}); retry when the node is online"
-                part.reason = f"{base}; {note}" if base else note
-                log.warning("recording %s: %s", rec.id, part.reason)
-            else:
-                part.on_server, part.transfer_progress = True, 1.0
-                part.state = "complete" if was == "on_node" else "incomplete"
-                log.info("recording %s: part of %s on the server", rec.id, node_id)
+        # the nodes' parts arrive in parallel (each over its own link)
+        await asyncio.gather(*(self._run_part(rec, n) for n in nodes))
+
+    async def _run_part(self, rec: Recording, node_id: str) -> None:
+        part = rec.parts[node_id]
+        was = part.state
+        part.state, part.transfer_progress = "transferring", 0.0
+        try:
+            await self.transfer_part(rec, node_id)
+        except (TransferError, ConnectionError, TimeoutError, OSError, InputError) as exc:
+            part.state = was
+            # Keep why the part was incomplete in the first place (e.g. the node
+            # disconnected mid-recording); only the transfer note is replaced.
+            base = (part.reason or "").split("; transfer failed", 1)[0]
+            if base.startswith("transfer failed"):
+                base = ""
+            note = f"transfer failed ({exc}); retry when the node is online"
+            part.reason = f"{base}; {note}" if base else note
+            log.warning("recording %s: %s", rec.id, part.reason)
+        except asyncio.CancelledError:
+            part.state = was  # DataSync noted why (e.g. the node dropped); resumed later
+            raise
+        else:
+            part.on_server, part.transfer_progress = True, 1.0
+            part.state = "complete" if was == "on_node" else "incomplete"
+            log.info("recording %s: part of %s on the server", rec.id, node_id)
+        finally:
             self.recordings.save()
 
     # ------------------------------------------------------------------ running transfers

@@ -20,6 +20,7 @@ from app.transfer._manifest import (
     FileEntry,
     Manifest,
     build_manifest,
+    chunk_message,
     read_chunk,
     safe_relative_path,
 )
@@ -39,6 +40,7 @@ __all__ = [
     "TransferError",
     "TransferSink",
     "build_manifest",
+    "chunk_message",
     "per_chunk",
     "pull",
     "read_chunk",

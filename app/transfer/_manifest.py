@@ -10,7 +10,7 @@ from typing import Any
 
 from app.transfer._errors import ManifestError
 
-DEFAULT_CHUNK_SIZE = 1 << 20  # 1 MiB: large enough for throughput, small to retry
+DEFAULT_CHUNK_SIZE = 4 << 20  # 4 MiB: few messages and hash calls per second, cheap to retry
 MAX_CHUNK_SIZE = 16 << 20
 MAX_FILES = 10_000
 
@@ -155,3 +155,29 @@ def read_chunk(root: str | Path, manifest: Manifest, name: str, index: int) -> b
     with open(Path(root) / safe_relative_path(name), "rb") as fh:
         fh.seek(index * manifest.chunk_size)
         return fh.read(manifest.chunk_size)
+
+
+def chunk_message(root: str | Path, manifest: Manifest, name: str, index: int,
+                  prefix: bytes = b"") -> bytearray:
+    """``prefix`` (e.g. a message header) followed by chunk ``index`` of file ``name``, read
+    straight into one buffer (node side: the chunk is not copied into the message).
+
+    Raises:
+        ManifestError: no such chunk, or the file is shorter than the manifest says.
+    """
+    entry = manifest.file(name)
+    if not 0 <= index < entry.chunk_count():
+        raise ManifestError(f"{name!r} has no chunk {index}")
+    cs = manifest.chunk_size
+    buf = bytearray(len(prefix) + max(0, min(cs, entry.size - index * cs)))
+    buf[: len(prefix)] = prefix
+    view = memoryview(buf)[len(prefix):]
+    with open(Path(root) / safe_relative_path(name), "rb", buffering=0) as fh:
+        fh.seek(index * cs)
+        while view:
+            n = fh.readinto(view)
+            if not n:
+                raise ManifestError(f"{name!r} is shorter than its manifest says "
+                                    f"(chunk {index}); describe the part again")
+            view = view[n:]
+    return buf

@@ -73,22 +73,35 @@ async def pull(
             if not todo:
                 return
             received: set[int] = set()
-            # Receive and verify/write overlap: a writer thread drains a short queue
-            # while the next chunks arrive (hashing and pwrite release the GIL).
-            pending: asyncio.Queue[tuple[int, bytes] | None] = asyncio.Queue(maxsize=8)
+            # Three stages overlap: the next chunks arrive (event loop) while one thread
+            # verifies and writes chunk k and another feeds chunk k-1 to the running
+            # whole-file SHA-256 (hashlib and pwrite release the GIL).
+            pending: asyncio.Queue[tuple[int, bytes] | None] = asyncio.Queue(maxsize=4)
 
             async def writer(pending: asyncio.Queue[tuple[int, bytes] | None] = pending,
                              received: set[int] = received) -> Exception | None:
                 err: Exception | None = None
-                while (item := await pending.get()) is not None:
-                    idx, data = item
-                    try:
-                        await asyncio.to_thread(sink.write_chunk, name, idx, data)
-                        received.add(idx)
-                    except CorruptChunkError as exc:
-                        err = exc
-                    if on_progress is not None:
-                        on_progress(sink.bytes_done, total)
+                hashing: asyncio.Future[None] | None = None
+                try:
+                    while (item := await pending.get()) is not None:
+                        idx, data = item
+                        try:
+                            new = await asyncio.to_thread(sink.write_chunk, name, idx, data,
+                                                          hash_file=False)
+                        except CorruptChunkError as exc:
+                            err = exc
+                        else:
+                            received.add(idx)
+                            if new:
+                                if hashing is not None:
+                                    await hashing  # keeps the running hash in chunk order
+                                hashing = asyncio.ensure_future(
+                                    asyncio.to_thread(sink.hash_chunk, name, idx, data))
+                        if on_progress is not None:
+                            on_progress(sink.bytes_done, total)
+                finally:
+                    if hashing is not None:
+                        await hashing
                 return err
 
             writer_task = asyncio.create_task(writer())
@@ -96,7 +109,15 @@ async def pull(
                 async for item in fetch(name, todo):
                     if writer_task.done():
                         break  # the writer failed (e.g. disk full): stop receiving
-                    await pending.put(item)
+                    if pending.full():  # wait for room, unless the writer dies meanwhile
+                        put = asyncio.ensure_future(pending.put(item))
+                        await asyncio.wait({put, writer_task},
+                                           return_when=asyncio.FIRST_COMPLETED)
+                        if not put.done():
+                            put.cancel()
+                            break
+                    else:
+                        pending.put_nowait(item)
             except RETRYABLE as exc:
                 last = exc
             finally:

@@ -18,6 +18,7 @@ import errno
 import hashlib
 import os
 import shutil
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -60,6 +61,8 @@ class TransferSink:
         self.manifest = manifest
         self.incoming = self.dest / ".incoming"
         self._done: dict[str, set[int]] = {f.name: set() for f in manifest.files}
+        self._bytes_done = 0
+        self._lock = threading.Lock()  # chunks of several files are written from threads
         # Running whole-file hash while chunks arrive in order from chunk 0; None once
         # they don't (then finalize reads the file back).
         self._running: dict[str, tuple[int, Any] | None] = {}
@@ -108,6 +111,10 @@ class TransferSink:
     def _part_path(self, name: str) -> Path:
         return self.incoming / (str(safe_relative_path(name)) + ".part")
 
+    def _chunk_len(self, f: FileEntry, index: int) -> int:
+        cs = self.manifest.chunk_size
+        return max(0, min(cs, f.size - index * cs))
+
     def _scan_existing(self) -> None:
         cs = self.manifest.chunk_size
         for f in self.manifest.files:
@@ -116,6 +123,7 @@ class TransferSink:
                     fh.seek(i * cs)
                     if hashlib.sha256(fh.read(cs)).hexdigest() == expected:
                         self._done[f.name].add(i)
+                        self._bytes_done += self._chunk_len(f, i)
 
     # --------------------------------------------------------------------- API
     def missing_chunks(self) -> list[tuple[str, int]]:
@@ -125,20 +133,27 @@ class TransferSink:
 
     @property
     def bytes_done(self) -> int:
-        cs = self.manifest.chunk_size
-        total = 0
-        for f in self.manifest.files:
-            for i in self._done[f.name]:
-                total += min(cs, f.size - i * cs) if f.size else 0
-        return total
+        """Bytes of the chunks verified and written so far."""
+        return self._bytes_done
 
     @property
     def progress(self) -> float:
         total = self.manifest.total_bytes
         return 1.0 if total == 0 else self.bytes_done / total
 
-    def write_chunk(self, name: str, index: int, data: bytes) -> None:
+    def write_chunk(self, name: str, index: int, data: bytes | bytearray | memoryview, *,
+                    hash_file: bool = True) -> bool:
         """Verify and store one chunk.
+
+        Args:
+            name, index: which chunk.
+            data: its bytes (not copied).
+            hash_file: also feed the running whole-file hash (:meth:`hash_chunk`); a
+                caller that overlaps the two in different threads passes False and calls
+                :meth:`hash_chunk` itself, in chunk order, after this returned True.
+
+        Returns:
+            True if the chunk was new (False: it was already stored).
 
         Raises:
             CorruptChunkError: the bytes do not match the manifest's hash.
@@ -147,18 +162,36 @@ class TransferSink:
         entry = self.manifest.file(name)
         if not 0 <= index < entry.chunk_count():
             raise ManifestError(f"{name!r} has no chunk {index}")
+        if len(data) != self._chunk_len(entry, index) and entry.size:
+            raise CorruptChunkError(f"chunk {index} of {name!r} has {len(data)} bytes, "
+                                    f"expected {self._chunk_len(entry, index)}")
         if hashlib.sha256(data).hexdigest() != entry.chunk_sha256[index]:
             raise CorruptChunkError(f"chunk {index} of {name!r} failed its SHA-256 check")
         if index in self._done[name]:
-            return
+            return False
         try:
             fd = os.open(self._part_path(name), os.O_WRONLY)
             try:
-                os.pwrite(fd, data, index * self.manifest.chunk_size)
+                view = memoryview(data)
+                off = index * self.manifest.chunk_size
+                while view:  # pwrite may write less than asked
+                    n = os.pwrite(fd, view, off)
+                    view, off = view[n:], off + n
             finally:
                 os.close(fd)
         except OSError as exc:
             raise _storage_error(exc, f"writing {name!r}") from exc
+        with self._lock:
+            self._done[name].add(index)
+            self._bytes_done += len(data)
+        if hash_file:
+            self.hash_chunk(name, index, data)
+        return True
+
+    def hash_chunk(self, name: str, index: int, data: bytes | bytearray | memoryview) -> None:
+        """Feed a verified chunk to the file's running SHA-256 (call in chunk order; a
+        chunk out of order drops the running hash and :meth:`finalize` reads the file
+        back instead)."""
         running = self._running.get(name)
         if running is not None:
             nxt, hasher = running
@@ -167,7 +200,6 @@ class TransferSink:
                 self._running[name] = (nxt + 1, hasher)
             else:
                 self._running[name] = None
-        self._done[name].add(index)
 
     def seal_file(self, name: str) -> None:
         """Hash and flush a file whose chunks have all arrived (before finalize, so
