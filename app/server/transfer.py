@@ -141,8 +141,11 @@ class TransferManager:
         if s is None or not s.connected:
             raise ConnectionError(f"node {node_id} is offline")
         part = rec.parts[node_id]
+        log.info("recording %s: asking %s for the manifest of its part", rec.id, node_id)
         m = await self.manifest(s, rec.id)
         sink = await asyncio.to_thread(TransferSink, self.part_dir(rec.id, node_id), m)
+        log.info("recording %s: receiving %d of %d bytes from %s", rec.id,
+                 m.total_bytes - sink.bytes_done, m.total_bytes, node_id)
 
         def progress(done: int, total: int) -> None:
             part.transfer_progress = done / total if total else 1.0
