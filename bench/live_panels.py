@@ -195,7 +195,7 @@ async def _panels(port: int, token: str, n_nodes: int, warmup: float, seconds: f
             h = json.loads(msg[4:4 + hlen])
             img = cv2.imdecode(np.frombuffer(msg, np.uint8, offset=4 + hlen), cv2.IMREAD_COLOR)
             t_drawn = time.time()  # the page acknowledges once the panel is drawn
-            await ws.send('{"type":"ack"}')
+            await ws.send(json.dumps({"type": "ack", "node": h["node"]}))
             if img is None:
                 raise ValueError(f"panel of {h['node']} is not a JPEG")
             if t_start is not None and t_start <= t_recv <= t_start + seconds:

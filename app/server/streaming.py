@@ -35,6 +35,7 @@ import json
 import logging
 import struct
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -125,18 +126,24 @@ def decode_pair(node: str, seq: int, depth: LatestImage,
 class Watcher:
     """One browser: newest undelivered panel per node, woken when one arrives.
 
-    Flow control is by credit: at most ``window`` panels may be unacknowledged (the page
-    acknowledges each panel once drawn), so a slow page never has a backlog in the
-    socket buffers; meanwhile newer panels replace older ones in :attr:`pending`.
+    Flow control is by credit per node: at most ``window`` panels of a node may be
+    unacknowledged (the page acknowledges each panel once drawn, naming its node), so a
+    slow page never has a backlog in the socket buffers — newer panels replace older ones
+    in :attr:`pending` meanwhile — and one node's panels never wait for another's. Two
+    per node keep a node's rate when the round trip to the page is long (a loaded
+    machine) without adding more than a panel of delay.
     """
 
     send: Callable[[bytes], Any]
-    window: int = 4
+    window: int = 2
     pending: dict[str, Panel] = field(default_factory=dict)
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     in_flight: int = 0
     sent: int = 0
     dropped: int = 0
+    # node → its unacknowledged panels; oldest node first, for acks that name no node
+    _flight: dict[str, int] = field(default_factory=dict)
+    _order: deque[str] = field(default_factory=deque)
 
     def offer(self, panel: Panel) -> None:
         if panel.node in self.pending:
@@ -144,9 +151,18 @@ class Watcher:
         self.pending[panel.node] = panel
         self.wake.set()
 
-    def ack(self, n: int = 1) -> None:
-        """The page drew ``n`` panels."""
-        self.in_flight = max(0, self.in_flight - max(0, n))
+    def ack(self, n: int = 1, node: str | None = None) -> None:
+        """The page drew ``n`` panels (of ``node``; None: the oldest ones in flight)."""
+        for _ in range(max(0, min(n, 64))):
+            if node is not None and self._flight.get(node):
+                self._order.remove(node)
+                done = node
+            elif self._order:
+                done = self._order.popleft()
+            else:
+                break
+            self._flight[done] -= 1
+            self.in_flight -= 1
         self.wake.set()
 
     async def run(self) -> None:
@@ -154,9 +170,10 @@ class Watcher:
         while True:
             await self.wake.wait()
             self.wake.clear()
-            while self.pending and self.in_flight < self.window:
-                node = next(iter(self.pending))
+            for node in [k for k in self.pending if self._flight.get(k, 0) < self.window]:
                 panel = self.pending.pop(node)
+                self._flight[node] = self._flight.get(node, 0) + 1
+                self._order.append(node)
                 self.in_flight += 1
                 await self.send(panel.message)
                 self.sent += 1

@@ -2,8 +2,9 @@
 
 ``WS /api/live/ws`` (session cookie required; closes with 4401 otherwise) streams each
 node's newest depth panel as binary messages (see :mod:`app.server.streaming`); the page
-acknowledges each drawn panel with ``{"type": "ack"}`` (at most a few panels are in
-flight per page: a slow page skips frames instead of building a backlog) and may send
+acknowledges each drawn panel with ``{"type": "ack", "node": <its node>}`` (at most two
+panels per node are in flight per page: a slow page skips frames instead of building a
+backlog) and may send
 ``{"type": "time", "echo": <its clock>}`` and gets ``{"type": "time", "t":
 <server clock>, "echo": ...}`` back, to convert capture times to its own clock.
 ``GET /api/live/status`` → requested rate, per-node panel rates, sent/dropped counters,
@@ -103,7 +104,8 @@ async def live_socket(ws: WebSocket) -> None:
             with contextlib.suppress(ValueError, TypeError, AttributeError):
                 m = json.loads(text)
                 if m.get("type") == "ack":
-                    watcher.ack(int(m.get("n", 1)))
+                    node = m.get("node")
+                    watcher.ack(int(m.get("n", 1)), node if isinstance(node, str) else None)
                 elif m.get("type") == "time":
                     await ws.send_text(json.dumps({"type": "time", "t": time.time(),
                                                    "echo": m.get("echo")}))

@@ -92,15 +92,21 @@ def test_watcher_drops_instead_of_queueing() -> None:
         w = Watcher(send=send, window=2)
         task = asyncio.create_task(w.run())
         for k in range(50):
-            w.offer(Panel("S1", k, bytes([k]), None))
-            w.offer(Panel("S2", k, bytes([k]), None))
+            w.offer(Panel("S1", k, b"1" + bytes([k]), None))
+            w.offer(Panel("S2", k, b"2" + bytes([k]), None))
             await asyncio.sleep(0)
         await asyncio.sleep(0.01)
-        assert w.in_flight == 2 and len(sent) == 2  # nothing more until the page acks
+        # two panels per node, then nothing more until the page acks
+        assert w.in_flight == 4 and len(sent) == 4
         assert len(w.pending) <= 2  # at most the newest panel per node waits
-        w.ack(2)
+        w.ack(1, "S2")  # S2's credit frees S2's newest panel only
         await asyncio.sleep(0.01)
-        assert sent[-1] == bytes([49])  # after the acks, the newest panels go out
+        assert len(sent) == 5 and sent[-1] == b"2" + bytes([49]) and "S1" in w.pending
+        w.ack(2)  # acks without a node free the oldest in flight: S1's
+        await asyncio.sleep(0.01)
+        assert sent[-1] == b"1" + bytes([49]) and not w.pending
+        w.ack(99)
+        assert w.in_flight == 0
         task.cancel()
         return w
 
