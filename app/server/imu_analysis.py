@@ -382,42 +382,12 @@ def fused_job(recordings: dict[str, ImuRecording], skeleton: SkeletonSeries, *,
 # -------------------------------------------------------------------------- simulation
 
 
-def _jump_height(t: FloatArray, jumps: FloatArray, flight_v: float = 2.2, push: float = 0.25,
-                 land: float = 0.06) -> FloatArray:
-    """Torso height offset of standing vertical jumps starting at ``jumps`` (s).
-
-    Push-off at constant acceleration, ballistic flight, a half-sine impact deceleration
-    (the landing spike every IMU and the depth torso see), then a smooth return to standing
-    height — the same kinematics as the engine's synchronisation tests.
-    """
-    z = np.zeros_like(t)
-    a_push = flight_v / push
-    flight = 2 * flight_v / G
-    a_land = np.pi * flight_v / (2 * land)
-    h_push = 0.5 * a_push * push ** 2
-    h0 = h_push - flight_v * land + a_land * land ** 2 / np.pi
-    for t0 in jumps:
-        s = t - t0
-        m = (s >= 0) & (s < push)
-        z[m] += 0.5 * a_push * s[m] ** 2
-        m = (s >= push) & (s < push + flight)
-        u = s[m] - push
-        z[m] += h_push + flight_v * u - 0.5 * G * u ** 2
-        m = (s >= push + flight) & (s < push + flight + 2 * land)
-        w = np.minimum(s[m] - push - flight, land)
-        z[m] += h_push - flight_v * w + a_land * land / np.pi * (
-            w - land / np.pi * np.sin(np.pi * w / land))
-        m = (s >= push + flight + 2 * land) & (s < push + flight + 0.6)
-        u = (s[m] - push - flight - 2 * land) / (0.6 - 2 * land)
-        z[m] += h0 * (1 - u ** 3 * (10 - 15 * u + 6 * u ** 2))
-    return z
-
-
 def simulate_session(seed: int = 0, fs: float = 100.0, depth_noise_m: float = 0.01,
                      ) -> dict[str, Any]:
     """A whole seed-002 protocol in simulation: the nine IMUs lie on a plank, are strapped
-    to the walker, the subject jumps five times, stands, then walks; every IMU clock is
-    offset by up to ±2 s and the depth skeleton (30 Hz) carries Kinect-like joint noise.
+    to the walker, the subject jumps five times, stands straight (the calibration pose),
+    then walks; every IMU clock is offset by up to ±2 s and the depth skeleton (30 Hz)
+    carries ``depth_noise_m`` of white joint noise.
 
     Returns:
         ``recordings`` (sensor -> ImuRecording, own clocks), ``depth`` (noisy skeleton),
@@ -431,25 +401,28 @@ def simulate_session(seed: int = 0, fs: float = 100.0, depth_noise_m: float = 0.
         quat_slerp,
         quat_to_matrix,
     )
-    from engine.sim.imu import WALKER_BONE_OF_SENSOR, simulate_imu
+    from engine.sim.imu import (
+        WALKER_BONE_OF_SENSOR,
+        Jumping,
+        StandingStart,
+        simulate_imu,
+    )
     from engine.sim.walker import Walker, WalkerParams
     from engine.skeleton import KINECT_V2, TrackingState
 
     rng = np.random.default_rng(seed)
     t_plank_end, t_jump0, t_walk, t_end = 3.0, 5.0, 15.0, 21.0
     jumps = t_jump0 + np.array([0.0, 1.3, 2.5, 3.9, 5.1])
-    walker = Walker(WalkerParams(), [0.0, 0.0, 0.0], [6.0, 0.3, 0.0], start_time=t_walk,
-                    seed=seed + 5)
+    subject = Jumping(StandingStart(Walker(WalkerParams(), [0.0, 0.0, 0.0], [6.0, 0.3, 0.0],
+                                           start_time=t_walk, seed=seed + 5)), jumps)
     t = np.arange(0.0, t_end, 1.0 / fs)
-    dz = _jump_height(t, jumps)
-    frames = walker.bone_frames(np.maximum(t, t_walk))
+    frames = subject.bone_frames(t)
     q_plank = quat_from_axis_angle([0.0, 1.0, 0.0], 0.3)
     k0 = int(t_jump0 * fs)
     recordings: dict[str, ImuRecording] = {}
     offsets: dict[str, float] = {}
     for i, sensor in enumerate(PAPER_SENSORS):
-        bone = frames[WALKER_BONE_OF_SENSOR[sensor]].copy()
-        bone[:, 2, 3] += dz
+        bone = frames[WALKER_BONE_OF_SENSOR[sensor]]
         T_bs = make_transform(quat_to_matrix(quat_from_axis_angle(rng.normal(size=3), 0.5)),
                               [0.0, 0.04, -0.1])
         T_ws = bone @ T_bs
@@ -469,14 +442,12 @@ def simulate_session(seed: int = 0, fs: float = 100.0, depth_noise_m: float = 0.
         rec.meta["format"] = "simulation"
         recordings[sensor] = rec
     td = np.arange(t_jump0 - 1.0, t_end - 0.1, 1.0 / 30.0)
-    J = walker.joints(np.maximum(td, t_walk))
-    J[:, :, 2] += _jump_height(td, jumps)[:, None]
+    J = subject.joints(td)
     noisy = J + rng.normal(0.0, depth_noise_m, J.shape)
     tracked = np.full(J.shape[:2], TrackingState.TRACKED, np.uint8)
     depth = SkeletonSeries(td, noisy, tracked, KINECT_V2)
     tt = np.arange(t_jump0, t_end, 1.0 / fs)
-    Jt = walker.joints(np.maximum(tt, t_walk))
-    Jt[:, :, 2] += _jump_height(tt, jumps)[:, None]
+    Jt = subject.joints(tt)
     truth = SkeletonSeries(tt, Jt, np.full(Jt.shape[:2], TrackingState.TRACKED, np.uint8),
                            KINECT_V2)
     return {"recordings": recordings, "depth": depth, "truth": truth, "q_world_plank": q_plank,
@@ -495,7 +466,8 @@ def simulated_job(seed: int = 0, filt: FilterName = "ours", beta: float = 0.041)
         r["stream"]: abs(r["offset_s"] - sim["true_offsets"][r["stream"]]) * 1e3
         for r in sync if r["stream"] in sim["true_offsets"]}
     job.summary["note"] = (
-        "Simulated subject: nine IMUs on a plank, strapped on, five jumps, standing, then "
-        "walking; IMU clocks offset by up to ±2 s; depth skeleton (30 Hz) with 1 cm joint noise. "
+        "Simulated subject: nine IMUs on a plank, strapped on, five jumps, standing straight "
+        "(calibration pose), then walking; IMU clocks offset by up to ±2 s; depth skeleton "
+        "(30 Hz) with 1 cm joint noise. "
         "RMSE is measured against the simulation's ground truth while walking.")
     return job

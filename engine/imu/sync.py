@@ -2,21 +2,29 @@
 
 The subject performs a few (the paper: five) vertical jumps; every landing produces a large
 acceleration spike on every body-worn IMU at the same instant, and a sharp upward
-acceleration of the depth skeleton's torso. Spike times are detected per stream, matched
-in order, and each stream's clock offset is the median difference to the reference
-stream; the per-jump residuals show how well the streams agree after alignment.
+acceleration of the depth skeleton's torso. Between IMUs, spike times are detected per
+stream, matched in order, and each stream's clock offset is the median difference to the
+reference stream. The depth skeleton is too noisy for single spikes (with 1.5-2 cm joint
+noise its twice-differentiated torso height has spurious peaks as high as the landings),
+so against it the IMU's whole jump series is used as a template: the torso height
+(several torso joints averaged) is differentiated twice by a Savitzky-Golay filter and
+cross-correlated with the IMU's smoothed vertical acceleration (coarse offset), then the
+waveforms are matched finely; the skeleton's landing times are finally searched only
+near the aligned IMU landings. The per-jump residuals show how well the streams agree
+after alignment.
 
 Offsets are *added* to a stream's own time stamps to express them on the reference clock.
 """
 
 from __future__ import annotations
 
+import warnings as pywarnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.signal import find_peaks, savgol_filter
+from scipy.signal import correlate, find_peaks, savgol_filter
 
 from engine.errors import InputError, InsufficientDataError
 from engine.imu.io import ImuRecording
@@ -130,13 +138,82 @@ def detect_spikes(
     return np.interp([_refine_peak(y, int(i)) for i in sel], np.arange(len(t)), t)
 
 
-def imu_jump_spikes(rec: ImuRecording, n_jumps: int = 5, min_interval: float = 0.4) -> FloatArray:
-    """Landing-spike times (own clock) of one IMU: peaks of the acceleration norm.
+def imu_jump_spikes(rec: ImuRecording, n_jumps: int = 5, min_interval: float = 0.4,
+                    min_flight: float = 0.2) -> FloatArray:
+    """Landing-spike times (own clock) of one IMU.
 
-    The norm does not depend on how the sensor is mounted or oriented.
+    A jump is recognised by its flight: the acceleration norm (mounting- and
+    orientation-independent) stays near zero — free fall — for at least ``min_flight``
+    seconds, which walking, steps and heel strikes never do (their impacts on a shank
+    sensor can be as high as a landing's). The landing is the highest norm within 0.2 s
+    after each flight; the ``n_jumps`` consecutive flights of shortest total span are the
+    series. Without enough flights (e.g. a clipped or heavily filtered recording) the
+    ``n_jumps`` highest acceleration peaks are used (:func:`detect_spikes`).
     """
-    norm = np.linalg.norm(rec.acc, axis=1)
-    return detect_spikes(rec.time, norm, n_jumps, min_interval, min_height=1.5 * G)
+    ok = np.all(np.isfinite(rec.acc), axis=1)
+    t = rec.time[ok]
+    norm = np.linalg.norm(rec.acc[ok], axis=1)
+    if len(t) > 3:
+        dt = float(np.median(np.diff(t)))
+        k = max(1, round(0.02 / dt))
+        sm = np.convolve(norm, np.ones(k) / k, mode="same")
+        free = np.r_[False, sm < 0.35 * G, False]
+        edges = np.flatnonzero(np.diff(free.astype(np.int8)))
+        starts, ends = edges[0::2], edges[1::2] - 1
+        long = (t[ends] - t[starts]) >= min_flight
+        lands = []
+        for e in ends[long]:
+            m = np.flatnonzero((t > t[e]) & (t <= t[e] + 0.2))
+            if len(m):
+                i = int(m[np.argmax(norm[m])])
+                lands.append(float(np.interp(_refine_peak(norm, i), np.arange(len(t)), t)))
+        la = np.array(lands)
+        if len(la) >= n_jumps:
+            if len(la) > n_jumps:
+                spans = la[n_jumps - 1:] - la[:len(la) - n_jumps + 1]
+                j = int(np.argmin(spans))
+                la = la[j:j + n_jumps]
+            if np.all(np.diff(la) >= min_interval):
+                return la
+    return detect_spikes(rec.time, np.linalg.norm(rec.acc, axis=1), n_jumps, min_interval,
+                         min_height=1.5 * G)
+
+
+#: Joints that move with the torso in a vertical jump; their heights are averaged (each
+#: one's noise is independent enough that the mean is markedly smoother).
+TORSO_ROLES = ("pelvis", "spine_mid", "spine_top", "neck", "hip_left", "hip_right",
+               "shoulder_left", "shoulder_right")
+
+
+def torso_height(
+    skeleton: SkeletonSeries, up: ArrayLike = (0.0, 0.0, 1.0)
+) -> tuple[FloatArray, FloatArray]:
+    """Height of the torso (mean of the :data:`TORSO_ROLES` joints' heights, each taken
+    relative to its own median so that a joint missing in some frames does not step the
+    mean) on a uniform grid at the median frame rate.
+
+    Returns:
+        ``(times, height)`` (s, m).
+
+    Raises:
+        InsufficientDataError: fewer than 8 frames with a torso joint.
+    """
+    js = skeleton.joint_set
+    u = np.asarray(up, dtype=float)
+    u = u / np.linalg.norm(u)
+    idx = sorted({js.role_index(r) for r in TORSO_ROLES if r in js.roles})
+    h = skeleton.tracked_positions()[:, idx, :] @ u
+    with np.errstate(invalid="ignore"), pywarnings.catch_warnings():
+        pywarnings.simplefilter("ignore", RuntimeWarning)
+        h = h - np.nanmedian(h, axis=0)
+        hm = np.nanmean(h, axis=1)
+    ok = np.isfinite(hm)
+    if ok.sum() < 8:
+        raise InsufficientDataError("the depth skeleton has fewer than 8 frames with a torso")
+    t = skeleton.times
+    dt = float(np.median(np.diff(t)))
+    grid = np.arange(t[ok][0], t[ok][-1] + 0.5 * dt, dt)
+    return grid, np.interp(grid, t[ok], hm[ok])
 
 
 def torso_vertical_acceleration(
@@ -144,7 +221,7 @@ def torso_vertical_acceleration(
     up: ArrayLike = (0.0, 0.0, 1.0),
     window: float = 0.2,
 ) -> tuple[FloatArray, FloatArray]:
-    """Vertical acceleration of the torso (mean of spine-mid and pelvis joints).
+    """Vertical acceleration of the torso (:func:`torso_height`).
 
     The torso height is resampled to the median frame rate and differentiated twice with a
     Savitzky-Golay filter (cubic, ``window`` seconds), which smooths depth-sensor noise.
@@ -155,19 +232,8 @@ def torso_vertical_acceleration(
     Raises:
         InsufficientDataError: too few frames with a tracked torso.
     """
-    js = skeleton.joint_set
-    u = np.asarray(up, dtype=float)
-    u = u / np.linalg.norm(u)
-    idx = [js.role_index("spine_mid"), js.role_index("pelvis")]
-    p = skeleton.tracked_positions()[:, idx, :]
-    h = np.nanmean(p @ u, axis=1) if np.isfinite(p).any() else np.full(len(p), np.nan)
-    ok = np.isfinite(h)
-    if ok.sum() < 8:
-        raise InsufficientDataError("the depth skeleton has fewer than 8 frames with a torso")
-    t = skeleton.times
-    dt = float(np.median(np.diff(t)))
-    grid = np.arange(t[ok][0], t[ok][-1] + 0.5 * dt, dt)
-    hz = np.interp(grid, t[ok], h[ok])
+    grid, hz = torso_height(skeleton, up)
+    dt = float(grid[1] - grid[0]) if len(grid) > 1 else 1.0
     win = max(5, round(window / dt) | 1)
     if win > len(grid):
         raise InsufficientDataError("skeleton recording is shorter than the smoothing window")
@@ -215,32 +281,101 @@ def synchronize(
             spikes[name] = imu_jump_spikes(rec, n_jumps)
         except InsufficientDataError as e:
             raise InsufficientDataError(f"IMU {name!r}: {e}") from None
+    if not spikes and skeleton is None:
+        raise InputError("nothing to synchronise: give at least one IMU recording")
+    if not spikes:
+        raise InputError("the depth skeleton alone cannot be synchronised: give at least "
+                         "one IMU recording")
+    names = list(spikes)
+    ref = reference or ("skeleton" if skeleton is not None else names[0])
+    if ref not in spikes and not (ref == "skeleton" and skeleton is not None):
+        have = sorted([*spikes, *(["skeleton"] if skeleton is not None else [])])
+        raise InputError(f"unknown reference stream {ref!r}; have {have}")
+    # IMU to IMU: the 256 Hz landing spikes agree to a sample
+    pivot = ref if ref in spikes else names[0]
+    rel = {n: float(np.median(spikes[pivot] - spikes[n])) for n in names}
+    to_sk: dict[str, float] = {}  # IMU -> offset onto the skeleton clock
     if skeleton is not None:
         try:
-            spikes["skeleton"] = skeleton_jump_spikes(skeleton, n_jumps, up)
+            sk_acc = torso_vertical_acceleration(skeleton, up)
+            sk_coarse = torso_vertical_acceleration(skeleton, up, window=0.4)
         except InsufficientDataError as e:
             raise InsufficientDataError(f"depth skeleton: {e}") from None
-    if not spikes:
-        raise InputError("nothing to synchronise: give at least one IMU recording")
-    ref = reference or ("skeleton" if skeleton is not None else next(iter(spikes)))
-    if ref not in spikes:
-        raise InputError(f"unknown reference stream {ref!r}; have {sorted(spikes)}")
+        # template matching of every IMU's whole jump series; their mutual offsets are
+        # exact, so the median over IMUs is one robust estimate for the pivot
+        coarse = [_coarse_offset(imus[n], spikes[n], *sk_coarse) - rel[n] for n in names]
+        pivot_sk = float(np.median(coarse))
+        for n in names:
+            to_sk[n] = pivot_sk + rel[n]
+            if refine:
+                to_sk[n] = _refine_against_skeleton(imus[n], sk_acc, to_sk[n],
+                                                    spikes[n] + to_sk[n])
+        # the skeleton's landings: the highest torso acceleration near the aligned IMU
+        # landings (a global peak search would pick noise)
+        on_sk = np.median(np.stack([spikes[n] + to_sk[n] for n in names]), axis=0)
+        spikes["skeleton"] = _peaks_near(*sk_acc, on_sk, 0.1)
+        to_sk["skeleton"] = 0.0
     offsets: dict[str, float] = {}
+    if skeleton is not None:
+        base = to_sk[ref]
+        offsets = {n: to_sk[n] - base for n in spikes}
+    else:
+        offsets = {n: rel[n] - rel[ref] for n in names}
     residuals: dict[str, FloatArray] = {}
     warnings: list[str] = []
-    sk_acc = torso_vertical_acceleration(skeleton, up) if skeleton is not None else None
-    for name, s in spikes.items():
-        d = spikes[ref] - s
-        offsets[name] = float(np.median(d))
-        if ref == "skeleton" and name != "skeleton" and sk_acc is not None and refine:
-            offsets[name] = _refine_against_skeleton(imus[name], sk_acc, offsets[name],
-                                                     spikes[ref])
-        residuals[name] = d - offsets[name]
-        if np.max(np.abs(residuals[name])) > 0.1:
+    for name, sp in spikes.items():
+        residuals[name] = spikes[ref] + offsets[ref] - (sp + offsets[name])
+        if np.all(np.isfinite(residuals[name])) and np.max(np.abs(residuals[name])) > 0.1:
             warnings.append(f"{name}: jumps disagree by up to "
                             f"{np.max(np.abs(residuals[name])) * 1e3:.0f} ms after alignment; "
                             "check the clock drift or the detected spikes")
+    if skeleton is not None and not np.all(np.isfinite(spikes["skeleton"])):
+        warnings.append(f"depth skeleton: {int(np.sum(~np.isfinite(spikes['skeleton'])))} "
+                        "jump landing(s) outside the depth recording")
     return SyncResult(ref, offsets, spikes, residuals, warnings)
+
+
+def _peaks_near(t: FloatArray, y: FloatArray, at: FloatArray, half: float) -> FloatArray:
+    """Sub-sample time of the maximum of ``y`` within ``±half`` s of each time in ``at``
+    (NaN where the window holds no sample)."""
+    out = np.full(len(at), np.nan)
+    idx = np.arange(len(t))
+    for k, tk in enumerate(at):
+        m = np.flatnonzero(np.abs(t - tk) <= half)
+        if len(m) == 0:
+            continue
+        i = int(m[np.argmax(y[m])])
+        out[k] = float(np.interp(_refine_peak(y, i), idx, t))
+    return out
+
+
+def _coarse_offset(rec: ImuRecording, spikes: FloatArray, t_sk: FloatArray,
+                   a_sk: FloatArray) -> float:
+    """Offset of an IMU onto the skeleton clock by cross-correlating its whole jump series.
+
+    The IMU's acceleration norm minus g (≈ vertical acceleration of an upright body), from
+    1.5 s before its first landing to 1 s after the last, is averaged over each depth frame
+    period and smoothed like the skeleton's torso acceleration ``a_sk`` (Savitzky-Golay),
+    then slid over ``a_sk``: the lag of the largest correlation wins. Free fall (-g for
+    ~0.45 s), push-off and landing of all the jumps contribute, so single noise peaks of
+    the depth signal cannot win as they can for a spike detector.
+    """
+    dt = float(t_sk[1] - t_sk[0])
+    ok = np.all(np.isfinite(rec.acc), axis=1)
+    ti = rec.time[ok]
+    lin = np.linalg.norm(rec.acc[ok], axis=1) - G
+    grid = np.arange(spikes[0] - 1.5, spikes[-1] + 1.0, dt)
+    cum = np.r_[0.0, np.cumsum(0.5 * (lin[1:] + lin[:-1]) * np.diff(ti))]
+    box = (np.interp(grid + 0.5 * dt, ti, cum) - np.interp(grid - 0.5 * dt, ti, cum)) / dt
+    win = max(5, round(0.4 / dt) | 1)
+    y = savgol_filter(box, win, 3) if len(box) >= win else box
+    y = y - np.mean(y)
+    x = a_sk - np.mean(a_sk)
+    c = correlate(x, y, mode="full", method="auto")
+    k = int(np.argmax(c))
+    kk = _refine_peak(c, k)
+    m = kk - (len(y) - 1)
+    return float(t_sk[0] + m * dt - grid[0])
 
 
 def _refine_against_skeleton(

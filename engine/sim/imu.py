@@ -400,3 +400,84 @@ class StandingStart:
             _, _, As, Bs = self._standing(tt[pre])
             A[pre], B[pre] = As, Bs
         return A, B, np.asarray(r)
+
+
+def jump_height(t: ArrayLike, jumps: ArrayLike, flight_v: float = 2.2, push: float = 0.25,
+                land: float = 0.06) -> FloatArray:
+    """Vertical body offset (m) of standing vertical jumps taking off at ``jumps`` (s).
+
+    Push-off at constant acceleration, ballistic flight, a half-sine impact deceleration
+    (the landing spike every IMU and the depth torso see), then a smooth (minimum-jerk)
+    return to standing height within 0.6 s of the landing.
+
+    Args:
+        t: ``(T,)`` times, s.
+        jumps: start times of the push-offs, s (at least 1 s apart).
+        flight_v: take-off speed, m/s.
+        push: push-off duration, s.
+        land: duration of the impact deceleration, s.
+    """
+    tt = np.asarray(t, dtype=float)
+    z = np.zeros_like(tt)
+    a_push = flight_v / push
+    flight = 2 * flight_v / G
+    a_land = np.pi * flight_v / (2 * land)
+    h_push = 0.5 * a_push * push ** 2
+    h0 = h_push - flight_v * land + a_land * land ** 2 / np.pi
+    for t0 in np.atleast_1d(np.asarray(jumps, dtype=float)):
+        s = tt - t0
+        m = (s >= 0) & (s < push)
+        z[m] += 0.5 * a_push * s[m] ** 2
+        m = (s >= push) & (s < push + flight)
+        u = s[m] - push
+        z[m] += h_push + flight_v * u - 0.5 * G * u ** 2
+        m = (s >= push + flight) & (s < push + flight + 2 * land)
+        w = np.minimum(s[m] - push - flight, land)
+        z[m] += h_push - flight_v * w + a_land * land / np.pi * (
+            w - land / np.pi * np.sin(np.pi * w / land))
+        m = (s >= push + flight + 2 * land) & (s < push + flight + 0.6)
+        u = (s[m] - push - flight - 2 * land) / (0.6 - 2 * land)
+        z[m] += h0 * (1 - u ** 3 * (10 - 15 * u + 6 * u ** 2))
+    return z
+
+
+class Jumping:
+    """A subject (walker-like: ``joints``, ``bone_frames``, ``capsule_segments``) that
+    performs the seed-002 synchronisation jumps: the whole body is lifted by
+    :func:`jump_height`.
+
+    Args:
+        subject: e.g. a :class:`StandingStart`.
+        jumps: push-off start times, s.
+    """
+
+    def __init__(self, subject: Any, jumps: ArrayLike) -> None:
+        self.subject = subject
+        self.jumps = np.atleast_1d(np.asarray(jumps, dtype=float))
+        self.start_time = getattr(subject, "start_time", 0.0)
+
+    def _dz(self, t: ArrayLike) -> FloatArray:
+        return jump_height(np.atleast_1d(np.asarray(t, dtype=float)), self.jumps)
+
+    def joints(self, t: ArrayLike) -> FloatArray:
+        """``(T, J, 3)`` world joints."""
+        J = np.asarray(self.subject.joints(t)).copy()
+        J[..., 2] += self._dz(t)[:, None]
+        return J
+
+    def bone_frames(self, t: ArrayLike) -> dict[str, FloatArray]:
+        """Bone name -> ``(T, 4, 4)`` world poses."""
+        dz = self._dz(t)
+        out = {k: np.asarray(v).copy() for k, v in self.subject.bone_frames(t).items()}
+        for v in out.values():
+            v[:, 2, 3] += dz
+        return out
+
+    def capsule_segments(self, t: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Capsule end points ``(T, C, 3)`` twice and radii ``(C,)``."""
+        A, B, r = self.subject.capsule_segments(t)
+        dz = self._dz(t)[:, None]
+        A, B = np.asarray(A).copy(), np.asarray(B).copy()
+        A[..., 2] += dz
+        B[..., 2] += dz
+        return A, B, np.asarray(r)

@@ -203,9 +203,9 @@ def test_fusion_with_realistic_kinect_errors(scenario: dict, filtered: dict,
     """Acceptance (issue 7): with the sim's realistic Kinect errors, the fused knee-flexion
     RMSE is at most half the depth-only RMSE — with the standing-pose calibration.
 
-    Measured (seeds 1/2/3, knee L/R): see the assertion messages; the paper's
-    reference-frame method and the all-frames fit keep a constant offset of several
-    degrees from the depth tracker's systematic bone-direction errors."""
+    The paper's reference-frame method and the all-frames fit keep a constant offset of
+    several degrees from the depth tracker's systematic bone-direction errors; the
+    standing calibration removes it (to second order), leaving the IMU filter's ~1°."""
     t, walker = scenario["t"], scenario["walker"]
     ori, calib = filtered["ori"], filtered["calib"]
     depth = _kinect_depth(walker, kinect_seed)
@@ -231,9 +231,9 @@ def test_fusion_with_realistic_kinect_errors(scenario: dict, filtered: dict,
         nccs[fit] = {j: ncc(ang_f[j][walk], ang_t[j][walk]) for j in ang_f}
     msg = f"fused {errs}, depth-only {e_depth}"
     for j in ("knee_left", "knee_right"):
-        # the acceptance bound is 0.5; the standing calibration leaves the filter's
-        # orientation error only (~1°), so it holds with a wide margin
-        assert errs["standing"][j] <= 0.3 * e_depth[j], (j, msg)
+        # the acceptance bound; the standing calibration leaves only the filter's
+        # orientation error (~1.2°, ratios 0.25-0.36 with the sim's default Kinect model)
+        assert errs["standing"][j] <= 0.5 * e_depth[j], (j, msg)
         assert errs["standing"][j] < 2.0, (j, msg)
         assert nccs["standing"][j] > 0.99, (j, nccs)
     for j in ("elbow_left", "elbow_right"):
