@@ -177,6 +177,7 @@ class NodeAgent:
         self._recs: dict[str, _Rec] = {}
         self._early_stops: dict[str, RecStop] = {}
         self._manifests: dict[str, Manifest] = {}
+        self._manifest_lock = threading.Lock()
         self._ever_connected = False
         self._tasks: set[asyncio.Future[None]] = set()
         self._ws: ClientConnection | None = None
@@ -352,14 +353,27 @@ class NodeAgent:
         meta = self.store.meta(rec_id)
         if meta.get("state") == "recording":
             raise InputError(f"recording {rec_id} was not closed on {self.node_id}")
-        if rec_id not in self._manifests:
-            folder = self.store.root / rec_id
-            names = [n for n in ("meta.json", "index.json", "frames.bin")
-                     if (folder / n).exists()]
-            chunk = int(os.environ.get("GAITRIG_TEST_CHUNK_SIZE", "0")) or DEFAULT_CHUNK_SIZE
-            self._manifests[rec_id] = build_manifest(folder, rec_id, self.node_id, names,
-                                                     chunk_size=chunk)
-        return self._manifests[rec_id]
+        with self._manifest_lock:  # one hashing at a time; a second caller gets the cache
+            if rec_id not in self._manifests:
+                folder = self.store.root / rec_id
+                names = [n for n in ("meta.json", "index.json", "frames.bin")
+                         if (folder / n).exists()]
+                chunk = (int(os.environ.get("GAITRIG_TEST_CHUNK_SIZE", "0"))
+                         or DEFAULT_CHUNK_SIZE)
+                self._manifests[rec_id] = build_manifest(folder, rec_id, self.node_id, names,
+                                                         chunk_size=chunk)
+            return self._manifests[rec_id]
+
+    def _prepare_manifest(self, rec_id: str) -> None:
+        """Hash a part that just closed in the background: the server asks for its
+        manifest right after the stop, and then it is ready."""
+        def work() -> None:
+            try:
+                self._manifest(rec_id)
+            except (GaitrigError, TransferError, OSError) as exc:
+                log.info("manifest of %s not prepared: %s", rec_id, exc)
+
+        threading.Thread(target=work, daemon=True, name=f"manifest-{rec_id}").start()
 
     async def _serve_manifest(self, ws: ClientConnection, msg: ManifestRequest) -> None:
         header: dict[str, Any] = {"kind": "manifest", "req_id": msg.req_id, "rec_id": msg.rec_id}
@@ -634,6 +648,7 @@ class NodeAgent:
         log.info("recording %s %s: %d frames", info.rec_id, state, info.n_frames)
         self._finished[info.rec_id] = (info, time.monotonic())
         self._send_control(dump(RecState(part=info)))
+        self._prepare_manifest(info.rec_id)
 
     # ------------------------------------------------------------------ status
 

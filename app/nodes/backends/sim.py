@@ -238,8 +238,9 @@ class SimBackend(Backend):
         The colour camera is rendered at :data:`engine.calibration.simcapture.
         CAPTURE_COLOR_SIZE` (the streaming size is too small to decode floor markers 4 m
         away; a real Kinect's colour is 1920×1080), with depth noise and colour read
-        noise, and the walker where they are now (a person in the room occludes markers
-        as in a real lab).
+        noise, of the room without the walker: the wizard asks for a clear room, and the
+        simulated person (who starts each walk standing near marker 1) steps out for
+        the capture.
 
         Yields:
             ``(t_local, colour RGB, depth uint16 mm, colour K, depth K, T_depth_color,
@@ -260,10 +261,9 @@ class SimBackend(Backend):
             r = self._calib_renderer
         for _ in range(n):
             t_host = time.time()
-            meshes = [self._walker.body_mesh(world_time(t_host))]
             with self._calib_lock:
                 sf = render_sensor_frames(self.sensor, self.rig, 1, self._calib_rng,
-                                          CAPTURE_COLOR_SIZE, bodies=meshes, renderer=r)
+                                          CAPTURE_COLOR_SIZE, bodies=None, renderer=r)
             assert sf.depths is not None
             yield (self.clock.from_host(t_host), sf.colors[0], sf.depths[0], r.K_color,
                    r.K_depth, self.sensor.model.T_depth_color, sf.depth_scale)
