@@ -257,27 +257,52 @@ def load_xio_csv(path: str | Path, frequency: float | None = None) -> ImuRecordi
                      frequency=frequency)
 
 
+def _damaged(p: Path, e: BaseException) -> InputError:
+    """The error for a file a reader library chokes on (truncated, corrupted, not what its
+    extension says): readers raise anything from ``zlib.error`` to ``IndexError``."""
+    kind = {".mat": "MATLAB .mat", ".hdf5": "HDF5", ".h5": "HDF5"}.get(p.suffix.lower(),
+                                                                        p.suffix)
+    return InputError(f"{p.name}: not a readable {kind} file — damaged, truncated or another "
+                      f"format ({type(e).__name__}: {e}); export it again")
+
+
+def _read_mat(p: Path, **kwargs: Any) -> dict[str, Any]:
+    """``scipy.io.loadmat`` with every failure turned into :class:`InputError`."""
+    import scipy.io
+
+    try:
+        return dict(scipy.io.loadmat(p, **kwargs))
+    except FileNotFoundError as e:
+        raise InputError(f"cannot read {p}: {e}") from None
+    except Exception as e:  # a damaged file can trip any part of the reader
+        raise _damaged(p, e) from None
+
+
+def _as_float(p: Path, what: str, a: Any) -> FloatArray:
+    """A numeric array from a file's variable (InputError if it is not numeric)."""
+    try:
+        return np.asarray(a, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise InputError(f"{p.name}: variable {what!r} is not numeric ({e})") from None
+
+
 def load_madgwick_mat(path: str | Path) -> ImuRecording:
     """Read Madgwick's ``ExampleData.mat`` layout (time s, deg/s, g, gauss).
 
     Raises:
         InputError: unreadable file or missing variables.
     """
-    import scipy.io
-
     p = Path(path)
-    try:
-        d = scipy.io.loadmat(p)
-    except (OSError, ValueError) as e:
-        raise InputError(f"cannot read {p}: {e}") from None
+    d = _read_mat(p)
     need = ("time", "Gyroscope", "Accelerometer")
     if not all(k in d for k in need):
         raise InputError(f"{p.name}: expected variables {need} (+ Magnetometer); "
                          f"found {[k for k in d if not k.startswith('__')]}")
-    mag = d["Magnetometer"] * 100.0 if "Magnetometer" in d else None
+    v = {k: _as_float(p, k, d[k]) for k in (*need, "Magnetometer") if k in d}
+    mag = v["Magnetometer"] * 100.0 if "Magnetometer" in v else None
     meta = {"format": "madgwick-mat", "source": str(p), "gyr_unit": "deg/s", "acc_unit": "g",
             "mag_unit": "G"}
-    return _finalise(d["time"].ravel(), np.deg2rad(d["Gyroscope"]), d["Accelerometer"] * G,
+    return _finalise(v["time"].ravel(), np.deg2rad(v["Gyroscope"]), v["Accelerometer"] * G,
                      mag, p.stem, meta, [])
 
 
@@ -290,12 +315,7 @@ def load_broad(path: str | Path) -> ImuRecording:
     p = Path(path)
     keys = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "movement")
     if p.suffix.lower() == ".mat":
-        import scipy.io
-
-        try:
-            d = scipy.io.loadmat(p, squeeze_me=True)
-        except (OSError, ValueError, NotImplementedError) as e:
-            raise InputError(f"cannot read {p}: {e}") from None
+        d = _read_mat(p, squeeze_me=True)
         fs = d.get("sampling_rate")
         arrays = {k: np.asarray(d[k]) for k in keys if k in d}
     else:
@@ -305,12 +325,21 @@ def load_broad(path: str | Path) -> ImuRecording:
             with h5py.File(p, "r") as f:
                 arrays = {k: f[k][()] for k in keys if k in f}
                 fs = f.attrs.get("sampling_rate")
-        except OSError as e:
+        except FileNotFoundError as e:
             raise InputError(f"cannot read {p}: {e}") from None
+        except Exception as e:  # a damaged file can trip any part of h5py
+            raise _damaged(p, e) from None
     missing = [k for k in keys if k not in arrays]
     if missing or fs is None:
         raise InputError(f"{p.name}: not a BROAD trial; missing {missing or ['sampling_rate']}")
-    fs = float(np.asarray(fs).ravel()[0])
+    try:
+        fs = float(np.asarray(fs, dtype=float).ravel()[0])
+    except (TypeError, ValueError, IndexError):
+        raise InputError(f"{p.name}: sampling_rate is not a number") from None
+    if not np.isfinite(fs) or fs <= 0:
+        raise InputError(f"{p.name}: sampling_rate must be positive, got {fs}")
+    arrays = {k: _as_float(p, k, a) if k != "movement" else np.asarray(a)
+              for k, a in arrays.items()}
     n = len(arrays["imu_gyr"])
     meta = {"format": "broad", "source": str(p), "gyr_unit": "rad/s", "acc_unit": "m/s2",
             "mag_unit": "uT"}
@@ -400,8 +429,10 @@ def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
 
         try:
             names = {n for n, _, _ in scipy.io.whosmat(p)}
-        except (OSError, ValueError, NotImplementedError) as e:
+        except FileNotFoundError as e:
             raise InputError(f"cannot read {p}: {e}") from None
+        except Exception as e:  # a damaged file can trip any part of the reader
+            raise _damaged(p, e) from None
         return load_broad(p) if "imu_gyr" in names else load_madgwick_mat(p)
     if suf in (".csv", ".txt", ".tsv"):
         try:

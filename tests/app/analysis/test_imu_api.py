@@ -82,6 +82,17 @@ def test_bad_files_give_clear_400(client: TestClient, tmp_path: Path) -> None:
     r = client.post("/api/imu/sessions", files={"files": ("bad.mat", b"not a mat file", "x")})
     assert r.status_code == 400 and "bad.mat" in r.json()["detail"]
     assert "gaitrig-imu" not in r.json()["detail"]  # no server temp paths shown
+    # a truncated .mat: the engine's typed error (not the route's catch-all) names it
+    import scipy.io
+
+    mat = tmp_path / "whole.mat"
+    scipy.io.savemat(mat, {"time": np.zeros((50, 1)), "Gyroscope": np.zeros((50, 3)),
+                           "Accelerometer": np.zeros((50, 3))}, do_compression=True)
+    r = client.post("/api/imu/sessions",
+                    files={"files": ("trial.mat", mat.read_bytes()[:300], "x")})
+    assert r.status_code == 400
+    assert r.json()["detail"].startswith("trial.mat: not a readable MATLAB .mat file")
+    assert "export it again" in r.json()["detail"]
     # generic CSV without declared units
     t = np.arange(200) / 100
     rows = ["time,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z"]

@@ -155,5 +155,55 @@ def test_broad_hdf5_and_mat_agree(shared_data: Path, tmp_path: Path) -> None:
     assert np.array_equal(rec2.movement, rec.movement[:n])
     bad = tmp_path / "bad.hdf5"
     bad.write_bytes(b"not hdf5")
-    with pytest.raises(InputError, match="cannot read"):
+    with pytest.raises(InputError, match=r"bad\.hdf5: not a readable HDF5 file"):
         load_broad(bad)
+
+
+def _mat_bytes(tmp_path: Path) -> bytes:
+    """A small valid Madgwick-layout .mat file (compressed, as MATLAB writes them)."""
+    import scipy.io
+
+    t = np.arange(200) / 100.0
+    p = tmp_path / "ok.mat"
+    scipy.io.savemat(p, {"time": t[:, None], "Gyroscope": np.zeros((200, 3)),
+                         "Accelerometer": np.tile([0.0, 0.0, 1.0], (200, 1)),
+                         "Magnetometer": np.tile([0.2, 0.0, -0.4], (200, 1))},
+                     do_compression=True)
+    assert load_imu(p).gyr.shape == (200, 3)
+    return p.read_bytes()
+
+
+def test_damaged_mat_and_hdf5_give_input_error(tmp_path: Path) -> None:
+    """Truncated, corrupted or mislabelled files: a typed InputError naming the file and
+    saying to export it again, never a scipy/zlib/h5py exception."""
+    good = _mat_bytes(tmp_path)
+    rng = np.random.default_rng(0)
+    cases = [good[:n] for n in (0, 10, 128, 300, len(good) // 2, len(good) - 5)]
+    for _ in range(15):
+        b = bytearray(good)
+        for i in rng.integers(128, len(b), 10):
+            b[i] = int(rng.integers(0, 256))
+        cases.append(bytes(b))
+    cases += [b"MATLAB 5.0 MAT-file" + bytes(200), rng.bytes(3000)]
+    bad = tmp_path / "trial.mat"
+    n_damaged = 0
+    for c in cases:
+        bad.write_bytes(c)
+        for reader in (load_imu, load_broad):
+            try:
+                reader(bad)
+            except InputError as e:
+                assert "trial" in str(e)
+                n_damaged += "export it again" in str(e)
+    assert n_damaged >= len(cases)  # most fail in the reader itself
+    h5 = tmp_path / "trial.hdf5"
+    h5.write_bytes(b"\x89HDF\r\n\x1a\n" + rng.bytes(500))
+    with pytest.raises(InputError, match=r"trial\.hdf5: not a readable HDF5 file"):
+        load_imu(h5)
+    # a readable .mat whose variables are not numeric
+    import scipy.io
+
+    scipy.io.savemat(bad, {"time": np.array(["a", "b"]), "Gyroscope": np.zeros((2, 3)),
+                           "Accelerometer": np.zeros((2, 3))})
+    with pytest.raises(InputError, match="'time' is not numeric"):
+        load_imu(bad)
