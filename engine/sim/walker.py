@@ -115,24 +115,31 @@ class WalkerParams:
     def random(cls, rng: np.random.Generator) -> WalkerParams:
         """A plausible healthy adult.
 
-        Sources: height ~ N(1.72, 0.09) m (adult mixed-sex stature); comfortable speed
+        Sources: height ~ N(1.72, 0.06) m (the spread of seed 000's ten young adults:
+        their Vicon subject-average step lengths spread only 3.6–5.1 cm and strides
+        8.0–8.4 cm, less than adult mixed-sex stature, SD 0.09 m, gives); comfortable speed
         ~ N(1.25, 0.15) m/s (seed 000 Table 1: 1.23 ± 0.15 m/s; Bohannon & Andrews 2011,
         Physiotherapy 97:182: 1.3–1.4 m/s for 20–59 y); step length ≈ 0.415 × height,
         scaling with speed^0.4 (Grieve & Gear 1966; gives 0.72 m at 1.75 m / 1.22 m/s as in
-        seed 000 Tables 2–3) with 4 % inter-subject spread; step width ~ N(0.115, 0.02) m
-        (seed 000 Vicon: 11.7 ± 1.8 cm); |asymmetry| a few percent (healthy step-length
-        symmetry ratios 0.97–1.03, Patterson et al. 2010, Gait Posture 31:241); arm swing
-        20–40° peak-to-peak (Meyns et al. 2013, J Biomech 46:1). Within-subject variability:
-        step length CV ≈ 3 %, step time CV ≈ 2.5 % (Hollman et al. 2010, Gait Posture
-        32:23), step width SD ≈ 2 cm (Owings & Grabiner 2004, J Biomech 37:935).
+        seed 000 Tables 2–3) with 2 % inter-subject spread (with the two above, a
+        subject-average SD ≈ 4.5 cm as seed 000's Vicon); |asymmetry| a few percent
+        (healthy step-length symmetry ratios 0.97–1.03, Patterson et al. 2010, Gait
+        Posture 31:241); arm swing 20–40° peak-to-peak (Meyns et al. 2013, J Biomech
+        46:1). Within-subject variability: step length CV ≈ 3 %, step time CV ≈ 2.5 %
+        (Hollman et al. 2010, Gait Posture 32:23); step width SD 2.5 cm (seed 000's
+        Vicon: step-level SD 3.0–3.15 cm with subject averages spread 1.75–1.85 cm leaves
+        √(3.1² − 1.8²) ≈ 2.5 cm within subjects; Owings & Grabiner 2004, J Biomech
+        37:935: 2–2.5 cm), with the subject means spread N(0.115, 0.018) m (seed 000
+        Vicon 11.7 ± 1.8 cm).
         """
-        height = float(np.clip(rng.normal(1.72, 0.09), 1.50, 2.00))
+        height = float(np.clip(rng.normal(1.72, 0.06), 1.50, 2.00))
         speed = float(np.clip(rng.normal(1.25, 0.15), 0.85, 1.70))
-        step = 0.415 * height * (speed / 1.25) ** 0.4 * float(np.clip(rng.normal(1.0, 0.04),
+        step = 0.415 * height * (speed / 1.25) ** 0.4 * float(np.clip(rng.normal(1.0, 0.02),
                                                                          0.9, 1.1))
         return cls(
             height_m=height, speed_m_s=speed, step_length_m=float(step),
-            step_width_m=float(np.clip(rng.normal(0.115, 0.02), 0.05, 0.2)),
+            step_width_m=float(np.clip(rng.normal(0.115, 0.018), 0.05, 0.2)),
+            step_width_sd_m=0.025,
             asymmetry=float(np.clip(rng.normal(0.0, 0.02), -0.06, 0.06)),
             arm_swing_deg=float(np.clip(rng.normal(30.0, 6.0), 15.0, 45.0)),
         )
