@@ -21,6 +21,7 @@ at turns, and turns are dropped).
 
 from __future__ import annotations
 
+import itertools
 import json
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
@@ -247,6 +248,11 @@ class GaitAnalysis:
             over ± this window around the crossing (mid-stance, when the foot stands
             still for ≳ 0.3 s at walking speeds) instead of its position at the crossing
             instant (0: the paper's rule).
+        direction: a fixed walking direction ``(x, y)`` on the floor (e.g. a walkway's
+            axis in the lab frame) along which lengths and widths are measured in every
+            pass; None (default) finds it per pass from the footprints. A fixed axis
+            that is off the true line of progression by an angle ψ biases left and right
+            step widths by ∓ψ·step length (the pattern of seed 000's Tables 2–3).
 
     Attributes (after :meth:`fit`):
         passes_: straight passes with their directions.
@@ -257,7 +263,8 @@ class GaitAnalysis:
     """
 
     def __init__(self, method: Method = "crossing", exclude_first: bool | str = "auto",
-                 min_event_period_s: float = 0.4, placement_window_s: float = 0.1) -> None:
+                 min_event_period_s: float = 0.4, placement_window_s: float = 0.1,
+                 direction: tuple[float, float] | None = None) -> None:
         if method not in ("crossing", "heelstrike"):
             raise InputError(f"method must be 'crossing' or 'heelstrike', got {method!r}")
         if exclude_first not in (True, False, "auto"):
@@ -268,6 +275,13 @@ class GaitAnalysis:
         if not 0.0 <= placement_window_s <= 0.3:
             raise InputError("placement_window_s must be within [0, 0.3] s")
         self.placement_window_s = float(placement_window_s)
+        self.direction: tuple[float, float] | None = None
+        if direction is not None:
+            d = np.asarray(direction, dtype=float).ravel()
+            n = float(np.linalg.norm(d)) if d.shape == (2,) else 0.0
+            if not np.isfinite(n) or n < 1e-9:
+                raise InputError("direction must be a non-zero (x, y) vector on the floor")
+            self.direction = (float(d[0] / n), float(d[1] / n))
 
     # ------------------------------------------------------------------ fitting
     def fit(self, trajectories: FeetTrajectories | SkeletonSeries | MarkerTrajectories
@@ -299,6 +313,15 @@ class GaitAnalysis:
         else:
             centre = 0.5 * (pL + pR)
         self.passes_ = find_passes(t, centre, rate)
+        if self.direction is not None:
+            # A fixed axis, oriented along each pass's travel (back-and-forth walks).
+            fx = np.array(self.direction)
+            passes = []
+            for p in self.passes_:
+                u = fx if fx @ np.array(p.direction) >= 0 else -fx
+                passes.append(WalkPass(p.t_start, p.t_end, (float(u[0]), float(u[1])),
+                                       p.excluded_first))
+            self.passes_ = passes
         if not self.passes_:
             raise InsufficientDataError(
                 "no straight walking found (the body centre must travel ≥ "
@@ -310,7 +333,8 @@ class GaitAnalysis:
         for k, wp in enumerate(self.passes_):
             pe = (self._crossing_events(feet, wp) if self.method == "crossing"
                   else self._zeni_events(feet, wp, centre))
-            wp = self._progression_line(pe, wp)
+            if self.direction is None:
+                wp = self._progression_line(pe, wp)
             self.passes_[k] = wp
             kind = "placement" if self.method == "crossing" else "foot_strike"
             events += [GaitEvent(s, kind, tt, k) for s, tt, _, _ in pe.placements]
@@ -393,9 +417,31 @@ class GaitAnalysis:
             vr = np.interp(tc + h, t[okR], xR[okR]) - np.interp(tc - h, t[okR], xR[okR])
             side = "L" if vl < vr else "R"
             placed = self._stance_position(t, feet.foot(side), tc)
+            if self.placement_window_s > 0:
+                tc = self._refine_crossing(t, xR if side == "L" else xL, float(placed @ d), tc)
             other = _interp_rows(t, feet.foot("R" if side == "L" else "L"), tc)
             pe.placements.append((side, tc, placed, other))
         return pe
+
+    @staticmethod
+    def _refine_crossing(t: FloatArray, x_swing: FloatArray, x_placed: float, tc: float
+                         ) -> float:
+        """The instant the swinging foot passes the placed foot's stance estimate.
+
+        The placed foot stands still, so its position averaged over the stance window
+        is less noisy than its per-sample position; the crossing is where the swinging
+        foot (fast, so its noise shifts the time little) passes that position. Searched
+        within ±0.1 s of the sample crossing; kept when not found there.
+        """
+        m = np.flatnonzero((t >= tc - 0.1) & (t <= tc + 0.1) & np.isfinite(x_swing))
+        if len(m) < 2:
+            return tc
+        roots = []
+        for a, b in itertools.pairwise(m):
+            ya, yb = x_swing[a] - x_placed, x_swing[b] - x_placed
+            if b == a + 1 and ya < 0 <= yb:
+                roots.append(float(t[a] + ya / (ya - yb) * (t[b] - t[a])))
+        return min(roots, key=lambda r: abs(r - tc)) if roots else tc
 
     def _zeni_events(self, feet: FeetTrajectories, wp: WalkPass,
                      centre: FloatArray) -> _PassEvents:

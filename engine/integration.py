@@ -22,9 +22,11 @@ sensors", plus our estimator):
      averages noise down; midline joints are not angle-weighted. The view-dependent pull
      of a sensor is towards its side of the body, so these side weights decide only the
      joint's coordinate along the body's lateral axis (step width); its forward and
-     vertical coordinates average all sensors equally by angle. Each sensor is further
-     weighted by the inverse square of its distance (joint noise grows ~linearly with
-     range), and by a Tukey biweight of its residual from the current estimate
+     vertical coordinates average all sensors equally by angle. Each sensor's limb joints
+     are first moved back along its line of sight by the surface bias of a depth fit
+     (``SURFACE_BIAS_M``: a sensor sees, and fits to, the near half of a limb). Each
+     sensor is further weighted by the inverse square of its distance (joint noise
+     grows ~linearly with range), and by a Tukey biweight of its residual from the current estimate
      (iteratively reweighted from the per-coordinate median, so a sensor that swaps or
      misplaces a joint is rejected).
 4. Fused gaps up to ``max_gap_s`` are interpolated (reported), then each trajectory is
@@ -62,6 +64,13 @@ REF_DISTANCE_M = 2.5
 TUKEY_C = 4.685
 #: Lower bound of the robust residual scale (m): below this, disagreements are noise.
 MIN_SCALE_M = 0.02
+#: How far a sensor's estimate of a limb joint lies towards that sensor (m). A depth
+#: sensor sees only the half of the limb's surface facing it, and the skeleton is fitted
+#: to that surface: seed 000 (Fig. 5B and its supplement) shows the ankle estimates of
+#: two opposite sensors a few cm apart, each closer to the surface it sees, i.e. ≈ 1.5 cm
+#: each way, about half the ankle's radius (malleolar width ≈ 7 cm). The weighted
+#: estimator moves each sensor's limb joints back along its line of sight by this much.
+SURFACE_BIAS_M = 0.015
 
 
 @dataclass
@@ -239,7 +248,8 @@ def _lateral_axis(P: FloatArray, js: JointSet, rate: float) -> FloatArray:
 
 
 def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float,
-                   n_iter: int = 4) -> tuple[FloatArray, NDArray[np.bool_]]:
+                   n_iter: int = 4, surface_bias_m: float = SURFACE_BIAS_M
+                   ) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Weighted robust fusion of ``(S, G, J, 3)`` estimates → ``(G, J, 3)``, used mask."""
     have = np.asarray(np.isfinite(E).all(axis=-1), dtype=bool)  # (S, G, J)
     init = _nanmedian0(E)  # robust start: the per-coordinate median
@@ -248,6 +258,14 @@ def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float
     to_sensor = centres[:, None, None, :] - E  # (S, G, J, 3)
     dist = np.linalg.norm(to_sensor, axis=-1)
     los = to_sensor / np.maximum(dist, 1e-9)[..., None]
+    # Limb joints are fitted to the limb's visible surface: move each estimate back along
+    # the horizontal line of sight by surface_bias_m (limbs are near-vertical, so the
+    # visible surface is displaced horizontally).
+    los_h = los.copy()
+    los_h[..., 2] = 0.0
+    los_h /= np.maximum(np.linalg.norm(los_h, axis=-1, keepdims=True), 1e-9)
+    limb = (sides != 0)[None, None, :, None]
+    E = np.where(limb, E - surface_bias_m * los_h, E)
     normal = sides[None, :, None] * lat[:, None, :]  # (G, J, 3) outward side normal
     cos = np.einsum("sgjk,gjk->sgj", los, np.nan_to_num(normal))
     w_angle = np.where(sides[None, None, :] != 0, ANGLE_WEIGHT_FLOOR + 0.5 * (1.0 + cos),
@@ -344,6 +362,7 @@ def integrate_skeletons(
     max_gap_s: float = 0.2,
     cutoff_hz: float | None = 6.0,
     sensors: Collection[str] | None = None,
+    surface_bias_m: float = SURFACE_BIAS_M,
 ) -> tuple[SkeletonSeries, FusionReport]:
     """Fuse several sensors' skeletons of one subject into one world-frame skeleton.
 
@@ -355,6 +374,8 @@ def integrate_skeletons(
         cutoff_hz: low-pass cut-off; None disables filtering.
         sensors: ids of the sensors to use (e.g. only those on the subject's left, for
             the paper's one-sided analysis of the same recording); None uses all.
+        surface_bias_m: ``"weighted"`` only: how far each sensor's limb joints lie
+            towards it (:data:`SURFACE_BIAS_M`); 0 for sensors known to be unbiased.
 
     Returns:
         The fused skeleton (world frame, reference clock; TRACKED where sensors gave an
@@ -417,7 +438,7 @@ def integrate_skeletons(
         used = have
     else:
         centres = np.array([np.asarray(s.T_world_sensor, dtype=float)[:3, 3] for s in streams])
-        X, used = _fuse_weighted(E, centres, js, rate_hz)
+        X, used = _fuse_weighted(E, centres, js, rate_hz, surface_bias_m=surface_bias_m)
     any_est = np.isfinite(X).all(axis=-1)
     any_real = np.asarray(real.any(axis=0), dtype=bool)
     X, filled_mask, ff, fu = _fill_fused(grid, X, max_gap_s, js.joints)

@@ -120,7 +120,7 @@ def test_weighted_equals_mean_without_side_information(walk) -> None:  # type: i
     streams = six_sensor_streams(walk, rng, occluded_bias_m=0.0, noise_m=0.0,
                                  inferred_frac=0.0)
     a, _ = integrate_skeletons(streams, "mean")
-    b, _ = integrate_skeletons(streams, "weighted")
+    b, _ = integrate_skeletons(streams, "weighted", surface_bias_m=0.0)
     # noise-free, unbiased sensors: any weighting gives the truth (up to the sensors'
     # linear-interpolation differences at landings, < 2 mm)
     np.testing.assert_allclose(a.positions, b.positions, atol=2e-3, equal_nan=True)
