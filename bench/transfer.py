@@ -110,7 +110,8 @@ def _transfer_once(tmp: Path, nodes: list[str], node_dirs: dict[str, Path], size
                 break
             except OSError:
                 if time.time() > deadline:
-                    raise RuntimeError("the server did not start; see " + str(logs["server"]))
+                    raise RuntimeError("the server did not start; see "
+                                       + str(logs["server"])) from None
                 time.sleep(0.2)
         for n in nodes:
             spawn(n, ["node", "--id", n, "--server", f"ws://127.0.0.1:{port}", "--data-dir",

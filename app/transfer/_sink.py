@@ -74,6 +74,7 @@ class TransferSink:
             for f in manifest.files:
                 self._done[f.name] = set(range(f.chunk_count()))
             return
+        fresh: set[str] = set()
         try:
             self.incoming.mkdir(parents=True, exist_ok=True)
             mpath = self.incoming / "manifest.json"
@@ -89,7 +90,11 @@ class TransferSink:
             for f in manifest.files:
                 part = self._part_path(f.name)
                 part.parent.mkdir(parents=True, exist_ok=True)
-                fd = os.open(part, os.O_RDWR | os.O_CREAT, 0o600)
+                try:
+                    fd = os.open(part, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
+                    fresh.add(f.name)
+                except FileExistsError:
+                    fd = os.open(part, os.O_RDWR)
                 try:
                     if f.size and os.fstat(fd).st_size < f.size:
                         # Reserve the space now: a full disk fails here, not mid-way.
@@ -98,7 +103,9 @@ class TransferSink:
                     os.close(fd)
         except OSError as exc:
             raise _storage_error(exc, f"preparing {self.dest}") from exc
-        self._scan_existing()
+        # A file created just now holds nothing yet: only the files of an interrupted
+        # transfer are read back and hashed chunk by chunk.
+        self._scan_existing(skip=fresh)
         for f in manifest.files:
             self._running[f.name] = (0, hashlib.sha256()) if not self._done[f.name] else None
 
@@ -115,9 +122,11 @@ class TransferSink:
         cs = self.manifest.chunk_size
         return max(0, min(cs, f.size - index * cs))
 
-    def _scan_existing(self) -> None:
+    def _scan_existing(self, skip: set[str]) -> None:
         cs = self.manifest.chunk_size
         for f in self.manifest.files:
+            if f.name in skip:
+                continue
             with open(self._part_path(f.name), "rb") as fh:
                 for i, expected in enumerate(f.chunk_sha256):
                     fh.seek(i * cs)
