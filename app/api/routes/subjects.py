@@ -32,7 +32,7 @@ CODE_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,39}$"
 
 def _year_ok(y: int | None) -> int | None:
     if y is not None and not 1900 <= y <= dt.date.today().year:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY,
+        raise HTTPException(422,
                             f"birth_year {y} must be between 1900 and {dt.date.today().year}")
     return y
 
