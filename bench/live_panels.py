@@ -212,8 +212,11 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run"
 
 
 def _browser(base: str, password: str, n_nodes: int, warmup: float, seconds: float,
-             pids: list[int]) -> tuple[dict[str, float], list[float], list[float]]:
-    """The Live page in headless Chromium (with its embedded 3D view).
+             pids: list[int], vport: int, with_3d: bool
+             ) -> tuple[dict[str, float], list[float], list[float]]:
+    """The Live page in headless Chromium (with its embedded 3D view unless ``with_3d``
+    is false: then the page's requests to the 3D view are refused, as in the browser
+    tests of the panels).
 
     Returns:
         Panels drawn per second per node, the page's own latency figures (median per node,
@@ -230,6 +233,8 @@ def _browser(base: str, password: str, n_nodes: int, warmup: float, seconds: flo
             page.fill("#password", password)
             page.click("button[type=submit]")
             page.wait_for_url("**/rig.html", timeout=30000)
+            if not with_3d:
+                page.route(f"http://127.0.0.1:{vport}/**", lambda r: r.abort())
             page.goto(base + "/live.html")
             page.wait_for_function(f"Object.keys(window.liveStats.nodes).length >= {n_nodes}",
                                    timeout=120000)
@@ -265,6 +270,8 @@ def main() -> None:
                     help="measure in the Live page in headless Chromium (/usr/bin/chromium) "
                          "instead of a Python websocket client; the page also renders the "
                          "3D view in software, on the same 2 cores")
+    ap.add_argument("--no-3d", action="store_true",
+                    help="with --browser: the page without its 3D view")
     args = ap.parse_args()
     load_before = os.getloadavg()
     tmp = Path(tempfile.mkdtemp(prefix="gaitrig-bench-live-"))
@@ -301,7 +308,8 @@ def main() -> None:
         offset, rtt = 0.0, None
         if args.browser:
             page_fps, page_lat, cpu = _browser(base, password, args.nodes, args.warmup,
-                                               args.seconds, [p.pid for p in procs])
+                                               args.seconds, [p.pid for p in procs], vport,
+                                               not args.no_3d)
         else:
             got, offset, rtt, cpu = asyncio.run(run())
         load_after = os.getloadavg()
@@ -333,7 +341,7 @@ def main() -> None:
     print(json.dumps({
         "bench": "live_panels", "nodes": args.nodes, "seconds": args.seconds,
         "client": "chromium live page" if args.browser else "python websocket",
-        "viewer_client": args.browser or not args.no_viewer_client,
+        "viewer_client": (not args.no_3d) if args.browser else not args.no_viewer_client,
         "fps_requested": status.get("fps_requested"), "scale": status.get("scale"),
         "fps": fps, "fps_min": min_fps, "goal_10_fps_per_node": min_fps >= 10.0,
         "latency_ms": {"median": _pct(lat, 50), "p95": _pct(lat, 95)},

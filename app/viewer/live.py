@@ -121,14 +121,19 @@ def populate_graph(server: viser.ViserServer, layout: Rig,
 
 
 def populate_cloud(server: viser.ViserServer, node_id: str, points: NDArray[np.float32],
-                   colors: NDArray[np.uint8], visible: bool = True) -> None:
-    """One node's voxel-merged points (float32 precision: metres away from the origin)."""
+                   colors: NDArray[np.uint8], visible: bool = True) -> Any:
+    """One node's voxel-merged points; returns the scene handle (None if no points).
+
+    Sent as float32: viser's float16 default keeps only 11 significant bits (12 mm steps
+    at 10 m, 0.5 m at 1 km), too coarse for a lab whose world origin is far away.
+    """
     name = f"/cloud/{node_id}"
     if len(points) == 0:
         server.scene.remove_by_name(name)
-        return
-    server.scene.add_point_cloud(name, points, colors, point_size=0.025, point_shape="square",
-                                 precision="float32", visible=visible)
+        return None
+    return server.scene.add_point_cloud(name, points, colors, point_size=0.025,
+                                        point_shape="square", precision="float32",
+                                        visible=visible)
 
 
 def fuse_skeletons(skeletons: dict[str, tuple[NDArray[np.float64], NDArray[np.uint8]]]

@@ -117,7 +117,9 @@ def populate_skeleton(server: viser.ViserServer, node_id: str, positions: NDArra
         server.scene.add_line_segments(name, np.asarray(segs, dtype=np.float32),
                                        np.asarray(cols, dtype=np.uint8), thickness=0.015)
     else:
-        server.scene.add_point_cloud(name, pos[ok].astype(np.float32), color, point_size=0.03)
+        # float32: viser's float16 default rounds by centimetres a few metres out
+        server.scene.add_point_cloud(name, pos[ok].astype(np.float32), color, point_size=0.03,
+                                     precision="float32")
 
 
 class Viewer:

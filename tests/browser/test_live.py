@@ -60,7 +60,10 @@ def test_every_depth_panel_streams_and_changes(live_page: Any, live_server: Live
     s1 = _stats(page)
     lat = [s1["nodes"][i]["latency_ms"] for i in ids]
     fps = [s1["nodes"][i]["fps"] for i in ids]
+    # The nodes' clocks are up to ±0.5 s off (S2 is 0.46 s behind): only capture times
+    # corrected by the server's offset estimate give positive latencies for every sensor.
     assert all(v is not None and 0 < v < 5000 for v in lat), lat
+    assert s1["mode"] == "worker"  # panels drawn off the page's thread (OffscreenCanvas)
     status = live_server.api("/api/live/status")
     (artifacts_dir / "browser" / "live_latency.json").write_text(json.dumps(
         {"latency_ms": dict(zip(ids, lat, strict=True)),
@@ -132,3 +135,27 @@ def test_3d_view(browser: Any, live_server: LiveServer, artifacts_dir: Path) -> 
         ctx.close()
     sys_info = live_server.api("/api/system")
     assert sys_info["viewer_url"].rstrip("/").endswith(live_server.viewer_url.split(":")[-1])
+
+
+def test_api_subscription_cannot_stop_the_panels(live_page: Any, live_server: LiveServer,
+                                                 artifacts_dir: Path) -> None:
+    """A node has one image subscription: another client's request (a stop, or a different
+    form) is merged with the live view's instead of replacing it."""
+    page = live_page
+    r = live_server.api("/api/nodes/S1/subscribe", {"streams": ["depth"], "fps": 0})
+    assert r["shared_with_live_view"] and set(r["sent"]["streams"]) == {"depth", "body_index"}
+    r = live_server.api("/api/nodes/S2/subscribe", {"streams": ["color"], "fps": 2,
+                                                    "scale": 1.0, "format": "jpeg"})
+    assert r["sent"]["format"] == "png" and "color" in r["sent"]["streams"]
+    assert "depth" in r["sent"]["streams"]
+    s0 = _stats(page)["nodes"]
+    page.wait_for_function(
+        "f => ['S1', 'S2'].every(i => window.liveStats.nodes[i].frames >= f[i] + 10)",
+        arg={k: s0[k]["frames"] for k in ("S1", "S2")}, timeout=60000)
+    img = screenshot(page, artifacts_dir, "live_panel_S1_after_api_stop",
+                     "figure[data-node=S1] canvas")
+    assert saturated_fraction(img) > 0.2
+    # the colour the API asked for arrives too (as PNG, the live view's form)
+    col = live_server.api("/api/nodes/S2/images/color")
+    assert col[:8] == b"\x89PNG\r\n\x1a\n"
+    live_server.api("/api/nodes/S2/subscribe", {"streams": [], "fps": 0})

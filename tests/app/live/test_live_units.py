@@ -279,3 +279,23 @@ def test_sim_preview_is_the_downscaled_frame_and_recordings_stay_full_size() -> 
     # colour cannot be previewed: rendered full size, then downscaled like the agent would
     c = sim.render(t, ["color", "depth"], 0.5)
     assert c["color"].shape == (180, 320, 3) and c["depth"].shape == (212, 256)
+
+
+def test_clouds_far_from_the_origin_keep_millimetres() -> None:
+    """viser sends point clouds as float16 by default; ours go as float32."""
+    import viser
+
+    from app.viewer.live import populate_cloud
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        pts = (np.array([[1000.0, -250.0, 0.0]]) + np.random.default_rng(0).random((500, 3))
+               ).astype(np.float32)
+        h = populate_cloud(server, "S1", pts, np.zeros((500, 3), np.uint8))
+        assert h.points.dtype == np.float32
+        assert np.abs(h.points - pts).max() < 1e-3
+        # float16 would have moved them by up to a quarter metre
+        assert np.abs(pts.astype(np.float16).astype(np.float32) - pts).max() > 0.1
+        assert populate_cloud(server, "S1", pts[:0], np.zeros((0, 3), np.uint8)) is None
+    finally:
+        server.stop()
