@@ -9,10 +9,12 @@ A user stands still for about four seconds (120 frames at 30 fps). From those fr
   horizontal shoulder vector in a Z-up frame, so any facing within ±90° (and beyond) works.
   By default D and W are summed over the shoulder, elbow, wrist and hand pairs (the
   paper's own assumption that a user standing straight has all joints in one body plane):
-  each joint's fitting error is independent, so the angle is about half as noisy as from
-  the shoulders alone (simulated Kinect, 120 frames at 3.1 m: SD 0.85° vs ≈ 2°), which is
-  what keeps seed 004's "≤ 4 cm for initial angles ≤ 20°" in ``bench/kscc.py``;
-  ``facing="shoulders"`` is the paper's exact estimate.
+  each joint's fitting error is independent, so the angle is less than half as noisy as
+  from the shoulders alone (``bench/kscc.py``'s simulated Kinect v1, 120 frames at 3.1 m:
+  SD 0.6–0.9° vs 1.4–2.2°; at a 20° initial angle the pull of the turned-away shoulder
+  towards the sensor biases the shoulder line by 2.4°, the pooled lines by 0.6°), which
+  extends seed 004's "≤ 4 cm" from ±20–25° to ±50° there; ``facing="shoulders"`` is the
+  paper's exact estimate.
 
 Every later frame is translated by ``−C`` and rotated about the vertical with a
 quaternion (``engine.geometry``, w-first) into the **universal frame** ``U``: origin at the
