@@ -73,9 +73,13 @@ def test_exact_observations_recover_true_poses() -> None:
 
 
 def test_joint_optimisation_beats_chaining_over_seeds() -> None:
-    """Never worse on any seed (RMS over sensors), and better at the far sensors."""
+    """Issue 3's wording, per seed: never worse than chaining (RMS position error over the
+    six sensors), and better at the sensors farthest from marker 1 (S5, S6, 7.5 m).
+    Individual sensors next to marker 1 may come out a little worse (the chain's one-hop
+    estimate of S1/S2 only carries their own marker-1 noise); bench/calibration.py lists
+    them on rendered frames."""
     rig = default_avenue_rig(0)
-    far = ["S5", "S6"]
+    far = [rig.sensor_ids.index(f) for f in ("S5", "S6")]
     ch_far, op_far = [], []
     for seed in range(5):
         res = calibrate(_synthetic_obs(rig, np.random.default_rng(seed)), _sizes(rig))
@@ -83,11 +87,11 @@ def test_joint_optimisation_beats_chaining_over_seeds() -> None:
                        for s in rig.sensors])
         eo = np.array([pose_error(res.T_world_sensor[s.id], s.T_world_sensor)[0]
                        for s in rig.sensors])
-        assert np.sqrt(np.mean(eo**2)) <= np.sqrt(np.mean(ec**2)) * 1.02, (seed, ec, eo)
-        idx = [rig.sensor_ids.index(f) for f in far]
-        ch_far.extend(ec[idx])
-        op_far.extend(eo[idx])
-    assert np.mean(op_far) < 0.8 * np.mean(ch_far)
+        assert np.sqrt(np.mean(eo**2)) <= np.sqrt(np.mean(ec**2)), (seed, ec, eo)
+        assert eo[far].mean() < ec[far].mean(), (seed, ec[far], eo[far])
+        ch_far.extend(ec[far])
+        op_far.extend(eo[far])
+    assert np.mean(op_far) < 0.6 * np.mean(ch_far)
 
 
 def test_disconnected_graph_names_every_unreachable_sensor() -> None:

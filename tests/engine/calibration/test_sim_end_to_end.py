@@ -22,7 +22,18 @@ def test_calibrate_cli_on_default_avenue(tmp_path: Path,
     assert sorted(doc["sensors"]) == ["S1", "S2", "S3", "S4", "S5", "S6"]
     for e in doc["sensors"].values():
         assert e["optimised_pos_m"] < 0.01 and e["optimised_rot_deg"] < 0.5
+        assert e["final_pos_m"] < 0.01 and e["final_rot_deg"] < 0.5
         assert e["chained_pos_m"] < 0.02
+    rms = {m: sum(e[f"{m}_pos_m"] ** 2 for e in doc["sensors"].values()) ** 0.5
+           for m in ("chained", "optimised")}
+    assert rms["optimised"] <= rms["chained"]
+    # ICP ran for every sensor and says what it did (kept only where it improves)
+    assert sorted(r["sensor"] for r in doc["icp"]) == sorted(doc["sensors"])
+    for r in doc["icp"]:
+        assert "fitness" in r and "inlier_rmse_mm" in r and r["reason"], r
+        if not r["accepted"]:
+            s = doc["sensors"][r["sensor"]]
+            assert s["final_pos_m"] == s["optimised_pos_m"]
     # the far pair (7.5 m from marker 1) gains most from the joint optimisation
     far = [doc["sensors"][s] for s in ("S5", "S6")]
     assert sum(e["optimised_pos_m"] for e in far) < sum(e["chained_pos_m"] for e in far)
