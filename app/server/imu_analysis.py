@@ -14,7 +14,8 @@ Two paths:
   detection per stream and, with two or more sensors, their residual offsets.
 
 The filter is the paper's Madgwick (gain β; the 6D variant when a sensor lacks a
-magnetometer) or ours (:func:`engine.imu.filter.orientation_filter`, offline mode).
+magnetometer) or ours (:func:`engine.imu.filter.orientation_filter`: offline mode for the
+single-sensor plots, causal for the fused skeleton).
 """
 
 from __future__ import annotations
@@ -110,9 +111,12 @@ def rest_flags(rec: ImuRecording, window_s: float = 0.5) -> NDArray[np.bool_]:
     return (np.convolve(g, k, mode="same") < 0.1) & (np.convolve(a, k, mode="same") < 1.0)
 
 
-def orientations(rec: ImuRecording, filt: FilterName, beta: float, nine_d: bool
-                 ) -> tuple[FloatArray, NDArray[np.bool_]]:
+def orientations(rec: ImuRecording, filt: FilterName, beta: float, nine_d: bool,
+                 offline: bool = True) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Sensor-to-ENU quaternions ``(T, 4)`` and rest flags of one recording.
+
+    ``offline`` selects our filter's non-causal mode (single-sensor plots); the fused
+    skeleton uses the causal mode (see :func:`engine.imu.pipeline.process_imu_session`).
 
     Raises:
         InputError: bad gain or unusable samples (from the engine).
@@ -125,7 +129,7 @@ def orientations(rec: ImuRecording, filt: FilterName, beta: float, nine_d: bool
                      frequency=rec.frequency, frame="ENU")
         return q, rest_flags(rec)
     q, _, rest = orientation_filter(rec.gyr, rec.acc, mag, frequency=rec.frequency,
-                                    offline=True)
+                                    offline=offline)
     return q, rest
 
 
@@ -143,7 +147,7 @@ def fuse_session(recordings: dict[str, ImuRecording], skeleton: SkeletonSeries, 
     return process_imu_session(
         recordings, skeleton, plank_time=plank_time, q_world_plank=q_world_plank,
         synchronise=synchronise, n_jumps=n_jumps,
-        orientation=lambda rec, nine_d: orientations(rec, filt, beta, nine_d))
+        orientation=lambda rec, nine_d: orientations(rec, filt, beta, nine_d, offline=False))
 
 
 # ------------------------------------------------------------------------------ plots
