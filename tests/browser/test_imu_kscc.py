@@ -51,9 +51,13 @@ def test_kscc_page_live_progress_and_active_area(page: Any, live_server: LiveSer
     page.wait_for_selector("#node-b option[value=S2]", state="attached")
     page.select_option("#node-a", "S1")
     page.select_option("#node-b", "S2")
-    page.fill("#countdown", "1")
+    page.fill("#countdown", "3")
     page.click("#start")
-    # the countdown runs, then each side reports a stillness state from KsccProgress
+    # the countdown is shown on both sides ...
+    page.wait_for_function(
+        "[...document.querySelectorAll('#sides .countdown')].every(e => "
+        "/^[1-3] s$/.test(e.textContent))", timeout=10_000)
+    # ... then each side reports a stillness state from KsccProgress
     page.wait_for_function(
         "[...document.querySelectorAll('#sides .state')].every(e => e.textContent.length > 0)",
         timeout=30_000)
