@@ -51,6 +51,10 @@ MIN_PASS_M = 0.5
 #: 240 steps/min; step-time CV in gait is ≈ 3-10 %, so 40 % of the median is never a step).
 MIN_STEP_FRACTION = 0.4
 MIN_STEP_S = 0.2
+#: Stance samples further than this (m, on the floor) from the median of the placement
+#: window are outliers: ≈ 3 SD of a Kinect ankle's per-sample error (1–2 cm), far less
+#: than the ≥ 10 cm a leg-label swap moves a foot.
+STANCE_OUTLIER_M = 0.05
 #: Steps or strides longer than this multiple of the pass's median span missed events.
 MAX_DURATION_RATIO = 2.0
 
@@ -244,10 +248,11 @@ class GaitAnalysis:
             speed at the start of the recording.
         min_event_period_s: two events of the same kind and foot are at least this far
             apart (a stride is ≥ 0.6 s even when running slowly).
-        placement_window_s: crossing method: the placed foot's position is the median
-            over ± this window around the crossing (mid-stance, when the foot stands
-            still for ≳ 0.3 s at walking speeds) instead of its position at the crossing
-            instant (0: the paper's rule).
+        placement_window_s: crossing method: the placed foot's position is its trimmed
+            mean over ± this window around the crossing (mid-stance; the foot stands
+            still for most of a ±0.3 s window at walking speeds) instead of its position
+            at the crossing instant (0: the paper's rule); the crossing time is then
+            refined to where the swinging foot passes that position.
         direction: a fixed walking direction ``(x, y)`` on the floor (e.g. a walkway's
             axis in the lab frame) along which lengths and widths are measured in every
             pass; None (default) finds it per pass from the footprints. A fixed axis
@@ -263,7 +268,7 @@ class GaitAnalysis:
     """
 
     def __init__(self, method: Method = "crossing", exclude_first: bool | str = "auto",
-                 min_event_period_s: float = 0.4, placement_window_s: float = 0.1,
+                 min_event_period_s: float = 0.4, placement_window_s: float = 0.3,
                  direction: tuple[float, float] | None = None) -> None:
         if method not in ("crossing", "heelstrike"):
             raise InputError(f"method must be 'crossing' or 'heelstrike', got {method!r}")
@@ -506,9 +511,12 @@ class GaitAnalysis:
         """The placed foot's position at a crossing.
 
         With ``placement_window_s = 0`` the position at the crossing instant (the
-        paper). Otherwise the median over ±window around it: the crossing is mid-stance,
-        when the foot stands still for ~0.3 s, so the median averages measurement noise
-        down without moving the estimate.
+        paper). Otherwise a robust mean over ±window around it: the crossing is
+        mid-stance, so most of the window is the foot standing still, which averages
+        measurement noise down; what the foot does at the window's ends (landing, heel
+        rise) both feet do alike, so step lengths and widths, which are differences of
+        placements, stay unbiased. Samples far from the window's median (a brief leg
+        swap of the tracker) are left out.
         """
         p = _interp_rows(t, x, tc)
         if self.placement_window_s <= 0:
@@ -516,7 +524,13 @@ class GaitAnalysis:
         m = (t >= tc - self.placement_window_s) & (t <= tc + self.placement_window_s)
         w = x[m]
         w = w[np.isfinite(w).all(axis=1)]
-        return np.median(w, axis=0) if len(w) >= 3 else p
+        if len(w) < 3:
+            return p
+        # Robust mean: samples further than STANCE_OUTLIER_M from the median (a leg-label
+        # swap, a foot still landing) are left out, the rest averaged.
+        med = np.median(w, axis=0)
+        keep = np.linalg.norm(w[:, :2] - med[:2], axis=1) <= STANCE_OUTLIER_M
+        return np.asarray(w[keep].mean(axis=0)) if keep.sum() >= 3 else med
 
     @staticmethod
     def _refine_strike(t: FloatArray, heel: FloatArray, t_zeni: float) -> float:
