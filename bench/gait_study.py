@@ -218,6 +218,10 @@ def main() -> None:
     out["one_sided_worse"] = all(one[r]["icc"] < two[r]["icc"] for r in
                                  ("step_length L", "step_length R", "step_width L",
                                   "step_width R") if r in one and r in two)
+    ow, tw = out["one_sided_weighted"], out["two_sided_weighted"]
+    out["ours_one_sided_worse"] = all(ow[r]["icc"] < tw[r]["icc"] for r in
+                                      ("step_length L", "step_length R", "step_width L",
+                                       "step_width R") if r in ow and r in tw)
     ours = out["two_sided_weighted"]
     rows = [f"{p} {s}" for p in ("step_length", "step_width", "step_time") for s in "LR"]
     out["ours_acceptance"] = {
