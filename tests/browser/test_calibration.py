@@ -73,3 +73,8 @@ def test_wizard_captures_from_nodes_accepts_and_checks(page: Any, live_server: L
     assert last["checked"] and last["moved"] == []
     screenshot(page, artifacts_dir, "calibration_live_check")
     assert not page.js_errors
+    # the Calibrate page shows the latest check (and would warn about a moved sensor)
+    page.goto(live_server.base_url + "/calibrate.html")
+    page.wait_for_function("document.getElementById('bump-state').textContent"
+                           ".includes('no sensor moved')", timeout=15_000)
+    assert not page.js_errors

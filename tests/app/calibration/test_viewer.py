@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,3 +34,27 @@ def test_graph_panel(server: viser.ViserServer) -> None:
     assert np.asarray(h.colors).reshape(-1, 3)[0].tolist() == [210, 50, 40]
     assert residual_colour(0.0005) == (40, 160, 70) and residual_colour(0.002) == (220, 170, 20)
     assert residual_colour(float("nan")) == (150, 150, 150)
+
+
+def test_live_view_draws_the_active_calibration(server: viser.ViserServer,
+                                                tmp_path: Path) -> None:
+    """The live 3D view's graph layer shows the saved calibration (its sensors, markers
+    and residual-coloured edges), not the simulator's true poses."""
+    from app.config import Settings
+    from app.server import calibration as cal
+    from app.server.hub import Hub
+    from app.viewer.live import LiveServices
+
+    hub = Hub(Settings(data_dir=tmp_path, viewer_enabled=False, node_token="viewer-token"))
+    live = LiveServices(hub, server)
+    live._draw_graph()
+    names = set(server.scene._handle_from_node_name)
+    assert not any(n.startswith("/graph/edges/S") for n in names)  # no calibration yet
+    res = _result()
+    cal.save(tmp_path, res)
+    live._draw_graph()
+    names = set(server.scene._handle_from_node_name)
+    edges = [n for n in names if n.startswith("/graph/edges/") and n.count("/") == 3]
+    assert len(edges) == len(res.edges)
+    assert {f"/graph/sensors/S{i}" for i in range(1, 7)} <= names
+    assert "/graph/label" in names
