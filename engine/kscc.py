@@ -13,7 +13,7 @@ A user stands still for about four seconds (120 frames at 30 fps). From those fr
   from the shoulders alone (``bench/kscc.py``'s simulated Kinect v1, 120 frames at 3.1 m:
   SD 0.6–0.9° vs 1.4–2.2°; at a 20° initial angle the pull of the turned-away shoulder
   towards the sensor biases the shoulder line by 2.4°, the pooled lines by 0.6°), which
-  extends seed 004's "≤ 4 cm" from ±20–25° to ±50° there; ``facing="shoulders"`` is the
+  extends seed 004's "≤ 4 cm" from ±25° to ±45° there; ``facing="shoulders"`` is the
   paper's exact estimate.
 
 Every later frame is translated by ``−C`` and rotated about the vertical with a
