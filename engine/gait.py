@@ -55,6 +55,9 @@ MIN_STEP_S = 0.2
 #: window are outliers: ≈ 3 SD of a Kinect ankle's per-sample error (1–2 cm), far less
 #: than the ≥ 10 cm a leg-label swap moves a foot.
 STANCE_OUTLIER_M = 0.05
+#: The heel has landed when its downward velocity has fallen below this fraction of its
+#: peak descent in late swing (see GaitAnalysis._refine_strike).
+HEEL_STOP_FRACTION = 0.05
 #: Steps or strides longer than this multiple of the pass's median span missed events.
 MAX_DURATION_RATIO = 2.0
 
@@ -534,23 +537,35 @@ class GaitAnalysis:
 
     @staticmethod
     def _refine_strike(t: FloatArray, heel: FloatArray, t_zeni: float) -> float:
-        """Move a Zeni foot strike to the heel's landing (lowest point).
+        """Move a Zeni foot strike to the heel's landing.
 
         Zeni's maximum of heel-minus-pelvis precedes ground contact by a few tens of ms
-        (the heel is still descending); the heel reaches the floor where its vertical
-        velocity turns from downward to upward. The search is bounded to
-        [−30, +120] ms around Zeni's estimate so that noisy heights cannot move an event
-        to another step; without a crossing in that window Zeni's time is kept.
+        (the heel is still descending). The heel lands when it stops descending; its
+        lowest point comes later, as the heel pad and shoe sole compress with a
+        vertical velocity that only creeps to zero. Contact is therefore taken where
+        the downward velocity falls below :data:`HEEL_STOP_FRACTION` of its peak in late
+        swing (a velocity threshold as Ghoussayni et al. 2004, Gait Posture 20:266,
+        scaled to the swing's own descent so that it holds at any speed or height
+        scale), sub-frame interpolated; without such a crossing, the lowest point. The
+        search is bounded to [−30, +120] ms around Zeni's estimate so that noisy
+        heights cannot move an event to another step; Zeni's time is kept when neither
+        is found there.
         """
         m = (t >= t_zeni - 0.03) & (t <= t_zeni + 0.12)
         idx = np.flatnonzero(m)
         if len(idx) < 3 or not np.isfinite(heel[idx, 2]).all():
             return t_zeni
         vz = np.gradient(heel[idx, 2], t[idx])
-        for j in range(len(idx) - 1):
-            if vz[j] < 0 <= vz[j + 1]:
-                u = vz[j] / (vz[j] - vz[j + 1])
-                return float(t[idx[j]] + u * (t[idx[j + 1]] - t[idx[j]]))
+        late = np.flatnonzero((t >= t_zeni - 0.15) & (t <= t_zeni + 0.12))
+        z_late = heel[late, 2]
+        ok = np.isfinite(z_late)
+        peak = (float(-np.gradient(z_late[ok], t[late][ok]).min())
+                if ok.sum() >= 3 else 0.0)
+        for thr in ((HEEL_STOP_FRACTION * peak, 0.0) if peak > 0 else (0.0,)):
+            for j in range(len(idx) - 1):
+                if vz[j] < -thr <= vz[j + 1]:
+                    u = (vz[j] + thr) / (vz[j] - vz[j + 1])
+                    return float(t[idx[j]] + u * (t[idx[j + 1]] - t[idx[j]]))
         return t_zeni
 
     @staticmethod

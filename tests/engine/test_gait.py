@@ -46,7 +46,7 @@ def test_heelstrike_events_match_truth() -> None:
     for e in fs:
         side, tt = min(truth, key=lambda x: abs(x[1] - e.time_s))
         assert side == e.side
-        assert abs(tt - e.time_s) <= 0.011  # one frame at 100 Hz
+        assert abs(tt - e.time_s) <= 0.005  # half a frame at 100 Hz
     for s in g.steps_:
         assert s.length_m == pytest.approx(0.7, abs=0.01)
         assert s.width_m == pytest.approx(0.1, abs=0.005)
@@ -58,7 +58,9 @@ def test_heelstrike_events_match_truth() -> None:
         assert side == e.side and abs(tt - e.time_s) <= 0.016
     # stance = (step + double support) / stride = 0.65 / 1.1; double support 2 × 0.1 / 1.1
     assert g.summary_["stance_pct"]["mean"] == pytest.approx(100 * 0.65 / 1.1, abs=1.5)
-    assert g.summary_["double_support_pct"]["mean"] == pytest.approx(100 * 0.2 / 1.1, abs=2.0)
+    # the foot offs may each be up to 15 ms late (above), which lengthens each of the two
+    # double-support phases: up to 2 × 15 ms / 1.1 s = 2.7 % of the cycle
+    assert g.summary_["double_support_pct"]["mean"] == pytest.approx(100 * 0.2 / 1.1, abs=3.0)
 
 
 def test_asymmetry_and_variability() -> None:
