@@ -9,10 +9,13 @@ run, on the same frames — through a plain Open3D pipeline doing the same work
 ``voxel_down_sample``, numpy serialisation). Figures are medians over repeats; goals:
 ≥ 2× faster than Open3D and ≥ 10 updates/s.
 
-Also measured: the server's per-panel cost for the Live page (PNG decode of depth and
-body index, colourise + highlight, JPEG) as panels/s capacity (goal: six nodes × 10 fps
-= 60/s), and the planning redraw after a tripod moves (coverage layer update + map
-image + PNG; goal ≤ 200 ms). Prints one JSON line.
+Also measured: a simulated node's cost per live panel — rendering depth + body index at
+the panel's half size directly (``SimBackend.render(..., scale=0.5)``, what the node does
+for the live subscription) against rendering full size and downscaling (what it did
+before, and still does for recordings) — then the server's per-panel cost for the Live
+page (PNG decode of depth and body index, colourise + highlight, JPEG) as panels/s
+capacity (goal: six nodes × 10 fps = 60/s), and the planning redraw after a tripod moves
+(coverage layer update + map image + PNG; goal ≤ 200 ms). Prints one JSON line.
 """
 
 from __future__ import annotations
@@ -119,6 +122,16 @@ def main() -> None:
         planner.png()
 
     drag_ms = _median_ms(drag, 15)
+
+    # Node side: one live panel of S1 with the walker in view (world time 4 s)
+    sim = SimBackend("S1", seed=0)
+    sim.open()
+    ts = iter(np.linspace(3.5, 4.5, 10_000))
+    full_ms = _median_ms(lambda: {k: cv2.resize(v, (256, 212), interpolation=cv2.INTER_NEAREST)
+                                  for k, v in sim.render(float(next(ts)),
+                                                         ["depth", "body_index"]).items()}, 30)
+    preview_ms = _median_ms(lambda: sim.render(float(next(ts)), ["depth", "body_index"], 0.5),
+                            30)
     print(json.dumps({
         "bench": "live",
         "cloud_frames": len(views), "frame_size": list(views[0].depth_mm.shape[::-1]),
@@ -132,6 +145,9 @@ def main() -> None:
         "panel_jpeg_bytes_median": int(np.median(jpeg_bytes)),
         "goal_60_panels_per_s": 1000.0 / panel_ms >= 60.0,
         "coverage_drag_ms": round(drag_ms, 2), "goal_drag_200ms": drag_ms <= 200.0,
+        "sim_panel_full_then_resize_ms": round(full_ms, 2),
+        "sim_panel_preview_ms": round(preview_ms, 2),
+        "sim_panel_speedup": round(full_ms / preview_ms, 2),
     }))
 
 
