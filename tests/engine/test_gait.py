@@ -278,3 +278,20 @@ def test_find_passes_straight_run_shorter_than_baseline_after_start() -> None:
                             {"L": "ankle", "R": "ankle"}, pelvis=centre)
     with pytest.raises(InsufficientDataError, match="no straight walking"):
         GaitAnalysis("crossing").fit(feet)
+
+
+def test_fixed_walkway_axis_rotated_from_the_walk_biases_widths_antisymmetrically() -> None:
+    """Seed 000's left/right step-width bias pattern: widths measured along a fixed axis
+    2° off the line of progression are w ± ψ·L (left steps wider here, right narrower),
+    while the footprint direction (default) measures the true width."""
+    w = synth_walk(step_length=0.7, step_width=0.12, step_time=0.55, heading_deg=2.0)
+    feet = feet_from_markers(walk_markers(w))
+    psi = np.radians(2.0)
+    fixed = GaitAnalysis("crossing", direction=(1.0, 0.0)).fit(feet)
+    for s in fixed.steps_:
+        expect = 0.12 + psi * 0.7 if s.side == "L" else 0.12 - psi * 0.7
+        assert s.width_m == pytest.approx(expect, abs=0.002)
+    auto = GaitAnalysis("crossing").fit(feet)
+    assert all(s.width_m == pytest.approx(0.12, abs=0.002) for s in auto.steps_)
+    with pytest.raises(InputError, match="direction"):
+        GaitAnalysis(direction=(0.0, 0.0))
