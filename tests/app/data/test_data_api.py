@@ -187,6 +187,19 @@ def test_reference_upload_is_bounded(client: TestClient, tmp_path: Path,
     assert r.status_code == 400 and "sensor id" in r.json()["detail"]
 
 
+def _calibrate(data_dir: Path, yaw: float) -> int:
+    """Save a calibration of sensor S1 (the newest version is the active one)."""
+    from app.server import calibration as cal
+    from engine.calibration.pipeline import CalibrationResult
+
+    c, s_ = np.cos(yaw), np.sin(yaw)
+    T = np.array([[c, -s_, 0, 1.0], [s_, c, 0, -2.0], [0, 0, 1, 0.8], [0, 0, 0, 1]])
+    res = CalibrationResult(T_world_sensor={"S1": T}, T_world_sensor_chained={"S1": T},
+                            T_world_marker={1: np.eye(4)}, marker_sizes={1: 0.4},
+                            sensor_residual_m={"S1": 0.002}, edges=[], observations=[])
+    return cal.save(data_dir, res)
+
+
 def test_fused_export_keeps_the_recordings_own_poses(client: TestClient, tmp_path: Path
                                                      ) -> None:
     """A recalibration after the recording does not change its fused export."""
@@ -201,14 +214,13 @@ def test_fused_export_keeps_the_recordings_own_poses(client: TestClient, tmp_pat
         db.commit()
     r = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "fused"})
     assert r.status_code == 400 and "no calibrated pose" in r.json()["detail"]
-    first = client.post("/api/calibration/simulate", json={"seed": 1, "frames": 2}).json()
+    first = _calibrate(tmp_path, 0.3)
     before = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "fused"})
     assert before.status_code == 200, before.text
     snap = (tmp_path / "recordings" / "R1" / "sensors.json").read_text()
-    assert json.loads(snap)["S1"]["calibration_version"] == str(first["version"])
+    assert json.loads(snap)["S1"]["calibration_version"] == str(first)
     # the rig is calibrated again (another pose for S1); the old recording keeps its own
-    second = client.post("/api/calibration/simulate", json={"seed": 2, "frames": 2}).json()
-    assert second["version"] != first["version"]
+    assert _calibrate(tmp_path, 1.2) != first
     after = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "fused"})
     assert after.content == before.content
     assert (tmp_path / "recordings" / "R1" / "sensors.json").read_text() == snap
