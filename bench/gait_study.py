@@ -214,6 +214,7 @@ def main() -> None:
                     "d_bias_cm": round(sim["bias"] - bias_p, 2),
                     "within": abs(sim["icc"] - icc_p) <= 0.1 and abs(sim["bias"] - bias_p) <= 1.0}
     out["realism_band"] = band
+    out["realism_within"] = f"{sum(b['within'] for b in band.values())}/{len(band)}"
     two, one = out["two_sided_mean"], out["one_sided_mean"]
     out["one_sided_worse"] = all(one[r]["icc"] < two[r]["icc"] for r in
                                  ("step_length L", "step_length R", "step_width L",
