@@ -257,6 +257,7 @@ def synchronize(
     reference: str | None = None,
     up: ArrayLike = (0.0, 0.0, 1.0),
     refine: bool = True,
+    min_match: float = 0.4,
 ) -> SyncResult:
     """Align IMU streams (and a depth skeleton) by the jump series.
 
@@ -270,6 +271,8 @@ def synchronize(
         refine: with the skeleton as reference, refine each IMU's offset by matching the
             whole jump waveform (see :func:`_refine_against_skeleton`), far more precise
             than the 30 Hz spike times alone.
+        min_match: smallest correlation coefficient between an IMU's jump series and the
+            skeleton's torso acceleration (median over IMUs) accepted as found.
 
     Raises:
         InputError: no streams or an unknown reference.
@@ -303,8 +306,15 @@ def synchronize(
             raise InsufficientDataError(f"depth skeleton: {e}") from None
         # template matching of every IMU's whole jump series; their mutual offsets are
         # exact, so the median over IMUs is one robust estimate for the pivot
-        coarse = [_coarse_offset(imus[n], spikes[n], *sk_coarse) - rel[n] for n in names]
-        pivot_sk = float(np.median(coarse))
+        matches = [_coarse_offset(imus[n], spikes[n], *sk_coarse) for n in names]
+        r_match = float(np.median([r for _, r in matches]))
+        if r_match < min_match:
+            raise InsufficientDataError(
+                f"depth skeleton: its torso motion does not show the IMUs' jump series "
+                f"(best match r = {r_match:.2f}); record the depth skeleton from before the "
+                "jumps, with the torso in view")
+        pivot_sk = float(np.median([o - rel[n] for (o, _), n in zip(matches, names,
+                                                                    strict=True)]))
         for n in names:
             to_sk[n] = pivot_sk + rel[n]
             if refine:
@@ -313,6 +323,11 @@ def synchronize(
         # the skeleton's landings: the highest torso acceleration near the aligned IMU
         # landings (a global peak search would pick noise)
         on_sk = np.median(np.stack([spikes[n] + to_sk[n] for n in names]), axis=0)
+        inside = (on_sk >= sk_acc[0][0]) & (on_sk <= sk_acc[0][-1])
+        if inside.sum() < min(3, n_jumps):
+            raise InsufficientDataError(
+                f"depth skeleton: only {int(inside.sum())} of the {n_jumps} jumps fall inside "
+                "its recording; record the depth skeleton from before the jumps")
         spikes["skeleton"] = _peaks_near(*sk_acc, on_sk, 0.1)
         to_sk["skeleton"] = 0.0
     offsets: dict[str, float] = {}
@@ -350,7 +365,7 @@ def _peaks_near(t: FloatArray, y: FloatArray, at: FloatArray, half: float) -> Fl
 
 
 def _coarse_offset(rec: ImuRecording, spikes: FloatArray, t_sk: FloatArray,
-                   a_sk: FloatArray) -> float:
+                   a_sk: FloatArray) -> tuple[float, float]:
     """Offset of an IMU onto the skeleton clock by cross-correlating its whole jump series.
 
     The IMU's acceleration norm minus g (≈ vertical acceleration of an upright body), from
@@ -359,6 +374,10 @@ def _coarse_offset(rec: ImuRecording, spikes: FloatArray, t_sk: FloatArray,
     then slid over ``a_sk``: the lag of the largest correlation wins. Free fall (-g for
     ~0.45 s), push-off and landing of all the jumps contribute, so single noise peaks of
     the depth signal cannot win as they can for a spike detector.
+
+    Returns:
+        ``(offset, r)``: offset (s) and the correlation coefficient of the match (0 when
+        less than 60 % of the template overlaps the skeleton signal).
     """
     dt = float(t_sk[1] - t_sk[0])
     ok = np.all(np.isfinite(rec.acc), axis=1)
@@ -375,7 +394,17 @@ def _coarse_offset(rec: ImuRecording, spikes: FloatArray, t_sk: FloatArray,
     k = int(np.argmax(c))
     kk = _refine_peak(c, k)
     m = kk - (len(y) - 1)
-    return float(t_sk[0] + m * dt - grid[0])
+    # quality: correlation coefficient of the template with the skeleton signal it was
+    # matched to (the template must lie inside the depth recording for most of its length)
+    lag = k - (len(y) - 1)
+    i0, i1 = max(0, lag), min(len(x), lag + len(y))
+    r = 0.0
+    if i1 - i0 >= 0.6 * len(y):
+        xs, ys = x[i0:i1], y[i0 - lag:i1 - lag]
+        xs, ys = xs - xs.mean(), ys - ys.mean()
+        den = float(np.sqrt(np.sum(xs * xs) * np.sum(ys * ys)))
+        r = float(np.sum(xs * ys) / den) if den > 0 else 0.0
+    return float(t_sk[0] + m * dt - grid[0]), r
 
 
 def _refine_against_skeleton(

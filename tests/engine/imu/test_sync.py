@@ -163,3 +163,12 @@ def test_sync_with_default_kinect_model(seed: int) -> None:
     res = synchronize(recs, depth, n_jumps=5)
     for s, off in offsets.items():
         assert res.offsets[s] == pytest.approx(off, abs=0.015), s
+
+
+def test_depth_skeleton_without_the_jumps_is_refused() -> None:
+    recs, _, subject = _protocol_recordings(0)
+    td = np.arange(11.5, 15.9, 1 / 30)  # starts after the last landing
+    J = subject.joints(td)
+    sk = SkeletonSeries(td, J, np.full(J.shape[:2], TrackingState.TRACKED, np.uint8), KINECT_V2)
+    with pytest.raises(InsufficientDataError, match=r"does not show the IMUs. jump series"):
+        synchronize(recs, sk, n_jumps=5)
