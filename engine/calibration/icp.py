@@ -106,6 +106,7 @@ def icp_align(
     voxel: float | None = 0.02,
     max_dist: float | None = None,
     iterations: int = 60,
+    min_eig_ratio: float | None = None,
 ) -> IcpResult:
     """Point-to-plane ICP with a Tukey robust kernel, on voxel-downsampled clouds.
 
@@ -116,6 +117,9 @@ def icp_align(
         voxel: Downsampling voxel (m); None keeps the clouds as they are (sparse clouds).
         max_dist: Correspondence distance (default 2.5 × voxel, or 5 cm).
         iterations: Maximum ICP iterations.
+        min_eig_ratio: If given, ICP is not run when the overlap at ``T_init`` is already
+            degenerate (information eigenvalue ratio below this): it would be refused
+            anyway. The result then keeps ``T_init`` and the before-values.
 
     Raises:
         InputError: empty clouds or bad voxel size.
@@ -132,6 +136,12 @@ def icp_align(
     T0 = np.eye(4) if T_init is None else np.asarray(T_init, dtype=float)
     reg = o3d.pipelines.registration
     before = reg.evaluate_registration(s, t, md, T0)
+    if min_eig_ratio is not None:
+        r0 = information_eig_ratio(transform_points(T0, np.asarray(s.points)),
+                                   np.asarray(t.points), np.asarray(t.normals), md)
+        if r0 < min_eig_ratio:
+            return IcpResult(T0, float(before.fitness), float(before.inlier_rmse),
+                             float(before.fitness), float(before.inlier_rmse), r0)
     est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=md))
     out = reg.registration_icp(s, t, md, T0, est,
                                reg.ICPConvergenceCriteria(max_iteration=iterations))
@@ -177,7 +187,8 @@ def refine_with_icp(
             reports.append(IcpReport(sid, False, "no other sensor's cloud to align to", None))
             continue
         try:
-            r = icp_align(world[sid], np.concatenate(others), voxel=voxel)
+            r = icp_align(world[sid], np.concatenate(others), voxel=voxel,
+                          min_eig_ratio=min_eig_ratio)
         except InputError as exc:
             reports.append(IcpReport(sid, False, str(exc), None))
             continue

@@ -13,9 +13,11 @@ sensor's ICP outcome is in ``meta["icp"]``. Saving, loading and the bumped-tripo
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -204,12 +206,21 @@ def calibrate_frames(
     if dup:
         raise InputError(f"sensor ids appear twice: {dup}")
     known = None if isinstance(marker_sizes, int | float) else dict(marker_sizes)
-    obs: list[Observation] = []
-    for f in frames:
-        obs.extend(observe_sensor(f, known, dictionary, params))
+
+    def per_sensor(f: SensorFrames) -> tuple[list[Observation], FloatArray | None]:
+        return (observe_sensor(f, known, dictionary, params),
+                static_cloud(f) if icp else None)
+
+    # sensors are independent (each has its own RANSAC seed): one worker per core, since
+    # OpenCV and numpy release the GIL for most of the work
+    workers = max(1, min(len(frames), os.cpu_count() or 1))
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="calib") as ex:
+        done = list(ex.map(per_sensor, frames))
+    obs = [o for sensor_obs, _ in done for o in sensor_obs]
     res = calibrate(obs, marker_sizes, ids, origin_marker, floor_sigma_m, dictionary)
     if icp:
-        apply_icp(res, {f.sensor_id: static_cloud(f) for f in frames})
+        apply_icp(res, {f.sensor_id: c for f, (_, c) in zip(frames, done, strict=True)
+                        if c is not None})
     return res
 
 

@@ -50,7 +50,9 @@
     const x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
     const W = 640, H = 360, pad = 40;
     const k = Math.min((W - 2 * pad) / Math.max(x1 - x0, 0.1), (H - 2 * pad) / Math.max(y1 - y0, 0.1));
-    const P = (p) => [pad + (p[0] - x0) * k, H - pad - (p[1] - y0) * k];  // Z up: world y up on screen
+    // centred; Z up: world y points up on screen
+    const ox = (W - (x1 - x0) * k) / 2, oy = (H - (y1 - y0) * k) / 2;
+    const P = (p) => [ox + (p[0] - x0) * k, H - oy - (p[1] - y0) * k];
     for (const e of doc.edges) {
       if (!S[e.sensor] || !M[String(e.marker)]) continue;
       const [ax, ay] = P(S[e.sensor]), [bx, by] = P(M[String(e.marker)]);
