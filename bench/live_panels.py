@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import ctypes
 import json
 import os
 import secrets
@@ -62,6 +64,12 @@ def _request(url: str, data: dict[str, Any] | None = None, token: str | None = N
         return json.loads(r.read())
 
 
+def _die_with_parent() -> None:
+    # Linux: the child gets SIGTERM when the bench dies, even by kill -9 (as in the demo).
+    with contextlib.suppress(OSError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
 def _start(tmp: Path, n_nodes: int) -> tuple[list[subprocess.Popen[bytes]], str, int, int, str]:
     port, vport = _free_port(), _free_port()
     password, token = secrets.token_urlsafe(9), secrets.token_urlsafe(16)
@@ -69,16 +77,20 @@ def _start(tmp: Path, n_nodes: int) -> tuple[list[subprocess.Popen[bytes]], str,
            "PYTHONUNBUFFERED": "1"}
     py = [sys.executable, "-m", "app.cli"]
     log = (tmp / "rig.log").open("wb")
+    # Each process in its own session, as ``gaitrig demo`` starts them (and as separate
+    # computers would be): with the kernel's autogroup scheduling, a session shares the
+    # CPU with other sessions as a whole, so one session for the rig and the browser
+    # would let the browser's threads starve the nodes.
+    opts: dict[str, Any] = {"cwd": ROOT, "env": env, "stdout": log, "stderr": subprocess.STDOUT,
+                            "start_new_session": True, "preexec_fn": _die_with_parent}
     procs = [subprocess.Popen([*py, "serve", "--host", "127.0.0.1", "--port", str(port),
                                "--viewer-port", str(vport), "--data-dir", str(tmp / "server"),
-                               "--log-level", "warning"],
-                              cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)]
+                               "--log-level", "warning"], **opts)]
     for k in range(1, n_nodes + 1):
         procs.append(subprocess.Popen(
             [*py, "node", "--id", f"S{k}", "--backend", "sim", "--server",
              f"ws://127.0.0.1:{port}", "--data-dir", str(tmp / "nodes" / f"S{k}"),
-             "--log-level", "warning", "--report-true-clock"],
-            cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT))
+             "--log-level", "warning", "--report-true-clock"], **opts))
     return procs, f"http://127.0.0.1:{port}", port, vport, password
 
 
