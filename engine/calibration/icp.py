@@ -8,7 +8,8 @@ helps and is trustworthy:
   in-plane sliding or turning about the floor normal (and two walls leave one direction
   free). The 6×6 point-to-plane information matrix (rotation scaled by the cloud radius)
   must have its smallest eigenvalue above ``min_eig_ratio`` of the largest; otherwise the
-  refinement is refused;
+  refinement is refused (checked at the marker pose first — ICP is then not run at all —
+  and again at the ICP result);
 * the inlier RMSE drops by at least ``min_improvement`` (relative) without losing fitness;
 * the correction agrees with the marker solution (≤ ``max_correction_m`` and
   ``max_correction_deg``): ICP must not drift a sensor away.
