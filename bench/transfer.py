@@ -8,8 +8,9 @@ recording, and the server's DataSync pulls every part as soon as the nodes conne
 manifest (hashed by the node on request), chunks each verified by SHA-256 and written in
 place, whole files verified, fsync, rename.
 
-Timed from the server's log: ``transfer`` from the first "receiving" line (manifest in
-hand) to the last part "on the server"; ``with_manifest`` from the first manifest request.
+Timed from the server's log, per node: ``transfer`` from "receiving" (manifest in hand)
+to the part "on the server", ``with_manifest`` from the manifest request; the time is the
+union of the nodes' intervals (their processes may connect seconds apart).
 The peer is ``shutil.copyfile`` of the same files followed by ``fsync`` (the copy a person
 would make, made durable like ours), measured in the same run, best of ``--repeats`` each.
 Goal: ``ratio_vs_copy`` ≥ 0.5. ``loadavg`` is the 1-minute load before and after: the
@@ -75,13 +76,31 @@ def _server_state(server_dir: Path, parts: dict[str, int]) -> None:
     (server_dir / "recordings.json").write_text(json.dumps([rec]))
 
 
-def _log_times(log: Path, pattern: str) -> list[float]:
-    out = []
+def _log_times(log: Path, pattern: str) -> dict[str, float]:
+    """Node id → time of the server log line matching ``pattern`` (with ``{node}``)."""
+    out: dict[str, float] = {}
+    rx = re.compile(pattern.replace("{node}", r"(?P<node>[A-Za-z0-9_.-]+)"))
     for line in log.read_text(errors="replace").splitlines():
         m = _LOG_TIME.match(line)
-        if m and pattern in line:
-            out.append(datetime.strptime(m.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp())
+        hit = rx.search(line)
+        if m and hit:
+            t = datetime.strptime(m.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp()
+            out[hit.group("node")] = t
     return out
+
+
+def _busy(start: dict[str, float], end: dict[str, float]) -> float:
+    """Length of the union of the per-node intervals (time any part was in transfer;
+    the nodes' processes may connect seconds apart on a loaded machine)."""
+    spans = sorted((start[n], end[n]) for n in end)
+    total, cur_a, cur_b = 0.0, spans[0][0], spans[0][1]
+    for a, b in spans[1:]:
+        if a > cur_b:
+            total += cur_b - cur_a
+            cur_a, cur_b = a, b
+        else:
+            cur_b = max(cur_b, b)
+    return total + cur_b - cur_a
 
 
 def _transfer_once(tmp: Path, nodes: list[str], node_dirs: dict[str, Path], sizes: dict[str, int],
@@ -131,13 +150,13 @@ def _transfer_once(tmp: Path, nodes: list[str], node_dirs: dict[str, Path], size
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
-    asked = _log_times(logs["server"], "for the manifest of its part")
-    receiving = _log_times(logs["server"], "bytes from")
-    landed = _log_times(logs["server"], "on the server")
-    if len(landed) < len(nodes) or not receiving:
+    asked = _log_times(logs["server"], "asking {node} for the manifest")
+    receiving = _log_times(logs["server"], "bytes from {node}$")
+    landed = _log_times(logs["server"], "part of {node} on the server")
+    if set(landed) != set(nodes) or set(receiving) != set(nodes):
         raise RuntimeError("transfer log lines missing; see " + str(logs["server"]))
     shutil.rmtree(server_dir)
-    return max(landed) - min(receiving), max(landed) - min(asked)
+    return _busy(receiving, landed), _busy(asked, landed)
 
 
 def _copy(sources: list[Path], dest: Path) -> float:

@@ -127,16 +127,14 @@ class DataSync:
         self._last_try[rec_id] = time.time()
         self.hub.transfers.start(rec_id)
 
-    def _running(self, rec_id: str) -> bool:
-        return self.hub.transfers.is_running(rec_id)
-
     def _maybe_transfer(self, rec: LiveRecording, reconnected: set[str]) -> None:
-        if rec.t_stop is None or self._running(rec.id):
+        if rec.t_stop is None:
             return
         reg = self.hub.registry
+        busy = self.hub.transfers.running_parts(rec.id)
         todo = [n for n, p in rec.parts.items()
                 if p.state in ("on_node", "incomplete") and not p.on_server and p.n_frames
-                and (s := reg.get(n)) is not None and s.connected]
+                and n not in busy and (s := reg.get(n)) is not None and s.connected]
         if not todo:
             return
         due = (rec.id not in self._last_try or bool(reconnected & set(todo))
@@ -164,15 +162,14 @@ class DataSync:
                 for n in hit:
                     rec.parts[n].reason = (f"{TRANSFER_FAILED} (node {n} disconnected during "
                                            "the transfer); it resumes when the node is back")
-                self.hub.transfers.cancel(rec_id)
+                self.hub.transfers.cancel(rec_id, hit)
 
     def _repair(self, rec: LiveRecording) -> None:
         # A part left "transferring" by a server that died mid-transfer: nothing is
         # transferring it now, so it is back to being on its node (resumed later).
-        if self._running(rec.id):
-            return
+        busy = self.hub.transfers.running_parts(rec.id)
         for p in rec.parts.values():
-            if p.state == "transferring":
+            if p.state == "transferring" and p.node_id not in busy:
                 p.state = "on_node" if not p.reason or p.reason.startswith(TRANSFER_FAILED) \
                     else "incomplete"
                 p.transfer_progress = None

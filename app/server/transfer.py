@@ -57,7 +57,7 @@ class TransferManager:
         self.timeout_s = timeout_s
         self._ids = itertools.count(1)
         self._queues: dict[int, asyncio.Queue[tuple[dict[str, Any], bytes]]] = {}
-        self._tasks: dict[str, asyncio.Task[None]] = {}
+        self._tasks: dict[tuple[str, str], asyncio.Task[None]] = {}  # (rec, node) -> pull
         # node copies of deleted recordings still to delete: node id -> recording ids
         self._deletions_file = Path(data_dir) / "node_deletions.json"
         self._lock = threading.Lock()  # routes run in worker threads
@@ -153,31 +153,43 @@ class TransferManager:
         return await pull(sink, self._fetcher(s, rec.id, m.chunk_size), concurrency=2,
                           on_progress=progress)
 
-    def start(self, rec_id: str) -> None:
-        """Transfer every part of a stopped recording in the background.
+    def start(self, rec_id: str) -> list[str]:
+        """Transfer the parts of a stopped recording that are not on the server and not
+        being transferred, in the background and in parallel (a node that connects later
+        gets its own start while the others run).
+
+        Returns:
+            The nodes whose parts were started.
 
         Raises:
-            InputError: unknown, still running or already transferring.
+            InputError: unknown, still running, nothing to transfer or already transferring.
         """
         rec = self.recordings.recordings.get(rec_id)
         if rec is None:
             raise InputError(f"no recording {rec_id!r}")
         if rec.t_stop is None:
             raise InputError(f"recording {rec_id} is still running; stop it first")
-        if rec_id in self._tasks:
-            raise InputError(f"recording {rec_id} is already being transferred")
         todo = [n for n, p in rec.parts.items()
                 if p.state in ("on_node", "incomplete") and not p.on_server and p.n_frames]
+        busy = self.running_parts(rec_id)
+        if todo and set(todo) <= busy:
+            raise InputError(f"recording {rec_id} is already being transferred")
         if not todo:
             raise InputError(f"recording {rec_id} has no part to transfer (parts must be "
                              "closed on their nodes)")
-        task = asyncio.create_task(self._run(rec, todo))
-        self._tasks[rec_id] = task
-        task.add_done_callback(lambda _t: self._tasks.pop(rec_id, None))
+        started = [n for n in todo if n not in busy]
+        for n in started:
+            key = (rec_id, n)
+            task = asyncio.create_task(self._run_part(rec, n))
+            self._tasks[key] = task
+            task.add_done_callback(self._task_done(key))
+        return started
 
-    async def _run(self, rec: Recording, nodes: list[str]) -> None:
-        # the nodes' parts arrive in parallel (each over its own link)
-        await asyncio.gather(*(self._run_part(rec, n) for n in nodes))
+    def _task_done(self, key: tuple[str, str]) -> Any:
+        def done(_task: asyncio.Task[None]) -> None:
+            self._tasks.pop(key, None)
+
+        return done
 
     async def _run_part(self, rec: Recording, node_id: str) -> None:
         part = rec.parts[node_id]
@@ -208,24 +220,30 @@ class TransferManager:
     # ------------------------------------------------------------------ running transfers
 
     def is_running(self, rec_id: str) -> bool:
-        """True while a transfer of ``rec_id`` is under way."""
-        return rec_id in self._tasks
+        """True while a part of ``rec_id`` is being transferred."""
+        return any(r == rec_id for r, _ in self._tasks)
 
     def running(self) -> list[str]:
         """Ids of the recordings being transferred now."""
-        return list(self._tasks)
+        return sorted({r for r, _ in self._tasks})
 
-    def cancel(self, rec_id: str) -> bool:
-        """Stop the transfer of ``rec_id`` (the verified chunks stay; it resumes later).
+    def running_parts(self, rec_id: str) -> set[str]:
+        """Nodes whose parts of ``rec_id`` are being transferred now."""
+        return {n for r, n in self._tasks if r == rec_id}
+
+    def cancel(self, rec_id: str, nodes: Iterable[str] | None = None) -> bool:
+        """Stop the transfer of ``rec_id``'s parts (of ``nodes``, default all); the
+        verified chunks stay and the transfer resumes later.
 
         Returns:
             Whether a transfer was running.
         """
-        task = self._tasks.get(rec_id)
-        if task is None:
-            return False
-        task.cancel()
-        return True
+        wanted = None if nodes is None else set(nodes)
+        hit = [t for (r, n), t in self._tasks.items()
+               if r == rec_id and (wanted is None or n in wanted)]
+        for t in hit:
+            t.cancel()
+        return bool(hit)
 
     async def close(self) -> None:
         """Cancel running transfers (server shutdown; they resume on the next request)."""
