@@ -58,6 +58,10 @@ STANCE_OUTLIER_M = 0.05
 #: The heel has landed when its downward velocity has fallen below this fraction of its
 #: peak descent in late swing (see GaitAnalysis._refine_strike).
 HEEL_STOP_FRACTION = 0.05
+#: A placed foot stands still: at a crossing, the slower foot moving faster than this
+#: fraction of the walking speed means the crossing is a tracking glitch (our analysis
+#: only; the paper's rule keeps every crossing).
+MAX_PLACED_SPEED_FRACTION = 0.5
 #: Steps or strides longer than this multiple of the pass's median span missed events.
 MAX_DURATION_RATIO = 2.0
 
@@ -416,14 +420,24 @@ class GaitAnalysis:
                     best, best_cost = a, cost
             del cross[best: best + 2]
         pe = _PassEvents()
+        okL, okR = np.isfinite(xL), np.isfinite(xR)
+        mid = 0.5 * (xL + xR)
+        okm = np.isfinite(mid) & m
+        v_pass = (float(abs(mid[okm][-1] - mid[okm][0]) / (t[okm][-1] - t[okm][0]))
+                  if okm.sum() >= 2 and t[okm][-1] > t[okm][0] else 0.0)
         for _i, tc in cross:
             # The foot on the floor is the one moving slower along the direction; speeds
             # over ±0.1 s (not per sample, which measurement noise would dominate).
             h = 0.1
-            okL, okR = np.isfinite(xL), np.isfinite(xR)
             vl = np.interp(tc + h, t[okL], xL[okL]) - np.interp(tc - h, t[okL], xL[okL])
             vr = np.interp(tc + h, t[okR], xR[okR]) - np.interp(tc - h, t[okR], xR[okR])
             side = "L" if vl < vr else "R"
+            if (self.placement_window_s > 0 and v_pass > 0
+                    and abs(min(vl, vr)) / (2 * h) > MAX_PLACED_SPEED_FRACTION * v_pass):
+                # Neither foot stands still: not a placement but a tracker's glitch (e.g.
+                # its legs' labels swapped while they cross); the steps around it are
+                # dropped rather than measured from a moving "placed" foot.
+                continue
             placed = self._stance_position(t, feet.foot(side), tc)
             if self.placement_window_s > 0:
                 tc = self._refine_crossing(t, xR if side == "L" else xL, float(placed @ d), tc)

@@ -24,7 +24,9 @@ sensors", plus our estimator):
      joint's coordinate along the body's lateral axis (step width); its forward and
      vertical coordinates average all sensors equally by angle. Each sensor's limb joints
      are first moved back along its line of sight by the surface bias of a depth fit
-     (``SURFACE_BIAS_M``: a sensor sees, and fits to, the near half of a limb). Each
+     (``SURFACE_BIAS_M``: a sensor sees, and fits to, the near half of a limb), and a
+     sensor whose ankles' left/right order is inverted while another sensor sees it right
+     has its lower legs' labels swapped back (a tracker's leg swap). Each
      sensor is further weighted by the inverse square of its distance (joint noise
      grows ~linearly with range), and by a Tukey biweight of its residual from the current estimate
      (iteratively reweighted from the per-coordinate median, so a sensor that swaps or
@@ -64,6 +66,10 @@ REF_DISTANCE_M = 2.5
 TUKEY_C = 4.685
 #: Lower bound of the robust residual scale (m): below this, disagreements are noise.
 MIN_SCALE_M = 0.02
+#: Lateral inversion of a sensor's ankles (m) taken as a left/right label swap when
+#: another sensor sees them the right way round by as much (a few SD of the lateral
+#: joint noise, well under a step width of ≈ 10 cm).
+SWAP_MARGIN_M = 0.03
 #: How far a sensor's estimate of a limb joint lies towards that sensor (m). A depth
 #: sensor sees only the half of the limb's surface facing it, and the skeleton is fitted
 #: to that surface: seed 000 (Fig. 5B and its supplement) shows the ankle estimates of
@@ -247,6 +253,39 @@ def _lateral_axis(P: FloatArray, js: JointSet, rate: float) -> FloatArray:
     return lat
 
 
+def _unswap_legs(E: FloatArray, have: NDArray[np.bool_], js: JointSet, lat: FloatArray
+                 ) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Undo a sensor's brief left/right lower-leg label swap (``(S, G, J, 3)`` in/out).
+
+    A tracker swaps the legs' labels when they cross in its view (Kinect v2 gait studies
+    report such outliers). The left ankle is then on the right of the right ankle. Feet
+    pass each other side by side, a step width apart, so a sensor whose ankles' lateral
+    order is inverted by more than :data:`SWAP_MARGIN_M` while another sensor sees them
+    the right way round by as much has its knee/ankle/foot labels swapped back (a
+    cross-over step seen by every sensor is left alone). With only two sensors a
+    per-sample vote cannot tell which is wrong; the body's left/right axis can.
+    """
+    pairs = [(js.role_index(f"{p}_left"), js.role_index(f"{p}_right"))
+             for p in ("knee", "ankle", "foot") if f"{p}_left" in js.roles
+             and f"{p}_right" in js.roles]
+    if not pairs or not np.isfinite(lat).any() or E.shape[0] < 2:
+        return E, have
+    iL, iR = js.role_index("ankle_left"), js.role_index("ankle_right")
+    d = np.einsum("sgk,gk->sg", E[:, :, iL] - E[:, :, iR], np.nan_to_num(lat))
+    d = np.where(have[:, :, iL] & have[:, :, iR] & np.isfinite(lat[None, :, 0]), d, np.nan)
+    right_way = np.nanmax(np.where(np.isfinite(d), d, -np.inf), axis=0) > SWAP_MARGIN_M
+    swap = (d < -SWAP_MARGIN_M) & right_way[None]  # (S, G)
+    if not swap.any():
+        return E, have
+    E = E.copy()
+    have = have.copy()
+    si, gi = np.nonzero(swap)
+    for a, b in pairs:
+        E[si, gi, a], E[si, gi, b] = E[si, gi, b].copy(), E[si, gi, a].copy()
+        have[si, gi, a], have[si, gi, b] = have[si, gi, b].copy(), have[si, gi, a].copy()
+    return E, have
+
+
 def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float,
                    n_iter: int = 4, surface_bias_m: float = SURFACE_BIAS_M
                    ) -> tuple[FloatArray, NDArray[np.bool_]]:
@@ -254,6 +293,8 @@ def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float
     have = np.asarray(np.isfinite(E).all(axis=-1), dtype=bool)  # (S, G, J)
     init = _nanmedian0(E)  # robust start: the per-coordinate median
     lat = _lateral_axis(init, js, rate)  # (G, 3)
+    E, have = _unswap_legs(E, have, js, lat)
+    init = _nanmedian0(E)
     sides = _joint_sides(js)  # (J,)
     to_sensor = centres[:, None, None, :] - E  # (S, G, J, 3)
     dist = np.linalg.norm(to_sensor, axis=-1)

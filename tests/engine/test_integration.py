@@ -207,3 +207,29 @@ def test_weighted_removes_the_visible_surface_bias(walk) -> None:  # type: ignor
         e[name] = max(_rms_vs_truth(walk, fused, j) for j in ("AnkleLeft", "AnkleRight"))
     assert e["weighted"] < 0.003
     assert e["mean"] > 0.006 and e["uncorrected"] > 0.006
+
+
+def test_weighted_undoes_a_leg_label_swap_seen_by_two_sensors(walk) -> None:  # type: ignore[no-untyped-def]
+    """With only two sensors on a foot, a per-sample vote cannot tell which one swapped
+    the legs' labels; the lateral order of the ankles can (left ankle on the left)."""
+    rng = np.random.default_rng(5)
+    streams = six_sensor_streams(walk, rng, occluded_bias_m=0.0, noise_m=0.005,
+                                 inferred_frac=0.0, clocks=False)
+    two = [streams[2], streams[3]]  # S3 (left of the walkway) and S4 (right)
+    ser = two[0].series
+    legs = [(KINECT_V2.index(f"{p}Left"), KINECT_V2.index(f"{p}Right"))
+            for p in ("Knee", "Ankle", "Foot")]
+    sw = (ser.times > 3.0) & (ser.times < 3.25)
+    for a, b in legs:
+        ser.positions[sw, a], ser.positions[sw, b] = (ser.positions[sw, b].copy(),
+                                                      ser.positions[sw, a].copy())
+    fused, _ = integrate_skeletons(two, "weighted", surface_bias_m=0.0, cutoff_hz=None)
+    # inside the swap (its first and last resampled frames mix swapped and true samples)
+    sel = (fused.times > 3.05) & (fused.times < 3.2)
+    truth = sample_truth(walk, walk_skeleton(walk), fused.times)
+    j = KINECT_V2.index("AnkleLeft")
+    err = np.linalg.norm(fused.positions[sel, j] - truth[sel, j], axis=1)
+    assert sel.sum() >= 4 and np.nanmax(err) < 0.02
+    mean, _ = integrate_skeletons(two, "mean", cutoff_hz=None)
+    err_mean = np.linalg.norm(mean.positions[sel, j] - truth[sel, j], axis=1)
+    assert np.nanmax(err_mean) > 0.05  # the equal-weight mean takes half the swap
