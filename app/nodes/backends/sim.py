@@ -121,8 +121,10 @@ class SimBackend(Backend):
                 "true_offset_at_ref_s": self.clock.offset_s, "true_drift": self.clock.drift,
                 "clock_t_ref": self.clock.t_ref}
 
-    def _chunk(self, t_host0: float) -> tuple[NDArray[np.float64], Any, float]:
-        """Host capture times in [t_host0, t_host0 + CHUNK_S) and their observed skeletons."""
+    def _chunk(self, t_host0: float) -> tuple[NDArray[np.float64], Any, float, Any]:
+        """Host capture times in [t_host0, t_host0 + CHUNK_S), their observed skeletons and
+        (with images) the body's capsules at those times — for the whole chunk at once,
+        a fraction of the cost of posing the walker for each rendered frame."""
         from engine.sim.clock import frame_times
         from engine.sim.skeleton_model import observe_skeletons
 
@@ -131,7 +133,9 @@ class SimBackend(Backend):
         tw = frame_times(w0, w1, self._rng, fps=self.sensor.fps_nominal,
                          jitter=self.sensor.fps_jitter)
         series = observe_skeletons(self.sensor, self.rig, self._walker, tw, self._rng)
-        return t_host0 + (tw - w0), series, t_host0
+        caps = (self._walker.capsule_segments(tw) if self.render_images and len(tw)
+                else None)
+        return t_host0 + (tw - w0), series, t_host0, caps
 
     def frames(self) -> Iterator[Frame]:
         if self._walker is None:
@@ -142,7 +146,7 @@ class SimBackend(Backend):
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim") as pool:
             fut = pool.submit(self._chunk, time.time() + 0.3)
             while not self._closed.is_set():
-                hosts, series, t0 = fut.result()
+                hosts, series, t0, caps = fut.result()
                 if len(hosts) == 0:  # the chunk began in the last frame of a walk
                     fut = pool.submit(self._chunk, t0 + WORLD_CYCLE_S - world_time(t0) + 1e-3)
                     continue
@@ -161,31 +165,34 @@ class SimBackend(Backend):
                         pos = np.zeros((0, 25, 3), np.float32)
                         st = np.zeros((0, 25), np.uint8)
                         ids = []
+                    seg = None if caps is None else (caps[0][k], caps[1][k], caps[2])
                     yield Frame(self.clock.from_host(float(t_host)), pos, st, ids,
-                                self._image_fn(float(t_host)), self._preview_fn(float(t_host)))
+                                self._image_fn(float(t_host), seg),
+                                self._preview_fn(float(t_host), seg))
 
-    def _image_fn(self, t_host: float) -> Any:
+    def _image_fn(self, t_host: float, capsules: Any = None) -> Any:
         if not self.render_images:
             return _no_images
         t_world = world_time(t_host)
 
         def images(streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
-            return self.render(t_world, streams)
+            return self.render(t_world, streams, capsules=capsules)
 
         return images
 
-    def _preview_fn(self, t_host: float) -> Any:
+    def _preview_fn(self, t_host: float, capsules: Any = None) -> Any:
         if not self.render_images:
             return None
         t_world = world_time(t_host)
 
         def preview(streams: Sequence[str], scale: float
                     ) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
-            return self.render(t_world, streams, scale)
+            return self.render(t_world, streams, scale, capsules)
 
         return preview
 
-    def render(self, t_world: float, streams: Sequence[str], scale: float = 1.0
+    def render(self, t_world: float, streams: Sequence[str], scale: float = 1.0,
+               capsules: tuple[Any, Any, Any] | None = None
                ) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
         """Depth (uint16 mm), body index (uint8, 255 = none) and colour (RGB) at ``t_world``.
 
@@ -198,15 +205,19 @@ class SimBackend(Backend):
             scale: < 1 renders depth and body index directly at this fraction of the
                 sensor's size (a live preview: the geometry of a nearest-neighbour
                 downscale, a fraction of the cost); colour, if asked for, stays full size.
+            capsules: the body's capsules ``(A, B, radii)`` at ``t_world`` if known (the
+                frame loop poses whole chunks); None: posed here.
         """
         from engine.sim.render import SensorRenderer
+        from engine.sim.walker import capsules_mesh
 
         want_color = "color" in streams
         # colour is only rendered at full size: with colour, everything is rendered at full
         # size and downscaled below (as the agent would)
         preview = scale != 1.0 and not want_color
         with self._render_lock:
-            mesh = self._walker.body_mesh(t_world)
+            mesh = (capsules_mesh(*capsules) if capsules is not None
+                    else self._walker.body_mesh(t_world))
             if preview:
                 r = self._previews.get(scale)
                 if r is None:

@@ -279,6 +279,15 @@ def test_sim_preview_is_the_downscaled_frame_and_recordings_stay_full_size() -> 
     # colour cannot be previewed: rendered full size, then downscaled like the agent would
     c = sim.render(t, ["color", "depth"], 0.5)
     assert c["color"].shape == (180, 320, 3) and c["depth"].shape == (212, 256)
+    # the frame loop poses the walker for a whole chunk at once: the same body
+    from app.nodes.backends.sim import world_time
+    from engine.sim.walker import capsules_mesh
+
+    hosts, _series, _t0, caps = sim._chunk(1_000_000.0)
+    k = len(hosts) // 2
+    V, F, _ = capsules_mesh(caps[0][k], caps[1][k], caps[2])
+    V2, F2, _ = sim._walker.body_mesh(world_time(float(hosts[k])))
+    assert np.allclose(V, V2, atol=1e-9) and (F == F2).all()
 
 
 def test_clouds_far_from_the_origin_keep_millimetres() -> None:
