@@ -8,7 +8,7 @@ Two event definitions (``method``):
 * ``"heelstrike"`` — Zeni et al. (2008): foot strike at the maximum, foot off at the
   minimum of the heel (toe for foot off) position relative to the pelvis along the
   walking direction; each refined within a bounded window: the strike to the heel's
-  landing (its lowest point), the foot off to the toe's fastest rise (O'Connor et al.
+  landing (when it stops descending), the foot off to the toe's fastest rise (O'Connor et al.
   2007), with sub-frame interpolation.
 
 Steps are assigned to the foot placed last (paper, Fig. 6): the step ending at a
@@ -255,7 +255,7 @@ class GaitAnalysis:
             speed at the start of the recording.
         min_event_period_s: two events of the same kind and foot are at least this far
             apart (a stride is ≥ 0.6 s even when running slowly).
-        placement_window_s: crossing method: the placed foot's position is its trimmed
+        placement_window_s: crossing method: the placed foot's position is its robust
             mean over ± this window around the crossing (mid-stance; the foot stands
             still for most of a ±0.3 s window at walking speeds) instead of its position
             at the crossing instant (0: the paper's rule); the crossing time is then
