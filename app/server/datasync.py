@@ -34,7 +34,7 @@ from app.server.hub import Hub
 from app.server.recording import Part
 from app.server.recording import Recording as LiveRecording
 from app.server.storage import StorageLayout, recording_poses
-from engine.errors import InputError
+from engine.errors import GaitrigError, InputError
 
 log = logging.getLogger("gaitrig.datasync")
 
@@ -238,7 +238,11 @@ class DataSync:
         if state == "complete" and row.state != "complete":
             # fix the sensor poses of this recording now (sensors.json), before anyone
             # recalibrates: its analyses and exports always use the rig as it was
-            recording_poses(self.layout, self.hub.registry, rec.id)
+            try:
+                recording_poses(self.layout, self.hub.registry, rec.id)
+            except (GaitrigError, OSError, ValueError) as exc:  # e.g. unreadable calibration
+                log.warning("recording %s: sensor poses not saved (%s); the first analysis "
+                            "or export saves them", rec.id, exc)
         if (row.state, row.reason, row.t_start, row.t_stop) != (state, reason, rec.t_start,
                                                                 rec.t_stop):
             row.state, row.reason, row.t_start, row.t_stop = state, reason, rec.t_start, rec.t_stop
