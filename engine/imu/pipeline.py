@@ -128,12 +128,11 @@ def process_imu_session(
         params: filter tuning.
         up: world up direction for the skeleton's jump detection.
         offline: use the filter's non-causal mode (bias known from the first sample,
-            zero-phase inclination). Off by default: on the simulated protocol (jumps,
-            standing, walking) the causal filter gives fused knee angles within 0.1-0.4°
-            of the truth, the offline mode 1-14° (its zero-phase inclination mixes the
-            walking accelerations differently per segment, and it fades to single passes
-            within a few seconds of the recording's ends), although it is the more
-            accurate one on the BROAD single-sensor trials.
+            zero-phase inclination). Off by default: on the simulated protocol, whose
+            recording ends while walking, the causal filter's fused knee angles are within
+            0.2-0.4° of the truth, the offline mode's within 0.1-1° (it fades to single
+            passes within a few seconds of the ends), although the offline mode is the
+            more accurate one on the BROAD single-sensor trials.
         orientation: another orientation estimator, ``(recording, nine_d) ->
             (quaternions ENU (T, 4), rest flags (T,))``; default our filter with
             ``params``/``offline``.
