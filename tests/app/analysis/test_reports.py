@@ -301,7 +301,9 @@ def test_recording_report_html_pdf_and_agreement(recorded: Recorded, tmp_path: P
     shutil.copy(tmp_path / "report.pdf", artifacts_dir / "report_recording.pdf")
     cv2.imwrite(str(artifacts_dir / "report_recording_p1.png"), pages[0])
     for p in pages:
-        assert (p.min(axis=2) < 200).mean() > 0.03  # no blank page
+        # no blank page (a footer alone inks ~0.3 %; the last page may hold only the end
+        # of the agreement section, ~2-3 %)
+        assert (p.min(axis=2) < 200).mean() > 0.01
     # Plots are coloured (tables and text are black on white).
     colour = [(np.ptp(p.astype(int), axis=2) > 60).mean() for p in pages]
     assert max(colour) > 0.005, colour
