@@ -205,6 +205,7 @@ class LiveStreams:
         # node → (connected_at, subscription) the node was last told; None = stopped
         self._sent: dict[str, tuple[float | None, Subscribe | None]] = {}
         self._live_on = False  # the live view's subscription is in force
+        self._sub_lock = asyncio.Lock()  # one subscription update at a time
         self._idle_since: float | None = time.time()
         self._task: asyncio.Task[None] | None = None
         self._busy: set[str] = set()
@@ -292,6 +293,10 @@ class LiveStreams:
 
     async def _sync_subscriptions(self, only: str | None = None) -> None:
         """Tell each node (or just ``only``) its effective subscription if it changed."""
+        async with self._sub_lock:
+            await self._sync_locked(only)
+
+    async def _sync_locked(self, only: str | None) -> None:
         for s in list(self.hub.registry.nodes.values()):
             if only is not None and s.id != only:
                 continue
