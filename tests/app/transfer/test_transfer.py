@@ -22,6 +22,7 @@ from app.transfer import (
     StorageFullError,
     TransferSink,
     build_manifest,
+    chunk_message,
     per_chunk,
     pull,
     read_chunk,
@@ -199,3 +200,51 @@ def test_disk_full_gives_clear_error_and_loses_nothing(tmp_path: Path, small_tmp
     # the earlier part is untouched and still complete
     assert TransferSink.is_complete(small_tmpfs / "rec-0")
     assert _sha(small_tmpfs / "rec-0" / "small.bin") == small.file("small.bin").sha256
+
+
+def test_chunk_message_reads_the_chunk_behind_its_header(tmp_path: Path, part):
+    src, manifest = part
+    for name, idx in [("skeleton.bin", 0), ("skeleton.bin", 4), ("empty.txt", 0)]:
+        msg = chunk_message(src, manifest, name, idx, b"HEAD")
+        assert bytes(msg) == b"HEAD" + read_chunk(src, manifest, name, idx)
+    with pytest.raises(ManifestError, match="no chunk"):
+        chunk_message(src, manifest, "skeleton.bin", 99)
+    (src / "skeleton.bin").write_bytes(b"short")  # changed behind the manifest's back
+    with pytest.raises(ManifestError, match="shorter"):
+        chunk_message(src, manifest, "skeleton.bin", 1)
+
+
+def test_chunk_of_the_wrong_length_is_corrupt(tmp_path: Path, part):
+    src, manifest = part
+    sink = TransferSink(tmp_path / "dest", manifest)
+    data = read_chunk(src, manifest, "skeleton.bin", 0)
+    with pytest.raises(CorruptChunkError, match="bytes, expected"):
+        sink.write_chunk("skeleton.bin", 0, data[:-1])
+    assert sink.write_chunk("skeleton.bin", 0, data) is True
+    assert sink.write_chunk("skeleton.bin", 0, data) is False  # already stored
+    assert sink.bytes_done == len(data)
+
+
+def test_disk_full_while_chunks_queue_up_does_not_hang(tmp_path: Path, part,
+                                                       monkeypatch: pytest.MonkeyPatch):
+    """The writer fails while the receiver waits for room in the full queue: the pull
+    must end with the clear error, not wait forever."""
+    src, manifest = part
+    sink = TransferSink(tmp_path / "dest", manifest)
+
+    def full(*_a: object, **_k: object) -> bool:
+        time.sleep(0.05)  # the fast fetcher fills the queue meanwhile
+        raise StorageFullError("server disk is full while writing; free space")
+
+    monkeypatch.setattr(sink, "write_chunk", full)
+
+    async def fast(name: str, indices: list[int]):
+        for idx in indices * 20:  # far more items than the queue holds
+            yield idx, read_chunk(src, manifest, name, idx)
+
+    async def run() -> None:
+        await asyncio.wait_for(pull(sink, fast, concurrency=1), timeout=20)
+
+    with pytest.raises(StorageFullError, match="disk is full"):
+        asyncio.run(run())
+    assert not TransferSink.is_complete(tmp_path / "dest")
