@@ -45,6 +45,57 @@ def test_imu_page_simulated_session(page: Any, live_server: LiveServer,
     assert not page.js_errors
 
 
+def test_imu_page_upload_of_a_session(page: Any, live_server: LiveServer,
+                                      artifacts_dir: Path, tmp_path: Path) -> None:
+    """Nine generic IMU CSVs (own clocks) and a skeleton CSV with 2 cm joint noise uploaded
+    through the form: synchronised by the jumps, fused, plotted, downloadable."""
+    import numpy as np
+
+    from app.server.imu_analysis import simulate_session
+    from engine.io.csv import write_skeleton_csv
+
+    sim = simulate_session(seed=3, depth_noise_m=0.02)
+    paths = []
+    for name, rec in sim["recordings"].items():
+        f = tmp_path / f"{name}.csv"
+        np.savetxt(f, np.column_stack([rec.time, np.degrees(rec.gyr), rec.acc, rec.mag]),
+                   delimiter=",", fmt="%.6f", comments="",
+                   header="time,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z")
+        paths.append(str(f))
+    write_skeleton_csv(tmp_path / "depth.csv", sim["depth"])
+    page.goto(live_server.base_url + "/imu.html")
+    page.set_input_files("#files", files=paths)
+    page.fill("#sensors", ", ".join(sim["recordings"]))
+    page.set_input_files("#skeleton", files=[str(tmp_path / "depth.csv")])
+    page.select_option("#gyr_unit", "deg/s")
+    page.select_option("#acc_unit", "m/s2")
+    page.select_option("#mag_unit", "uT")
+    page.click("#upload")
+    page.wait_for_selector("#sync-rows tr", timeout=120_000)
+    page.wait_for_function("document.getElementById('angles-plot').naturalWidth > 0")
+    page.wait_for_function("document.getElementById('sync-plot').naturalWidth > 0")
+    rows = page.locator("#sync-rows tr")
+    assert rows.count() == 10
+    assert "aligned to the depth skeleton's clock" in page.inner_text("#sync-text")
+    assert page.inner_text("#error").strip() == ""
+    # every IMU clock offset shown matches the simulated one (to the 1 ms displayed + 10 ms)
+    checked = 0
+    for i in range(rows.count()):
+        cells = [c.strip() for c in rows.nth(i).locator("th, td").all_inner_texts()]
+        if cells[0] in sim["true_offsets"]:
+            shown = float(cells[1].rstrip(" s"))
+            assert abs(shown - sim["true_offsets"][cells[0]]) < 0.011, cells
+            checked += 1
+    assert checked == 9
+    href = page.get_attribute("#csv", "href")
+    assert href and href.endswith("/data.csv")
+    text = page.evaluate("h => fetch(h).then(r => r.text())", href)
+    assert text.startswith("time_s,knee_left_fused_deg,knee_left_depth_deg")
+    assert len(text.splitlines()) > 500
+    screenshot(page, artifacts_dir, "imu_uploaded_session", "#sync-card")
+    assert not page.js_errors
+
+
 def test_kscc_page_live_progress_and_active_area(page: Any, live_server: LiveServer,
                                                  artifacts_dir: Path) -> None:
     page.goto(live_server.base_url + "/kscc.html")
