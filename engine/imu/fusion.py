@@ -57,11 +57,13 @@ FloatArray = NDArray[np.float64]
 
 __all__ = [
     "PAPER_SENSORS",
+    "STRAIGHT_LIMBS",
     "FusedSkeleton",
     "PlankCalibration",
     "delta_quaternions",
     "flexion_angles",
     "fuse_skeleton",
+    "imu_still_frames",
     "interp_quat",
     "joint_rotation",
     "ncc",
@@ -461,8 +463,10 @@ def fuse_skeleton(
         imu_times: ``(T,)`` times of the orientation series, common clock.
         orientations: sensor name -> ``(T, 4)`` filter output (sensor-to-earth).
         calibration: result of :func:`plank_calibration`.
-        reference_index: reference depth frame; chosen by :func:`select_reference_frame`
-            within the IMU time span when ``None``.
+        reference_index: reference depth frame; when ``None`` chosen by
+            :func:`select_reference_frame` within the IMU time span among the frames
+            whose window every IMU is still in (:func:`imu_still_frames`; depth stability
+            alone, with a warning, if there is none).
         sensors: sensor -> (proximal role, distal role); default :data:`PAPER_SENSORS`.
             The chest sensor is required; limb sensors may be missing (their joints are
             then NaN).
