@@ -82,3 +82,39 @@ def test_walker_imus() -> None:
     # mean specific force over a walk is about gravity (no net vertical acceleration)
     a_world = quat_rotate(recs["chest"].quat_ref, recs["chest"].acc)
     assert np.mean(a_world[:, 2]) == pytest.approx(G, abs=0.3)
+
+
+def test_standing_start_and_jumps() -> None:
+    """The calibration pose: limbs straight and hanging, joints consistent with the bone
+    frames, continuous into the walk; jumps lift the whole body."""
+    from engine.imu.fusion import flexion_angles
+    from engine.sim.imu import Jumping, StandingStart, jump_height
+    from engine.skeleton import KINECT_V2, SkeletonSeries
+
+    w = Walker(WalkerParams(), [0.0, 0.0, 0.0], [6.0, 0.0, 0.0], start_time=5.0, seed=1)
+    s = StandingStart(w, knee_flexion_deg=4.0)
+    t = np.array([0.0, 3.9, 4.5, 4.999, 5.0, 5.5])
+    J = s.joints(t)
+    ang = flexion_angles(SkeletonSeries(t, J, np.full((len(t), 25), 2, np.uint8), KINECT_V2))
+    assert ang["knee_left"][:2] == pytest.approx(4.0, abs=1e-6)
+    assert ang["elbow_right"][:2] == pytest.approx(0.0, abs=1e-6)
+    assert np.allclose(J[3], w.joints([5.0])[0], atol=1e-3)  # blends into the start pose
+    assert np.allclose(J[4:], w.joints(t[4:]))
+    i = KINECT_V2.index
+    shank = J[0, i("KneeLeft")] - J[0, i("AnkleLeft")]
+    assert np.degrees(np.arccos(shank[2] / np.linalg.norm(shank))) == pytest.approx(2.0, abs=0.01)
+    F = s.bone_frames(t)
+    for bone, a, b in (("thigh_r", "HipRight", "KneeRight"), ("forearm_l", "ElbowLeft",
+                                                             "WristLeft")):
+        assert np.allclose(F[bone][:, :3, 3], J[:, i(a)])
+        z = F[bone][:, :3, 2]
+        d = J[:, i(a)] - J[:, i(b)]
+        assert np.allclose(z, d / np.linalg.norm(d, axis=1, keepdims=True), atol=1e-9)
+    jumps = Jumping(s, [1.0])
+    tj = np.arange(0.0, 2.5, 0.01)
+    dz = jump_height(tj, [1.0])
+    assert dz.max() > 0.4 and dz[0] == 0.0 and dz[-1] == pytest.approx(0.0, abs=1e-9)
+    assert np.allclose(jumps.joints(tj)[..., 2] - s.joints(tj)[..., 2], dz[:, None])
+    A, _, _ = jumps.capsule_segments(tj)
+    A0, _, _ = s.capsule_segments(tj)
+    assert np.allclose(A[..., 2] - A0[..., 2], dz[:, None])
