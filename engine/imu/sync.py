@@ -241,15 +241,6 @@ def torso_vertical_acceleration(
     return grid, acc
 
 
-def skeleton_jump_spikes(
-    skeleton: SkeletonSeries, n_jumps: int = 5, up: ArrayLike = (0.0, 0.0, 1.0),
-    min_interval: float = 0.4,
-) -> FloatArray:
-    """Landing times (skeleton clock): peaks of the torso's upward acceleration."""
-    t, a = torso_vertical_acceleration(skeleton, up)
-    return detect_spikes(t, a, n_jumps, min_interval, min_height=0.5 * G)
-
-
 def synchronize(
     imus: Mapping[str, ImuRecording],
     skeleton: SkeletonSeries | None = None,
