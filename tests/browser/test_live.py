@@ -159,3 +159,19 @@ def test_api_subscription_cannot_stop_the_panels(live_page: Any, live_server: Li
     col = live_server.api("/api/nodes/S2/images/color")
     assert col[:8] == b"\x89PNG\r\n\x1a\n"
     live_server.api("/api/nodes/S2/subscribe", {"streams": [], "fps": 0})
+
+
+def test_panels_without_offscreen_canvas(page: Any, live_server: LiveServer,
+                                         artifacts_dir: Path) -> None:
+    """A browser without OffscreenCanvas gets the same stream on the page's own thread."""
+    page.add_init_script("delete HTMLCanvasElement.prototype.transferControlToOffscreen;")
+    page.route(live_server.viewer_url + "/**", lambda r: r.abort())
+    page.goto(live_server.base_url + "/live.html")
+    n = live_server.n_nodes
+    page.wait_for_function(
+        f"window.liveStats && Object.keys(window.liveStats.nodes).length === {n} && "
+        "Object.values(window.liveStats.nodes).every(s => s.frames >= 3)", timeout=60000)
+    assert _stats(page)["mode"] == "page"
+    img = screenshot(page, artifacts_dir, "live_panel_S1_page_mode", "figure[data-node=S1] canvas")
+    assert saturated_fraction(img) > 0.2
+    assert not page.js_errors
