@@ -289,6 +289,7 @@ def synchronize(
     pivot = ref if ref in spikes else names[0]
     rel = {n: float(np.median(spikes[pivot] - spikes[n])) for n in names}
     to_sk: dict[str, float] = {}  # IMU -> offset onto the skeleton clock
+    missing = np.zeros(0, dtype=bool)
     if skeleton is not None:
         try:
             sk_acc = torso_vertical_acceleration(skeleton, up)
@@ -319,7 +320,11 @@ def synchronize(
             raise InsufficientDataError(
                 f"depth skeleton: only {int(inside.sum())} of the {n_jumps} jumps fall inside "
                 "its recording; record the depth skeleton from before the jumps")
-        spikes["skeleton"] = _peaks_near(*sk_acc, on_sk, 0.1)
+        found = _peaks_near(*sk_acc, on_sk, 0.1)
+        missing = ~np.isfinite(found)
+        # a landing outside the depth recording: its time predicted from the IMUs (keeps
+        # every series finite; the warning below says so)
+        spikes["skeleton"] = np.where(missing, on_sk, found)
         to_sk["skeleton"] = 0.0
     offsets: dict[str, float] = {}
     if skeleton is not None:
@@ -331,24 +336,24 @@ def synchronize(
     warnings: list[str] = []
     for name, sp in spikes.items():
         residuals[name] = spikes[ref] + offsets[ref] - (sp + offsets[name])
-        if np.all(np.isfinite(residuals[name])) and np.max(np.abs(residuals[name])) > 0.1:
+        if np.max(np.abs(residuals[name])) > 0.1:
             warnings.append(f"{name}: jumps disagree by up to "
                             f"{np.max(np.abs(residuals[name])) * 1e3:.0f} ms after alignment; "
                             "check the clock drift or the detected spikes")
-    if skeleton is not None and not np.all(np.isfinite(spikes["skeleton"])):
-        warnings.append(f"depth skeleton: {int(np.sum(~np.isfinite(spikes['skeleton'])))} "
-                        "jump landing(s) outside the depth recording")
+    if skeleton is not None and missing.any():
+        warnings.append(f"depth skeleton: {int(missing.sum())} jump landing(s) outside the "
+                        "depth recording (times predicted from the IMUs)")
     return SyncResult(ref, offsets, spikes, residuals, warnings)
 
 
 def _peaks_near(t: FloatArray, y: FloatArray, at: FloatArray, half: float) -> FloatArray:
     """Sub-sample time of the maximum of ``y`` within ``±half`` s of each time in ``at``
-    (NaN where the window holds no sample)."""
+    (NaN where that window is not entirely inside ``t``)."""
     out = np.full(len(at), np.nan)
     idx = np.arange(len(t))
     for k, tk in enumerate(at):
         m = np.flatnonzero(np.abs(t - tk) <= half)
-        if len(m) == 0:
+        if len(m) == 0 or tk - half < t[0] or tk + half > t[-1]:
             continue
         i = int(m[np.argmax(y[m])])
         out[k] = float(np.interp(_refine_peak(y, i), idx, t))

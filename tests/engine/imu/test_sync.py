@@ -172,3 +172,18 @@ def test_depth_skeleton_without_the_jumps_is_refused() -> None:
     sk = SkeletonSeries(td, J, np.full(J.shape[:2], TrackingState.TRACKED, np.uint8), KINECT_V2)
     with pytest.raises(InsufficientDataError, match=r"does not show the IMUs. jump series"):
         synchronize(recs, sk, n_jumps=5)
+
+
+def test_depth_skeleton_missing_the_first_jumps() -> None:
+    """Depth recording starts after two of the five landings: still synchronised (the
+    other three and the waveform), the two landings predicted and reported."""
+    recs, offsets, subject = _protocol_recordings(1)
+    td = np.arange(7.0, 15.9, 1 / 30)  # landings at 5.73 and 7.03 s are not (fully) seen
+    J = subject.joints(td) + np.random.default_rng(0).normal(0, 0.01, (len(td), 25, 3))
+    sk = SkeletonSeries(td, J, np.full(J.shape[:2], TrackingState.TRACKED, np.uint8), KINECT_V2)
+    res = synchronize(recs, sk, n_jumps=5)
+    for s, off in offsets.items():
+        assert res.offsets[s] == pytest.approx(off, abs=0.01), s
+    assert np.all(np.isfinite(res.spike_times["skeleton"]))
+    assert np.isfinite(res.max_residual())
+    assert any("2 jump landing(s) outside" in w for w in res.warnings)
