@@ -82,6 +82,14 @@ class Settings(BaseSettings):
         description="A node silent this long is marked stale.",
     )
 
+    calibration_check_interval_s: float = Field(
+        default=300.0, ge=0,
+        description="Bumped-tripod check: re-detect the markers every this many seconds "
+        "(while a calibration is active, all its sensors are connected and no recording "
+        "is running or transferring) and warn on the Rig and Record pages when a sensor "
+        "moved > 1 cm / 0.5°. 0 disables the periodic check.",
+    )
+
     test_command_delay_max_s: float = Field(
         default=0.0,
         ge=0,

@@ -7,7 +7,10 @@ Live capture (:class:`CaptureManager`): the wizard asks every connected node for
 + depth frames over the node protocol (``calib_capture``), runs detection → 3D corners →
 graph → chaining → joint optimisation → ICP on them, and keeps the result until the user
 accepts (saved as the new active version, applied to the nodes) or rejects it. The same
-capture with a few frames re-detects the markers for the bumped-tripod check.
+capture with a few frames re-detects the markers for the bumped-tripod check, on demand
+or periodically (:meth:`CaptureManager.run_periodic`, started by the calibration router's
+lifespan): only while a calibration is active, all its sensors are connected and no
+recording is running or transferring (a check must never take node CPU from a recording).
 """
 
 from __future__ import annotations
@@ -185,6 +188,9 @@ MAX_JOBS = 8
 #: at the capture size) and between two frames before its capture counts as failed.
 FIRST_FRAME_TIMEOUT_S = 120.0
 STALL_TIMEOUT_S = 30.0
+#: Frames per node of the periodic bumped-tripod check (few: it competes with nothing,
+#: but it should be over quickly).
+PERIODIC_FRAMES = 5
 
 
 @dataclass
@@ -213,7 +219,11 @@ class CaptureJob:
     doc: dict[str, Any] | None = None
     checks: list[dict[str, Any]] = field(default_factory=list)
     version: int | None = None
+    trigger: str = "manual"
+    calibration_version: int | None = None
+    calibration_created: float | None = None
     done: asyncio.Event = field(default_factory=asyncio.Event)
+    task: asyncio.Task[None] | None = field(default=None, repr=False)
 
     def node_finished(self, node: str) -> bool:
         return node in self.errors or self.received.get(node, 0) >= self.frames
@@ -234,6 +244,9 @@ class CaptureJob:
         if self.kind == "check":
             d["checks"] = self.checks
             d["moved"] = [c["sensor"] for c in self.checks if c["status"] == "moved"]
+            d["trigger"] = self.trigger
+            d["calibration"] = {"version": self.calibration_version,
+                                "created": self.calibration_created}
         if self.version is not None:
             d["version"] = self.version
         return d
@@ -257,6 +270,10 @@ class CaptureManager:
         self.last_check: CaptureJob | None = None
         self._ids = itertools.count(1)
         self._tasks: set[asyncio.Task[None]] = set()
+        #: State of the periodic check (see :meth:`run_periodic`), for the console.
+        self.periodic: dict[str, Any] = {"enabled": False, "interval_s": 0.0,
+                                         "state": "off", "reason": "", "at": None}
+        self._moved: dict[str, dict[str, Any]] = {}
         hub.binary_listeners["calib"] = self.on_binary
 
     def busy(self) -> CaptureJob | None:
@@ -265,7 +282,7 @@ class CaptureManager:
                     None)
 
     async def start(self, kind: str, frames: int, marker_sizes: Mapping[int, float] | None,
-                    nodes: Sequence[str] | None = None) -> CaptureJob:
+                    nodes: Sequence[str] | None = None, trigger: str = "manual") -> CaptureJob:
         """Ask every (or the given) connected node for ``frames`` frames and process them.
 
         Args:
@@ -274,6 +291,7 @@ class CaptureManager:
             marker_sizes: Marker id → edge length (m); for a check, None = the active
                 calibration's markers.
             nodes: Node ids (default: every connected node).
+            trigger: ``"manual"`` (a person asked) or ``"periodic"``.
 
         Raises:
             InputError: no connected node, an unknown/offline node, no active calibration
@@ -305,7 +323,10 @@ class CaptureManager:
                 raise InputError("give the marker ids and edge length to calibrate with")
             sizes = {int(k): float(v) for k, v in marker_sizes.items()}
         job = CaptureJob(next(self._ids), kind, want, frames, sizes,
-                         received={n: 0 for n in want}, raw={n: [] for n in want})
+                         received={n: 0 for n in want}, raw={n: [] for n in want},
+                         trigger=trigger)
+        if kind == "check":
+            job.calibration_version, job.calibration_created = active.version, active.created
         self.jobs[job.id] = job
         for old in sorted(self.jobs)[:-MAX_JOBS]:
             del self.jobs[old]
@@ -316,9 +337,131 @@ class CaptureManager:
             except Exception as exc:  # the socket closed between the check and the send
                 job.errors[n] = f"could not reach {n}: {exc}"
         task = asyncio.create_task(self._run(job))
+        job.task = task
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
         return job
+
+    # ------------------------------------------------------------------ periodic check
+
+    def periodic_blocker(self) -> tuple[str | None, list[str]]:
+        """Why the periodic check must not run now (None: go), and the nodes to check.
+
+        It runs only with an active calibration, all of its sensors connected, no capture
+        in progress and no recording running, stopping or transferring.
+        """
+        folder = calibration_dir(self.data_dir)
+        if not list_versions(folder):
+            return "no calibration yet", []
+        try:
+            active = load_version(folder)
+        except InputError as exc:
+            return f"the active calibration cannot be read: {exc}", []
+        want = sorted(active.T_world_sensor)
+        sessions = self.hub.registry.nodes
+        off = [n for n in want if (s := sessions.get(n)) is None or not s.connected
+               or s.send is None]
+        if off:
+            return f"sensor(s) {', '.join(off)} of the calibration not connected", want
+        running = self.busy()
+        if running is not None:
+            return f"capture {running.id} in progress", want
+        recs = getattr(self.hub, "recordings", None)
+        transfers = getattr(self.hub, "transfers", None)
+        for rec in (recs.recordings.values() if recs is not None else ()):
+            state = rec.state
+            if state in ("recording", "stopping", "transferring") or (
+                    transfers is not None and transfers.running_parts(rec.id)):
+                return f"recording {rec.id} is {state} (checks wait for it to finish)", want
+        return None, want
+
+    def _set_periodic(self, state: str, reason: str, **extra: Any) -> None:
+        if (state, reason) != (self.periodic.get("state"), self.periodic.get("reason")):
+            log.info("periodic calibration check: %s%s", state, f" ({reason})" if reason else "")
+        self.periodic = {**self.periodic, "state": state, "reason": reason, "at": time.time(),
+                         "job": None, **extra}
+
+    async def periodic_check(self, frames: int = PERIODIC_FRAMES) -> CaptureJob | None:
+        """One periodic bumped-tripod check, when nothing forbids it (see
+        :meth:`periodic_blocker`); the outcome is in :attr:`periodic` and, when it ran,
+        :attr:`last_check`. Never raises for a missing node or markers."""
+        reason, nodes = self.periodic_blocker()
+        if reason is not None:
+            self._set_periodic("skipped", reason)
+            return None
+        try:
+            job = await self.start("check", frames, None, nodes, trigger="periodic")
+        except GaitrigError as exc:  # a node left between the test and the start
+            self._set_periodic("skipped", str(exc))
+            return None
+        self._set_periodic("running", "", job=job.id)
+        if job.task is not None:
+            await asyncio.wait({job.task})  # not cancelled with us: the capture finishes
+        if job.state != "done":
+            self._set_periodic("failed", job.message or f"check ended {job.state}", job=job.id)
+            return job
+        unknown = [f"{c['sensor']}: {c['reason']}" for c in job.checks
+                   if c["status"] == "unknown"]
+        moved = [c["sensor"] for c in job.checks if c["status"] == "moved"]
+        self._set_periodic("moved" if moved else "incomplete" if unknown else "ok",
+                           "; ".join(unknown), job=job.id)
+        return job
+
+    async def run_periodic(self, interval_s: float, frames: int = PERIODIC_FRAMES) -> None:
+        """Check every ``interval_s`` seconds until cancelled (the app lifespan)."""
+        self.periodic = {**self.periodic, "enabled": True, "interval_s": interval_s}
+        self._set_periodic("waiting", "")
+        while True:
+            await asyncio.sleep(interval_s)
+            try:
+                await self.periodic_check(frames)
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:  # never take the server down; log once per new cause
+                if self.periodic.get("reason") != f"internal error: {exc}":
+                    log.exception("periodic calibration check failed")
+                self._set_periodic("failed", f"internal error: {exc}")
+
+    def live_check_view(self) -> dict[str, Any]:
+        """What the console shows about the bumped-tripod check (one source for the
+        Calibrate, Rig and Record pages).
+
+        ``warnings`` lists every sensor found moved against the *active* calibration and
+        not found back in place since — a later check that cannot see the markers (someone
+        standing on them) does not clear it. A check against an older calibration is
+        reported as superseded, not as the latest result.
+        """
+        folder = calibration_dir(self.data_dir)
+        versions = list_versions(folder)
+        active_v = versions[-1] if versions else None
+        job = self.last_check
+        d: dict[str, Any]
+        if job is None:
+            d = {"checked": False, "moved": [], "checks": []}
+        elif job.calibration_version != active_v:
+            d = {"checked": False, "moved": [], "checks": [],
+                 "superseded": {"id": job.id, "calibration_version": job.calibration_version}}
+        else:
+            d = {"checked": True, **job.to_dict()}
+        d["warnings"] = [w for _, w in sorted(self._moved.items())
+                         if w["calibration_version"] == active_v]
+        d["periodic"] = dict(self.periodic)
+        return d
+
+    def _record_moved(self, job: CaptureJob) -> None:
+        # per sensor: found moved → warn; found in place → clear; unknown → keep as it was
+        moved = {s: w for s, w in self._moved.items()
+                 if w["calibration_version"] == job.calibration_version}
+        for c in job.checks:
+            if c["status"] == "ok":
+                moved.pop(c["sensor"], None)
+            elif c["status"] == "moved":
+                moved[c["sensor"]] = {
+                    "sensor": c["sensor"], "moved_mm": c["moved_mm"],
+                    "rotated_deg": c["rotated_deg"], "found_at": job.created,
+                    "check_id": job.id, "calibration_version": job.calibration_version,
+                    "calibration_created": job.calibration_created}
+        self._moved = moved
 
     def on_binary(self, session: Any, header: dict[str, Any], payload: bytes) -> None:
         """Hub hook for binary ``calib`` messages (runs on the event loop)."""
@@ -395,6 +538,7 @@ class CaptureManager:
 
         if job.kind == "check":
             active = load_version(calibration_dir(self.data_dir))
+            job.calibration_version, job.calibration_created = active.version, active.created
             checks = []
             for n in job.nodes:
                 if n in job.errors:
@@ -410,6 +554,7 @@ class CaptureManager:
             job.message = ("; ".join(c["reason"] for c in moved) if moved else
                            f"no sensor moved more than 1 cm / 0.5° since calibration "
                            f"version {active.version}")
+            self._record_moved(job)
             job.state = "done"
             self.last_check = job
             return

@@ -1,6 +1,32 @@
-// Calibrate page: bumped-tripod warning from the live check (re-detects the markers in
-// fresh frames of every connected sensor and compares with the active calibration).
+// Bumped-tripod warning from the live check (re-detects the markers in fresh frames of
+// every connected sensor and compares with the active calibration; the server also runs it
+// periodically). Calibrate page: "check now" button and status (#bump-state). Rig and
+// Record pages: a banner (#calib-warning) naming every sensor found moved.
 "use strict";
+(() => {
+  const banner = document.getElementById("calib-warning");
+  if (!banner) return;
+  const fmt = (x, nd) => (x === null || x === undefined ? "?" : Number(x).toFixed(nd));
+  function render(j) {
+    const warnings = j.warnings || [];
+    banner.replaceChildren();
+    banner.hidden = !warnings.length;
+    for (const w of warnings) {
+      const p = document.createElement("p");
+      const when = w.calibration_created ? new Date(w.calibration_created * 1000).toLocaleString() : `version ${w.calibration_version}`;
+      p.append(`Sensor ${w.sensor} has moved ${fmt(w.moved_mm / 10, 1)} cm / ${fmt(w.rotated_deg, 1)}° since the calibration of ${when}. Recalibrate before recording. `);
+      const a = document.createElement("a");
+      a.href = "/calibration-wizard.html"; a.textContent = "Open the calibration wizard";
+      p.append(a);
+      banner.append(p);
+    }
+  }
+  async function poll() {
+    try { render(await gaitrig.api("/api/calibration/live-check")); } catch (e) { /* page shows its own errors */ }
+    setTimeout(poll, 10000);
+  }
+  poll();
+})();
 (() => {
   const state = document.getElementById("bump-state");
   const btn = document.getElementById("bump-check");

@@ -1,14 +1,21 @@
 """Spatial calibration: printable marker sheets, capture from the connected nodes with
 progress (accept/reject), saved calibrations (list, view, restore) and the bumped-tripod
-check (live re-detection from the nodes' frames, or given poses)."""
+check (live re-detection from the nodes' frames, or given poses).
+
+The router's lifespan runs the periodic bumped-tripod check every
+``calibration_check_interval_s`` (:meth:`CaptureManager.run_periodic`)."""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import tempfile
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Query, Request, status
+from fastapi import APIRouter, FastAPI, HTTPException, Query, Request, status
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
@@ -16,7 +23,33 @@ from app.api.deps import CurrentUser, HubDep, RegistryDep, SettingsDep
 from app.server import calibration as cal
 from app.server.calibration import CaptureBusyError, CaptureManager, CaptureNotFoundError
 
-router = APIRouter(prefix="/calibration", tags=["calibration"])
+
+def _manager(app: Any, hub: Any, data_dir: Path) -> CaptureManager:
+    st = app.state
+    mgr: CaptureManager | None = getattr(st, "calibration_capture", None)
+    if mgr is None or mgr.hub is not hub:
+        mgr = st.calibration_capture = CaptureManager(hub, data_dir)
+    return mgr
+
+
+@asynccontextmanager
+async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    """Run the periodic bumped-tripod check (unless its interval is 0)."""
+    settings = app.state.settings
+    mgr = _manager(app, app.state.hub, settings.data_dir)
+    task = None
+    if settings.calibration_check_interval_s > 0:
+        task = asyncio.create_task(mgr.run_periodic(settings.calibration_check_interval_s))
+    try:
+        yield
+    finally:
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+
+router = APIRouter(prefix="/calibration", tags=["calibration"], lifespan=_lifespan)
 
 MAX_SHEET_IDS = 64
 
@@ -74,11 +107,7 @@ def marker_sheet(
 
 
 def _captures(request: Request, hub: HubDep, settings: SettingsDep) -> CaptureManager:
-    st = request.app.state
-    mgr: CaptureManager | None = getattr(st, "calibration_capture", None)
-    if mgr is None or mgr.hub is not hub:
-        mgr = st.calibration_capture = CaptureManager(hub, settings.data_dir)
-    return mgr
+    return _manager(request.app, hub, settings.data_dir)
 
 
 async def _start(mgr: CaptureManager, kind: str, frames: int,
@@ -125,11 +154,12 @@ async def live_check(body: LiveCheckRequest, request: Request, user: CurrentUser
 @router.get("/live-check")
 def last_live_check(request: Request, user: CurrentUser, hub: HubDep,
                     settings: SettingsDep) -> dict[str, Any]:
-    """The latest bumped-tripod check (``{"checked": false}`` when none ran yet)."""
-    job = _captures(request, hub, settings).last_check
-    if job is None:
-        return {"checked": False, "moved": [], "checks": []}
-    return {"checked": True, **job.to_dict()}
+    """The latest bumped-tripod check against the active calibration (``{"checked":
+    false}`` when none ran yet), ``warnings`` (every sensor found moved and not found back
+    in place since: sensor, moved_mm, rotated_deg, found_at, calibration_version and
+    calibration_created — what the Rig and Record pages show) and ``periodic`` (state of
+    the automatic check: enabled, interval_s, state, reason, at)."""
+    return _captures(request, hub, settings).live_check_view()
 
 
 @router.get("/captures/{job_id}")
