@@ -15,11 +15,19 @@ joints at 100 Hz in the lab frame, as the paper applied the same procedure to bo
 systems. Sensor poses and clock models are otherwise known (calibration is benchmarked
 elsewhere). Everything is vectorised per walk (~20 s for 10 × 10 on an idle core).
 
-Printed: per configuration, the step-level (L/R) and subject-average rows of step length,
-step width, stride length and step time (n, bias in cm or s, RPC, ICC(A,1)), the walking
-speed row, and the paper's figures for the same rows (Tables 1–3).
+Printed (one JSON line): the study is repeated for ``--seeds`` seeds (default 5: seeds
+0–4; one sample of ten subjects moves a row's ICC by up to ±0.2, so one seed's band is
+luck). ``realism_rows`` / ``realism_band`` / ``realism_within`` are the REPORTED figure:
+per row, the mean over the seeds of the paper's-method step-level ICC(A,1) and bias,
+against Tables 2–3 (``realism_figure`` says so; ``realism_within_per_seed`` gives each
+seed's own count). ``ours_acceptance`` likewise on the mean over the seeds, with
+``ours_acceptance_per_seed``. ``first_seed`` holds
+the first seed's full study: per configuration the step-level (L/R) and subject-average
+rows of step length, step width, stride length and step time (n, bias in cm or s, RPC,
+ICC(A,1)), the walking speed row, and its own band.
 
-Usage: ``python bench/gait_study.py [--subjects N] [--walks M]`` (defaults 10 × 10).
+Usage: ``python bench/gait_study.py [--subjects N] [--walks M] [--seed S] [--seeds K]``
+(defaults 10 × 10, seeds 0–4; ``--seeds 1`` for one study as before).
 """
 
 from __future__ import annotations
@@ -136,15 +144,34 @@ def _row(a: Any, scale: float) -> dict[str, Any]:
                             round(a.sd_reference * scale, 2)]}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--subjects", type=int, default=10)
-    ap.add_argument("--walks", type=int, default=10)
-    ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args()
-    t_start = time.perf_counter()
-    rng = np.random.default_rng(args.seed)
-    rig = default_avenue_rig(seed=args.seed)
+BAND_ROWS = [f"{p} {s}" for p in ("step_length", "step_width") for s in "LR"]
+
+
+def _band(res: dict[str, Any]) -> dict[str, Any]:
+    """Realism band: paper's-method step rows (``res["one_sided_mean"]`` etc., each with
+    ``icc`` and ``bias``) against Tables 2–3."""
+    band: dict[str, Any] = {}
+    for side in ("one", "two"):
+        for row in BAND_ROWS:
+            icc_p, bias_p = PAPER[side][row]
+            sim = res[f"{side}_sided_mean"].get(row)
+            if sim:
+                band[f"{side}-sided {row}"] = {
+                    "icc": sim["icc"], "bias_cm": sim["bias"],
+                    "d_icc": round(sim["icc"] - icc_p, 3),
+                    "d_bias_cm": round(sim["bias"] - bias_p, 2),
+                    "within": abs(sim["icc"] - icc_p) <= 0.1 and abs(sim["bias"] - bias_p) <= 1.0}
+    return band
+
+
+def _within(band: dict[str, Any]) -> str:
+    return f"{sum(b['within'] for b in band.values())}/{len(band)}"
+
+
+def _study(n_subjects: int, n_walks: int, seed: int) -> dict[str, Any]:
+    """One simulated study (one sample of subjects, walks and sensor errors)."""
+    rng = np.random.default_rng(seed)
+    rig = default_avenue_rig(seed=seed)
     configs = [(side, est) for side in ("one", "two") for est in ("mean", "weighted")]
     trials: dict[tuple[str, str], dict[str, list[tuple[list[Step], list[Step]]]]] = {
         c: {} for c in configs}
@@ -152,12 +179,12 @@ def main() -> None:
         c: {} for c in configs}
     speed: dict[tuple[str, str], tuple[list[float], list[float]]] = {c: ([], []) for c in configs}
     failures: dict[str, int] = {}
-    for subj in range(args.subjects):
+    for subj in range(n_subjects):
         params = WalkerParams.random(rng)
         sid = f"P{subj + 1:02d}"
         subj_speed: dict[tuple[str, str], tuple[list[float], list[float]]] = {
             c: ([], []) for c in configs}
-        for walk in range(args.walks):
+        for walk in range(n_walks):
             w, t_end = _walk(params, seed=1000 * subj + walk)
             refs = {"mean": _reference(w, t_end, True), "weighted": _reference(w, t_end, False)}
             streams = _observe(w, t_end, rig, rng)
@@ -185,8 +212,7 @@ def main() -> None:
                 speed[c][0].append(float(np.mean(subj_speed[c][0])))
                 speed[c][1].append(float(np.mean(subj_speed[c][1])))
 
-    out: dict[str, Any] = {"bench": "gait_study", "subjects": args.subjects,
-                           "walks": args.walks, "failed_walks": failures}
+    out: dict[str, Any] = {"seed": seed, "failed_walks": failures}
     for side, est in configs:
         res: dict[str, Any] = {}
         for attr, name, scale, data in (("length_m", "step_length", 100.0, trials),
@@ -202,19 +228,8 @@ def main() -> None:
     # Realism band of issue 8 (paper's method vs Tables 2-3: ICC within ±0.1, bias within
     # ±1 cm at step level) and the acceptance of our estimator (two-sided, step level:
     # ICC(A,1) ≥ 0.90 for step length, width and time; |step-width bias| ≤ 0.5 cm).
-    band: dict[str, Any] = {}
-    for side in ("one", "two"):
-        for row, (icc_p, bias_p) in PAPER[side].items():
-            if not row.startswith(("step_length", "step_width")):
-                continue
-            sim = out[f"{side}_sided_mean"].get(row)
-            if sim:
-                band[f"{side}-sided {row}"] = {
-                    "d_icc": round(sim["icc"] - icc_p, 3),
-                    "d_bias_cm": round(sim["bias"] - bias_p, 2),
-                    "within": abs(sim["icc"] - icc_p) <= 0.1 and abs(sim["bias"] - bias_p) <= 1.0}
-    out["realism_band"] = band
-    out["realism_within"] = f"{sum(b['within'] for b in band.values())}/{len(band)}"
+    out["realism_band"] = _band(out)
+    out["realism_within"] = _within(out["realism_band"])
     two, one = out["two_sided_mean"], out["one_sided_mean"]
     out["one_sided_worse"] = all(one[r]["icc"] < two[r]["icc"] for r in
                                  ("step_length L", "step_length R", "step_width L",
@@ -232,6 +247,65 @@ def main() -> None:
     out["ours_acceptance"]["met"] = (out["ours_acceptance"]["min_step_icc"] >= 0.90
                                      and out["ours_acceptance"]["max_abs_step_width_bias_cm"]
                                      <= 0.5)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--subjects", type=int, default=10)
+    ap.add_argument("--walks", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=0, help="first seed")
+    ap.add_argument("--seeds", type=int, default=5,
+                    help="number of studies (seeds seed, seed+1, ...); the realism band is "
+                         "judged on the mean over them of each row's ICC and bias")
+    args = ap.parse_args()
+    t_start = time.perf_counter()
+    seeds = list(range(args.seed, args.seed + max(args.seeds, 1)))
+    runs = [_study(args.subjects, args.walks, sd) for sd in seeds]
+    first = runs[0]
+    out: dict[str, Any] = {"bench": "gait_study", "subjects": args.subjects,
+                           "walks": args.walks, "seeds": seeds}
+    # Detailed rows of the first seed's study (one sample, as the paper's).
+    out["first_seed"] = first
+    # The reported realism figure: per row, the mean over the seeds' studies of the
+    # paper's-method ICC(A,1) and bias, so that the band is not one sample's luck (one
+    # sample of ten subjects moves a row's ICC by up to ±0.2).
+    mean_rows: dict[str, Any] = {}
+    for side in ("one", "two"):
+        key = f"{side}_sided_mean"
+        mean_rows[key] = {
+            r: {"icc": round(float(np.mean([x[key][r]["icc"] for x in runs])), 3),
+                "bias": round(float(np.mean([x[key][r]["bias"] for x in runs])), 2),
+                "icc_range": [min(x[key][r]["icc"] for x in runs),
+                              max(x[key][r]["icc"] for x in runs)]}
+            for r in BAND_ROWS if all(r in x[key] for x in runs)}
+    out["realism_figure"] = (f"mean over seeds {seeds[0]}..{seeds[-1]} of each row's "
+                             "step-level ICC(A,1) and bias (paper's averaging)")
+    out["realism_rows"] = mean_rows
+    out["realism_band"] = _band(mean_rows)
+    out["realism_within"] = _within(out["realism_band"])
+    out["realism_within_per_seed"] = {str(x["seed"]): x["realism_within"] for x in runs}
+    out["one_sided_worse"] = all(
+        mean_rows["one_sided_mean"][r]["icc"] < mean_rows["two_sided_mean"][r]["icc"]
+        for r in BAND_ROWS if r in mean_rows["one_sided_mean"]
+        and r in mean_rows["two_sided_mean"])
+    # Our estimator's acceptance on the same footing (mean over the seeds of each row),
+    # and each seed's own figures.
+    ours_rows = [f"{p} {s}" for p in ("step_length", "step_width", "step_time") for s in "LR"]
+    tw_mean = {r: {k: float(np.mean([x["two_sided_weighted"][r][k] for x in runs]))
+                   for k in ("icc", "bias")}
+               for r in ours_rows if all(r in x["two_sided_weighted"] for x in runs)}
+    out["ours_acceptance"] = {
+        "scope": "mean over the seeds of each two-sided step row (ours)",
+        "min_step_icc": round(min(v["icc"] for v in tw_mean.values()), 3),
+        "max_abs_step_width_bias_cm": round(max(abs(tw_mean[r]["bias"]) for r in
+                                                ours_rows[2:4] if r in tw_mean), 2)}
+    out["ours_acceptance"]["met"] = (out["ours_acceptance"]["min_step_icc"] >= 0.90
+                                     and out["ours_acceptance"]["max_abs_step_width_bias_cm"]
+                                     <= 0.5)
+    out["ours_acceptance_per_seed"] = {str(x["seed"]): x["ours_acceptance"] for x in runs}
+    out["ours_one_sided_worse_per_seed"] = {str(x["seed"]): x["ours_one_sided_worse"]
+                                            for x in runs}
     out["paper"] = {"one_sided_step_level": PAPER["one"], "two_sided_step_level": PAPER["two"],
                     "step_time": PAPER["step_time"], "units": "(ICC(A,1), bias cm)"}
     out["elapsed_s"] = round(time.perf_counter() - t_start, 1)

@@ -192,3 +192,46 @@ def test_unnoticed_occlusions_are_reported_tracked(scene):
     assert occ.sum() > 10
     assert np.all(ser.meta["hidden_tracked"][occ])
     assert np.all(ser.states[occ] == TrackingState.TRACKED)
+
+
+def test_far_leg_refit_shifts_both_legs_between_far_foot_landings(scene):
+    """``far_leg_refit_sd_m``: one horizontal shift of the whole lower body per interval
+    between landings of the far foot, nothing elsewhere; off by default."""
+    rig, walker, t, _ = scene
+    s = rig.sensor("S3")  # left of the walkway: the right foot is the far one
+    base = SkeletonErrorModel.perfect()
+    assert SkeletonErrorModel().far_leg_refit_sd_m == 0.0
+    off = observe_skeletons(s, rig, walker, t, np.random.default_rng(5), base)
+    base.far_leg_refit_sd_m = 0.03
+    on = observe_skeletons(s, rig, walker, t, np.random.default_rng(5), base)
+    ok = (on.states == TrackingState.TRACKED) & (off.states == TrackingState.TRACKED)
+    d = transform_points(s.T_world_sensor, on.positions) - transform_points(
+        s.T_world_sensor, off.positions)
+    legs = [KINECT_V2.index(n + sd) for n in ("Hip", "Knee", "Ankle", "Foot")
+            for sd in ("Left", "Right")]
+    rows = ok[:, legs].all(axis=1)
+    assert rows.sum() > 100
+    dl = d[rows][:, legs]
+    # every leg joint shifted alike, horizontally; the upper body untouched
+    assert np.allclose(dl, dl[:, :1], atol=1e-9) and np.allclose(dl[..., 2], 0, atol=1e-9)
+    head = KINECT_V2.index("Head")
+    assert np.allclose(d[ok[:, head], head], 0, atol=1e-9)
+    shift = dl[:, 0, :2]
+    assert np.abs(shift).max() > 0.01
+    # piecewise constant: it changes only where a foot (the far one) has just landed
+    tt = t[rows]
+    moved = np.linalg.norm(np.diff(shift, axis=0), axis=1) > 1e-9
+    jumps = list(zip(tt[:-1][moved], tt[1:][moved], strict=True))
+    landings: list[float] = []
+    for a in (AL, AR):  # the far foot is the right one towards the sensors, left back
+        speed = np.linalg.norm(np.gradient(walker.joints(t)[:, a, :2], t, axis=0), axis=1)
+        armed = False
+        for k in range(len(t)):
+            if speed[k] > 1.5:
+                armed = True
+            elif armed and speed[k] < 0.3:
+                armed = False
+                landings.append(t[k])
+    lt = np.array(landings)
+    assert len(jumps) >= 5
+    assert all(((lt > a) & (lt <= b + 1e-9)).any() for a, b in jumps)
