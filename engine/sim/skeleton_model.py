@@ -46,7 +46,8 @@ shorter).
 Check with the paper's own averaging (``bench/gait_study.py``: 10 random subjects × 10
 walks of 7 m, equal-weight mean of TRACKED joints, 6 Hz filter, placement at the crossing
 instant, lengths and widths along the walkway axis of a Kinect frame registered to the
-reference with a 1.5° yaw), step-level ICC(A,1) / bias (cm), simulation vs paper:
+reference with a 1.5° yaw), step-level ICC(A,1) / bias (cm), simulation (seed 0; the
+bench reports the mean over seeds 0–4, see ``docs/simulation.md``) vs paper:
 
 * two-sided: step length L 0.75 / 0.38 vs 0.83 / 0.41, R 0.79 / −0.55 vs 0.80 / 0.34;
   step width L 0.69 / −1.99 vs 0.675 / −1.57, R 0.71 / 1.76 vs 0.65 / 2.24.
