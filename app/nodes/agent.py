@@ -403,7 +403,7 @@ class NodeAgent:
 
     async def _serve_delete(self, ws: ClientConnection, msg: DeletePart) -> None:
         """Delete a part whose recording the server deleted (health data: for real)."""
-        header: dict[str, Any] = {"kind": "manifest", "req_id": msg.req_id, "rec_id": msg.rec_id}
+        header: dict[str, Any] = {"kind": "deleted", "req_id": msg.req_id, "rec_id": msg.rec_id}
         try:
             if msg.rec_id in self._recs:
                 raise InputError(f"recording {msg.rec_id} is still being recorded on "

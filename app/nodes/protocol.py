@@ -45,7 +45,7 @@ PROTOCOL_VERSION = 1
 BINARY_MAGIC = b"GRB" + bytes([PROTOCOL_VERSION])
 _HDR = struct.Struct("<4sI")
 MAX_BINARY_HEADER = 16 * 1024
-BINARY_KINDS = ("skeleton", "image", "manifest", "chunk", "calib")
+BINARY_KINDS = ("skeleton", "image", "manifest", "chunk", "deleted", "calib")
 
 StreamName = Literal["depth", "color", "body_index"]
 PartState = Literal["pending", "recording", "on_node", "incomplete"]

@@ -205,7 +205,7 @@ class Hub:
                                         [int(b) for b in header["bodies"]])
             for cb in self.skeleton_listeners:
                 cb(s)
-        elif header["kind"] in ("manifest", "chunk"):
+        elif header["kind"] in ("manifest", "chunk", "deleted"):
             self.transfers.on_binary(header, payload)
         elif header["kind"] in self.binary_listeners:
             self.binary_listeners[header["kind"]](s, header, payload)

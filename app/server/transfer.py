@@ -8,9 +8,10 @@ transfer, so a part is accepted only complete and intact. Parts land in
 ``<data_dir>/recordings/<rec_id>/<node_id>/`` (``manifest.json`` beside the files).
 
 Deleting a recording on the server also deletes the nodes' copies (health data: a
-deletion must be real): ``delete_part`` → the node removes its part and answers on the
-same request channel. Nodes that are offline are asked when they reconnect; the pending
-deletions survive a server restart in ``<data_dir>/node_deletions.json``.
+deletion must be real): ``delete_part`` → the node removes its part and answers
+``deleted`` on the same request channel. Nodes that are offline are asked when they
+reconnect; the pending deletions survive a server restart in
+``<data_dir>/node_deletions.json``.
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ class TransferManager:
         self.deletion_errors: dict[tuple[str, str], str] = {}
 
     def on_binary(self, header: dict[str, Any], payload: bytes) -> None:
-        """A ``manifest`` or ``chunk`` message arrived (from the hub)."""
+        """A ``manifest``, ``chunk`` or ``deleted`` answer arrived (from the hub)."""
         q = self._queues.get(header.get("req_id", -1))
         if q is not None:
             q.put_nowait((header, payload))
