@@ -32,7 +32,7 @@ import numpy as np
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 
-from app.nodes.backends.base import Backend, Frame
+from app.nodes.backends.base import Backend, Frame, downscale_image
 from app.nodes.protocol import (
     CalibrationCapture,
     ChunkRequest,
@@ -106,11 +106,7 @@ def encode_image(stream: str, img: np.ndarray, scale: float, fmt: str) -> tuple[
     stays 16-bit PNG when PNG is asked for, and becomes a false-colour JPEG preview
     otherwise (JPEG has no 16-bit mode).
     """
-    if scale != 1.0:
-        h, w = img.shape[:2]
-        size = (max(1, round(w * scale)), max(1, round(h * scale)))
-        interp = cv2.INTER_AREA if stream == "color" else cv2.INTER_NEAREST
-        img = cv2.resize(img, size, interpolation=interp)
+    img = downscale_image(stream, img, scale)
     if stream == "color" and img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
     if fmt == "jpeg":

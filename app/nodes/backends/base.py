@@ -19,6 +19,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +33,19 @@ PreviewFn = Callable[[Sequence[str], float], dict[str, NDArray[np.uint8] | NDArr
 
 def _no_images(streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
     return {}
+
+
+def downscale_image(stream: str, img: NDArray[Any], scale: float) -> NDArray[Any]:
+    """Resize one image by ``scale`` as every image leaving a node is: colour by area
+    averaging, depth and body index by nearest neighbour (no invented depths or labels)."""
+    import cv2  # only nodes that send images need OpenCV
+
+    if scale == 1.0:
+        return img
+    h, w = img.shape[:2]
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    interp = cv2.INTER_AREA if stream == "color" else cv2.INTER_NEAREST
+    return np.asarray(cv2.resize(img, size, interpolation=interp))
 
 
 @dataclass

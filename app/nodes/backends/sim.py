@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.nodes.backends.base import Backend, Frame
+from app.nodes.backends.base import Backend, Frame, downscale_image
 from app.nodes.clock import NodeClock
 from app.nodes.protocol import SensorInfo
 from engine.errors import InputError
@@ -240,7 +240,7 @@ class SimBackend(Backend):
         if want_color and frame.color is not None:
             out["color"] = frame.color
         if scale != 1.0 and not preview:
-            out = {k: _downscale(k, v, scale) for k, v in out.items()}
+            out = {k: downscale_image(k, v, scale) for k, v in out.items()}
         return out
 
     def calibration_frames(self, n: int) -> Iterator[tuple[Any, ...]]:
@@ -278,15 +278,6 @@ class SimBackend(Backend):
             assert sf.depths is not None
             yield (self.clock.from_host(t_host), sf.colors[0], sf.depths[0], r.K_color,
                    r.K_depth, self.sensor.model.T_depth_color, sf.depth_scale)
-
-def _downscale(stream: str, img: NDArray[Any], scale: float) -> NDArray[Any]:
-    """Resize like the node agent: colour by area averaging, depth/body index nearest."""
-    import cv2
-
-    h, w = img.shape[:2]
-    size = (max(1, round(w * scale)), max(1, round(h * scale)))
-    interp = cv2.INTER_AREA if stream == "color" else cv2.INTER_NEAREST
-    return np.asarray(cv2.resize(img, size, interpolation=interp))
 
 
 def _no_images(streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
