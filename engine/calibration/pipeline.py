@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import os
 import time
-import warnings
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -243,11 +242,13 @@ def static_cloud(frames: SensorFrames, max_frames: int = 9, stride: int = 2) -> 
     stack = np.stack([np.asarray(frames.depths[i], dtype=np.float64)[::stride, ::stride]
                       for i in idx])
     stack[stack <= 0] = np.nan
-    with warnings.catch_warnings():  # pixels without any return stay NaN → 0 below
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(stack, axis=0) if len(idx) > 1 else stack[0]
+    # median only where some frame has a return (pixels without any stay 0 = no depth);
+    # not via catch_warnings, which is not thread-safe and sensors run in parallel
+    seen = np.isfinite(stack).any(axis=0)
+    med = np.zeros(stack.shape[1:], dtype=np.float64)
+    med[seen] = np.nanmedian(stack[:, seen], axis=0)
     img = np.zeros(full.shape, dtype=np.float64)
-    img[::stride, ::stride] = np.nan_to_num(med, nan=0.0)
+    img[::stride, ::stride] = med
     intr = _intr(frames.depth_intrinsics, full.shape)
     pts, _ = depth_to_points(img, intr, frames.depth_scale, max_depth=8.0, stride=stride)
     return pts
