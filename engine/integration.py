@@ -40,7 +40,6 @@ sensors", plus our estimator):
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Collection
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
@@ -50,6 +49,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter1d
 from scipy.signal import butter, filtfilt
 
+from engine import nanstats
 from engine.errors import InputError, InsufficientDataError
 from engine.geometry import transform_points
 from engine.skeleton import JointSet, SkeletonSeries, TrackingState
@@ -473,9 +473,7 @@ def integrate_skeletons(
         report.gaps_filled += f
     have = np.asarray(np.isfinite(E).all(axis=-1), dtype=bool)
     if estimator == "mean":
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices: no sensor
-            X = np.nanmean(E, axis=0)
+        X = nanstats.nanmean(E, axis=0)  # NaN where no sensor has the joint
         used = have
     else:
         centres = np.array([np.asarray(s.T_world_sensor, dtype=float)[:3, 3] for s in streams])

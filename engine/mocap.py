@@ -9,13 +9,13 @@ explicit ``left``/``right`` names. Everything returned is in metres, Z up.
 from __future__ import annotations
 
 import re
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from engine import nanstats
 from engine.errors import InputError
 from engine.io.markers import (
     MarkerEvent,
@@ -223,9 +223,7 @@ def _pelvis(labels: list[str], P: FloatArray, t: FloatArray) -> tuple[FloatArray
             for c, d in _PELVIS_PAIRS:
                 if (c, d) != (a, b) and c in keys and d in keys:
                     idx += [keys.index(c), keys.index(d)]
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # frames with no marker
-                x = fill_gaps(t, np.nanmean(P[:, idx], axis=1))
+            x = fill_gaps(t, nanstats.nanmean(P[:, idx], axis=1))  # NaN: no marker
             return x, "+".join(labels[i] for i in idx)
     for s in _PELVIS_SINGLE:
         if s in keys:

@@ -30,7 +30,6 @@ import json
 import logging
 import secrets
 import time
-import warnings
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -40,6 +39,7 @@ from urllib.parse import urlsplit
 import numpy as np
 from numpy.typing import NDArray
 
+from engine import nanstats
 from engine.compare import common_joints, compare_motions, joint_distances
 from engine.errors import GaitrigError, InputError
 from engine.kscc import N_STILL_FRAMES, KsccCalibrator, KsccProgress
@@ -368,9 +368,7 @@ class KsccSession:
         except GaitrigError as e:
             return {"ready": False, "message": str(e)}
         keep = np.unique(np.linspace(0, len(t) - 1, min(len(t), 300)).round().astype(int))
-        with warnings.catch_warnings():  # frames without a pair are NaN rows
-            warnings.simplefilter("ignore", RuntimeWarning)
-            mean = np.nanmean(d, axis=1)
+        mean = nanstats.nanmean(d, axis=1)  # frames without a pair are NaN rows
 
         def clean(x: FloatArray) -> list[float | None]:
             return [None if not np.isfinite(v) else round(float(v), 4) for v in x]

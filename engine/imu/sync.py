@@ -18,7 +18,6 @@ Offsets are *added* to a stream's own time stamps to express them on the referen
 
 from __future__ import annotations
 
-import warnings as pywarnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -26,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.signal import correlate, find_peaks, savgol_filter
 
+from engine import nanstats
 from engine.errors import InputError, InsufficientDataError
 from engine.imu.io import ImuRecording
 from engine.skeleton import SkeletonSeries
@@ -203,10 +203,8 @@ def torso_height(
     u = u / np.linalg.norm(u)
     idx = sorted({js.role_index(r) for r in TORSO_ROLES if r in js.roles})
     h = skeleton.tracked_positions()[:, idx, :] @ u
-    with np.errstate(invalid="ignore"), pywarnings.catch_warnings():
-        pywarnings.simplefilter("ignore", RuntimeWarning)
-        h = h - np.nanmedian(h, axis=0)
-        hm = np.nanmean(h, axis=1)
+    h = h - nanstats.nanmedian(h, axis=0)
+    hm = nanstats.nanmean(h, axis=1)
     ok = np.isfinite(hm)
     if ok.sum() < 8:
         raise InsufficientDataError("the depth skeleton has fewer than 8 frames with a torso")

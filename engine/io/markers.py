@@ -9,29 +9,19 @@ turn the file's axes into the project's Z-up convention when an analysis needs i
 from __future__ import annotations
 
 import re
-import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from engine import nanstats as ns
 from engine.errors import InputError
 
 #: metres per unit for the unit strings found in C3D/TRC files.
 UNIT_SCALE: dict[str, float] = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0}
 
 AXES = ("x", "y", "z")
-
-
-@contextmanager
-def _quiet() -> Iterator[None]:
-    """Silence numpy's all-NaN warnings (missing markers are expected in mocap data)."""
-    with warnings.catch_warnings(), np.errstate(all="ignore"):
-        warnings.simplefilter("ignore", RuntimeWarning)
-        yield
 
 
 @dataclass(frozen=True)
@@ -171,14 +161,14 @@ def characteristic_length(positions: ArrayLike, labels: list[str]) -> float:
     P = np.asarray(positions, dtype=float)
     up = _group(labels, _UPPER_PATTERNS[:9])
     feet = _group(labels, _FOOT_PATTERNS)
-    with _quiet():
-        if up and feet:
-            d = np.nanmean(P[:, up], axis=1) - np.nanmean(P[:, feet], axis=1)
-            L = float(np.nanmedian(np.linalg.norm(d, axis=-1)))
-            if np.isfinite(L) and L > 0:
-                return L
-        ext = np.nanmax(P, axis=1) - np.nanmin(P, axis=1)
-        L = float(np.nanmedian(np.nanmax(ext, axis=-1)))
+    # missing markers are expected in mocap data: the ns.* reductions give NaN silently
+    if up and feet:
+        d = ns.nanmean(P[:, up], axis=1) - ns.nanmean(P[:, feet], axis=1)
+        L = float(ns.nanmedian(np.linalg.norm(d, axis=-1)))
+        if np.isfinite(L) and L > 0:
+            return L
+    ext = ns.nanmax(P, axis=1) - ns.nanmin(P, axis=1)
+    L = float(ns.nanmedian(ns.nanmax(ext, axis=-1)))
     if not np.isfinite(L) or L <= 0:
         raise InputError("cannot guess the length unit: no frame with two or more markers; "
                          "give the units explicitly")
@@ -218,16 +208,15 @@ def detect_vertical_axis(positions: ArrayLike, labels: list[str]) -> str:
     P = np.asarray(positions, dtype=float)
     up = _group(labels, _UPPER_PATTERNS)
     feet = _group(labels, _FOOT_PATTERNS)
-    with _quiet():
-        if up and feet:
-            d = np.nanmedian(np.nanmean(P[:, up], axis=1) - np.nanmean(P[:, feet], axis=1),
-                             axis=0)
-            if np.all(np.isfinite(d)):
-                a = int(np.argmax(np.abs(d)))
-                return ("" if d[a] > 0 else "-") + AXES[a]
-        spread = np.nanmedian(np.nanstd(P, axis=1), axis=0)
-        centroid = np.nanmean(P, axis=1)
-        travel = np.nanstd(centroid, axis=0)
+    if up and feet:
+        d = ns.nanmedian(ns.nanmean(P[:, up], axis=1) - ns.nanmean(P[:, feet], axis=1),
+                         axis=0)
+        if np.all(np.isfinite(d)):
+            a = int(np.argmax(np.abs(d)))
+            return ("" if d[a] > 0 else "-") + AXES[a]
+    spread = ns.nanmedian(ns.nanstd(P, axis=1), axis=0)
+    centroid = ns.nanmean(P, axis=1)
+    travel = ns.nanstd(centroid, axis=0)
     if not np.all(np.isfinite(spread)):
         raise InputError("cannot detect the vertical axis: too few markers; give it with --up")
     score = spread / (travel + spread.max() * 0.1 + 1e-12)
