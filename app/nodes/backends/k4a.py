@@ -61,12 +61,13 @@ class K4ABackend(Backend):
         self._k4a = pyk4a.PyK4A(cfg, device_id=self.device)
         self._k4a.start()
         cal = self._k4a.calibration
-        K_d = cal.get_camera_matrix(pyk4a.CalibrationType.DEPTH)
-        K_c = cal.get_camera_matrix(pyk4a.CalibrationType.COLOR)
+        K_d = np.asarray(cal.get_camera_matrix(pyk4a.CalibrationType.DEPTH)).tolist()
+        # the colour image we send is ``transformed_color``: resampled into the DEPTH
+        # camera's geometry, so it has the depth camera's size and intrinsics (and the
+        # identity as colour → depth transform), not the 1280×720 colour camera's
         return SensorInfo(model="Azure Kinect (pyk4a)", depth_size=(640, 576),
-                          color_size=(1280, 720), depth_K=np.asarray(K_d).tolist(),
-                          color_K=np.asarray(K_c).tolist(), fov_deg=(75.0, 65.0), rate_hz=30.0,
-                          joint_set="azure_kinect")
+                          color_size=(640, 576), depth_K=K_d, color_K=K_d,
+                          fov_deg=(75.0, 65.0), rate_hz=30.0, joint_set="azure_kinect")
 
     def now(self) -> float:
         return time.time()
