@@ -51,7 +51,7 @@ from engine.integration import SensorStream, integrate_skeletons
 from engine.mocap import feet_from_skeleton
 from engine.sim.clock import frame_times
 from engine.sim.rig import default_avenue_rig
-from engine.sim.skeleton_model import observe_skeletons
+from engine.sim.skeleton_model import SkeletonErrorModel, observe_skeletons
 from engine.sim.walker import Walker, WalkerParams
 from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
 
@@ -124,14 +124,16 @@ def _yaw(deg: float) -> NDArray[np.float64]:
     return R
 
 
-def _observe(w: Walker, t_end: float, rig: Any, rng: np.random.Generator) -> list[SensorStream]:
+def _observe(w: Walker, t_end: float, rig: Any, rng: np.random.Generator,
+             model: SkeletonErrorModel | None = None, shared_seed: int | None = None
+             ) -> list[SensorStream]:
     out = []
     # The Kinect side's world frame is the reference lab frame rotated by the
     # registration yaw: its calibrated sensor poses place everything rotated.
     R = _yaw(REGISTRATION_YAW_DEG)
     for s in rig.sensors:
         times = frame_times(0.0, t_end, rng)
-        ser = observe_skeletons(s, rig, w, times, rng)
+        ser = observe_skeletons(s, rig, w, times, rng, model, shared_seed=shared_seed)
         out.append(SensorStream(ser, R @ s.T_world_sensor, s.clock_offset_s,
                                 s.clock_drift_ppm, s.id))
     return out
@@ -168,7 +170,8 @@ def _within(band: dict[str, Any]) -> str:
     return f"{sum(b['within'] for b in band.values())}/{len(band)}"
 
 
-def _study(n_subjects: int, n_walks: int, seed: int) -> dict[str, Any]:
+def _study(n_subjects: int, n_walks: int, seed: int,
+           model: SkeletonErrorModel | None = None) -> dict[str, Any]:
     """One simulated study (one sample of subjects, walks and sensor errors)."""
     rng = np.random.default_rng(seed)
     rig = default_avenue_rig(seed=seed)
@@ -187,7 +190,11 @@ def _study(n_subjects: int, n_walks: int, seed: int) -> dict[str, Any]:
         for walk in range(n_walks):
             w, t_end = _walk(params, seed=1000 * subj + walk)
             refs = {"mean": _reference(w, t_end, True), "weighted": _reference(w, t_end, False)}
-            streams = _observe(w, t_end, rig, rng)
+            # errors with a common cause (shared by the sensors of one walk) draw from
+            # a seed of their own, so that the study's other draws are unchanged
+            streams = _observe(w, t_end, rig, rng, model,
+                               shared_seed=int(np.random.default_rng(
+                                   [seed, subj, walk, 7]).integers(2**31)))
             for side, est in configs:
                 use = streams if side == "two" else [s for s in streams
                                                      if s.sensor_id in ONE_SIDED]
@@ -255,16 +262,23 @@ def main() -> None:
     ap.add_argument("--subjects", type=int, default=10)
     ap.add_argument("--walks", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0, help="first seed")
+    ap.add_argument("--model", default="{}",
+                    help="JSON object of SkeletonErrorModel overrides (default: the "
+                         "model's defaults), e.g. '{\"far_leg_refit_sd_m\": 0.02}'")
     ap.add_argument("--seeds", type=int, default=5,
                     help="number of studies (seeds seed, seed+1, ...); the realism band is "
                          "judged on the mean over them of each row's ICC and bias")
     args = ap.parse_args()
     t_start = time.perf_counter()
     seeds = list(range(args.seed, args.seed + max(args.seeds, 1)))
-    runs = [_study(args.subjects, args.walks, sd) for sd in seeds]
+    overrides = json.loads(args.model)
+    if not isinstance(overrides, dict):
+        ap.error("--model must be a JSON object")
+    model = SkeletonErrorModel(**overrides)
+    runs = [_study(args.subjects, args.walks, sd, model) for sd in seeds]
     first = runs[0]
     out: dict[str, Any] = {"bench": "gait_study", "subjects": args.subjects,
-                           "walks": args.walks, "seeds": seeds}
+                           "walks": args.walks, "seeds": seeds, "model": overrides}
     # Detailed rows of the first seed's study (one sample, as the paper's).
     out["first_seed"] = first
     # The reported realism figure: per row, the mean over the seeds' studies of the

@@ -187,6 +187,11 @@ class SkeletonErrorModel:
             0.65 / 0.49 for length / width). Off (0) by default: see docs/simulation.md.
         far_leg_refit_lateral_ratio: SD of that shift across the walking direction
             relative to along it.
+        far_leg_refit_shared: The re-fit shift is a common cause of all sensors on the
+            same side of the subject (they see the same far leg re-appear from behind
+            the same near leg, so their fits move alike): drawn once per landing from
+            ``observe_skeletons``' ``shared_seed`` instead of per sensor. Without a
+            ``shared_seed`` each sensor draws its own.
         mirror_back_facing: Report a subject seen from behind mirrored (left/right
             labels swapped), as the Kinect v2 SDK does.
         back_facing_noise_gain: Noise factor for back-facing subjects.
@@ -217,6 +222,7 @@ class SkeletonErrorModel:
     leg_swap_duration_s: tuple[float, float] = (0.1, 0.3)
     far_leg_refit_sd_m: float = 0.0
     far_leg_refit_lateral_ratio: float = 1.0
+    far_leg_refit_shared: bool = False
     mirror_back_facing: bool = True
     back_facing_noise_gain: float = 1.5
 
@@ -324,28 +330,42 @@ _SWING_SPEED, _STANCE_SPEED = 1.5, 0.3
 
 def _far_leg_refit(t: FloatArray, J: FloatArray, far: FloatArray, fwd: FloatArray,
                    scale_d: FloatArray, sd: float, lateral_ratio: float,
-                   rng: np.random.Generator) -> FloatArray:
+                   rng: np.random.Generator, shared_seed: int | None = None) -> FloatArray:
     """``(T, 3)`` horizontal lower-body offset, redrawn at each landing of the far foot
     (see ``SkeletonErrorModel.far_leg_refit_sd_m``): SD ``sd`` along the body's forward
     axis ``fwd`` (T, 3) and ``lateral_ratio·sd`` across it, scaled with the distance at
-    the landing like the other fit errors."""
+    the landing like the other fit errors. With ``shared_seed`` the draw of the n-th
+    landing of a foot is the same for every sensor that has that foot as its far foot
+    (``SkeletonErrorModel.far_leg_refit_shared``)."""
     T = len(t)
-    landings: list[int] = []
-    for side in ("Left", "Right"):
+    landings: list[tuple[int, int, int]] = []  # (sample, foot 0/1, landing number)
+    for f_i, side in enumerate(("Left", "Right")):
         a = _IDX["Ankle" + side]
         sp = np.linalg.norm(np.gradient(J[:, a, :2], t, axis=0), axis=1)
         armed = False
+        n = 0
         for k in range(T):
             if sp[k] > _SWING_SPEED:
                 armed = True
             elif armed and sp[k] < _STANCE_SPEED:
                 armed = False
-                if far[k, a] > 0.5:
-                    landings.append(k)
-    land = np.sort(np.array(landings, dtype=int))
+                n += 1
+                # shared: every landing of the foot on the side turned away from this
+                # side of the walkway (the same events for all sensors there)
+                if far[k, a] > (0.0 if shared_seed is not None else 0.5):
+                    landings.append((k, f_i, n))
+    landings.sort()
+    land = np.array([x[0] for x in landings], dtype=int)
     piece = np.searchsorted(land, np.arange(T), side="right")
-    starts = np.concatenate([[0], land])
-    z = rng.standard_normal((len(starts), 2)) * (sd * scale_d[starts])[:, None]
+    starts = np.concatenate([[0], land]).astype(int)
+    if shared_seed is None:
+        unit = rng.standard_normal((len(starts), 2))
+    else:
+        # the n-th landing of a foot: the same draw for all sensors on its far side
+        unit = np.array([np.random.default_rng([shared_seed, 0, 0]).standard_normal(2)]
+                        + [np.random.default_rng([shared_seed, f_i + 1, n]).standard_normal(2)
+                           for _, f_i, n in landings]).reshape(-1, 2)
+    z = unit * (sd * scale_d[starts])[:, None]
     f = fwd[starts]
     lat = np.stack([-f[:, 1], f[:, 0], np.zeros(len(f))], axis=1)
     off = z[:, :1] * f + lateral_ratio * z[:, 1:] * lat
@@ -360,6 +380,7 @@ def observe_skeletons(
     rng: np.random.Generator,
     model: SkeletonErrorModel | None = None,
     body_id: int = 0,
+    shared_seed: int | None = None,
 ) -> SkeletonSeries:
     """The skeleton stream one sensor reports for one walker.
 
@@ -373,6 +394,9 @@ def observe_skeletons(
         rng: Random generator (all randomness of this observation).
         model: Error model (default :class:`SkeletonErrorModel`).
         body_id: Body index reported in ``meta``.
+        shared_seed: Seed of the random numbers that all sensors observing the same
+            walk share (errors with a common cause, ``far_leg_refit_shared``); None:
+            every draw comes from ``rng``.
 
     Returns:
         A :class:`SkeletonSeries` in the SENSOR (depth camera) frame, metres, one row per
@@ -463,7 +487,8 @@ def observe_skeletons(
         est[:, _LEGS] += _far_leg_refit(
             t, J, far, fwd, scale_d=dist[:, _IDX["SpineBase"]] / m.ref_distance_m,
             sd=m.far_leg_refit_sd_m, lateral_ratio=m.far_leg_refit_lateral_ratio,
-            rng=rng)[:, None, :]
+            rng=rng, shared_seed=shared_seed if m.far_leg_refit_shared else None,
+        )[:, None, :]
 
     # ---- occlusion → inferred / not tracked
     recent = np.zeros_like(occl)

@@ -235,3 +235,42 @@ def test_far_leg_refit_shifts_both_legs_between_far_foot_landings(scene):
     lt = np.array(landings)
     assert len(jumps) >= 5
     assert all(((lt > a) & (lt <= b + 1e-9)).any() for a, b in jumps)
+
+
+def _leg_shift(s, rig, walker, t, model, seed, shared_seed):
+    """World-frame lower-body shift of one sensor's observation (model minus perfect)."""
+    base = SkeletonErrorModel.perfect()
+    off = observe_skeletons(s, rig, walker, t, np.random.default_rng(seed), base,
+                            shared_seed=shared_seed)
+    on = observe_skeletons(s, rig, walker, t, np.random.default_rng(seed), model,
+                           shared_seed=shared_seed)
+    ok = (on.states[:, AL] == TrackingState.TRACKED) & (off.states[:, AL] == TrackingState.TRACKED)
+    d = (transform_points(s.T_world_sensor, on.positions[:, AL])
+         - transform_points(s.T_world_sensor, off.positions[:, AL]))[:, :2]
+    d[~ok] = np.nan
+    return d
+
+
+def test_shared_far_leg_refit_is_common_to_the_sensors_of_one_side(scene):
+    """``far_leg_refit_shared``: sensors on the same side of the subject draw the same
+    shift direction at the same landing (a common cause), from ``shared_seed`` only;
+    sensors on the other side, or without a shared seed, draw their own."""
+    rig, walker, t, _ = scene
+    model = SkeletonErrorModel.perfect()
+    model.far_leg_refit_sd_m, model.far_leg_refit_shared = 0.03, True
+
+    def unit(d):
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    def agree(a, b):
+        ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+        assert ok.sum() > 100
+        return float(np.mean(np.sum(unit(a[ok]) * unit(b[ok]), axis=1) > 0.999))
+
+    s1, s3, s2 = rig.sensor("S1"), rig.sensor("S3"), rig.sensor("S2")
+    a = _leg_shift(s1, rig, walker, t, model, 1, shared_seed=42)
+    b = _leg_shift(s3, rig, walker, t, model, 2, shared_seed=42)
+    assert agree(a, b) > 0.6  # same side, same seed: the same draws
+    assert agree(a, _leg_shift(s2, rig, walker, t, model, 3, shared_seed=42)) < 0.2
+    assert agree(a, _leg_shift(s3, rig, walker, t, model, 2, shared_seed=43)) < 0.2
+    assert agree(a, _leg_shift(s3, rig, walker, t, model, 2, shared_seed=None)) < 0.2
