@@ -22,6 +22,6 @@ ENV GAITRIG_DATA_DIR=/data \
     GAITRIG_VIEWER_HOST=0.0.0.0 \
     PYTHONUNBUFFERED=1
 VOLUME ["/data"]
-EXPOSE 8000 8081
+EXPOSE 8000 8001 8081
 HEALTHCHECK --interval=10s --timeout=3s CMD python -c "import urllib.request,sys; urllib.request.urlopen('http://127.0.0.1:8000/healthz', timeout=2)" || exit 1
 CMD ["gaitrig", "serve"]

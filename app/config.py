@@ -28,6 +28,13 @@ class Settings(BaseSettings):
         default=8000, ge=0, le=65535,
         description="API / console / node websocket port.",
     )
+    transfer_port: int = Field(
+        default=8001, ge=0, le=65535,
+        description="TCP port of the transfer data channel (nodes send recording chunks "
+        "to it, on the same interface as the API). If it is taken, any free port is used; "
+        "0: always any free port. Nodes that cannot reach it fall back to the websocket "
+        "(slower). Environment: GAITRIG_TRANSFER_PORT.",
+    )
     viewer_enabled: bool = Field(
         default=True,
         description="Start the viser 3D view in the lifespan.",

@@ -104,8 +104,9 @@ def _busy(start: dict[str, float], end: dict[str, float]) -> float:
 
 
 def _transfer_once(tmp: Path, nodes: list[str], node_dirs: dict[str, Path], sizes: dict[str, int],
-                   r: int) -> tuple[float, float]:
-    """One transfer by fresh server and node processes; (data phase s, with manifest s)."""
+                   r: int) -> tuple[float, float, bool]:
+    """One transfer by fresh server and node processes; (data phase s, with manifest s,
+    whether every part came over the data channel)."""
     port = _free_port()
     server_dir = tmp / f"server{r}"
     _server_state(server_dir, sizes)
@@ -155,8 +156,10 @@ def _transfer_once(tmp: Path, nodes: list[str], node_dirs: dict[str, Path], size
     landed = _log_times(logs["server"], "part of {node} on the server")
     if set(landed) != set(nodes) or set(receiving) != set(nodes):
         raise RuntimeError("transfer log lines missing; see " + str(logs["server"]))
+    text = logs["server"].read_text(errors="replace")
+    channel = "no data channel" not in text and "data channel from" not in text
     shutil.rmtree(server_dir)
-    return _busy(receiving, landed), _busy(asked, landed)
+    return _busy(receiving, landed), _busy(asked, landed), channel
 
 
 def _copy(sources: list[Path], dest: Path) -> float:
@@ -186,17 +189,20 @@ def main() -> None:
         files = [f for p in parts.values() for f in sorted(p.iterdir())]
         total = sum(f.stat().st_size for f in files)
         sizes = {n: sum(f.stat().st_size for f in p.iterdir()) for n, p in parts.items()}
-        ours, with_manifest, peer = [], [], []
+        ours, with_manifest, peer, channel = [], [], [], []
         for r in range(args.repeats):
             peer.append(_copy(files, tmp / f"copy{r}"))
             shutil.rmtree(tmp / f"copy{r}")
-            t, tm = _transfer_once(tmp, nodes, node_dirs, sizes, r)
+            t, tm, ch = _transfer_once(tmp, nodes, node_dirs, sizes, r)
             ours.append(t)
+            channel.append(ch)
             with_manifest.append(tm)
         mib = total / (1 << 20)
         print(json.dumps({
             "bench": "transfer",
-            "path": "gaitrig serve + gaitrig node processes, loopback websocket",
+            "path": "gaitrig serve + gaitrig node processes over loopback: "
+                    + ("TCP data channel" if all(channel) else
+                       f"websocket fallback in {channel.count(False)} of {len(channel)} runs"),
             "bytes": total,
             "nodes": args.nodes,
             "transfer_mib_s": round(mib / min(ours), 1),

@@ -26,6 +26,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import cv2
 import numpy as np
@@ -36,6 +37,7 @@ from app.nodes.backends.base import Backend, Frame, downscale_image
 from app.nodes.protocol import (
     CalibrationCapture,
     ChunkRequest,
+    DataChannel,
     DeletePart,
     Hello,
     ManifestRequest,
@@ -69,6 +71,8 @@ from app.transfer import (
     TransferError,
     build_manifest,
     chunk_message,
+    connect_channel,
+    serve_channel,
 )
 from engine.errors import GaitrigError, InputError
 
@@ -78,21 +82,47 @@ log = logging.getLogger("gaitrig.node")
 _corrupted: set[tuple[str, int]] = set()
 
 
+_cut: set[tuple[str, int]] = set()
+
+
+def _test_corrupt(name: str, idx: int) -> bool:
+    """TEST HOOK: whether to flip one byte of this chunk (``GAITRIG_TEST_CORRUPT_CHUNK=
+    <file>:<index>``, the first time that chunk is sent, on either path)."""
+    target = os.environ.get("GAITRIG_TEST_CORRUPT_CHUNK")
+    if target and target == f"{name}:{idx}" and (name, idx) not in _corrupted:
+        _corrupted.add((name, idx))
+        log.warning("TEST HOOK: flipping one byte of %s chunk %d", name, idx)
+        return True
+    return False
+
+
 async def _test_chunk_hooks(name: str, idx: int, message: bytearray, start: int) -> None:
     """TEST HOOKS of the transfer acceptance tests (environment of the node process):
     ``GAITRIG_TEST_CHUNK_DELAY_S`` slows every chunk down (so a transfer can be
     interrupted), ``GAITRIG_TEST_CORRUPT_CHUNK=<file>:<index>`` flips one byte of that
     chunk (at ``message[start]``) the first time it is sent. ``GAITRIG_TEST_CHUNK_SIZE``
-    (in :meth:`_manifest`) makes small parts span many chunks."""
+    (in :meth:`_manifest`) makes small parts span many chunks. The data channel's
+    equivalent is :func:`_test_channel_hook`."""
     delay = float(os.environ.get("GAITRIG_TEST_CHUNK_DELAY_S", "0") or 0)
     if delay > 0:
         await asyncio.sleep(delay)
-    target = os.environ.get("GAITRIG_TEST_CORRUPT_CHUNK")
-    if (target and target == f"{name}:{idx}" and (name, idx) not in _corrupted
-            and len(message) > start):
-        _corrupted.add((name, idx))
-        log.warning("TEST HOOK: flipping one byte of %s chunk %d", name, idx)
+    if len(message) > start and _test_corrupt(name, idx):
         message[start] ^= 0xFF
+
+
+def _test_channel_hook(name: str, idx: int) -> bool:
+    """TEST HOOKS on the data channel (runs in its thread): the delay and corruption of
+    :func:`_test_chunk_hooks`, and ``GAITRIG_TEST_CUT_DATA_CHANNEL=<file>:<index>``
+    closes the channel once, just before that chunk (the websocket stays up)."""
+    delay = float(os.environ.get("GAITRIG_TEST_CHUNK_DELAY_S", "0") or 0)
+    if delay > 0:
+        time.sleep(delay)
+    cut = os.environ.get("GAITRIG_TEST_CUT_DATA_CHANNEL")
+    if cut and cut == f"{name}:{idx}" and (name, idx) not in _cut:
+        _cut.add((name, idx))
+        log.warning("TEST HOOK: cutting the data channel before %s chunk %d", name, idx)
+        raise ConnectionAbortedError("TEST HOOK: data channel cut")
+    return _test_corrupt(name, idx)
 
 
 class NodeRefusedError(RuntimeError):
@@ -326,6 +356,8 @@ class NodeAgent:
                                  name="calib-capture").start()
             elif isinstance(msg, ManifestRequest):
                 self._spawn(self._serve_manifest(ws, msg))
+            elif isinstance(msg, DataChannel):
+                self._spawn(self._serve_data_channel(ws, msg))
             elif isinstance(msg, ChunkRequest):
                 self._spawn(self._serve_chunks(ws, msg))
             elif isinstance(msg, DeletePart):
@@ -396,6 +428,35 @@ class NodeAgent:
             except (GaitrigError, TransferError, OSError) as exc:
                 await ws.send(encode_binary({**header, "error": str(exc)}))
                 return
+
+    async def _serve_data_channel(self, ws: ClientConnection, msg: DataChannel) -> None:
+        """Connect to the server's data port and send the chunks it asks for (``sendfile``
+        from the part files), or tell the server why not (it then uses the websocket)."""
+        header: dict[str, Any] = {"kind": "channel", "req_id": msg.req_id, "rec_id": msg.rec_id}
+        url = urlsplit(self.server_url)
+        try:
+            if url.scheme == "wss":
+                raise TransferError("the data channel is not encrypted and this node reaches "
+                                    "the server over wss://; chunks go over the websocket")
+            if os.environ.get("GAITRIG_TEST_BLOCK_DATA_CHANNEL"):
+                raise ConnectionRefusedError("TEST HOOK: data channel blocked")
+            m = self._manifests.get(msg.rec_id)
+            if m is None:
+                m = await asyncio.to_thread(self._manifest, msg.rec_id)
+            sock = await asyncio.to_thread(connect_channel, url.hostname or "127.0.0.1",
+                                           msg.port, msg.token)
+        except (GaitrigError, TransferError, OSError) as exc:
+            log.warning("no data channel for %s: %s", msg.rec_id, exc)
+            await ws.send(encode_binary({**header, "error": f"{self.node_id}: {exc}"}))
+            return
+        manifest = m
+        try:
+            await asyncio.to_thread(serve_channel, sock, self.store.root / msg.rec_id,
+                                    lambda: manifest, _test_channel_hook)
+        except (GaitrigError, TransferError, OSError) as exc:
+            log.info("data channel of %s closed: %s", msg.rec_id, exc)
+        finally:
+            sock.close()
 
     async def _serve_delete(self, ws: ClientConnection, msg: DeletePart) -> None:
         """Delete a part whose recording the server deleted (health data: for real)."""

@@ -10,7 +10,9 @@ Two kinds of websocket messages:
   ``chunk``, ``seq``, ``t`` = node-local capture time in seconds, ...) and a raw payload.
   Skeleton payloads are ``float32 (B, J, 3)`` positions in metres in the sensor frame
   followed by ``uint8 (B, J)`` tracking states; image payloads are PNG/JPEG bytes;
-  ``manifest`` and ``chunk`` carry a recording part's transfer (:mod:`app.transfer`);
+  ``manifest``, ``chunk`` and ``channel`` carry a recording part's transfer
+  (:mod:`app.transfer`; the chunk bytes normally take a raw TCP data channel offered by
+  ``data_channel``, the websocket ``chunk`` messages are its fallback);
   ``calib`` carries one colour + depth frame of a calibration capture with the camera model
   (:func:`encode_calib_frame`).
   Bounded by ``Settings.max_binary_bytes``.
@@ -45,7 +47,7 @@ PROTOCOL_VERSION = 1
 BINARY_MAGIC = b"GRB" + bytes([PROTOCOL_VERSION])
 _HDR = struct.Struct("<4sI")
 MAX_BINARY_HEADER = 16 * 1024
-BINARY_KINDS = ("skeleton", "image", "manifest", "chunk", "deleted", "calib")
+BINARY_KINDS = ("skeleton", "image", "manifest", "chunk", "deleted", "calib", "channel")
 
 StreamName = Literal["depth", "color", "body_index"]
 PartState = Literal["pending", "recording", "on_node", "incomplete"]
@@ -219,6 +221,21 @@ class ChunkRequest(_Msg):
     indices: list[int] = Field(min_length=1, max_length=4096)
 
 
+class DataChannel(_Msg):
+    """Offer of a raw TCP data channel for the chunks of a part (:mod:`app.transfer`):
+    connect to the server's ``port`` (same host as the websocket) and present ``token``
+    (one-time, bound to this node and part, expires in seconds). A node that cannot (or
+    will not: the channel is not encrypted, so a node on ``wss://`` declines) answers a
+    binary ``channel`` message (header ``req_id``, ``error``) and the server falls back to
+    ``chunk_request`` over the websocket."""
+
+    type: Literal["data_channel"] = "data_channel"
+    req_id: int
+    rec_id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
+    port: int = Field(ge=1, le=65535)
+    token: str = Field(pattern=r"^[0-9a-f]{32}$")
+
+
 class CalibrationCapture(_Msg):
     """Send ``frames`` synchronised colour + depth frames at full resolution with the
     camera model, as binary ``calib`` messages (spatial calibration, bumped-tripod check).
@@ -248,7 +265,7 @@ class ServerError(_Msg):
 
 ServerMessage = Annotated[
     Welcome | Refused | Ping | RecStart | RecStop | Subscribe | Snapshot | ManifestRequest
-    | ChunkRequest | DeletePart | CalibrationCapture | ServerError,
+    | ChunkRequest | DataChannel | DeletePart | CalibrationCapture | ServerError,
     Field(discriminator="type"),
 ]
 

@@ -63,7 +63,9 @@ class Hub:
         self.recordings = RecordingManager(self.registry, settings.data_dir,
                                            settings.record_start_margin_s,
                                            settings.test_command_delay_max_s)
-        self.transfers = TransferManager(self.registry, self.recordings, settings.data_dir)
+        self.transfers = TransferManager(self.registry, self.recordings, settings.data_dir,
+                                         data_host=settings.host,
+                                         data_port=settings.transfer_port)
         self._sockets: dict[str, WebSocket] = {}
         self._agent_started: dict[str, float] = {}
         self.skeleton_listeners: list[Callable[[NodeSession], None]] = []
@@ -205,7 +207,7 @@ class Hub:
                                         [int(b) for b in header["bodies"]])
             for cb in self.skeleton_listeners:
                 cb(s)
-        elif header["kind"] in ("manifest", "chunk", "deleted"):
+        elif header["kind"] in ("manifest", "chunk", "deleted", "channel"):
             self.transfers.on_binary(header, payload)
         elif header["kind"] in self.binary_listeners:
             self.binary_listeners[header["kind"]](s, header, payload)

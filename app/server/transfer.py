@@ -1,11 +1,16 @@
 """Pulling recording parts from the nodes into the server's data folder.
 
 Over the node websocket: ``manifest_request`` → binary ``manifest`` (the node hashes the
-closed part with :func:`app.transfer.build_manifest`), then ``chunk_request`` for the
-missing chunks of each file → binary ``chunk`` messages. :func:`app.transfer.pull` checks
-every chunk and every whole file against the manifest and resumes an interrupted
-transfer, so a part is accepted only complete and intact. Parts land in
-``<data_dir>/recordings/<rec_id>/<node_id>/`` (``manifest.json`` beside the files).
+closed part with :func:`app.transfer.build_manifest`). Then the chunk bytes: the server
+offers a raw TCP data channel (``data_channel``: its data port and a one-time token bound
+to this node and part, valid :data:`CHANNEL_OFFER_S`), the node connects and presents the
+token, and :func:`app.transfer.pull_channel` requests the missing chunks on it. When no
+channel opens (firewall, a node on ``wss://``, an older node) or it keeps breaking, the
+chunks come over the websocket instead (``chunk_request`` → binary ``chunk``,
+:func:`app.transfer.pull`). Either way every chunk and every file is checked against
+the manifest and an interrupted transfer resumes, so a part is accepted only complete
+and intact. Parts land in ``<data_dir>/recordings/<rec_id>/<node_id>/``
+(``manifest.json`` beside the files).
 
 Deleting a recording on the server also deletes the nodes' copies (health data: a
 deletion must be real): ``delete_part`` → the node removes its part and answers
@@ -17,27 +22,57 @@ reconnect; the pending deletions survive a server restart in
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import errno
+import functools
 import itertools
 import json
 import logging
 import os
+import secrets
+import socket
 import threading
 import time
 from collections import deque
-from collections.abc import AsyncIterator, Iterable
+from collections.abc import AsyncIterator, Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
-from app.nodes.protocol import ChunkRequest, DeletePart, ManifestRequest, dump
+from app.nodes.protocol import ChunkRequest, DataChannel, DeletePart, ManifestRequest, dump
 from app.server.recording import Recording, RecordingManager
 from app.server.registry import NodeRegistry, NodeSession
-from app.transfer import Manifest, TransferError, TransferSink, pull
+from app.transfer import (
+    Manifest,
+    TransferError,
+    TransferSink,
+    end_channel,
+    parse_hello,
+    pull,
+    pull_channel,
+    set_timeout,
+)
+from app.transfer._channel import HELLO_LEN
 from engine.errors import InputError
 
 log = logging.getLogger("gaitrig.transfer")
 
 WINDOW_BYTES = 32 << 20  # bytes of one file requested ahead (bounds server memory)
 _MAX_BATCH = 4096  # chunk indices per request (protocol limit)
+CHANNEL_OFFER_S = 5.0  # a data channel token is valid this long; then the websocket is used
+CHANNEL_ATTEMPTS = 3  # data channels opened per transfer before falling back
+MAX_HANDSHAKES = 32  # connections waiting to present a token at once
+_T = TypeVar("_T")
+
+
+@dataclass
+class _Offer:
+    """A data channel offered to a node, waiting for it to connect."""
+
+    node_id: str
+    rec_id: str
+    expires: float
+    connected: asyncio.Future[socket.socket]
 
 
 class TransferManager:
@@ -48,10 +83,14 @@ class TransferManager:
         recordings: recording manager (part states are updated here).
         data_dir: server data folder.
         timeout_s: longest wait for one reply from a node.
+        data_host: interface of the data channel listener (the API's).
+        data_port: its port (0: any free port; taken: any free port, with a warning);
+            None: no data channel, chunks over the websocket only.
     """
 
     def __init__(self, registry: NodeRegistry, recordings: RecordingManager, data_dir: Path,
-                 timeout_s: float = 30.0) -> None:
+                 timeout_s: float = 30.0, *, data_host: str = "127.0.0.1",
+                 data_port: int | None = None) -> None:
         self.registry = registry
         self.recordings = recordings
         self.root = Path(data_dir) / "recordings"
@@ -66,6 +105,14 @@ class TransferManager:
         self._deleting: dict[tuple[str, str], asyncio.Task[None]] = {}
         self._delete_tried: dict[tuple[str, str], float] = {}
         self.deletion_errors: dict[tuple[str, str], str] = {}
+        # data channel: None = websocket only (the listener opens at the first transfer)
+        self.data_host = data_host
+        self.data_port_setting = data_port
+        self.data_port: int | None = None
+        self._listener: socket.socket | None = None
+        self._accepting: asyncio.Task[None] | None = None
+        self._handshakes: set[asyncio.Task[None]] = set()
+        self._offers: dict[str, _Offer] = {}
 
     def on_binary(self, header: dict[str, Any], payload: bytes) -> None:
         """A ``manifest``, ``chunk`` or ``deleted`` answer arrived (from the hub)."""
@@ -136,6 +183,148 @@ class TransferManager:
 
         return fetch
 
+    # ------------------------------------------------------------------ data channel
+
+    def _listen(self) -> int | None:
+        """Open the data channel listener once; its port, or None (websocket only)."""
+        if self._listener is not None or self.data_port_setting is None:
+            return self.data_port
+        port = self.data_port_setting
+        try:
+            lsock = socket.create_server((self.data_host, port), backlog=16)
+        except OSError as exc:
+            if port == 0 or exc.errno != errno.EADDRINUSE:
+                log.warning("transfer data channel unavailable (%s:%d: %s); chunks go over "
+                            "the node websocket", self.data_host, port, exc)
+                self.data_port_setting = None
+                return None
+            lsock = socket.create_server((self.data_host, 0), backlog=16)
+            log.warning("transfer port %d is taken; the data channel listens on %d instead "
+                        "(set GAITRIG_TRANSFER_PORT if a firewall must let it through)",
+                        port, lsock.getsockname()[1])
+        lsock.setblocking(False)
+        self._listener = lsock
+        self.data_port = int(lsock.getsockname()[1])
+        self._accepting = asyncio.create_task(self._accept_loop(lsock))
+        log.info("transfer data channel listening on %s:%d", self.data_host, self.data_port)
+        return self.data_port
+
+    async def _accept_loop(self, lsock: socket.socket) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            try:
+                conn, peer = await loop.sock_accept(lsock)
+            except OSError as exc:
+                log.warning("data channel accept failed: %s", exc)
+                await asyncio.sleep(0.5)
+                continue
+            if len(self._handshakes) >= MAX_HANDSHAKES:
+                conn.close()  # bounded: a flood of idle connections gets nothing
+                continue
+            task = asyncio.create_task(self._handshake(conn, peer))
+            self._handshakes.add(task)
+            task.add_done_callback(self._handshakes.discard)
+
+    async def _handshake(self, conn: socket.socket, peer: Any) -> None:
+        """Read the node's token; hand the socket to the transfer that offered it."""
+        loop = asyncio.get_running_loop()
+        conn.setblocking(False)
+        data = b""
+        try:
+            async with asyncio.timeout(CHANNEL_OFFER_S):
+                while len(data) < HELLO_LEN:
+                    got = await loop.sock_recv(conn, HELLO_LEN - len(data))
+                    if not got:
+                        break
+                    data += got
+        except (OSError, TimeoutError):
+            pass
+        token = parse_hello(data)
+        offer = self._offers.pop(token, None) if token else None  # single use
+        if offer is None or offer.connected.done() or time.monotonic() > offer.expires:
+            log.warning("data channel from %s refused: no valid token", peer)
+            conn.close()
+            return
+        try:
+            set_timeout(conn, self.timeout_s)
+        except OSError:
+            conn.close()
+            return
+        offer.connected.set_result(conn)
+
+    async def _open_channel(self, s: NodeSession, rec_id: str) -> socket.socket | None:
+        """Offer ``s`` a data channel for ``rec_id``; the connected socket, or None when
+        the node declines or does not connect in time (the websocket is used then)."""
+        port = self._listen()
+        if port is None:
+            return None
+        loop = asyncio.get_running_loop()
+        token = secrets.token_hex(16)
+        connected: asyncio.Future[socket.socket] = loop.create_future()
+        self._offers[token] = _Offer(s.id, rec_id, time.monotonic() + CHANNEL_OFFER_S,
+                                     connected)
+        req_id = next(self._ids)
+        q: asyncio.Queue[tuple[dict[str, Any], bytes]] = asyncio.Queue()
+        self._queues[req_id] = q
+        answer = asyncio.ensure_future(q.get())
+        try:
+            await self._send(s, dump(DataChannel(req_id=req_id, rec_id=rec_id, port=port,
+                                                 token=token)))
+            waiters: set[asyncio.Future[Any]] = {connected, answer}
+            await asyncio.wait(waiters, timeout=CHANNEL_OFFER_S,
+                               return_when=asyncio.FIRST_COMPLETED)
+            if connected.done():
+                return connected.result()
+            why = (str(answer.result()[0].get("error") or "declined") if answer.done()
+                   else f"it did not connect to port {port} within {CHANNEL_OFFER_S:.0f} s")
+            log.warning("recording %s: no data channel from %s (%s); chunks go over the "
+                        "websocket", rec_id, s.id, why)
+            return None
+        finally:
+            answer.cancel()
+            self._offers.pop(token, None)
+            del self._queues[req_id]
+            connected.cancel()
+
+    async def _in_thread(self, sock: socket.socket, fn: Callable[..., _T], *args: Any,
+                         **kwargs: Any) -> _T:
+        """Run a blocking channel function; on cancellation shut the socket so the
+        thread stops at once instead of finishing the transfer behind our back."""
+        loop = asyncio.get_running_loop()
+        cf = loop.run_in_executor(None, functools.partial(fn, *args, **kwargs))
+        try:
+            return await asyncio.shield(cf)
+        except asyncio.CancelledError:
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+            with contextlib.suppress(BaseException):
+                await asyncio.wait_for(cf, 10.0)
+            raise
+
+    async def _pull_over_channel(self, s: NodeSession, rec_id: str, sink: TransferSink,
+                                 progress: Callable[[int, int], None]) -> bool:
+        """Fetch the missing chunks over data channels; False when none could be opened
+        or they kept breaking (the caller falls back to the websocket)."""
+        for attempt in range(CHANNEL_ATTEMPTS):
+            if not sink.missing_chunks():
+                return True
+            sock = await self._open_channel(s, rec_id)
+            if sock is None:
+                return False
+            try:
+                await self._in_thread(sock, pull_channel, sink, sock, on_progress=progress)
+                await asyncio.to_thread(end_channel, sock)
+                return True
+            except (ConnectionError, TimeoutError, OSError) as exc:
+                if not s.connected:
+                    raise ConnectionError(f"node {s.id} disconnected ({exc})") from exc
+                log.warning("recording %s: data channel from %s broke (%s); %s", rec_id, s.id,
+                            exc, "reopening it" if attempt + 1 < CHANNEL_ATTEMPTS
+                            else "using the websocket")
+            finally:
+                sock.close()
+        return False
+
     async def transfer_part(self, rec: Recording, node_id: str) -> Path:
         """Pull one node's part of ``rec`` (resumes a partial copy); returns its folder."""
         s = self.registry.get(node_id)
@@ -151,6 +340,8 @@ class TransferManager:
         def progress(done: int, total: int) -> None:
             part.transfer_progress = done / total if total else 1.0
 
+        if await self._pull_over_channel(s, rec.id, sink, progress):
+            return await asyncio.to_thread(sink.finalize)
         return await pull(sink, self._fetcher(s, rec.id, m.chunk_size), concurrency=2,
                           on_progress=progress)
 
@@ -248,8 +439,13 @@ class TransferManager:
 
     async def close(self) -> None:
         """Cancel running transfers (server shutdown; they resume on the next request)."""
-        for t in [*self._tasks.values(), *self._deleting.values()]:
+        for t in [*self._tasks.values(), *self._deleting.values(), *self._handshakes]:
             t.cancel()
+        if self._accepting is not None:
+            self._accepting.cancel()
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
 
     # ------------------------------------------------------------------ node deletions
 

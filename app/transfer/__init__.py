@@ -5,9 +5,19 @@ chunk and of every whole file). The server pulls chunks in any order into a
 :class:`TransferSink`, which verifies each chunk against the manifest, persists its
 progress in a journal so a restarted server resumes where it stopped, and only after
 every whole-file hash matches renames the files into place and reports the part
-complete. A part is never accepted partially or silently corrupted.
+complete. A part is never accepted partially or silently corrupted. The chunk bytes
+travel over a raw TCP data channel (:func:`pull_channel` / :func:`serve_channel`) or,
+when it cannot be opened, over the node websocket (:func:`pull`).
 """
 
+from app.transfer._channel import (
+    connect_channel,
+    end_channel,
+    parse_hello,
+    pull_channel,
+    serve_channel,
+    set_timeout,
+)
 from app.transfer._errors import (
     CorruptChunkError,
     IncompleteTransferError,
@@ -20,6 +30,7 @@ from app.transfer._manifest import (
     FileEntry,
     Manifest,
     build_manifest,
+    chunk_list_sha256,
     chunk_message,
     read_chunk,
     safe_relative_path,
@@ -40,9 +51,16 @@ __all__ = [
     "TransferError",
     "TransferSink",
     "build_manifest",
+    "chunk_list_sha256",
     "chunk_message",
+    "connect_channel",
+    "end_channel",
+    "parse_hello",
     "per_chunk",
     "pull",
+    "pull_channel",
     "read_chunk",
     "safe_relative_path",
+    "serve_channel",
+    "set_timeout",
 ]

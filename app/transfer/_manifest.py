@@ -15,6 +15,28 @@ DEFAULT_CHUNK_SIZE = 4 << 20  # 4 MiB: few messages and hash calls per second, c
 MAX_CHUNK_SIZE = 16 << 20
 MAX_FILES = 10_000
 
+#: Written into every manifest (``hashes``) so a person reading ``manifest.json`` knows
+#: which digest is which; ``sha256`` is what ``sha256sum`` prints.
+HASH_LEGEND = {
+    "sha256": "SHA-256 of the whole file (computed by the node; check with sha256sum)",
+    "chunk_sha256": "SHA-256 of each chunk_size-byte chunk, in order",
+    "chunk_list_sha256": "SHA-256 of the concatenated 32-byte binary chunk digests (the "
+                         "file check the server makes from the chunks it verified)",
+}
+
+
+def chunk_list_sha256(digests: list[bytes] | tuple[bytes, ...]) -> str:
+    """Hash list of a file: SHA-256 over its chunks' binary SHA-256 digests, in order.
+
+    Given that every chunk was checked against its own SHA-256, this one digest checks
+    the whole file (every chunk present, in order, nothing extra) without another pass
+    over the data, like the tree hashes of S3 multipart uploads.
+    """
+    h = hashlib.sha256()
+    for d in digests:
+        h.update(d)
+    return h.hexdigest()
+
 
 def safe_relative_path(name: str) -> PurePosixPath:
     """Validate a manifest file name: relative, no ``..``, no absolute or drive parts.
@@ -36,14 +58,25 @@ class FileEntry:
     Attributes:
         name: POSIX path relative to the part's folder.
         size: bytes.
-        sha256: hex digest of the whole file.
+        sha256: hex digest of the whole file (the node's; what ``sha256sum`` prints).
         chunk_sha256: hex digest of each chunk, in order.
+        chunk_list_sha256: :func:`chunk_list_sha256` of the chunk digests (derived from
+            ``chunk_sha256`` when not given; a manifest whose value disagrees is refused).
     """
 
     name: str
     size: int
     sha256: str
     chunk_sha256: tuple[str, ...]
+    chunk_list_sha256: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.chunk_list_sha256:
+            try:
+                derived = chunk_list_sha256([bytes.fromhex(h) for h in self.chunk_sha256])
+            except ValueError:
+                derived = ""  # invalid digests: validate() names the bad one
+            object.__setattr__(self, "chunk_list_sha256", derived)
 
     def chunk_count(self) -> int:
         return len(self.chunk_sha256)
@@ -75,6 +108,7 @@ class Manifest:
 
     def to_json(self) -> str:
         d = asdict(self)
+        d["hashes"] = HASH_LEGEND
         return json.dumps(d, sort_keys=True, separators=(",", ":"))
 
     @classmethod
@@ -85,7 +119,8 @@ class Manifest:
             chunk_size = int(d["chunk_size"])
             files = tuple(
                 FileEntry(str(f["name"]), int(f["size"]), str(f["sha256"]),
-                          tuple(str(h) for h in f["chunk_sha256"]))
+                          tuple(str(h) for h in f["chunk_sha256"]),
+                          str(f.get("chunk_list_sha256") or ""))
                 for f in d["files"]
             )
             m = cls(str(d["recording_id"]), str(d["node_id"]), chunk_size, files,
@@ -117,6 +152,10 @@ class Manifest:
             for h in (f.sha256, *f.chunk_sha256):
                 if len(h) != 64 or any(c not in "0123456789abcdef" for c in h):
                     raise ManifestError(f"{f.name!r}: invalid SHA-256 digest {h!r}")
+            derived = chunk_list_sha256([bytes.fromhex(h) for h in f.chunk_sha256])
+            if f.chunk_list_sha256 != derived:
+                raise ManifestError(f"{f.name!r}: chunk_list_sha256 does not match its "
+                                    "chunk digests; the node must describe the part again")
 
 
 def build_manifest(root: str | Path, recording_id: str, node_id: str,
@@ -133,7 +172,7 @@ def build_manifest(root: str | Path, recording_id: str, node_id: str,
         for name in names:
             safe_relative_path(name)
             whole = hashlib.sha256()
-            chunks: list[str] = []
+            chunks: list[bytes] = []
             size = 0
             pending: Future[None] | None = None
             with open(root / name, "rb") as fh:
@@ -144,13 +183,14 @@ def build_manifest(root: str | Path, recording_id: str, node_id: str,
                     if pending is not None:
                         pending.result()
                     pending = pool.submit(whole.update, block)
-                    chunks.append(hashlib.sha256(block).hexdigest())
+                    chunks.append(hashlib.sha256(block).digest())
                     size += len(block)
                     if len(block) < chunk_size:
                         break
             if pending is not None:
                 pending.result()
-            entries.append(FileEntry(name, size, whole.hexdigest(), tuple(chunks)))
+            entries.append(FileEntry(name, size, whole.hexdigest(),
+                                     tuple(c.hex() for c in chunks), chunk_list_sha256(chunks)))
     m = Manifest(recording_id, node_id, chunk_size, tuple(entries), dict(meta or {}))
     m.validate()
     return m

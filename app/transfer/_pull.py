@@ -38,9 +38,10 @@ async def pull(
 ) -> Path:
     """Fetch every missing chunk into ``sink`` and finalise it.
 
-    Files are pulled concurrently (``concurrency`` at once); the chunks of one file
-    arrive in order on one stream, so the whole-file hash is computed on the fly and the
-    file need not be read back (only resumed files are).
+    This is the websocket path (and the fallback of the data channel,
+    :func:`app.transfer.pull_channel`). Files are pulled concurrently (``concurrency`` at
+    once); each chunk is verified by its SHA-256 as it is written, and each file by its
+    hash list when its last chunk is in (:meth:`TransferSink.seal_file`).
 
     Args:
         sink: the receiving part folder (already resumed: only missing chunks fetched).
@@ -73,35 +74,23 @@ async def pull(
             if not todo:
                 return
             received: set[int] = set()
-            # Three stages overlap: the next chunks arrive (event loop) while one thread
-            # verifies and writes chunk k and another feeds chunk k-1 to the running
-            # whole-file SHA-256 (hashlib and pwrite release the GIL).
+            # The next chunks arrive (event loop) while a thread verifies and writes the
+            # previous one (hashlib and pwrite release the GIL).
             pending: asyncio.Queue[tuple[int, bytes] | None] = asyncio.Queue(maxsize=4)
 
             async def writer(pending: asyncio.Queue[tuple[int, bytes] | None] = pending,
                              received: set[int] = received) -> Exception | None:
                 err: Exception | None = None
-                hashing: asyncio.Future[None] | None = None
-                try:
-                    while (item := await pending.get()) is not None:
-                        idx, data = item
-                        try:
-                            new = await asyncio.to_thread(sink.write_chunk, name, idx, data,
-                                                          hash_file=False)
-                        except CorruptChunkError as exc:
-                            err = exc
-                        else:
-                            received.add(idx)
-                            if new:
-                                if hashing is not None:
-                                    await hashing  # keeps the running hash in chunk order
-                                hashing = asyncio.ensure_future(
-                                    asyncio.to_thread(sink.hash_chunk, name, idx, data))
-                        if on_progress is not None:
-                            on_progress(sink.bytes_done, total)
-                finally:
-                    if hashing is not None:
-                        await hashing
+                while (item := await pending.get()) is not None:
+                    idx, data = item
+                    try:
+                        await asyncio.to_thread(sink.write_chunk, name, idx, data)
+                    except CorruptChunkError as exc:
+                        err = exc
+                    else:
+                        received.add(idx)
+                    if on_progress is not None:
+                        on_progress(sink.bytes_done, total)
                 return err
 
             writer_task = asyncio.create_task(writer())

@@ -7,9 +7,13 @@ Layout of a part folder while transferring::
 
 Resuming needs no separate journal: the chunks already present are found by hashing
 the ``.part`` files against the manifest, so a crash between a write and any
-book-keeping can never make a torn chunk count as received. Only after every whole-file
-SHA-256 matches are the files renamed into ``<dest>/`` and ``<dest>/manifest.json``
-written; that file's presence is what "complete" means on disk.
+book-keeping can never make a torn chunk count as received. Every chunk is checked
+against its SHA-256 before it is written; a file is accepted when every chunk is there
+and the SHA-256 over the digests the server computed (the hash list,
+:func:`app.transfer.chunk_list_sha256`) equals the manifest's — one hash pass over the
+data on the server, no read-back. Only then is it truncated to its size, flushed, and
+renamed into ``<dest>/``; ``<dest>/manifest.json`` (written last) is what "complete"
+means on disk.
 """
 
 from __future__ import annotations
@@ -21,7 +25,6 @@ import shutil
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
 
 from app.transfer._errors import (
     CorruptChunkError,
@@ -29,7 +32,7 @@ from app.transfer._errors import (
     ManifestError,
     StorageFullError,
 )
-from app.transfer._manifest import FileEntry, Manifest, safe_relative_path
+from app.transfer._manifest import FileEntry, Manifest, chunk_list_sha256, safe_relative_path
 
 _FULL_ERRNOS = {errno.ENOSPC, errno.EDQUOT}
 
@@ -63,10 +66,10 @@ class TransferSink:
         self._done: dict[str, set[int]] = {f.name: set() for f in manifest.files}
         self._bytes_done = 0
         self._lock = threading.Lock()  # chunks of several files are written from threads
-        # Running whole-file hash while chunks arrive in order from chunk 0; None once
-        # they don't (then finalize reads the file back).
-        self._running: dict[str, tuple[int, Any] | None] = {}
-        self._digests: dict[str, str] = {}  # files checked and flushed to disk
+        # SHA-256 the server computed for every chunk it holds (the file check hashes them)
+        self._chunk_digests: dict[str, list[bytes | None]] = {
+            f.name: [None] * f.chunk_count() for f in manifest.files}
+        self._sealed: set[str] = set()  # files checked and flushed to disk
         if self.is_complete(self.dest):
             existing = Manifest.from_json((self.dest / "manifest.json").read_bytes())
             if existing.to_json() != manifest.to_json():
@@ -106,8 +109,6 @@ class TransferSink:
         # A file created just now holds nothing yet: only the files of an interrupted
         # transfer are read back and hashed chunk by chunk.
         self._scan_existing(skip=fresh)
-        for f in manifest.files:
-            self._running[f.name] = (0, hashlib.sha256()) if not self._done[f.name] else None
 
     # ------------------------------------------------------------------ helpers
     @staticmethod
@@ -130,8 +131,10 @@ class TransferSink:
             with open(self._part_path(f.name), "rb") as fh:
                 for i, expected in enumerate(f.chunk_sha256):
                     fh.seek(i * cs)
-                    if hashlib.sha256(fh.read(cs)).hexdigest() == expected:
+                    digest = hashlib.sha256(fh.read(self._chunk_len(f, i))).digest()
+                    if digest.hex() == expected:
                         self._done[f.name].add(i)
+                        self._chunk_digests[f.name][i] = digest
                         self._bytes_done += self._chunk_len(f, i)
 
     # --------------------------------------------------------------------- API
@@ -150,16 +153,23 @@ class TransferSink:
         total = self.manifest.total_bytes
         return 1.0 if total == 0 else self.bytes_done / total
 
-    def write_chunk(self, name: str, index: int, data: bytes | bytearray | memoryview, *,
-                    hash_file: bool = True) -> bool:
+    def chunk_len(self, name: str, index: int) -> int:
+        """Bytes of chunk ``index`` of ``name`` according to the manifest.
+
+        Raises:
+            ManifestError: no such file or chunk.
+        """
+        entry = self.manifest.file(name)
+        if not 0 <= index < entry.chunk_count():
+            raise ManifestError(f"{name!r} has no chunk {index}")
+        return self._chunk_len(entry, index)
+
+    def write_chunk(self, name: str, index: int, data: bytes | bytearray | memoryview) -> bool:
         """Verify and store one chunk.
 
         Args:
             name, index: which chunk.
-            data: its bytes (not copied).
-            hash_file: also feed the running whole-file hash (:meth:`hash_chunk`); a
-                caller that overlaps the two in different threads passes False and calls
-                :meth:`hash_chunk` itself, in chunk order, after this returned True.
+            data: its bytes (not copied; the caller must not change them meanwhile).
 
         Returns:
             True if the chunk was new (False: it was already stored).
@@ -174,65 +184,110 @@ class TransferSink:
         if len(data) != self._chunk_len(entry, index) and entry.size:
             raise CorruptChunkError(f"chunk {index} of {name!r} has {len(data)} bytes, "
                                     f"expected {self._chunk_len(entry, index)}")
-        if hashlib.sha256(data).hexdigest() != entry.chunk_sha256[index]:
+        digest = hashlib.sha256(data).digest()
+        if digest.hex() != entry.chunk_sha256[index]:
             raise CorruptChunkError(f"chunk {index} of {name!r} failed its SHA-256 check")
         if index in self._done[name]:
             return False
         try:
-            fd = os.open(self._part_path(name), os.O_WRONLY)
+            fd = self.open_part(name)
             try:
-                view = memoryview(data)
-                off = index * self.manifest.chunk_size
-                while view:  # pwrite may write less than asked
-                    n = os.pwrite(fd, view, off)
-                    view, off = view[n:], off + n
+                self.write_at(fd, name, index * self.manifest.chunk_size, data)
             finally:
                 os.close(fd)
         except OSError as exc:
             raise _storage_error(exc, f"writing {name!r}") from exc
+        return self.commit_chunk(name, index, digest, len(data))
+
+    def open_part(self, name: str) -> int:
+        """A write descriptor of ``name``'s ``.part`` file (the caller closes it), for
+        callers that write a chunk as it streams in and :meth:`commit_chunk` it after."""
+        self.manifest.file(name)
+        try:
+            return os.open(self._part_path(name), os.O_WRONLY)
+        except OSError as exc:
+            raise _storage_error(exc, f"opening {name!r}") from exc
+
+    @staticmethod
+    def write_at(fd: int, name: str, offset: int, data: bytes | bytearray | memoryview
+                 ) -> None:
+        """``pwrite`` all of ``data`` at ``offset``.
+
+        Raises:
+            StorageFullError: the server disk is full.
+            OSError: another write failure.
+        """
+        view = memoryview(data)
+        try:
+            while view:  # pwrite may write less than asked
+                n = os.pwrite(fd, view, offset)
+                view, offset = view[n:], offset + n
+        except OSError as exc:
+            raise _storage_error(exc, f"writing {name!r}") from exc
+
+    def commit_chunk(self, name: str, index: int, digest: bytes, size: int) -> bool:
+        """Count a chunk already written in place as received if ``digest`` (its SHA-256,
+        computed by the caller over the bytes it wrote) matches the manifest. Bytes of a
+        chunk that fails stay uncounted: they are overwritten when it is fetched again,
+        and a resumed transfer re-hashes them, so they can never pass as received.
+
+        Returns:
+            True if the chunk was new (False: it was already stored).
+
+        Raises:
+            CorruptChunkError: wrong size or SHA-256.
+        """
+        entry = self.manifest.file(name)
+        if not 0 <= index < entry.chunk_count():
+            raise ManifestError(f"{name!r} has no chunk {index}")
+        if size != self._chunk_len(entry, index):
+            raise CorruptChunkError(f"chunk {index} of {name!r} has {size} bytes, "
+                                    f"expected {self._chunk_len(entry, index)}")
+        if digest.hex() != entry.chunk_sha256[index]:
+            raise CorruptChunkError(f"chunk {index} of {name!r} failed its SHA-256 check")
         with self._lock:
+            if index in self._done[name]:
+                return False
+            self._chunk_digests[name][index] = digest
             self._done[name].add(index)
-            self._bytes_done += len(data)
-        if hash_file:
-            self.hash_chunk(name, index, data)
+            self._bytes_done += size
         return True
 
-    def hash_chunk(self, name: str, index: int, data: bytes | bytearray | memoryview) -> None:
-        """Feed a verified chunk to the file's running SHA-256 (call in chunk order; a
-        chunk out of order drops the running hash and :meth:`finalize` reads the file
-        back instead)."""
-        running = self._running.get(name)
-        if running is not None:
-            nxt, hasher = running
-            if index == nxt:
-                hasher.update(data)
-                self._running[name] = (nxt + 1, hasher)
-            else:
-                self._running[name] = None
+    def seal_file(self, name: str) -> bool:
+        """Check and flush a file whose chunks have all arrived (before :meth:`finalize`,
+        so the disk flush of one file overlaps the transfer of the next).
 
-    def seal_file(self, name: str) -> None:
-        """Hash and flush a file whose chunks have all arrived (before finalize, so
-        the disk flush of one file overlaps the transfer of the next)."""
+        Returns:
+            True when the file is now checked and on disk (False: chunks still missing).
+
+        Raises:
+            IncompleteTransferError: its hash list differs from the manifest's.
+            StorageFullError: the server disk is full.
+        """
         entry = self.manifest.file(name)
-        if len(self._done[name]) == entry.chunk_count() and name not in self._digests:
-            self._digests[name] = self._hash_part(entry)
-
-    def _hash_part(self, f: FileEntry) -> str:
-        if f.name in self._digests:
-            return self._digests[f.name]
-        part = self._part_path(f.name)
-        os.truncate(part, f.size)
-        running = self._running.get(f.name)
-        with open(part, "rb") as fh:
-            if running is not None and running[0] == f.chunk_count():
-                digest = str(running[1].hexdigest())
-            else:
-                h = hashlib.sha256()
-                while block := fh.read(1 << 20):
-                    h.update(block)
-                digest = h.hexdigest()
-            os.fsync(fh.fileno())
-        return digest
+        if name in self._sealed:
+            return True
+        if len(self._done[name]) != entry.chunk_count():
+            return False
+        digests = self._chunk_digests[name]
+        if any(d is None for d in digests) or chunk_list_sha256(
+                [d for d in digests if d is not None]) != entry.chunk_list_sha256:
+            raise IncompleteTransferError(
+                f"{name!r}: the chunks' hash list differs from the manifest; the node must "
+                "describe the part again")
+        part = self._part_path(name)
+        try:
+            os.truncate(part, entry.size)
+            fd = os.open(part, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        except OSError as exc:
+            raise _storage_error(exc, f"flushing {name!r}") from exc
+        with self._lock:
+            self._sealed.add(name)
+        return True
 
     def finalize(self) -> Path:
         """Check every whole file, move the part into place, mark it complete.
@@ -253,15 +308,9 @@ class TransferSink:
             )
         try:
             with ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1)) as pool:
-                digests = list(pool.map(self._hash_part, self.manifest.files))
-            for f, digest in zip(self.manifest.files, digests, strict=True):
-                if digest != f.sha256:
-                    # Every chunk matched, so the manifest contradicts itself: the file
-                    # changed on the node while it was being described.
-                    raise IncompleteTransferError(
-                        f"{f.name!r}: chunks verified but the whole-file SHA-256 differs; "
-                        "the node must describe the part again"
-                    )
+                sealed = list(pool.map(self.seal_file, [f.name for f in self.manifest.files]))
+            if not all(sealed):  # cannot happen once no chunk is missing; never rename then
+                raise IncompleteTransferError(f"{self.dest}: a file could not be checked")
             for f in self.manifest.files:
                 target = self.dest / safe_relative_path(f.name)
                 target.parent.mkdir(parents=True, exist_ok=True)
