@@ -92,7 +92,8 @@ def set_timeout(sock: socket.socket, seconds: float) -> None:
     tv = struct.pack("ll", secs, 0)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, tv)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, tv)
-    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    if sock.family in (socket.AF_INET, socket.AF_INET6):
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
 
 def recv_exact(sock: socket.socket, view: memoryview) -> None:
