@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from app.nodes.protocol import (
+    DataChannel,
     Hello,
     Ping,
     Pong,
@@ -89,3 +90,17 @@ def test_skeleton_payload_size_checked() -> None:
         decode_skeletons(header, payload[:-1])
     with pytest.raises(ProtocolError, match="limit"):
         decode_binary(msg, limit=len(msg) - 1)
+
+
+def test_data_channel_offer_round_trip_and_bounds() -> None:
+    offer = DataChannel(req_id=4, rec_id="R1", port=8001, token="0123456789abcdef" * 2)
+    assert parse_server_message(dump(offer)) == offer
+    for bad, fragment in [({"token": "x" * 32}, "token"), ({"port": 0}, "port"),
+                          ({"rec_id": "../R1"}, "rec_id")]:
+        d = {**json.loads(dump(offer)), **bad}
+        with pytest.raises(ProtocolError, match=fragment):
+            parse_server_message(json.dumps(d))
+    # the node's answer when it cannot open the channel is a binary 'channel' message
+    header, payload = decode_binary(encode_binary({"kind": "channel", "req_id": 4,
+                                                   "error": "S1: blocked"}))
+    assert header["error"] == "S1: blocked" and payload == b""
