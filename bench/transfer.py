@@ -2,11 +2,12 @@
 
 Prints one JSON line. Runs the real thing: a ``gaitrig serve`` process and ``--nodes``
 ``gaitrig node`` processes (simulated sensors, streaming their skeletons meanwhile) over
-loopback websockets. Each node holds a closed recording part of ``--mb / --nodes`` MiB
-(random bytes planted in its store as ``frames.bin``), the server knows the stopped
-recording, and the server's DataSync pulls every part as soon as the nodes connect:
-manifest (hashed by the node on request), chunks each verified by SHA-256 and written in
-place, whole files verified, fsync, rename.
+loopback. Each node holds a closed recording part of ``--mb / --nodes`` MiB (random
+bytes planted in its store as ``frames.bin``), the server knows the stopped recording,
+and the server's DataSync pulls every part as soon as the nodes connect: manifest over
+the websocket (hashed by the node on request), chunks over the TCP data channel, each
+verified by SHA-256 and written in place, whole files verified by their hash list,
+fsync, rename. ``path`` says whether any run fell back to the websocket (it should not).
 
 Timed from the server's log, per node: ``transfer`` from "receiving" (manifest in hand)
 to the part "on the server", ``with_manifest`` from the manifest request; the time is the
@@ -157,7 +158,7 @@ def _transfer_once(tmp: Path, nodes: list[str], node_dirs: dict[str, Path], size
     if set(landed) != set(nodes) or set(receiving) != set(nodes):
         raise RuntimeError("transfer log lines missing; see " + str(logs["server"]))
     text = logs["server"].read_text(errors="replace")
-    channel = "no data channel" not in text and "data channel from" not in text
+    channel = not any(w in text for w in ("no data channel", "broke (", "refused: no valid"))
     shutil.rmtree(server_dir)
     return _busy(receiving, landed), _busy(asked, landed), channel
 

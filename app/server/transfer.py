@@ -311,6 +311,7 @@ class TransferManager:
             sock = await self._open_channel(s, rec_id)
             if sock is None:
                 return False
+            log.info("recording %s: data channel from %s open", rec_id, s.id)
             try:
                 await self._in_thread(sock, pull_channel, sink, sock, on_progress=progress)
                 await asyncio.to_thread(end_channel, sock)
