@@ -18,6 +18,7 @@ import asyncio
 import contextlib
 import logging
 import os
+import socket
 import threading
 import time
 from collections import deque
@@ -204,6 +205,7 @@ class NodeAgent:
         self._early_stops: dict[str, RecStop] = {}
         self._manifests: dict[str, Manifest] = {}
         self._manifest_lock = threading.Lock()
+        self._channels: set[socket.socket] = set()  # open transfer data channels
         self._ever_connected = False
         self._tasks: set[asyncio.Future[None]] = set()
         self._ws: ClientConnection | None = None
@@ -241,6 +243,9 @@ class NodeAgent:
             await asyncio.to_thread(capture.join, 5.0)
             for rec in list(self._recs.values()):
                 self._finish(rec, "incomplete", "node shut down during the recording")
+            for sock in list(self._channels):  # unblock their threads: the process can exit
+                with contextlib.suppress(OSError):
+                    sock.shutdown(socket.SHUT_RDWR)
             self._pool.shutdown(wait=True)
 
     def stop(self) -> None:
@@ -450,12 +455,14 @@ class NodeAgent:
             await ws.send(encode_binary({**header, "error": f"{self.node_id}: {exc}"}))
             return
         manifest = m
+        self._channels.add(sock)
         try:
             await asyncio.to_thread(serve_channel, sock, self.store.root / msg.rec_id,
                                     lambda: manifest, _test_channel_hook)
         except (GaitrigError, TransferError, OSError) as exc:
             log.info("data channel of %s closed: %s", msg.rec_id, exc)
         finally:
+            self._channels.discard(sock)
             sock.close()
 
     async def _serve_delete(self, ws: ClientConnection, msg: DeletePart) -> None:

@@ -127,7 +127,12 @@ class TransferManager:
     async def _send(self, s: NodeSession, text: str) -> None:
         if s.send is None:
             raise ConnectionError(f"node {s.id} is offline")
-        await s.send(text)
+        try:
+            await s.send(text)
+        except (ConnectionError, OSError):
+            raise
+        except Exception as exc:  # the websocket layer's own types (WebSocketDisconnect, ...)
+            raise ConnectionError(f"node {s.id} disconnected ({type(exc).__name__})") from exc
 
     async def manifest(self, s: NodeSession, rec_id: str) -> Manifest:
         """Ask a node for the manifest of its part of ``rec_id``."""
@@ -190,15 +195,16 @@ class TransferManager:
         if self._listener is not None or self.data_port_setting is None:
             return self.data_port
         port = self.data_port_setting
+        family = socket.AF_INET6 if ":" in self.data_host else socket.AF_INET
         try:
-            lsock = socket.create_server((self.data_host, port), backlog=16)
+            lsock = socket.create_server((self.data_host, port), family=family, backlog=16)
         except OSError as exc:
             if port == 0 or exc.errno != errno.EADDRINUSE:
                 log.warning("transfer data channel unavailable (%s:%d: %s); chunks go over "
                             "the node websocket", self.data_host, port, exc)
                 self.data_port_setting = None
                 return None
-            lsock = socket.create_server((self.data_host, 0), backlog=16)
+            lsock = socket.create_server((self.data_host, 0), family=family, backlog=16)
             log.warning("transfer port %d is taken; the data channel listens on %d instead "
                         "(set GAITRIG_TRANSFER_PORT if a firewall must let it through)",
                         port, lsock.getsockname()[1])
