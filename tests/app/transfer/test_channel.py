@@ -299,3 +299,21 @@ def test_server_tokens_are_single_use_and_bound(tmp_path: Path) -> None:
         await tm.close()
 
     asyncio.run(scenario())
+
+
+def test_taken_transfer_port_falls_back_to_a_free_one(tmp_path: Path,
+                                                      caplog: pytest.LogCaptureFixture) -> None:
+    async def scenario() -> tuple[int | None, int]:
+        with socket.create_server(("127.0.0.1", 0)) as taken:
+            busy = taken.getsockname()[1]
+            tm = TransferManager(_Registry(), None, tmp_path,  # type: ignore[arg-type]
+                                 data_port=busy)
+            port = tm._listen()
+            await tm.close()
+        return port, busy
+
+    port, busy = asyncio.run(scenario())
+    assert port is not None and port != busy
+    assert f"transfer port {busy} is taken" in caplog.text
+    # no data port configured: the websocket only
+    assert TransferManager(_Registry(), None, tmp_path)._listen() is None  # type: ignore[arg-type]

@@ -16,7 +16,7 @@ import pytest
 from tests.app.data.test_record_flow import record, setup_session, wait_state
 from tests.app.data.test_transfer_faults import assert_identical
 from tests.integration.conftest import Rig
-from tests.integration.conftest import make_rig as make_rig  # noqa: F401  (fixture)
+from tests.integration.conftest import make_rig as make_rig  # the fixture, for pytest
 
 SMALL_CHUNKS = {"GAITRIG_TEST_CHUNK_SIZE": "1024", "GAITRIG_TEST_CHUNK_DELAY_S": "0.01",
                 "GAITRIG_TRANSFER_PORT": "0"}
