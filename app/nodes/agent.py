@@ -19,6 +19,7 @@ import contextlib
 import logging
 import os
 import socket
+import sys
 import threading
 import time
 from collections import deque
@@ -81,6 +82,7 @@ log = logging.getLogger("gaitrig.node")
 
 
 _corrupted: set[tuple[str, int]] = set()
+CHANNEL_SWITCH_INTERVAL_S = 0.0005  # GIL switch interval while a data channel is open
 
 
 _cut: set[tuple[str, int]] = set()
@@ -206,6 +208,7 @@ class NodeAgent:
         self._manifests: dict[str, Manifest] = {}
         self._manifest_lock = threading.Lock()
         self._channels: set[socket.socket] = set()  # open transfer data channels
+        self._switch_interval = sys.getswitchinterval()
         self._ever_connected = False
         self._tasks: set[asyncio.Future[None]] = set()
         self._ws: ClientConnection | None = None
@@ -456,6 +459,12 @@ class NodeAgent:
             return
         manifest = m
         self._channels.add(sock)
+        # The sending threads take the GIL back after every chunk's sendfile; with the
+        # default 5 ms switch interval the busy capture loop can make them wait that long
+        # per 4 MiB chunk. A short interval while a channel is open bounds that wait.
+        if len(self._channels) == 1:
+            self._switch_interval = sys.getswitchinterval()
+            sys.setswitchinterval(CHANNEL_SWITCH_INTERVAL_S)
         try:
             await asyncio.to_thread(serve_channel, sock, self.store.root / msg.rec_id,
                                     lambda: manifest, _test_channel_hook)
@@ -463,6 +472,8 @@ class NodeAgent:
             log.info("data channel of %s closed: %s", msg.rec_id, exc)
         finally:
             self._channels.discard(sock)
+            if not self._channels:
+                sys.setswitchinterval(self._switch_interval)
             sock.close()
 
     async def _serve_delete(self, ws: ClientConnection, msg: DeletePart) -> None:

@@ -60,7 +60,8 @@ log = logging.getLogger("gaitrig.transfer")
 WINDOW_BYTES = 32 << 20  # bytes of one file requested ahead (bounds server memory)
 _MAX_BATCH = 4096  # chunk indices per request (protocol limit)
 CHANNEL_OFFER_S = 5.0  # a data channel token is valid this long; then the websocket is used
-CHANNEL_ATTEMPTS = 3  # data channels opened per transfer before falling back
+CHANNEL_ATTEMPTS = 3  # rounds of data channels per transfer before falling back
+CHANNELS_PER_PART = 2  # one receiving thread each: a single node's part uses both cores
 MAX_HANDSHAKES = 32  # connections waiting to present a token at once
 _T = TypeVar("_T")
 
@@ -310,26 +311,45 @@ class TransferManager:
     async def _pull_over_channel(self, s: NodeSession, rec_id: str, sink: TransferSink,
                                  progress: Callable[[int, int], None]) -> bool:
         """Fetch the missing chunks over data channels; False when none could be opened
-        or they kept breaking (the caller falls back to the websocket)."""
+        or they kept breaking (the caller falls back to the websocket).
+
+        :data:`CHANNELS_PER_PART` channels share the chunks (by index modulo their
+        number), each received, hashed and written by its own thread: one node's part
+        uses both cores of the server. Channels that break are reopened
+        (:data:`CHANNEL_ATTEMPTS` rounds) for the chunks still missing.
+        """
         for attempt in range(CHANNEL_ATTEMPTS):
             if not sink.missing_chunks():
                 return True
-            sock = await self._open_channel(s, rec_id)
-            if sock is None:
+            socks = [sock for sock in await asyncio.gather(
+                *(self._open_channel(s, rec_id) for _ in range(CHANNELS_PER_PART)))
+                if sock is not None]
+            if not socks:
                 return False
-            log.info("recording %s: data channel from %s open", rec_id, s.id)
+            log.info("recording %s: %d data channel(s) from %s open", rec_id, len(socks),
+                     s.id)
             try:
-                await self._in_thread(sock, pull_channel, sink, sock, on_progress=progress)
-                await asyncio.to_thread(end_channel, sock)
-                return True
-            except (ConnectionError, TimeoutError, OSError) as exc:
-                if not s.connected:
-                    raise ConnectionError(f"node {s.id} disconnected ({exc})") from exc
-                log.warning("recording %s: data channel from %s broke (%s); %s", rec_id, s.id,
-                            exc, "reopening it" if attempt + 1 < CHANNEL_ATTEMPTS
-                            else "using the websocket")
+                results = await asyncio.gather(
+                    *(self._in_thread(sock, pull_channel, sink, sock, on_progress=progress,
+                                      share=(k, len(socks)))
+                      for k, sock in enumerate(socks)),
+                    return_exceptions=True)
             finally:
-                sock.close()
+                for sock in socks:
+                    end_channel(sock)  # 8 bytes into an idle socket: does not block
+                    sock.close()
+            errors = [r for r in results if isinstance(r, BaseException)]
+            for exc in errors:  # a verdict (disk full, corrupt for good) beats a broken link
+                if not isinstance(exc, ConnectionError | TimeoutError | OSError):
+                    raise exc
+            if not errors:
+                return True
+            exc = errors[0]
+            if not s.connected:
+                raise ConnectionError(f"node {s.id} disconnected ({exc})") from exc
+            log.warning("recording %s: data channel from %s broke (%s); %s", rec_id, s.id,
+                        exc, "reopening it" if attempt + 1 < CHANNEL_ATTEMPTS
+                        else "using the websocket")
         return False
 
     async def transfer_part(self, rec: Recording, node_id: str) -> Path:

@@ -119,7 +119,8 @@ def _send_request(sock: socket.socket, name: str, indices: list[int]) -> None:
 
 
 def pull_channel(sink: TransferSink, sock: socket.socket, *, retries: int = 3,
-                 on_progress: ProgressCallback | None = None) -> None:
+                 on_progress: ProgressCallback | None = None,
+                 share: tuple[int, int] = (0, 1)) -> None:
     """Fetch every missing chunk of ``sink`` over a data channel (blocking; run it in a
     thread). Does not finalize: the caller calls :meth:`TransferSink.finalize`.
 
@@ -135,6 +136,9 @@ def pull_channel(sink: TransferSink, sock: socket.socket, *, retries: int = 3,
         sock: the connected, authenticated channel (blocking, see :func:`set_timeout`).
         retries: extra rounds for chunks that arrived corrupt.
         on_progress: called with ``(bytes_done, bytes_total)`` after every chunk.
+        share: ``(k, n)``: fetch only the chunks whose index is ``k`` modulo ``n`` (``n``
+            channels of one part, each in its own thread, use both cores of the server
+            even when a single node sends).
 
     Raises:
         IncompleteTransferError: chunks still corrupt after ``retries`` rounds, or a file's
@@ -145,6 +149,9 @@ def pull_channel(sink: TransferSink, sock: socket.socket, *, retries: int = 3,
     """
     total = sink.manifest.total_bytes
     cs = sink.manifest.chunk_size
+    k_share, n_share = share
+    if not 0 <= k_share < n_share:
+        raise ValueError(f"share {share} must be (k, n) with 0 <= k < n")
     piece = memoryview(bytearray(min(PIECE, cs)))
     head = memoryview(bytearray(_CHK.size))
     corrupt: list[CorruptChunkError] = []
@@ -153,7 +160,8 @@ def pull_channel(sink: TransferSink, sock: socket.socket, *, retries: int = 3,
         for _round in range(retries + 1):
             todo: dict[str, list[int]] = {}
             for name, idx in sink.missing_chunks():
-                todo.setdefault(name, []).append(idx)
+                if idx % n_share == k_share:
+                    todo.setdefault(name, []).append(idx)
             if not todo:
                 break
             corrupt.clear()
@@ -207,11 +215,13 @@ def pull_channel(sink: TransferSink, sock: socket.socket, *, retries: int = 3,
                         on_progress(sink.bytes_done, total)
                 if r + 1 == len(requests) or requests[r + 1][0] != name:
                     os.close(fds.pop(name))
-                    sink.seal_file(name)  # flushed now if complete (else after a retry)
+                    # flushed now if complete (else by the channel that completes it, or
+                    # after a retry, or in finalize)
+                    sink.seal_file(name)
     finally:
         for fd in fds.values():
             os.close(fd)
-    missing = sink.missing_chunks()
+    missing = [(n, i) for n, i in sink.missing_chunks() if i % n_share == k_share]
     if missing:
         last = corrupt[-1] if corrupt else None
         raise IncompleteTransferError(

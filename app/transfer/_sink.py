@@ -265,11 +265,12 @@ class TransferSink:
             StorageFullError: the server disk is full.
         """
         entry = self.manifest.file(name)
-        if name in self._sealed:
-            return True
-        if len(self._done[name]) != entry.chunk_count():
-            return False
-        digests = self._chunk_digests[name]
+        with self._lock:
+            if name in self._sealed:
+                return True
+            if len(self._done[name]) != entry.chunk_count():
+                return False
+            digests = list(self._chunk_digests[name])
         if any(d is None for d in digests) or chunk_list_sha256(
                 [d for d in digests if d is not None]) != entry.chunk_list_sha256:
             raise IncompleteTransferError(

@@ -108,6 +108,30 @@ def test_channel_round_trip_identical_checksums(tmp_path: Path, part) -> None:
     assert node.error is None
 
 
+def test_two_channels_share_one_part(tmp_path: Path, part) -> None:
+    """Two channels, each in its own thread, fetch the even and the odd chunks."""
+    src, manifest = part
+    sent: list[list[tuple[str, int]]] = [[], []]
+    nodes = [_Node(src, manifest, lambda n, i, k=k: sent[k].append((n, i)) is None and False)
+             for k in range(2)]
+    sink = TransferSink(tmp_path / "dest", manifest)
+    threads = [threading.Thread(target=pull_channel, args=(sink, nodes[k].server),
+                                kwargs={"share": (k, 2)}) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    for node in nodes:
+        node.close()
+    assert all(i % 2 == 0 for _, i in sent[0]) and all(i % 2 == 1 for _, i in sent[1])
+    assert sent[1]  # both channels carried chunks
+    sink.finalize()
+    for f in manifest.files:
+        assert _sha(tmp_path / "dest" / f.name) == f.sha256
+    with pytest.raises(ValueError, match="share"):
+        pull_channel(sink, nodes[0].server, share=(2, 2))
+
+
 def test_channel_corrupt_chunk_is_refetched(tmp_path: Path, part) -> None:
     src, manifest = part
     sent: list[tuple[str, int]] = []
