@@ -129,7 +129,8 @@ def pull_channel(sink: TransferSink, sock: socket.socket, *, retries: int = 3,
     committed if the digest matches (:meth:`TransferSink.commit_chunk`). One thread does
     all three on purpose: handing 4 MiB buffers to a hashing/writing thread made the
     server read them back from another core's cache or from memory, three times the CPU
-    of this loop; the parallelism is across parts (one channel and thread per node).
+    of this loop; the parallelism comes from several channels (``share``) and parts,
+    each with its own thread.
 
     Args:
         sink: the receiving part folder (already resumed: only missing chunks fetched).
