@@ -328,12 +328,22 @@ class TransferManager:
                 return False
             log.info("recording %s: %d data channel(s) from %s open", rec_id, len(socks),
                      s.id)
+            async def run(k: int, sock: socket.socket, socks: list[socket.socket] = socks
+                          ) -> None:
+                try:
+                    await self._in_thread(sock, pull_channel, sink, sock,
+                                          on_progress=progress, share=(k, len(socks)))
+                except (ConnectionError, TimeoutError, OSError):
+                    raise
+                except Exception:  # disk full, corrupt for good: stop the other channels
+                    for other in socks:
+                        with contextlib.suppress(OSError):
+                            other.shutdown(socket.SHUT_RDWR)
+                    raise
+
             try:
                 results = await asyncio.gather(
-                    *(self._in_thread(sock, pull_channel, sink, sock, on_progress=progress,
-                                      share=(k, len(socks)))
-                      for k, sock in enumerate(socks)),
-                    return_exceptions=True)
+                    *(run(k, sock) for k, sock in enumerate(socks)), return_exceptions=True)
             finally:
                 for sock in socks:
                     end_channel(sock)  # 8 bytes into an idle socket: does not block
