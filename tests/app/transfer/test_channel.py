@@ -341,3 +341,27 @@ def test_taken_transfer_port_falls_back_to_a_free_one(tmp_path: Path,
     assert f"transfer port {busy} is taken" in caplog.text
     # no data port configured: the websocket only
     assert TransferManager(_Registry(), None, tmp_path)._listen() is None  # type: ignore[arg-type]
+
+
+def test_node_on_wss_declines_the_unencrypted_channel(tmp_path: Path) -> None:
+    """Health data must not leave an encrypted link: the node answers why, and the
+    server then uses the websocket."""
+    from app.nodes.agent import NodeAgent
+    from app.nodes.protocol import DataChannel, decode_binary
+
+    agent = NodeAgent("S1", None, "wss://server.example:8000/ws/node",  # type: ignore[arg-type]
+                      "token-12345", tmp_path)
+    sent: list[bytes] = []
+
+    class _WS:
+        async def send(self, data: bytes) -> None:
+            sent.append(data)
+
+    offer = DataChannel(req_id=7, rec_id="R1", port=8001, token="a" * 32)
+    try:
+        asyncio.run(agent._serve_data_channel(_WS(), offer))  # type: ignore[arg-type]
+    finally:
+        agent._pool.shutdown()
+    header, _ = decode_binary(sent[0])
+    assert header["kind"] == "channel" and header["req_id"] == 7
+    assert "not encrypted" in header["error"] and "wss://" in header["error"]
