@@ -29,27 +29,16 @@ from app.transfer import (
     set_timeout,
 )
 from app.transfer._channel import HELLO_LEN, hello, parse_hello
+from tests.app.transfer._parts import make_part, sha
 
 CHUNK = 64 * 1024
-
-
-def _make_part(root: Path, sizes: dict[str, int], seed: int = 0) -> None:
-    rng = __import__("random").Random(seed)
-    for name, size in sizes.items():
-        p = root / name
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_bytes(rng.randbytes(size))
-
-
-def _sha(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 @pytest.fixture()
 def part(tmp_path: Path) -> tuple[Path, Manifest]:
     src = tmp_path / "node"
     # chunks larger than the server's 256 KiB receive piece, an uneven tail, an empty file
-    _make_part(src, {"frames.bin": 3 * (512 << 10) + 12_345, "meta.json": 200, "e.txt": 0})
+    make_part(src, {"frames.bin": 3 * (512 << 10) + 12_345, "meta.json": 200, "e.txt": 0})
     return src, build_manifest(src, "rec-1", "S1", chunk_size=512 << 10)
 
 
@@ -97,7 +86,7 @@ def test_channel_round_trip_identical_checksums(tmp_path: Path, part) -> None:
     node.close()
     sink.finalize()
     for f in manifest.files:
-        assert _sha(dest / f.name) == _sha(src / f.name) == f.sha256
+        assert sha(dest / f.name) == sha(src / f.name) == f.sha256
     assert seen[-1] == (manifest.total_bytes, manifest.total_bytes)
     # the manifest says which digest is which, and the hash list is over the chunk digests
     written = json.loads((dest / "manifest.json").read_text())
@@ -127,7 +116,7 @@ def test_two_channels_share_one_part(tmp_path: Path, part) -> None:
     assert sent[1]  # both channels carried chunks
     sink.finalize()
     for f in manifest.files:
-        assert _sha(tmp_path / "dest" / f.name) == f.sha256
+        assert sha(tmp_path / "dest" / f.name) == f.sha256
     with pytest.raises(ValueError, match="share"):
         pull_channel(sink, nodes[0].server, share=(2, 2))
 
@@ -146,7 +135,7 @@ def test_channel_corrupt_chunk_is_refetched(tmp_path: Path, part) -> None:
     node.close()
     assert sent.count(("frames.bin", 1)) == 2  # rejected, then fetched again
     sink.finalize()
-    assert _sha(tmp_path / "dest" / "frames.bin") == manifest.file("frames.bin").sha256
+    assert sha(tmp_path / "dest" / "frames.bin") == manifest.file("frames.bin").sha256
 
 
 def test_channel_always_corrupt_stays_incomplete(tmp_path: Path, part) -> None:
@@ -185,7 +174,7 @@ def test_channel_cut_mid_transfer_then_resume(tmp_path: Path, part) -> None:
     node.close()
     resumed.finalize()
     for f in manifest.files:
-        assert _sha(dest / f.name) == f.sha256
+        assert sha(dest / f.name) == f.sha256
 
 
 def test_channel_node_error_is_reported(tmp_path: Path, part) -> None:

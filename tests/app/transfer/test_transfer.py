@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import hashlib
 import os
 import signal
 import subprocess
@@ -27,26 +26,15 @@ from app.transfer import (
     pull,
     read_chunk,
 )
+from tests.app.transfer._parts import make_part, sha
 
 CHUNK = 64 * 1024
-
-
-def _make_part(root: Path, sizes: dict[str, int], seed: int = 0) -> None:
-    rng = __import__("random").Random(seed)
-    for name, size in sizes.items():
-        p = root / name
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_bytes(rng.randbytes(size))
-
-
-def _sha(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 @pytest.fixture()
 def part(tmp_path: Path) -> tuple[Path, Manifest]:
     src = tmp_path / "node"
-    _make_part(src, {"skeleton.bin": 300_000, "depth/000.bin": CHUNK * 3, "empty.txt": 0})
+    make_part(src, {"skeleton.bin": 300_000, "depth/000.bin": CHUNK * 3, "empty.txt": 0})
     return src, build_manifest(src, "rec-1", "S1", chunk_size=CHUNK)
 
 
@@ -64,7 +52,7 @@ def test_round_trip_identical_checksums(tmp_path: Path, part):
     asyncio.run(pull(TransferSink(dest, manifest), _fetcher(src, manifest),
                      on_progress=lambda d, t: seen.append((d, t))))
     for f in manifest.files:
-        assert _sha(dest / f.name) == _sha(src / f.name) == f.sha256
+        assert sha(dest / f.name) == sha(src / f.name) == f.sha256
     assert TransferSink.is_complete(dest)
     assert seen[-1][0] == seen[-1][1] == manifest.total_bytes
     # the manifest round-trips through JSON
@@ -90,7 +78,7 @@ def test_corrupted_chunk_is_detected_and_refetched(tmp_path: Path, part):
                                                                   "skeleton.bin", 2)))
     asyncio.run(pull(sink, per_chunk(flaky)))
     assert calls[("skeleton.bin", 2)] == 2
-    assert _sha(tmp_path / "dest" / "skeleton.bin") == manifest.file("skeleton.bin").sha256
+    assert sha(tmp_path / "dest" / "skeleton.bin") == manifest.file("skeleton.bin").sha256
 
 
 def test_socket_cut_mid_transfer_then_resume(tmp_path: Path, part):
@@ -113,7 +101,7 @@ def test_socket_cut_mid_transfer_then_resume(tmp_path: Path, part):
     assert 0 < len(resumed.missing_chunks()) < manifest.total_chunks
     asyncio.run(pull(resumed, _fetcher(src, manifest)))
     for f in manifest.files:
-        assert _sha(dest / f.name) == f.sha256
+        assert sha(dest / f.name) == f.sha256
 
 
 def test_server_killed_mid_transfer_resumes(tmp_path: Path, part):
@@ -147,7 +135,7 @@ def test_server_killed_mid_transfer_resumes(tmp_path: Path, part):
     assert 2 <= done < manifest.total_chunks
     asyncio.run(pull(sink, _fetcher(src, manifest)))
     for f in manifest.files:
-        assert _sha(dest / f.name) == f.sha256
+        assert sha(dest / f.name) == f.sha256
 
 
 def test_unsafe_manifest_rejected(part):
@@ -165,7 +153,7 @@ def test_unsafe_manifest_rejected(part):
 def test_different_manifest_in_same_folder_refused(tmp_path: Path, part):
     src, manifest = part
     TransferSink(tmp_path / "dest", manifest)
-    _make_part(src, {"skeleton.bin": 1000}, seed=9)
+    make_part(src, {"skeleton.bin": 1000}, seed=9)
     other = build_manifest(src, "rec-1", "S1", chunk_size=CHUNK)
     with pytest.raises(ManifestError, match="different"):
         TransferSink(tmp_path / "dest", other)
@@ -189,17 +177,17 @@ def small_tmpfs(tmp_path: Path):
 
 def test_disk_full_gives_clear_error_and_loses_nothing(tmp_path: Path, small_tmpfs: Path):
     src = tmp_path / "node"
-    _make_part(src, {"small.bin": 50_000})
+    make_part(src, {"small.bin": 50_000})
     small = build_manifest(src, "rec-0", "S1", chunk_size=CHUNK)
     asyncio.run(pull(TransferSink(small_tmpfs / "rec-0", small), _fetcher(src, small)))
-    _make_part(src, {"big.bin": 600_000}, seed=1)
+    make_part(src, {"big.bin": 600_000}, seed=1)
     big = build_manifest(src, "rec-1", "S1", ["big.bin"], chunk_size=CHUNK)
     with pytest.raises(StorageFullError, match="disk is full"):
         asyncio.run(pull(TransferSink(small_tmpfs / "rec-1", big), _fetcher(src, big)))
     assert not TransferSink.is_complete(small_tmpfs / "rec-1")
     # the earlier part is untouched and still complete
     assert TransferSink.is_complete(small_tmpfs / "rec-0")
-    assert _sha(small_tmpfs / "rec-0" / "small.bin") == small.file("small.bin").sha256
+    assert sha(small_tmpfs / "rec-0" / "small.bin") == small.file("small.bin").sha256
 
 
 def test_chunk_message_reads_the_chunk_behind_its_header(tmp_path: Path, part):
