@@ -628,6 +628,7 @@ class NodeAgent:
                     k for k in ("color", "depth") if k not in imgs) + " image stream "
                     "(started with --no-images?); calibration needs colour and depth")
             sent += 1
+            # 1000 units per metre: the Backend contract is uint16 millimetre depth
             yield (frame.t_local, imgs["color"], imgs["depth"], info.color_K, info.depth_K,
                    T_dc, 1000.0)
 
