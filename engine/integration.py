@@ -13,22 +13,24 @@ sensors", plus our estimator):
 3. Per joint and sample the sensors are combined:
 
    * ``"mean"`` — the paper's equal-weight mean of the tracked estimates;
-   * ``"weighted"`` — ours: each sensor is weighted by how squarely it sees the joint's
-     side of the body, ``(1 + cos θ) / 2`` with θ the angle between the joint→sensor
-     line of sight and the outward normal of that body side (from the fused hip and
-     shoulder axes): 1 for a sensor facing that side squarely, ½ side-on, 0 from the
-     opposite side (plus a small floor), so left joints are mostly taken from sensors on
-     the subject's left, which do not look through the body, while the far view still
-     averages noise down; midline joints are not angle-weighted. The view-dependent pull
-     of a sensor is towards its side of the body, so these side weights decide only the
-     joint's coordinate along the body's lateral axis (step width); its forward and
-     vertical coordinates average all sensors equally by angle. Each sensor's limb joints
+   * ``"weighted"`` — ours: an inverse-variance weighted mean. Each sensor's estimate
+     of a limb joint gets the weight ``1 / (d² · (1 + (F − 1)·far)²)``: its noise grows
+     linearly with the distance d, and by the factor F (:data:`FAR_SIDE_NOISE_FACTOR`)
+     when the sensor sees the joint's body half from the other side of the body, with
+     ``far = clip(−2 cos θ, 0, 1)`` and θ the angle between the joint→sensor line of
+     sight and the outward normal of that body side (from the fused hip and shoulder
+     axes): 0 for a sensor on the joint's side or straight ahead/behind, 1 once it is
+     ≥ 30° to the other side of the body's sagittal plane. So left joints are mostly
+     taken from sensors on the subject's left, while the far views still average noise
+     down, in every coordinate: a far view's fit is worse along the walkway too (seed
+     000, Table 2: one-sided, the far foot's steps are biased and scattered in length as
+     well as width), and equal weights there cost step-length agreement; midline joints
+     are weighted by distance only. Each sensor's limb joints
      are first moved back along its line of sight by the surface bias of a depth fit
      (``SURFACE_BIAS_M``: a sensor sees, and fits to, the near half of a limb), and a
      sensor whose ankles' left/right order is inverted while another sensor sees it right
-     has its lower legs' labels swapped back (a tracker's leg swap). Each
-     sensor is further weighted by the inverse square of its distance (joint noise
-     grows ~linearly with range), and by a Tukey biweight of its residual from the current estimate
+     has its lower legs' labels swapped back (a tracker's leg swap). Each sensor is
+     further weighted by a Tukey biweight of its residual from the current estimate
      (iteratively reweighted from the per-coordinate median, so a sensor that swaps or
      misplaces a joint is rejected).
 4. Fused gaps up to ``max_gap_s`` are interpolated (reported), then each trajectory is
@@ -57,9 +59,13 @@ from engine.skeleton import JointSet, SkeletonSeries, TrackingState
 FloatArray = NDArray[np.float64]
 Estimator = Literal["mean", "weighted"]
 
-#: Added to every side weight so that a joint seen only from the opposite side still
-#: gets an estimate.
-ANGLE_WEIGHT_FLOOR = 0.05
+#: Joint-noise SD of a limb seen from the body half turned away from the sensor,
+#: relative to one seen from its own side or side-on. The turned-away half is fitted to
+#: what shows past the body and is less accurate (Wang et al. 2015, IEEE ICHI: the far
+#: half's errors grow at 30°/60° view angles; seed 000 Discussion: the far leg's
+#: estimates are unreliable). A round prior, not fitted: ``bench/gait_study.py`` moves
+#: by < 0.005 in ICC between 2 and 2.5.
+FAR_SIDE_NOISE_FACTOR = 2.0
 #: Distance (m) at which the distance weight is 1.
 REF_DISTANCE_M = 2.5
 #: Tukey biweight tuning constant (95 % efficiency for Gaussian residuals).
@@ -309,25 +315,18 @@ def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float
     E = np.where(limb, E - surface_bias_m * los_h, E)
     normal = sides[None, :, None] * lat[:, None, :]  # (G, J, 3) outward side normal
     cos = np.einsum("sgjk,gjk->sgj", los, np.nan_to_num(normal))
-    w_angle = np.where(sides[None, None, :] != 0, ANGLE_WEIGHT_FLOOR + 0.5 * (1.0 + cos),
-                       1.0)
-    w_angle = np.where(np.isfinite(lat[None, :, :1].repeat(len(sides), axis=2)), w_angle, 1.0)
-    w_angle = np.where(have, w_angle, 0.0)
+    # Inverse variance: noise SD ∝ distance, × FAR_SIDE_NOISE_FACTOR from the far side.
+    far = np.clip(-2.0 * np.nan_to_num(cos), 0.0, 1.0)
+    far = np.where((sides[None, None, :] != 0) & np.isfinite(lat[None, :, :1]), far, 0.0)
+    w_view = 1.0 / (1.0 + (FAR_SIDE_NOISE_FACTOR - 1.0) * far) ** 2
     w_dist = np.where(have, (REF_DISTANCE_M / np.maximum(dist, 0.3)) ** 2, 0.0)
+    w_prior = w_dist * w_view
     Ez = np.where(have[..., None], E, 0.0)
-    lat_j = np.where(sides[None, :, None] != 0, np.nan_to_num(lat)[:, None, :], 0.0)  # (G,J,3)
-
-    def wmean(w: FloatArray) -> FloatArray:
-        sw = w.sum(axis=0)
-        return np.einsum("sgj,sgjk->gjk", w, Ez) / np.where(sw > 0, sw, np.nan)[..., None]
 
     def combine(rho: FloatArray) -> FloatArray:
-        # The view-dependent pull is towards the sensor's side of the body, i.e. along
-        # the body's lateral axis: the side weights decide the lateral coordinate only;
-        # forward and vertical coordinates average every sensor (less noise).
-        est_d = wmean(w_dist * rho)
-        est_a = wmean(w_dist * w_angle * rho)
-        return est_d + np.einsum("gjk,gjk->gj", est_a - est_d, lat_j)[..., None] * lat_j
+        w = w_prior * rho
+        sw = w.sum(axis=0)
+        return np.einsum("sgj,sgjk->gjk", w, Ez) / np.where(sw > 0, sw, np.nan)[..., None]
 
     rho = np.ones_like(w_dist)
     est = init
@@ -339,7 +338,7 @@ def _fuse_weighted(E: FloatArray, centres: FloatArray, js: JointSet, rate: float
         z = r / (TUKEY_C * scale)[None]
         rho_new = np.where(have & (z < 1.0), (1.0 - np.nan_to_num(z) ** 2) ** 2, 0.0)
         # If every sensor would be rejected, keep the previous weights.
-        rho = np.where(((w_dist * rho_new).sum(axis=0) > 0)[None], rho_new, rho)
+        rho = np.where(((w_prior * rho_new).sum(axis=0) > 0)[None], rho_new, rho)
         est = combine(rho)
     used = have & (w_dist * rho > 0)
     return est, used
