@@ -55,6 +55,11 @@ MIN_STEP_S = 0.2
 #: window are outliers: ≈ 3 SD of a Kinect ankle's per-sample error (1–2 cm), far less
 #: than the ≥ 10 cm a leg-label swap moves a foot.
 STANCE_OUTLIER_M = 0.05
+#: The stance average of a placement extends beyond ``placement_window_s`` while the
+#: foot stays put, up to this far (s) from the crossing: the crossing falls near
+#: mid-stance, and a stance lasts ≈ 0.6 s at ordinary speeds and up to ≈ 1 s when
+#: walking slowly (≈ 60 % of the gait cycle; Perry & Burnfield, *Gait Analysis*, 2nd ed.).
+STANCE_MAX_HALF_S = 0.5
 #: The heel has landed when its downward velocity has fallen below this fraction of its
 #: peak descent in late swing (see GaitAnalysis._refine_strike).
 HEEL_STOP_FRACTION = 0.05
@@ -528,12 +533,15 @@ class GaitAnalysis:
         """The placed foot's position at a crossing.
 
         With ``placement_window_s = 0`` the position at the crossing instant (the
-        paper). Otherwise a robust mean over ±window around it: the crossing is
-        mid-stance, so most of the window is the foot standing still, which averages
-        measurement noise down; what the foot does at the window's ends (landing, heel
-        rise) both feet do alike, so step lengths and widths, which are differences of
-        placements, stay unbiased. Samples far from the window's median (a brief leg
-        swap of the tracker) are left out.
+        paper). Otherwise a robust mean over the stance around it: the crossing is
+        mid-stance, so most of the ±window is the foot standing still, which averages
+        measurement noise down (the trackers' errors are correlated over ≈ 0.3 s, so
+        every stance sample counts); what the foot does at the stance's ends (landing,
+        heel rise) both feet do alike, so step lengths and widths, which are differences
+        of placements, stay unbiased. Samples in the window far from its median (a brief
+        leg swap of the tracker) are left out; beyond the window the stance continues
+        for as long as the foot stays within :data:`STANCE_OUTLIER_M` of that median
+        without a break (at most :data:`STANCE_MAX_HALF_S` from the crossing).
         """
         p = _interp_rows(t, x, tc)
         if self.placement_window_s <= 0:
@@ -547,7 +555,22 @@ class GaitAnalysis:
         # swap, a foot still landing) are left out, the rest averaged.
         med = np.median(w, axis=0)
         keep = np.linalg.norm(w[:, :2] - med[:2], axis=1) <= STANCE_OUTLIER_M
-        return np.asarray(w[keep].mean(axis=0)) if keep.sum() >= 3 else med
+        if keep.sum() < 3:
+            return med
+        # The stance outlasts the window: beyond its ends, add the samples that follow on
+        # without a break while the foot is still within STANCE_OUTLIER_M of its stance
+        # position (up to STANCE_MAX_HALF_S), so the whole stance is averaged. The
+        # window's own outlier test is kept (a leg swap inside it is not bridged).
+        near: NDArray[np.bool_] = np.asarray(np.isfinite(x).all(axis=1), dtype=bool)
+        near[near] = np.linalg.norm(x[near, :2] - med[:2], axis=1) <= STANCE_OUTLIER_M
+        idx = np.flatnonzero(m)
+        lo, hi = idx[0], idx[-1]
+        while lo > 0 and near[lo - 1] and t[lo - 1] >= tc - STANCE_MAX_HALF_S:
+            lo -= 1
+        while hi < len(t) - 1 and near[hi + 1] and t[hi + 1] <= tc + STANCE_MAX_HALF_S:
+            hi += 1
+        parts = [w[keep], x[lo:idx[0]], x[idx[-1] + 1:hi + 1]]
+        return np.asarray(np.concatenate(parts).mean(axis=0))
 
     @staticmethod
     def _refine_strike(t: FloatArray, heel: FloatArray, t_zeni: float) -> float:
