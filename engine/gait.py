@@ -262,8 +262,9 @@ class GaitAnalysis:
             apart (a stride is ≥ 0.6 s even when running slowly).
         placement_window_s: crossing method: the placed foot's position is its robust
             mean over ± this window around the crossing (mid-stance; the foot stands
-            still for most of a ±0.3 s window at walking speeds) instead of its position
-            at the crossing instant (0: the paper's rule); the crossing time is then
+            still for most of a ±0.3 s window at walking speeds), continued beyond it
+            for the rest of the stance (:data:`STANCE_MAX_HALF_S`), instead of its
+            position at the crossing instant (0: the paper's rule); the crossing time is then
             refined to where the swinging foot passes that position.
         direction: a fixed walking direction ``(x, y)`` on the floor (e.g. a walkway's
             axis in the lab frame) along which lengths and widths are measured in every
