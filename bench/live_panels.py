@@ -32,7 +32,6 @@ import json
 import os
 import secrets
 import signal
-import socket
 import struct
 import subprocess
 import sys
@@ -46,12 +45,9 @@ import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from bench._procs import free_port, stop  # noqa: E402
 
 
 def _request(url: str, data: dict[str, Any] | None = None, token: str | None = None) -> Any:
@@ -71,7 +67,7 @@ def _die_with_parent() -> None:
 
 
 def _start(tmp: Path, n_nodes: int) -> tuple[list[subprocess.Popen[bytes]], str, int, int, str]:
-    port, vport = _free_port(), _free_port()
+    port, vport = free_port(), free_port()
     password, token = secrets.token_urlsafe(9), secrets.token_urlsafe(16)
     env = {**os.environ, "GAITRIG_ADMIN_PASSWORD": password, "GAITRIG_NODE_TOKEN": token,
            "PYTHONUNBUFFERED": "1"}
@@ -92,18 +88,6 @@ def _start(tmp: Path, n_nodes: int) -> tuple[list[subprocess.Popen[bytes]], str,
              f"ws://127.0.0.1:{port}", "--data-dir", str(tmp / "nodes" / f"S{k}"),
              "--log-level", "warning", "--report-true-clock"], **opts))
     return procs, f"http://127.0.0.1:{port}", port, vport, password
-
-
-def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
-    for p in reversed(procs):
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    for p in procs:
-        try:
-            p.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
 
 
 def _wait_online(base: str, token: str, n: int, timeout: float) -> list[dict[str, Any]]:
@@ -328,7 +312,7 @@ def main() -> None:
         nodes = {n["id"]: n for n in _request(base + "/api/nodes", token=token)}
         status = _request(base + "/api/live/status", token=token)
     finally:
-        _stop(procs)
+        stop(procs)
     fps: dict[str, float] = {}
     lat: list[float] = []
     true_lat: list[float] = []

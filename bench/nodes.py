@@ -15,8 +15,6 @@ import argparse
 import json
 import os
 import secrets
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -29,15 +27,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.nodes.clock import NodeClock  # noqa: E402
+from bench._procs import free_port, stop  # noqa: E402
 from engine.sim.rig import default_avenue_rig  # noqa: E402
 
 TICK = os.sysconf("SC_CLK_TCK")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _http(url: str, data: dict[str, Any] | None = None, token: str | None = None) -> Any:
@@ -60,7 +53,7 @@ def main() -> None:
     ap.add_argument("--nodes", type=int, default=6)
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="gaitrig-bench-"))
-    port = _free_port()
+    port = free_port()
     pw, tok = secrets.token_urlsafe(8), secrets.token_urlsafe(12)
     env = {**os.environ, "GAITRIG_ADMIN_PASSWORD": pw, "GAITRIG_NODE_TOKEN": tok}
     py = [sys.executable, "-m", "app.cli"]
@@ -108,13 +101,7 @@ def main() -> None:
         c1 = {k: _cpu_s(p.pid) for k, p in procs.items()}
         n1 = {n["id"]: n for n in _http(base + "/api/nodes", token=token)}
     finally:
-        for p in procs.values():
-            p.send_signal(signal.SIGTERM)
-        for p in procs.values():
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        stop(procs.values(), timeout_s=10)
     rate = {i: (n1[i]["frames"] - n0[i]["frames"]) / dt for i in ids}
     dropped = {i: n1[i]["dropped_frames"] - n0[i]["dropped_frames"] for i in ids}
     cpu = {k: 100.0 * (c1[k] - c0[k]) / dt for k in procs}

@@ -27,7 +27,6 @@ import os
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -37,16 +36,13 @@ from datetime import datetime
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bench._procs import free_port, stop  # noqa: E402
+
 TOKEN = "bench-node-token"
 REC = "Rbench"
 _LOG_TIME = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 def _plant_part(node_dir: Path, node_id: str, size: int) -> Path:
@@ -108,7 +104,7 @@ def _transfer_once(tmp: Path, nodes: list[str], node_dirs: dict[str, Path], size
                    r: int) -> tuple[float, float, bool]:
     """One transfer by fresh server and node processes; (data phase s, with manifest s,
     whether every part came over the data channel)."""
-    port = _free_port()
+    port = free_port()
     server_dir = tmp / f"server{r}"
     _server_state(server_dir, sizes)
     env = {**os.environ, "GAITRIG_NODE_TOKEN": TOKEN, "GAITRIG_ADMIN_PASSWORD": "bench-pw",
@@ -144,14 +140,7 @@ def _transfer_once(tmp: Path, nodes: list[str], node_dirs: dict[str, Path], size
                 raise RuntimeError("the transfer did not finish; see " + str(logs["server"]))
             time.sleep(0.1)
     finally:
-        for p in procs:
-            p.send_signal(signal.SIGINT)
-        for p in procs:
-            try:
-                p.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        stop(procs, signal.SIGINT)
     asked = _log_times(logs["server"], "asking {node} for the manifest")
     receiving = _log_times(logs["server"], "bytes from {node}$")
     landed = _log_times(logs["server"], "part of {node} on the server")
