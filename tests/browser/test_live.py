@@ -26,16 +26,23 @@ def _stats(page: Any) -> dict[str, Any]:
     return page.evaluate("JSON.parse(JSON.stringify(window.liveStats))")
 
 
-@pytest.fixture
-def live_page(page: Any, live_server: LiveServer) -> Any:
-    # The 3D view is tested on its own (test_3d_view): its WebGL runs on the CPU in
-    # headless Chromium and would starve the panels' page of the shared 2 cores.
+def _open_live_page(page: Any, live_server: LiveServer) -> None:
+    """Open the Live page without its 3D view; wait until every node's panel has frames.
+
+    The 3D view is tested on its own (test_3d_view): its WebGL runs on the CPU in
+    headless Chromium and would starve the panels' page of the shared 2 cores.
+    """
     page.route(live_server.viewer_url + "/**", lambda r: r.abort())
     page.goto(live_server.base_url + "/live.html")
     n = live_server.n_nodes
     page.wait_for_function(
         f"window.liveStats && Object.keys(window.liveStats.nodes).length === {n} && "
         "Object.values(window.liveStats.nodes).every(s => s.frames >= 3)", timeout=60000)
+
+
+@pytest.fixture
+def live_page(page: Any, live_server: LiveServer) -> Any:
+    _open_live_page(page, live_server)
     return page
 
 
@@ -165,12 +172,7 @@ def test_panels_without_offscreen_canvas(page: Any, live_server: LiveServer,
                                          artifacts_dir: Path) -> None:
     """A browser without OffscreenCanvas gets the same stream on the page's own thread."""
     page.add_init_script("delete HTMLCanvasElement.prototype.transferControlToOffscreen;")
-    page.route(live_server.viewer_url + "/**", lambda r: r.abort())
-    page.goto(live_server.base_url + "/live.html")
-    n = live_server.n_nodes
-    page.wait_for_function(
-        f"window.liveStats && Object.keys(window.liveStats.nodes).length === {n} && "
-        "Object.values(window.liveStats.nodes).every(s => s.frames >= 3)", timeout=60000)
+    _open_live_page(page, live_server)
     assert _stats(page)["mode"] == "page"
     img = screenshot(page, artifacts_dir, "live_panel_S1_page_mode", "figure[data-node=S1] canvas")
     assert saturated_fraction(img) > 0.2

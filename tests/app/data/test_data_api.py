@@ -166,9 +166,9 @@ def test_read_part_and_round_trips(tmp_path: Path) -> None:
     np.testing.assert_allclose(mt.positions, u.positions, atol=1e-5, equal_nan=True)
 
 
-def test_reference_upload_is_bounded(client: TestClient, tmp_path: Path,
-                                     monkeypatch: pytest.MonkeyPatch) -> None:
-    # a recording row to attach to (normally made by the Record page)
+def _recording_row(client: TestClient) -> None:
+    """Project → subject → session → complete recording "R1" (the row the Record page
+    makes), for the tests that attach to or export a recording."""
     from app.db import data as m
 
     p = client.post("/api/projects", json={"name": "S"}).json()
@@ -177,6 +177,11 @@ def test_reference_upload_is_bounded(client: TestClient, tmp_path: Path,
     with client.app.state.db_sessions() as db:  # type: ignore[attr-defined]
         db.add(m.Recording(id="R1", session_id=sess["id"], state="complete", streams=""))
         db.commit()
+
+
+def test_reference_upload_is_bounded(client: TestClient, tmp_path: Path,
+                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    _recording_row(client)
     monkeypatch.setattr(exports, "MAX_REFERENCE_BYTES", 1000)
     r = client.post("/api/exports/R1/references", files={"file": ("big.csv", b"x" * 5000)})
     assert r.status_code == 413 and "larger" in r.json()["detail"]
@@ -203,15 +208,8 @@ def _calibrate(data_dir: Path, yaw: float) -> int:
 def test_fused_export_keeps_the_recordings_own_poses(client: TestClient, tmp_path: Path
                                                      ) -> None:
     """A recalibration after the recording does not change its fused export."""
-    from app.db import data as m
-
     _make_part(tmp_path / "node-side", server=tmp_path)
-    p = client.post("/api/projects", json={"name": "S"}).json()
-    s = client.post("/api/subjects", json={"project_id": p["id"], "code": "A1"}).json()
-    sess = client.post("/api/sessions", json={"subject_id": s["id"]}).json()
-    with client.app.state.db_sessions() as db:  # type: ignore[attr-defined]
-        db.add(m.Recording(id="R1", session_id=sess["id"], state="complete", streams=""))
-        db.commit()
+    _recording_row(client)
     r = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "fused"})
     assert r.status_code == 400 and "no calibrated pose" in r.json()["detail"]
     first = _calibrate(tmp_path, 0.3)
