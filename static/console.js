@@ -2,10 +2,17 @@
 // authenticates every fetch; a 401 sends the user back to the login page.
 "use strict";
 const gaitrig = (() => {
+  // Several requests of a page can fail with 401 at once; navigate to the login page
+  // once, not again while it is loading (a second navigation would reload it under the
+  // user's typing).
+  let toLogin = false;
   async function api(path, options = {}) {
     const r = await fetch(path, { credentials: "same-origin", ...options,
       headers: { "Content-Type": "application/json", ...(options.headers || {}) } });
-    if (r.status === 401) { window.location.href = "/index.html"; throw new Error("not logged in"); }
+    if (r.status === 401) {
+      if (!toLogin) { toLogin = true; window.location.href = "/index.html"; }
+      throw new Error("not logged in");
+    }
     if (!r.ok) { let d = r.statusText; try { d = (await r.json()).detail; } catch (e) {} throw new Error(d); }
     return r.status === 204 ? null : r.json();
   }

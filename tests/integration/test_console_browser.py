@@ -23,7 +23,9 @@ def test_login_and_rig_page(make_rig: object, artifacts_dir: Path, browser: Any)
         page = context.new_page()
         page.goto(rig.base + "/rig.html")
         page.wait_for_url("**/index.html")  # not logged in → login page
-        page.keyboard.type("admin")  # the user name field has focus
+        # the user name field has focus (autofocus; typed keys must not go elsewhere)
+        page.wait_for_function("document.activeElement && document.activeElement.id === 'username'")
+        page.keyboard.type("admin")
         page.keyboard.press("Tab")
         page.keyboard.type("wrong")
         page.keyboard.press("Enter")
