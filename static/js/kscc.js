@@ -9,7 +9,9 @@
   const cm = (m) => (m === null || m === undefined ? "—" : (m * 100).toFixed(0) + " cm");
   const COLORS = { a: "#0b5cad", b: "#cf222e" };
   const STATES = { waiting: "Waiting", collecting: "Collecting still frames", moved: "Moved — restarted", done: "Done" };
-  let polling = null, last = null;
+  // `generation` changes whenever polling starts or stops: a poll answered after Stop
+  // would otherwise draw the stopped session again, and nothing would redraw it.
+  let polling = null, last = null, generation = 0;
 
   // ----------------------------------------------------------------- sources
   for (const side of ["a", "b"]) {
@@ -57,18 +59,20 @@
     });
   }
   $("stop").addEventListener("click", async () => {
+    stopPolling();
     await api("/api/kscc/session", { method: "DELETE" }).catch(() => {});
-    stopPolling(); render(null);
+    render(null);
   });
 
   function setRunning(on) {
     for (const b of [$("restart"), $("stop"), ...document.querySelectorAll("button.recal")]) b.disabled = !on;
   }
-  function startPolling() { if (!polling) polling = setInterval(poll, 300); setRunning(true); }
-  function stopPolling() { clearInterval(polling); polling = null; setRunning(false); }
+  function startPolling() { if (!polling) { generation++; polling = setInterval(poll, 300); } setRunning(true); }
+  function stopPolling() { clearInterval(polling); polling = null; generation++; setRunning(false); }
   async function poll() {
-    try { render(await api("/api/kscc/session")); }
-    catch (e) { if (/no KSCC session/.test(e.message)) { stopPolling(); render(null); } }
+    const asked = generation;
+    try { const s = await api("/api/kscc/session"); if (asked === generation) render(s); }
+    catch (e) { if (asked === generation && /no KSCC session/.test(e.message)) { stopPolling(); render(null); } }
   }
 
   // ------------------------------------------------------------------ render
