@@ -4,15 +4,14 @@
 const gaitrig = (() => {
   // Several requests of a page can fail with 401 at once; navigate to the login page
   // once, not again while it is loading (a second navigation would reload it under the
-  // user's typing).
-  let toLogin = false;
+  // user's typing). Every page script that meets a 401 (its own fetch, a websocket
+  // closed as unauthorised) goes through toLogin().
+  let leaving = false;
+  function toLogin() { if (!leaving) { leaving = true; window.location.href = "/index.html"; } }
   async function api(path, options = {}) {
     const r = await fetch(path, { credentials: "same-origin", ...options,
       headers: { "Content-Type": "application/json", ...(options.headers || {}) } });
-    if (r.status === 401) {
-      if (!toLogin) { toLogin = true; window.location.href = "/index.html"; }
-      throw new Error("not logged in");
-    }
+    if (r.status === 401) { toLogin(); throw new Error("not logged in"); }
     if (!r.ok) { let d = r.statusText; try { d = (await r.json()).detail; } catch (e) {} throw new Error(d); }
     return r.status === 204 ? null : r.json();
   }
@@ -60,11 +59,26 @@ const gaitrig = (() => {
       el("td", { class: "num" }, free), el("td", {}, n.warnings.length ? notes : "OK"));
   }
 
+  // Requests that poll a state overlap on a slow server and can be answered out of
+  // order: newest() drops an answer older than one already shown, or issued before the
+  // user's last action (which then changed the state it describes).
+  function newest() {
+    let issued = 0, shown = 0;
+    return {
+      ask() { return ++issued; },
+      fresh(n) { if (n < shown) return false; shown = n; return true; },
+      acted() { shown = ++issued; },
+    };
+  }
+
   async function rigPage() {
     const sys = await api("/api/system");
+    const nodeSeq = newest();
     async function refresh() {
+      const n = nodeSeq.ask();
       try {
         const nodes = await api("/api/nodes");
+        if (!nodeSeq.fresh(n)) return;
         const body = document.getElementById("nodes");
         body.replaceChildren(...nodes.map((n) => row(n, sys.clock_warn_ms)));
         const online = nodes.filter((n) => n.connected).length;
@@ -83,8 +97,11 @@ const gaitrig = (() => {
         if (active) { await api(`/api/recordings/${active}/stop`, { method: "POST" }); status.textContent = "Stopped."; }
         else { const r = await api("/api/recordings", { method: "POST", body: "{}" }); status.textContent = `Recording ${r.id}…`; }
       } catch (e) { status.textContent = e.message; }
-      recBtn.disabled = false;
+      // a list asked for before the start/stop would show the old state (and make the
+      // button start where it should stop)
+      recSeq.acted();
       await refreshRecordings();
+      recBtn.disabled = false;
     });
     const STATES = { recording: "recording", stopping: "stopping…", on_nodes: "complete on the sensors",
       incomplete: "incomplete", on_node: "on the sensor", pending: "starting",
@@ -93,11 +110,15 @@ const gaitrig = (() => {
       const status = document.getElementById("record-status");
       try { await api(`/api/recordings/${id}/transfer`, { method: "POST", body: "{}" }); status.textContent = `Copying ${id} to the server…`; }
       catch (e) { status.textContent = e.message; }
+      recSeq.acted();
       await refreshRecordings();
     }
+    const recSeq = newest();
     async function refreshRecordings() {
+      const n = recSeq.ask();
       try {
         const recs = await api("/api/recordings");
+        if (!recSeq.fresh(n)) return;
         active = (recs.find((r) => r.state === "recording") || {}).id || null;
         recBtn.textContent = active ? "Stop recording" : "Start recording";
         document.getElementById("recordings").replaceChildren(...recs.slice(0, 10).map((r) => {
@@ -127,5 +148,5 @@ const gaitrig = (() => {
     setInterval(refresh, 1000);
     setInterval(refreshRecordings, 1000);
   }
-  return { api, loginPage, rigPage };
+  return { api, toLogin, newest, loginPage, rigPage };
 })();

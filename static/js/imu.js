@@ -10,7 +10,7 @@
   async function call(path, options) {
     // multipart bodies must not get the JSON content type, so no gaitrig.api() here
     const r = await fetch(path, { credentials: "same-origin", ...options });
-    if (r.status === 401) { window.location.href = "/index.html"; throw new Error("not logged in"); }
+    if (r.status === 401) { gaitrig.toLogin(); throw new Error("not logged in"); }
     let body = null; try { body = await r.json(); } catch (e) { /* not JSON */ }
     if (!r.ok) throw new Error((body && body.detail) || r.statusText);
     return body;

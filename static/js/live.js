@@ -47,7 +47,7 @@
 
   // Captions follow the stream's statistics (a few times a second, not per panel).
   function onStats(m) {
-    if (m.type === "unauthorized") { window.location.href = "/index.html"; return; }
+    if (m.type === "unauthorized") { gaitrig.toLogin(); return; }
     if (m.type !== "stats") return;
     stats.connected = m.connected;
     stats.frames = m.frames;

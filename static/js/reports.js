@@ -13,7 +13,7 @@
   // fetch without the JSON content type (multipart uploads, HTML, PDF blobs)
   async function call(path, options = {}) {
     const r = await fetch(path, { credentials: "same-origin", ...options });
-    if (r.status === 401) { window.location.href = "/index.html"; throw new Error("not logged in"); }
+    if (r.status === 401) { gaitrig.toLogin(); throw new Error("not logged in"); }
     if (!r.ok) {
       let d = r.statusText;
       try { d = (await r.json()).detail || d; } catch (e) { /* not JSON */ }
@@ -91,12 +91,13 @@
     if (!sid) return;
     try {
       const s = await json(`/api/subjects/${encodeURIComponent(sid)}`);
+      if ($("subject").value !== sid) return;  // another subject was chosen meanwhile
       for (const x of s.sessions || []) {
         const done = (x.recordings || []).filter((r) => r.state === "complete").length;
         sess.append(el("option", `${x.date} ${x.label || ""} (${done} complete recording(s))`,
           { value: String(x.id) }));
       }
-    } catch (e) { say("subject-msg", e.message, true); }
+    } catch (e) { if ($("subject").value !== sid) return; say("subject-msg", e.message, true); }
     setLink($("pdf"), subjectQuery("pdf"));
   }
 
@@ -175,9 +176,12 @@
     $("cmp-table").hidden = true;
     sensors = [];
     if (!rid) { buildSubset("set-a", []); buildSubset("set-b", []); updateRecLinks(); return; }
-    try {
-      sensors = (await json(`/api/reports/recordings/${encodeURIComponent(rid)}/sensors`)).sensors;
-    } catch (e) { say("cmp-msg", e.message, true); return; }
+    let got;
+    try { got = (await json(`/api/reports/recordings/${encodeURIComponent(rid)}/sensors`)).sensors; }
+    catch (e) { if ($("recording").value === rid) say("cmp-msg", e.message, true); return; }
+    // another recording chosen meanwhile: its own answer draws the subsets
+    if ($("recording").value !== rid) return;
+    sensors = got;
     const sideA = sensors.filter((s) => s.side === "A").map((s) => s.id);
     buildSubset("set-a", sideA.length ? sideA : sensors.slice(0, 1).map((s) => s.id));
     buildSubset("set-b", sensors.map((s) => s.id));
