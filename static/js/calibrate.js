@@ -19,22 +19,27 @@
   }
 
   async function loadPoses() {
-    const body = $("poses");
     const nodes = await gaitrig.api("/api/nodes");
-    body.replaceChildren();
-    for (const n of nodes) {
-      const s = await gaitrig.api(`/api/nodes/${encodeURIComponent(n.id)}/sensor`);
+    const sensors = await Promise.all(nodes.map((n) => gaitrig.api(`/api/nodes/${encodeURIComponent(n.id)}/sensor`)));
+    // the whole table at once: row by row, a slow server showed a table missing sensors
+    $("poses").replaceChildren(...nodes.map((n, i) => {
+      const s = sensors[i];
       const st = n.connected ? el("span", { class: "ok" }, "online") : el("span", { class: "off" }, "offline");
       if (!s.T_world_sensor) {
-        body.append(el("tr", {}, el("th", { scope: "row" }, n.id), el("td", {}, st),
-          el("td", { colspan: "5" }, "pose unknown: calibrate this sensor")));
-        continue;
+        return el("tr", {}, el("th", { scope: "row" }, n.id), el("td", {}, st),
+          el("td", { colspan: "5" }, "pose unknown: calibrate this sensor"));
       }
       const p = poseOf(s.T_world_sensor);
-      body.append(el("tr", { "data-node": n.id }, el("th", { scope: "row" }, n.id), el("td", {}, st),
-        ...[f2(p.x), f2(p.y), f2(p.z), p.yaw.toFixed(1), p.pitch.toFixed(1)].map((t) => el("td", { class: "num" }, t))));
-    }
+      return el("tr", { "data-node": n.id }, el("th", { scope: "row" }, n.id), el("td", {}, st),
+        ...[f2(p.x), f2(p.y), f2(p.z), p.yaw.toFixed(1), p.pitch.toFixed(1)].map((t) => el("td", { class: "num" }, t)));
+    }));
   }
+
+  // The plan is polled (the 3D view's drag handles change it too) while the user moves
+  // sensors here: planSeq drops a poll answered after a newer plan was shown, and the
+  // form keeps what the user is typing.
+  const planSeq = gaitrig.newest();
+  let editing = false;
 
   function showPlan(p) {
     plan = p;
@@ -51,7 +56,7 @@
     const sel = $("move-id"), cur = sel.value;
     sel.replaceChildren(...p.sensors.map((s) => el("option", { value: s.id }, s.id)));
     if (cur && p.sensors.some((s) => s.id === cur)) sel.value = cur;
-    fillForm();
+    if (!editing) fillForm();
     $("planned").replaceChildren(...p.sensors.map((s) => el("tr", { class: s.moved ? "moved" : "", "data-node": s.id },
       el("th", { scope: "row" }, s.id + (s.moved ? " (moved)" : "")),
       ...[f2(s.position[0]), f2(s.position[1]), f2(s.position[2]), s.yaw_deg.toFixed(1), s.pitch_deg.toFixed(1)]
@@ -61,6 +66,7 @@
   function fillForm() {
     const s = plan && plan.sensors.find((x) => x.id === $("move-id").value);
     if (!s) return;
+    editing = false;
     $("move-x").value = f2(s.position[0]); $("move-y").value = f2(s.position[1]);
     $("move-z").value = f2(s.position[2]); $("move-yaw").value = s.yaw_deg.toFixed(0);
     $("move-pitch").value = s.pitch_deg.toFixed(0);
@@ -71,18 +77,27 @@
     try { await fn(); } catch (e) { $("plan-error").textContent = e.message; }
   }
 
+  // the user's own change: shown, and older poll answers dropped
+  function changed(p) { planSeq.acted(); editing = false; showPlan(p); }
+  async function fetchPlan() {
+    const n = planSeq.ask();
+    const p = await gaitrig.api("/api/planning");
+    if (planSeq.fresh(n) && (!plan || p.version !== plan.version)) showPlan(p);
+  }
+
   function init() {
     $("move-id").addEventListener("change", fillForm);
+    for (const id of ["move-x", "move-y", "move-z", "move-yaw", "move-pitch"]) $(id).addEventListener("input", () => { editing = true; });
     $("move-form").addEventListener("submit", (ev) => {
       ev.preventDefault();
       guarded(async () => {
         const id = $("move-id").value;
-        showPlan(await gaitrig.api(`/api/planning/sensors/${encodeURIComponent(id)}`, { method: "PUT",
+        changed(await gaitrig.api(`/api/planning/sensors/${encodeURIComponent(id)}`, { method: "PUT",
           body: JSON.stringify({ position: [+$("move-x").value, +$("move-y").value, +$("move-z").value],
             yaw_deg: +$("move-yaw").value, pitch_deg: +$("move-pitch").value }) }));
       });
     });
-    $("plan-reset").addEventListener("click", () => guarded(async () => showPlan(await gaitrig.api("/api/planning/reset", { method: "POST" }))));
+    $("plan-reset").addEventListener("click", () => guarded(async () => changed(await gaitrig.api("/api/planning/reset", { method: "POST" }))));
     $("save-form").addEventListener("submit", (ev) => {
       ev.preventDefault();
       guarded(async () => {
@@ -90,12 +105,10 @@
         $("save-status").textContent = `Saved ${r.file} (${r.bytes} bytes) in the server's data folder.`;
       });
     });
-    guarded(async () => { await loadPoses(); showPlan(await gaitrig.api("/api/planning")); });
-    // the 3D view's drag handles change the plan too: follow them
-    setInterval(() => guarded(async () => {
-      const p = await gaitrig.api("/api/planning");
-      if (!plan || p.version !== plan.version) showPlan(p);
-    }), 1500);
+    guarded(() => Promise.all([loadPoses(), fetchPlan()]));
+    // the 3D view's drag handles change the plan too: follow them (a failed poll says so,
+    // a good one leaves the message of the user's last action in place)
+    setInterval(() => fetchPlan().catch((e) => { $("plan-error").textContent = e.message; }), 1500);
   }
   init();
 })();
