@@ -90,10 +90,16 @@
       el("td", { class: "reason" }, p.state === "complete" ? "" : (p.reason || "")));
   }
 
-  async function follow() {
-    if (recId === null) return;
+  // follow() starts a new chain of polls of the recording on the page; an older chain
+  // ends (its answer would draw the previous recording over the new one, and two chains
+  // would poll twice as often).
+  let chain = 0;
+  function follow() { poll(++chain); }
+  async function poll(mine) {
+    if (mine !== chain || recId === null) return;
     try {
       const r = await api(`/api/storage/recordings/${recId}`);
+      if (mine !== chain) return;
       recStart = r.t_start; recStop = r.t_stop;
       $("rec-state").replaceChildren(el("span", { class: "badge st-" + r.state, id: "state-badge", "data-state": r.state }, STATE_TEXT[r.state] || r.state),
         r.reason ? el("span", { class: "reason" }, " " + r.reason) : "");
@@ -104,8 +110,8 @@
         $("done-link").hidden = false;
         $("open-subject").href = `/subjects.html#subject=${r.subject.id}`;
       }
-      if (r.state !== "complete") setTimeout(follow, running ? 500 : 700);
-    } catch (e) { say("rec-msg", e.message); setTimeout(follow, 2000); }
+      if (r.state !== "complete") setTimeout(() => poll(mine), running ? 500 : 700);
+    } catch (e) { if (mine === chain) { say("rec-msg", e.message); setTimeout(() => poll(mine), 2000); } }
   }
 
   $("start").addEventListener("click", async () => {
@@ -124,7 +130,11 @@
   });
   $("stop").addEventListener("click", async () => {
     $("stop").disabled = true;
-    try { await api(`/api/recordings/${recId}/stop`, { method: "POST" }); say("rec-msg", `Recording ${recId} stopped; the server now copies every sensor's part.`, true); }
+    try {
+      await api(`/api/recordings/${recId}/stop`, { method: "POST" });
+      say("rec-msg", `Recording ${recId} stopped; the server now copies every sensor's part.`, true);
+      follow();  // an answer asked for before the stop would enable Stop again
+    }
     catch (e) { say("rec-msg", e.message); $("stop").disabled = false; }
   });
 

@@ -142,10 +142,10 @@
   }
 
   // Recordings started without a session (e.g. from the Rig page) can be filed here.
-  async function showUnfiled(box) {
+  async function showUnfiled(box, gen) {
     let recs = [];
     try { recs = await api("/api/storage/unfiled"); } catch (e) { return; }
-    if (!recs.length || !subject.sessions.length) return;
+    if (gen !== detailGen || !recs.length || !subject.sessions.length) return;
     const card = el("div", { class: "session", id: "unfiled" }, el("h3", {}, "Recordings not filed under a session"));
     for (const r of recs) {
       const sel = el("select", { "aria-label": `session for ${r.id}` },
@@ -161,10 +161,24 @@
     box.append(card);
   }
 
+  // Each loadDetail() makes the ones still waiting for an answer stale: the subject was
+  // deleted or another one chosen meanwhile, or a newer answer is on its way. The edit
+  // form is filled by whichever call draws, if any call asked for it.
+  let detailGen = 0, fillWanted = false;
+  function dropDetail() { detailGen++; clearTimeout(timer); }
   async function loadDetail(fillForm) {
     if (subjectId === null) return;
-    try { subject = await api(`/api/subjects/${subjectId}`); }
-    catch (e) { $("detail-h").textContent = "Select a subject"; $("detail-body").hidden = true; subjectId = null; return; }
+    const gen = ++detailGen;
+    fillWanted = fillWanted || fillForm;
+    let got;
+    try { got = await api(`/api/subjects/${subjectId}`); }
+    catch (e) {
+      if (gen !== detailGen) return;
+      $("detail-h").textContent = "Select a subject"; $("detail-body").hidden = true; subjectId = null; return;
+    }
+    if (gen !== detailGen) return;
+    subject = got;
+    fillForm = fillWanted; fillWanted = false;
     $("detail-h").textContent = `Subject ${subject.code}`;
     $("detail-hint").textContent = `${subject.n_sessions} session(s), ${subject.n_recordings} recording(s), ${bytes(subject.bytes_on_server)} on the server.`;
     $("detail-body").hidden = false;
@@ -180,13 +194,14 @@
       el("h3", {}, `${s.date}${s.label ? " — " + s.label : ""}`),
       ...(s.recordings.length ? s.recordings.map(recordingRow) : [el("p", { class: "hint" }, "No recordings yet.")]))));
     if (!subject.sessions.length) box.append(el("p", { class: "hint" }, "No sessions yet: add one above, then record it."));
-    await showUnfiled(box);
+    await showUnfiled(box, gen);
+    if (gen !== detailGen) return;
     const busy = subject.sessions.some((s) => s.recordings.some((r) => ["recording", "on_nodes", "transferring"].includes(r.state)));
     clearTimeout(timer);
     if (busy) timer = setTimeout(() => loadDetail(false), 1000);
   }
 
-  $("project").addEventListener("change", async (ev) => { projectId = Number(ev.target.value); subjectId = null; $("detail-body").hidden = true; await loadSubjects(); });
+  $("project").addEventListener("change", async (ev) => { projectId = Number(ev.target.value); subjectId = null; dropDetail(); $("detail-body").hidden = true; await loadSubjects(); });
   $("project-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
     try { const p = await api("/api/projects", { method: "POST", body: JSON.stringify({ name: ev.target.elements.name.value.trim() }) });
@@ -216,7 +231,7 @@
   $("delete-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
     try { const r = await api(`/api/subjects/${subjectId}/delete`, { method: "POST", body: JSON.stringify({ confirm: ev.target.elements.confirm.value }) });
-      ev.target.reset(); subjectId = null; $("detail-body").hidden = true; $("detail-h").textContent = "Select a subject";
+      ev.target.reset(); subjectId = null; dropDetail(); $("detail-body").hidden = true; $("detail-h").textContent = "Select a subject";
       say("delete-msg", `Subject deleted with ${r.recordings_deleted} recording(s).`, true); await loadProjects(); await loadDisk(); }
     catch (e) { say("delete-msg", e.message); }
   });
