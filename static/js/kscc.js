@@ -48,16 +48,16 @@
       render(s); startPolling();
     } catch (e) { $("error").textContent = e.message; }
   });
-  $("restart").addEventListener("click", async () => {
-    try { render(await api("/api/kscc/session/restart", { method: "POST", body: JSON.stringify({ side: "both" }) })); }
-    catch (e) { $("error").textContent = e.message; }
-  });
-  for (const b of document.querySelectorAll("button.recal")) {
-    b.addEventListener("click", async () => {
-      try { render(await api("/api/kscc/session/restart", { method: "POST", body: JSON.stringify({ side: b.dataset.side }) })); }
-      catch (e) { $("error").textContent = e.message; }
-    });
+  // a restart answered after Stop must not draw the stopped session again (as in poll())
+  async function restart(side) {
+    const asked = generation;
+    try {
+      const s = await api("/api/kscc/session/restart", { method: "POST", body: JSON.stringify({ side }) });
+      if (asked === generation) render(s);
+    } catch (e) { if (asked === generation) $("error").textContent = e.message; }
   }
+  $("restart").addEventListener("click", () => restart("both"));
+  for (const b of document.querySelectorAll("button.recal")) b.addEventListener("click", () => restart(b.dataset.side));
   $("stop").addEventListener("click", async () => {
     stopPolling();
     await api("/api/kscc/session", { method: "DELETE" }).catch(() => {});
@@ -210,21 +210,29 @@
     if (!rows.length) $("areas").append(row(["No sensor connected yet.", "", "", "", "", "", "", ""]));
   }
   async function loadPresets() {
+    // one request per keystroke: an answer for what the fields no longer say is dropped
+    const h = $("height").value, t = $("tilt").value;
+    const current = () => $("height").value === h && $("tilt").value === t;
     try {
-      const d = await api(`/api/kscc/trapezoid?height_m=${encodeURIComponent($("height").value)}&tilt_deg=${encodeURIComponent($("tilt").value)}`);
+      const d = await api(`/api/kscc/trapezoid?height_m=${encodeURIComponent(h)}&tilt_deg=${encodeURIComponent(t)}`);
+      if (!current()) return;
       $("presets").replaceChildren(...Object.entries(d.presets).map(([k, p]) => {
         let tr;
         if (p.trapezoid) tr = row([p.label, ...trapCells(p.trapezoid)]);
         else { tr = row([p.label, p.problem]); tr.lastChild.colSpan = 4; tr.lastChild.className = "warn"; }
         tr.dataset.preset = k; return tr; }));
-    } catch (e) { $("presets").replaceChildren(row(["Height or tilt out of range: " + e.message, "", "", "", ""])); }
+    } catch (e) { if (current()) $("presets").replaceChildren(row(["Height or tilt out of range: " + e.message, "", "", "", ""])); }
   }
   $("height").addEventListener("input", loadPresets);
   $("tilt").addEventListener("input", loadPresets);
 
   (async () => {
     await Promise.all([loadSources(), loadShares(), loadAreas(), loadPresets()]).catch((e) => { $("error").textContent = e.message; });
-    try { render(await api("/api/kscc/session")); startPolling(); } catch (e) { render(null); }
+    // a session running already (started elsewhere) is shown; unless the user started or
+    // stopped one meanwhile, which this answer may predate
+    const asked = generation;
+    try { const s = await api("/api/kscc/session"); if (asked === generation) { render(s); startPolling(); } }
+    catch (e) { if (asked === generation) render(null); }
     setInterval(() => { loadSources().catch(() => {}); loadAreas().catch(() => {}); }, 5000);
   })();
 })();

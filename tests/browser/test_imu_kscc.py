@@ -96,6 +96,23 @@ def test_imu_page_upload_of_a_session(page: Any, live_server: LiveServer,
     assert not page.js_errors
 
 
+def _keep_history(page: Any, selector: str, name: str) -> None:
+    """Record in ``window[name]`` every text and class each ``selector`` element shows.
+
+    A transient display (a 3 s countdown, a collecting state) can come and go between two
+    polls of a loaded test process; the page's own history of what it showed cannot miss it.
+    """
+    page.evaluate("""([selector, name]) => {
+        const seen = window[name] = [];
+        document.querySelectorAll(selector).forEach((e, i) => {
+            seen[i] = [];
+            const note = () => seen[i].push({ text: e.textContent, cls: e.className });
+            new MutationObserver(note).observe(e, { childList: true, characterData: true,
+                                                    subtree: true, attributes: true });
+        });
+    }""", [selector, name])
+
+
 def test_kscc_page_live_progress_and_active_area(page: Any, live_server: LiveServer,
                                                  artifacts_dir: Path) -> None:
     page.goto(live_server.base_url + "/kscc.html")
@@ -103,11 +120,12 @@ def test_kscc_page_live_progress_and_active_area(page: Any, live_server: LiveSer
     page.select_option("#node-a", "S1")
     page.select_option("#node-b", "S2")
     page.fill("#countdown", "3")
+    _keep_history(page, "#sides .countdown", "countdowns")
     page.click("#start")
-    # the countdown is shown on both sides ...
+    # the countdown is shown on both sides (it may be over by the time this test looks) ...
     page.wait_for_function(
-        "[...document.querySelectorAll('#sides .countdown')].every(e => "
-        "/^[1-3] s$/.test(e.textContent))", timeout=10_000)
+        "window.countdowns.length === 2 && window.countdowns.every(h => "
+        "h.some(x => /^[1-3] s$/.test(x.text)))", timeout=10_000)
     # ... then each side reports a stillness state from KsccProgress
     page.wait_for_function(
         "[...document.querySelectorAll('#sides .state')].every(e => e.textContent.length > 0)",
@@ -170,8 +188,11 @@ def test_kscc_two_remote_users_calibrated_and_compared(page: Any, live_server: L
             page.fill(f"#rnode-{side}", node)
             page.fill(f"#token-{side}", token)
         page.fill("#countdown", "0")
+        _keep_history(page, "#sides .state", "states")
         page.click("#start")
-        page.wait_for_selector(".side[data-side=a] .state.collecting", timeout=30_000)
+        # user A is seen collecting still frames (a state that lasts a few seconds only)
+        page.wait_for_function("window.states[0].some(x => x.cls.split(' ').includes("
+                               "'collecting'))", timeout=30_000)
         page.wait_for_function("document.getElementById('score').textContent !== '—'",
                                timeout=60_000)
         for side in ("a", "b"):
@@ -186,9 +207,10 @@ def test_kscc_two_remote_users_calibrated_and_compared(page: Any, live_server: L
         diff = screenshot(page, artifacts_dir, "kscc_difference", "#diff")
         assert color_fraction(diff, (0x12, 0x35, 0x5B), tol=30) > 5e-4  # the curve
         # recalibrate user A only: A collects again, B stays calibrated
+        _keep_history(page, "#sides .state", "states")
         page.click("button.recal[data-side=a]")
-        page.wait_for_function("!document.querySelector('.side[data-side=a] .state')"
-                               ".textContent.includes('Done')", timeout=10_000)
+        page.wait_for_function("window.states[0].some(x => !x.text.includes('Done'))",
+                               timeout=10_000)
         assert "Done" in page.inner_text(".side[data-side=b] .state")
         page.wait_for_selector(".side[data-side=a] .state.done", timeout=30_000)
         page.click("#stop")
