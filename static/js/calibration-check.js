@@ -48,8 +48,16 @@
         + (unknown.length ? ` Not checked: ${unknown.join("; ")}` : "");
     }
   }
-  async function last() { render(await gaitrig.api("/api/calibration/live-check")); }
+  // the page's first request may be answered after "check now" was clicked: the older
+  // check it describes must not replace the "Capturing…" status
+  let asked = 0;
+  async function last() {
+    const n = ++asked;
+    const j = await gaitrig.api("/api/calibration/live-check");
+    if (n === asked) render(j);
+  }
   btn.addEventListener("click", async () => {
+    asked++;
     btn.disabled = true; state.className = ""; state.textContent = "Capturing fresh frames from every sensor…";
     try {
       const j0 = await gaitrig.api("/api/calibration/live-check", { method: "POST", body: JSON.stringify({ frames: 5 }) });

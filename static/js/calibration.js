@@ -143,7 +143,7 @@
         $("cap-error").textContent = j.message + (j.unreachable ? ` (unreachable: ${j.unreachable.join(", ")})` : "");
       } else if (j.state === "done") {
         $("cap-state").textContent = "Done: check the graph and the residuals, then accept or reject.";
-        show(j.result, true);
+        shown++; show(j.result, true);
         pendingJob = j.id; $("decide").hidden = false;
       }
     } catch (e) {
@@ -207,9 +207,15 @@
     return rows;
   }
 
+  // shown counts the results drawn: the active calibration asked for before a simulated
+  // run or a capture finished must not replace that newer result on the page
+  let shown = 0;
   async function refresh() {
+    const n = ++shown;
     const rows = await history();
-    if (rows.length && pendingJob === null) show(await gaitrig.api("/api/calibration/active"), false);
+    if (!rows.length || pendingJob !== null) return;
+    const active = await gaitrig.api("/api/calibration/active");
+    if (n === shown && pendingJob === null) show(active, false);
   }
 
   $("sim-form").addEventListener("submit", async (ev) => {
@@ -220,7 +226,7 @@
     try {
       const doc = await gaitrig.api("/api/calibration/simulate", { method: "POST",
         body: JSON.stringify({ frames: Number($("sim-frames").value), seed: Number($("sim-seed").value) }) });
-      show(doc, false);
+      shown++; show(doc, false);
       await history();
     } catch (e) {
       $("sim-error").textContent = String(e.message || e);
