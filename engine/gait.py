@@ -69,6 +69,14 @@ HEEL_STOP_FRACTION = 0.05
 MAX_PLACED_SPEED_FRACTION = 0.5
 #: Steps or strides longer than this multiple of the pass's median span missed events.
 MAX_DURATION_RATIO = 2.0
+#: A start from standing: both feet still (slower than this fraction of the pass's
+#: walking speed, over ±0.15 s) for at least STANDING_MIN_S before the first swing.
+STANDING_SPEED_FRACTION = 0.25
+STANDING_MIN_S = 0.3
+#: A foot has left its standing place once it is this far ahead of it (m).
+STANDING_LEFT_M = 0.1
+#: How far back (s) before the first crossing a pass's standing start is looked for.
+STANDING_LOOKBACK_S = 2.5
 
 
 @dataclass(frozen=True)
@@ -255,9 +263,13 @@ class GaitAnalysis:
         method: ``"crossing"`` (paper: ankle crossings → foot placements) or
             ``"heelstrike"`` (Zeni: foot strike / foot off relative to the pelvis).
         exclude_first: drop the first step of each pass and the first stride of the foot
-            that started it (the paper's acceleration rule). ``"auto"`` does this only
-            for passes that start from standing or a turn, not for passes already at
-            speed at the start of the recording.
+            placed first (the paper's acceleration rule; from standing, the foot placed
+            first is the one that stood while the other made the first step, see
+            :meth:`_standing_placement`). ``"auto"`` does this only for passes that start
+            from standing or a turn, not for passes already at speed at the start of the
+            recording. ``"L"`` / ``"R"``: the paper's literal rule for subjects asked to
+            start with that foot — drop its first step and the other foot's first stride
+            in each pass, whichever events were detected.
         min_event_period_s: two events of the same kind and foot are at least this far
             apart (a stride is ≥ 0.6 s even when running slowly).
         placement_window_s: crossing method: the placed foot's position is its robust
@@ -280,13 +292,14 @@ class GaitAnalysis:
         summary_: summary parameters (see ``docs/gait-json.md``).
     """
 
-    def __init__(self, method: Method = "crossing", exclude_first: bool | str = "auto",
+    def __init__(self, method: Method = "crossing",
+                 exclude_first: bool | Literal["auto", "L", "R"] = "auto",
                  min_event_period_s: float = 0.4, placement_window_s: float = 0.3,
                  direction: tuple[float, float] | None = None) -> None:
         if method not in ("crossing", "heelstrike"):
             raise InputError(f"method must be 'crossing' or 'heelstrike', got {method!r}")
-        if exclude_first not in (True, False, "auto"):
-            raise InputError("exclude_first must be True, False or 'auto'")
+        if exclude_first not in (True, False, "auto", "L", "R"):
+            raise InputError("exclude_first must be True, False, 'auto', 'L' or 'R'")
         self.method: Method = method
         self.exclude_first = exclude_first
         self.min_event_period_s = float(min_event_period_s)
@@ -349,7 +362,8 @@ class GaitAnalysis:
         steps: list[Step] = []
         strides: list[Stride] = []
         for k, wp in enumerate(self.passes_):
-            pe = (self._crossing_events(feet, wp) if self.method == "crossing"
+            t_prev = self.passes_[k - 1].t_end if k else -np.inf
+            pe = (self._crossing_events(feet, wp, t_prev) if self.method == "crossing"
                   else self._zeni_events(feet, wp, centre))
             if self.direction is None:
                 wp = self._progression_line(pe, wp)
@@ -376,7 +390,8 @@ class GaitAnalysis:
         lat = np.cross([0.0, 0.0, 1.0], d)  # points to the walker's left
         return d, lat
 
-    def _crossing_events(self, feet: FeetTrajectories, wp: WalkPass) -> _PassEvents:
+    def _crossing_events(self, feet: FeetTrajectories, wp: WalkPass,
+                         t_prev: float = -np.inf) -> _PassEvents:
         t = feet.times
         m = (t >= wp.t_start) & (t <= wp.t_end)
         d, _ = self._frame(wp)
@@ -449,7 +464,82 @@ class GaitAnalysis:
                 tc = self._refine_crossing(t, xR if side == "L" else xL, float(placed @ d), tc)
             other = _interp_rows(t, feet.foot("R" if side == "L" else "L"), tc)
             pe.placements.append((side, tc, placed, other))
+        if pe.placements and v_pass > 0:
+            first = self._standing_placement(feet, d, pe.placements[0], v_pass, t_prev)
+            if first is not None:
+                pe.placements.insert(0, first)
         return pe
+
+    def _standing_placement(self, feet: FeetTrajectories, d: FloatArray,
+                            first: tuple[str, float, FloatArray, FloatArray], v_pass: float,
+                            t_prev: float) -> tuple[str, float, FloatArray, FloatArray] | None:
+        """The standing foot's placement when a pass starts from standing, or None.
+
+        Feet standing side by side do not cross when the first foot leaves, so the first
+        crossing found is already the second placement: the first foot, landed, passed
+        by the other foot's first swing. The placement before it is the foot that stood
+        while the first foot swung (seed 000, Fig. 6: the first left step and the first
+        right stride both start at the standing right foot; they are what the
+        acceleration rule excludes). Its time is when the first foot left its side.
+
+        Args:
+            feet: Foot trajectories.
+            d: Walking direction (3,).
+            first: The first crossing placement ``(side, time, position, other)``.
+            v_pass: The pass's walking speed (m/s).
+            t_prev: End of the previous pass: the standing is looked for after it.
+        """
+        t = feet.times
+        tc1 = first[1]
+        w = np.flatnonzero((t >= max(tc1 - STANDING_LOOKBACK_S, t_prev)) & (t <= tc1))
+        if len(w) < 3:
+            return None
+        tw = t[w]
+        pos = {f: feet.foot(f)[w] for f in ("L", "R")}
+        x = {f: pos[f] @ d for f in ("L", "R")}
+        ok = {f: np.isfinite(x[f]) for f in ("L", "R")}
+        if ok["L"].sum() < 3 or ok["R"].sum() < 3:
+            return None
+        h = 0.15
+        lim = STANDING_SPEED_FRACTION * v_pass
+        still = np.ones(len(w), dtype=bool)
+        for f in ("L", "R"):
+            xf, okf = x[f], ok[f]
+            v = (np.interp(tw + h, tw[okf], xf[okf])
+                 - np.interp(tw - h, tw[okf], xf[okf])) / (2 * h)
+            still &= (np.abs(v) < lim) & okf
+        if not still.any():
+            return None
+        # the standing is the last run of both feet still before the first crossing
+        end = int(np.flatnonzero(still)[-1])
+        start = end
+        while start > 0 and still[start - 1]:
+            start -= 1
+        if tw[end] - tw[start] < STANDING_MIN_S:
+            return None
+        t0 = float(tw[end])
+        # the foot that stood is the one that leaves its standing place last (the first
+        # crossing may belong to either foot: the tracker can miss the first one)
+        leave = {}
+        for f in ("L", "R"):
+            x_stand = float(np.median(x[f][start:end + 1]))
+            gone = np.flatnonzero(ok[f][end:] & (x[f][end:] - x_stand > STANDING_LEFT_M))
+            leave[f] = float(tw[end + gone[0]]) if len(gone) else np.inf
+        if not np.isfinite(min(leave.values())):
+            return None
+        s0 = "R" if leave["L"] < leave["R"] else "L"
+        s1 = "L" if s0 == "R" else "R"
+        p0, p1 = pos[s0], pos[s1]
+        if self.placement_window_s > 0:
+            placed = np.nanmedian(p0[start:end + 1], axis=0)
+        else:
+            placed = _interp_rows(tw[ok[s0]], p0[ok[s0]], t0)
+        if first[0] == s0 and abs(float((first[2] - placed) @ d)) < STANDING_LEFT_M:
+            # the "standing" was a long double support of a slow start: its front foot's
+            # placement is the first crossing's, already found
+            return None
+        other = _interp_rows(tw[ok[s1]], p1[ok[s1]], t0)
+        return s0, t0, np.asarray(placed, dtype=float), other
 
     @staticmethod
     def _refine_crossing(t: FloatArray, x_swing: FloatArray, x_placed: float, tc: float
@@ -646,7 +736,21 @@ class GaitAnalysis:
             # Only s, other, s: a stride over a missed event would be two strides long.
             if s0 == s2 != s1:
                 strides.append(Stride(s2, t2, float((p2 - p0) @ d), float(t2 - t0), k))
-        excl = wp.excluded_first if self.exclude_first == "auto" else bool(self.exclude_first)
+        if self.exclude_first in ("L", "R"):
+            # the paper's literal rule: the subject starts with this foot; its first step
+            # and the other foot's first stride go, whatever the system detected first
+            first_step = next((i for i, x in enumerate(steps)
+                               if x.side == self.exclude_first), None)
+            if first_step is not None:
+                del steps[first_step]
+            first_stride = next((i for i, x in enumerate(strides)
+                                 if x.side != self.exclude_first), None)
+            if first_stride is not None:
+                del strides[first_stride]
+            excl = False
+        else:
+            excl = (wp.excluded_first if self.exclude_first == "auto"
+                    else bool(self.exclude_first))
         if excl and pl:
             steps = steps[1:]
             first = next((i for i, x in enumerate(strides) if x.side == pl[0][0]), None)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import Any, Literal
 
 HELP = "gait parameters (steps, strides, speed, cadence ...) of a C3D/TRC/CSV file"
 
@@ -26,9 +26,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=["crossing", "heelstrike"], default="crossing",
                         help="crossing: foot placements where the ankles pass each other "
                              "(seed paper); heelstrike: Zeni foot strike / foot off")
-    parser.add_argument("--exclude-first", choices=["auto", "yes", "no"], default="auto",
+    parser.add_argument("--exclude-first", choices=["auto", "yes", "no", "L", "R"],
+                        default="auto",
                         help="drop the first step and stride of each pass (acceleration); "
-                             "auto: only for passes that start from standing")
+                             "auto: only for passes that start from standing; L/R: the "
+                             "subject started with this foot, drop its first step and the "
+                             "other foot's first stride (seed paper's literal rule)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -76,7 +79,9 @@ def run(args: argparse.Namespace) -> int:
     from engine.gait import GaitAnalysis
     from engine.mocap import load_feet
 
-    excl: bool | str = "auto" if args.exclude_first == "auto" else args.exclude_first == "yes"
+    excl: bool | Literal["auto", "L", "R"] = (
+        args.exclude_first if args.exclude_first in ("auto", "L", "R")
+        else args.exclude_first == "yes")
     try:
         feet = load_feet(args.file, left=args.left, right=args.right, up=args.up,
                          units=args.units)

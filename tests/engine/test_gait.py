@@ -324,3 +324,73 @@ def test_fixed_walkway_axis_rotated_from_the_walk_biases_widths_antisymmetricall
     assert all(s.width_m == pytest.approx(0.12, abs=0.002) for s in auto.steps_)
     with pytest.raises(InputError, match="direction"):
         GaitAnalysis(direction=(0.0, 0.0))
+
+
+def _standing_start_walk(noise_m: float = 0.0, seed: int = 0
+                         ) -> tuple[FeetTrajectories, list[tuple[str, float]]]:
+    """A subject standing 1 s, then walking 6 m starting with the left foot (seed 000's
+    protocol), ankles at 100 Hz; also the true footprints (side, x of the heel)."""
+    from engine.mocap import feet_from_skeleton
+    from engine.sim.walker import Walker, WalkerParams
+    from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
+
+    w = Walker(WalkerParams(), np.array([0.0, 0.0, 0.0]), np.array([8.0, 0.0, 0.0]),
+               start_time=1.0, back_and_forth=False, seed=seed, horizon_s=12.0)
+    t = np.arange(0.0, 6.0, 0.01)
+    J = w.joints(t)
+    J += np.random.default_rng(seed).normal(0.0, noise_m, J.shape)
+    s = SkeletonSeries(t, J, np.full(J.shape[:2], TrackingState.TRACKED, np.uint8), KINECT_V2)
+    prints = [("L" if sd == 1 else "R", float(h[0])) for sd, h in zip(w._s.side, w._s.heel,
+                                                                     strict=True)]
+    return feet_from_skeleton(s), prints
+
+
+@pytest.mark.parametrize("noise_m", [0.0, 0.005])
+def test_start_from_standing_first_step_is_the_first_foot(noise_m: float) -> None:
+    # Standing feet side by side never cross: the first crossing is the right foot
+    # passing the landed left foot. The standing right foot is the placement before it,
+    # so the first step is the LEFT one (seed 000 Fig. 6) and it is the short one.
+    feet, prints = _standing_start_walk(noise_m)
+    g = GaitAnalysis("crossing", exclude_first=False).fit(feet)
+    first = g.events_[0]
+    assert (first.side, first.kind) == ("R", "placement")
+    assert 0.8 <= first.time_s <= 1.3  # when the left foot leaves the right one
+    assert [s.side for s in g.steps_[:3]] == ["L", "R", "L"]
+    # footprints: two standing, then the first (shortened) left step
+    true_first = prints[2][1] - prints[1][1]
+    assert g.steps_[0].length_m == pytest.approx(true_first, abs=0.02)
+    assert g.steps_[0].length_m < 0.8 * g.steps_[2].length_m
+    assert g.strides_[0].side == "R"
+
+
+@pytest.mark.parametrize("rule", ["auto", True, "L"])
+def test_start_from_standing_excludes_first_left_step_and_first_right_stride(
+        rule: bool | str) -> None:
+    feet, _ = _standing_start_walk()
+    every = GaitAnalysis("crossing", exclude_first=False).fit(feet)
+    g = GaitAnalysis("crossing", exclude_first=rule).fit(feet)  # type: ignore[arg-type]
+    assert g.steps_ == every.steps_[1:]
+    assert every.strides_[0].side == "R" and g.strides_ == every.strides_[1:]
+
+
+def test_literal_rule_drops_the_first_left_step_whatever_was_detected() -> None:
+    # The tracker lost the right ankle during its first swing: the first crossing (the
+    # left foot's first placement) is missed. The paper's literal rule still drops the
+    # first LEFT step and first RIGHT stride found; our rule drops the first step found.
+    feet, _ = _standing_start_walk()
+    every = GaitAnalysis("crossing", exclude_first=False).fit(feet)
+    t_left_placed = every.events_[1].time_s
+    R = feet.foot("R")
+    R[(feet.times > t_left_placed - 0.35) & (feet.times < t_left_placed + 0.2)] = np.nan
+    missed = GaitAnalysis("crossing", exclude_first=False).fit(feet)
+    assert [e.side for e in missed.events_[:2]] == ["R", "R"]  # standing R, then R again
+    literal = GaitAnalysis("crossing", exclude_first="L").fit(feet)
+    first_left = next(s for s in missed.steps_ if s.side == "L")
+    assert first_left not in literal.steps_ and len(literal.steps_) == len(missed.steps_) - 1
+    first_right_stride = next(s for s in missed.strides_ if s.side == "R")
+    assert first_right_stride not in literal.strides_
+
+
+def test_exclude_first_rejects_unknown_rule() -> None:
+    with pytest.raises(InputError, match="exclude_first"):
+        GaitAnalysis("crossing", exclude_first="left")  # type: ignore[arg-type]
