@@ -11,7 +11,10 @@
   const STATES = { waiting: "Waiting", collecting: "Collecting still frames", moved: "Moved — restarted", done: "Done" };
   // `generation` changes whenever polling starts or stops: a poll answered after Stop
   // would otherwise draw the stopped session again, and nothing would redraw it.
-  let polling = null, last = null, generation = 0;
+  // `shown` drops a poll asked before the user's Start/Restart (or before a newer poll
+  // already drawn) that a loaded server answers late: it would show the old state.
+  let polling = false, last = null, generation = 0;
+  const shown = gaitrig.newest();
 
   // ----------------------------------------------------------------- sources
   for (const side of ["a", "b"]) {
@@ -45,7 +48,7 @@
     try {
       const s = await api("/api/kscc/session", { method: "POST", body: JSON.stringify({
         a: source("a"), b: source("b"), countdown_s: Number($("countdown").value), by_role: $("by-role").checked }) });
-      render(s); startPolling();
+      shown.acted(); render(s); startPolling();
     } catch (e) { $("error").textContent = e.message; }
   });
   // a restart answered after Stop must not draw the stopped session again (as in poll())
@@ -53,7 +56,7 @@
     const asked = generation;
     try {
       const s = await api("/api/kscc/session/restart", { method: "POST", body: JSON.stringify({ side }) });
-      if (asked === generation) render(s);
+      if (asked === generation) { shown.acted(); render(s); }
     } catch (e) { if (asked === generation) $("error").textContent = e.message; }
   }
   $("restart").addEventListener("click", () => restart("both"));
@@ -67,12 +70,26 @@
   function setRunning(on) {
     for (const b of [$("restart"), $("stop"), ...document.querySelectorAll("button.recal")]) b.disabled = !on;
   }
-  function startPolling() { if (!polling) { generation++; polling = setInterval(poll, 300); } setRunning(true); }
-  function stopPolling() { clearInterval(polling); polling = null; generation++; setRunning(false); }
-  async function poll() {
-    const asked = generation;
-    try { const s = await api("/api/kscc/session"); if (asked === generation) render(s); }
-    catch (e) { if (asked === generation && /no KSCC session/.test(e.message)) { stopPolling(); render(null); } }
+  // One chain of polls, the next asked 300 ms after the last answer: a fixed interval
+  // piled requests up on a loaded server (each slower than 300 ms), answered out of order.
+  function startPolling() {
+    if (!polling) { polling = true; const mine = ++generation; setTimeout(() => poll(mine), 300); }
+    setRunning(true);
+  }
+  function stopPolling() { polling = false; generation++; setRunning(false); }
+  async function poll(mine) {
+    if (mine !== generation) return;
+    const n = shown.ask();
+    try {
+      const s = await api("/api/kscc/session");
+      if (mine !== generation) return;
+      if (shown.fresh(n)) render(s);
+    } catch (e) {
+      if (mine !== generation) return;
+      // (a stale "no session", asked before the user's Start, must not stop the new one)
+      if (/no KSCC session/.test(e.message) && shown.fresh(n)) { stopPolling(); render(null); return; }
+    }
+    setTimeout(() => poll(mine), 300);
   }
 
   // ------------------------------------------------------------------ render
@@ -230,8 +247,8 @@
     await Promise.all([loadSources(), loadShares(), loadAreas(), loadPresets()]).catch((e) => { $("error").textContent = e.message; });
     // a session running already (started elsewhere) is shown; unless the user started or
     // stopped one meanwhile, which this answer may predate
-    const asked = generation;
-    try { const s = await api("/api/kscc/session"); if (asked === generation) { render(s); startPolling(); } }
+    const asked = generation, n = shown.ask();
+    try { const s = await api("/api/kscc/session"); if (asked === generation && shown.fresh(n)) { render(s); startPolling(); } }
     catch (e) { if (asked === generation) render(null); }
     setInterval(() => { loadSources().catch(() => {}); loadAreas().catch(() => {}); }, 5000);
   })();
