@@ -30,8 +30,14 @@
     if (want) sel.value = want;
     await fillSubjects();
   }
+  // The page's first lists can be answered after the user added a subject or a session
+  // (or lists overlap after quick changes): an answer older than the newest asked is
+  // dropped, else it would replace the list just drawn (the new subject gone from it).
+  let subjectsAsked = 0, sessionsAsked = 0;
   async function fillSubjects(want) {
+    const mine = ++subjectsAsked;
     const ss = await api(`/api/subjects?project_id=${$("project").value}`);
+    if (mine !== subjectsAsked) return;
     const sel = $("subject");
     sel.replaceChildren(...ss.map((s) => el("option", { value: s.id }, s.code)));
     if (!ss.length) sel.append(el("option", { value: "" }, "— add a subject —"));
@@ -39,10 +45,12 @@
     await fillSessions();
   }
   async function fillSessions(want) {
+    const mine = ++sessionsAsked;
     const sel = $("session");
     subjectId = $("subject").value ? Number($("subject").value) : null;
     if (subjectId === null) { sel.replaceChildren(el("option", { value: "" }, "— add a subject first —")); return; }
     const ss = await api(`/api/sessions?subject_id=${subjectId}`);
+    if (mine !== sessionsAsked) return;
     sel.replaceChildren(...ss.slice().reverse().map((s) => el("option", { value: s.id }, `${s.date}${s.label ? " — " + s.label : ""} (${s.n_recordings} rec.)`)));
     if (!ss.length) sel.append(el("option", { value: "" }, "— add a session —"));
     if (want) sel.value = want;

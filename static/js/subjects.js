@@ -51,10 +51,15 @@
     await loadSubjects();
   }
 
+  // Lists overlap (a click on a subject, a deletion, a project change): a list asked
+  // before a newer one is dropped, else it could bring back a subject just deleted.
+  let subjectsAsked = 0;
   async function loadSubjects() {
+    const mine = ++subjectsAsked;
     const body = $("subjects");
     if (projectId === null) { body.replaceChildren(); return; }
     const ss = await api(`/api/subjects?project_id=${projectId}`);
+    if (mine !== subjectsAsked) return;
     body.replaceChildren(...ss.map((s) => {
       const tr = el("tr", { class: "clickable" + (s.id === subjectId ? " selected" : ""), "data-subject": s.code },
         el("th", { scope: "row" }, el("a", { href: `#subject=${s.id}`, onclick: (ev) => { ev.preventDefault(); select(s.id); } }, s.code)),
