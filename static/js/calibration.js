@@ -190,8 +190,13 @@
     } finally { btn.disabled = false; }
   });
 
+  // versions lists overlap (page load, accept, restore, a simulated run): one asked
+  // before a newer one is not drawn, else it would hide the version just saved
+  let historyAsked = 0;
   async function history() {
+    const mine = ++historyAsked;
     const rows = await gaitrig.api("/api/calibration");
+    if (mine !== historyAsked) return rows;
     const tb = $("history").querySelector("tbody"); tb.replaceChildren();
     rows.forEach((c, i) => {
       const btn = el("button", i === 0 ? "active" : "Restore", { type: "button" });

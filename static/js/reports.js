@@ -231,6 +231,9 @@
       const q = new URLSearchParams({ a: a.join(","), b: b.join(","), method: $("method").value,
         estimator: $("estimator").value });
       const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/compare?${q}`);
+      // another recording chosen while this one was analysed: its numbers would be shown
+      // under the new choice (the table names the sensors, not the recording)
+      if ($("recording").value !== rid) return;
       const body = $("cmp-table").querySelector("tbody");
       body.replaceChildren();
       for (const [label, va, vb, d] of cmpRows(r.a, r.b)) {
@@ -244,7 +247,7 @@
       const errs = [r.a, r.b].filter((x) => !x.ok).map((x) => `${x.sensors_used.join(", ")}: ${x.error}`);
       say("cmp-msg", errs.length ? "No gait result for " + errs.join("; ") : "Mean ± SD per subset.", errs.length > 0);
     } catch (e) {
-      say("cmp-msg", e.message, true);
+      if ($("recording").value === rid) say("cmp-msg", e.message, true);
     } finally { $("compare").disabled = false; }
   }
 
@@ -264,11 +267,12 @@
     if (!rid) { $("ref-state").textContent = ""; return; }
     try {
       const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference`);
+      if ($("recording").value !== rid) return;  // the newer choice's answer draws
       $("ref-state").textContent = r.attached
         ? `Attached: ${r.filename} (${r.n_steps} steps, starts ${r.offset_s} s into the recording).`
         : "No reference attached on this page (a reference imported on the Subjects page is used if present).";
       $("ref-remove").disabled = !r.attached;
-    } catch (e) { $("ref-state").textContent = e.message; }
+    } catch (e) { if ($("recording").value === rid) $("ref-state").textContent = e.message; }
   }
 
   async function attachReference(ev) {
