@@ -72,6 +72,11 @@ WALK_FROM = np.array([-0.5, 0.0, 0.0])
 #: both systems are analysed until the pelvis has covered the 7 m.
 WALK_TO = np.array([11.0, 0.0, 0.0])
 WALK_M = 7.0
+#: Each walk is recorded from standing: the subject stands still this long, then starts
+#: with the left foot ("we asked subject to begin walking with the left foot", seed 000;
+#: its Fig. 6 shows the standing start and the excluded first left step and first right
+#: stride). The standing lets both systems see the standing foot's placement.
+STANDING_S = 1.0
 ONE_SIDED = ("S1", "S3", "S5")  # y = +1: on the subject's left when walking +X
 #: Yaw (deg) of the Kinect system's calibrated world frame relative to the reference
 #: ("Vicon") lab frame: two independently calibrated systems never share an axis
@@ -88,17 +93,18 @@ PAPER_AXIS = (1.0, 0.0)
 
 
 def _walk(params: WalkerParams, seed: int) -> tuple[Walker, float]:
-    w = Walker(params, WALK_FROM, WALK_TO, start_time=0.0, back_and_forth=False, seed=seed,
-               horizon_s=30.0)
-    t = np.arange(0.0, 20.0, 0.01)
+    w = Walker(params, WALK_FROM, WALK_TO, start_time=STANDING_S, back_and_forth=False,
+               seed=seed, horizon_s=30.0)
+    t = np.arange(0.0, 20.0 + STANDING_S, 0.01)
     pelvis_x = w.joints(t)[:, KINECT_V2.index("SpineBase"), 0]
     past = np.flatnonzero(pelvis_x >= WALK_FROM[0] + WALK_M)
     return w, float(t[past[0]]) if len(past) else 10.0
 
 
 def _paper_analysis() -> GaitAnalysis:
-    """The paper's gait analysis: placement at the crossing instant, fixed walkway axis."""
-    return GaitAnalysis("crossing", exclude_first=True, placement_window_s=0.0,
+    """The paper's gait analysis: placement at the crossing instant, fixed walkway axis,
+    its exclusion rule taken literally (first left step, first right stride)."""
+    return GaitAnalysis("crossing", exclude_first="L", placement_window_s=0.0,
                         direction=PAPER_AXIS)
 
 
