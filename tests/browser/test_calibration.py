@@ -60,7 +60,9 @@ def test_wizard_captures_from_nodes_accepts_and_checks(page: Any, live_server: L
     for s in rig.sensors[:n]:
         dt, dr = pose_error(np.asarray(active["T_world_sensor"][s.id]), s.T_world_sensor)
         assert dt < 0.01 and np.degrees(dr) < 0.5, (s.id, dt, np.degrees(dr))
-    assert len(page.locator("#history tbody tr").all()) == len(after)
+    # the page shows "Saved" first, then asks for the versions list: wait for the new row
+    page.wait_for_function(f"document.querySelectorAll('#history tbody tr').length === "
+                           f"{len(after)}")
 
     page.click("#check-btn")
     page.wait_for_function("document.querySelectorAll('#check-table tbody tr').length > 0",
