@@ -58,13 +58,14 @@ def _port_free(host: str, port: int) -> bool:
     return True
 
 
-def _request(url: str, data: dict[str, Any] | None = None, token: str | None = None) -> Any:
+def _request(url: str, data: dict[str, Any] | None = None, token: str | None = None,
+             timeout: float = 2.0) -> Any:
     headers = {"Content-Type": "application/json"}
     if token:
         headers["Authorization"] = f"Bearer {token}"
     body = json.dumps(data).encode() if data is not None else None
     req = urllib.request.Request(url, data=body, headers=headers)
-    with urllib.request.urlopen(req, timeout=2) as r:
+    with urllib.request.urlopen(req, timeout=timeout) as r:
         return json.loads(r.read())
 
 
@@ -140,7 +141,10 @@ def run(args: argparse.Namespace) -> int:
             if stopping or procs[0].poll() is not None:
                 raise SystemExit("gaitrig demo: the server did not start (see messages above)")
             try:
-                _request(base + "/healthz")
+                # a slow answer still means the server is up: while six nodes connect,
+                # a loaded machine answers later than 2 s, and a probe that gives up
+                # then never announced the console (nodes were all online before it)
+                _request(base + "/healthz", timeout=15.0)
                 break
             except (urllib.error.URLError, OSError):
                 time.sleep(0.2)
