@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,30 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic"
                  "--disable-component-update", "--disable-sync"]
 
 
+def _throttle_pages(browser: Any, rate: float) -> None:
+    """Make every page of ``browser`` run its JavaScript ``rate`` times slower (CDP).
+
+    A stress knob for hunting races (``GAITRIG_TEST_CPU_THROTTLE=6``): a page's answers
+    then arrive and are handled late, as on a loaded 2-core CI machine, without burning
+    the CPU that the servers and the other tests need.
+    """
+    new_context = browser.new_context
+
+    def throttled_context(*args: Any, **kwargs: Any) -> Any:
+        ctx = new_context(*args, **kwargs)
+        new_page = ctx.new_page
+
+        def throttled_page(*a: Any, **k: Any) -> Any:
+            page = new_page(*a, **k)
+            ctx.new_cdp_session(page).send("Emulation.setCPUThrottlingRate", {"rate": rate})
+            return page
+
+        ctx.new_page = throttled_page
+        return ctx
+
+    browser.new_context = throttled_context
+
+
 @pytest.fixture
 def browser() -> Iterator[Any]:
     """Headless Debian Chromium for one test.
@@ -54,6 +79,9 @@ def browser() -> Iterator[Any]:
     with sync_playwright() as pw:
         b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS,
                                headless=True)
+        throttle = float(os.environ.get("GAITRIG_TEST_CPU_THROTTLE") or 1)
+        if throttle > 1:
+            _throttle_pages(b, throttle)
         try:
             yield b
         finally:
