@@ -69,9 +69,14 @@ HEEL_STOP_FRACTION = 0.05
 MAX_PLACED_SPEED_FRACTION = 0.5
 #: Steps or strides longer than this multiple of the pass's median span missed events.
 MAX_DURATION_RATIO = 2.0
-#: A start from standing: both feet still (slower than this fraction of the pass's
-#: walking speed, over ±0.15 s) for at least STANDING_MIN_S before the first swing.
-STANDING_SPEED_FRACTION = 0.25
+#: A start from standing: both feet within STANDING_TOL_M of their place for at least
+#: STANDING_MIN_S before the first swing. The tolerance is ≈ 3 SD of a fused Kinect
+#: ankle's slowly varying error (2–3 cm) and well below the STANDING_LEFT_M that a
+#: swinging foot covers within 0.1 s.
+STANDING_TOL_M = 0.08
+#: ... and the body centre progressing less than this (m) over that time (< 0.2 m/s,
+#: a sixth of a comfortable walking speed).
+STANDING_CENTRE_M = 0.04
 STANDING_MIN_S = 0.3
 #: A foot has left its standing place once it is this far ahead of it (m).
 STANDING_LEFT_M = 0.1
@@ -465,13 +470,13 @@ class GaitAnalysis:
             other = _interp_rows(t, feet.foot("R" if side == "L" else "L"), tc)
             pe.placements.append((side, tc, placed, other))
         if pe.placements and v_pass > 0:
-            first = self._standing_placement(feet, d, pe.placements[0], v_pass, t_prev)
+            first = self._standing_placement(feet, d, pe.placements[0], t_prev)
             if first is not None:
                 pe.placements.insert(0, first)
         return pe
 
     def _standing_placement(self, feet: FeetTrajectories, d: FloatArray,
-                            first: tuple[str, float, FloatArray, FloatArray], v_pass: float,
+                            first: tuple[str, float, FloatArray, FloatArray],
                             t_prev: float) -> tuple[str, float, FloatArray, FloatArray] | None:
         """The standing foot's placement when a pass starts from standing, or None.
 
@@ -486,7 +491,6 @@ class GaitAnalysis:
             feet: Foot trajectories.
             d: Walking direction (3,).
             first: The first crossing placement ``(side, time, position, other)``.
-            v_pass: The pass's walking speed (m/s).
             t_prev: End of the previous pass: the standing is looked for after it.
         """
         t = feet.times
@@ -500,29 +504,41 @@ class GaitAnalysis:
         ok = {f: np.isfinite(x[f]) for f in ("L", "R")}
         if ok["L"].sum() < 3 or ok["R"].sum() < 3:
             return None
-        h = 0.15
-        lim = STANDING_SPEED_FRACTION * v_pass
-        still = np.ones(len(w), dtype=bool)
-        for f in ("L", "R"):
-            xf, okf = x[f], ok[f]
-            v = (np.interp(tw + h, tw[okf], xf[okf])
-                 - np.interp(tw - h, tw[okf], xf[okf])) / (2 * h)
-            still &= (np.abs(v) < lim) & okf
-        if not still.any():
+        # The standing: the last stretch of ≥ STANDING_MIN_S before the first crossing in
+        # which each foot stays within STANDING_TOL_M of its own median. Displacement,
+        # not speed: a fused Kinect ankle wanders by a few cm within a tenth of a second
+        # (speed noise of the order of a slow walk), and the far foot, partly hidden by
+        # the other leg, drops out for single frames, which must not split a standing.
+        # The body must not progress either: in the double support of a slow walk both
+        # feet stay near their places while the pelvis moves on.
+        if feet.pelvis is not None and np.isfinite(feet.pelvis[w]).all(axis=1).sum() >= 3:
+            xc = feet.pelvis[w] @ d
+        else:
+            xc = 0.5 * (x["L"] + x["R"])
+        okc = np.isfinite(xc)
+        end = -1
+        for e in range(len(w) - 1, -1, -1):
+            if tw[e] - tw[0] < STANDING_MIN_S:
+                break
+            seg = (tw >= tw[e] - STANDING_MIN_S) & (tw <= tw[e])
+            if (all(self._stays(x[f][seg & ok[f]], int(seg.sum())) for f in ("L", "R"))
+                    and self._still_centre(xc[seg & okc], int(seg.sum()))):
+                end = e
+                break
+        if end < 0:
             return None
-        # the standing is the last run of both feet still before the first crossing
-        end = int(np.flatnonzero(still)[-1])
-        start = end
-        while start > 0 and still[start - 1]:
+        start = int(np.flatnonzero(tw >= tw[end] - STANDING_MIN_S)[0])
+        med = {f: float(np.median(x[f][start:end + 1][ok[f][start:end + 1]])) for f in "LR"}
+        # the standing began where a foot was last away from its place
+        while start > 0 and all(not ok[f][start - 1] or abs(x[f][start - 1] - med[f])
+                                <= STANDING_TOL_M for f in ("L", "R")):
             start -= 1
-        if tw[end] - tw[start] < STANDING_MIN_S:
-            return None
         t0 = float(tw[end])
         # the foot that stood is the one that leaves its standing place last (the first
         # crossing may belong to either foot: the tracker can miss the first one)
         leave = {}
         for f in ("L", "R"):
-            x_stand = float(np.median(x[f][start:end + 1]))
+            x_stand = float(np.nanmedian(x[f][start:end + 1]))
             gone = np.flatnonzero(ok[f][end:] & (x[f][end:] - x_stand > STANDING_LEFT_M))
             leave[f] = float(tw[end + gone[0]]) if len(gone) else np.inf
         if not np.isfinite(min(leave.values())):
@@ -540,6 +556,24 @@ class GaitAnalysis:
             return None
         other = _interp_rows(tw[ok[s1]], p1[ok[s1]], t0)
         return s0, t0, np.asarray(placed, dtype=float), other
+
+    @staticmethod
+    def _stays(xs: FloatArray, n: int) -> bool:
+        """Whether a foot's positions along the walk (its finite samples of an ``n``-sample
+        stretch) stay within STANDING_TOL_M of their median, with at least half seen."""
+        if len(xs) < max(3, n // 2):
+            return False
+        return bool(np.max(np.abs(xs - np.median(xs))) <= STANDING_TOL_M)
+
+    @staticmethod
+    def _still_centre(xs: FloatArray, n: int) -> bool:
+        """Whether the body centre (finite samples of an ``n``-sample stretch, along the
+        walk) progresses less than STANDING_CENTRE_M from the stretch's first third to
+        its last (medians: robust to the tracker's jitter)."""
+        if len(xs) < max(3, n // 2):
+            return False
+        k = max(1, len(xs) // 3)
+        return bool(abs(float(np.median(xs[-k:]) - np.median(xs[:k]))) < STANDING_CENTRE_M)
 
     @staticmethod
     def _refine_crossing(t: FloatArray, x_swing: FloatArray, x_placed: float, tc: float
