@@ -114,6 +114,7 @@ const gaitrig = (() => {
       await refreshRecordings();
     }
     const recSeq = newest();
+    let drawn = "";
     async function refreshRecordings() {
       const n = recSeq.ask();
       try {
@@ -121,6 +122,11 @@ const gaitrig = (() => {
         if (!recSeq.fresh(n)) return;
         active = (recs.find((r) => r.state === "recording") || {}).id || null;
         recBtn.textContent = active ? "Stop recording" : "Start recording";
+        // Redrawn only when something changed: replacing the table every second would
+        // take a "Copy to server" button from under the pointer and the keyboard focus.
+        const shown = JSON.stringify(recs.slice(0, 10));
+        if (shown === drawn) return;
+        drawn = shown;
         document.getElementById("recordings").replaceChildren(...recs.slice(0, 10).map((r) => {
           const parts = el("ul", { class: "parts" });
           for (const p of r.parts) {
