@@ -27,8 +27,14 @@
       });
     }
   }
+  let sourcesShown = "";
   async function loadSources() {
     const nodes = await api("/api/kscc/sources");
+    // polled every 5 s: replacing the options of an unchanged list would close a list the
+    // user has open
+    const key = JSON.stringify(nodes.map((n) => [n.node_id, n.connected, n.model]));
+    if (key === sourcesShown) return;
+    sourcesShown = key;
     for (const [id, pick] of [["node-a", 0], ["node-b", 1], ["share-node", 0]]) {
       const sel = $(id), prev = sel.value;
       sel.replaceChildren(...nodes.map((n) => { const o = el("option", `${n.node_id}${n.connected ? "" : " (offline)"} — ${n.model}`); o.value = n.node_id; return o; }));
