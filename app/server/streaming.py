@@ -138,12 +138,16 @@ class Watcher:
     window: int = 2
     pending: dict[str, Panel] = field(default_factory=dict)
     wake: asyncio.Event = field(default_factory=asyncio.Event)
-    in_flight: int = 0
     sent: int = 0
     dropped: int = 0
     # node → its unacknowledged panels; oldest node first, for acks that name no node
     _flight: dict[str, int] = field(default_factory=dict)
     _order: deque[str] = field(default_factory=deque)
+
+    @property
+    def in_flight(self) -> int:
+        """Panels sent and not yet acknowledged, all nodes."""
+        return len(self._order)
 
     def offer(self, panel: Panel) -> None:
         if panel.node in self.pending:
@@ -162,7 +166,6 @@ class Watcher:
             else:
                 break
             self._flight[done] -= 1
-            self.in_flight -= 1
         self.wake.set()
 
     async def run(self) -> None:
@@ -174,7 +177,6 @@ class Watcher:
                 panel = self.pending.pop(node)
                 self._flight[node] = self._flight.get(node, 0) + 1
                 self._order.append(node)
-                self.in_flight += 1
                 await self.send(panel.message)
                 self.sent += 1
 
