@@ -134,6 +134,7 @@
       say("rec-msg", `Recording ${r.id} started on ${r.parts.map((p) => p.node_id).join(", ")}.`, true);
       $("stop").disabled = false; $("stop").focus();
       follow();
+      fillSessions(sid).catch(() => {});  // the session's recording count went up
     } catch (e) { say("rec-msg", e.message); $("start").disabled = false; }
   });
   $("stop").addEventListener("click", async () => {

@@ -32,6 +32,9 @@ def test_record_stop_transfer_and_subjects_page(page: Any, live_server: LiveServ
     img_rec = screenshot(page, artifacts_dir, "record_running")
     n_parts = page.locator("#parts tr[data-node]").count()
     assert n_parts == live_server.n_nodes
+    # the session list counts the new recording
+    page.wait_for_function(
+        "document.getElementById('session').selectedOptions[0].textContent.includes('(1 rec.)')")
     page.click("#stop")
     page.wait_for_selector("#state-badge[data-state=complete]", timeout=60_000)
     assert page.locator("#parts tr[data-state=complete]").count() == n_parts
