@@ -12,7 +12,10 @@ const gaitrig = (() => {
     const r = await fetch(path, { credentials: "same-origin", ...options,
       headers: { "Content-Type": "application/json", ...(options.headers || {}) } });
     if (r.status === 401) { toLogin(); throw new Error("not logged in"); }
-    if (!r.ok) { let d = r.statusText; try { d = (await r.json()).detail; } catch (e) {} throw new Error(d); }
+    if (!r.ok) {
+      let d = r.statusText; try { d = (await r.json()).detail; } catch (e) {}
+      const err = new Error(d); err.status = r.status; throw err;  // status: retry or not
+    }
     return r.status === 204 ? null : r.json();
   }
   function el(tag, attrs = {}, ...children) {

@@ -108,9 +108,19 @@
   }
 
   const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+  // The job runs on the server whatever happens to one poll: a poll that finds the server
+  // busy or unreachable (no answer, 5xx) is retried a few times before giving up, so a
+  // blip does not end the watch of a capture that carries on.
   async function poll(id, onTick) {
+    let failures = 0;
     for (;;) {
-      const j = await gaitrig.api(`/api/calibration/captures/${id}`);
+      let j;
+      try { j = await gaitrig.api(`/api/calibration/captures/${id}`); failures = 0; }
+      catch (e) {
+        if ((e.status && e.status < 500) || ++failures > 5) throw e;
+        await sleep(1500);
+        continue;
+      }
       onTick(j);
       if (j.state !== "capturing" && j.state !== "computing") return j;
       await sleep(700);

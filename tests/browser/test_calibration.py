@@ -28,6 +28,18 @@ def test_wizard_captures_from_nodes_accepts_and_checks(page: Any, live_server: L
     page.goto(live_server.base_url + "/calibration-wizard.html")
     page.fill("#cap-size", "40")  # the demo room's markers
     page.fill("#cap-frames", "8")
+    # the first two polls of the capture find the server busy: the page keeps watching
+    failed: list[str] = []
+
+    def busy_twice(route: Any) -> None:
+        if route.request.method == "GET" and len(failed) < 2:
+            failed.append(route.request.url)
+            route.fulfill(status=503, body='{"detail": "busy"}',
+                          headers={"Content-Type": "application/json"})
+        else:
+            route.continue_()
+
+    page.route("**/api/calibration/captures/*", busy_twice)
     page.click("#cap-form button[type=submit]")
     # progress per connected node while capturing
     page.wait_for_function(f"document.querySelectorAll('#cap-progress tbody tr').length === {n}",
@@ -36,6 +48,7 @@ def test_wizard_captures_from_nodes_accepts_and_checks(page: Any, live_server: L
                            "document.getElementById('cap-error').textContent.length > 0",
                            timeout=300_000)
     assert page.text_content("#cap-error") == "", page.text_content("#cap-error")
+    assert len(failed) == 2
     assert "not saved yet" in (page.text_content("#res-summary") or "")
     assert page.locator("#graph circle.sensor").count() == n
     assert page.locator("#graph rect.marker").count() >= 2
