@@ -131,6 +131,8 @@ class WalkPass:
 class _PassEvents:
     placements: list[tuple[str, float, FloatArray, FloatArray]] = field(default_factory=list)
     offs: list[tuple[str, float]] = field(default_factory=list)
+    #: placements[0] is the standing foot's placement of a start from standing
+    from_standing: bool = False
 
 
 def _interp_rows(t: FloatArray, x: FloatArray, tq: float) -> FloatArray:
@@ -473,6 +475,7 @@ class GaitAnalysis:
             first = self._standing_placement(feet, d, pe.placements[0], t_prev)
             if first is not None:
                 pe.placements.insert(0, first)
+                pe.from_standing = True
         return pe
 
     def _standing_placement(self, feet: FeetTrajectories, d: FloatArray,
@@ -756,6 +759,7 @@ class GaitAnalysis:
         d, lat = self._frame(wp)
         pl = pe.placements
         steps: list[Step] = []
+        step_end: list[int] = []  # index in pl of each step's placement
         for j in range(1, len(pl)):
             (sa, ta, pa, _), (sb, tb, pb, ob) = pl[j - 1], pl[j]
             if sa == sb:
@@ -764,13 +768,27 @@ class GaitAnalysis:
             # the strike of foot B.
             vec = pb - pa if self.method == "crossing" else pb - ob
             steps.append(Step(sb, tb, float(vec @ d), float(abs(vec @ lat)), float(tb - ta), k))
+            step_end.append(j)
         strides: list[Stride] = []
+        stride_end: list[int] = []
         for j in range(2, len(pl)):
             (s0, t0, p0, _), (s1, _, _, _), (s2, t2, p2, _) = pl[j - 2], pl[j - 1], pl[j]
             # Only s, other, s: a stride over a missed event would be two strides long.
             if s0 == s2 != s1:
                 strides.append(Stride(s2, t2, float((p2 - p0) @ d), float(t2 - t0), k))
-        if self.exclude_first in ("L", "R"):
+                stride_end.append(j)
+        literal = self.exclude_first in ("L", "R")
+        excl = (literal or (wp.excluded_first if self.exclude_first == "auto"
+                            else bool(self.exclude_first)))
+        if excl and pe.from_standing and (not literal or pl[0][0] != self.exclude_first):
+            # Known start from standing (for the literal rule: by the other foot than the
+            # standing one, as asked): the acceleration rule means the first foot's step
+            # from the standing foot (placements 0 → 1) and the standing foot's first
+            # stride (0 → 2). Where the tracker missed the first foot's landing they do not
+            # exist, and the steps found after it are normal ones, kept.
+            steps = [x for x, j in zip(steps, step_end, strict=True) if j != 1]
+            strides = [x for x, j in zip(strides, stride_end, strict=True) if j != 2]
+        elif literal:
             # the paper's literal rule: the subject starts with this foot; its first step
             # and the other foot's first stride go, whatever the system detected first
             first_step = next((i for i, x in enumerate(steps)
@@ -781,11 +799,7 @@ class GaitAnalysis:
                                  if x.side != self.exclude_first), None)
             if first_stride is not None:
                 del strides[first_stride]
-            excl = False
-        else:
-            excl = (wp.excluded_first if self.exclude_first == "auto"
-                    else bool(self.exclude_first))
-        if excl and pl:
+        elif excl and pl:
             steps = steps[1:]
             first = next((i for i, x in enumerate(strides) if x.side == pl[0][0]), None)
             if first is not None:

@@ -406,17 +406,37 @@ def test_start_from_standing_excludes_first_left_step_and_first_right_stride(
     assert every.strides_[0].side == "R" and g.strides_ == every.strides_[1:]
 
 
-def test_literal_rule_drops_the_first_left_step_whatever_was_detected() -> None:
-    # The tracker lost the right ankle during its first swing: the first crossing (the
-    # left foot's first placement) is missed. The paper's literal rule still drops the
-    # first LEFT step and first RIGHT stride found; our rule drops the first step found.
-    feet, _ = _standing_start_walk()
+def _hide_right_through_first_left_landing(feet: FeetTrajectories) -> FeetTrajectories:
+    """The tracker lost the right ankle during its first swing: the crossing that gives the
+    left foot's first placement is missed."""
     every = GaitAnalysis("crossing", exclude_first=False).fit(feet)
     t_left_placed = every.events_[1].time_s
     R = feet.foot("R")
     R[(feet.times > t_left_placed - 0.35) & (feet.times < t_left_placed + 0.2)] = np.nan
+    return feet
+
+
+@pytest.mark.parametrize("rule", ["auto", True, "L"])
+def test_missed_first_landing_after_a_known_standing_drops_no_normal_step(
+        rule: bool | str) -> None:
+    # The standing right foot is found, the left foot's first landing is not: the first
+    # left step and first right stride (both from the standing foot) were never measured,
+    # and the steps found after them are normal ones, kept.
+    feet = _hide_right_through_first_left_landing(_standing_start_walk()[0])
     missed = GaitAnalysis("crossing", exclude_first=False).fit(feet)
     assert [e.side for e in missed.events_[:2]] == ["R", "R"]  # standing R, then R again
+    g = GaitAnalysis("crossing", exclude_first=rule).fit(feet)  # type: ignore[arg-type]
+    assert g.steps_ == missed.steps_ and g.strides_ == missed.strides_
+
+
+def test_literal_rule_without_standing_drops_the_first_left_step_found() -> None:
+    # Recording started after the subject left: no standing seen. The paper's literal
+    # rule drops the first LEFT step and first RIGHT stride found.
+    feet, _ = _standing_start_walk()
+    feet = _hide_right_through_first_left_landing(feet)
+    for f in ("L", "R"):
+        feet.foot(f)[feet.times < 1.5] = np.nan
+    missed = GaitAnalysis("crossing", exclude_first=False).fit(feet)
     literal = GaitAnalysis("crossing", exclude_first="L").fit(feet)
     first_left = next(s for s in missed.steps_ if s.side == "L")
     assert first_left not in literal.steps_ and len(literal.steps_) == len(missed.steps_) - 1
