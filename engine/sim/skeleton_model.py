@@ -52,10 +52,10 @@ and first right stride, lengths and widths along the walkway axis of a Kinect fr
 registered to the reference with a 1.5° yaw), step-level ICC(A,1) / bias (cm),
 simulation (mean over seeds 0–4, the bench's reported figure) vs paper:
 
-* two-sided: step length L 0.82 / 0.17 vs 0.83 / 0.41, R 0.80 / −0.33 vs 0.80 / 0.34;
-  step width L 0.66 / −1.74 vs 0.675 / −1.57, R 0.65 / 1.94 vs 0.65 / 2.24.
-* one-sided (left sensors): step length L 0.71 / −1.04 vs 0.649 / −1.10, R 0.70 / 0.94
-  vs 0.434 / 1.73; step width L 0.54 / −1.58 vs 0.493 / −1.49, R 0.54 / 1.97 vs
+* two-sided: step length L 0.82 / 0.16 vs 0.83 / 0.41, R 0.80 / −0.33 vs 0.80 / 0.34;
+  step width L 0.67 / −1.75 vs 0.675 / −1.57, R 0.65 / 1.94 vs 0.65 / 2.24.
+* one-sided (left sensors): step length L 0.71 / −1.08 vs 0.649 / −1.10, R 0.70 / 0.94
+  vs 0.434 / 1.73; step width L 0.55 / −1.58 vs 0.493 / −1.49, R 0.54 / 1.97 vs
   0.297 / 2.68. One-sided is worse than two-sided in every row, as in the paper; six of
   the eight rows are within the band (ICC ± 0.1, bias ± 1 cm).
 
