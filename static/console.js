@@ -74,6 +74,13 @@ const gaitrig = (() => {
     };
   }
 
+  // latest(): only the answer to the request asked last is drawn; acted() makes every
+  // request still out stale (the user's action changed what they describe).
+  function latest() {
+    let asked = 0;
+    return { ask() { return ++asked; }, current(n) { return n === asked; }, acted() { asked++; } };
+  }
+
   async function rigPage() {
     const sys = await api("/api/system");
     const nodeSeq = newest();
@@ -157,5 +164,5 @@ const gaitrig = (() => {
     setInterval(refresh, 1000);
     setInterval(refreshRecordings, 1000);
   }
-  return { api, toLogin, newest, loginPage, rigPage };
+  return { api, toLogin, newest, latest, loginPage, rigPage };
 })();

@@ -50,14 +50,14 @@
   }
   // the page's first request may be answered after "check now" was clicked: the older
   // check it describes must not replace the "Capturing…" status
-  let asked = 0;
+  const lastSeq = gaitrig.latest();
   async function last() {
-    const n = ++asked;
+    const n = lastSeq.ask();
     const j = await gaitrig.api("/api/calibration/live-check");
-    if (n === asked) render(j);
+    if (lastSeq.current(n)) render(j);
   }
   btn.addEventListener("click", async () => {
-    asked++;
+    lastSeq.acted();
     btn.disabled = true; state.className = ""; state.textContent = "Capturing fresh frames from every sensor…";
     try {
       const j0 = await gaitrig.api("/api/calibration/live-check", { method: "POST", body: JSON.stringify({ frames: 5 }) });

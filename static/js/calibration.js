@@ -153,7 +153,7 @@
         $("cap-error").textContent = j.message + (j.unreachable ? ` (unreachable: ${j.unreachable.join(", ")})` : "");
       } else if (j.state === "done") {
         $("cap-state").textContent = "Done: check the graph and the residuals, then accept or reject.";
-        shown++; show(j.result, true);
+        shownSeq.acted(); show(j.result, true);
         pendingJob = j.id; $("decide").hidden = false;
       }
     } catch (e) {
@@ -202,11 +202,11 @@
 
   // versions lists overlap (page load, accept, restore, a simulated run): one asked
   // before a newer one is not drawn, else it would hide the version just saved
-  let historyAsked = 0;
+  const historySeq = gaitrig.latest();
   async function history() {
-    const mine = ++historyAsked;
+    const mine = historySeq.ask();
     const rows = await gaitrig.api("/api/calibration");
-    if (mine !== historyAsked) return rows;
+    if (!historySeq.current(mine)) return rows;
     const tb = $("history").querySelector("tbody"); tb.replaceChildren();
     rows.forEach((c, i) => {
       const btn = el("button", i === 0 ? "active" : "Restore", { type: "button" });
@@ -222,15 +222,15 @@
     return rows;
   }
 
-  // shown counts the results drawn: the active calibration asked for before a simulated
-  // run or a capture finished must not replace that newer result on the page
-  let shown = 0;
+  // the active calibration asked for before a simulated run or a capture finished must
+  // not replace that newer result on the page
+  const shownSeq = gaitrig.latest();
   async function refresh() {
-    const n = ++shown;
+    const n = shownSeq.ask();
     const rows = await history();
     if (!rows.length || pendingJob !== null) return;
     const active = await gaitrig.api("/api/calibration/active");
-    if (n === shown && pendingJob === null) show(active, false);
+    if (shownSeq.current(n) && pendingJob === null) show(active, false);
   }
 
   $("sim-form").addEventListener("submit", async (ev) => {
@@ -241,7 +241,7 @@
     try {
       const doc = await gaitrig.api("/api/calibration/simulate", { method: "POST",
         body: JSON.stringify({ frames: Number($("sim-frames").value), seed: Number($("sim-seed").value) }) });
-      shown++; show(doc, false);
+      shownSeq.acted(); show(doc, false);
       await history();
     } catch (e) {
       $("sim-error").textContent = String(e.message || e);

@@ -33,11 +33,11 @@
   // The page's first lists can be answered after the user added a subject or a session
   // (or lists overlap after quick changes): an answer older than the newest asked is
   // dropped, else it would replace the list just drawn (the new subject gone from it).
-  let subjectsAsked = 0, sessionsAsked = 0;
+  const subjectsSeq = gaitrig.latest(), sessionsSeq = gaitrig.latest();
   async function fillSubjects(want) {
-    const mine = ++subjectsAsked;
+    const mine = subjectsSeq.ask();
     const ss = await api(`/api/subjects?project_id=${$("project").value}`);
-    if (mine !== subjectsAsked) return;
+    if (!subjectsSeq.current(mine)) return;
     const sel = $("subject");
     sel.replaceChildren(...ss.map((s) => el("option", { value: s.id }, s.code)));
     if (!ss.length) sel.append(el("option", { value: "" }, "— add a subject —"));
@@ -45,12 +45,12 @@
     await fillSessions();
   }
   async function fillSessions(want) {
-    const mine = ++sessionsAsked;
+    const mine = sessionsSeq.ask();
     const sel = $("session");
     subjectId = $("subject").value ? Number($("subject").value) : null;
     if (subjectId === null) { sel.replaceChildren(el("option", { value: "" }, "— add a subject first —")); return; }
     const ss = await api(`/api/sessions?subject_id=${subjectId}`);
-    if (mine !== sessionsAsked) return;
+    if (!sessionsSeq.current(mine)) return;
     sel.replaceChildren(...ss.slice().reverse().map((s) => el("option", { value: s.id }, `${s.date}${s.label ? " — " + s.label : ""} (${s.n_recordings} rec.)`)));
     if (!ss.length) sel.append(el("option", { value: "" }, "— add a session —"));
     if (want) sel.value = want;
@@ -101,13 +101,13 @@
   // follow() starts a new chain of polls of the recording on the page; an older chain
   // ends (its answer would draw the previous recording over the new one, and two chains
   // would poll twice as often).
-  let chain = 0;
-  function follow() { poll(++chain); }
+  const chain = gaitrig.latest();
+  function follow() { poll(chain.ask()); }
   async function poll(mine) {
-    if (mine !== chain || recId === null) return;
+    if (!chain.current(mine) || recId === null) return;
     try {
       const r = await api(`/api/storage/recordings/${recId}`);
-      if (mine !== chain) return;
+      if (!chain.current(mine)) return;
       recStart = r.t_start; recStop = r.t_stop;
       $("rec-state").replaceChildren(el("span", { class: "badge st-" + r.state, id: "state-badge", "data-state": r.state }, STATE_TEXT[r.state] || r.state),
         r.reason ? el("span", { class: "reason" }, " " + r.reason) : "");
@@ -119,7 +119,7 @@
         $("open-subject").href = `/subjects.html#subject=${r.subject.id}`;
       }
       if (r.state !== "complete") setTimeout(() => poll(mine), running ? 500 : 700);
-    } catch (e) { if (mine === chain) { say("rec-msg", e.message); setTimeout(() => poll(mine), 2000); } }
+    } catch (e) { if (chain.current(mine)) { say("rec-msg", e.message); setTimeout(() => poll(mine), 2000); } }
   }
 
   $("start").addEventListener("click", async () => {

@@ -53,13 +53,13 @@
 
   // Lists overlap (a click on a subject, a deletion, a project change): a list asked
   // before a newer one is dropped, else it could bring back a subject just deleted.
-  let subjectsAsked = 0;
+  const subjectsSeq = gaitrig.latest();
   async function loadSubjects() {
-    const mine = ++subjectsAsked;
+    const mine = subjectsSeq.ask();
     const body = $("subjects");
     if (projectId === null) { body.replaceChildren(); return; }
     const ss = await api(`/api/subjects?project_id=${projectId}`);
-    if (mine !== subjectsAsked) return;
+    if (!subjectsSeq.current(mine)) return;
     body.replaceChildren(...ss.map((s) => {
       const tr = el("tr", { class: "clickable" + (s.id === subjectId ? " selected" : ""), "data-subject": s.code },
         el("th", { scope: "row" }, el("a", { href: `#subject=${s.id}`, onclick: (ev) => { ev.preventDefault(); select(s.id); } }, s.code)),
@@ -150,7 +150,7 @@
   async function showUnfiled(box, gen) {
     let recs = [];
     try { recs = await api("/api/storage/unfiled"); } catch (e) { return; }
-    if (gen !== detailGen || !recs.length || !subject.sessions.length) return;
+    if (!detailSeq.current(gen) || !recs.length || !subject.sessions.length) return;
     const card = el("div", { class: "session", id: "unfiled" }, el("h3", {}, "Recordings not filed under a session"));
     for (const r of recs) {
       const sel = el("select", { "aria-label": `session for ${r.id}` },
@@ -169,19 +169,20 @@
   // Each loadDetail() makes the ones still waiting for an answer stale: the subject was
   // deleted or another one chosen meanwhile, or a newer answer is on its way. The edit
   // form is filled by whichever call draws, if any call asked for it.
-  let detailGen = 0, fillWanted = false;
-  function dropDetail() { detailGen++; clearTimeout(timer); }
+  const detailSeq = gaitrig.latest();
+  let fillWanted = false;
+  function dropDetail() { detailSeq.acted(); clearTimeout(timer); }
   async function loadDetail(fillForm) {
     if (subjectId === null) return;
-    const gen = ++detailGen;
+    const gen = detailSeq.ask();
     fillWanted = fillWanted || fillForm;
     let got;
     try { got = await api(`/api/subjects/${subjectId}`); }
     catch (e) {
-      if (gen !== detailGen) return;
+      if (!detailSeq.current(gen)) return;
       $("detail-h").textContent = "Select a subject"; $("detail-body").hidden = true; subjectId = null; return;
     }
-    if (gen !== detailGen) return;
+    if (!detailSeq.current(gen)) return;
     subject = got;
     fillForm = fillWanted; fillWanted = false;
     $("detail-h").textContent = `Subject ${subject.code}`;
@@ -200,7 +201,7 @@
       ...(s.recordings.length ? s.recordings.map(recordingRow) : [el("p", { class: "hint" }, "No recordings yet.")]))));
     if (!subject.sessions.length) box.append(el("p", { class: "hint" }, "No sessions yet: add one above, then record it."));
     await showUnfiled(box, gen);
-    if (gen !== detailGen) return;
+    if (!detailSeq.current(gen)) return;
     const busy = subject.sessions.some((s) => s.recordings.some((r) => ["recording", "on_nodes", "transferring"].includes(r.state)));
     clearTimeout(timer);
     if (busy) timer = setTimeout(() => loadDetail(false), 1000);
