@@ -276,7 +276,8 @@ class GaitAnalysis:
             from standing or a turn, not for passes already at speed at the start of the
             recording. ``"L"`` / ``"R"``: the paper's literal rule for subjects asked to
             start with that foot — drop its first step and the other foot's first stride
-            in each pass, whichever events were detected.
+            in each pass (with a standing found, exactly the step and stride from it;
+            otherwise the first ones detected).
         min_event_period_s: two events of the same kind and foot are at least this far
             apart (a stride is ≥ 0.6 s even when running slowly).
         placement_window_s: crossing method: the placed foot's position is its robust
