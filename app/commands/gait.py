@@ -7,6 +7,7 @@ human-readable summary and step table. Errors: one line on stderr, exit code 2.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from typing import Any, Literal
 
@@ -20,7 +21,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="left-foot marker to analyse (default: automatic, e.g. LANK/LHEE)")
     parser.add_argument("--right", metavar="NAME", help="right-foot marker to analyse")
     parser.add_argument("--up", choices=["x", "y", "z", "-x", "-y", "-z"],
-                        help="vertical axis of the file (default: detected)")
+                        help="vertical axis of the file, '-y' for Y down (default: detected)")
+    # argparse takes "-y" in "--up -y" for an unknown option unless it looks like a
+    # negative number to the parser; this command has no option spelt like an axis.
+    parser._negative_number_matcher = re.compile(r"^-(\d+|\d*\.\d+|[xyz])$")
     parser.add_argument("--units", choices=["mm", "cm", "m"],
                         help="length unit of the file's numbers (default: from the file)")
     parser.add_argument("--method", choices=["crossing", "heelstrike"], default="crossing",
