@@ -4,7 +4,7 @@ storage layout and the background sync (started by the storage router's lifespan
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, TypeVar
 
 from fastapi import HTTPException, Request, status
 from sqlalchemy import func, select
@@ -14,6 +14,8 @@ from app.db import data as m
 from app.server.datasync import DataSync
 from app.server.hub import Hub
 from app.server.storage import StorageLayout
+
+T = TypeVar("T")
 
 
 def layout_of(request: Request) -> StorageLayout:
@@ -30,26 +32,38 @@ def datasync_of(request: Request) -> DataSync:
     return ds
 
 
+#: Largest integer id a row can have (SQL BIGINT). A larger one names no row, and the
+#: database driver raises OverflowError on it (a 500), so lookups answer 404 first.
+MAX_DB_ID = 2**63 - 1
+
+
 def not_found(what: str) -> HTTPException:
     return HTTPException(status.HTTP_404_NOT_FOUND, what)
 
 
+def get_row(db: DbSession, model: type[T], row_id: int) -> T | None:
+    """``db.get`` that answers None for an id outside the database's integer range."""
+    if not -MAX_DB_ID - 1 <= row_id <= MAX_DB_ID:
+        return None
+    return db.get(model, row_id)
+
+
 def get_project(db: DbSession, pid: int) -> m.Project:
-    p = db.get(m.Project, pid)
+    p = get_row(db, m.Project, pid)
     if p is None:
         raise not_found(f"no project {pid}")
     return p
 
 
 def get_subject(db: DbSession, sid: int) -> m.Subject:
-    s = db.get(m.Subject, sid)
+    s = get_row(db, m.Subject, sid)
     if s is None:
         raise not_found(f"no subject {sid}")
     return s
 
 
 def get_session(db: DbSession, sid: int) -> m.Session:
-    s = db.get(m.Session, sid)
+    s = get_row(db, m.Session, sid)
     if s is None:
         raise not_found(f"no session {sid}")
     return s

@@ -20,7 +20,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, File, HTTPException, Query, Request, Response, UploadFile, status
 
 from app.api.deps import CurrentUser, DbDep, HubDep
-from app.api.routes._data import get_recording, layout_of, reference_json
+from app.api.routes._data import get_recording, get_row, layout_of, reference_json
 from app.db import data as m
 from app.server.storage import (
     check_id,
@@ -154,7 +154,7 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
 
 
 def _ref(db: DbDep, rec_id: str, ref_id: int) -> m.ReferenceImport:
-    ref = db.get(m.ReferenceImport, ref_id)
+    ref = get_row(db, m.ReferenceImport, ref_id)
     if ref is None or ref.recording_id != rec_id:
         raise HTTPException(status.HTTP_404_NOT_FOUND,
                             f"no reference {ref_id} attached to {rec_id}")

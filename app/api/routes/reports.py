@@ -36,6 +36,7 @@ from fastapi.responses import HTMLResponse, Response
 from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
+from app.api.routes._data import get_row
 from app.db.data import Recording as DbRecording
 from app.db.data import ReferenceImport, Subject
 from app.db.data import Session as DbSession
@@ -343,7 +344,7 @@ def subject_report(subject_id: int, user: CurrentUser, settings: SettingsDep, hu
                    method: MethodQ = "crossing",
                    estimator: EstimatorQ = "weighted") -> Response:
     """Report of a subject from all complete recordings (or those of one session)."""
-    subject = db.get(Subject, subject_id)
+    subject = get_row(db, Subject, subject_id)
     if subject is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no subject with id {subject_id}")
     sessions = list(subject.sessions)
