@@ -38,7 +38,9 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
     except ValueError:
         raise InputError(f"{p.name}: DataRate {hdr.get('DataRate')!r} is not a number") from None
     name_cells = lines[3].split("\t")
-    labels = [c.strip() for c in name_cells[2:] if c.strip()]
+    # Some exporters write no Frame# column: the names line then starts with "Time".
+    has_frame = int(name_cells[0].strip().lower() != "time")
+    labels = [c.strip() for c in name_cells[has_frame + 1:] if c.strip()]
     M = len(labels)
     if M == 0:
         raise InputError(f"{p.name}: no marker names on line 4")
@@ -46,7 +48,7 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
     for ln, line in enumerate(lines[5:], start=6):
         if not line.strip():
             continue
-        cells = line.split("\t")
+        cells = [""] * (1 - has_frame) + line.split("\t")
         if len(cells) < 2:
             raise InputError(f"{p.name} line {ln}: expected Frame# and Time")
         vals_f = np.full(2 + 3 * M, np.nan)

@@ -203,3 +203,201 @@ def test_same_walk_same_steps(case: str, base: tuple[MarkerTrajectories, Doc], t
     assert rc == 0, err
     assert doc is not None
     _same_steps(ref, doc)
+
+
+def test_far_10km_c3d_float32(base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                              capsys: pytest.CaptureFixture[str]) -> None:
+    """C3D stores float32: at 10 km a coordinate is only kept to ±0.5 mm (mm) or ±0.5 mm
+    (m), so steps agree to a few millimetres there, not to 1 mm (at 1 km: 1 mm holds)."""
+    m, ref = base
+    for units in ("mm", "m"):
+        p = _write("c3d", _moved(m, offset=(1e4, -1e4, 0.0)), tmp_path, units)
+        rc, doc, err = _run([str(p), "--json"], capsys)
+        assert rc == 0 and doc is not None, err
+        _same_steps(ref, doc, tol_m=3e-3)
+
+
+# ---------------------------------------------------------------- marker names
+
+#: name set → labels for (left, right) ankle markers.
+NAMES: dict[str, tuple[str, str]] = {
+    "pig": ("LANK", "RANK"), "prefixed": ("Subject01:LANK", "Subject01:RANK"),
+    "dot": ("L.Ankle", "R.Ankle"), "fcc_heel": ("L_FCC", "R_FCC"),
+    "left_ankle": ("LeftAnkle", "RightAnkle"), "right_heel": ("LeftHeel", "RightHeel"),
+    "kinect": ("AnkleLeft", "AnkleRight"), "snake": ("l_ankle", "r_ankle"),
+    "upper": ("L.ANKLE", "R.ANKLE"), "lower_pig": ("lank", "rank"),
+    "heel_only": ("LHEE", "RHEE"), "mal": ("L_LMAL", "R_LMAL"),
+}
+
+_FOOT_WORDS = ("ANK", "HEE", "TOE", "AJC", "FO", "TO", "TI", "KNE", "KJC", "FE", "THI")
+
+
+def _feet_renamed(m: MarkerTrajectories, left: str, right: str) -> MarkerTrajectories:
+    """Only the ankles (renamed) and the non-leg markers."""
+    keep = _subset(m, lambda lab: lab in ("LANK", "RANK")
+                   or not lab[1:].startswith(_FOOT_WORDS))
+    return _relabel(keep, {"LANK": left, "RANK": right})
+
+
+@pytest.mark.parametrize("names", sorted(NAMES))
+def test_marker_names(names: str, base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                      capsys: pytest.CaptureFixture[str]) -> None:
+    m, ref = base
+    p = _write("trc", _feet_renamed(m, *NAMES[names]), tmp_path)
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc)
+
+
+@pytest.mark.parametrize(("case", "expect"), [
+    ("toes_only", "no usable left ankle or heel and no right ankle or heel"),
+    ("no_right", "no usable right ankle or heel"),
+    ("no_left_prefixed", "no usable left ankle or heel"),
+])
+def test_missing_feet_named(case: str, expect: str, base: tuple[MarkerTrajectories, Doc],
+                            tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    m, _ = base
+    if case == "toes_only":
+        v = _subset(m, lambda lab: lab in ("LTOE", "RTOE", "SACR", "LASI", "RASI"))
+    elif case == "no_right":
+        v = _subset(m, lambda lab: not lab.startswith("R") or lab[1:].startswith("ASI"))
+    else:
+        v = _subset(m, lambda lab: not lab.startswith("L") or lab[1:].startswith("ASI"))
+        v = _relabel(v, {lab: f"Pat:{lab}" for lab in v.labels})
+    p = _write("c3d", v, tmp_path)
+    rc, _, err = _run([str(p), "--json"], capsys)
+    assert rc == 2 and expect in err and "--left/--right" in err
+
+
+def test_override_names_not_found(base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                                  capsys: pytest.CaptureFixture[str]) -> None:
+    m, _ = base
+    p = _write("trc", m, tmp_path)
+    rc, _, err = _run([str(p), "--left", "LANK", "--right", "RANKLE", "--json"], capsys)
+    assert rc == 2 and "'RANKLE' not found" in err
+    rc, _, err = _run([str(p), "--left", "LANK", "--json"], capsys)
+    assert rc == 2 and "both --left and --right" in err
+
+
+def test_many_columns(base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                      capsys: pytest.CaptureFixture[str]) -> None:
+    """600 extra markers (C3D: LABELS2/LABELS3 groups) change nothing."""
+    m, ref = base
+    n = 600
+    extra = m.positions[:, :1] + np.linspace(0.0, 1.0, n)[None, :, None]
+    big = replace(m, positions=np.concatenate([extra, m.positions], axis=1),
+                  labels=[f"EXTRA{i}" for i in range(n)] + m.labels)
+    for kind in ("c3d", "trc"):
+        p = _write(kind, big, tmp_path)
+        rc, doc, err = _run([str(p), "--json"], capsys)
+        assert rc == 0 and doc is not None, (kind, err)
+        _same_steps(ref, doc)
+
+
+# ---------------------------------------------------------------- TRC text variants
+
+def _no_frame_column(text: str) -> str:
+    lines = text.split("\n")
+    return "\n".join(lines[:3] + [ln.split("\t", 1)[1] if "\t" in ln else ln
+                                  for ln in lines[3:]])
+
+
+TRC_TEXT: dict[str, Callable[[str], str]] = {
+    "crlf": lambda s: s.replace("\n", "\r\n"),
+    "trailing_tabs": lambda s: "\n".join(ln + "\t\t" if ln else ln for ln in s.split("\n")),
+    "no_frame_column": _no_frame_column,
+    "no_units": lambda s: s.replace("\tmm\t", "\t\t"),
+    "units_word": lambda s: s.replace("\tmm\t", "\tmillimeters\t"),
+    "blank_line_after_header_missing": lambda s: s.replace("\n\n", "\n", 1),
+    "spaces_around_cells": lambda s: s.replace("\t", " \t "),
+    "frame_numbers_from_152": lambda s: "\n".join(
+        _renumber(ln, i) for i, ln in enumerate(s.split("\n"))),
+}
+
+
+def _renumber(line: str, i: int) -> str:
+    cells = line.split("\t")
+    if i >= 6 and cells[0].isdigit():
+        cells[0] = str(int(cells[0]) + 151)
+    return "\t".join(cells)
+
+
+@pytest.mark.parametrize("case", sorted(TRC_TEXT))
+def test_trc_text_variants(case: str, base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                           capsys: pytest.CaptureFixture[str]) -> None:
+    m, ref = base
+    p = tmp_path / "variant.trc"
+    p.write_bytes(TRC_TEXT[case](_trc_text(m, tmp_path)).encode())
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc)
+
+
+# ---------------------------------------------------------------- data problems
+
+def _gap(m: MarkerTrajectories, label: str, t0: float, dur: float,
+         value: float = np.nan) -> MarkerTrajectories:
+    P = m.positions.copy()
+    k = m.labels.index(label)
+    sel = (m.times >= t0) & (m.times < t0 + dur)
+    P[sel, k] = value
+    return replace(m, positions=P)
+
+
+def _mid_time(doc: Doc) -> float:
+    """A time between two placements, where no foot is being placed."""
+    s = doc["steps"]
+    return 0.5 * (s[0]["time_s"] + s[1]["time_s"]) - 0.05
+
+
+@pytest.mark.parametrize("kind", ["trc", "c3d"])
+@pytest.mark.parametrize("fill", ["nan", "zero"])
+def test_short_gap_bridged(kind: str, fill: str, base: tuple[MarkerTrajectories, Doc],
+                           tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A 0.1 s drop-out (empty cells, NaN, or Vicon's 0,0,0) away from a placement."""
+    m, ref = base
+    v = _gap(m, "LANK", _mid_time(ref), 0.1, np.nan if fill == "nan" else 0.0)
+    p = _write(kind, v, tmp_path)
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    assert len(doc["steps"]) == len(ref["steps"])
+    _same_steps(ref, doc, tol_m=5e-3)
+
+
+def test_c3d_negative_residual_is_missing(base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """Vicon marks a missing sample with residual −1 (and arbitrary coordinates)."""
+    import ezc3d
+
+    m, ref = base
+    p = _write("c3d", m, tmp_path)
+    c = ezc3d.c3d(str(p))
+    k = m.labels.index("LANK")
+    sel = np.flatnonzero((m.times >= _mid_time(ref)) & (m.times < _mid_time(ref) + 0.1))
+    pts = c["data"]["points"]
+    pts[:3, k, sel] = 1e6  # garbage that must not be used
+    c["data"]["points"] = pts
+    res = np.zeros((1, pts.shape[1], pts.shape[2]))
+    res[0, k, sel] = -1.0
+    c["data"]["meta_points"]["residuals"] = res
+    c.write(str(p))
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc, tol_m=5e-3)
+
+
+def test_long_zero_gap_is_not_a_foot_at_origin(base: tuple[MarkerTrajectories, Doc],
+                                               tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """A marker at exactly 0,0,0 for 0.5 s (TRC) must read as missing, not as a jump to
+    the origin: no step may be longer than 1.5 m or start at the origin."""
+    m, ref = base
+    v = _moved(m, offset=(20.0, 5.0, 0.0))
+    v = _gap(v, "RANK", _mid_time(ref), 0.5, 0.0)
+    p = _write("trc", v, tmp_path)
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    if rc == 0:
+        assert doc is not None
+        assert all(s["length_m"] < 1.5 and s["width_m"] < 0.5 for s in doc["steps"]), doc
+    else:
+        assert "step" in err
