@@ -2,7 +2,7 @@
 
 Layout: a ``PathFileType`` line, a header-name line and its values line (``DataRate``,
 ``Units`` ...), the ``Frame#  Time  <marker>\\t\\t\\t ...`` line, the ``X1 Y1 Z1 ...``
-line, then one row per frame. Empty fields (or NaN) are missing markers.
+line, then one row per frame. Empty fields, NaN or an exact 0,0,0 are missing markers.
 """
 
 from __future__ import annotations
@@ -70,6 +70,8 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
     # A header without Units: guess from the size of the body.
     units = hdr.get("Units", "") or detect_units(raw, labels)
     pos = raw * unit_scale(units)
+    # Exporters (Vicon, Cortex) write a missing sample as 0,0,0, as C3D files do.
+    pos[np.all(pos == 0.0, axis=-1)] = np.nan
     return MarkerTrajectories(times, pos, labels, rate, units, [], {"source": str(p)})
 
 
