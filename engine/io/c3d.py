@@ -39,6 +39,19 @@ def _param(params: dict[str, Any], group: str, name: str) -> list[Any]:
     return list(np.asarray(v).ravel()) if not isinstance(v, list) else v
 
 
+def _first_frame(header_first: int, params: dict[str, Any]) -> int:
+    """Zero-based first frame; the header's is 16-bit, so a trial starting after frame
+    65535 of the capture keeps its real start in ``TRIAL:ACTUAL_START_FIELD`` (low and
+    high 16-bit words, one-based; Vicon Nexus)."""
+    asf = _param(params, "TRIAL", "ACTUAL_START_FIELD")
+    if len(asf) >= 2:
+        full = int(asf[0]) % 65536 + 65536 * int(asf[1]) - 1
+        # trust it only where it agrees with the header's (wrapped or saturated) value
+        if full >= 0 and (full % 65536 == header_first % 65536 or header_first >= 65534):
+            return full
+    return header_first
+
+
 def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
     """Read the 3-D points, labels, rate, units and events of a C3D file.
 
@@ -99,7 +112,7 @@ def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
             if v:
                 model |= {str(s).strip() for s in v}
         keep = np.array([lab not in model for lab in labels])
-    first = int(c["header"]["points"]["first_frame"])
+    first = _first_frame(int(c["header"]["points"]["first_frame"]), params)
     T = xyz.shape[0]
     times = (first + np.arange(T)) / rate
 
@@ -147,7 +160,10 @@ def write_c3d(path: str | Path, markers: MarkerTrajectories, units: str | None =
     data = np.ones((4, len(markers.labels), len(markers)))
     data[:3] = (markers.positions / scale).transpose(2, 1, 0)
     c["data"]["points"] = data
-    c["header"]["points"]["first_frame"] = int(first)
+    c["header"]["points"]["first_frame"] = min(int(first), 65534)  # 16-bit, one-based
+    last = int(first) + len(markers)  # one-based, as Vicon writes them
+    for name, v in (("ACTUAL_START_FIELD", int(first) + 1), ("ACTUAL_END_FIELD", last)):
+        c.add_parameter("TRIAL", name, [v % 65536, v // 65536])
     for e in markers.events:
         minutes = int(e.time_s // 60.0)
         c.add_event([minutes, float(e.time_s - 60.0 * minutes)],
