@@ -9,8 +9,9 @@ from pydantic import BaseModel, Field
 
 from app.api import security
 from app.api.deps import SESSION_COOKIE, CurrentUser, DbDep, SettingsDep, request_token
+from app.api.limits import BoundedRoute
 
-router = APIRouter(prefix="/auth", tags=["auth"])
+router = APIRouter(prefix="/auth", route_class=BoundedRoute, tags=["auth"])
 
 
 class LoginIn(BaseModel):

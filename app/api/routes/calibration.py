@@ -20,6 +20,7 @@ from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentUser, HubDep, RegistryDep, SettingsDep
+from app.api.limits import BoundedRoute
 from app.server import calibration as cal
 from app.server.calibration import CaptureBusyError, CaptureManager, CaptureNotFoundError
 
@@ -49,7 +50,8 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
                 await task
 
 
-router = APIRouter(prefix="/calibration", tags=["calibration"], lifespan=_lifespan)
+router = APIRouter(prefix="/calibration", route_class=BoundedRoute, tags=["calibration"],
+                   lifespan=_lifespan)
 
 MAX_SHEET_IDS = 64
 

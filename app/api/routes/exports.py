@@ -20,6 +20,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, File, HTTPException, Query, Request, Response, UploadFile, status
 
 from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.limits import BoundedRoute
 from app.api.routes._data import get_recording, get_row, layout_of, reference_json
 from app.db import data as m
 from app.server.storage import (
@@ -37,9 +38,10 @@ from app.server.storage import (
 )
 from engine.errors import GaitrigError
 
-router = APIRouter(prefix="/exports", tags=["data"])
+router = APIRouter(prefix="/exports", route_class=BoundedRoute, tags=["data"])
 
 MAX_REFERENCE_BYTES = 100 * 1024 * 1024
+_MULTIPART_OVERHEAD = 64 * 1024
 _MEDIA = {"c3d": "application/octet-stream", "trc": "text/plain", "csv": "text/csv",
           "zip": "application/zip", "npz": "application/octet-stream"}
 
@@ -112,7 +114,8 @@ def references(rec_id: str, user: CurrentUser, db: DbDep) -> list[dict[str, Any]
     return [reference_json(x) for x in get_recording(db, rec_id).references]
 
 
-@router.post("/{rec_id}/references", status_code=201)
+@router.post("/{rec_id}/references", status_code=201,
+             max_body_size=MAX_REFERENCE_BYTES + _MULTIPART_OVERHEAD)
 async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db: DbDep,
                            file: Annotated[UploadFile, File(description="C3D, TRC or CSV")]
                            ) -> dict[str, Any]:

@@ -29,6 +29,7 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentUser, HubDep, SettingsDep
+from app.api.limits import BoundedRoute
 from app.server.imu_analysis import (
     FilterName,
     ImuJob,
@@ -43,10 +44,12 @@ from engine.imu.io import ImuRecording, load_imu
 from engine.io.csv import read_skeleton_csv
 from engine.skeleton import SkeletonSeries
 
-router = APIRouter(prefix="/imu", tags=["imu"])
+router = APIRouter(prefix="/imu", route_class=BoundedRoute, tags=["imu"])
 
 MAX_FILE_BYTES = 64 * 1024 * 1024
 MAX_FILES = 12
+#: Whole multipart request: every IMU file, the skeleton file and the form fields.
+MAX_REQUEST_BYTES = (MAX_FILES + 1) * MAX_FILE_BYTES + 1024 * 1024
 _ALLOWED_SUFFIXES = (".csv", ".txt", ".tsv", ".mat", ".hdf5", ".h5")
 _NAME_RE = re.compile(r"^[A-Za-z0-9_\-]{1,40}$")
 _ID_RE = re.compile(r"^[0-9a-f]{16}$")
@@ -105,7 +108,7 @@ def _sensor_names(files: list[UploadFile], sensors: list[str]) -> list[str]:
     return names
 
 
-@router.post("/sessions")
+@router.post("/sessions", max_body_size=MAX_REQUEST_BYTES)
 async def upload_session(
     request: Request,
     user: CurrentUser,

@@ -32,6 +32,7 @@ from pydantic import BaseModel, Field
 from starlette.websockets import WebSocket
 
 from app.api.deps import CurrentUser, HubDep
+from app.api.limits import BoundedRoute
 from app.server.kscc_link import (
     MIN_TOKEN_LEN,
     KsccManager,
@@ -80,7 +81,7 @@ async def kscc_lifespan(app: FastAPI) -> AsyncIterator[None]:
     yield
 
 
-router = APIRouter(prefix="/kscc", tags=["kscc"], lifespan=kscc_lifespan)
+router = APIRouter(prefix="/kscc", route_class=BoundedRoute, tags=["kscc"], lifespan=kscc_lifespan)
 
 def _viewer_hook(viewer: Any) -> Any:
     from app.viewer.kscc import populate_kscc

@@ -29,6 +29,7 @@ from starlette.routing import WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from app.api.deps import SESSION_COOKIE, CurrentUser
+from app.api.limits import BoundedRoute
 from app.api.security import user_for_token
 from app.server.streaming import Watcher
 from app.viewer.live import LiveServices
@@ -49,7 +50,7 @@ async def live_lifespan(app: FastAPI) -> AsyncIterator[None]:
         await services.stop()
 
 
-router = APIRouter(prefix="/live", tags=["live"], lifespan=live_lifespan)
+router = APIRouter(prefix="/live", route_class=BoundedRoute, tags=["live"], lifespan=live_lifespan)
 
 
 def services_of(app: Any) -> LiveServices:

@@ -16,10 +16,11 @@ from fastapi import APIRouter, HTTPException, Request, Response, status
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentUser, HubDep
+from app.api.limits import BoundedRoute
 from app.nodes.protocol import Snapshot, Subscribe, dump
 from app.server.registry import NodeSession
 
-router = APIRouter(prefix="/nodes", tags=["nodes"])
+router = APIRouter(prefix="/nodes", route_class=BoundedRoute, tags=["nodes"])
 
 
 class NodeHealth(BaseModel):

@@ -23,11 +23,12 @@ from fastapi.responses import HTMLResponse
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentUser, SettingsDep
+from app.api.limits import BoundedRoute
 from app.api.routes.live import services_of
 from app.viewer.planning import Planner
 from engine.coverage import coverage_legend
 
-router = APIRouter(prefix="/planning", tags=["planning"])
+router = APIRouter(prefix="/planning", route_class=BoundedRoute, tags=["planning"])
 
 
 class MoveIn(BaseModel):

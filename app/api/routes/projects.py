@@ -9,6 +9,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     check_confirm,
     delete_recordings,
@@ -18,7 +19,7 @@ from app.api.routes._data import (
 )
 from app.db import data as m
 
-router = APIRouter(prefix="/projects", tags=["data"])
+router = APIRouter(prefix="/projects", route_class=BoundedRoute, tags=["data"])
 
 
 class ProjectIn(BaseModel):

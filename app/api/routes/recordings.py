@@ -8,9 +8,10 @@ from fastapi import APIRouter, HTTPException, status
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentUser, HubDep
+from app.api.limits import BoundedRoute
 from engine.errors import InputError
 
-router = APIRouter(prefix="/recordings", tags=["recordings"])
+router = APIRouter(prefix="/recordings", route_class=BoundedRoute, tags=["recordings"])
 
 
 class StartIn(BaseModel):

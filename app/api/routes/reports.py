@@ -36,6 +36,7 @@ from fastapi.responses import HTMLResponse, Response
 from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
+from app.api.limits import BoundedRoute
 from app.api.routes._data import get_row
 from app.db.data import Recording as DbRecording
 from app.db.data import ReferenceImport, Subject
@@ -44,12 +45,13 @@ from app.server import analysis as an
 from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.report.render import ReportData, render_html, render_pdf
 
-router = APIRouter(prefix="/reports", tags=["reports"])
+router = APIRouter(prefix="/reports", route_class=BoundedRoute, tags=["reports"])
 
 #: Largest accepted upload (C3D of a long Vicon session with analog data is ~100 MB).
 MAX_UPLOAD_BYTES = 200 * 1024 * 1024
 UPLOAD_TYPES = (".c3d", ".trc", ".csv")
 _COPY_CHUNK = 1024 * 1024
+_MULTIPART_OVERHEAD = 64 * 1024
 _SENSOR_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 _STORED_RE = re.compile(r"^[0-9a-f]{8,64}\.(c3d|trc|csv)$")
 
@@ -180,7 +182,7 @@ async def _save_upload(request: Request, file: UploadFile, dest_dir: Path) -> Pa
         raise HTTPException(status.HTTP_400_BAD_REQUEST,
                             f"file {name!r}: choose a .c3d, .trc or skeleton .csv file")
     declared = request.headers.get("content-length")
-    if declared and declared.isdigit() and int(declared) > MAX_UPLOAD_BYTES + 64 * 1024:
+    if declared and declared.isdigit() and int(declared) > MAX_UPLOAD_BYTES + _MULTIPART_OVERHEAD:
         raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
                             f"the upload is larger than {MAX_UPLOAD_BYTES // 2**20} MB")
     dest = dest_dir / f"upload{ext}"
@@ -410,7 +412,8 @@ def get_reference(rec_id: str, user: CurrentUser, settings: SettingsDep) -> dict
     return {"rec_id": rec_id, "attached": True, **ref[1]}
 
 
-@router.post("/recordings/{rec_id}/reference", status_code=201)
+@router.post("/recordings/{rec_id}/reference", status_code=201,
+             max_body_size=MAX_UPLOAD_BYTES + _MULTIPART_OVERHEAD)
 async def put_reference(rec_id: str, request: Request, file: UploadFile, user: CurrentUser,
                         settings: SettingsDep, offset_s: float = Query(0.0, ge=-3600, le=3600,
                         description="reference time of the recording's start")
@@ -443,7 +446,8 @@ def delete_reference(rec_id: str, user: CurrentUser, settings: SettingsDep) -> d
     return {"rec_id": rec_id, "attached": False}
 
 
-@router.post("/upload", response_model=None)
+@router.post("/upload", response_model=None,
+             max_body_size=MAX_UPLOAD_BYTES + _MULTIPART_OVERHEAD)
 async def upload_report(request: Request, file: UploadFile, user: CurrentUser,
                         format: Fmt = "html",
                         subject: str = Query("upload", min_length=1, max_length=40),

@@ -16,6 +16,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     check_confirm,
     datasync_of,
@@ -29,7 +30,7 @@ from app.api.routes._data import (
 from app.db import data as m
 from engine.errors import InputError
 
-router = APIRouter(prefix="/sessions", tags=["data"])
+router = APIRouter(prefix="/sessions", route_class=BoundedRoute, tags=["data"])
 
 
 class SessionIn(BaseModel):

@@ -17,6 +17,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     check_confirm,
     datasync_of,
@@ -46,7 +47,7 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
         await ds.stop()
 
 
-router = APIRouter(prefix="/storage", tags=["data"], lifespan=_lifespan)
+router = APIRouter(prefix="/storage", route_class=BoundedRoute, tags=["data"], lifespan=_lifespan)
 
 
 class Confirm(BaseModel):

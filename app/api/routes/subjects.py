@@ -14,6 +14,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     check_confirm,
     delete_recordings,
@@ -24,7 +25,7 @@ from app.api.routes._data import (
 )
 from app.db import data as m
 
-router = APIRouter(prefix="/subjects", tags=["data"])
+router = APIRouter(prefix="/subjects", route_class=BoundedRoute, tags=["data"])
 
 Sex = Literal["female", "male", "other", "unknown"]
 CODE_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,39}$"

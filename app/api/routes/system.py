@@ -7,8 +7,9 @@ from typing import Any
 from fastapi import APIRouter, Request
 
 from app.api.deps import CurrentUser, SettingsDep
+from app.api.limits import BoundedRoute
 
-router = APIRouter(prefix="/system", tags=["system"])
+router = APIRouter(prefix="/system", route_class=BoundedRoute, tags=["system"])
 
 
 @router.get("")

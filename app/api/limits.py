@@ -1,0 +1,70 @@
+"""Request size limits of the REST API.
+
+Every router uses :class:`BoundedRoute` (``APIRouter(..., route_class=BoundedRoute)``): a
+request body larger than the route's ``max_body_size`` — :data:`JSON_BODY_MAX` unless the
+route declares its own, as the uploads do — is refused with HTTP 413 and a message that
+names the limit. A declared ``Content-Length`` is checked before anything is read; a body
+without one is counted while it is read, so neither a huge JSON body nor an over-size upload
+is held in memory or spooled to disk in full.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Coroutine
+from typing import Any
+
+from fastapi import HTTPException, Request, Response, status
+from fastapi.routing import APIRoute
+from starlette.types import Message
+
+#: Largest JSON body of any route without its own limit: the largest real one (64 sensor
+#: poses, or 4000-character notes) is a few kB.
+JSON_BODY_MAX = 1024 * 1024
+
+
+def _size(n: int) -> str:
+    return f"{n / 2**20:.0f} MB" if n >= 2**20 else f"{max(1, n // 1024)} KB"
+
+
+def too_large(limit: int) -> HTTPException:
+    """HTTP 413 naming the limit."""
+    return HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
+                         f"the request is larger than this route accepts ({_size(limit)}); "
+                         "send a smaller file or fewer values")
+
+
+class BoundedRoute(APIRoute):
+    """An ``APIRoute`` whose request body is bounded by ``max_body_size`` (default
+    :data:`JSON_BODY_MAX`), refused with a readable HTTP 413."""
+
+    def __init__(self, path: str, endpoint: Callable[..., Any], *,
+                 max_body_size: int | None = None, **kwargs: Any) -> None:
+        #: Largest accepted request body (bytes).
+        self.body_limit = JSON_BODY_MAX if max_body_size is None else max_body_size
+        # Not handed to FastAPI: its own limiter would answer a bare "Content Too Large"
+        # (plain text when Content-Length is over) before the handler below could say more.
+        super().__init__(path, endpoint, **kwargs)
+
+    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = super().get_route_handler()
+        limit = self.body_limit
+
+        async def bounded(request: Request) -> Response:
+            declared = request.headers.get("content-length", "")
+            if declared.isdigit() and int(declared) > limit:
+                raise too_large(limit)
+            receive = request.receive
+            total = 0
+
+            async def counted() -> Message:
+                nonlocal total
+                msg = await receive()
+                if msg["type"] == "http.request":
+                    total += len(msg.get("body", b""))
+                    if total > limit:
+                        raise too_large(limit)
+                return msg
+
+            return await handler(Request(request.scope, counted))
+
+        return bounded
