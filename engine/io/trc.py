@@ -44,7 +44,8 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
     M = len(labels)
     if M == 0:
         raise InputError(f"{p.name}: no marker names on line 4")
-    rows = []
+    rows: list[np.ndarray] = []
+    row_lines: list[int] = []
     for ln, line in enumerate(lines[5:], start=6):
         if not line.strip():
             continue
@@ -60,10 +61,17 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
                 except ValueError:
                     raise InputError(f"{p.name} line {ln}: {s!r} is not a number") from None
         rows.append(vals_f)
+        row_lines.append(ln)
     if not rows:
         raise InputError(f"{p.name} has no data rows")
     A = np.vstack(rows)
     times = A[:, 1]
+    bad = np.flatnonzero(~np.isfinite(times) | np.r_[False, ~(np.diff(times) > 0)])
+    if len(bad):
+        i = int(bad[0])
+        raise InputError(f"{p.name} line {row_lines[i]}: time {times[i]:g} is missing or not "
+                         "after the previous row's; times must increase (remove repeated or "
+                         "out-of-order rows)")
     if not np.isfinite(rate) or rate <= 0:
         rate = float(1.0 / np.median(np.diff(times))) if len(times) > 1 else 1.0
     raw = A[:, 2:].reshape(len(A), M, 3)

@@ -401,3 +401,82 @@ def test_long_zero_gap_is_not_a_foot_at_origin(base: tuple[MarkerTrajectories, D
         assert all(s["length_m"] < 1.5 and s["width_m"] < 0.5 for s in doc["steps"]), doc
     else:
         assert "step" in err
+
+
+# ---------------------------------------------------------------- time axis
+
+def test_time_offset_c3d_first_frame(base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """A file starting 1000 s into the session: same steps, times shifted by 1000 s."""
+    m, ref = base
+    for kind in ("c3d", "trc"):
+        p = _write(kind, replace(m, times=m.times + 1000.0), tmp_path)
+        rc, doc, err = _run([str(p), "--json"], capsys)
+        assert rc == 0 and doc is not None, err
+        _same_steps(ref, doc, dt=1000.0)
+
+
+@pytest.mark.parametrize("case", ["duplicate", "backwards"])
+def test_bad_time_axis_trc(case: str, base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                           capsys: pytest.CaptureFixture[str]) -> None:
+    m, _ = base
+    lines = _trc_text(m, tmp_path).split("\n")
+    k = 6 + len(m) // 2  # a data line in the middle
+    cells = lines[k].split("\t")
+    prev = lines[k - 1].split("\t")
+    cells[1] = prev[1] if case == "duplicate" else str(float(prev[1]) - 0.5)
+    lines[k] = "\t".join(cells)
+    p = tmp_path / "t.trc"
+    p.write_text("\n".join(lines))
+    rc, _, err = _run([str(p), "--json"], capsys)
+    assert rc == 2 and "t.trc" in err and f"line {k + 1}" in err and "time" in err
+
+
+# ---------------------------------------------------------------- too little walking
+
+def _window(m: MarkerTrajectories, t0: float, t1: float) -> MarkerTrajectories:
+    sel = (m.times >= t0) & (m.times < t1)
+    return replace(m, times=m.times[sel], positions=m.positions[sel])
+
+
+@pytest.mark.parametrize("case", ["ten_frames", "one_step", "standing", "one_frame"])
+def test_too_little_walking(case: str, base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                            capsys: pytest.CaptureFixture[str]) -> None:
+    m, ref = base
+    s = ref["steps"]
+    if case == "ten_frames":
+        v = _window(m, m.times[0], m.times[10])
+    elif case == "one_frame":
+        v = _window(m, m.times[0], m.times[1])
+    elif case == "one_step":
+        v = _window(m, s[0]["time_s"] - 0.1, s[1]["time_s"] + 0.1)
+    else:
+        frame = m.positions[len(m) // 2]
+        v = replace(m, positions=np.repeat(frame[None], len(m), axis=0))
+    for kind in ("c3d", "trc"):
+        p = _write(kind, v, tmp_path)
+        rc, doc, err = _run([str(p), "--json"], capsys)
+        assert rc == 2, (kind, doc)
+        # what to fix: record more walking (not: rename markers that are there)
+        assert "steps" in err or "no straight walking" in err or "frame" in err, err
+        assert "--left/--right" not in err, err
+
+
+# ---------------------------------------------------------------- not a mocap file
+
+@pytest.mark.parametrize("ext", [".c3d", ".trc", ".csv", ".C3D", ".txt"])
+@pytest.mark.parametrize("content", ["empty", "garbage", "text"])
+def test_not_a_mocap_file(ext: str, content: str, tmp_path: Path,
+                          capsys: pytest.CaptureFixture[str]) -> None:
+    p = tmp_path / f"file{ext}"
+    data = {"empty": b"", "garbage": bytes(range(256)) * 40,
+            "text": b"hello\tworld\n1\t2\n" * 10}[content]
+    p.write_bytes(data)
+    rc, _, err = _run([str(p), "--json"], capsys)
+    assert rc == 2 and (p.name in err or "unsupported file type" in err), err
+
+
+def test_directory_and_missing_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for p in (tmp_path, tmp_path / "nope.trc", tmp_path / "nope.csv"):
+        rc, _, err = _run([str(p), "--json"], capsys)
+        assert rc == 2 and str(p.name) in err, err
