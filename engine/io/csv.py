@@ -41,13 +41,16 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"CSV file not found: {p}")
-    with p.open(newline="", encoding="utf-8") as f:
-        reader = _csv.reader(f)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise InputError(f"{p.name} is empty") from None
-        rows = [r for r in reader if any(c.strip() for c in r)]
+    try:
+        with p.open(newline="", encoding="utf-8") as f:
+            reader = _csv.reader(f)
+            try:
+                header = [h.strip() for h in next(reader)]
+            except StopIteration:
+                raise InputError(f"{p.name} is empty") from None
+            rows = [r for r in reader if any(c.strip() for c in r)]
+    except (UnicodeDecodeError, _csv.Error) as exc:
+        raise InputError(f"{p.name} is not a UTF-8 text CSV file ({exc})") from None
     if not header or header[0].lower() != "time":
         raise InputError(f"{p.name}: the first column must be 'time' (seconds)")
     joints: list[str] = []
