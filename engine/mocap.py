@@ -157,6 +157,10 @@ def feet_from_markers(
     labels = markers.labels
     if (left is None) != (right is None):
         raise InputError("give both --left and --right marker names, or neither")
+    if len(markers) < 2:
+        # said before the marker search, which would call the markers unusable
+        raise InputError(f"the file holds {len(markers)} frame(s); gait needs a recording "
+                         "of at least two steps of walking")
     P = markers.positions
     if units is not None:
         P = P / unit_scale(markers.units) * unit_scale(units)
@@ -278,6 +282,8 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
     from engine.io.trc import read_trc
 
     p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{p} is a folder; give a .c3d, .trc or .csv file")
     ext = p.suffix.lower()
     if ext == ".c3d":
         return feet_from_markers(read_c3d(p), left, right, up, units)
