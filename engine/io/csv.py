@@ -51,6 +51,9 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
             rows = [r for r in reader if any(c.strip() for c in r)]
     except (UnicodeDecodeError, _csv.Error) as exc:
         raise InputError(f"{p.name} is not a UTF-8 text CSV file ({exc})") from None
+    if len(header) == 1 and header[0].count(";") >= 3:
+        raise InputError(f"{p.name} is separated by semicolons; the skeleton CSV format is "
+                         "comma-separated (time,<Joint>_x,<Joint>_y,<Joint>_z, decimal points)")
     if not header or header[0].lower() != "time":
         raise InputError(f"{p.name}: the first column must be 'time' (seconds)")
     joints: list[str] = []
@@ -96,6 +99,12 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
             states[:, ji] = np.where(ok, TrackingState.TRACKED, TrackingState.NOT_TRACKED)
     if np.any(~np.isfinite(A[:, 0])):
         raise InputError(f"{p.name}: every row needs a time")
+    back = np.flatnonzero(np.diff(A[:, 0]) <= 0)
+    if len(back):
+        i = int(back[0]) + 1
+        raise InputError(f"{p.name} row {i + 2}: time {A[i, 0]:g} is not after the "
+                         "previous row's; times must be strictly increasing (remove "
+                         "repeated or out-of-order rows)")
     return SkeletonSeries(A[:, 0], pos, states, js, {"source": str(p)})
 
 

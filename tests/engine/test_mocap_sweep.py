@@ -22,10 +22,11 @@ import pytest
 
 from app.cli import main
 from engine.io.c3d import read_c3d, write_c3d
+from engine.io.csv import write_skeleton_csv
 from engine.io.markers import MarkerTrajectories, up_rotation
 from engine.io.trc import write_trc
 from engine.sim.walker import Walker, WalkerParams
-from engine.skeleton import KINECT_V2
+from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
 
 Doc = dict[str, Any]
 
@@ -480,3 +481,120 @@ def test_directory_and_missing_file(tmp_path: Path, capsys: pytest.CaptureFixtur
     for p in (tmp_path, tmp_path / "nope.trc", tmp_path / "nope.csv"):
         rc, _, err = _run([str(p), "--json"], capsys)
         assert rc == 2 and str(p.name) in err, err
+
+
+# ---------------------------------------------------------------- skeleton CSV
+
+@pytest.fixture(scope="module")
+def skeleton() -> SkeletonSeries:
+    t, J = _walker_joints()
+    return SkeletonSeries(t, J, np.full(J.shape[:2], TrackingState.TRACKED, dtype=np.uint8),
+                          KINECT_V2)
+
+
+def _csv_variant(s: SkeletonSeries, R: np.ndarray | None = None,
+                 offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 up: str = "z", dt: float = 0.0) -> SkeletonSeries:
+    P = s.positions if R is None else s.positions @ R.T
+    P = (P + np.asarray(offset)) @ up_rotation(up)
+    return SkeletonSeries(s.times + dt, P, s.states.copy(), s.joint_set)
+
+
+CSV_SAME: dict[str, tuple[dict[str, Any], list[str], Callable[[str], str]]] = {
+    "camera_y_up": ({"up": "y"}, [], lambda x: x),
+    "camera_y_down": ({"up": "-y"}, [], lambda x: x),
+    "camera_y_down_given": ({"up": "-y"}, ["--up", "-y"], lambda x: x),
+    "far_10km": ({"offset": (1e4, -1e4, 0.0)}, [], lambda x: x),
+    "walk_minus_x_far_y_up": ({"R": _rz(180.0), "offset": (1e3, 5.0, 0.0), "up": "y"}, [],
+                              lambda x: x),
+    "time_offset": ({"dt": 5000.0}, [], lambda x: x),
+    "crlf": ({}, [], lambda x: x.replace("\n", "\r\n")),
+    "no_state_columns": ({}, [], lambda x: _drop_state_columns(x)),
+}
+
+
+def _drop_state_columns(text: str) -> str:
+    rows = [ln.split(",") for ln in text.strip().split("\n")]
+    keep = [i for i, h in enumerate(rows[0]) if not h.endswith("_state")]
+    return "\n".join(",".join(r[i] for i in keep) for r in rows) + "\n"
+
+
+def _csv_text(s: SkeletonSeries, tmp: Path) -> str:
+    p = tmp / "_base.csv"
+    write_skeleton_csv(p, s)
+    return p.read_text()
+
+
+def _csv_ref(skeleton: SkeletonSeries, tmp: Path, capsys: pytest.CaptureFixture[str]) -> Doc:
+    p = tmp / "ref.csv"
+    write_skeleton_csv(p, skeleton)
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None and len(doc["steps"]) >= 3, err
+    return doc
+
+
+@pytest.mark.parametrize("case", sorted(CSV_SAME))
+def test_csv_same_walk(case: str, skeleton: SkeletonSeries, tmp_path: Path,
+                       capsys: pytest.CaptureFixture[str]) -> None:
+    ref = _csv_ref(skeleton, tmp_path, capsys)
+    kw, extra, edit = CSV_SAME[case]
+    p = tmp_path / "variant.csv"
+    p.write_bytes(edit(_csv_text(_csv_variant(skeleton, **kw), tmp_path)).encode())
+    rc, doc, err = _run([str(p), "--json", *extra], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc, dt=kw.get("dt", 0.0))
+
+
+@pytest.mark.parametrize(("case", "expect"), [
+    ("semicolon", "comma-separated"),
+    ("backwards_time", "bad.csv row"),
+    ("duplicate_time", "bad.csv row"),
+    ("no_ankle_right", "AnkleRight"),
+    ("text_cell", "not a number"),
+    ("header_only", "no data rows"),
+    ("no_time_column", "'time'"),
+])
+def test_csv_bad_input(case: str, expect: str, skeleton: SkeletonSeries, tmp_path: Path,
+                       capsys: pytest.CaptureFixture[str]) -> None:
+    lines = _csv_text(skeleton, tmp_path).split("\n")
+    mid = len(lines) // 2
+    if case == "semicolon":
+        lines = [ln.replace(",", ";") for ln in lines]
+    elif case in ("backwards_time", "duplicate_time"):
+        prev = float(lines[mid - 1].split(",")[0])
+        t = prev - 0.3 if case == "backwards_time" else prev
+        lines[mid] = ",".join([repr(t), *lines[mid].split(",")[1:]])
+    elif case == "no_ankle_right":
+        rows = [ln.split(",") for ln in lines if ln]
+        keep = [i for i, h in enumerate(rows[0]) if not h.startswith("AnkleRight")]
+        lines = [",".join(r[i] for i in keep) for r in rows]
+    elif case == "text_cell":
+        lines[mid] = lines[mid].replace(",", ",abc,", 1).replace(",", "", 1)
+    elif case == "header_only":
+        lines = lines[:1]
+    else:
+        lines[0] = lines[0].replace("time", "t", 1)
+    p = tmp_path / "bad.csv"
+    p.write_text("\n".join(lines))
+    rc, _, err = _run([str(p), "--json"], capsys)
+    assert rc == 2 and expect in err, err
+    if case.endswith("_time"):
+        assert f"row {mid + 1}:" in err  # the file's line
+
+
+# ---------------------------------------------------------------- turns
+
+def test_back_and_forth_in_one_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Walking 5 m, turning, walking back: several passes; the same steps wherever the
+    corridor is and whichever axis is up."""
+    m = _synthetic(back_and_forth=True)
+    p = _write("trc", m, tmp_path)
+    rc, ref, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and ref is not None, err
+    assert ref["summary"]["n_passes"] >= 2
+    v = _file_axes(_moved(m, _rz(60.0), (-3e3, 2e3, 0.0)), "-y")
+    p2 = _write("trc", v, tmp_path, "m")
+    rc, doc, err = _run([str(p2), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    assert doc["summary"]["n_passes"] == ref["summary"]["n_passes"]
+    _same_steps(ref, doc)
