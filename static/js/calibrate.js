@@ -43,9 +43,9 @@
 
   function showPlan(p) {
     plan = p;
-    $("pose-source").textContent = `Poses shown: ${p.source}. Marker-based calibration comes from the ` +
-      "calibration wizard (issue 3), which is not part of this console yet; until then the planner starts " +
-      "from the poses the nodes report.";
+    // (said "the wizard is not part of this console yet", under a link to the wizard)
+    $("pose-source").textContent = `Poses shown: ${p.source}. The planner starts from these poses; ` +
+      "measure the real ones with the spatial calibration wizard (link above).";
     $("coverage").src = `/api/planning/coverage.png?v=${p.version}&t=${Date.now()}`;
     $("coverage-stats").textContent = `Walkway seen whole by at least one sensor: ${(100 * p.walkway_covered_fraction).toFixed(0)} %; ` +
       `from both sides: ${(100 * p.walkway_two_sided_fraction).toFixed(0)} %. Whole map: ${(100 * p.covered_fraction).toFixed(0)} % covered.`;
