@@ -1,0 +1,64 @@
+"""What a clinician sees on a first visit of every console page, at a laptop's 1024×768.
+
+Each page is loaded fresh (nothing recorded, nothing calibrated) and checked for: no
+JavaScript error, no leaked programming values ("undefined", "NaN", "[object Object]"),
+no element marked ``hidden`` that is still displayed (a class's ``display:flex`` used to
+win over the attribute: the calibration wizard showed Accept/Reject before any capture),
+no project jargon (seed/issue numbers) in visible text, every visible form control with
+a label, and no horizontal scrolling.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.browser.conftest import LiveServer, screenshot
+
+pytestmark = pytest.mark.browser
+
+PAGES = ["rig", "live", "calibrate", "calibration-wizard", "record", "subjects", "reports",
+         "imu", "kscc"]
+
+# Text a person should never read: values leaked from code, and internal references.
+LEAKED = re.compile(r"\bundefined\b|\bNaN\b|\[object Object\]|Traceback")
+JARGON = re.compile(r"\bseed (paper|\d{3})\b|\bissue \d+\b", re.IGNORECASE)
+
+AUDIT_JS = """() => {
+  const visible = (e) => e.getClientRects().length > 0
+    && getComputedStyle(e).visibility !== "hidden";
+  const shownHidden = [...document.querySelectorAll("[hidden]")]
+    .filter((e) => getComputedStyle(e).display !== "none").map((e) => e.tagName + "#" + e.id);
+  const unlabeled = [...document.querySelectorAll("input, select, textarea")]
+    .filter((e) => e.type !== "hidden" && visible(e))
+    .filter((e) => !(e.labels && e.labels.length) && !e.getAttribute("aria-label")
+                   && !e.getAttribute("aria-labelledby") && !e.title)
+    .map((e) => e.outerHTML.slice(0, 100));
+  const options = [...document.querySelectorAll("option")].map((o) => o.textContent).join("\\n");
+  return { text: document.body.innerText + "\\n" + options, shownHidden, unlabeled,
+           scrollWidth: document.documentElement.scrollWidth,
+           clientWidth: document.documentElement.clientWidth };
+}"""
+
+
+@pytest.mark.parametrize("name", PAGES)
+def test_first_visit_of_each_page_is_clean(page: Any, live_server: LiveServer,
+                                           artifacts_dir: Path, name: str) -> None:
+    page.set_viewport_size({"width": 1024, "height": 768})
+    page.goto(f"{live_server.base_url}/{name}.html")
+    # (no "networkidle": the Live and KSCC pages stream and poll for as long as they are open)
+    page.wait_for_load_state("load")
+    page.wait_for_timeout(2000)  # let the first answers arrive and render
+    got = page.evaluate(AUDIT_JS)
+    screenshot(page, artifacts_dir, f"ux_first_visit_{name}")
+    assert not page.js_errors, page.js_errors
+    leaked = [m.group(0) for m in LEAKED.finditer(got["text"])]
+    assert not leaked, leaked
+    jargon = [m.group(0) for m in JARGON.finditer(got["text"])]
+    assert not jargon, jargon
+    assert got["shownHidden"] == [], got["shownHidden"]
+    assert got["unlabeled"] == [], got["unlabeled"]
+    assert got["scrollWidth"] <= got["clientWidth"], (got["scrollWidth"], got["clientWidth"])
