@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import re
 import tempfile
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -54,6 +55,26 @@ router = APIRouter(prefix="/calibration", route_class=BoundedRoute, tags=["calib
                    lifespan=_lifespan)
 
 MAX_SHEET_IDS = 64
+#: Largest marker id accepted in an id list (the largest ArUco dictionaries have 1000
+#: ids); checked before the ranges are expanded, so "1-999999999" is not a list of a
+#: billion ids in the server's memory.
+MAX_MARKER_ID = 9999
+
+
+def marker_ids(spec: str) -> list[int]:
+    """``parse_ids`` of a client's id list, with every id at most :data:`MAX_MARKER_ID`.
+
+    Raises:
+        InputError: malformed list or an id above the limit.
+    """
+    from engine.calibration.markers import parse_ids
+    from engine.errors import InputError
+
+    for number in re.findall(r"\d+", spec):
+        if len(number) > 5 or int(number) > MAX_MARKER_ID:
+            raise InputError(f"marker id {number[:12]} is too large: ids go from 0 to "
+                             f"{MAX_MARKER_ID} (the printed markers' numbers, e.g. 1-8)")
+    return parse_ids(spec)
 
 
 class SimulateRequest(BaseModel):
@@ -94,10 +115,10 @@ def marker_sheet(
     paper: str = Query("a4", pattern="^(a4|letter|a3)$"),
 ) -> Response:
     """The printable marker sheet as a PDF at true size."""
-    from engine.calibration.markers import parse_ids, write_marker_sheet
+    from engine.calibration.markers import write_marker_sheet
     from engine.errors import InputError
 
-    id_list = parse_ids(ids)
+    id_list = marker_ids(ids)
     if len(id_list) > MAX_SHEET_IDS:
         raise InputError(f"at most {MAX_SHEET_IDS} markers per sheet, got {len(id_list)}")
     with tempfile.TemporaryDirectory() as d:
@@ -135,9 +156,7 @@ async def capture(body: CaptureRequest, request: Request, user: CurrentUser, hub
     them (detection, 3D corners, graph, chaining, joint optimisation, ICP). Poll
     ``GET /api/calibration/captures/{id}`` for progress and the result; nothing is saved
     until ``POST .../accept``."""
-    from engine.calibration.markers import parse_ids
-
-    ids = parse_ids(body.ids)
+    ids = marker_ids(body.ids)
     mgr = _captures(request, hub, settings)
     return await _start(mgr, "calibrate", body.frames, {i: body.size_m for i in ids},
                         body.nodes)
