@@ -195,8 +195,9 @@ def detect_vertical_axis(positions: ArrayLike, labels: list[str]) -> str:
     With labelled pelvis/head and foot markers the vertical axis is the one along which
     the upper body sits furthest from the feet (sign included). Otherwise it is the axis
     with the largest per-frame marker spread (a standing or walking body is taller than
-    wide) and the least travel of the marker centroid (people walk on a floor); the sign
-    is then assumed positive.
+    wide) and the least travel of the marker centroid (people walk on a floor); its sign
+    is then the one towards which labelled foot markers' heights are skewed (long
+    stances on the floor, short swings above it), else positive.
 
     Args:
         positions: ``(T, M, 3)`` in any length unit.
@@ -220,7 +221,23 @@ def detect_vertical_axis(positions: ArrayLike, labels: list[str]) -> str:
     if not np.all(np.isfinite(spread)):
         raise InputError("cannot detect the vertical axis: too few markers; give it with --up")
     score = spread / (travel + spread.max() * 0.1 + 1e-12)
-    return AXES[int(np.argmax(score))]
+    a = int(np.argmax(score))
+    return ("-" if feet and _height_skew(P[:, feet, a]) < 0 else "") + AXES[a]
+
+
+def _height_skew(h: NDArray[np.float64]) -> float:
+    """Mean skewness over markers of ``(T, M)`` heights.
+
+    A walking foot rests on the floor (its lowest height) for most of the time and
+    rises only in short swings, so its height is skewed towards up: a negative skew
+    along the chosen axis means the axis points down.
+    """
+    d = h - ns.nanmean(h, axis=0)
+    sd = ns.nanstd(h, axis=0)
+    ok = np.isfinite(sd) & (sd > 0)
+    if not ok.any():
+        return 0.0
+    return float(np.mean(ns.nanmean(d[:, ok] ** 3, axis=0) / sd[ok] ** 3))
 
 
 def up_rotation(up: str) -> NDArray[np.float64]:

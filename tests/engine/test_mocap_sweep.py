@@ -598,3 +598,58 @@ def test_back_and_forth_in_one_file(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert rc == 0 and doc is not None, err
     assert doc["summary"]["n_passes"] == ref["summary"]["n_passes"]
     _same_steps(ref, doc)
+
+
+# ---------------------------------------------------------------- feet-only files, units
+
+FEET_ONLY: dict[str, tuple[str, list[str]]] = {
+    "z": ("z", []), "y": ("y", []), "x": ("x", []),
+    "y_given": ("y", ["--up", "y"]), "minus_y_given": ("-y", ["--up", "-y"]),
+    "minus_y": ("-y", []), "minus_z": ("-z", []),
+}
+
+
+@pytest.mark.parametrize("case", sorted(FEET_ONLY))
+def test_feet_only_axes(case: str, base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                        capsys: pytest.CaptureFixture[str]) -> None:
+    """Only ankle/heel/toe markers (no pelvis or head to tell up from down)."""
+    m, ref = base
+    up, extra = FEET_ONLY[case]
+    feet = _subset(m, lambda lab: lab in ("LANK", "RANK", "LHEE", "RHEE", "LTOE", "RTOE"))
+    p = _write("trc", _file_axes(_moved(feet, _rz(30.0), (500.0, 0.0, 0.0)), up), tmp_path)
+    rc, doc, err = _run([str(p), "--json", *extra], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc)
+
+
+@pytest.mark.parametrize(("written", "header", "extra"), [
+    ("mm", "m", []), ("m", "mm", []), ("cm", "m", []), ("mm", "m", ["--units", "mm"]),
+    ("m", "", []), ("mm", "", []),
+])
+def test_units_header_wrong_or_absent(written: str, header: str, extra: list[str],
+                                      base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    m, ref = base
+    text = _trc_text(m, tmp_path, units=written).replace(f"\t{written}\t", f"\t{header}\t", 1)
+    p = tmp_path / "u.trc"
+    p.write_text(text)
+    rc, doc, err = _run([str(p), "--json", *extra], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc)
+
+
+@pytest.mark.parametrize("up", ["-y", "-z", "x", "-x"])
+def test_feet_only_upside_down_heelstrike(up: str, base: tuple[MarkerTrajectories, Doc],
+                                          tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """Foot strikes need the sign of up: without pelvis/head markers it is found from
+    the feet themselves (long stances at the floor, short swings above it)."""
+    m, _ = base
+    feet = _subset(m, lambda lab: lab in ("LANK", "RANK", "LHEE", "RHEE", "LTOE", "RTOE"))
+    docs = []
+    for u in ("z", up):
+        p = _write("trc", _file_axes(feet, u), tmp_path)
+        rc, doc, err = _run([str(p), "--json", "--method", "heelstrike"], capsys)
+        assert rc == 0 and doc is not None, err
+        docs.append(doc)
+    _same_steps(docs[0], docs[1])
