@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import secrets
 from pathlib import PurePath
 from typing import Annotated, Any, Literal
+from urllib.parse import quote
 
 from fastapi import APIRouter, File, HTTPException, Query, Request, Response, UploadFile, status
 
@@ -47,8 +49,11 @@ _MEDIA = {"c3d": "application/octet-stream", "trc": "text/plain", "csv": "text/c
 
 
 def _download(data: bytes, filename: str, ext: str) -> Response:
-    return Response(data, media_type=_MEDIA[ext],
-                    headers={"Content-Disposition": f'attachment; filename="{filename}"'})
+    # HTTP headers are Latin-1: a clinic's file name with "ü" or "✓" as such made the
+    # download a 500. ASCII fallback for old clients, the exact name as RFC 6266 filename*.
+    plain = re.sub(r"[^A-Za-z0-9_.() -]", "_", filename) or f"download.{ext}"
+    disposition = f"attachment; filename=\"{plain}\"; filename*=UTF-8''{quote(filename, safe='')}"
+    return Response(data, media_type=_MEDIA[ext], headers={"Content-Disposition": disposition})
 
 
 @router.get("/{rec_id}/skeleton")
