@@ -653,3 +653,39 @@ def test_feet_only_upside_down_heelstrike(up: str, base: tuple[MarkerTrajectorie
         assert rc == 0 and doc is not None, err
         docs.append(doc)
     _same_steps(docs[0], docs[1])
+
+
+@pytest.mark.parametrize("case", ["c3d_m", "trc_cm", "up_minus_y", "up_x", "far_1km_trc",
+                                  "far_10km_trc", "walk_diagonal", "walk_y", "prefix_subject",
+                                  "confusing_extras", "floor_at_100m"])
+def test_same_walk_same_heel_strikes(case: str, base: tuple[MarkerTrajectories, Doc],
+                                     tmp_path: Path,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    m, _ = base
+    ref_p = _write("c3d", m, tmp_path)
+    rc, ref, err = _run([str(ref_p), "--json", "--method", "heelstrike"], capsys)
+    assert rc == 0 and ref is not None, err
+    kind, units, f, extra = SAME_WALK[case]
+    p = _write(kind, f(m), tmp_path, units)
+    rc, doc, err = _run([str(p), "--json", "--method", "heelstrike", *extra], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc)
+    assert [e["time_s"] for e in doc["events"]] == pytest.approx(
+        [e["time_s"] for e in ref["events"]], abs=2e-3)
+
+
+@pytest.mark.parametrize("kind", ["trc", "c3d"])
+@pytest.mark.parametrize("keep", [0.3, 0.75, 0.999])
+def test_truncated_file(kind: str, keep: float, base: tuple[MarkerTrajectories, Doc],
+                        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A file cut short (copy interrupted): an analysis of what is there, or one line."""
+    m, _ = base
+    p = _write(kind, m, tmp_path)
+    data = p.read_bytes()
+    p.write_bytes(data[: int(len(data) * keep)])
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc in (0, 2)
+    if rc == 2:
+        assert p.name in err or "step" in err or "walking" in err, err
+    else:
+        assert doc is not None and len(doc["steps"]) >= 2
