@@ -5,7 +5,9 @@ request body larger than the route's ``max_body_size`` — :data:`JSON_BODY_MAX`
 route declares its own, as the uploads do — is refused with HTTP 413 and a message that
 names the limit. A declared ``Content-Length`` is checked before anything is read; a body
 without one is counted while it is read, so neither a huge JSON body nor an over-size upload
-is held in memory or spooled to disk in full.
+is held in memory or spooled to disk in full. An upload (a route with a larger limit
+that requires a login) is refused with 401 before its body is read, so an anonymous client
+cannot make the server spool hundreds of MB.
 """
 
 from __future__ import annotations
@@ -14,8 +16,12 @@ from collections.abc import Callable, Coroutine
 from typing import Any
 
 from fastapi import HTTPException, Request, Response, status
+from fastapi.concurrency import run_in_threadpool
+from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute
 from starlette.types import Message
+
+from app.api.deps import get_current_user
 
 #: Largest JSON body of any route without its own limit: the largest real one (64 sensor
 #: poses, or 4000-character notes) is a few kB.
@@ -33,6 +39,17 @@ def too_large(limit: int) -> HTTPException:
                          "send a smaller file or fewer values")
 
 
+def _needs_login(dependant: Dependant) -> bool:
+    return dependant.call is get_current_user or any(
+        _needs_login(d) for d in dependant.dependencies)
+
+
+def _check_login(request: Request) -> None:
+    """HTTP 401 unless the request carries a valid login (as ``CurrentUser`` checks)."""
+    with request.app.state.db_sessions() as db:
+        get_current_user(request, db)
+
+
 class BoundedRoute(APIRoute):
     """An ``APIRoute`` whose request body is bounded by ``max_body_size`` (default
     :data:`JSON_BODY_MAX`), refused with a readable HTTP 413."""
@@ -48,11 +65,14 @@ class BoundedRoute(APIRoute):
     def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
         handler = super().get_route_handler()
         limit = self.body_limit
+        login_first = limit > JSON_BODY_MAX and _needs_login(self.dependant)
 
         async def bounded(request: Request) -> Response:
             declared = request.headers.get("content-length", "")
             if declared.isdigit() and int(declared) > limit:
                 raise too_large(limit)
+            if login_first:
+                await run_in_threadpool(_check_login, request)
             receive = request.receive
             total = 0
 
