@@ -293,6 +293,11 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
         s = read_skeleton_csv(p)
         if units is not None:
             s.positions = s.positions * unit_scale(units)
+        elif not 0.3 < characteristic_length(s.positions, list(s.joint_set.joints)) < 3.0:
+            # The format is metres, but a file in mm or cm would give 1000 m steps:
+            # its body size tells the unit, as for C3D/TRC files without one.
+            s.positions = s.positions * unit_scale(
+                detect_units(s.positions, list(s.joint_set.joints)))
         if left is not None or right is not None:
             m = MarkerTrajectories(s.times, s.tracked_positions(), list(s.joint_set.joints),
                                    float(1.0 / np.median(np.diff(s.times))) if len(s) > 1 else 30.0,

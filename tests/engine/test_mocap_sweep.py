@@ -689,3 +689,18 @@ def test_truncated_file(kind: str, keep: float, base: tuple[MarkerTrajectories, 
         assert p.name in err or "step" in err or "walking" in err, err
     else:
         assert doc is not None and len(doc["steps"]) >= 2
+
+
+@pytest.mark.parametrize(("scale", "extra"),
+                         [(1000.0, []), (100.0, []), (1000.0, ["--units", "mm"])])
+def test_csv_not_in_metres(scale: float, extra: list[str], skeleton: SkeletonSeries,
+                           tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The CSV format is metres; a file in mm or cm is recognised by the body's size."""
+    ref = _csv_ref(skeleton, tmp_path, capsys)
+    s = SkeletonSeries(skeleton.times, skeleton.positions * scale, skeleton.states,
+                       skeleton.joint_set)
+    p = tmp_path / "mm.csv"
+    write_skeleton_csv(p, s)
+    rc, doc, err = _run([str(p), "--json", *extra], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc)
