@@ -179,17 +179,31 @@ def feet_from_markers(
     pts: dict[str, dict[str, FloatArray]] = {"L": {}, "R": {}}
     sources: dict[str, str] = {"up": up_axis}
     primary: dict[str, str] = {}
+    explicit: dict[str, str] = {}
+    scope = labels  # where the other foot points and the pelvis are looked for
+    if left is not None and right is not None:
+        explicit = {"L": resolve_label(labels, left), "R": resolve_label(labels, right)}
+        prefixes = {lab.rpartition(":")[0] for lab in explicit.values()}
+        if len(prefixes) == 1 and "" not in prefixes:
+            # a subject chosen by prefix: take its heels, toes and pelvis, not another's
+            scope = [x for x in labels if x.rpartition(":")[0] in prefixes | {""}]
     for side in ("L", "R"):
         for part in ("ankle", "heel", "toe"):
-            lab = find_marker(labels, side, part)
+            lab = find_marker(scope, side, part)
+            same = [x for x in scope if _key(x) == _key(lab)] if lab is not None else []
+            if len(same) > 1 and left is None:
+                # e.g. two subjects' Plug-in Gait sets: analysing the first silently
+                # could report the wrong person.
+                raise InputError(f"several markers are named like {lab!r}: "
+                                 f"{', '.join(same)}; choose one subject's feet with "
+                                 f"--left/--right, e.g. --left {same[0]}")
             if lab is not None:
                 x = fill_gaps(t, P[:, labels.index(lab)])
                 if np.isfinite(x).all(axis=1).sum() >= 2:
                     pts[side][part] = x
                     sources[f"{side}_{part}"] = lab
-    if left is not None and right is not None:
-        for side, name in (("L", left), ("R", right)):
-            lab = resolve_label(labels, name)
+    if explicit:
+        for side, lab in explicit.items():
             x = fill_gaps(t, P[:, labels.index(lab)])
             if np.isfinite(x).all(axis=1).sum() < 2:
                 raise InputError(f"marker {lab!r} has no data")
@@ -210,7 +224,7 @@ def feet_from_markers(
                 "LANK/RANK, LHEE/RHEE, L.Ankle, L_FCC, AnkleLeft); available labels: "
                 + ", ".join(labels) + "; name the foot markers with --left/--right"
             )
-    pelvis = _pelvis(labels, P, t)
+    pelvis = _pelvis(scope, P[:, [labels.index(x) for x in scope]], t)
     if pelvis is not None:
         sources["pelvis"] = pelvis[1]
     return FeetTrajectories(t, float(markers.rate), pts, primary,

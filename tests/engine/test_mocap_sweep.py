@@ -704,3 +704,28 @@ def test_csv_not_in_metres(scale: float, extra: list[str], skeleton: SkeletonSer
     rc, doc, err = _run([str(p), "--json", *extra], capsys)
     assert rc == 0 and doc is not None, err
     _same_steps(ref, doc)
+
+
+def test_two_subjects_in_one_file(base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """Two prefixed Plug-in Gait sets: no silent choice; --left/--right pick one."""
+    m, ref = base
+    a = _relabel(m, {lab: f"Anna:{lab}" for lab in m.labels})
+    b = _relabel(_moved(m, offset=(0.0, 2.0, 0.0)), {lab: f"Ben:{lab}" for lab in m.labels})
+    two = replace(a, positions=np.concatenate([b.positions, a.positions], axis=1),
+                  labels=b.labels + a.labels)
+    p = _write("c3d", two, tmp_path)
+    rc, _, err = _run([str(p), "--json"], capsys)
+    assert rc == 2 and "Ben:LANK, Anna:LANK" in err and "--left/--right" in err
+    for method in ("crossing", "heelstrike"):
+        p1 = _write("trc", m, tmp_path)
+        rc, ref, err = _run([str(p1), "--json", "--left", "LANK", "--right", "RANK",
+                             "--method", method], capsys)
+        assert rc == 0 and ref is not None, err
+        p = _write("c3d", two, tmp_path)
+        rc, doc, err = _run([str(p), "--json", "--left", "Anna:LANK", "--right", "Anna:RANK",
+                             "--method", method], capsys)
+        assert rc == 0 and doc is not None, err
+        _same_steps(ref, doc)
+        assert [e["time_s"] for e in doc["events"]] == pytest.approx(
+            [e["time_s"] for e in ref["events"]], abs=2e-3)
