@@ -202,6 +202,30 @@ def test_malformed_path_parameters_get_a_readable_4xx(client: TestClient) -> Non
     assert n > 300
 
 
+#: Query values a client might send by mistake or malice.
+BAD_QUERY_VALUES = ["nan", "inf", "-1", "1e999", "x" * 5000, "\x00", "\u2603", "", ",,,",
+                    "99999999999999999999999", "../../etc/passwd", "0-10000000000000"]
+
+
+def test_malformed_query_parameters_get_a_readable_4xx(client: TestClient) -> None:
+    h = _login(client)
+    _filed_recording(client, h, "R1")
+    n = 0
+    for method, path, ctx in _http_routes(client):
+        route = ctx.original_route
+        if not isinstance(route, APIRoute) or not path.startswith("/api/"):
+            continue
+        url = _fill(path, "R1" if "rec_id" in path else "1")
+        for q in (p.name for p in route.dependant.query_params):
+            for v in BAD_QUERY_VALUES:
+                r = client.request(method, url, params={q: v}, headers=h)
+                if r.status_code < 400:
+                    continue  # a value that happens to be valid (e.g. tilt_deg=-1)
+                _assert_readable(r, f"{method} {path}?{q}={v[:20]!r}")
+                n += 1
+    assert n > 100
+
+
 def _json_body_fields(route: APIRoute) -> list[str] | None:
     """Field names of a route's JSON body model, None when it takes no JSON body."""
     params = route.dependant.body_params
@@ -454,10 +478,13 @@ def test_report_reference_limits_and_rollback(client: TestClient, tmp_path: Path
 def test_imu_upload_limits(client: TestClient, tmp_path: Path,
                            monkeypatch: pytest.MonkeyPatch) -> None:
     from app.api.routes import imu
+    from app.server.imu_analysis import ImuJob, ImuStore
 
     h = _login(client)
-    store_before = dict(getattr(client.app.state, "imu_store", None).__dict__  # type: ignore
-                        ) if getattr(client.app.state, "imu_store", None) else None
+    store = ImuStore()
+    store.add(ImuJob("0123456789abcdef", {"sensors": ["chest"]}, {}, "t,a\n0,1\n", "a.csv"))
+    client.app.state.imu_store = store  # type: ignore[attr-defined]
+    before = client.get("/api/imu/sessions/0123456789abcdef", headers=h).json()
     files = _tree(tmp_path)
     monkeypatch.setattr(imu, "MAX_FILE_BYTES", 1000)
     cases = (
@@ -473,8 +500,8 @@ def test_imu_upload_limits(client: TestClient, tmp_path: Path,
         r = client.post("/api/imu/sessions", headers=h, files=parts)
         assert r.status_code == status, f"{parts[0][1][0]}: {r.status_code} {r.text[:200]}"
         _assert_readable(r, f"imu upload {parts[0][1][0]}")
-    store = getattr(client.app.state, "imu_store", None)
-    assert store is None or store_before is None or store.__dict__ == store_before
+    assert list(store._jobs) == ["0123456789abcdef"]  # no result added or dropped
+    assert client.get("/api/imu/sessions/0123456789abcdef", headers=h).json() == before
     assert _tree(tmp_path) == files
 
 
