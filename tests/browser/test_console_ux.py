@@ -1,11 +1,11 @@
 """What a clinician sees on a first visit of every console page, at a laptop's 1024×768.
 
 Each page is loaded fresh (nothing recorded, nothing calibrated) and checked for: no
-JavaScript error, no leaked programming values ("undefined", "NaN", "[object Object]"),
-no element marked ``hidden`` that is still displayed (a class's ``display:flex`` used to
-win over the attribute: the calibration wizard showed Accept/Reject before any capture),
-no project jargon (seed/issue numbers) in visible text, every visible form control with
-a label, and no horizontal scrolling.
+JavaScript or console error, no leaked programming values ("undefined", "NaN",
+"[object Object]"), no element marked ``hidden`` that is still displayed (a class's
+``display:flex`` used to win over the attribute: the calibration wizard showed
+Accept/Reject before any capture), no project jargon (seed/issue numbers) in visible
+text, every visible form control with a label, and no horizontal scrolling.
 """
 
 from __future__ import annotations
@@ -48,6 +48,9 @@ AUDIT_JS = """() => {
 def test_first_visit_of_each_page_is_clean(page: Any, live_server: LiveServer,
                                            artifacts_dir: Path, name: str) -> None:
     page.set_viewport_size({"width": 1024, "height": 768})
+    console_errors: list[str] = []
+    page.on("console", lambda m: console_errors.append(f"{m.text} ({m.location.get('url')})")
+            if m.type == "error" else None)
     page.goto(f"{live_server.base_url}/{name}.html")
     # (no "networkidle": the Live and KSCC pages stream and poll for as long as they are open)
     page.wait_for_load_state("load")
@@ -55,6 +58,10 @@ def test_first_visit_of_each_page_is_clean(page: Any, live_server: LiveServer,
     got = page.evaluate(AUDIT_JS)
     screenshot(page, artifacts_dir, f"ux_first_visit_{name}")
     assert not page.js_errors, page.js_errors
+    # the KSCC page asks for the running session, and the API answers "none" with a 404
+    # that Chromium logs; that one is expected until the API answers it otherwise
+    console_errors = [e for e in console_errors if "/api/kscc/session" not in e]
+    assert console_errors == [], console_errors
     leaked = [m.group(0) for m in LEAKED.finditer(got["text"])]
     assert not leaked, leaked
     jargon = [m.group(0) for m in JARGON.finditer(got["text"])]
@@ -62,3 +69,19 @@ def test_first_visit_of_each_page_is_clean(page: Any, live_server: LiveServer,
     assert got["shownHidden"] == [], got["shownHidden"]
     assert got["unlabeled"] == [], got["unlabeled"]
     assert got["scrollWidth"] <= got["clientWidth"], (got["scrollWidth"], got["clientWidth"])
+
+
+def test_login_page_has_no_console_error(browser: Any, live_server: LiveServer) -> None:
+    """A fresh browser's first page logs no error (a missing favicon.ico was a 404 in
+    the console of every new visitor)."""
+    context = browser.new_context(viewport={"width": 1024, "height": 768})
+    try:
+        p = context.new_page()
+        errors: list[str] = []
+        p.on("console", lambda m: errors.append(f"{m.text} ({m.location.get('url')})")
+             if m.type == "error" else None)
+        p.goto(live_server.base_url + "/index.html")
+        p.wait_for_load_state("networkidle")
+        assert errors == [], errors
+    finally:
+        context.close()
