@@ -23,6 +23,7 @@ from engine.io.markers import (
     characteristic_length,
     detect_units,
     detect_vertical_axis,
+    labelled_vertical_axis,
     to_z_up,
     unit_scale,
 )
@@ -132,6 +133,23 @@ def fill_gaps(times: FloatArray, x: FloatArray, max_gap_s: float = MAX_GAP_S) ->
     return out
 
 
+def _check_units(P: FloatArray, labels: list[str], units: str) -> None:
+    """A unit given by the user must give a body of human size (leg or height)."""
+    L = characteristic_length(P, labels)
+    if not 0.2 < L < 5.0:
+        raise InputError(f"with --units {units} the body measures {L:.3g} m (leg length or "
+                         "height); fix --units or leave it out")
+
+
+def _check_up(P: FloatArray, labels: list[str], up: str) -> None:
+    """A vertical axis given by the user must not contradict labelled pelvis/head and
+    foot markers (a wrong one turns a height into a step width without a word)."""
+    found = labelled_vertical_axis(P, labels)
+    if found is not None and found != up.strip().lower().lstrip("+"):
+        raise InputError(f"--up {up} contradicts the markers: the pelvis/head are above the "
+                         f"feet along {found}; give --up {found} or leave it out")
+
+
 def feet_from_markers(
     markers: MarkerTrajectories,
     left: str | None = None,
@@ -164,6 +182,7 @@ def feet_from_markers(
     P = markers.positions
     if units is not None:
         P = P / unit_scale(markers.units) * unit_scale(units)
+        _check_units(P, labels, units)
     else:
         # A header that disagrees with the body size by 10x or more is wrong (seen in
         # exports that write "m" over millimetre data); trust the body size then.
@@ -172,6 +191,8 @@ def feet_from_markers(
         plausible = 0.3 < characteristic_length(P, labels) < 3.0
         if guess != markers.units.strip().lower() and not plausible:
             P = raw * unit_scale(guess)
+    if up is not None:
+        _check_up(P, labels, up)
     up_axis = up or detect_vertical_axis(P, labels)
     P = to_z_up(P, up_axis)
     t = markers.times
@@ -305,8 +326,10 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
         return feet_from_markers(read_trc(p), left, right, up, units)
     if ext == ".csv":
         s = read_skeleton_csv(p)
+        joints = list(s.joint_set.joints)
         if units is not None:
             s.positions = s.positions * unit_scale(units)
+            _check_units(s.positions, joints, units)
         elif not 0.3 < characteristic_length(s.positions, list(s.joint_set.joints)) < 3.0:
             # The format is metres, but a file in mm or cm would give 1000 m steps:
             # its body size tells the unit, as for C3D/TRC files without one.
@@ -317,5 +340,7 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
                                    float(1.0 / np.median(np.diff(s.times))) if len(s) > 1 else 30.0,
                                    "m")
             return feet_from_markers(m, left, right, up, None)
+        if up is not None:
+            _check_up(s.tracked_positions(), joints, up)
         return feet_from_skeleton(s, up=up)
     raise InputError(f"unsupported file type {p.suffix!r}; use .c3d, .trc or .csv")

@@ -189,6 +189,21 @@ def detect_units(positions: ArrayLike, labels: list[str]) -> str:
     return "mm"
 
 
+def labelled_vertical_axis(positions: ArrayLike, labels: list[str]) -> str | None:
+    """Vertical axis (with sign) along which labelled pelvis/head markers sit furthest
+    above labelled foot markers, or None when the set lacks either group."""
+    P = np.asarray(positions, dtype=float)
+    up = _group(labels, _UPPER_PATTERNS)
+    feet = _group(labels, _FOOT_PATTERNS)
+    if up and feet:
+        d = ns.nanmedian(ns.nanmean(P[:, up], axis=1) - ns.nanmean(P[:, feet], axis=1),
+                         axis=0)
+        if np.all(np.isfinite(d)):
+            a = int(np.argmax(np.abs(d)))
+            return ("" if d[a] > 0 else "-") + AXES[a]
+    return None
+
+
 def detect_vertical_axis(positions: ArrayLike, labels: list[str]) -> str:
     """Guess the vertical axis of a marker set, with sign (``"z"``, ``"-y"`` ...).
 
@@ -207,14 +222,10 @@ def detect_vertical_axis(positions: ArrayLike, labels: list[str]) -> str:
         One of ``x, y, z, -x, -y, -z``.
     """
     P = np.asarray(positions, dtype=float)
-    up = _group(labels, _UPPER_PATTERNS)
+    labelled = labelled_vertical_axis(P, labels)
+    if labelled is not None:
+        return labelled
     feet = _group(labels, _FOOT_PATTERNS)
-    if up and feet:
-        d = ns.nanmedian(ns.nanmean(P[:, up], axis=1) - ns.nanmean(P[:, feet], axis=1),
-                         axis=0)
-        if np.all(np.isfinite(d)):
-            a = int(np.argmax(np.abs(d)))
-            return ("" if d[a] > 0 else "-") + AXES[a]
     spread = ns.nanmedian(ns.nanstd(P, axis=1), axis=0)
     centroid = ns.nanmean(P, axis=1)
     travel = ns.nanstd(centroid, axis=0)

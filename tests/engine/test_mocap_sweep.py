@@ -709,7 +709,7 @@ def test_csv_not_in_metres(scale: float, extra: list[str], skeleton: SkeletonSer
 def test_two_subjects_in_one_file(base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
                                   capsys: pytest.CaptureFixture[str]) -> None:
     """Two prefixed Plug-in Gait sets: no silent choice; --left/--right pick one."""
-    m, ref = base
+    m, _ = base
     a = _relabel(m, {lab: f"Anna:{lab}" for lab in m.labels})
     b = _relabel(_moved(m, offset=(0.0, 2.0, 0.0)), {lab: f"Ben:{lab}" for lab in m.labels})
     two = replace(a, positions=np.concatenate([b.positions, a.positions], axis=1),
@@ -719,13 +719,33 @@ def test_two_subjects_in_one_file(base: tuple[MarkerTrajectories, Doc], tmp_path
     assert rc == 2 and "Ben:LANK, Anna:LANK" in err and "--left/--right" in err
     for method in ("crossing", "heelstrike"):
         p1 = _write("trc", m, tmp_path)
-        rc, ref, err = _run([str(p1), "--json", "--left", "LANK", "--right", "RANK",
+        rc, one, err = _run([str(p1), "--json", "--left", "LANK", "--right", "RANK",
                              "--method", method], capsys)
-        assert rc == 0 and ref is not None, err
+        assert rc == 0 and one is not None, err
         p = _write("c3d", two, tmp_path)
         rc, doc, err = _run([str(p), "--json", "--left", "Anna:LANK", "--right", "Anna:RANK",
                              "--method", method], capsys)
         assert rc == 0 and doc is not None, err
-        _same_steps(ref, doc)
+        _same_steps(one, doc)
         assert [e["time_s"] for e in doc["events"]] == pytest.approx(
-            [e["time_s"] for e in ref["events"]], abs=2e-3)
+            [e["time_s"] for e in one["events"]], abs=2e-3)
+
+
+@pytest.mark.parametrize(("kind", "extra", "expect"), [
+    ("trc", ["--up", "x"], "--up x contradicts"), ("trc", ["--up", "y"], "--up y contradicts"),
+    ("c3d", ["--up", "-z"], "--up -z contradicts"), ("csv", ["--up", "y"], "--up y contradicts"),
+    ("trc", ["--units", "m"], "--units m"), ("c3d", ["--units", "cm"], "--units cm"),
+    ("csv", ["--units", "mm"], "--units mm"),
+])
+def test_wrong_overrides_are_refused(kind: str, extra: list[str], expect: str,
+                                     skeleton: SkeletonSeries, tmp_path: Path,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """A --up or --units that contradicts the body is an error, not a plausible answer
+    (a wrong --up y gave near-normal step lengths with heights as widths)."""
+    if kind == "csv":
+        p = tmp_path / "w.csv"
+        write_skeleton_csv(p, skeleton)
+    else:
+        p = _write(kind, _synthetic(), tmp_path, "mm")
+    rc, _, err = _run([str(p), "--json", *extra], capsys)
+    assert rc == 2 and expect in err, err
