@@ -172,6 +172,13 @@ def test_websockets_refuse_anonymous_clients(client: TestClient) -> None:
             client.cookies.clear()
 
 
+def test_unauthenticated_3d_view_is_local_by_default() -> None:
+    """The viser 3D view (its own port, not a route of this app) has no login of its own:
+    it shows live skeletons, so by default it listens on the loopback interface only
+    (opening it to the network is an explicit ``GAITRIG_VIEWER_HOST``)."""
+    assert Settings.model_fields["viewer_host"].default in ("127.0.0.1", "localhost", "::1")
+
+
 def test_static_mount_serves_no_file_outside_the_console(client: TestClient,
                                                          tmp_path: Path) -> None:
     (tmp_path / "secret.txt").write_text("patient")
