@@ -555,3 +555,15 @@ def test_anonymous_uploads_are_refused_before_the_body_is_read(
     assert parsed == [], "an anonymous upload was parsed"
     r = client.post("/api/reports/upload", files=files, headers=_login(client))
     assert r.status_code == 422 and parsed, r.text  # logged in: parsed and analysed
+
+
+def test_stream_lists_are_bounded(client: TestClient) -> None:
+    """A recording's streams are stored joined in a 120-character column (a longer value
+    is an error on PostgreSQL): a list longer than the three streams is a 422."""
+    h = _login(client)
+    many = {"streams": ["depth"] * 1000}
+    for url in ("/api/recordings", "/api/sessions/1/recordings"):
+        r = client.post(url, json=many, headers=h)
+        assert r.status_code == 422, f"{url}: {r.status_code} {r.text[:200]}"
+        _assert_readable(r, url)
+        assert "streams" in r.json()["detail"]

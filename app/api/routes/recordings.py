@@ -16,7 +16,8 @@ router = APIRouter(prefix="/recordings", route_class=BoundedRoute, tags=["record
 
 class StartIn(BaseModel):
     streams: list[Literal["depth", "color", "body_index"]] = Field(
-        default_factory=list, description="Image streams to record besides skeletons.")
+        default_factory=list, max_length=3,  # stored joined in a 120-character column
+        description="Image streams to record besides skeletons.")
     image_every: int = Field(default=1, ge=1, le=1000, description="Images of every N-th frame.")
 
 

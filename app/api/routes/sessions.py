@@ -48,7 +48,9 @@ class SessionPatch(BaseModel):
 
 class RecordIn(BaseModel):
     label: str = Field(default="", max_length=120, description="e.g. walk 1")
-    streams: list[Literal["depth", "color", "body_index"]] = Field(default_factory=list)
+    # at most the three streams: the list is stored joined in a 120-character column
+    streams: list[Literal["depth", "color", "body_index"]] = Field(default_factory=list,
+                                                                   max_length=3)
     image_every: int = Field(default=1, ge=1, le=1000)
 
 
