@@ -208,6 +208,7 @@ def feet_from_markers(
         if len(prefixes) == 1 and "" not in prefixes:
             # a subject chosen by prefix: take its heels, toes and pelvis, not another's
             scope = [x for x in labels if x.rpartition(":")[0] in prefixes | {""}]
+    empty: list[str] = []  # ankle/heel markers that are there but never seen
     for side in ("L", "R"):
         for part in ("ankle", "heel", "toe"):
             lab = find_marker(scope, side, part)
@@ -223,6 +224,8 @@ def feet_from_markers(
                 if np.isfinite(x).all(axis=1).sum() >= 2:
                     pts[side][part] = x
                     sources[f"{side}_{part}"] = lab
+                elif part != "toe":
+                    empty.append(lab)
     if explicit:
         for side, lab in explicit.items():
             x = fill_gaps(t, P[:, labels.index(lab)])
@@ -239,6 +242,10 @@ def feet_from_markers(
                 missing.append(f"{word} ankle or heel")
             else:
                 primary[side] = have[0]
+        if missing and empty:
+            raise InputError(f"no usable {' and no '.join(missing)} marker: "
+                             f"{', '.join(empty)} hold(s) no data (missing in every frame "
+                             "but at most one); name other foot markers with --left/--right")
         if missing:
             raise InputError(
                 f"no usable {' and no '.join(missing)} marker (looked for names like "

@@ -43,7 +43,8 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
     labels = [c.strip() for c in name_cells[has_frame + 1:] if c.strip()]
     M = len(labels)
     if M == 0:
-        raise InputError(f"{p.name}: no marker names on line 4")
+        hint = "" if "\t" in lines[3] else " (TRC columns are separated by tabs)"
+        raise InputError(f"{p.name}: no marker names on line 4{hint}")
     rows: list[np.ndarray] = []
     row_lines: list[int] = []
     for ln, line in enumerate(lines[5:], start=6):
@@ -59,7 +60,9 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
                 try:
                     vals_f[i] = float(s)
                 except ValueError:
-                    raise InputError(f"{p.name} line {ln}: {s!r} is not a number") from None
+                    hint = " (use a decimal point)" if "," in s else ""
+                    raise InputError(f"{p.name} line {ln}: {s!r} is not a number{hint}"
+                                     ) from None
         rows.append(vals_f)
         row_lines.append(ln)
     if not rows:

@@ -749,3 +749,27 @@ def test_wrong_overrides_are_refused(kind: str, extra: list[str], expect: str,
         p = _write(kind, _synthetic(), tmp_path, "mm")
     rc, _, err = _run([str(p), "--json", *extra], capsys)
     assert rc == 2 and expect in err, err
+
+
+@pytest.mark.parametrize(("case", "expect"), [
+    ("both_empty", "LANK, LHEE, RANK, RHEE hold(s) no data"),
+    ("right_empty", "no usable right ankle or heel marker: RANK, RHEE hold(s) no data"),
+    ("spaces", "no marker names on line 4 (TRC columns are separated by tabs)"),
+    ("decimal_comma", "is not a number (use a decimal point)"),
+])
+def test_empty_markers_and_foreign_text(case: str, expect: str, tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    m = _synthetic()
+    heels = m.positions[:, [0, 1]] - [0.05, 0.0, 0.05]  # behind and below the ankles
+    m = replace(m, positions=np.concatenate([m.positions, heels], axis=1),
+                labels=[*m.labels, "LHEE", "RHEE"])
+    for side in ("R",) if case == "right_empty" else ("L", "R"):
+        for part in ("ANK", "HEE"):
+            m = _gap(m, side + part, -1.0, 1e3)
+    p = _write("trc", m, tmp_path)
+    if case == "spaces":
+        p.write_text(p.read_text().replace("\t", " "))
+    elif case == "decimal_comma":
+        p.write_text(p.read_text().replace(".", ","))
+    rc, _, err = _run([str(p), "--json"], capsys)
+    assert rc == 2 and expect in err, err
