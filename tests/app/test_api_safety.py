@@ -428,6 +428,23 @@ def test_reference_import_limits_and_rollback(client: TestClient, tmp_path: Path
     assert client.get(f"/api/exports/R1/references/{refs[0]['id']}", headers=h).content == good
 
 
+def test_reference_whose_file_is_gone_is_a_404(client: TestClient, tmp_path: Path) -> None:
+    h = _login(client)
+    _filed_recording(client, h, "R1")
+    r = client.post("/api/exports/R1/references", headers=h,
+                    files={"file": ("walk.csv", _skeleton_csv(), "text/csv")})
+    assert r.status_code == 201, r.text
+    for f in (tmp_path / "references" / "R1").iterdir():
+        f.unlink()
+    d = client.get(f"/api/exports/R1/references/{r.json()['id']}", headers=h)
+    assert d.status_code == 404, d.text
+    _assert_readable(d, "download of a reference whose file is gone")
+    assert "upload it again" in d.json()["detail"]
+    d = client.post(f"/api/exports/R1/references/{r.json()['id']}/delete", headers=h)
+    assert d.status_code == 200 and client.get("/api/exports/R1/references", headers=h
+                                               ).json() == []
+
+
 def test_reference_with_a_non_ascii_name_downloads(client: TestClient) -> None:
     """HTTP headers are Latin-1: the download of "Gang_Müller ✓.csv" was a 500."""
     from urllib.parse import quote

@@ -175,6 +175,10 @@ def download_reference(rec_id: str, ref_id: int, request: Request, user: Current
     """The uploaded reference file as it was uploaded."""
     ref = _ref(db, rec_id, ref_id)
     path = layout_of(request).reference_dir(rec_id) / check_id(ref.stored_name, "file")
+    if not path.is_file():  # e.g. the data folder was restored without it
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"the file of reference {ref_id} ({ref.filename!r}) is missing from "
+                            "the server; delete the reference and upload it again")
     return _download(path.read_bytes(), ref.filename, ref.format)
 
 
