@@ -64,7 +64,8 @@ class MarkerTrajectories:
 
     Attributes:
         times: ``(T,)`` seconds, strictly increasing.
-        positions: ``(T, M, 3)`` metres, NaN where a marker is missing.
+        positions: ``(T, M, 3)`` metres, NaN where a marker is missing (infinities
+            become NaN).
         labels: ``M`` marker labels as in the file.
         rate: sampling rate in Hz.
         units: the length unit the file was written in (``"mm"``, ``"m"`` ...).
@@ -82,7 +83,9 @@ class MarkerTrajectories:
 
     def __post_init__(self) -> None:
         self.times = np.asarray(self.times, dtype=float)
-        self.positions = np.asarray(self.positions, dtype=float)
+        self.positions = np.array(self.positions, dtype=float)
+        # an "inf" cell in a text file is as missing as an empty one
+        self.positions[np.isinf(self.positions)] = np.nan
         self.labels = [str(s) for s in self.labels]
         T = len(self.times)
         if self.positions.ndim != 3 or self.positions.shape != (T, len(self.labels), 3):

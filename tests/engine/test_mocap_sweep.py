@@ -773,3 +773,44 @@ def test_empty_markers_and_foreign_text(case: str, expect: str, tmp_path: Path,
         p.write_text(p.read_text().replace(".", ","))
     rc, _, err = _run([str(p), "--json"], capsys)
     assert rc == 2 and expect in err, err
+
+
+@pytest.mark.parametrize("method", ["crossing", "heelstrike"])
+def test_table_output_on_shrinking_windows(method: str, base: tuple[MarkerTrajectories, Doc],
+                                           tmp_path: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """The human-readable table on ever shorter pieces of the walk: a table or one line,
+    never an exception (values that cannot be computed are null in JSON, '—' here)."""
+    m, _ = base
+    n = len(m)
+    for frac in (1.0, 0.8, 0.6, 0.5, 0.4, 0.3):
+        for start in (0, n - int(n * frac)):
+            v = _window(m, m.times[start], m.times[min(n - 1, start + int(n * frac) - 1)])
+            p = _write("trc", v, tmp_path)
+            rc = main(["gait", str(p), "--method", method])
+            out, err = capsys.readouterr()
+            assert rc in (0, 2) and "Traceback" not in err
+            assert ("step length cm" in out) if rc == 0 else (err.count("\n") == 1), err
+
+
+@pytest.mark.parametrize("value", ["inf", "-inf", "nan", "NaN", "-nan"])
+def test_non_finite_cells_are_missing(value: str, base: tuple[MarkerTrajectories, Doc],
+                                      tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """An exporter's inf/nan cells are drop-outs: same steps, and no numpy warning."""
+    import warnings
+
+    m, ref = base
+    lines = _trc_text(m, tmp_path).split("\n")
+    k = 6 + int(np.searchsorted(m.times, _mid_time(ref)))
+    cells = lines[k].split("\t")
+    li = 2 + 3 * m.labels.index("LANK")
+    cells[li:li + 3] = [value] * 3
+    lines[k] = "\t".join(cells)
+    p = tmp_path / "nf.trc"
+    p.write_text("\n".join(lines))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc)
