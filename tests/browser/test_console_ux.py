@@ -5,7 +5,8 @@ JavaScript or console error, no leaked programming values ("undefined", "NaN",
 "[object Object]"), no element marked ``hidden`` that is still displayed (a class's
 ``display:flex`` used to win over the attribute: the calibration wizard showed
 Accept/Reject before any capture), no project jargon (seed/issue numbers) in visible
-text, every visible form control with a label, and no horizontal scrolling.
+text, every visible form control with a label, disabled buttons that look disabled,
+and no horizontal scrolling.
 """
 
 from __future__ import annotations
@@ -37,8 +38,12 @@ AUDIT_JS = """() => {
     .filter((e) => !(e.labels && e.labels.length) && !e.getAttribute("aria-label")
                    && !e.getAttribute("aria-labelledby") && !e.title)
     .map((e) => e.outerHTML.slice(0, 100));
+  // a disabled button must look it (it used to only on the pages loading data.css)
+  const flatDisabled = [...document.querySelectorAll("button:disabled")]
+    .filter((e) => visible(e) && Number(getComputedStyle(e).opacity) > 0.8)
+    .map((e) => e.id || e.textContent.trim());
   const options = [...document.querySelectorAll("option")].map((o) => o.textContent).join("\\n");
-  return { text: document.body.innerText + "\\n" + options, shownHidden, unlabeled,
+  return { text: document.body.innerText + "\\n" + options, shownHidden, unlabeled, flatDisabled,
            scrollWidth: document.documentElement.scrollWidth,
            clientWidth: document.documentElement.clientWidth };
 }"""
@@ -68,6 +73,7 @@ def test_first_visit_of_each_page_is_clean(page: Any, live_server: LiveServer,
     assert not jargon, jargon
     assert got["shownHidden"] == [], got["shownHidden"]
     assert got["unlabeled"] == [], got["unlabeled"]
+    assert got["flatDisabled"] == [], got["flatDisabled"]
     assert got["scrollWidth"] <= got["clientWidth"], (got["scrollWidth"], got["clientWidth"])
 
 
