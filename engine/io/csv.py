@@ -42,7 +42,8 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
     if not p.is_file():
         raise InputError(f"CSV file not found: {p}")
     try:
-        with p.open(newline="", encoding="utf-8") as f:
+        # utf-8-sig: Excel and other Windows tools start the file with a BOM
+        with p.open(newline="", encoding="utf-8-sig") as f:
             reader = _csv.reader(f)
             try:
                 header = [h.strip() for h in next(reader)]

@@ -27,7 +27,8 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"TRC file not found: {p}")
-    lines = p.read_text(encoding="utf-8", errors="replace").splitlines()
+    # utf-8-sig: some Windows exporters start the file with a BOM
+    lines = p.read_text(encoding="utf-8-sig", errors="replace").splitlines()
     if len(lines) < 5 or not lines[0].startswith("PathFileType"):
         raise InputError(f"{p.name} is not a TRC file (first line must start with PathFileType)")
     keys = lines[1].split("\t")

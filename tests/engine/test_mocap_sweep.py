@@ -815,3 +815,23 @@ def test_non_finite_cells_are_missing(value: str, base: tuple[MarkerTrajectories
         rc, doc, err = _run([str(p), "--json"], capsys)
     assert rc == 0 and doc is not None, err
     _same_steps(ref, doc)
+
+
+def test_byte_order_mark(skeleton: SkeletonSeries, tmp_path: Path,
+                         capsys: pytest.CaptureFixture[str]) -> None:
+    """Windows tools (Excel's 'CSV UTF-8', some TRC exporters) start text with a BOM."""
+    ref = _csv_ref(skeleton, tmp_path, capsys)
+    p = tmp_path / "bom.csv"
+    p.write_bytes(b"\xef\xbb\xbf" + _csv_text(skeleton, tmp_path).replace("\n", "\r\n").encode())
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc)
+    m = _synthetic()
+    p0 = _write("trc", m, tmp_path)
+    rc, ref, err = _run([str(p0), "--json"], capsys)
+    assert rc == 0 and ref is not None, err
+    p = tmp_path / "bom.trc"
+    p.write_bytes(b"\xef\xbb\xbf" + p0.read_bytes())
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc)
