@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.errors import InputError
+from engine.io.markers import check_time_unit
 from engine.skeleton import JOINT_SETS, JointSet, SkeletonSeries, TrackingState
 
 
@@ -106,6 +107,7 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
         raise InputError(f"{p.name} row {i + 2}: time {A[i, 0]:g} is not after the "
                          "previous row's; times must be strictly increasing (remove "
                          "repeated or out-of-order rows)")
+    check_time_unit(A[:, 0], p.name)
     return SkeletonSeries(A[:, 0], pos, states, js, {"source": str(p)})
 
 

@@ -115,6 +115,20 @@ class MarkerTrajectories:
         return self.positions[:, self.index(label)]
 
 
+def check_time_unit(times: NDArray[np.float64], name: str) -> None:
+    """Refuse a time column that is not in seconds (ms, µs, 100 ns ticks ...).
+
+    Gait needs at least a few samples per second, so a median frame step of more than
+    half a second means another unit: without this the analysis would only say that no
+    walking was found.
+    """
+    if len(times) > 1:
+        dt = float(np.median(np.diff(times)))
+        if dt > 0.5:
+            raise InputError(f"{name}: the times advance {dt:g} per frame; the time column "
+                             "must be in seconds (is it in milliseconds or ticks?)")
+
+
 def unit_scale(units: str) -> float:
     """Metres per ``units`` (``"mm"``, ``"cm"``, ``"m"``), or InputError."""
     u = units.strip().lower()

@@ -12,7 +12,12 @@ from pathlib import Path
 import numpy as np
 
 from engine.errors import InputError
-from engine.io.markers import MarkerTrajectories, detect_units, unit_scale
+from engine.io.markers import (
+    MarkerTrajectories,
+    check_time_unit,
+    detect_units,
+    unit_scale,
+)
 
 
 def read_trc(path: str | Path) -> MarkerTrajectories:
@@ -76,6 +81,7 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
         raise InputError(f"{p.name} line {row_lines[i]}: time {times[i]:g} is missing or not "
                          "after the previous row's; times must increase (remove repeated or "
                          "out-of-order rows)")
+    check_time_unit(times, p.name)
     if not np.isfinite(rate) or rate <= 0:
         rate = float(1.0 / np.median(np.diff(times))) if len(times) > 1 else 1.0
     raw = A[:, 2:].reshape(len(A), M, 3)

@@ -828,10 +828,27 @@ def test_byte_order_mark(skeleton: SkeletonSeries, tmp_path: Path,
     _same_steps(ref, doc)
     m = _synthetic()
     p0 = _write("trc", m, tmp_path)
-    rc, ref, err = _run([str(p0), "--json"], capsys)
-    assert rc == 0 and ref is not None, err
+    rc, ref_trc, err = _run([str(p0), "--json"], capsys)
+    assert rc == 0 and ref_trc is not None, err
     p = tmp_path / "bom.trc"
     p.write_bytes(b"\xef\xbb\xbf" + p0.read_bytes())
     rc, doc, err = _run([str(p), "--json"], capsys)
     assert rc == 0 and doc is not None, err
-    _same_steps(ref, doc)
+    _same_steps(ref_trc, doc)
+
+
+@pytest.mark.parametrize(("kind", "scale"), [("csv", 1e3), ("csv", 1e7), ("trc", 1e3)])
+def test_time_not_in_seconds(kind: str, scale: float, skeleton: SkeletonSeries,
+                             tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Times in ms or 100 ns ticks (Kinect SDK) are named as such (was: 'no straight
+    walking found')."""
+    if kind == "csv":
+        s = SkeletonSeries(skeleton.times * scale + 5.0, skeleton.positions, skeleton.states,
+                           skeleton.joint_set)
+        p = tmp_path / "ms.csv"
+        write_skeleton_csv(p, s)
+    else:
+        m = _synthetic()
+        p = _write("trc", replace(m, times=m.times * scale, rate=100.0 / scale), tmp_path)
+    rc, _, err = _run([str(p), "--json"], capsys)
+    assert rc == 2 and "must be in seconds" in err and p.name in err, err
