@@ -103,6 +103,7 @@
   // would poll twice as often).
   const chain = gaitrig.latest();
   function follow() { poll(chain.ask()); }
+  let copying = null;  // id of the recording stopped here, until its copy is complete
   async function poll(mine) {
     if (!chain.current(mine) || recId === null) return;
     try {
@@ -117,6 +118,11 @@
       if (!running) {
         $("done-link").hidden = false;
         $("open-subject").href = `/subjects.html#subject=${r.subject.id}`;
+      }
+      // the stop's "now copies…" would otherwise stay beside the "complete" badge
+      if (r.state === "complete" && copying === r.id) {
+        copying = null;
+        say("rec-msg", `Recording ${r.id} is copied to the server: every sensor's part verified.`, true);
       }
       if (r.state !== "complete") setTimeout(() => poll(mine), running ? 500 : 700);
     } catch (e) { if (chain.current(mine)) { say("rec-msg", e.message); setTimeout(() => poll(mine), 2000); } }
@@ -142,6 +148,10 @@
     try {
       await api(`/api/recordings/${recId}/stop`, { method: "POST" });
       say("rec-msg", `Recording ${recId} stopped; the server now copies every sensor's part.`, true);
+      copying = recId;
+      // the disabled Stop dropped the keyboard focus to the page; the message takes it (not
+      // Start: a second press of the key would start a new recording)
+      $("rec-msg").focus();
       follow();  // an answer asked for before the stop would enable Stop again
     }
     catch (e) { say("rec-msg", e.message); $("stop").disabled = false; }

@@ -35,8 +35,12 @@ def test_record_stop_transfer_and_subjects_page(page: Any, live_server: LiveServ
     # the session list counts the new recording
     page.wait_for_function(
         "document.getElementById('session').selectedOptions[0].textContent.includes('(1 rec.)')")
-    page.click("#stop")
+    page.focus("#stop")
+    page.keyboard.press("Enter")  # as a keyboard user: focus must not drop to the page
+    page.wait_for_function("document.activeElement.id === 'rec-msg'")
     page.wait_for_selector("#state-badge[data-state=complete]", timeout=60_000)
+    # the message no longer says the copy is under way once the badge says complete
+    page.wait_for_function("document.getElementById('rec-msg').textContent.includes('copied')")
     assert page.locator("#parts tr[data-state=complete]").count() == n_parts
     img_done = screenshot(page, artifacts_dir, "record_complete")
     # the "complete" badges are drawn in the OK green
