@@ -337,11 +337,16 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
         if units is not None:
             s.positions = s.positions * unit_scale(units)
             _check_units(s.positions, joints, units)
-        elif not 0.3 < characteristic_length(s.positions, list(s.joint_set.joints)) < 3.0:
+        else:
             # The format is metres, but a file in mm or cm would give 1000 m steps:
-            # its body size tells the unit, as for C3D/TRC files without one.
-            s.positions = s.positions * unit_scale(
-                detect_units(s.positions, list(s.joint_set.joints)))
+            # its body size tells the unit, as for C3D/TRC files without one. Too few
+            # joints to tell leave the format's metres (missing feet are named below).
+            try:
+                size: float | None = characteristic_length(s.positions, joints)
+            except InputError:
+                size = None
+            if size is not None and not 0.3 < size < 3.0:
+                s.positions = s.positions * unit_scale(detect_units(s.positions, joints))
         if left is not None or right is not None:
             m = MarkerTrajectories(s.times, s.tracked_positions(), list(s.joint_set.joints),
                                    float(1.0 / np.median(np.diff(s.times))) if len(s) > 1 else 30.0,

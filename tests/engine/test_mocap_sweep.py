@@ -551,6 +551,7 @@ def test_csv_same_walk(case: str, skeleton: SkeletonSeries, tmp_path: Path,
     ("backwards_time", "bad.csv row"),
     ("duplicate_time", "bad.csv row"),
     ("no_ankle_right", "AnkleRight"),
+    ("head_only", "AnkleLeft"),
     ("text_cell", "not a number"),
     ("header_only", "no data rows"),
     ("no_time_column", "'time'"),
@@ -568,6 +569,11 @@ def test_csv_bad_input(case: str, expect: str, skeleton: SkeletonSeries, tmp_pat
     elif case == "no_ankle_right":
         rows = [ln.split(",") for ln in lines if ln]
         keep = [i for i, h in enumerate(rows[0]) if not h.startswith("AnkleRight")]
+        lines = [",".join(r[i] for i in keep) for r in rows]
+    elif case == "head_only":
+        # one joint: too few to guess a unit from; the missing feet are what to name
+        rows = [ln.split(",") for ln in lines if ln]
+        keep = [i for i, h in enumerate(rows[0]) if h == "time" or h.startswith("Head")]
         lines = [",".join(r[i] for i in keep) for r in rows]
     elif case == "text_cell":
         lines[mid] = lines[mid].replace(",", ",abc,", 1).replace(",", "", 1)
