@@ -24,6 +24,13 @@ const gaitrig = (() => {
     for (const c of children) e.append(c);
     return e;
   }
+  // A focused button disabled while its action runs drops the keyboard focus to the page
+  // (Tab then starts over from the top); release() re-enables it and gives the focus back
+  // unless the user has put it somewhere else meanwhile.
+  function release(btn) {
+    btn.disabled = false;
+    if (!document.activeElement || document.activeElement === document.body) btn.focus({ preventScroll: true });
+  }
   function fmt(v, digits, unit) { return v === null || v === undefined ? "—" : v.toFixed(digits) + unit; }
 
   function loginPage() {
@@ -111,7 +118,7 @@ const gaitrig = (() => {
       // button start where it should stop)
       recSeq.acted();
       await refreshRecordings();
-      recBtn.disabled = false;
+      release(recBtn);
     });
     const STATES = { recording: "recording", stopping: "stopping…", on_nodes: "complete on the sensors",
       incomplete: "incomplete", on_node: "on the sensor", pending: "starting",
@@ -164,5 +171,5 @@ const gaitrig = (() => {
     setInterval(refresh, 1000);
     setInterval(refreshRecordings, 1000);
   }
-  return { api, toLogin, newest, latest, loginPage, rigPage };
+  return { api, toLogin, newest, latest, release, loginPage, rigPage };
 })();

@@ -69,7 +69,7 @@
       await last();
     } catch (e) {
       state.className = "warn"; state.textContent = String(e.message || e);
-    } finally { btn.disabled = false; }
+    } finally { gaitrig.release(btn); }
   });
   last().catch((e) => { state.textContent = String(e.message || e); });
 })();

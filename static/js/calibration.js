@@ -158,7 +158,7 @@
       }
     } catch (e) {
       $("cap-error").textContent = String(e.message || e);
-    } finally { btn.disabled = false; }
+    } finally { gaitrig.release(btn); }
   });
   $("accept").addEventListener("click", async () => {
     if (pendingJob === null) return;
@@ -197,7 +197,7 @@
       showCheck(await poll(j0.id, () => {}));
     } catch (e) {
       $("check-state").className = "warn"; $("check-state").textContent = String(e.message || e);
-    } finally { btn.disabled = false; }
+    } finally { gaitrig.release(btn); }
   });
 
   // versions lists overlap (page load, accept, restore, a simulated run): one asked
@@ -245,7 +245,7 @@
       await history();
     } catch (e) {
       $("sim-error").textContent = String(e.message || e);
-    } finally { $("cal-busy").hidden = true; btn.disabled = false; }
+    } finally { $("cal-busy").hidden = true; gaitrig.release(btn); }
   });
 
   refresh().catch((e) => { $("res-summary").textContent = String(e.message || e); });

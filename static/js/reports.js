@@ -114,7 +114,7 @@
     } catch (e) {
       hideReport();
       say("subject-msg", e.message, true);
-    } finally { $("show").disabled = false; }
+    } finally { gaitrig.release($("show")); }
   }
 
   // ------------------------------------------------------------------ one vs two sided
@@ -248,7 +248,7 @@
       say("cmp-msg", errs.length ? "No gait result for " + errs.join("; ") : "Mean ± SD per subset.", errs.length > 0);
     } catch (e) {
       if ($("recording").value === rid) say("cmp-msg", e.message, true);
-    } finally { $("compare").disabled = false; }
+    } finally { gaitrig.release($("compare")); }
   }
 
   async function recReport() {

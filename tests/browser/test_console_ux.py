@@ -91,3 +91,20 @@ def test_login_page_has_no_console_error(browser: Any, live_server: LiveServer) 
         assert errors == [], errors
     finally:
         context.close()
+
+
+def test_keyboard_focus_returns_to_a_button_after_its_action(page: Any,
+                                                             live_server: LiveServer) -> None:
+    """A button disabled while its action runs gets the focus back when it ends: the
+    bumped-tripod check pressed with Enter used to leave the focus on the page (the next
+    Tab started over from the top)."""
+    page.goto(live_server.base_url + "/calibration-wizard.html")
+    page.focus("#check-btn")
+    page.keyboard.press("Enter")
+    # (without a calibration the check ends at once, too fast to see the button disabled)
+    page.wait_for_function("!document.getElementById('check-btn').disabled && "
+                           "!document.getElementById('check-state').textContent"
+                           ".startsWith('Capturing')", timeout=120_000)
+    assert page.evaluate("document.activeElement.id") == "check-btn"
+    assert page.text_content("#check-state")  # and the check said something
+    assert not page.js_errors, page.js_errors
