@@ -58,6 +58,12 @@ class Settings(BaseSettings):
         default=None, description="First-run admin password; generated and printed when unset."
     )
     session_hours: float = Field(default=12.0, gt=0, description="Lifetime of a console login.")
+    login_max_failures: int = Field(
+        default=5, ge=1, description="Failed logins per user and address before a pause."
+    )
+    login_lockout_s: float = Field(
+        default=300.0, ge=0, description="Window (s) of those failed logins, and the pause."
+    )
 
     max_control_bytes: int = Field(
         default=64 * 1024, gt=0, description="Largest accepted JSON control message from a node."

@@ -7,6 +7,8 @@ import hashlib
 import hmac
 import logging
 import secrets
+import time
+from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 
 from sqlalchemy import delete, select
@@ -93,3 +95,44 @@ def logout(db: Session, token: str) -> None:
     """Invalidate one token."""
     db.execute(delete(LoginSession).where(LoginSession.token_sha256 == _token_hash(token)))
     db.commit()
+
+
+@dataclass
+class LoginThrottle:
+    """Failed logins per (user name, client address): after ``max_failures`` within
+    ``window_s`` that pair is refused until the oldest of them is ``window_s`` old.
+
+    Each guess already costs ~50 ms of scrypt; this bounds a password guesser to a handful
+    of tries per window on one address without locking the user out from elsewhere (the
+    lab's own workstation). In memory: a server restart forgets it, as it should.
+    """
+
+    max_failures: int = 5
+    window_s: float = 300.0
+    _failures: dict[tuple[str, str], list[float]] = field(default_factory=dict)
+
+    def _recent(self, key: tuple[str, str], now: float) -> list[float]:
+        kept = [t for t in self._failures.get(key, []) if now - t < self.window_s]
+        if kept:
+            self._failures[key] = kept
+        else:
+            self._failures.pop(key, None)
+        return kept
+
+    def retry_after(self, username: str, client: str, now: float | None = None) -> float:
+        """Seconds until this pair may try again (0: now)."""
+        now = time.monotonic() if now is None else now
+        recent = self._recent((username.lower(), client), now)
+        if len(recent) < self.max_failures:
+            return 0.0
+        return max(0.0, recent[-self.max_failures] + self.window_s - now)
+
+    def failed(self, username: str, client: str, now: float | None = None) -> None:
+        now = time.monotonic() if now is None else now
+        key = (username.lower(), client)
+        self._failures[key] = [*self._recent(key, now), now][-self.max_failures:]
+        if len(self._failures) > 10_000:  # bounded memory under a spray of names
+            self._failures.pop(next(iter(self._failures)))
+
+    def succeeded(self, username: str, client: str) -> None:
+        self._failures.pop((username.lower(), client), None)

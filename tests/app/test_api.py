@@ -87,6 +87,36 @@ def test_login_logout_and_cookie(client: TestClient) -> None:
     assert client.get("/api/auth/me", headers=h).status_code == 401
 
 
+def test_repeated_wrong_passwords_pause_that_user_on_that_address(client: TestClient) -> None:
+    """Five wrong passwords: the sixth try, even the right one, is told to wait (429 with
+    Retry-After and a message saying what to do); other users are not affected."""
+    for _ in range(5):
+        r = client.post("/api/auth/login", json={"username": "Admin", "password": "guess"})
+        assert r.status_code == 401
+    r = client.post("/api/auth/login", json={"username": "admin", "password": "secret-pw"})
+    assert r.status_code == 429
+    assert "try again in 5 min" in r.json()["detail"]
+    assert 290 <= int(r.headers["Retry-After"]) <= 301
+    other = client.post("/api/auth/login", json={"username": "nurse", "password": "x"})
+    assert other.status_code == 401  # another name is still only refused
+
+
+def test_login_throttle_window_and_reset() -> None:
+    from app.api.security import LoginThrottle
+
+    th = LoginThrottle(max_failures=3, window_s=60.0)
+    for k in range(3):
+        assert th.retry_after("a", "10.0.0.1", now=100.0 + k) == 0.0
+        th.failed("a", "10.0.0.1", now=100.0 + k)
+    assert th.retry_after("a", "10.0.0.1", now=103.0) == pytest.approx(57.0)
+    assert th.retry_after("a", "10.0.0.2", now=103.0) == 0.0  # another address
+    assert th.retry_after("a", "10.0.0.1", now=160.5) == 0.0  # the first failure aged out
+    th.failed("a", "10.0.0.1", now=130.0)  # 101, 102, 130: three within the window again
+    assert th.retry_after("a", "10.0.0.1", now=130.0) == pytest.approx(31.0)
+    th.succeeded("A", "10.0.0.1")  # a good login clears the count (names are case-blind)
+    assert th.retry_after("a", "10.0.0.1", now=130.0) == 0.0
+
+
 def test_password_is_stored_hashed(client: TestClient, settings: Settings) -> None:
     import sqlite3
 

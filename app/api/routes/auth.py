@@ -30,12 +30,37 @@ class UserOut(BaseModel):
     is_admin: bool
 
 
+def _throttle(request: Request, settings: SettingsDep) -> security.LoginThrottle:
+    """The app's failed-login counter (one per server, made on first use)."""
+    got = getattr(request.app.state, "login_throttle", None)
+    if got is None:
+        got = security.LoginThrottle(settings.login_max_failures, settings.login_lockout_s)
+        request.app.state.login_throttle = got
+    return got
+
+
 @router.post("/login", response_model=LoginOut)
-def login(body: LoginIn, response: Response, db: DbDep, settings: SettingsDep) -> LoginOut:
-    """Log in; returns a bearer token and sets the console's session cookie."""
+def login(body: LoginIn, request: Request, response: Response, db: DbDep,
+          settings: SettingsDep) -> LoginOut:
+    """Log in; returns a bearer token and sets the console's session cookie.
+
+    After ``login_max_failures`` wrong passwords for one user name from one address within
+    ``login_lockout_s``, that address is told to wait (HTTP 429, ``Retry-After``).
+    """
+    throttle = _throttle(request, settings)
+    client = request.client.host if request.client else "?"
+    wait = throttle.retry_after(body.username, client)
+    if wait > 0:
+        minutes = max(1, round(wait / 60))
+        raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS,
+                            f"too many wrong passwords for {body.username!r}; try again in "
+                            f"{minutes} min or ask the administrator to reset the password",
+                            headers={"Retry-After": str(int(wait) + 1)})
     got = security.login(db, body.username, body.password, settings.session_hours)
     if got is None:
+        throttle.failed(body.username, client)
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, "wrong username or password")
+    throttle.succeeded(body.username, client)
     token, expires = got
     response.set_cookie(SESSION_COOKIE, token, httponly=True, samesite="strict",
                         max_age=int(settings.session_hours * 3600))
