@@ -13,6 +13,10 @@ from pathlib import Path
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+#: The shipped pairing token: anyone who read the docs can pair a node with a server that
+#: still uses it, so the server warns (log and console) until it is changed.
+DEFAULT_NODE_TOKEN = "change-me-node-token"
+
 
 class Settings(BaseSettings):
     """Server and node configuration (override any field with ``GAITRIG_<FIELD>``)."""
@@ -47,7 +51,7 @@ class Settings(BaseSettings):
     )
 
     node_token: str = Field(
-        default="change-me-node-token", min_length=8,
+        default=DEFAULT_NODE_TOKEN, min_length=8,
         description="Pairing token every node must present."
     )
     admin_user: str = Field(

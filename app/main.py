@@ -29,7 +29,7 @@ import app.api.routes as routes_pkg
 from app.api.deps import get_current_user
 from app.api.routes import auth
 from app.api.security import ensure_admin
-from app.config import Settings, get_settings
+from app.config import DEFAULT_NODE_TOKEN, Settings, get_settings
 from app.db.base import make_engine, make_session_factory
 from app.server.hub import Hub
 from app.server.registry import NodeSession
@@ -85,6 +85,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if generated:
             print(f"gaitrig: created console account {settings.admin_user!r} with password "
                   f"{generated!r} (change it after logging in)", file=sys.stderr, flush=True)
+        if settings.node_token == DEFAULT_NODE_TOKEN:
+            print("gaitrig: WARNING: nodes pair with the shipped token 'change-me-node-token'; "
+                  "set GAITRIG_NODE_TOKEN (server and nodes) to a secret of your own",
+                  file=sys.stderr, flush=True)
         hub = app.state.hub
         # The active calibration replaces the poses nodes report, now and on reconnect.
         from app.server.calibration import apply_to_registry

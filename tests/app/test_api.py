@@ -117,6 +117,16 @@ def test_login_throttle_window_and_reset() -> None:
     assert th.retry_after("a", "10.0.0.1", now=130.0) == 0.0
 
 
+def test_system_says_whether_nodes_pair_with_the_shipped_token(tmp_path: Path) -> None:
+    from app.config import DEFAULT_NODE_TOKEN
+
+    for token, expect in ((DEFAULT_NODE_TOKEN, True), (TOKEN, False)):
+        s = Settings(data_dir=tmp_path / str(expect), viewer_enabled=False, node_token=token,
+                     admin_password="secret-pw")
+        with TestClient(create_app(s)) as c:
+            assert c.get("/api/system", headers=_login(c)).json()["node_token_is_default"] is expect
+
+
 def test_password_is_stored_hashed(client: TestClient, settings: Settings) -> None:
     import sqlite3
 

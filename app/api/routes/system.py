@@ -8,6 +8,7 @@ from fastapi import APIRouter, Request
 
 from app.api.deps import CurrentUser, SettingsDep
 from app.api.limits import BoundedRoute
+from app.config import DEFAULT_NODE_TOKEN
 
 router = APIRouter(prefix="/system", route_class=BoundedRoute, tags=["system"])
 
@@ -28,4 +29,6 @@ def system(request: Request, user: CurrentUser, settings: SettingsDep) -> dict[s
         "viewer_url": f"http://{host}:{viewer.port}/" if viewer is not None else None,
         "clock_warn_ms": settings.clock_warn_ms,
         "user": user.username,
+        # the console warns an administrator while nodes pair with the shipped token
+        "node_token_is_default": settings.node_token == DEFAULT_NODE_TOKEN,
     }
