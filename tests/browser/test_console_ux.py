@@ -6,7 +6,7 @@ JavaScript or console error, no leaked programming values ("undefined", "NaN",
 ``display:flex`` used to win over the attribute: the calibration wizard showed
 Accept/Reject before any capture), no project jargon (seed/issue numbers) in visible
 text, every visible form control with a label, disabled buttons that look disabled,
-and no horizontal scrolling.
+no list bullets drawn over text (the coverage legend) and no horizontal scrolling.
 """
 
 from __future__ import annotations
@@ -42,8 +42,15 @@ AUDIT_JS = """() => {
   const flatDisabled = [...document.querySelectorAll("button:disabled")]
     .filter((e) => visible(e) && Number(getComputedStyle(e).opacity) > 0.8)
     .map((e) => e.id || e.textContent.trim());
+  // a list laid out as a wrapping row draws each bullet over the previous item's text
+  const bulletRows = [...document.querySelectorAll("ul, ol")]
+    .filter((l) => visible(l) && getComputedStyle(l).display.includes("flex"))
+    .filter((l) => [...l.children].some((li) => getComputedStyle(li).display === "list-item"
+                                       && getComputedStyle(li).listStyleType !== "none"))
+    .map((l) => l.tagName + "#" + l.id);
   const options = [...document.querySelectorAll("option")].map((o) => o.textContent).join("\\n");
   return { text: document.body.innerText + "\\n" + options, shownHidden, unlabeled, flatDisabled,
+           bulletRows,
            scrollWidth: document.documentElement.scrollWidth,
            clientWidth: document.documentElement.clientWidth };
 }"""
@@ -74,6 +81,7 @@ def test_first_visit_of_each_page_is_clean(page: Any, live_server: LiveServer,
     assert got["shownHidden"] == [], got["shownHidden"]
     assert got["unlabeled"] == [], got["unlabeled"]
     assert got["flatDisabled"] == [], got["flatDisabled"]
+    assert got["bulletRows"] == [], got["bulletRows"]
     assert got["scrollWidth"] <= got["clientWidth"], (got["scrollWidth"], got["clientWidth"])
 
 
