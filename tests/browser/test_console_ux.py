@@ -6,7 +6,8 @@ JavaScript or console error, no leaked programming values ("undefined", "NaN",
 ``display:flex`` used to win over the attribute: the calibration wizard showed
 Accept/Reject before any capture), no project jargon (seed/issue numbers) in visible
 text, every visible form control with a label, disabled buttons that look disabled,
-no list bullets drawn over text (the coverage legend) and no horizontal scrolling.
+no list bullets drawn over text (the coverage legend), no drop-down list too narrow
+for its chosen option, and no horizontal scrolling.
 """
 
 from __future__ import annotations
@@ -48,9 +49,17 @@ AUDIT_JS = """() => {
     .filter((l) => [...l.children].some((li) => getComputedStyle(li).display === "list-item"
                                        && getComputedStyle(li).listStyleType !== "none"))
     .map((l) => l.tagName + "#" + l.id);
+  // a select too narrow for its chosen option shows it cut ("Foot placements (ankles c")
+  const ctx = document.createElement("canvas").getContext("2d");
+  const cutSelects = [...document.querySelectorAll("select")]
+    .filter((s) => visible(s) && s.selectedOptions.length).filter((s) => {
+      const cs = getComputedStyle(s); ctx.font = cs.font;
+      const room = s.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
+      return ctx.measureText(s.selectedOptions[0].textContent).width > room + 4;  // 20: arrow
+    }).map((s) => s.id + ": " + s.selectedOptions[0].textContent);
   const options = [...document.querySelectorAll("option")].map((o) => o.textContent).join("\\n");
   return { text: document.body.innerText + "\\n" + options, shownHidden, unlabeled, flatDisabled,
-           bulletRows,
+           bulletRows, cutSelects,
            scrollWidth: document.documentElement.scrollWidth,
            clientWidth: document.documentElement.clientWidth };
 }"""
@@ -82,6 +91,7 @@ def test_first_visit_of_each_page_is_clean(page: Any, live_server: LiveServer,
     assert got["unlabeled"] == [], got["unlabeled"]
     assert got["flatDisabled"] == [], got["flatDisabled"]
     assert got["bulletRows"] == [], got["bulletRows"]
+    assert got["cutSelects"] == [], got["cutSelects"]
     assert got["scrollWidth"] <= got["clientWidth"], (got["scrollWidth"], got["clientWidth"])
 
 
