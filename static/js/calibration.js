@@ -77,7 +77,9 @@
     const sens = Object.keys(doc.T_world_sensor).sort();
     const worst = Math.max(...sens.map((s) => doc.sensor_residual_m[s] || 0));
     const head = pending ? "New calibration (not saved yet — accept or reject below)" : `Version ${doc.version}`;
-    $("res-summary").textContent = `${head} (${doc.created_iso}, ${doc.meta.source || "captured"}): `
+    // the local time, as in the saved-versions table (was the raw "2026-11-24T17:14:50Z")
+    const when = new Date(doc.created_iso).toLocaleString();
+    $("res-summary").textContent = `${head} (${when}, ${doc.meta.source || "captured"}): `
       + `${sens.length} sensors, ${doc.edges.length} sensor–marker edges, worst sensor residual ${(worst * 1000).toFixed(2)} mm.`;
     drawGraph(doc);
     const icp = Object.fromEntries((doc.meta.icp || []).map((r) => [r.sensor, r]));
@@ -211,7 +213,9 @@
     rows.forEach((c, i) => {
       const btn = el("button", i === 0 ? "active" : "Restore", { type: "button" });
       if (i === 0) btn.disabled = true;
-      btn.setAttribute("aria-label", `Restore calibration version ${c.version}`);
+      // (the active version's disabled button was announced as "Restore calibration …")
+      btn.setAttribute("aria-label", i === 0 ? `Calibration version ${c.version} is active`
+        : `Restore calibration version ${c.version}`);
       btn.addEventListener("click", async () => {
         await gaitrig.api(`/api/calibration/${c.version}/restore`, { method: "POST" });
         await refresh();

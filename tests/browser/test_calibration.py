@@ -8,6 +8,7 @@ check then finds no sensor moved. Poses are compared with the simulator's true o
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +50,9 @@ def test_wizard_captures_from_nodes_accepts_and_checks(page: Any, live_server: L
                            timeout=300_000)
     assert page.text_content("#cap-error") == "", page.text_content("#cap-error")
     assert len(failed) == 2
-    assert "not saved yet" in (page.text_content("#res-summary") or "")
+    summary = page.text_content("#res-summary") or ""
+    assert "not saved yet" in summary
+    assert not re.search(r"\d{4}-\d\d-\d\dT\d\d:", summary), summary  # a readable time
     assert page.locator("#graph circle.sensor").count() == n
     assert page.locator("#graph rect.marker").count() >= 2
     assert page.locator("#graph line.edge").count() >= n
@@ -76,6 +79,9 @@ def test_wizard_captures_from_nodes_accepts_and_checks(page: Any, live_server: L
     # the page shows "Saved" first, then asks for the versions list: wait for the new row
     page.wait_for_function(f"document.querySelectorAll('#history tbody tr').length === "
                            f"{len(after)}")
+    # the active version's (disabled) button is not announced as a restore
+    assert page.get_attribute("#history tbody tr:first-child button", "aria-label") == (
+        f"Calibration version {after[0]['version']} is active")
 
     page.click("#check-btn")
     page.wait_for_function("document.querySelectorAll('#check-table tbody tr').length > 0",
