@@ -144,6 +144,11 @@ const gaitrig = (() => {
         const shown = JSON.stringify(recs.slice(0, 10));
         if (shown === drawn) return;
         drawn = shown;
+        if (!recs.length) {  // (an empty table under its headings looked like a page still loading)
+          document.getElementById("recordings").replaceChildren(el("tr", {}, el("td", { colspan: "5" },
+            "No recordings yet: record a subject's walk on the Record page.")));
+          return;
+        }
         document.getElementById("recordings").replaceChildren(...recs.slice(0, 10).map((r) => {
           const parts = el("ul", { class: "parts" });
           for (const p of r.parts) {

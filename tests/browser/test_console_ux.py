@@ -126,3 +126,17 @@ def test_keyboard_focus_returns_to_a_button_after_its_action(page: Any,
     assert page.evaluate("document.activeElement.id") == "check-btn"
     assert page.text_content("#check-state")  # and the check said something
     assert not page.js_errors, page.js_errors
+
+
+def test_rig_page_says_when_there_is_no_recording(page: Any, live_server: LiveServer) -> None:
+    """With no recording on the server the Rig page's recordings table says so (it was
+    headings over nothing). The server is shared with tests that record: the list is
+    answered empty here."""
+    page.route("**/api/recordings", lambda route: route.fulfill(
+        status=200, body="[]", headers={"Content-Type": "application/json"})
+        if route.request.method == "GET" else route.continue_())
+    page.goto(live_server.base_url + "/rig.html")
+    page.wait_for_function("document.getElementById('recordings').textContent"
+                           ".includes('No recordings yet')")
+    assert page.locator("#recordings tr").count() == 1
+    assert not page.js_errors, page.js_errors
