@@ -162,16 +162,23 @@
       $("cap-error").textContent = String(e.message || e);
     } finally { gaitrig.release(btn); }
   });
+  // Accept, Reject and Restore say why they failed (they failed silently: an unhandled
+  // rejection, the buttons still there and nothing said)
   $("accept").addEventListener("click", async () => {
     if (pendingJob === null) return;
-    const r = await gaitrig.api(`/api/calibration/captures/${pendingJob}/accept`, { method: "POST" });
+    $("cap-error").textContent = "";
+    let r;
+    try { r = await gaitrig.api(`/api/calibration/captures/${pendingJob}/accept`, { method: "POST" }); }
+    catch (e) { $("cap-error").textContent = `Not saved: ${e.message || e}`; return; }
     $("decide").hidden = true; pendingJob = null;
     $("cap-state").textContent = `Saved as version ${r.version} and applied to ${r.applied_to.join(", ") || "no node"}.`;
     await refresh();
   });
   $("reject").addEventListener("click", async () => {
     if (pendingJob === null) return;
-    await gaitrig.api(`/api/calibration/captures/${pendingJob}/reject`, { method: "POST" });
+    $("cap-error").textContent = "";
+    try { await gaitrig.api(`/api/calibration/captures/${pendingJob}/reject`, { method: "POST" }); }
+    catch (e) { $("cap-error").textContent = `Not rejected: ${e.message || e}`; return; }
     $("decide").hidden = true; pendingJob = null;
     $("cap-state").textContent = "Rejected: the active calibration is unchanged.";
     await refresh();
@@ -217,7 +224,9 @@
       btn.setAttribute("aria-label", i === 0 ? `Calibration version ${c.version} is active`
         : `Restore calibration version ${c.version}`);
       btn.addEventListener("click", async () => {
-        await gaitrig.api(`/api/calibration/${c.version}/restore`, { method: "POST" });
+        $("hist-msg").textContent = "";
+        try { await gaitrig.api(`/api/calibration/${c.version}/restore`, { method: "POST" }); }
+        catch (e) { $("hist-msg").textContent = `Version ${c.version} not restored: ${e.message || e}`; return; }
         await refresh();
       });
       tb.append(row([String(c.version), new Date(c.created * 1000).toLocaleString(), c.sensors.join(" "),

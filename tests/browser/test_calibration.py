@@ -66,8 +66,17 @@ def test_wizard_captures_from_nodes_accepts_and_checks(page: Any, live_server: L
     screenshot(page, artifacts_dir, "calibration_capture_result")
     assert live_server.api("/api/calibration") == before  # nothing saved before accepting
 
+    # a first Accept the server refuses says so and keeps the choice open
+    page.route("**/api/calibration/captures/*/accept", lambda route: route.fulfill(
+        status=503, body='{"detail": "server busy"}', headers={"Content-Type": "application/json"}))
+    page.click("#accept")
+    page.wait_for_function("document.getElementById('cap-error').textContent.includes('busy')")
+    assert "Not saved" in (page.text_content("#cap-error") or "")
+    assert page.is_visible("#accept")
+    page.unroute("**/api/calibration/captures/*/accept")
     page.click("#accept")
     page.wait_for_function("document.getElementById('cap-state').textContent.includes('Saved')")
+    assert page.text_content("#cap-error") == ""
     after = live_server.api("/api/calibration")
     assert len(after) == len(before) + 1
     active = live_server.api("/api/calibration/active")
