@@ -43,7 +43,11 @@ const gaitrig = (() => {
         const r = await fetch("/api/auth/login", { method: "POST", credentials: "same-origin",
           headers: { "Content-Type": "application/json" },
           body: JSON.stringify({ username: form.username.value, password: form.password.value }) });
-        if (!r.ok) { msg.textContent = "Wrong user name or password."; return; }
+        if (r.status === 401) { msg.textContent = "Wrong user name or password."; return; }
+        if (!r.ok) {  // a pause after repeated wrong passwords (429) says how long: show that
+          let d = r.statusText; try { d = (await r.json()).detail || d; } catch (e) {}
+          msg.textContent = `Not logged in: ${d}`; return;
+        }
         window.location.href = "/rig.html";
       } catch (e) { msg.textContent = "The server cannot be reached: " + e.message; }
     });

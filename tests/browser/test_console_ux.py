@@ -12,6 +12,7 @@ for its chosen option, and no horizontal scrolling.
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 from typing import Any
@@ -140,3 +141,24 @@ def test_rig_page_says_when_there_is_no_recording(page: Any, live_server: LiveSe
                            ".includes('No recordings yet')")
     assert page.locator("#recordings tr").count() == 1
     assert not page.js_errors, page.js_errors
+
+
+def test_login_page_says_when_logins_are_paused(browser: Any, live_server: LiveServer) -> None:
+    """After repeated wrong passwords the server pauses logins (429) and says for how long;
+    the login form showed "Wrong user name or password." for it as for a typo."""
+    context = browser.new_context(viewport={"width": 1024, "height": 768})
+    try:
+        p = context.new_page()
+        detail = "too many wrong passwords for 'admin'; try again in 5 min"
+        p.route("**/api/auth/login", lambda route: route.fulfill(
+            status=429, body=json.dumps({"detail": detail}),
+            headers={"Content-Type": "application/json"}))
+        p.goto(live_server.base_url + "/index.html")
+        p.fill("#username", "admin")
+        p.fill("#password", "whatever")
+        p.click("button[type=submit]")
+        p.wait_for_function("document.getElementById('login-error').textContent.length > 0")
+        shown = p.text_content("#login-error") or ""
+        assert "try again in 5 min" in shown and "Wrong" not in shown, shown
+    finally:
+        context.close()
