@@ -106,6 +106,9 @@ class Observation:
         plane_rms_m: Mean plane-fit RMS (m).
         distance_m: Distance from the sensor to the marker centre (m).
         corners_px: (4, 2) colour-image corners of the first detection.
+        measured_edge_m: Mean edge length of the 3D corners (m), set when the graph step
+            checks it against the given size; NaN before.
+        given_edge_m: The size it was checked against (m); NaN before.
     """
 
     sensor_id: str
@@ -120,6 +123,8 @@ class Observation:
     plane_rms_m: float = float("nan")
     distance_m: float = float("nan")
     corners_px: FloatArray = field(default_factory=lambda: np.full((4, 2), np.nan))
+    measured_edge_m: float = float("nan")
+    given_edge_m: float = float("nan")
 
     def to_dict(self) -> dict[str, object]:
         """JSON-friendly summary (corners in metres, rounded)."""

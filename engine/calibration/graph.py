@@ -76,6 +76,7 @@ def build_edges(observations: Sequence[Observation], marker_sizes: Mapping[int, 
         rms = float(np.sqrt(np.mean(np.sum(res * res, axis=1))))
         measured = float(np.mean(np.linalg.norm(o.corners - np.roll(o.corners, -1, axis=0),
                                                 axis=1)))
+        o.measured_edge_m, o.given_edge_m = measured, size
         if abs(measured - size) > MAX_SIZE_MISMATCH * size:
             o.accepted = False
             o.reason = (f"marker {o.marker_id} measures {measured * 100:.1f} cm in depth but "
@@ -127,12 +128,31 @@ def check_connectivity(sensor_ids: Sequence[str], edges: Sequence[Edge], origin:
         if why:
             txt += " (" + "; ".join(why) + ")"
         lines.append(txt)
+    wrong = [o for o in rejected if not o.accepted and _wrong_size(o)]
+    checked = [o for o in rejected if np.isfinite(o.measured_edge_m)]
+    if wrong and 2 * len(wrong) >= len(checked):
+        # one wrong number in the form, not a room problem: say that, not "move markers"
+        measured = float(np.median([o.measured_edge_m for o in wrong]))
+        given = sorted({round(o.given_edge_m * 100, 1) for o in wrong})
+        raise CalibrationError(
+            f"The markers measure {measured * 100:.0f} cm in the depth images "
+            f"({len(wrong)} of {len(checked)} views) but {' / '.join(f'{g:g}' for g in given)}"
+            " cm was entered: enter the black square's edge length (without the white "
+            f"border) and capture again. Details: sensor(s) {', '.join(bad)} have no chain "
+            f"of shared markers to marker {origin}: " + "; ".join(lines) + ".",
+            unreachable=bad,
+        )
     raise CalibrationError(
         f"sensor(s) {', '.join(bad)} have no chain of shared markers to marker {origin}: "
         + "; ".join(lines)
         + ". Place a marker where an unreachable sensor and a reachable one both see it.",
         unreachable=bad,
     )
+
+
+def _wrong_size(o: Observation) -> bool:
+    return bool(np.isfinite(o.measured_edge_m) and np.isfinite(o.given_edge_m)
+                and abs(o.measured_edge_m - o.given_edge_m) > MAX_SIZE_MISMATCH * o.given_edge_m)
 
 
 def chain_poses(sensor_ids: Sequence[str], edges: Sequence[Edge], origin: int = 1

@@ -66,6 +66,23 @@ def test_wrong_marker_size_is_named() -> None:
     with pytest.raises(CalibrationError, match=r"measures 40\.0 cm in depth but its edge "
                        r"length was given as 20\.0 cm"):
         calibrate(_synthetic_obs(rig, None), 0.20)
+    # the whole form is wrong: the message leads with what to do, not with moving markers
+    with pytest.raises(CalibrationError, match=r"^The markers measure 40 cm in the depth "
+                       r"images \(\d+ of \d+ views\) but 20 cm was entered: enter the "
+                       r"black square's edge length") as exc:
+        calibrate(_synthetic_obs(rig, None), 0.20)
+    assert "Place a marker" not in str(exc.value)
+
+
+def test_one_odd_marker_size_keeps_the_room_message() -> None:
+    """One marker printed at another scale is that marker's problem, named per view."""
+    rig = default_avenue_rig(0)
+    sizes = _sizes(rig)
+    sizes[1] = 0.20  # only the origin marker's size is wrong
+    with pytest.raises(CalibrationError) as exc:
+        calibrate(_synthetic_obs(rig, None), sizes)
+    msg = str(exc.value)
+    assert msg.startswith("sensor(s)") and "marker 1 measures 40.0 cm in depth" in msg
 
 
 def test_observation_off_its_square_is_rejected() -> None:
