@@ -247,10 +247,11 @@ class LiveServices:
     def get_planner(self) -> Planner:
         """The planner, (re)built when the set of posed sensors changed."""
         sensors = sensors_from_nodes(list(self.hub.registry.nodes.values()))
-        key = tuple(s.id for s in sensors)
+        source = self._pose_source()
+        # a new calibration (another source) restarts the plan from its poses
+        key = (*(s.id for s in sensors), source)
         if self.planner is None or key != self._planner_key:
-            self.planner = Planner(sensors, self.layout,
-                                   source=self._pose_source())
+            self.planner = Planner(sensors, self.layout, source=source)
             self._planner_key = key
             self.planner.listeners.append(self._on_plan)
             self._on_plan(self.planner)
@@ -258,7 +259,19 @@ class LiveServices:
         return self.planner
 
     def _pose_source(self) -> str:
-        if all(n.backend == "sim" for n in self.hub.registry.nodes.values()):
+        """Where the planner's starting poses come from, in the user's words."""
+        from app.server.calibration import active_poses
+
+        nodes = self.hub.registry.nodes
+        cal = active_poses(self.hub.settings.data_dir)
+        ours = sorted(n for n in nodes if n in cal)
+        if ours:
+            version = cal[ours[0]]["calibration_version"]
+            rest = sorted(set(nodes) - set(ours))
+            return (f"calibration {version}" if not rest else
+                    f"calibration {version} ({', '.join(ours)}); {', '.join(rest)} as "
+                    "reported by the nodes (not calibrated)")
+        if all(n.backend == "sim" for n in nodes.values()):
             return "true poses of the simulated rig (not calibrated)"
         return "poses reported by the nodes (not calibrated)"
 

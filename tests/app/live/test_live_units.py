@@ -188,6 +188,38 @@ def test_dragging_a_handle_moves_the_plan_and_redraws_the_3d_map(tmp_path) -> No
         server.stop()
 
 
+def test_planner_says_where_its_poses_come_from(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Before a calibration the plan starts from the simulated rig's true poses; once one
+    is active, from that calibration (and it says which sensors it does not cover)."""
+    from app.config import Settings
+    from app.nodes.protocol import SensorInfo
+    from app.server.calibration import apply_to_registry, calibration_dir
+    from app.server.hub import Hub
+    from app.viewer.live import LiveServices
+    from engine.calibration.pipeline import CalibrationResult
+    from engine.calibration.store import save_version
+
+    async def send(_t: str) -> None:
+        return None
+
+    hub = Hub(Settings(data_dir=tmp_path))
+    rig = default_avenue_rig(0)
+    live = LiveServices(hub, None)
+    for s in rig.sensors:
+        hub.registry.connect(s.id, "sim", SensorInfo(T_world_sensor=s.T_world_sensor.tolist()),
+                             send, True)
+    assert live.get_planner().source == "true poses of the simulated rig (not calibrated)"
+    calibrated = ["S1", "S2", "S3", "S4"]
+    save_version(CalibrationResult(
+        T_world_sensor={s: rig.sensor(s).T_world_sensor.copy() for s in calibrated},
+        T_world_sensor_chained={}, T_world_marker={m.id: m.T_world_marker for m in rig.markers},
+        marker_sizes={m.id: m.size_m for m in rig.markers}, sensor_residual_m={}, edges=[],
+        observations=[]), calibration_dir(tmp_path))
+    apply_to_registry(hub.registry, tmp_path)
+    src = live.get_planner().source
+    assert src.startswith("calibration 1 (S1, S2, S3, S4); S5, S6 as reported"), src
+
+
 def test_api_subscription_cannot_break_the_live_stream(monkeypatch: pytest.MonkeyPatch) -> None:
     """One subscription per node: the live view's stays in force, the API's is added to it."""
     from types import SimpleNamespace
