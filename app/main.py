@@ -15,9 +15,10 @@ import importlib
 import logging
 import pkgutil
 import sys
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Sequence
 from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from fastapi import APIRouter, Depends, FastAPI, Request, WebSocket
@@ -69,6 +70,24 @@ def _sensor_views(hub: Hub) -> list[SensorView]:
             views.append(SensorView(s.id, np.asarray(s.sensor.T_world_sensor), s.sensor.fov_deg,
                                     s.connected))
     return views
+
+
+def validation_message(errors: Sequence[Any]) -> str:
+    """Pydantic's validation errors as one line a person can act on: the field's own name
+    ("frames: Input should be greater than or equal to 2"), not its place in the request
+    ("body.frames: …"); a missing or unreadable body is called that."""
+    where = {"body": "the request body", "query": "the query", "path": "the address",
+             "header": "a header", "cookie": "a cookie"}
+    msgs = []
+    for e in errors:
+        if e.get("type") == "json_invalid":  # its loc is a character position
+            msgs.append("the request body: is not valid JSON")
+            continue
+        loc = [str(x) for x in e.get("loc", ())]
+        field = ".".join(loc[1:]) if loc and loc[0] in where else ".".join(loc)
+        name = field or (where.get(loc[0], "the request") if loc else "the request")
+        msgs.append(f"{name}: {e.get('msg', 'invalid')}")
+    return "; ".join(msgs) or "the request is not valid"
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -164,8 +183,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(_req: Request, exc: RequestValidationError) -> JSONResponse:
-        msgs = [f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in exc.errors()]
-        return JSONResponse({"detail": "; ".join(msgs)}, status_code=422)
+        return JSONResponse({"detail": validation_message(exc.errors())}, status_code=422)
 
     @app.get("/", include_in_schema=False)
     def root() -> RedirectResponse:

@@ -127,6 +127,17 @@ def test_system_says_whether_nodes_pair_with_the_shipped_token(tmp_path: Path) -
             assert c.get("/api/system", headers=_login(c)).json()["node_token_is_default"] is expect
 
 
+def test_validation_errors_name_the_field_not_its_place_in_the_request(client: TestClient
+                                                                         ) -> None:
+    h = _login(client)
+    r = client.post("/api/auth/login", json={"username": "admin"})
+    assert r.status_code == 422 and r.json()["detail"] == "password: Field required"
+    r = client.post("/api/auth/login", content=b"{", headers={"Content-Type": "application/json"})
+    assert r.status_code == 422 and r.json()["detail"].startswith("the request body: "), r.text
+    r = client.get("/api/subjects/abc", headers=h)
+    assert r.status_code == 422 and r.json()["detail"].startswith("sid: "), r.text
+
+
 def test_password_is_stored_hashed(client: TestClient, settings: Settings) -> None:
     import sqlite3
 
