@@ -94,6 +94,7 @@ const gaitrig = (() => {
 
   async function rigPage() {
     const sys = await api("/api/system");
+    document.getElementById("token-warning").hidden = !sys.node_token_is_default;
     const nodeSeq = newest();
     async function refresh() {
       const n = nodeSeq.ask();

@@ -23,7 +23,26 @@ def test_login_and_all_nodes_online(page: Any, live_server: LiveServer,
     img = screenshot(page, artifacts_dir, "rig_nodes_online")
     # the "online" labels are drawn in the OK green (#1a7f37): one per node is visible
     assert color_fraction(img, (0x1A, 0x7F, 0x37), tol=30) > 1e-4
+    assert not page.is_visible("#token-warning")  # the demo pairs with a random token
     assert not page.js_errors
+
+
+def test_shipped_node_token_is_warned_about(page: Any, live_server: LiveServer,
+                                           artifacts_dir: Path) -> None:
+    """A server still using the shipped pairing token: the Rig page says so and what to do."""
+    import json
+
+    def system(route: Any) -> None:
+        body = route.fetch().json()
+        route.fulfill(status=200, content_type="application/json",
+                      body=json.dumps({**body, "node_token_is_default": True}))
+
+    page.route("**/api/system", system)
+    page.reload()
+    page.wait_for_selector("#token-warning", state="visible")
+    text = page.inner_text("#token-warning")
+    assert "change-me-node-token" in text and "GAITRIG_NODE_TOKEN" in text
+    page.screenshot(path=str(artifacts_dir / "rig_token_warning.png"))
 
 
 def test_wrong_password_is_refused(browser: Any, live_server: LiveServer) -> None:
