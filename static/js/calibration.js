@@ -21,7 +21,9 @@
     $("sheet-error").textContent = "";
     const q = new URLSearchParams({ ids: $("sheet-ids").value, size: String(Number($("sheet-size").value) / 100),
       paper: $("sheet-paper").value });
-    const r = await fetch("/api/calibration/markers.pdf?" + q, { credentials: "same-origin" });
+    let r;
+    try { r = await fetch("/api/calibration/markers.pdf?" + q, { credentials: "same-origin" }); }
+    catch (e) { $("sheet-error").textContent = "The server cannot be reached: " + e.message; return; }
     if (!r.ok) {
       let d = r.statusText; try { const j = await r.json(); d = typeof j.detail === "string" ? j.detail : "check the size (2–50 cm)"; } catch (e) {}
       $("sheet-error").textContent = d; return;

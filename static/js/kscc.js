@@ -204,7 +204,11 @@
     $("shares").replaceChildren(...shares.map((s) => {
       const li = el("li", `${s.node_id} is shared with other sites. `);
       const b = el("button", "Stop sharing", "secondary"); b.type = "button";
-      b.addEventListener("click", async () => { await api(`/api/kscc/shares/${encodeURIComponent(s.node_id)}`, { method: "DELETE" }); loadShares(); });
+      b.addEventListener("click", async () => {
+        try { await api(`/api/kscc/shares/${encodeURIComponent(s.node_id)}`, { method: "DELETE" }); $("error").textContent = ""; }
+        catch (e) { $("error").textContent = `Stop sharing ${s.node_id} failed: ${e.message}`; $("error").scrollIntoView(); }
+        loadShares().catch(() => {});
+      });
       li.append(b); return li;
     }));
     if (!shares.length) $("shares").append(el("li", "No sensor is shared."));

@@ -159,6 +159,26 @@ def test_kscc_page_live_progress_and_active_area(page: Any, live_server: LiveSer
     assert not page.js_errors
 
 
+def test_kscc_stop_sharing_that_fails_says_so(page: Any, live_server: LiveServer) -> None:
+    """A refused 'Stop sharing' is said on the page (it was an unhandled rejection)."""
+    page.goto(live_server.base_url + "/kscc.html")
+    page.wait_for_selector("#share-node option[value=S3]", state="attached")
+    page.select_option("#share-node", "S3")
+    page.click("#suggest")
+    page.click("#share-form button[type=submit]")
+    button = page.locator("#shares li", has_text="S3").get_by_role("button", name="Stop sharing")
+    button.wait_for()
+    page.route("**/api/kscc/shares/S3", lambda route: route.fulfill(
+        status=503, content_type="application/json", body='{"detail": "the server is busy"}'))
+    button.click()
+    page.wait_for_function("document.getElementById('error').textContent.includes('S3')")
+    assert "the server is busy" in page.inner_text("#error")
+    page.unroute("**/api/kscc/shares/S3")
+    page.locator("#shares li", has_text="S3").get_by_role("button", name="Stop sharing").click()
+    page.wait_for_function("!document.getElementById('shares').textContent.includes('S3 is')")
+    assert page.inner_text("#error") == ""
+
+
 def test_kscc_two_remote_users_calibrated_and_compared(page: Any, live_server: LiveServer,
                                                        artifacts_dir: Path,
                                                        tmp_path: Path) -> None:
