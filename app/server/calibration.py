@@ -70,6 +70,38 @@ def get_calibration(data_dir: Path, version: int | None = None) -> dict[str, Any
     return result_to_dict(load_version(calibration_dir(data_dir), version))
 
 
+def _ids_spec(ids: Sequence[int]) -> str:
+    """``[1, 2, 3, 5]`` → ``"1-3,5"`` (the form the wizard's id field takes)."""
+    out: list[str] = []
+    for _, run in itertools.groupby(enumerate(sorted(ids)), key=lambda kv: kv[1] - kv[0]):
+        vals = [v for _, v in run]
+        out.append(str(vals[0]) if len(vals) == 1 else f"{vals[0]}-{vals[-1]}")
+    return ",".join(out)
+
+
+def suggested_markers(data_dir: Path, backends: Sequence[str]) -> dict[str, Any]:
+    """What the capture form should start with: the active calibration's markers; for a
+    rig of simulated sensors only (``backends`` of the connected nodes), the simulated
+    room's; else the printed sheet's defaults (1-8, 20 cm)."""
+    folder = calibration_dir(data_dir)
+    if list_versions(folder):
+        res = load_version(folder)
+        if res.marker_sizes:
+            sizes = list(res.marker_sizes.values())
+            size = max(set(sizes), key=sizes.count)  # the size most markers have
+            return {"marker_ids": _ids_spec(list(res.marker_sizes)), "marker_size_m": size,
+                    "source": f"calibration {res.version}"}
+    if backends and all(b == "sim" for b in backends):
+        from engine.sim.rig import default_avenue_rig
+
+        markers = default_avenue_rig(None).markers
+        sizes = [m.size_m for m in markers]
+        return {"marker_ids": _ids_spec([m.id for m in markers]),
+                "marker_size_m": max(set(sizes), key=sizes.count),
+                "source": "the simulated demo room"}
+    return {"marker_ids": "1-8", "marker_size_m": 0.20, "source": "the printed sheet's default"}
+
+
 def save(data_dir: Path, res: CalibrationResult) -> int:
     """Save a new calibration; returns its version."""
     return save_version(res, calibration_dir(data_dir))

@@ -263,5 +263,15 @@
     } finally { $("cal-busy").hidden = true; gaitrig.release(btn); }
   });
 
+  // The capture form starts from the markers the server expects (the active calibration's,
+  // or the simulated room's); a field the user already changed is left alone.
+  async function prefill() {
+    const d = await gaitrig.api("/api/calibration/defaults");
+    const ids = $("cap-ids"), size = $("cap-size");
+    if (ids.value === ids.defaultValue) ids.value = d.marker_ids;
+    if (size.value === size.defaultValue) size.value = String(Math.round(d.marker_size_m * 1000) / 10);
+    $("cap-source").textContent = `Filled in from ${d.source}.`;
+  }
+  prefill().catch(() => {});
   refresh().catch((e) => { $("res-summary").textContent = String(e.message || e); });
 })();

@@ -27,7 +27,11 @@ def test_wizard_captures_from_nodes_accepts_and_checks(page: Any, live_server: L
     n = live_server.n_nodes
     before = live_server.api("/api/calibration")
     page.goto(live_server.base_url + "/calibration-wizard.html")
-    page.fill("#cap-size", "40")  # the demo room's markers
+    # the form starts from the demo room's markers (40 cm), or the active calibration's
+    page.wait_for_function("document.getElementById('cap-source').textContent.length > 0")
+    assert re.search(r"Filled in from (the simulated demo room|calibration \d+)\.",
+                     page.inner_text("#cap-source"))
+    assert page.input_value("#cap-size") == "40" and page.input_value("#cap-ids") == "1-8"
     page.fill("#cap-frames", "8")
     # the first two polls of the capture find the server busy: the page keeps watching
     failed: list[str] = []

@@ -232,6 +232,13 @@ def list_calibrations(user: CurrentUser, settings: SettingsDep) -> list[dict[str
     return cal.list_calibrations(settings.data_dir)
 
 
+@router.get("/defaults")
+def defaults(user: CurrentUser, settings: SettingsDep, registry: RegistryDep) -> dict[str, Any]:
+    """Marker ids and size the capture form starts with, and where they come from."""
+    return cal.suggested_markers(settings.data_dir,
+                                 [n.backend for n in registry.nodes.values() if n.connected])
+
+
 @router.get("/active")
 def active(user: CurrentUser, settings: SettingsDep) -> dict[str, Any]:
     """The active calibration (latest version)."""

@@ -59,6 +59,31 @@ def test_marker_sheet_pdf(client: TestClient) -> None:
     assert client.get("/api/calibration/markers.pdf", params={"size": 3}).status_code == 422
 
 
+def test_capture_form_defaults(client: TestClient, settings: Settings) -> None:
+    """The wizard starts from the markers the server expects: the sheet's defaults, the
+    simulated room's when only simulated sensors are connected, the active calibration's."""
+    from app.nodes.protocol import SensorInfo
+
+    async def send(_: str) -> None:
+        return None
+
+    d = client.get("/api/calibration/defaults").json()
+    assert d == {"marker_ids": "1-8", "marker_size_m": 0.20,
+                 "source": "the printed sheet's default"}
+    registry = client.app.state.hub.registry  # type: ignore[attr-defined]
+    registry.connect("S1", "sim", SensorInfo(), send, restarted=False)
+    d = client.get("/api/calibration/defaults").json()
+    assert d["marker_size_m"] == 0.40 and d["marker_ids"] == "1-8"
+    assert d["source"] == "the simulated demo room"
+    registry.connect("K1", "kinect", SensorInfo(), send, restarted=False)
+    assert client.get("/api/calibration/defaults").json()["marker_size_m"] == 0.20
+    res = _result()
+    res.marker_sizes = {1: 0.3, 2: 0.3, 3: 0.3, 5: 0.25}
+    cal.save(settings.data_dir, res)
+    d = client.get("/api/calibration/defaults").json()
+    assert d == {"marker_ids": "1-3,5", "marker_size_m": 0.3, "source": "calibration 1"}
+
+
 def test_versions_restore_and_check(client: TestClient, settings: Settings) -> None:
     assert client.get("/api/calibration").json() == []
     r = client.get("/api/calibration/active")
