@@ -79,6 +79,11 @@ def _ids_spec(ids: Sequence[int]) -> str:
     return ",".join(out)
 
 
+def _most_common(sizes: Sequence[float]) -> float:
+    """The size most markers have."""
+    return max(set(sizes), key=list(sizes).count)
+
+
 def suggested_markers(data_dir: Path, backends: Sequence[str]) -> dict[str, Any]:
     """What the capture form should start with: the active calibration's markers; for a
     rig of simulated sensors only (``backends`` of the connected nodes), the simulated
@@ -87,17 +92,15 @@ def suggested_markers(data_dir: Path, backends: Sequence[str]) -> dict[str, Any]
     if list_versions(folder):
         res = load_version(folder)
         if res.marker_sizes:
-            sizes = list(res.marker_sizes.values())
-            size = max(set(sizes), key=sizes.count)  # the size most markers have
-            return {"marker_ids": _ids_spec(list(res.marker_sizes)), "marker_size_m": size,
+            return {"marker_ids": _ids_spec(list(res.marker_sizes)),
+                    "marker_size_m": _most_common(list(res.marker_sizes.values())),
                     "source": f"calibration {res.version}"}
     if backends and all(b == "sim" for b in backends):
         from engine.sim.rig import default_avenue_rig
 
         markers = default_avenue_rig(None).markers
-        sizes = [m.size_m for m in markers]
         return {"marker_ids": _ids_spec([m.id for m in markers]),
-                "marker_size_m": max(set(sizes), key=sizes.count),
+                "marker_size_m": _most_common([m.size_m for m in markers]),
                 "source": "the simulated demo room"}
     return {"marker_ids": "1-8", "marker_size_m": 0.20, "source": "the printed sheet's default"}
 

@@ -30,15 +30,6 @@ class UserOut(BaseModel):
     is_admin: bool
 
 
-def _throttle(request: Request, settings: SettingsDep) -> security.LoginThrottle:
-    """The app's failed-login counter (one per server, made on first use)."""
-    got = getattr(request.app.state, "login_throttle", None)
-    if got is None:
-        got = security.LoginThrottle(settings.login_max_failures, settings.login_lockout_s)
-        request.app.state.login_throttle = got
-    return got
-
-
 @router.post("/login", response_model=LoginOut)
 def login(body: LoginIn, request: Request, response: Response, db: DbDep,
           settings: SettingsDep) -> LoginOut:
@@ -47,7 +38,7 @@ def login(body: LoginIn, request: Request, response: Response, db: DbDep,
     After ``login_max_failures`` wrong passwords for one user name from one address within
     ``login_lockout_s``, that address is told to wait (HTTP 429, ``Retry-After``).
     """
-    throttle = _throttle(request, settings)
+    throttle: security.LoginThrottle = request.app.state.login_throttle
     client = request.client.host if request.client else "?"
     wait = throttle.retry_after(body.username, client)
     if wait > 0:
