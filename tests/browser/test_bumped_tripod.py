@@ -26,7 +26,7 @@ import pytest
 from app.server.calibration import calibration_dir
 from engine.calibration.store import save_version
 from engine.geometry import make_transform, so3_exp
-from tests.app.calibration.test_periodic_check import BUMP_DEG, BUMP_M, truth_calibration
+from tests.app.calibration.sim_truth import BUMP_DEG, BUMP_M, truth_calibration
 from tests.browser.conftest import (
     ROOT,
     START_TIMEOUT_S,

@@ -196,8 +196,8 @@ def test_planner_says_where_its_poses_come_from(tmp_path) -> None:  # type: igno
     from app.server.calibration import apply_to_registry, calibration_dir
     from app.server.hub import Hub
     from app.viewer.live import LiveServices
-    from engine.calibration.pipeline import CalibrationResult
     from engine.calibration.store import save_version
+    from tests.app.calibration.sim_truth import truth_calibration
 
     async def send(_t: str) -> None:
         return None
@@ -210,11 +210,7 @@ def test_planner_says_where_its_poses_come_from(tmp_path) -> None:  # type: igno
                              send, True)
     assert live.get_planner().source == "true poses of the simulated rig (not calibrated)"
     calibrated = ["S1", "S2", "S3", "S4"]
-    save_version(CalibrationResult(
-        T_world_sensor={s: rig.sensor(s).T_world_sensor.copy() for s in calibrated},
-        T_world_sensor_chained={}, T_world_marker={m.id: m.T_world_marker for m in rig.markers},
-        marker_sizes={m.id: m.size_m for m in rig.markers}, sensor_residual_m={}, edges=[],
-        observations=[]), calibration_dir(tmp_path))
+    save_version(truth_calibration(calibrated), calibration_dir(tmp_path))
     apply_to_registry(hub.registry, tmp_path)
     src = live.get_planner().source
     assert src.startswith("calibration 1 (S1, S2, S3, S4); S5, S6 as reported"), src
