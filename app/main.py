@@ -115,9 +115,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         apply_to_registry(hub.registry, settings.data_dir)
         viewer = None
         if settings.viewer_enabled:
+            from app.viewer.active_area import ActiveAreaLayer
             from app.viewer.scene import Viewer, populate_sensors, populate_skeleton
 
             viewer = Viewer(settings.viewer_host, settings.viewer_port)
+            # every sensor's active area (seed 004), kept current as nodes come and go
+            app.state.active_areas = ActiveAreaLayer(viewer.server, hub)
 
             def redraw(_s: NodeSession) -> None:
                 try:

@@ -22,12 +22,10 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import AsyncIterator
-from contextlib import asynccontextmanager
 from typing import Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, FastAPI, HTTPException, Query, Request, status
+from fastapi import APIRouter, HTTPException, Query, Request, status
 from pydantic import BaseModel, Field
 from starlette.websockets import WebSocket
 
@@ -42,7 +40,6 @@ from app.server.kscc_link import (
 )
 from app.viewer.active_area import (
     ActiveArea,
-    ActiveAreaLayer,
     model_key,
     node_area,
     pose_numbers,
@@ -71,17 +68,7 @@ def manager(app: Any) -> KsccManager:
     return m
 
 
-@asynccontextmanager
-async def kscc_lifespan(app: FastAPI) -> AsyncIterator[None]:
-    """Draw every sensor's active area in the 3D view from server start (after the app's
-    own lifespan built the hub and the view), kept current as nodes come and go."""
-    viewer = getattr(app.state, "viewer", None)
-    if viewer is not None:
-        app.state.active_areas = ActiveAreaLayer(viewer.server, app.state.hub)
-    yield
-
-
-router = APIRouter(prefix="/kscc", route_class=BoundedRoute, tags=["kscc"], lifespan=kscc_lifespan)
+router = APIRouter(prefix="/kscc", route_class=BoundedRoute, tags=["kscc"])
 
 def _viewer_hook(viewer: Any) -> Any:
     from app.viewer.kscc import populate_kscc
