@@ -37,6 +37,8 @@ def make_engine(location: Path | str) -> Engine:
             cur = conn.cursor()
             cur.execute("PRAGMA journal_mode=WAL")
             cur.execute("PRAGMA foreign_keys=ON")
+            # health data: a deleted row is overwritten with zeros, not left in free space
+            cur.execute("PRAGMA secure_delete=ON")
             cur.close()
     else:
         engine = create_engine(url, pool_pre_ping=True)
@@ -49,6 +51,25 @@ def make_engine(location: Path | str) -> Engine:
                                              if n not in DATA_TABLES])
     upgrade_database(engine)
     return engine
+
+
+def purge_deleted(engine: Engine) -> bool:
+    """Make deleted rows unrecoverable from the database files, after a deletion commits.
+
+    With ``secure_delete`` SQLite zeroes deleted content in the pages it writes, but the
+    write-ahead log still holds earlier versions of those pages (the inserts and updates
+    of the deleted rows) until it is checkpointed and truncated. Other databases keep dead
+    rows until their own vacuum; nothing is done for them here.
+
+    Returns:
+        True when the log was emptied (or the database is not SQLite); False when a reader
+        kept it busy (the next deletion or the automatic checkpoint catches up).
+    """
+    if engine.dialect.name != "sqlite":
+        return True
+    with engine.connect() as conn:
+        row = conn.exec_driver_sql("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
+    return row is not None and row[0] == 0
 
 
 def make_session_factory(engine: Engine) -> sessionmaker[Any]:

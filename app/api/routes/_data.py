@@ -11,6 +11,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
 
 from app.db import data as m
+from app.db.base import purge_deleted
 from app.server.datasync import DataSync
 from app.server.hub import Hub
 from app.server.storage import StorageLayout
@@ -171,6 +172,12 @@ def delete_recordings(db: DbSession, hub: Hub, layout: StorageLayout,
             hub.recordings.save()
         db.delete(r)
     return len(recs)
+
+
+def purge(db: DbSession) -> None:
+    """After a deletion committed: no copy of the deleted rows left in the database
+    files (SQLite's write-ahead log; see :func:`app.db.base.purge_deleted`)."""
+    purge_deleted(db.get_bind().engine)
 
 
 def recording_nodes(hub: Hub, r: m.Recording) -> list[str]:

@@ -23,7 +23,7 @@ from fastapi import APIRouter, File, HTTPException, Query, Request, Response, Up
 
 from app.api.deps import CurrentUser, DbDep, HubDep
 from app.api.limits import BoundedRoute
-from app.api.routes._data import get_recording, get_row, layout_of, reference_json
+from app.api.routes._data import get_recording, get_row, layout_of, purge, reference_json
 from app.db import data as m
 from app.server.storage import (
     check_id,
@@ -191,4 +191,5 @@ def delete_reference(rec_id: str, ref_id: int, request: Request, user: CurrentUs
         missing_ok=True)
     db.delete(ref)
     db.commit()
+    purge(db)
     return {"deleted": "reference", "id": ref_id}

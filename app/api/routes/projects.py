@@ -16,6 +16,7 @@ from app.api.routes._data import (
     get_project,
     layout_of,
     project_json,
+    purge,
 )
 from app.db import data as m
 
@@ -82,4 +83,5 @@ def delete_project(pid: int, body: Confirm, request: Request, user: CurrentUser,
     n = delete_recordings(db, hub, layout_of(request), recs)
     db.delete(p)
     db.commit()
+    purge(db)
     return {"deleted": "project", "id": pid, "recordings_deleted": n}

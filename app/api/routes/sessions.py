@@ -24,6 +24,7 @@ from app.api.routes._data import (
     get_session,
     get_subject,
     layout_of,
+    purge,
     recording_json,
     session_json,
 )
@@ -111,6 +112,7 @@ def delete_session(sid: int, body: Confirm, request: Request, user: CurrentUser,
     n = delete_recordings(db, hub, layout_of(request), list(s.recordings))
     db.delete(s)
     db.commit()
+    purge(db)
     return {"deleted": "session", "id": sid, "recordings_deleted": n}
 
 

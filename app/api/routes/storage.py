@@ -24,6 +24,7 @@ from app.api.routes._data import (
     delete_recordings,
     get_recording,
     layout_of,
+    purge,
     recording_json,
     recording_nodes,
     subject_bytes,
@@ -103,6 +104,7 @@ async def delete_recording(rec_id: str, body: Confirm, request: Request, user: C
     nodes = recording_nodes(hub, r)
     delete_recordings(db, hub, layout_of(request), [r])
     db.commit()
+    purge(db)
     started = hub.transfers.flush_deletions()
     if started:  # wait briefly so the answer can say the node copies are gone
         await asyncio.wait(started, timeout=NODE_DELETE_WAIT_S)

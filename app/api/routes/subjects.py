@@ -21,6 +21,7 @@ from app.api.routes._data import (
     get_project,
     get_subject,
     layout_of,
+    purge,
     subject_json,
 )
 from app.db import data as m
@@ -131,4 +132,5 @@ def delete_subject(sid: int, body: Confirm, request: Request, user: CurrentUser,
                           [r for x in s.sessions for r in x.recordings])
     db.delete(s)
     db.commit()
+    purge(db)
     return {"deleted": "subject", "id": sid, "recordings_deleted": n}

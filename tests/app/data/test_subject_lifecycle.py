@@ -1,0 +1,108 @@
+"""A subject's data lifecycle as health data, end to end with real server and node
+processes: record, derive (analysis, reference), refuse a wrong confirmation and a
+deletion while recording, delete, then search every file of the server and the nodes —
+database included, byte for byte — for any trace of the subject."""
+
+from __future__ import annotations
+
+import time
+import urllib.error
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.app.data.test_record_flow import download, http_error, upload, wait_state
+from tests.integration.conftest import Rig, wait_for
+
+CODE = "ZQ7311"  # distinctive, so a byte search cannot hit anything else
+NOTE = "Jane Roe-Wqxv, knee replacement 2019"
+KEEP = "KP0042"
+
+
+def _traces(root: Path, needles: list[str]) -> list[str]:
+    """Every file below ``root`` whose path or bytes contain one of ``needles``."""
+    found = []
+    for p in sorted(root.rglob("*")):
+        hit = [n for n in needles if n in str(p.relative_to(root))]
+        if p.is_file():
+            data = p.read_bytes()
+            hit += [n for n in needles if n.encode() in data or n.encode("utf-16-le") in data]
+        if hit:
+            found.append(f"{p.relative_to(root)}: {sorted(set(hit))}")
+    return found
+
+
+def _record(rig: Rig, session_id: int, seconds: float, streams: list[str] | None = None
+            ) -> str:
+    rec = rig.api(f"/api/sessions/{session_id}/recordings",
+                  {"label": "walk", "streams": streams or [], "image_every": 5})
+    time.sleep(seconds)
+    rig.api(f"/api/recordings/{rec['id']}/stop", {})
+    return str(rec["id"])
+
+
+@pytest.mark.timeout(400)
+def test_deleting_a_subject_leaves_no_trace(make_rig: Any, tmp_path: Path) -> None:
+    rig: Rig = make_rig()
+    rig.start_node("S1", images=True)
+    rig.start_node("S2", "--seed", "1")
+    rig.wait_online(["S1", "S2"])
+    p = rig.api("/api/projects", {"name": "Lifecycle study"})
+    subj = rig.api("/api/subjects", {"project_id": p["id"], "code": CODE, "notes": NOTE,
+                                     "height_m": 1.7, "birth_year": 1961})
+    keep = rig.api("/api/subjects", {"project_id": p["id"], "code": KEEP})
+    sess = rig.api("/api/sessions", {"subject_id": subj["id"], "label": "baseline"})
+    keep_sess = rig.api("/api/sessions", {"subject_id": keep["id"], "label": "baseline"})
+
+    rec = _record(rig, sess["id"], 1.5, ["depth"])
+    assert wait_state(rig, rec, {"complete", "incomplete"})["state"] == "complete"
+    kept = _record(rig, keep_sess["id"], 1.0)
+    assert wait_state(rig, kept, {"complete", "incomplete"})["state"] == "complete"
+    # derived data: an analysis (cached on disk, whatever its outcome) and a reference
+    try:
+        rig.api(f"/api/reports/recordings/{rec}/analysis")
+    except urllib.error.HTTPError as exc:  # no walk in 1.5 s: the failure is cached too
+        assert exc.code == 422, exc
+    c3d = download(rig, f"/api/exports/{rec}/skeleton?format=c3d&source=S2")
+    upload(rig, f"/api/exports/{rec}/references", f"{CODE} vicon.c3d", c3d)
+
+    server = tmp_path / "server"
+    nodes = {n: rig.node_dir(n) for n in ("S1", "S2")}
+    assert (server / "recordings" / rec).is_dir() and (server / "references" / rec).is_dir()
+    assert all((d / "recordings" / rec).is_dir() for d in nodes.values())
+
+    # a wrong confirmation deletes nothing
+    code, msg = http_error(lambda: rig.api(f"/api/subjects/{subj['id']}/delete",
+                                           {"confirm": CODE.lower()}))
+    assert code == 400 and repr(CODE) in msg
+    # a subject being recorded cannot be deleted (409 says why), and nothing is deleted
+    running = rig.api(f"/api/sessions/{sess['id']}/recordings", {"label": "walk 2"})["id"]
+    code, msg = http_error(lambda: rig.api(f"/api/subjects/{subj['id']}/delete",
+                                           {"confirm": CODE}))
+    assert code == 409 and "running" in msg, msg
+    rig.api(f"/api/recordings/{running}/stop", {})
+    assert (server / "recordings" / rec).is_dir()
+    assert all((d / "recordings" / rec).is_dir() for d in nodes.values())
+    assert rig.api(f"/api/subjects/{subj['id']}")["n_recordings"] == 2
+    wait_state(rig, running, {"complete", "incomplete"})
+
+    r = rig.api(f"/api/subjects/{subj['id']}/delete", {"confirm": CODE})
+    assert r["recordings_deleted"] == 2, r
+    wait_for(lambda: rig.api("/api/storage")["pending_node_deletions"] == {}, 30,
+             "the nodes to delete their copies")
+    code, _ = http_error(lambda: rig.api(f"/api/subjects/{subj['id']}"))
+    assert code == 404
+    # no trace anywhere: paths, files, the database (and its WAL) byte for byte
+    needles = [CODE, NOTE.split(",")[0], rec, running]
+    assert _traces(server, needles) == []
+    for d in nodes.values():
+        assert _traces(d, needles) == []
+    # the other subject's data is untouched
+    assert (server / "recordings" / kept).is_dir()
+    assert all((d / "recordings" / kept).is_dir() for d in nodes.values())
+    assert rig.api(f"/api/subjects/{keep['id']}")["n_recordings"] == 1
+    # the logs name recordings by their pseudonymous id only, never the subject
+    for name in rig.logs:
+        text = rig.log_text(name)
+        assert CODE not in text and NOTE.split(",")[0] not in text, name
