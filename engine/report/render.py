@@ -25,6 +25,8 @@ from engine.report import plots
 from engine.report.normative import DEFAULT_NORMATIVE_RANGES, NormativeRange, normative_lookup
 
 TEMPLATE_DIR = Path(__file__).with_name("templates")
+#: Trials per foot-placement figure (one panel each): six fit on an A4 page.
+PLACEMENT_TRIALS_PER_FIGURE = 6
 
 
 @dataclass(frozen=True)
@@ -256,9 +258,15 @@ def build_context(data: ReportData) -> dict[str, Any]:
     table = spatiotemporal_table(data.trials, data.normative)
     figures: list[tuple[str, str]] = []
     placements = [(t.name, t.placements) for t in data.trials if t.placements]
-    if placements:
-        figures.append(("Foot placements seen from above",
-                        _png_uri(plots.plot_foot_placements(placements))))
+    # One panel per trial: a single figure of 10+ trials is taller than an A4 page and
+    # the PDF cut off its last trials, so the panels go into figures of a page each.
+    for k in range(0, len(placements), PLACEMENT_TRIALS_PER_FIGURE):
+        chunk = placements[k:k + PLACEMENT_TRIALS_PER_FIGURE]
+        caption = "Foot placements seen from above"
+        if len(placements) > PLACEMENT_TRIALS_PER_FIGURE:
+            caption += (f" (trials {k + 1}–{k + len(chunk)} of {len(placements)})"
+                        if len(chunk) > 1 else f" (trial {k + 1} of {len(placements)})")
+        figures.append((caption, _png_uri(plots.plot_foot_placements(chunk))))
     for t in data.trials:
         if t.times is not None and t.ankle_heights:
             figures.append((f"Ankle trajectories — {t.name}",

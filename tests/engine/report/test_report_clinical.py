@@ -1,0 +1,71 @@
+"""The report as a clinician reads it: every trial visible, warnings where data are thin,
+sources per normative band, numbers that match the recordings.
+
+Content checks on the HTML and on the PDF's text and pages (no pixel comparisons).
+"""
+
+from __future__ import annotations
+
+import base64
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from engine.report.render import ReportData, TrialData, render_html, render_pdf
+from tests.engine.report.test_report import _trial
+
+needs_poppler = pytest.mark.skipif(shutil.which("pdftoppm") is None,
+                                   reason="poppler-utils not installed")
+
+
+def _trials(n: int, seed: int = 0) -> list[TrialData]:
+    rng = np.random.default_rng(seed)
+    return [_trial(f"R20261124-1000{i:02d}-abcd (S1, S2, S3, S4, S5, S6)", rng)
+            for i in range(n)]
+
+
+def _images(html: str) -> list[tuple[str, np.ndarray]]:
+    """(caption, decoded image) of every figure of the HTML report."""
+    out = []
+    for uri, cap in re.findall(r'<img src="data:image/png;base64,([^"]+)" alt="([^"]*)"', html):
+        img = cv2.imdecode(np.frombuffer(base64.b64decode(uri), np.uint8), cv2.IMREAD_COLOR)
+        out.append((cap, img))
+    return out
+
+
+def _pdf_pages(pdf: bytes, tmp: Path) -> tuple[str, list[np.ndarray]]:
+    f = tmp / "r.pdf"
+    f.write_bytes(pdf)
+    text = subprocess.run(["pdftotext", "-layout", str(f), "-"], capture_output=True,
+                          text=True, check=True, timeout=60).stdout
+    subprocess.run(["pdftoppm", "-r", "40", "-png", str(f), str(tmp / "p")], check=True,
+                   timeout=60)
+    pages = [cv2.imread(str(p)) for p in sorted(tmp.glob("p-*.png"))]
+    return text, pages
+
+
+@needs_poppler
+def test_many_trials_every_foot_placement_panel_fits_a_page(tmp_path: Path,
+                                                            artifacts_dir: Path) -> None:
+    """14 trials: the top view used to be one figure taller than the page (trials 10-14
+    cut off in the PDF, and a page left blank under the 'Plots' heading)."""
+    data = ReportData("P-100", _trials(14))
+    html = render_html(data)
+    tops = [(c, img) for c, img in _images(html) if c.startswith("Foot placements")]
+    assert len(tops) == 3, [c for c, _ in tops]
+    assert "trials 1–6 of 14" in tops[0][0] and "trials 13–14 of 14" in tops[2][0]
+    for cap, img in tops:
+        h, w = img.shape[:2]
+        # printed 186 mm wide, it must fit the 267 mm the page leaves
+        assert h / w * 186.0 < 260.0, (cap, h, w)
+    text, pages = _pdf_pages(render_pdf(data), tmp_path)
+    assert text.count("Foot placements seen from above") == 3
+    shutil.copy(tmp_path / "r.pdf", artifacts_dir / "report_14_trials.pdf")
+    for i, p in enumerate(pages):
+        # no page holds only a heading (ink of a heading and footer alone is < 1 %)
+        assert (p.min(axis=2) < 200).mean() > 0.01, f"page {i + 1} is nearly blank"
