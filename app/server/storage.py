@@ -8,6 +8,7 @@ Layout under the server's data folder (see ``docs/storage.md``)::
     recordings/<rec_id>/<node_id>/index.json      # [t_local, offset, kind] per record
     recordings/<rec_id>/<node_id>/.incoming/      # only while a transfer is unfinished
     references/<rec_id>/<n>.<c3d|trc|csv>         # imported reference recordings
+    deletions.json                                # recordings being deleted (tombstones)
 
 A part folder is complete exactly when ``manifest.json`` exists and ``.incoming`` does
 not (:meth:`app.transfer.TransferSink.is_complete`). Reading a part converts node-local
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import shutil
 import tempfile
 import zipfile
@@ -98,6 +100,35 @@ class StorageLayout:
         for d in (self.recording_dir(rec_id), self.reference_dir(rec_id)):
             if d.exists():
                 shutil.rmtree(d)
+
+    @property
+    def tombstone_file(self) -> Path:
+        return self.data_dir / "deletions.json"
+
+    def tombstones(self) -> dict[str, list[str]]:
+        """Recordings whose deletion started: recording id → nodes holding a part.
+
+        Written before the database rows are deleted and cleared once the files are gone,
+        so a server that dies in between finishes (or, if the rows survived, forgets)
+        the deletion when it starts again.
+        """
+        try:
+            raw = json.loads(self.tombstone_file.read_text())
+        except (OSError, ValueError):
+            return {}
+        if not isinstance(raw, dict):
+            return {}
+        return {str(k): [str(n) for n in v] for k, v in raw.items() if isinstance(v, list)}
+
+    def set_tombstones(self, entries: dict[str, list[str]]) -> None:
+        """Replace the tombstones (atomically and durably: written, synced, renamed)."""
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        tmp = self.tombstone_file.with_suffix(".tmp")
+        with open(tmp, "w") as fh:
+            json.dump(entries, fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, self.tombstone_file)
 
     def disk(self) -> dict[str, int]:
         """Total / used / free bytes of the file system holding the data folder."""

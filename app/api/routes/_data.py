@@ -147,10 +147,17 @@ def project_json(db: DbSession, p: m.Project) -> dict[str, Any]:
             "created_at": p.created_at.isoformat()}
 
 
-def delete_recordings(db: DbSession, hub: Hub, layout: StorageLayout,
-                      recs: list[m.Recording]) -> int:
-    """Delete recordings: refuse one still running; remove the server's files, live
-    entries and rows, and have the nodes delete their parts.
+def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout, recs: list[m.Recording],
+                owner: Any = None) -> int:
+    """Delete recordings (and ``owner``, the session, subject or project that held them)
+    everywhere: database rows, the server's files, live entries, the nodes' copies.
+
+    Refused (409, nothing deleted) while one of them is recorded or transferred. Order,
+    so that a crash at any point leaves the database and the files consistent: a
+    tombstone naming the recordings is written, the rows are deleted and committed, then
+    the files go and the tombstone is cleared. A failed commit removes the tombstone and
+    keeps every file; a server that dies after the commit finishes the deletion when it
+    starts again (:func:`resume_deletions`).
 
     Returns:
         Number of recordings deleted.
@@ -160,18 +167,61 @@ def delete_recordings(db: DbSession, hub: Hub, layout: StorageLayout,
         if live is not None and live.t_stop is None:
             raise HTTPException(status.HTTP_409_CONFLICT,
                                 f"recording {r.id} is still running; stop it first")
-        if r.state == "transferring":
+        # the database mirrors the transfer state only twice a second: ask the transfers
+        if r.state == "transferring" or hub.transfers.running_parts(r.id):
             raise HTTPException(status.HTTP_409_CONFLICT,
                                 f"recording {r.id} is being transferred; wait until it ends")
-    for r in recs:
-        # the nodes' copies go too (sent now or when a node reconnects; see
-        # TransferManager.request_deletion): deleting health data must be real
-        hub.transfers.request_deletion(r.id, recording_nodes(hub, r))
-        layout.delete_recording(r.id)
-        if hub.recordings.recordings.pop(r.id, None) is not None:
-            hub.recordings.save()
-        db.delete(r)
+    plan = {r.id: recording_nodes(hub, r) for r in recs}
+    before = layout.tombstones()
+    layout.set_tombstones({**before, **plan})
+    try:
+        for r in recs:
+            db.delete(r)
+        if owner is not None:
+            db.delete(owner)
+        db.commit()
+    except BaseException:
+        db.rollback()
+        layout.set_tombstones(before)
+        raise
+    finish_deletions(hub, layout, plan)
+    purge(db)
     return len(recs)
+
+
+def finish_deletions(hub: Hub, layout: StorageLayout, plan: dict[str, list[str]]) -> None:
+    """The part of a deletion after its rows are gone: live entries (first, so no new
+    transfer starts), the nodes' copies (sent now or when a node reconnects; see
+    ``TransferManager.request_deletion``), the server's files, then the tombstones."""
+    for rec_id, nodes in plan.items():
+        if hub.recordings.recordings.pop(rec_id, None) is not None:
+            hub.recordings.save()
+        hub.transfers.request_deletion(rec_id, nodes)
+        layout.delete_recording(rec_id)
+    left = layout.tombstones()
+    layout.set_tombstones({k: v for k, v in left.items() if k not in plan})
+
+
+def resume_deletions(db: DbSession, hub: Hub, layout: StorageLayout) -> list[str]:
+    """Finish the deletions a stopped server left half done (at start-up).
+
+    A tombstoned recording whose row still exists was not deleted (the commit never
+    happened): its tombstone is dropped. One whose row is gone loses its files now.
+
+    Returns:
+        The recordings whose deletion was finished.
+    """
+    stones = layout.tombstones()
+    if not stones:
+        return []
+    alive = set(db.scalars(select(m.Recording.id).where(m.Recording.id.in_(list(stones)))))
+    todo = {k: sorted(set(v) | set(getattr(hub.recordings.recordings.get(k), "parts", {})))
+            for k, v in stones.items() if k not in alive}
+    finish_deletions(hub, layout, todo)
+    layout.set_tombstones({})
+    if todo:
+        purge(db)
+    return sorted(todo)
 
 
 def purge(db: DbSession) -> None:

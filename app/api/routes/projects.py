@@ -12,11 +12,10 @@ from app.api.deps import CurrentUser, DbDep, HubDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     check_confirm,
-    delete_recordings,
+    delete_rows,
     get_project,
     layout_of,
     project_json,
-    purge,
 )
 from app.db import data as m
 
@@ -80,8 +79,5 @@ def delete_project(pid: int, body: Confirm, request: Request, user: CurrentUser,
     p = get_project(db, pid)
     check_confirm(p.name, body.confirm, f"project {p.name!r} and everything in it")
     recs = [r for s in p.subjects for x in s.sessions for r in x.recordings]
-    n = delete_recordings(db, hub, layout_of(request), recs)
-    db.delete(p)
-    db.commit()
-    purge(db)
+    n = delete_rows(db, hub, layout_of(request), recs, p)
     return {"deleted": "project", "id": pid, "recordings_deleted": n}

@@ -20,11 +20,10 @@ from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     check_confirm,
     datasync_of,
-    delete_recordings,
+    delete_rows,
     get_session,
     get_subject,
     layout_of,
-    purge,
     recording_json,
     session_json,
 )
@@ -109,10 +108,7 @@ def delete_session(sid: int, body: Confirm, request: Request, user: CurrentUser,
     s = get_session(db, sid)
     check_confirm(s.subject.code, body.confirm,
                   f"this session of {s.subject.code} and its recordings")
-    n = delete_recordings(db, hub, layout_of(request), list(s.recordings))
-    db.delete(s)
-    db.commit()
-    purge(db)
+    n = delete_rows(db, hub, layout_of(request), list(s.recordings), s)
     return {"deleted": "session", "id": sid, "recordings_deleted": n}
 
 

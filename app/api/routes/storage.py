@@ -21,12 +21,12 @@ from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     check_confirm,
     datasync_of,
-    delete_recordings,
+    delete_rows,
     get_recording,
     layout_of,
-    purge,
     recording_json,
     recording_nodes,
+    resume_deletions,
     subject_bytes,
 )
 from app.db import data as m
@@ -39,7 +39,10 @@ NODE_DELETE_WAIT_S = 5.0
 
 @asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
-    ds = DataSync(app.state.hub, app.state.db_sessions, StorageLayout(app.state.settings.data_dir))
+    layout = StorageLayout(app.state.settings.data_dir)
+    with app.state.db_sessions() as db:  # a deletion the last run did not finish
+        resume_deletions(db, app.state.hub, layout)
+    ds = DataSync(app.state.hub, app.state.db_sessions, layout)
     app.state.datasync = ds
     ds.start()
     try:
@@ -102,9 +105,7 @@ async def delete_recording(rec_id: str, body: Confirm, request: Request, user: C
     r = get_recording(db, rec_id)
     check_confirm(r.session.subject.code, body.confirm, f"recording {rec_id}")
     nodes = recording_nodes(hub, r)
-    delete_recordings(db, hub, layout_of(request), [r])
-    db.commit()
-    purge(db)
+    delete_rows(db, hub, layout_of(request), [r])
     started = hub.transfers.flush_deletions()
     if started:  # wait briefly so the answer can say the node copies are gone
         await asyncio.wait(started, timeout=NODE_DELETE_WAIT_S)

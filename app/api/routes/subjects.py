@@ -17,11 +17,10 @@ from app.api.deps import CurrentUser, DbDep, HubDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     check_confirm,
-    delete_recordings,
+    delete_rows,
     get_project,
     get_subject,
     layout_of,
-    purge,
     subject_json,
 )
 from app.db import data as m
@@ -128,9 +127,6 @@ def delete_subject(sid: int, body: Confirm, request: Request, user: CurrentUser,
     """
     s = get_subject(db, sid)
     check_confirm(s.code, body.confirm, f"subject {s.code} and all its recordings")
-    n = delete_recordings(db, hub, layout_of(request),
-                          [r for x in s.sessions for r in x.recordings])
-    db.delete(s)
-    db.commit()
-    purge(db)
+    n = delete_rows(db, hub, layout_of(request), [r for x in s.sessions for r in x.recordings],
+                    s)
     return {"deleted": "subject", "id": sid, "recordings_deleted": n}

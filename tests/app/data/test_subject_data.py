@@ -1,0 +1,127 @@
+"""In-process tests of a subject's data as health data: deletion order and crash
+consistency, refusals while a transfer runs, export, concurrent edits, audit trail."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy.exc import OperationalError
+from sqlalchemy.orm import Session as OrmSession
+
+from app.config import Settings
+from app.db import data as m
+from app.main import create_app
+from app.server.storage import StorageLayout
+from tests.app.data.test_data_api import _make_part, _recording_row
+
+
+def _client(data_dir: Path) -> TestClient:
+    s = Settings(data_dir=data_dir, viewer_enabled=False, node_token="test-node-token",
+                 admin_password="secret-pw")
+    return TestClient(create_app(s), raise_server_exceptions=False)
+
+
+def _login(c: TestClient) -> None:
+    r = c.post("/api/auth/login", json={"username": "admin", "password": "secret-pw"})
+    c.headers["Authorization"] = f"Bearer {r.json()['token']}"
+
+
+@pytest.fixture
+def client(tmp_path: Path) -> Iterator[TestClient]:
+    with _client(tmp_path) as c:
+        _login(c)
+        yield c
+
+
+def _planted(client: TestClient, tmp_path: Path) -> dict[str, Any]:
+    """Subject A1 with a complete recording R1 whose part and a reference are on disk."""
+    _make_part(tmp_path / "node-side", server=tmp_path)
+    _recording_row(client)
+    (tmp_path / "references" / "R1").mkdir(parents=True)
+    (tmp_path / "references" / "R1" / "x.csv").write_text("time\n")
+    subj = client.get("/api/subjects").json()[0]
+    return subj  # type: ignore[no-any-return]
+
+
+def _rows(client: TestClient) -> list[str]:
+    with client.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        return [r.id for r in db.query(m.Recording)]
+
+
+def test_a_failed_commit_deletes_no_file(client: TestClient, tmp_path: Path,
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """The database refuses the deletion (locked, disk full): every file stays."""
+    subj = _planted(client, tmp_path)
+
+    def locked(self: OrmSession) -> None:
+        raise OperationalError("COMMIT", {}, Exception("database is locked"))
+
+    with monkeypatch.context() as mp:
+        mp.setattr(OrmSession, "commit", locked)
+        r = client.post(f"/api/subjects/{subj['id']}/delete", json={"confirm": "A1"})
+    assert r.status_code >= 500
+    assert _rows(client) == ["R1"]
+    assert (tmp_path / "recordings" / "R1" / "S1" / "frames.bin").is_file()
+    assert (tmp_path / "references" / "R1" / "x.csv").is_file()
+    assert StorageLayout(tmp_path).tombstones() == {}
+    # and the deletion works afterwards
+    r = client.post(f"/api/subjects/{subj['id']}/delete", json={"confirm": "A1"})
+    assert r.status_code == 200, r.text
+    assert not (tmp_path / "recordings" / "R1").exists()
+    assert not (tmp_path / "references" / "R1").exists()
+
+
+def test_a_crash_after_the_commit_is_finished_at_the_next_start(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The server dies after the rows are gone but before the files: the next start
+    deletes the files (no orphan health data, no 'unfiled' ghost)."""
+    with _client(tmp_path) as c:
+        _login(c)
+        subj = _planted(c, tmp_path)
+
+        def die(self: StorageLayout, rec_id: str) -> None:
+            raise RuntimeError("power cut")
+
+        with monkeypatch.context() as mp:
+            mp.setattr(StorageLayout, "delete_recording", die)
+            r = c.post(f"/api/subjects/{subj['id']}/delete", json={"confirm": "A1"})
+        assert r.status_code == 500
+        assert _rows(c) == []
+        assert (tmp_path / "recordings" / "R1").is_dir()  # the crash left them
+        assert set(StorageLayout(tmp_path).tombstones()) == {"R1"}
+    with _client(tmp_path) as c:
+        _login(c)
+        assert not (tmp_path / "recordings" / "R1").exists()
+        assert not (tmp_path / "references" / "R1").exists()
+        assert StorageLayout(tmp_path).tombstones() == {}
+        assert c.get("/api/storage/unfiled").json() == []
+
+
+def test_a_tombstone_whose_rows_survived_deletes_nothing(tmp_path: Path) -> None:
+    """The server died before the commit: the rows are there, so are the files."""
+    with _client(tmp_path) as c:
+        _login(c)
+        _planted(c, tmp_path)
+    StorageLayout(tmp_path).set_tombstones({"R1": ["S1"]})
+    with _client(tmp_path) as c:
+        _login(c)
+        assert _rows(c) == ["R1"]
+        assert (tmp_path / "recordings" / "R1" / "S1" / "frames.bin").is_file()
+        assert StorageLayout(tmp_path).tombstones() == {}
+        assert c.get("/api/storage").json()["pending_node_deletions"] == {}
+
+
+def test_no_deletion_while_a_part_is_transferred(client: TestClient, tmp_path: Path,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """The database says 'complete' (mirrored twice a second) but a transfer runs."""
+    subj = _planted(client, tmp_path)
+    hub = client.app.state.hub  # type: ignore[attr-defined]
+    monkeypatch.setattr(hub.transfers, "running_parts", lambda rec_id: {"S1"})
+    r = client.post(f"/api/subjects/{subj['id']}/delete", json={"confirm": "A1"})
+    assert r.status_code == 409 and "being transferred" in r.json()["detail"]
+    assert (tmp_path / "recordings" / "R1" / "S1" / "frames.bin").is_file()
+    assert _rows(client) == ["R1"]
