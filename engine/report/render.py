@@ -27,6 +27,10 @@ from engine.report.normative import DEFAULT_NORMATIVE_RANGES, NormativeRange, no
 TEMPLATE_DIR = Path(__file__).with_name("templates")
 #: Trials per foot-placement figure (one panel each): six fit on an A4 page.
 PLACEMENT_TRIALS_PER_FIGURE = 6
+#: Below this many steps a trial is flagged as a short or interrupted walk.
+FEW_STEPS_PER_TRIAL = 4
+#: Steps per side below which means and CVs are flagged as uncertain.
+MIN_STEPS_PER_SIDE = 10
 
 
 @dataclass(frozen=True)
@@ -223,10 +227,20 @@ def quality_notes(data: ReportData, table: list[TableRow]) -> list[str]:
     """Plain-language warnings about data quality, derived from the facts given."""
     q = data.quality
     notes = list(q.notes)
-    n_steps = sum(len(t.result.get("steps", []) or []) for t in data.trials)
-    if n_steps < 10:
-        notes.append(f"Only {n_steps} steps were analysed: means are uncertain and "
-                     "variability (CV) is not reliable below about 10 steps per side.")
+    for t in data.trials:
+        n = len(t.result.get("steps", []) or [])
+        if n == 0:
+            notes.append(f"Trial {t.name}: no usable steps were found; it adds nothing to "
+                         "the step and stride rows.")
+        elif n < FEW_STEPS_PER_TRIAL:
+            notes.append(f"Trial {t.name}: only {n} step{'s' if n > 1 else ''} "
+                         "(a short or interrupted walk); check that it was a full pass.")
+    per_side = {side: sum(1 for t in data.trials for s in t.result.get("steps", []) or []
+                          if s.get("side") == side) for side in ("L", "R")}
+    if min(per_side.values()) < MIN_STEPS_PER_SIDE:
+        notes.append(f"Only {per_side['L']} left and {per_side['R']} right steps were "
+                     "analysed: means are uncertain and variability (CV) is not reliable "
+                     f"below about {MIN_STEPS_PER_SIDE} steps per side.")
     if q.joints_tracked_pct is not None and q.joints_tracked_pct < 80.0:
         notes.append(f"Only {q.joints_tracked_pct:.0f} % of joint samples were tracked "
                      "by the sensors; check sensor placement and occlusions.")

@@ -69,3 +69,29 @@ def test_many_trials_every_foot_placement_panel_fits_a_page(tmp_path: Path,
     for i, p in enumerate(pages):
         # no page holds only a heading (ink of a heading and footer alone is < 1 %)
         assert (p.min(axis=2) < 200).mean() > 0.01, f"page {i + 1} is nearly blank"
+
+
+def test_a_trial_with_few_or_no_steps_is_named_in_the_notes() -> None:
+    """A 2-step trial and an empty one among full trials used to pass in silence (the
+    only warning looked at the total, 38 steps)."""
+    trials = _trials(3)
+    few = _trial("walk 4 (short)", np.random.default_rng(5))
+    few.result["steps"] = few.result["steps"][:2]
+    few.result["strides"] = []
+    empty = TrialData("walk 5 (empty)", {"events": [], "steps": [], "strides": [],
+                                         "summary": {}})
+    html = render_html(ReportData("P-101", [*trials, few, empty]))
+    assert "Trial walk 4 (short): only 2 steps" in html
+    assert "Trial walk 5 (empty): no usable steps" in html
+    assert "Step length" in html  # the report still renders its table
+    full = render_html(ReportData("P-101", trials))
+    assert "Trial " not in full and "steps were analysed" not in full
+
+
+def test_fewer_than_ten_steps_per_side_is_flagged_even_with_more_in_total() -> None:
+    """6 left and 6 right steps (12 in all; a real three-trial subject report had 7 and 6)
+    used to give no warning although the note itself speaks of 10 steps per side."""
+    t = _trial("walk 1", np.random.default_rng(2))
+    assert len(t.result["steps"]) == 12
+    html = render_html(ReportData("P-102", [t]))
+    assert "Only 6 left and 6 right steps were analysed" in html
