@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import logging
 import os
 import socket
@@ -644,9 +645,14 @@ class NodeAgent:
                     t_start_server=msg.t_start_server, streams=list(msg.streams),
                     image_every=msg.image_every, clock_start=msg.clock,
                 )
-            except Exception as exc:
-                log.exception("cannot create recording %s", msg.rec_id)
-                self._send_control(dump(NodeError(reason=f"cannot record {msg.rec_id}: {exc}")))
+            except (GaitrigError, OSError) as exc:
+                # The server must learn it as the part's state (else the part waits as
+                # "pending" for ever); re-announced like any closed part.
+                log.error("cannot record %s: %s", msg.rec_id, exc)
+                failed = PartInfo(rec_id=msg.rec_id, state="incomplete",
+                                  reason=self._write_failure(exc, 0))
+                self._finished[msg.rec_id] = (failed, time.monotonic())
+                self._send_control(dump(RecState(part=failed)))
                 return
             rec = _Rec(msg, writer)
             self._recs[msg.rec_id] = rec
@@ -690,8 +696,12 @@ class NodeAgent:
         if frame.t_local > rec.t_stop_local:
             self._finish(rec, "on_node", None)
             return
-        with rec.lock:
-            rec.writer.append(frame.t_local, "skeleton", msg)
+        try:
+            with rec.lock:
+                rec.writer.append(frame.t_local, "skeleton", msg)
+        except OSError as exc:  # disk full, quota, I/O error: keep what is written
+            self._finish(rec, "incomplete", self._write_failure(exc, rec.writer.n_frames))
+            return
         rec.n_seen += 1
         if rec.cmd.streams and (rec.n_seen - 1) % rec.cmd.image_every == 0:
             rec.pending_images.append(
@@ -703,9 +713,30 @@ class NodeAgent:
             data, f = encode_image(name, img, 1.0, "png")
             header = {"kind": "image", "stream": name, "t": frame.t_local, "format": f,
                       "width": img.shape[1], "height": img.shape[0], "scale": 1.0}
-            with rec.lock:
-                if not rec.writer.closed:
-                    rec.writer.append(frame.t_local, "image", encode_binary(header, data))
+            try:
+                with rec.lock:
+                    if not rec.writer.closed:
+                        rec.writer.append(frame.t_local, "image", encode_binary(header, data))
+            except OSError as exc:
+                if self._loop is not None:  # _finish waits for this thread: not from here
+                    self._loop.call_soon_threadsafe(
+                        self._finish, rec, "incomplete",
+                        self._write_failure(exc, rec.writer.n_frames))
+                return
+
+    def _write_failure(self, exc: OSError | GaitrigError, n_frames: int) -> str:
+        """Why a part stopped early on this node, in words for the clinician."""
+        errno_ = getattr(exc, "errno", None)
+        if errno_ in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+            what = f"node {self.node_id}'s disk is full"
+        elif errno_ == errno.EROFS:
+            what = f"node {self.node_id}'s recordings folder is read-only"
+        else:
+            what = f"node {self.node_id} could not write its recording ({exc})"
+        if n_frames == 0:
+            return f"{what}; nothing was recorded there"
+        return (f"{what}; recording stopped there after {n_frames} frames, which are kept "
+                "and transferred")
 
     def _finish(self, rec: _Rec, state: str, reason: str | None) -> None:
         if rec.cmd.rec_id not in self._recs:
@@ -715,12 +746,18 @@ class NodeAgent:
             with contextlib.suppress(Exception):
                 fut.result(timeout=10)
         with rec.lock:
-            info = rec.writer.close(
-                state, reason,
-                t_stop_local=rec.t_stop_local if rec.stop_cmd else None,
-                t_stop_server=rec.stop_cmd.t_stop_server if rec.stop_cmd else None,
-                clock_stop=rec.stop_cmd.clock if rec.stop_cmd else {},
-            )
+            try:
+                info = rec.writer.close(
+                    state, reason,
+                    t_stop_local=rec.t_stop_local if rec.stop_cmd else None,
+                    t_stop_server=rec.stop_cmd.t_stop_server if rec.stop_cmd else None,
+                    clock_stop=rec.stop_cmd.clock if rec.stop_cmd else {},
+                )
+            except OSError as exc:
+                # not even meta.json could be written: tell the server anyway; the next
+                # start of the node recovers the part as incomplete
+                state, reason = "incomplete", self._write_failure(exc, rec.writer.n_frames)
+                info = rec.writer.info(state, reason)
         log.info("recording %s %s: %d frames", info.rec_id, state, info.n_frames)
         self._finished[info.rec_id] = (info, time.monotonic())
         self._send_control(dump(RecState(part=info)))

@@ -16,7 +16,9 @@ part ``incomplete`` with the reason.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import os
 import re
 import shutil
@@ -30,6 +32,8 @@ from typing import Any
 from app.nodes.protocol import PartInfo, ProtocolError, decode_binary
 from engine.errors import InputError
 
+log = logging.getLogger("gaitrig.node")
+
 _REC = struct.Struct("<II")
 MAX_RECORD = 64 * 1024 * 1024
 _ID_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -37,11 +41,27 @@ _ID_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
 def _atomic_write_json(path: Path, obj: Any) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
-    with open(tmp, "w") as f:
-        json.dump(obj, f)
+    try:
+        with open(tmp, "w") as f:
+            json.dump(obj, f)
+            f.flush()
+            os.fsync(f.fileno())
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+    os.replace(tmp, path)
+
+
+def _rewrite_json_in_place(path: Path, obj: Any) -> None:
+    """Overwrite an existing small JSON file where it is: on a full disk there is no room
+    for the temporary copy of an atomic write, but a file shorter than the block the old
+    one already occupies needs no new space."""
+    data = json.dumps(obj).encode()
+    with open(path, "r+b") as f:
+        f.write(data)
+        f.truncate(len(data))
         f.flush()
         os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def _check_id(rec_id: str) -> str:
@@ -58,7 +78,9 @@ class PartWriter:
         self.folder = folder
         self.meta = meta
         self.fsync_interval_s = fsync_interval_s
-        self._f = open(folder / "frames.bin", "ab")  # noqa: SIM115 - open for the part's life
+        # unbuffered: a record is one write, and a failed one (disk full) leaves nothing
+        # behind in a buffer that a later flush or close would try to write again
+        self._f = open(folder / "frames.bin", "ab", buffering=0)  # noqa: SIM115 - part's life
         self._offset = self._f.tell()
         self._index: list[tuple[float, int, str]] = []
         self._last_sync = time.monotonic()
@@ -68,12 +90,23 @@ class PartWriter:
         self.closed = False
 
     def append(self, t_local: float, kind: str, message: bytes) -> None:
-        """Append one binary protocol message captured at ``t_local``."""
+        """Append one binary protocol message captured at ``t_local``.
+
+        Raises:
+            OSError: the record could not be written (disk full, quota, I/O error); the
+                file is cut back to the previous record, so the part stays intact.
+        """
         if self.closed:
             raise InputError(f"recording part {self.meta['rec_id']} is already closed")
-        self._f.write(_REC.pack(len(message), zlib.crc32(message)))
-        self._f.write(message)
-        self._f.flush()
+        record = memoryview(_REC.pack(len(message), zlib.crc32(message)) + message)
+        done = 0
+        try:
+            while done < len(record):  # a raw write may be short (the disk filling up)
+                done += self._f.write(record[done:]) or 0
+        except OSError:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._f.fileno(), self._offset)  # no torn record left
+            raise
         self._index.append((t_local, self._offset, kind))
         self._offset += _REC.size + len(message)
         if kind == "skeleton":
@@ -91,7 +124,6 @@ class PartWriter:
         if len(keep) == len(self._index):
             return
         cut = self._index[len(keep)][1]
-        self._f.flush()
         self._f.truncate(cut)
         self._f.seek(cut)
         self._offset = cut
@@ -110,16 +142,32 @@ class PartWriter:
         )
 
     def close(self, state: str = "on_node", reason: str | None = None, **extra: Any) -> PartInfo:
-        """Fsync, write the index and the final meta (``on_node`` or ``incomplete``)."""
+        """Fsync, write the index and the final meta (``on_node`` or ``incomplete``).
+
+        On a full disk the part still closes: ``index.json`` (optional, it can be rebuilt
+        from ``frames.bin``) is left out and ``meta.json`` is rewritten in place.
+
+        Raises:
+            OSError: not even the meta could be written (the part is then recovered as
+                ``incomplete`` when the node starts again).
+        """
         if not self.closed:
-            self._f.flush()
-            os.fsync(self._f.fileno())
-            self._f.close()
             self.closed = True
-            _atomic_write_json(self.folder / "index.json", self._index)
+            try:
+                os.fsync(self._f.fileno())
+            finally:
+                self._f.close()
+            try:
+                _atomic_write_json(self.folder / "index.json", self._index)
+            except OSError as exc:
+                log.warning("index of %s not written (%s); frames.bin is complete without it",
+                            self.meta["rec_id"], exc)
         self.meta.update(extra)
         self.meta.update(self.info(state, reason).model_dump())
-        _atomic_write_json(self.folder / "meta.json", self.meta)
+        try:
+            _atomic_write_json(self.folder / "meta.json", self.meta)
+        except OSError:
+            _rewrite_json_in_place(self.folder / "meta.json", self.meta)
         return self.info()
 
 

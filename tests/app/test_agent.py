@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -79,3 +82,50 @@ def test_stop_overtaking_start(agent: NodeAgent) -> None:
     assert agent.store.parts()[0].state == "on_node"
     agent._on_command(RecStart(rec_id="R3", t_start_server=0.0, t_start_local=2.0))
     assert len(agent.store.parts()) == 1  # a resent start is ignored
+
+
+@pytest.fixture
+def tiny_disk(tmp_path: Path) -> Iterator[Path]:
+    """A 64 KiB tmpfs: a node disk that fills up within a few seconds of skeletons."""
+    mnt = tmp_path / "tiny"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def test_disk_full_closes_the_part_incomplete_and_keeps_the_frames(tiny_disk: Path) -> None:
+    agent = NodeAgent("S1", _Scripted(), "ws://127.0.0.1:1/ws/node", "token", tiny_disk)
+    agent._on_command(RecStart(rec_id="R4", t_start_server=0.0, t_start_local=0.0))
+    for k in range(400):  # ~250 bytes a frame: the disk is full long before the end
+        agent._on_frame(_frame(k))  # never raises: the live stream goes on
+    assert "R4" not in agent._recs
+    part = agent.store.parts()[0]
+    assert part.state == "incomplete"
+    assert part.reason is not None and "S1's disk is full" in part.reason
+    ts = _times(agent.store, "R4")
+    assert 50 < len(ts) == part.n_frames < 400  # every frame written before is readable
+    assert ts == pytest.approx([k * DT for k in range(len(ts))])
+    # a frames.bin without a torn record at the end, and the server is told
+    assert (tiny_disk / "recordings" / "R4" / "frames.bin").stat().st_size == part.bytes
+    assert agent._finished["R4"][0].state == "incomplete"
+    agent._on_command(RecStop(rec_id="R4", t_stop_server=0.0, t_stop_local=99.0))  # no-op
+
+
+def test_start_on_a_full_disk_is_reported_as_the_parts_state(tiny_disk: Path) -> None:
+    agent = NodeAgent("S1", _Scripted(), "ws://127.0.0.1:1/ws/node", "token", tiny_disk)
+    ballast = tiny_disk / "ballast"
+    with open(ballast, "wb") as f, contextlib.suppress(OSError):
+        f.write(b"\0" * (1 << 20))
+    agent._on_command(RecStart(rec_id="R5", t_start_server=0.0, t_start_local=0.0))
+    info, _ = agent._finished["R5"]  # re-announced with the status until the server has it
+    assert info.state == "incomplete" and info.n_frames == 0
+    assert info.reason == "node S1's disk is full; nothing was recorded there"
+    agent._on_frame(_frame(1))
