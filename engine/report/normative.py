@@ -1,9 +1,11 @@
 """Normative reference ranges for spatiotemporal gait parameters.
 
 The defaults are broad bands for healthy adults walking at self-selected speed, each with
-its literature source. They are *not* age-, sex- or height-matched; a lab that has its
-own reference data loads it with :func:`load_normative_ranges` (JSON) and passes it to
-the report. Values are in SI units (m, s, steps/min, % of gait cycle).
+its literature source and the population that source studied (the report prints both,
+so a band from older adults is not read as one for all adults). They are *not* age-,
+sex- or height-matched; a lab that has its own reference data loads it with
+:func:`load_normative_ranges` (JSON) and passes it to the report. Values are in SI units
+(m, s, steps/min, % of gait cycle).
 """
 
 from __future__ import annotations
@@ -44,17 +46,22 @@ _OWINGS = ("Owings TM, Grabiner MD. Step width variability, but not step length 
            "variability or step time variability, discriminates gait of healthy young and "
            "older adults during treadmill locomotion. J Biomech 2004;37(6):935-938")
 
+# Hollman et al. measured 294 cognitively normal people over 70 (Mayo Clinic Study of
+# Aging) on a 5.6 m GAITRite walkway; saying only "healthy adults" hid that.
+_HOLLMAN_POP = "healthy adults over 70 y (GAITRite walkway)"
+
 DEFAULT_NORMATIVE_RANGES: tuple[NormativeRange, ...] = (
     NormativeRange("walking_speed_m_s", 1.10, 1.50, "adults 20-79 y, comfortable speed",
                    _BOHANNON),
     NormativeRange("cadence_steps_min", 100.0, 125.0, "healthy adults", _PERRY),
-    NormativeRange("step_length_m", 0.55, 0.80, "healthy adults", _HOLLMAN),
+    NormativeRange("step_length_m", 0.55, 0.80, _HOLLMAN_POP, _HOLLMAN),
     NormativeRange("stride_length_m", 1.10, 1.60, "healthy adults", _PERRY),
-    NormativeRange("step_time_s", 0.48, 0.60, "healthy adults", _HOLLMAN),
-    NormativeRange("step_width_m", 0.05, 0.14, "healthy adults", _OWINGS),
+    NormativeRange("step_time_s", 0.48, 0.60, _HOLLMAN_POP, _HOLLMAN),
+    NormativeRange("step_width_m", 0.05, 0.14,
+                   "healthy young and older adults, treadmill walking", _OWINGS),
     NormativeRange("stance_pct", 58.0, 64.0, "healthy adults", _PERRY),
     NormativeRange("swing_pct", 36.0, 42.0, "healthy adults", _PERRY),
-    NormativeRange("double_support_pct", 16.0, 26.0, "healthy adults (both phases)", _PERRY),
+    NormativeRange("double_support_pct", 16.0, 26.0, "healthy adults", _PERRY),
 )
 
 

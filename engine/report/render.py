@@ -144,6 +144,7 @@ class TableRow:
     asymmetry_pct: float | None = None
     normative: NormativeRange | None = None
     normative_display: str = ""
+    normative_ref: int | None = None  # number of the source in the table's footnote
     flag: str = ""  # "", "below", "above"
 
 
@@ -290,14 +291,26 @@ def build_context(data: ReportData) -> dict[str, Any]:
     all_steps = [s for t in data.trials for s in t.result.get("steps", []) or []]
     if all_steps:
         figures.append(("Parameters per step", _png_uri(plots.plot_steps(all_steps))))
-    used_norms = sorted({r.normative.source for r in table if r.normative is not None})
+    # Sources numbered in the order the table cites them; each band shows its number.
+    used_norms: list[str] = []
+    populations: dict[str, list[str]] = {}
+    for r in table:
+        if r.normative is None:
+            continue
+        src = r.normative.source
+        if src not in used_norms:
+            used_norms.append(src)
+        pops = populations.setdefault(src, [])
+        if r.normative.population and r.normative.population not in pops:
+            pops.append(r.normative.population)
+        r.normative_ref = used_norms.index(src) + 1
     return {
         "data": data,
         "table": table,
         "figures": figures,
         "agreement_figures": [(c, _png_uri(p)) for c, p in data.agreement_figures],
         "notes": quality_notes(data, table),
-        "norm_sources": used_norms,
+        "norm_sources": [(s, "; ".join(populations.get(s, []))) for s in used_norms],
         "n_steps": len(all_steps),
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "version": __version__,

@@ -95,3 +95,24 @@ def test_fewer_than_ten_steps_per_side_is_flagged_even_with_more_in_total() -> N
     assert len(t.result["steps"]) == 12
     html = render_html(ReportData("P-102", [t]))
     assert "Only 6 left and 6 right steps were analysed" in html
+
+
+def test_each_normative_band_cites_its_source_and_population() -> None:
+    """The bands used to stand without a reference number, their sources listed apart in
+    alphabetical order with no population; Hollman 2011 (adults over 70) was labelled
+    'healthy adults' and so read as a band for a 30-year-old."""
+    html = render_html(ReportData("P-103", _trials(2)))
+    foot = html[html.index("Normative bands are"):]
+    # "[n] <population>: <first author> <initials> ..."
+    cited = {n: author for n, _, author in
+             re.findall(r"\[(\d)\] ([^;]+?): ([A-Z][a-z]+) [A-Z]+", foot)}
+    assert len(cited) >= 3, foot[:600]
+    row = re.search(r"<td[^>]*>Step length</td>.*?</tr>", html, re.S)
+    assert row is not None
+    num = re.search(r"<sup>\[(\d)\]</sup>", row.group(0))
+    assert num is not None, "the step-length band has no source number"
+    assert cited[num.group(1)] == "Hollman"
+    assert re.search(rf"\[{num.group(1)}\] healthy adults over 70 y", foot)
+    speed = re.search(r"<td[^>]*>Walking speed</td>.*?</tr>", html, re.S)
+    assert speed is not None and "<sup>[1]</sup>" in speed.group(0)
+    assert "CV = 100 · SD / mean" in html and "not matched to this subject's age" in html
