@@ -591,9 +591,11 @@ def agreement_rows(measured: list[dict[str, Any]], reference: list[dict[str, Any
     pairs = match_steps(m, r, max_dt_s)
     rows: list[AgreementRow] = []
     figs: list[tuple[str, bytes]] = []
+    # Step time in ms: its bias and limits are a few ms, which the table's two decimals
+    # of seconds showed as "0.00" and "-0.00".
     for attr, label, unit, scale in (("length_m", "Step length", "cm", 100.0),
                                      ("width_m", "Step width", "cm", 100.0),
-                                     ("duration_s", "Step time", "s", 1.0)):
+                                     ("duration_s", "Step time", "ms", 1000.0)):
         for side in ("L", "R", "L+R"):
             pp = [p for p in pairs if side == "L+R" or p[0].side == side]
             a = np.array([getattr(x, attr) for x, _ in pp], dtype=float) * scale
