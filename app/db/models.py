@@ -1,4 +1,4 @@
-"""Tables: console users and their login sessions.
+"""Tables: console users, their login sessions and the audit trail.
 
 Kept deliberately small; the data-management models (projects, subjects, sessions,
 recordings) are added beside these, deriving from :class:`app.db.base.Base`.
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 
-from sqlalchemy import Boolean, DateTime, ForeignKey, Integer, String
+from sqlalchemy import DDL, Boolean, DateTime, ForeignKey, Integer, String, Text, event
 from sqlalchemy.orm import Mapped, mapped_column, relationship
 
 from app.db.base import Base
@@ -45,3 +45,34 @@ class LoginSession(Base):
     expires_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
 
     user: Mapped[User] = relationship(back_populates="sessions")
+
+
+#: What the audit trail records (``AuditEvent.action``).
+AUDIT_ACTIONS = ("login", "login_failed", "logout", "export", "delete")
+
+
+class AuditEvent(Base):
+    """One entry of the append-only audit trail: who did what, when, from where.
+
+    Targets name rows by their numeric id or a recording id, never by a subject code,
+    so the trail keeps no trace of a deleted subject's pseudonym. SQLite refuses any
+    UPDATE or DELETE of this table (triggers), so an entry cannot be edited through the
+    application's database connection.
+    """
+
+    __tablename__ = "audit_events"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=_now, index=True)
+    username: Mapped[str] = mapped_column(String(64))
+    action: Mapped[str] = mapped_column(String(16), index=True)
+    target: Mapped[str] = mapped_column(String(200), default="")
+    detail: Mapped[str] = mapped_column(Text, default="")
+    client: Mapped[str] = mapped_column(String(64), default="")
+
+
+for _op in ("UPDATE", "DELETE"):
+    event.listen(AuditEvent.__table__, "after_create", DDL(
+        f"CREATE TRIGGER audit_events_no_{_op.lower()} BEFORE {_op} ON audit_events "
+        "BEGIN SELECT RAISE(ABORT, 'the audit trail is append-only'); END"
+    ).execute_if(dialect="sqlite"))

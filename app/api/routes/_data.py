@@ -10,13 +10,33 @@ from fastapi import HTTPException, Request, status
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
 
+from app.db import audit
 from app.db import data as m
 from app.db.base import purge_deleted
+from app.db.models import AuditEvent, User
 from app.server.datasync import DataSync
 from app.server.hub import Hub
 from app.server.storage import StorageLayout
 
 T = TypeVar("T")
+
+
+def client_of(request: Request) -> str:
+    """The requesting address (for the audit trail)."""
+    return request.client.host if request.client else ""
+
+
+def audit_event(request: Request, user: User, action: str, target: str,
+                detail: str = "") -> AuditEvent:
+    """An audit entry for ``user``'s request (add it to the session whose commit it
+    records)."""
+    return audit.event(user.username, action, target, detail, client_of(request))
+
+
+def audit_now(db: DbSession, request: Request, user: User, action: str, target: str,
+              detail: str = "") -> None:
+    """Append an audit entry for ``user``'s request and commit it."""
+    audit.record(db, user.username, action, target, detail, client_of(request))
 
 
 def layout_of(request: Request) -> StorageLayout:
@@ -148,7 +168,7 @@ def project_json(db: DbSession, p: m.Project) -> dict[str, Any]:
 
 
 def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout, recs: list[m.Recording],
-                owner: Any = None) -> int:
+                owner: Any = None, entry: AuditEvent | None = None) -> int:
     """Delete recordings (and ``owner``, the session, subject or project that held them)
     everywhere: database rows, the server's files, live entries, the nodes' copies.
 
@@ -157,7 +177,8 @@ def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout, recs: list[m.Rec
     tombstone naming the recordings is written, the rows are deleted and committed, then
     the files go and the tombstone is cleared. A failed commit removes the tombstone and
     keeps every file; a server that dies after the commit finishes the deletion when it
-    starts again (:func:`resume_deletions`).
+    starts again (:func:`resume_deletions`). ``entry`` (the audit trail's record of the
+    deletion) is committed with the rows.
 
     Returns:
         Number of recordings deleted.
@@ -179,6 +200,8 @@ def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout, recs: list[m.Rec
             db.delete(r)
         if owner is not None:
             db.delete(owner)
+        if entry is not None:
+            db.add(entry)
         db.commit()
     except BaseException:
         db.rollback()

@@ -10,6 +10,7 @@ from pydantic import BaseModel, Field
 from app.api import security
 from app.api.deps import SESSION_COOKIE, CurrentUser, DbDep, SettingsDep, request_token
 from app.api.limits import BoundedRoute
+from app.db import audit
 
 router = APIRouter(prefix="/auth", route_class=BoundedRoute, tags=["auth"])
 
@@ -50,8 +51,10 @@ def login(body: LoginIn, request: Request, response: Response, db: DbDep,
     got = security.login(db, body.username, body.password, settings.session_hours)
     if got is None:
         throttle.failed(body.username, client)
+        audit.record(db, body.username, "login_failed", client=client)
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, "wrong username or password")
     throttle.succeeded(body.username, client)
+    audit.record(db, body.username, "login", client=client)
     token, expires = got
     response.set_cookie(SESSION_COOKIE, token, httponly=True, samesite="strict",
                         max_age=int(settings.session_hours * 3600))
@@ -64,6 +67,8 @@ def logout(request: Request, response: Response, user: CurrentUser, db: DbDep) -
     token = request_token(request)
     if token:
         security.logout(db, token)
+    audit.record(db, user.username, "logout",
+                 client=request.client.host if request.client else "")
     response.delete_cookie(SESSION_COOKIE)
 
 

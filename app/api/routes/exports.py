@@ -23,7 +23,15 @@ from fastapi import APIRouter, File, HTTPException, Query, Request, Response, Up
 
 from app.api.deps import CurrentUser, DbDep, HubDep
 from app.api.limits import BoundedRoute
-from app.api.routes._data import get_recording, get_row, layout_of, purge, reference_json
+from app.api.routes._data import (
+    audit_event,
+    audit_now,
+    get_recording,
+    get_row,
+    layout_of,
+    purge,
+    reference_json,
+)
 from app.db import data as m
 from app.server.storage import (
     check_id,
@@ -81,6 +89,7 @@ async def skeleton(rec_id: str, request: Request, user: CurrentUser, db: DbDep, 
             return export_skeleton(series if format == "csv" else uniform_series(series), format)
 
     data = await asyncio.to_thread(work)
+    audit_now(db, request, user, "export", f"recording {rec.id}", f"skeleton {format} {source}")
     return _download(data, f"{rec.id}_{source}.{format}", format)
 
 
@@ -110,6 +119,7 @@ async def depth(rec_id: str, request: Request, user: CurrentUser, db: DbDep,
         return depth_zip(frames) if format == "zip" else depth_npz(frames)
 
     data = await asyncio.to_thread(work)
+    audit_now(db, request, user, "export", f"recording {rec.id}", f"depth {format} {node}")
     return _download(data, f"{rec.id}_{node}_depth.{format}", format)
 
 
@@ -179,7 +189,9 @@ def download_reference(rec_id: str, ref_id: int, request: Request, user: Current
         raise HTTPException(status.HTTP_404_NOT_FOUND,
                             f"the file of reference {ref_id} ({ref.filename!r}) is missing from "
                             "the server; delete the reference and upload it again")
-    return _download(path.read_bytes(), ref.filename, ref.format)
+    data = path.read_bytes()
+    audit_now(db, request, user, "export", f"recording {rec_id}", f"reference {ref_id}")
+    return _download(data, ref.filename, ref.format)
 
 
 @router.post("/{rec_id}/references/{ref_id}/delete")
@@ -190,6 +202,7 @@ def delete_reference(rec_id: str, ref_id: int, request: Request, user: CurrentUs
     (layout_of(request).reference_dir(rec_id) / check_id(ref.stored_name, "file")).unlink(
         missing_ok=True)
     db.delete(ref)
+    db.add(audit_event(request, user, "delete", f"recording {rec_id}", f"reference {ref_id}"))
     db.commit()
     purge(db)
     return {"deleted": "reference", "id": ref_id}

@@ -11,6 +11,7 @@ from sqlalchemy import select
 from app.api.deps import CurrentUser, DbDep, HubDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import (
+    audit_event,
     check_confirm,
     delete_rows,
     get_project,
@@ -79,5 +80,7 @@ def delete_project(pid: int, body: Confirm, request: Request, user: CurrentUser,
     p = get_project(db, pid)
     check_confirm(p.name, body.confirm, f"project {p.name!r} and everything in it")
     recs = [r for s in p.subjects for x in s.sessions for r in x.recordings]
-    n = delete_rows(db, hub, layout_of(request), recs, p)
+    n = delete_rows(db, hub, layout_of(request), recs, p, audit_event(
+        request, user, "delete", f"project {pid}",
+        f"{len(p.subjects)} subject(s), {len(recs)} recording(s)"))
     return {"deleted": "project", "id": pid, "recordings_deleted": n}

@@ -18,6 +18,7 @@ from sqlalchemy import select
 from app.api.deps import CurrentUser, DbDep, HubDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import (
+    audit_event,
     check_confirm,
     datasync_of,
     delete_rows,
@@ -108,7 +109,9 @@ def delete_session(sid: int, body: Confirm, request: Request, user: CurrentUser,
     s = get_session(db, sid)
     check_confirm(s.subject.code, body.confirm,
                   f"this session of {s.subject.code} and its recordings")
-    n = delete_rows(db, hub, layout_of(request), list(s.recordings), s)
+    n = delete_rows(db, hub, layout_of(request), list(s.recordings), s, audit_event(
+        request, user, "delete", f"session {sid}",
+        f"subject {s.subject_id}; {len(s.recordings)} recording(s)"))
     return {"deleted": "session", "id": sid, "recordings_deleted": n}
 
 

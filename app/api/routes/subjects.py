@@ -16,6 +16,7 @@ from sqlalchemy import select
 from app.api.deps import CurrentUser, DbDep, HubDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import (
+    audit_event,
     check_confirm,
     delete_rows,
     get_project,
@@ -127,6 +128,9 @@ def delete_subject(sid: int, body: Confirm, request: Request, user: CurrentUser,
     """
     s = get_subject(db, sid)
     check_confirm(s.code, body.confirm, f"subject {s.code} and all its recordings")
-    n = delete_rows(db, hub, layout_of(request), [r for x in s.sessions for r in x.recordings],
-                    s)
+    recs = [r for x in s.sessions for r in x.recordings]
+    # the trail names the subject by its id only: it must not keep a deleted pseudonym
+    n = delete_rows(db, hub, layout_of(request), recs, s, audit_event(
+        request, user, "delete", f"subject {sid}",
+        f"project {s.project_id}; {len(s.sessions)} session(s), {len(recs)} recording(s)"))
     return {"deleted": "subject", "id": sid, "recordings_deleted": n}

@@ -125,3 +125,48 @@ def test_no_deletion_while_a_part_is_transferred(client: TestClient, tmp_path: P
     assert r.status_code == 409 and "being transferred" in r.json()["detail"]
     assert (tmp_path / "recordings" / "R1" / "S1" / "frames.bin").is_file()
     assert _rows(client) == ["R1"]
+
+
+def test_audit_trail_of_logins_exports_and_deletions(client: TestClient, tmp_path: Path
+                                                     ) -> None:
+    import sqlalchemy as sa
+
+    from app.api.security import hash_password
+    from app.db.models import User
+
+    subj = _planted(client, tmp_path)
+    assert TestClient(client.app).post("/api/auth/login", json={
+        "username": "=HYPERLINK(1)", "password": "x"}).status_code == 401
+    r = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "S1"})
+    assert r.status_code == 200
+    r = client.post(f"/api/subjects/{subj['id']}/delete", json={"confirm": "A1"})
+    assert r.status_code == 200
+    log = client.get("/api/audit").json()
+    got = [(e["username"], e["action"], e["target"]) for e in reversed(log)]
+    assert got == [("admin", "login", ""), ("=HYPERLINK(1)", "login_failed", ""),
+                   ("admin", "export", "recording R1"),
+                   ("admin", "delete", f"subject {subj['id']}")], got
+    assert "1 recording" in log[0]["detail"] and log[0]["client"]
+    assert all(e["at"] for e in log)
+    # the trail names no deleted pseudonym
+    assert "A1" not in str(log)
+    # append-only, down to the database
+    with client.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        for stmt in ("update audit_events set username = 'x'", "delete from audit_events"):
+            with pytest.raises(sa.exc.DatabaseError, match="append-only"):
+                db.execute(sa.text(stmt))
+            db.rollback()
+        db.add(User(username="nurse", password_hash=hash_password("nurse-pw-123"),
+                    is_admin=False))
+        db.commit()
+    # CSV for the administrator (the download is recorded too); no formula in a cell
+    r = client.get("/api/audit", params={"format": "csv"})
+    assert r.status_code == 200 and "attachment" in r.headers["content-disposition"]
+    assert "'=HYPERLINK(1)" in r.text and ",=HYPERLINK" not in r.text
+    assert client.get("/api/audit").json()[0]["target"] == "audit trail"
+    # not for other users
+    nurse = TestClient(client.app)
+    tok = nurse.post("/api/auth/login", json={"username": "nurse",
+                                              "password": "nurse-pw-123"}).json()["token"]
+    r = nurse.get("/api/audit", headers={"Authorization": f"Bearer {tok}"})
+    assert r.status_code == 403 and "administrator" in r.json()["detail"]

@@ -5,6 +5,7 @@ database included, byte for byte — for any trace of the subject."""
 
 from __future__ import annotations
 
+import sqlite3
 import time
 import urllib.error
 from pathlib import Path
@@ -93,9 +94,21 @@ def test_deleting_a_subject_leaves_no_trace(make_rig: Any, tmp_path: Path) -> No
              "the nodes to delete their copies")
     code, _ = http_error(lambda: rig.api(f"/api/subjects/{subj['id']}"))
     assert code == 404
-    # no trace anywhere: paths, files, the database (and its WAL) byte for byte
+    # no trace anywhere: paths, files, the database (and its WAL) byte for byte; the
+    # recording ids only in the audit trail (which says what was exported and deleted)
     needles = [CODE, NOTE.split(",")[0], rec, running]
-    assert _traces(server, needles) == []
+    found = _traces(server, needles)
+    assert [f for f in found if not f.startswith("gaitrig.sqlite3")] == []
+    assert [f for f in found if CODE in f or NOTE[:8] in f] == []
+    with sqlite3.connect(server / "gaitrig.sqlite3") as db:
+        for (table,) in db.execute("select name from sqlite_master where type = 'table'"):
+            dump = str(db.execute(f"select * from {table}").fetchall())
+            assert CODE not in dump and NOTE[:8] not in dump, table
+            if table != "audit_events":
+                assert rec not in dump and running not in dump, table
+        trail = db.execute("select username, action, target from audit_events").fetchall()
+    assert ("admin", "delete", f"subject {subj['id']}") in trail
+    assert ("admin", "export", f"recording {rec}") in trail
     for d in nodes.values():
         assert _traces(d, needles) == []
     # the other subject's data is untouched

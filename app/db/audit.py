@@ -1,0 +1,32 @@
+"""Writing the audit trail (:class:`app.db.models.AuditEvent`).
+
+Routes add an event to their own database session, so it is committed with the change it
+records (a deletion and its entry are one transaction); :func:`record` commits it alone
+for actions that change nothing else (a login, an export).
+"""
+
+from __future__ import annotations
+
+from sqlalchemy.orm import Session
+
+from app.db.models import AUDIT_ACTIONS, AuditEvent
+
+
+def event(username: str, action: str, target: str = "", detail: str = "",
+          client: str = "") -> AuditEvent:
+    """A new audit entry (not yet added to a session).
+
+    Raises:
+        ValueError: ``action`` is not one of :data:`AUDIT_ACTIONS` (a programming error).
+    """
+    if action not in AUDIT_ACTIONS:
+        raise ValueError(f"unknown audit action {action!r}")
+    return AuditEvent(username=username[:64], action=action, target=target[:200],
+                      detail=detail[:2000], client=client[:64])
+
+
+def record(db: Session, username: str, action: str, target: str = "", detail: str = "",
+           client: str = "") -> None:
+    """Append one entry and commit it."""
+    db.add(event(username, action, target, detail, client))
+    db.commit()
