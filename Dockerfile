@@ -1,5 +1,5 @@
 # One image for the gaitrig server and for the sensor-node agents (see docker-compose.yml).
-# Build: docker build -t gaitrig .      Server: docker run -p 8000:8000 -p 8081:8081 gaitrig
+# Build: docker build -t gaitrig .      Server: docker run -p 8000:8000 -p 8001:8001 gaitrig
 FROM python:3.11-slim
 
 # Open3D needs libGL/libgomp, Azure Kinect/Femto nodes libusb; weasyprint (PDF reports)
@@ -22,6 +22,6 @@ ENV GAITRIG_DATA_DIR=/data \
     GAITRIG_VIEWER_HOST=0.0.0.0 \
     PYTHONUNBUFFERED=1
 VOLUME ["/data"]
-EXPOSE 8000 8001 8081
+EXPOSE 8000 8001
 HEALTHCHECK --interval=10s --timeout=3s CMD python -c "import urllib.request,sys; urllib.request.urlopen('http://127.0.0.1:8000/healthz', timeout=2)" || exit 1
 CMD ["gaitrig", "serve"]

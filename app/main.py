@@ -34,6 +34,7 @@ from app.config import DEFAULT_NODE_TOKEN, Settings, get_settings
 from app.db.base import make_engine, make_session_factory
 from app.server.hub import Hub
 from app.server.registry import NodeSession
+from app.viewer import proxy as viewer_proxy
 from app.viewer.scene import SensorView
 from engine.errors import CalibrationError, GaitrigError
 
@@ -169,6 +170,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # enforced here, so a new resource cannot forget it
         api.include_router(r, dependencies=[Depends(get_current_user)])
     app.include_router(api)
+    # the 3D view behind the console's login (viser itself has none)
+    app.include_router(viewer_proxy.router)
 
     @app.websocket("/ws/node")
     async def node_socket(ws: WebSocket) -> None:

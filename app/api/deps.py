@@ -17,6 +17,7 @@ from typing import Annotated, Any
 
 from fastapi import Depends, HTTPException, Request, status
 from sqlalchemy.orm import Session
+from starlette.requests import HTTPConnection
 
 from app.api.security import user_for_token
 from app.config import Settings
@@ -57,8 +58,8 @@ RegistryDep = Annotated[NodeRegistry, Depends(get_registry)]
 DbDep = Annotated[Session, Depends(get_db)]
 
 
-def request_token(request: Request) -> str | None:
-    """Bearer token from the Authorization header, else the session cookie."""
+def request_token(request: HTTPConnection) -> str | None:
+    """Bearer token from the Authorization header, else the session cookie (HTTP or websocket)."""
     auth = request.headers.get("authorization", "")
     if auth.lower().startswith("bearer "):
         return auth[7:].strip() or None

@@ -173,9 +173,10 @@ def test_websockets_refuse_anonymous_clients(client: TestClient) -> None:
 
 
 def test_unauthenticated_3d_view_is_local_by_default() -> None:
-    """The viser 3D view (its own port, not a route of this app) has no login of its own:
-    it shows live skeletons, so by default it listens on the loopback interface only
-    (opening it to the network is an explicit ``GAITRIG_VIEWER_HOST``)."""
+    """The viser server itself has no login: it shows live skeletons, so it listens on the
+    loopback interface by default and the console reaches it through ``/viewer`` (checked
+    above with the other routes); opening viser's own port to the network is an explicit
+    ``GAITRIG_VIEWER_HOST``."""
     assert Settings.model_fields["viewer_host"].default in ("127.0.0.1", "localhost", "::1")
 
 

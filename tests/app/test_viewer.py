@@ -92,5 +92,42 @@ def test_viewer_lives_in_the_lifespan(tmp_path: Path) -> None:
         tok = client.post("/api/auth/login", json={"username": "admin", "password": "pw"})
         sysinfo = client.get("/api/system", headers={"Authorization": "Bearer "
                                                      + tok.json()["token"]}).json()
-        assert sysinfo["viewer_url"].endswith(f":{port}/")
+        assert sysinfo["viewer_url"] == "/viewer/"  # behind the login, same port
     assert not _port_open(port)
+
+
+def test_viewer_is_behind_the_login(tmp_path: Path) -> None:
+    """The 3D view (live skeletons and depth of a subject) is served on the console's port
+    to a logged-in session only: the page and its websocket are refused without one."""
+    from starlette.websockets import WebSocketDisconnect
+
+    settings = Settings(data_dir=tmp_path, viewer_enabled=True, viewer_port=0,
+                        node_token="tok-tok-tok", admin_password="pw")
+    with TestClient(create_app(settings)) as client:
+        r = client.get("/viewer/")
+        assert r.status_code == 401 and "not logged in" in r.json()["detail"]
+        with pytest.raises(WebSocketDisconnect) as refused, \
+                client.websocket_connect("/viewer") as ws:
+            ws.receive_bytes()
+        assert refused.value.code == 4401
+        assert client.get("/viewer/../api/system").status_code in (401, 404)
+
+        client.post("/api/auth/login", json={"username": "admin", "password": "pw"})
+        page = client.get("/viewer/")  # the session cookie, as the console's iframe sends it
+        assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+        assert "viser" in page.text.lower()
+        # the viser client's own subprotocol, passed through to the viser server
+        with client.websocket_connect("/viewer", subprotocols=[f"viser-v{viser.__version__}"]
+                                      ) as ws:
+            first = ws.receive_bytes()  # viser's opening messages, forwarded
+            assert len(first) > 0
+
+
+def test_viewer_proxy_says_when_the_view_is_off(tmp_path: Path) -> None:
+    settings = Settings(data_dir=tmp_path, viewer_enabled=False, node_token="tok-tok-tok",
+                        admin_password="pw")
+    with TestClient(create_app(settings)) as client:
+        client.post("/api/auth/login", json={"username": "admin", "password": "pw"})
+        r = client.get("/viewer/")
+        assert r.status_code == 404 and "--no-viewer" in r.json()["detail"]
+        assert client.get("/api/system").json()["viewer_url"] is None

@@ -128,8 +128,9 @@ def live_server() -> Iterator[LiveServer]:
                             env={**os.environ, "PYTHONUNBUFFERED": "1",
                                  # KSCC tests link to a second server on loopback
                                  "GAITRIG_KSCC_PEERS": '["127.0.0.1"]'})
-    server = LiveServer(f"http://127.0.0.1:{port}", f"http://127.0.0.1:{vport}", password, tmp,
-                        N_NODES, proc)
+    # the 3D view as the console shows it: behind the login, on the console's port
+    server = LiveServer(f"http://127.0.0.1:{port}", f"http://127.0.0.1:{port}/viewer", password,
+                        tmp, N_NODES, proc)
     try:
         _wait_http(server.base_url + "/healthz", proc, START_TIMEOUT_S)
         server.login()

@@ -15,7 +15,7 @@ router = APIRouter(prefix="/system", route_class=BoundedRoute, tags=["system"])
 
 @router.get("")
 def system(request: Request, user: CurrentUser, settings: SettingsDep) -> dict[str, Any]:
-    """Viewer URL (same host name the browser used), clock warning limit, version."""
+    """Viewer URL (the login-protected proxy on this port), clock warning limit, version."""
     from importlib.metadata import PackageNotFoundError, version
 
     try:
@@ -23,10 +23,9 @@ def system(request: Request, user: CurrentUser, settings: SettingsDep) -> dict[s
     except PackageNotFoundError:
         ver = "dev"
     viewer = getattr(request.app.state, "viewer", None)
-    host = settings.public_host or request.url.hostname or "127.0.0.1"
     return {
         "version": ver,
-        "viewer_url": f"http://{host}:{viewer.port}/" if viewer is not None else None,
+        "viewer_url": "/viewer/" if viewer is not None else None,
         "clock_warn_ms": settings.clock_warn_ms,
         "user": user.username,
         # the console warns an administrator while nodes pair with the shipped token

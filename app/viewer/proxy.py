@@ -1,0 +1,139 @@
+"""The 3D view behind the console's login: ``/viewer/`` on the API port.
+
+The viser server listens on its own port, on the loopback interface by default, and has
+no login of its own. The console reaches it through this proxy instead: the page at
+``GET /viewer/`` and its websocket at ``/viewer`` (the viser client connects to the page's
+own URL) are forwarded to the viser server only for a logged-in session (the console's
+session cookie, or a bearer token). So the live skeletons and depth images of a subject
+are never served to someone who has not logged in, and the view works wherever the console
+does (another machine, a container) without opening a second port.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from typing import Any
+
+import httpx
+import websockets
+from fastapi import APIRouter, HTTPException, Request, Response, WebSocket, status
+from fastapi.responses import HTMLResponse
+from starlette.requests import HTTPConnection
+from starlette.websockets import WebSocketDisconnect
+
+from app.api.deps import request_token
+from app.api.security import user_for_token
+
+log = logging.getLogger(__name__)
+
+#: Response headers of the viser page passed on to the browser.
+_PASSED_HEADERS = ("content-type", "content-encoding", "cache-control", "etag", "last-modified")
+#: Largest viser message forwarded (point clouds of six sensors fit well within it).
+MAX_MESSAGE_BYTES = 64 * 1024 * 1024
+
+router = APIRouter(prefix="/viewer", tags=["viewer"])
+
+
+def _viewer_port(app: Any) -> int:
+    viewer = getattr(app.state, "viewer", None)
+    if viewer is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            "the 3D view is off on this server (started with --no-viewer)")
+    return int(viewer.port)
+
+
+_LOGIN_PAGE = """<!doctype html><html lang="en"><head><meta charset="utf-8">
+<title>gaitrig — 3D view</title><link rel="stylesheet" href="/style.css"></head>
+<body><main><h1>3D view</h1><p>You are not logged in. <a href="/index.html">Log in to the
+console</a>, then open the 3D view from its Live page.</p></main></body></html>"""
+
+
+def _session_user(request: HTTPConnection) -> Any:
+    token = request_token(request)
+    if not token:
+        return None
+    with request.app.state.db_sessions() as db:
+        return user_for_token(db, token)
+
+
+@router.get("/", include_in_schema=False)
+@router.get("/{path:path}", include_in_schema=False)
+async def viewer_page(request: Request, path: str = "") -> Response:
+    """The viser client (one page with its assets) for a logged-in user."""
+    if _session_user(request) is None:
+        if "text/html" in request.headers.get("accept", ""):
+            # a person's browser (a bookmark, a new tab): a page that says how to log in
+            return HTMLResponse(_LOGIN_PAGE, status_code=status.HTTP_401_UNAUTHORIZED)
+        raise HTTPException(status.HTTP_401_UNAUTHORIZED,
+                            "not logged in: POST /api/auth/login with your username and "
+                            "password", headers={"WWW-Authenticate": "Bearer"})
+    port = _viewer_port(request.app)
+    if ".." in path.split("/"):
+        raise HTTPException(status.HTTP_404_NOT_FOUND, "no such file of the 3D view")
+    headers = {"accept-encoding": request.headers.get("accept-encoding", "identity")}
+    try:
+        async with (httpx.AsyncClient(timeout=10.0) as client,
+                    client.stream("GET", f"http://127.0.0.1:{port}/{path}",
+                                  headers=headers) as r):
+            # the bytes as viser sent them (compressed or not), its encoding header passed on
+            body = b"".join([chunk async for chunk in r.aiter_raw()])
+    except httpx.HTTPError as e:
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                            f"the 3D view is not answering ({type(e).__name__}); "
+                            "restart the server if this lasts") from None
+    passed = {k: v for k, v in r.headers.items() if k.lower() in _PASSED_HEADERS}
+    return Response(content=body, status_code=r.status_code, headers=passed)
+
+
+@router.websocket("")
+async def viewer_socket(ws: WebSocket) -> None:
+    """The viser websocket, forwarded both ways for a logged-in session only."""
+    viewer = getattr(ws.app.state, "viewer", None)
+    if _session_user(ws) is None:
+        await ws.close(code=4401, reason="not logged in")  # as the console's other sockets
+        return
+    if viewer is None:
+        await ws.close(code=1008, reason="the 3D view is off on this server")
+        return
+    protocols = [p.strip() for p in ws.headers.get("sec-websocket-protocol", "").split(",")
+                 if p.strip()]
+    try:
+        upstream = await websockets.connect(
+            f"ws://127.0.0.1:{viewer.port}", subprotocols=protocols or None,  # type: ignore[arg-type]
+            max_size=MAX_MESSAGE_BYTES, open_timeout=10, compression=None)
+    except (OSError, websockets.WebSocketException, TimeoutError):
+        log.warning("3D view proxy: the viser server is not answering")
+        await ws.close(code=1011)
+        return
+    await ws.accept(subprotocol=upstream.subprotocol)
+
+    async def to_viewer() -> None:
+        while True:
+            msg = await ws.receive()
+            if msg["type"] == "websocket.disconnect":
+                return
+            data = msg.get("bytes")
+            await upstream.send(data if data is not None else msg.get("text") or "")
+
+    async def to_browser() -> None:
+        async for data in upstream:
+            if isinstance(data, bytes):
+                await ws.send_bytes(data)
+            else:
+                await ws.send_text(data)
+
+    tasks = [asyncio.create_task(to_viewer()), asyncio.create_task(to_browser())]
+    try:
+        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for t in tasks:
+            t.cancel()
+        for t in tasks:
+            with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect,
+                                     websockets.WebSocketException, RuntimeError):
+                await t
+        await upstream.close()
+        with contextlib.suppress(RuntimeError):
+            await ws.close()
