@@ -511,8 +511,9 @@ def _lower_body_tracked(fusion: Mapping[str, Any]) -> float | None:
 
 def quality_from_analyses(analyses: list[dict[str, Any]]) -> QualityInfo:
     """The report's data-quality facts from recording analyses."""
-    q = QualityInfo()
+    q = QualityInfo(recordings=len(analyses))
     tracked: list[float] = []
+    versions: dict[str, None] = {}  # ordered set
     gaps = 0
     for a in analyses:
         for node, f in (a.get("sensors") or {}).items():
@@ -522,16 +523,22 @@ def quality_from_analyses(analyses: list[dict[str, Any]]) -> QualityInfo:
                 continue
             if node not in q.sensors_used:
                 q.sensors_used.append(node)
-            q.clock_offsets_ms[node] = float(f.get("clock_offset_ms") or 0.0)
+            # Offsets, residuals and calibrations differ between recordings: all are kept
+            # (the table showed the last recording's alone, unlabelled).
+            off = float(f.get("clock_offset_ms") or 0.0)
+            lo, hi = q.clock_offset_range_ms.get(node, (off, off))
+            q.clock_offset_range_ms[node] = (min(lo, off), max(hi, off))
+            q.clock_offsets_ms[node] = off
             unc = f.get("clock_uncertainty_ms")
             if unc is not None and math.isfinite(float(unc)):
                 q.clock_uncertainty_ms[node] = max(float(unc),
                                                    q.clock_uncertainty_ms.get(node, 0.0))
             res = f.get("calibration_residual_mm")
             if res is not None:
-                q.calibration_residuals_mm[node] = float(res)
+                q.calibration_residuals_mm[node] = max(
+                    float(res), q.calibration_residuals_mm.get(node, float(res)))
             if f.get("calibration_version"):
-                q.calibration_version = str(f["calibration_version"])
+                versions.setdefault(str(f["calibration_version"]), None)
             if float(f.get("mirrored_pct") or 0.0) > 0.5:
                 q.notes.append(f"Recording {a['rec_id']}: sensor {node} saw the subject from "
                                f"behind in {f['mirrored_pct']:.0f} % of its frames; left/right "
@@ -548,12 +555,13 @@ def quality_from_analyses(analyses: list[dict[str, Any]]) -> QualityInfo:
         if lb is not None:
             tracked.append(lb)
         gaps += int(fus.get("gaps_filled") or 0)
-        if not q.calibration_version and any(
+        if not versions and any(
                 (f.get("pose_source") == "node") for f in (a.get("sensors") or {}).values()):
             note = ("Sensor poses are those reported by the nodes (no rig calibration "
                     "was stored with the recording).")
             if note not in q.notes:
                 q.notes.append(note)
+    q.calibration_version = ", ".join(versions) or None
     q.joints_tracked_pct = float(np.mean(tracked)) if tracked else None
     q.gaps_filled = gaps
     return q

@@ -92,10 +92,13 @@ class QualityInfo:
     joints_tracked_pct: float | None = None
     gaps_filled: int | None = None
     clock_offsets_ms: dict[str, float] = field(default_factory=dict)
+    #: lowest and highest offset per sensor when the report spans several recordings
+    clock_offset_range_ms: dict[str, tuple[float, float]] = field(default_factory=dict)
     clock_uncertainty_ms: dict[str, float] = field(default_factory=dict)
     calibration_residuals_mm: dict[str, float] = field(default_factory=dict)
     calibration_version: str | None = None
     notes: list[str] = field(default_factory=list)
+    recordings: int = 1  # how many recordings the facts summarise
 
 
 @dataclass

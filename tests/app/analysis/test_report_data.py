@@ -36,3 +36,33 @@ def test_step_time_agreement_is_in_ms_so_a_few_ms_of_bias_shows() -> None:
     html = render_html(ReportData("P-1", [TrialData("walk", {"steps": meas})], agreement=rows))
     cells = html[html.index("Agreement with the reference system"):]
     assert f"<td>{both.bias:.2f}</td>" in cells and f"{both.bias:.2f}" != "0.00"
+
+
+def _analysis(rec_id: str, offsets: dict[str, float], version: str,
+              residual: float) -> dict:
+    steps = [{"side": "LR"[i % 2], "time_s": 0.55 * i, "length_m": 0.65, "width_m": 0.1,
+              "duration_s": 0.55} for i in range(12)]
+    return {"rec_id": rec_id, "ok": True, "sensors_used": list(offsets),
+            "gait": {"events": [], "steps": steps, "strides": [], "summary": {}},
+            "sensors": {k: {"clock_offset_ms": v, "clock_uncertainty_ms": 0.1,
+                            "calibration_residual_mm": residual,
+                            "calibration_version": version, "mirrored_pct": 0.0}
+                        for k, v in offsets.items()},
+            "fusion": {"tracked_pct": {"AnkleLeft": 90.0}, "gaps_filled": 2}}
+
+
+def test_quality_of_several_recordings_shows_every_recordings_offsets() -> None:
+    """Three recordings synchronised 135.60, 136.08 and 136.71 ms apart (a real subject
+    report): the table used to print the last recording's 135.60 alone, unlabelled, and
+    only the last calibration version and residual."""
+    analyses = [_analysis("R1", {"S1": 136.71, "S2": -459.57}, "3", 2.0),
+                _analysis("R2", {"S1": 136.08, "S2": -460.83}, "3", 4.5),
+                _analysis("R3", {"S1": 135.60, "S2": -461.83}, "4", 1.0)]
+    html = render_html(an.build_report("P-1", analyses))
+    quality = html[html.index("Data quality"):]
+    assert "135.60 to 136.71" in quality and "-461.83 to -459.57" in quality
+    assert "lowest to highest" in quality and "Over the 3 recordings" in quality
+    assert "3, 4" in quality  # both calibration versions
+    assert "<td>4.5</td>" in quality  # the largest residual, not the last (1.0)
+    one = render_html(an.build_report("P-1", analyses[:1]))
+    assert "136.71" in one and "lowest to highest" not in one
