@@ -241,7 +241,7 @@ def _served(app: Any, path: str) -> bool:
 def test_endpoints_named_in_docs_exist(api_app: Any) -> None:
     problems = []
     for path in DOCS:
-        for m in re.finditer(r"(?<![\w/])(/api/(?:[\w\-/.]|\{[^}\n]*\}|<[^>\n]*>)*)",
+        for m in re.finditer(r"(?<![\w/])(/api/(?:[\w\-/.]|\{[^}\n]*\}|<[^>\n]*>)+)",
                              path.read_text()):
             raw = m.group(1).rstrip("/.")
             concrete = re.sub(r"\{[^}]*\}|<[^>]*>", "x1", raw)
