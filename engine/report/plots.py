@@ -15,6 +15,8 @@ from matplotlib.figure import Figure
 
 SIDE_COLOURS = {"L": "#1f77b4", "R": "#d62728"}
 SIDE_NAMES = {"L": "left", "R": "right"}
+#: Gait events marked on the ankle trajectories (``events[].kind`` of the gait JSON).
+EVENT_NAMES = {"foot_strike": "foot strike (dashed)", "placement": "foot placement (dashed)"}
 
 
 def figure_png(fig: Figure, dpi: int = 130) -> bytes:
@@ -58,10 +60,14 @@ def plot_ankle_heights(
     for side, h in heights.items():
         ax.plot(times, np.asarray(h) * 100.0, color=SIDE_COLOURS.get(side, "k"), lw=1.2,
                 label=f"{SIDE_NAMES.get(side, side)} ankle")
-    for ev in events:
-        if ev.get("kind") == "foot_strike":
-            ax.axvline(ev["time_s"], color=SIDE_COLOURS.get(ev["side"], "k"), lw=0.6, ls="--",
-                       alpha=0.6)
+    # Heel-strike analyses give foot strikes, the crossing method foot placements; the
+    # latter were not drawn, and neither kind was named in the legend.
+    marked = [ev for ev in events if ev.get("kind") in EVENT_NAMES]
+    for ev in marked:
+        ax.axvline(ev["time_s"], color=SIDE_COLOURS.get(ev.get("side", ""), "k"), lw=0.6,
+                   ls="--", alpha=0.6)
+    for kind in dict.fromkeys(ev["kind"] for ev in marked):
+        ax.plot([], [], color="#666", lw=0.8, ls="--", label=EVENT_NAMES[kind])
     ax.set_xlabel("time (s)")
     ax.set_ylabel("height (cm)")
     ax.grid(alpha=0.3)

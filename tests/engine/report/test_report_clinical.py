@@ -116,3 +116,33 @@ def test_each_normative_band_cites_its_source_and_population() -> None:
     speed = re.search(r"<td[^>]*>Walking speed</td>.*?</tr>", html, re.S)
     assert speed is not None and "<sup>[1]</sup>" in speed.group(0)
     assert "CV = 100 · SD / mean" in html and "not matched to this subject's age" in html
+
+
+def test_ankle_plot_marks_foot_placements_and_names_the_marks(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The crossing method's events ('placement', the published method and the console's
+    default) were not drawn at all, and the dashed foot-strike lines had no legend."""
+    from matplotlib.figure import Figure
+
+    from engine.report import plots
+
+    seen: list[Figure] = []
+    real = plots.figure_png
+
+    def keep(fig: Figure, dpi: int = 130) -> bytes:
+        seen.append(fig)
+        return real(fig, dpi)
+
+    monkeypatch.setattr(plots, "figure_png", keep)
+    t = np.linspace(0.0, 3.0, 100)
+    h = {"L": 0.1 + 0.05 * np.sin(6 * t), "R": 0.1 + 0.05 * np.cos(6 * t)}
+    for kind, name in (("placement", "foot placement"), ("foot_strike", "foot strike")):
+        seen.clear()
+        ev = [{"side": "LR"[i % 2], "kind": kind, "time_s": 0.5 * (i + 1)} for i in range(5)]
+        assert plots.plot_ankle_heights(t, h, ev)[:4] == b"\x89PNG"
+        ax = seen[0].axes[0]
+        dashed = [ln for ln in ax.lines if ln.get_linestyle() == "--" and len(ln.get_xdata())]
+        assert len(dashed) == 5, kind
+        legend = ax.get_legend()
+        assert legend is not None
+        assert any(name in txt.get_text() for txt in legend.get_texts()), kind
