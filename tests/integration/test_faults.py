@@ -17,7 +17,6 @@ import signal
 import socket
 import subprocess
 import threading
-import time
 import urllib.error
 from collections.abc import Iterator
 from pathlib import Path
@@ -159,8 +158,7 @@ def _run(rig: Rig, proxy: CuttableProxy, tiny_disk: Path | None) -> None:
     assert p["S1"]["state"] == "incomplete" and p["S1"]["n_frames"] > 15
 
     rec = rig.api(f"/api/recordings/{rec_id}/stop", method="POST")
-    assert set(rec["parts"] if isinstance(rec["parts"], dict) else
-               [q["node_id"] for q in rec["parts"]]) == set(nodes)
+    assert {q["node_id"] for q in rec["parts"]} == set(nodes)
     code, msg = _http_error(lambda: rig.api(f"/api/recordings/{rec_id}/stop", method="POST"))
     assert code == 409 and "already stopped" in msg
     code, msg = _http_error(lambda: rig.api("/api/recordings/R-none/stop", method="POST"))
