@@ -35,7 +35,11 @@ def plot_foot_placements(trials: Sequence[tuple[str, Sequence[dict[str, Any]]]])
             in metres, already expressed along (x) and across (y) the walking direction.
     """
     n = max(len(trials), 1)
-    fig, axes = plt.subplots(n, 1, figsize=(7.5, 1.3 + 1.1 * n), squeeze=False)
+    # One scale for all panels: with each panel autoscaled, a 1.4 m trial was drawn as
+    # long as a 3.5 m one. Equal aspect would flatten ±10 cm over metres to a line, so
+    # the across axis stays in cm, stretched, and the caption says so.
+    fig, axes = plt.subplots(n, 1, figsize=(7.5, 1.3 + 1.1 * n), squeeze=False,
+                             sharex=True, sharey=True)
     for ax, (name, placements) in zip(axes[:, 0], trials, strict=False):
         for side in ("L", "R"):
             pts = np.array([p["position"][:2] for p in placements if p["side"] == side])
@@ -43,6 +47,7 @@ def plot_foot_placements(trials: Sequence[tuple[str, Sequence[dict[str, Any]]]])
                 ax.scatter(pts[:, 0], pts[:, 1] * 100.0, s=28, marker="s",
                            color=SIDE_COLOURS[side], label=SIDE_NAMES[side])
         ax.set_ylabel("across (cm)")
+        ax.tick_params(labelbottom=True)
         ax.set_title(name, fontsize=9, loc="left")
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("along the walkway (m)")

@@ -280,10 +280,11 @@ def build_context(data: ReportData) -> dict[str, Any]:
     # the PDF cut off its last trials, so the panels go into figures of a page each.
     for k in range(0, len(placements), PLACEMENT_TRIALS_PER_FIGURE):
         chunk = placements[k:k + PLACEMENT_TRIALS_PER_FIGURE]
-        caption = "Foot placements seen from above"
+        caption = ("Foot placements seen from above (along the walkway in m, across it in cm: "
+                   "the across axis is stretched so that step width can be read)")
         if len(placements) > PLACEMENT_TRIALS_PER_FIGURE:
-            caption += (f" (trials {k + 1}–{k + len(chunk)} of {len(placements)})"
-                        if len(chunk) > 1 else f" (trial {k + 1} of {len(placements)})")
+            caption += (f", trials {k + 1}–{k + len(chunk)} of {len(placements)}"
+                        if len(chunk) > 1 else f", trial {k + 1} of {len(placements)}")
         figures.append((caption, _png_uri(plots.plot_foot_placements(chunk))))
     for t in data.trials:
         if t.times is not None and t.ankle_heights:

@@ -146,3 +146,29 @@ def test_ankle_plot_marks_foot_placements_and_names_the_marks(
         legend = ax.get_legend()
         assert legend is not None
         assert any(name in txt.get_text() for txt in legend.get_texts()), kind
+
+
+def test_top_view_panels_share_one_scale_and_say_the_across_axis_is_stretched(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each trial's panel was autoscaled (a 1.4 m trial drawn as long as a 3.5 m one) and
+    nothing said that cm across and m along are not to scale."""
+    from matplotlib.figure import Figure
+
+    from engine.report import plots
+
+    seen: list[Figure] = []
+    real = plots.figure_png
+
+    def keep(fig: Figure, dpi: int = 130) -> bytes:
+        seen.append(fig)
+        return real(fig, dpi)
+
+    monkeypatch.setattr(plots, "figure_png", keep)
+    long_walk = [{"side": "LR"[i % 2], "position": [0.7 * i, 0.05 * (-1) ** i, 0.0]}
+                 for i in range(6)]
+    short_walk = long_walk[:3]
+    plots.plot_foot_placements([("long", long_walk), ("short", short_walk)])
+    a, b = seen[0].axes[:2]
+    assert a.get_xlim() == b.get_xlim()
+    html = render_html(ReportData("P-104", _trials(2)))
+    assert "across axis is stretched" in html
