@@ -516,6 +516,7 @@ def quality_from_analyses(analyses: list[dict[str, Any]]) -> QualityInfo:
     versions: dict[str, None] = {}  # ordered set
     gaps = 0
     for a in analyses:
+        mirrored: list[str] = []
         for node, f in (a.get("sensors") or {}).items():
             if "skipped" in f:
                 q.notes.append(f"Recording {a['rec_id']}: sensor {node} not used — "
@@ -540,9 +541,12 @@ def quality_from_analyses(analyses: list[dict[str, Any]]) -> QualityInfo:
             if f.get("calibration_version"):
                 versions.setdefault(str(f["calibration_version"]), None)
             if float(f.get("mirrored_pct") or 0.0) > 0.5:
-                q.notes.append(f"Recording {a['rec_id']}: sensor {node} saw the subject from "
-                               f"behind in {f['mirrored_pct']:.0f} % of its frames; left/right "
-                               "labels were corrected from the walking direction.")
+                mirrored.append(f"{node} ({f['mirrored_pct']:.0f} %)")
+        if mirrored:
+            # One line per recording: six sensors used to give six near-identical notes.
+            q.notes.append(f"Recording {a['rec_id']}: left/right labels were corrected from "
+                           "the walking direction where a sensor saw the subject from behind "
+                           f"(share of its frames: {', '.join(mirrored)}).")
         opts = a.get("options") or {}
         if opts.get("sensors") is not None:
             avail = a.get("sensors_available") or []

@@ -66,3 +66,16 @@ def test_quality_of_several_recordings_shows_every_recordings_offsets() -> None:
     assert "<td>4.5</td>" in quality  # the largest residual, not the last (1.0)
     one = render_html(an.build_report("P-1", analyses[:1]))
     assert "136.71" in one and "lowest to highest" not in one
+
+
+def test_mirrored_sensors_of_one_recording_make_one_note() -> None:
+    """Six sensors behind the subject in one recording used to give six near-identical
+    notes, burying the others (a real report had eight such lines)."""
+    a = _analysis("R9", {f"S{k}": 0.0 for k in range(1, 7)}, "3", 1.0)
+    for k, f in enumerate(a["sensors"].values()):
+        f["mirrored_pct"] = 100.0 if k else 20.0
+    q = an.quality_from_analyses([a])
+    mirrored = [n for n in q.notes if "from behind" in n]
+    assert len(mirrored) == 1, q.notes
+    assert "Recording R9" in mirrored[0]
+    assert "S1 (20 %)" in mirrored[0] and "S6 (100 %)" in mirrored[0]
