@@ -7,7 +7,9 @@
 * every ``--option`` given to a ``bench/<name>.py`` is one that bench parses;
 * every ``GAITRIG_*`` variable and every ``Settings.<field>`` / setting ``<field>`` named
   is a field of :class:`app.config.Settings`;
-* every file path named exists, every ``app.x.y`` / ``engine.x.y`` object resolves;
+* every file path named exists, every ``app.x.y`` / ``engine.x.y`` object resolves, every
+  identifier in code (``snake_case``, ``camelCase``) occurs in the sources, and what a
+  skipped block imports exists;
 * every ``/api/...`` endpoint named is served by the app;
 * the gait JSON example of ``docs/gait-json.md`` has exactly the keys ``to_dict()`` gives,
   and the node health fields of ``docs/backbone.md`` are those of ``GET /api/nodes``.
@@ -16,6 +18,7 @@
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
 import json
 import re
@@ -77,7 +80,16 @@ def test_python_snippet_runs(code: str, skipped: bool, tmp_path: Path,
                              monkeypatch: pytest.MonkeyPatch) -> None:
     compiled = compile(code, "<docs snippet>", "exec")
     if skipped:
-        return  # needs a server or a recording; its names are checked by the tests below
+        # Needs a server or a recording: what it imports must still exist.
+        for node in ast.walk(ast.parse(code)):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                module = importlib.import_module(node.module)
+                for alias in node.names:
+                    assert hasattr(module, alias.name), f"{node.module}.{alias.name}"
+            elif isinstance(node, ast.Import):
+                for alias in node.names:
+                    importlib.import_module(alias.name)
+        return
     monkeypatch.chdir(tmp_path)
     exec(compiled, {"__name__": "__docs__"})
 
@@ -211,6 +223,30 @@ def test_python_objects_named_in_docs_exist() -> None:
             if not _resolve(m.group(1)):
                 problems.append(f"{where}: {m.group(1)} does not resolve")
     assert not problems, "\n".join(problems)
+
+
+_SOURCES = ("app", "engine", "bench", "tests", "static", "scripts", "alembic")
+#: Names in code spans that are conventions, not identifiers of the code.
+_NOT_IDENTIFIERS = {"result_"}
+
+
+def test_identifiers_named_in_docs_exist() -> None:
+    # Names with an underscore or camelCase in code (functions, fields, JSON keys,
+    # constants, test names) must occur in the sources: a rename shows up here.
+    words: set[str] = set()
+    for d in _SOURCES:
+        for p in (ROOT / d).rglob("*"):
+            if p.suffix in (".py", ".js", ".html", ".sh") and p.is_file():
+                words |= set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", p.read_text()))
+                words.add(p.stem)
+    problems = []
+    for where, code in _code_lines():
+        for ident in re.findall(r"\b[A-Za-z_][A-Za-z0-9_]{3,}\b", code):
+            if ident.startswith("GAITRIG_") or ident in _NOT_IDENTIFIERS:
+                continue  # settings: test_settings_named_in_docs_exist
+            if ("_" in ident or re.search(r"[a-z][A-Z]", ident)) and ident not in words:
+                problems.append(f"{where}: {ident} occurs nowhere in {', '.join(_SOURCES)}")
+    assert not problems, "\n".join(sorted(set(problems)))
 
 
 # ------------------------------------------------------------------ REST
