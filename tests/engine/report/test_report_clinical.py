@@ -172,3 +172,16 @@ def test_top_view_panels_share_one_scale_and_say_the_across_axis_is_stretched(
     assert a.get_xlim() == b.get_xlim()
     html = render_html(ReportData("P-104", _trials(2)))
     assert "across axis is stretched" in html
+
+
+@needs_poppler
+def test_non_latin_subject_code_in_title_and_footer(tmp_path: Path) -> None:
+    """The page footer (subject code, page numbers) was set in the default serif font
+    while the report is in DejaVu Sans; Latin letters with diacritics must survive."""
+    code = "Zoë Łukasiewicz-Ødegård"
+    pdf = render_pdf(ReportData(code, _trials(1)))
+    text, _ = _pdf_pages(pdf, tmp_path)
+    assert text.count(code) >= 2  # header and footer of page 1
+    fonts = subprocess.run(["pdffonts", str(tmp_path / "r.pdf")], capture_output=True,
+                           text=True, check=True).stdout
+    assert "Serif" not in fonts, fonts
