@@ -18,13 +18,15 @@ share one time axis.
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import os
 import shutil
 import tempfile
+import time
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -297,6 +299,18 @@ def uniform_series(series: SkeletonSeries, rate_hz: float | None = None) -> Skel
     return SkeletonSeries(grid, P, states.astype(np.uint8), series.joint_set, dict(series.meta))
 
 
+def live_poses(layout: StorageLayout, registry: Any) -> dict[str, Any]:
+    """Sensor poses known now: the active calibration's, else those the nodes report."""
+    from app.server.calibration import active_poses
+
+    live: dict[str, Any] = dict(active_poses(layout.data_dir))
+    for node_id, s in registry.nodes.items():
+        T = s.sensor.T_world_sensor
+        if T is not None and node_id not in live:
+            live[node_id] = {"T_world_sensor": T, "source": "node"}
+    return live
+
+
 def recording_poses(layout: StorageLayout, registry: Any, rec_id: str
                     ) -> dict[str, NDArray[np.float64] | None]:
     """The recording's own sensor poses (``T_world_sensor``) for every part on the server.
@@ -309,14 +323,8 @@ def recording_poses(layout: StorageLayout, registry: Any, rec_id: str
     sensor without a pose maps to None.
     """
     from app.server import analysis as an
-    from app.server.calibration import active_poses
 
-    live: dict[str, Any] = dict(active_poses(layout.data_dir))
-    for node_id, s in registry.nodes.items():
-        T = s.sensor.T_world_sensor
-        if T is not None and node_id not in live:
-            live[node_id] = {"T_world_sensor": T, "source": "node"}
-    saved = an.sensor_poses(layout.recording_dir(rec_id), live)
+    saved = an.sensor_poses(layout.recording_dir(rec_id), live_poses(layout, registry))
     return {n: (np.asarray(saved[n]["T_world_sensor"], dtype=float) if n in saved else None)
             for n in layout.complete_parts(rec_id)}
 
@@ -388,3 +396,157 @@ def read_reference(path: Path, fmt: str) -> MarkerTrajectories:
         s = read_skeleton_csv(path)
         return skeleton_to_markers(s, units="m")
     raise InputError(f"reference format {fmt!r} is not c3d, trc or csv")
+
+
+# --------------------------------------------------------------------------- subject export
+
+EXPORT_CHUNK = 1 << 20  # bytes read and sent at a time: the export's memory bound
+_DEFLATE = (".json", ".csv", ".txt", ".trc")
+
+EXPORT_README = """gaitrig export of one subject (right of access / data portability)
+==================================================================
+
+subject.json              the subject (pseudonym code, height and leg length in metres,
+                          sex, birth year, notes), its project, sessions and recordings
+                          with their states, node parts and attached references
+export-notes.json         what could not be exported and why (empty when complete)
+recordings/<rec_id>/      one folder per recording, as stored on the server:
+  sensors.json            sensor poses used for this recording (T_world_sensor, 4x4, metres,
+                          world frame Z up)
+  analysis/*.json         gait analyses (method, estimator, sensors in the file name):
+                          spatio-temporal parameters, events, placements
+  reference/              a reference recording attached for the report's agreement section
+  <node_id>/              one sensor's part, byte-identical to what the node recorded:
+    manifest.json         files, sizes, SHA-256 (check with sha256sum)
+    meta.json             part parameters, clock model (node time -> server time)
+    index.json            [t_local, offset, kind] per record of frames.bin
+    frames.bin            records: uint32 length, uint32 crc32, payload (one binary message
+                          of the gaitrig node protocol: skeletons, depth/colour images)
+    skeleton.csv          the same skeletons, readable anywhere: time (s, server clock),
+                          <Joint>_x/_y/_z in metres in the sensor's camera frame
+                          (OpenCV: +Z forward, +X right, +Y down), <Joint>_state
+                          (0 not tracked, 1 inferred, 2 tracked), Kinect v2 joint names
+references/<rec_id>/      reference recordings uploaded for a recording (C3D, TRC, CSV);
+                          subject.json gives each file's original name
+
+Gait reports are not stored: the console renders them from these recordings and
+analyses when asked (Reports page). Times are seconds, lengths metres unless a file says
+otherwise. Formats: docs/storage.md and docs/gait-json.md of gaitrig.
+"""
+
+
+class _ZipSink(io.RawIOBase):
+    """Where :func:`stream_zip`'s zip writer puts its bytes until they are sent."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray()
+        self.pos = 0
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, b: Any) -> int:
+        n = len(b)
+        self.buf += b
+        self.pos += n
+        return n
+
+    def tell(self) -> int:
+        return self.pos
+
+    def take(self) -> bytes:
+        out = bytes(self.buf)
+        self.buf.clear()
+        return out
+
+
+ExportEntry = tuple[str, "Path | bytes | Callable[[], bytes | None]"]
+
+
+def stream_zip(entries: Iterable[ExportEntry]) -> Iterator[bytes]:
+    """A zip archive written and handed out piece by piece (never whole in memory).
+
+    Args:
+        entries: ``(name in the archive, source)``; a source is a file, bytes, or a
+            function called when its turn comes that gives bytes (None: left out).
+
+    Yields:
+        The archive's bytes, at most about :data:`EXPORT_CHUNK` at a time.
+    """
+    sink = _ZipSink()
+    with zipfile.ZipFile(sink, "w", allowZip64=True) as z:
+        for name, src in entries:
+            info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = (zipfile.ZIP_DEFLATED if name.endswith(_DEFLATE)
+                                  else zipfile.ZIP_STORED)
+            if isinstance(src, Path):
+                st = src.stat()
+                info.file_size = st.st_size  # a part over 4 GiB needs ZIP64: say so first
+                info.date_time = max(time.localtime(st.st_mtime)[:6], (1980, 1, 1, 0, 0, 0))
+                with src.open("rb") as f, z.open(info, "w") as out:
+                    while chunk := f.read(EXPORT_CHUNK):
+                        out.write(chunk)
+                        yield sink.take()
+            else:
+                data = src() if callable(src) else src
+                if data is None:
+                    continue
+                z.writestr(info, data)
+            yield sink.take()
+    yield sink.take()
+
+
+def recording_files(layout: StorageLayout, rec_id: str) -> list[tuple[str, Path]]:
+    """Every finished file of a recording on the server (parts, poses, analyses, the
+    reports' reference) and its uploaded references, with their names in an export."""
+    out: list[tuple[str, Path]] = []
+    for root, prefix in ((layout.recording_dir(rec_id), f"recordings/{rec_id}"),
+                         (layout.reference_dir(rec_id), f"references/{rec_id}")):
+        if not root.is_dir():
+            continue
+        for p in sorted(root.rglob("*")):
+            rel = p.relative_to(root)
+            if p.is_file() and ".incoming" not in rel.parts and not p.name.endswith(".tmp"):
+                out.append((f"{prefix}/{rel.as_posix()}", p))
+    return out
+
+
+def subject_export(layout: StorageLayout, info: dict[str, Any], rec_ids: list[str],
+                   live: dict[str, Any] | None = None) -> Iterator[ExportEntry]:
+    """The entries of a subject's export (see :data:`EXPORT_README`).
+
+    Args:
+        layout: the server's storage layout.
+        info: ``subject.json`` (the subject, its project, sessions and recordings).
+        rec_ids: the subject's recordings.
+        live: sensor poses known now, for a recording analysed the first time.
+    """
+    from app.server import analysis as an
+
+    notes: list[str] = []
+    yield "README.txt", EXPORT_README.encode()
+    yield "subject.json", json.dumps(info, indent=1, default=str).encode()
+    for rec_id in rec_ids:
+        rec_dir = layout.recording_dir(rec_id)
+        parts = layout.complete_parts(rec_id)
+        if parts:
+            try:  # the default analysis, so the export has one (cached on the server)
+                an.analyse_recording(rec_dir, an.AnalysisOptions(), live)
+            except GaitrigError as exc:
+                notes.append(f"recording {rec_id}: no analysis ({exc})")
+        elif not rec_dir.is_dir():
+            notes.append(f"recording {rec_id}: no data on the server (never transferred)")
+        yield from recording_files(layout, rec_id)
+        for node in parts:
+            yield (f"recordings/{rec_id}/{node}/skeleton.csv",
+                   functools.partial(_skeleton_csv, layout.part_dir(rec_id, node), notes))
+    yield "export-notes.json", lambda: json.dumps(notes, indent=1).encode()
+
+
+def _skeleton_csv(part_dir: Path, notes: list[str]) -> bytes | None:
+    try:
+        return export_skeleton(read_part_skeleton(part_dir), "csv")
+    except GaitrigError as exc:
+        notes.append(f"recording {part_dir.parent.name}, sensor {part_dir.name}: no "
+                     f"skeleton.csv ({exc})")
+        return None

@@ -7,9 +7,11 @@ the clinic and unique within a project.
 from __future__ import annotations
 
 import datetime as dt
+import re
 from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Request, status
+from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
 from sqlalchemy import select
 
@@ -17,6 +19,7 @@ from app.api.deps import CurrentUser, DbDep, HubDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     audit_event,
+    audit_now,
     check_confirm,
     delete_rows,
     get_project,
@@ -25,6 +28,7 @@ from app.api.routes._data import (
     subject_json,
 )
 from app.db import data as m
+from app.server.storage import live_poses, stream_zip, subject_export
 
 router = APIRouter(prefix="/subjects", route_class=BoundedRoute, tags=["data"])
 
@@ -99,6 +103,34 @@ def create_subject(body: SubjectIn, request: Request, user: CurrentUser,
 def get_one(sid: int, request: Request, user: CurrentUser, db: DbDep) -> dict[str, Any]:
     """A subject with its sessions and their recordings (states, parts, progress)."""
     return subject_json(get_subject(db, sid), layout_of(request), sessions=True)
+
+
+@router.get("/{sid}/export", response_class=StreamingResponse)
+def export_subject(sid: int, request: Request, user: CurrentUser, db: DbDep,
+                   hub: HubDep) -> StreamingResponse:
+    """Everything held about a subject as one zip (right of access, data portability).
+
+    ``subject.json`` (the subject, project, sessions, recordings, references), every
+    recording's files as stored (node parts byte-identical, sensor poses, analyses, the
+    reports' reference), each part's skeleton as CSV, the uploaded references, and a
+    ``README.txt`` describing the formats. Streamed piece by piece: the server never
+    holds the archive (or a file of it) in memory or on disk.
+    """
+    s = get_subject(db, sid)
+    layout = layout_of(request)
+    info = subject_json(s, layout, sessions=True)
+    info["project"] = {"id": s.project.id, "name": s.project.name}
+    info["exported_at"] = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+    info["format"] = "gaitrig subject export 1 (see README.txt)"
+    rec_ids = [r.id for x in s.sessions for r in x.recordings]
+    # read everything from the database now: the stream runs after this session closed
+    entries = subject_export(layout, info, rec_ids, live_poses(layout, hub.registry))
+    audit_now(db, request, user, "export", f"subject {sid}",
+              f"zip of {len(rec_ids)} recording(s)")
+    code = re.sub(r"[^A-Za-z0-9_.-]", "_", s.code)  # the pattern's, even for an old row
+    name = f"gaitrig-subject-{code}-{dt.date.today().isoformat()}.zip"
+    return StreamingResponse(stream_zip(entries), media_type="application/zip",
+                             headers={"Content-Disposition": f'attachment; filename="{name}"'})
 
 
 @router.patch("/{sid}")

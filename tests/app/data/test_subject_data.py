@@ -16,7 +16,7 @@ from app.config import Settings
 from app.db import data as m
 from app.main import create_app
 from app.server.storage import StorageLayout
-from tests.app.data.test_data_api import _make_part, _recording_row
+from tests.app.data.test_data_api import _calibrate, _make_part, _recording_row
 
 
 def _client(data_dir: Path) -> TestClient:
@@ -170,3 +170,61 @@ def test_audit_trail_of_logins_exports_and_deletions(client: TestClient, tmp_pat
                                               "password": "nurse-pw-123"}).json()["token"]
     r = nurse.get("/api/audit", headers={"Authorization": f"Bearer {tok}"})
     assert r.status_code == 403 and "administrator" in r.json()["detail"]
+
+
+def test_subject_export_is_complete_documented_and_authenticated(
+        client: TestClient, tmp_path: Path) -> None:
+    import io
+    import json
+    import zipfile
+
+    from app.server.storage import read_part_skeleton
+    from engine.io.csv import read_skeleton_csv
+
+    subj = _planted(client, tmp_path)
+    _calibrate(tmp_path, 0.3)  # so the export can analyse the recording
+    client.post(f"/api/subjects/{subj['id']}/delete", json={"confirm": "nope"})
+    assert TestClient(client.app).get(f"/api/subjects/{subj['id']}/export").status_code == 401
+    assert client.get("/api/subjects/999/export").status_code == 404
+    r = client.get(f"/api/subjects/{subj['id']}/export")
+    assert r.status_code == 200 and r.headers["content-type"] == "application/zip"
+    disp = r.headers["content-disposition"]
+    assert disp.startswith('attachment; filename="gaitrig-subject-A1-') and disp.endswith('.zip"')
+    z = zipfile.ZipFile(io.BytesIO(r.content))
+    names = set(z.namelist())
+    part = tmp_path / "recordings" / "R1" / "S1"
+    for f in ("manifest.json", "meta.json", "index.json", "frames.bin"):
+        assert z.read(f"recordings/R1/S1/{f}") == (part / f).read_bytes(), f
+    assert z.read("references/R1/x.csv") == b"time\n"
+    assert any(n.startswith("recordings/R1/analysis/") for n in names), names
+    assert json.loads(z.read("recordings/R1/sensors.json"))["S1"]["T_world_sensor"]
+    assert "README.txt" in names and b"skeleton.csv" in z.read("README.txt")
+    info = json.loads(z.read("subject.json"))
+    assert info["code"] == "A1" and info["project"]["name"] == "S"
+    assert [r["id"] for s in info["sessions"] for r in s["recordings"]] == ["R1"]
+    (tmp_path / "s.csv").write_bytes(z.read("recordings/R1/S1/skeleton.csv"))
+    np_truth = read_part_skeleton(part)
+    back = read_skeleton_csv(tmp_path / "s.csv")
+    assert (back.times == np_truth.times).all()
+    assert json.loads(z.read("export-notes.json")) == []
+    entry = client.get("/api/audit").json()[0]
+    assert (entry["action"], entry["target"]) == ("export", f"subject {subj['id']}")
+
+
+def test_the_export_streams_in_bounded_pieces(tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    import io
+    import zipfile
+
+    from app.server import storage
+
+    monkeypatch.setattr(storage, "EXPORT_CHUNK", 64 * 1024)
+    big = tmp_path / "frames.bin"
+    big.write_bytes(bytes(range(256)) * 4096 * 3)  # 3 MiB
+    pieces = list(storage.stream_zip([("a/frames.bin", big), ("b.json", b"{}"),
+                                      ("skipped.csv", lambda: None)]))
+    assert max(len(p) for p in pieces) <= 64 * 1024 + 1024
+    assert sum(len(p) for p in pieces) > big.stat().st_size
+    z = zipfile.ZipFile(io.BytesIO(b"".join(pieces)))
+    assert z.namelist() == ["a/frames.bin", "b.json"]
+    assert z.read("a/frames.bin") == big.read_bytes() and z.testzip() is None

@@ -5,9 +5,12 @@ database included, byte for byte — for any trace of the subject."""
 
 from __future__ import annotations
 
+import io
+import json
 import sqlite3
 import time
 import urllib.error
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -73,6 +76,16 @@ def test_deleting_a_subject_leaves_no_trace(make_rig: Any, tmp_path: Path) -> No
     assert (server / "recordings" / rec).is_dir() and (server / "references" / rec).is_dir()
     assert all((d / "recordings" / rec).is_dir() for d in nodes.values())
 
+    # right of access: one zip with everything, the parts byte-identical to the nodes'
+    z = zipfile.ZipFile(io.BytesIO(download(rig, f"/api/subjects/{subj['id']}/export")))
+    for n in ("S1", "S2"):
+        assert (z.read(f"recordings/{rec}/{n}/frames.bin")
+                == (nodes[n] / "recordings" / rec / "frames.bin").read_bytes())
+        assert z.read(f"recordings/{rec}/{n}/skeleton.csv").startswith(b"time,")
+    assert json.loads(z.read("subject.json"))["notes"] == NOTE
+    assert any(x.startswith(f"references/{rec}/") for x in z.namelist())
+    assert not any(kept in x for x in z.namelist())  # only this subject's data
+
     # a wrong confirmation deletes nothing
     code, msg = http_error(lambda: rig.api(f"/api/subjects/{subj['id']}/delete",
                                            {"confirm": CODE.lower()}))
@@ -93,6 +106,8 @@ def test_deleting_a_subject_leaves_no_trace(make_rig: Any, tmp_path: Path) -> No
     wait_for(lambda: rig.api("/api/storage")["pending_node_deletions"] == {}, 30,
              "the nodes to delete their copies")
     code, _ = http_error(lambda: rig.api(f"/api/subjects/{subj['id']}"))
+    assert code == 404
+    code, _ = http_error(lambda: download(rig, f"/api/subjects/{subj['id']}/export"))
     assert code == 404
     # no trace anywhere: paths, files, the database (and its WAL) byte for byte; the
     # recording ids only in the audit trail (which says what was exported and deleted)
