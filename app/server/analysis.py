@@ -571,8 +571,12 @@ def quality_from_analyses(analyses: list[dict[str, Any]]) -> QualityInfo:
     return q
 
 
-def trial_from_analysis(a: Mapping[str, Any], name: str | None = None) -> TrialData:
-    """A report trial from an analysis result (:func:`analyse_recording`/`analyse_file`)."""
+def trial_from_analysis(a: Mapping[str, Any], name: str | None = None,
+                        with_sensors: bool = True) -> TrialData:
+    """A report trial from an analysis result (:func:`analyse_recording`/`analyse_file`).
+
+    ``with_sensors`` appends the sensors used to the trial's name (when trials differ).
+    """
     ank = a.get("ankles") or {}
     times = heights = None
     if ank.get("times"):
@@ -581,7 +585,7 @@ def trial_from_analysis(a: Mapping[str, Any], name: str | None = None) -> TrialD
                    for s in ("L", "R")}
     used = a.get("sensors_used")
     label = name or str(a.get("rec_id", "trial"))
-    if used:
+    if used and with_sensors:
         label += f" ({', '.join(used)})"
     return TrialData(label, a["gait"], a.get("placements") or None, times, heights)
 
@@ -663,7 +667,11 @@ def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
             q.notes.append("A reference recording is attached but fewer than three steps "
                            "matched it in time (within 0.25 s): check that both start "
                            "together.")
-    return ReportData(subject_code, [trial_from_analysis(a) for a in good], title=title,
+    # The sensors go into the trial names only when trials differ in them; otherwise the
+    # data-quality section lists them once (ten trials repeated "(S1, …, S6)" ten times).
+    same = len({tuple(a.get("sensors_used") or ()) for a in good}) == 1
+    trials = [trial_from_analysis(a, with_sensors=not same) for a in good]
+    return ReportData(subject_code, trials, title=title,
                       subject_info=subject_info or {}, session_label=session_label,
                       session_date=session_date, quality=q, agreement=rows,
                       agreement_figures=figs)

@@ -316,6 +316,7 @@ def build_context(data: ReportData) -> dict[str, Any]:
         "notes": quality_notes(data, table),
         "norm_sources": [(s, "; ".join(populations.get(s, []))) for s in used_norms],
         "n_steps": len(all_steps),
+        "trial_steps": [(t.name, len(t.result.get("steps", []) or [])) for t in data.trials],
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "version": __version__,
     }

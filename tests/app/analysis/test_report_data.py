@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from app.server import analysis as an
@@ -79,3 +81,17 @@ def test_mirrored_sensors_of_one_recording_make_one_note() -> None:
     assert len(mirrored) == 1, q.notes
     assert "Recording R9" in mirrored[0]
     assert "S1 (20 %)" in mirrored[0] and "S6 (100 %)" in mirrored[0]
+
+
+def test_trials_line_gives_steps_per_trial_and_sensors_once() -> None:
+    """The trials line repeated '(S1, S2)' after every recording and gave only the total
+    of steps, so a 3-step trial among 12-step ones could not be seen."""
+    analyses = [_analysis(f"R{k}", {"S1": 1.0, "S2": 2.0}, "3", 1.0) for k in (1, 2, 3)]
+    analyses[2]["gait"]["steps"] = analyses[2]["gait"]["steps"][:3]
+    html = render_html(an.build_report("P-1", analyses))
+    line = re.search(r"Trials used</b></td><td[^>]*>(.*?)</td>", html, re.S)
+    assert line is not None
+    assert line.group(1) == "3, 27 steps: R1 (12 steps); R2 (12 steps); R3 (3 steps)"
+    analyses[2]["sensors_used"] = ["S1"]
+    html = render_html(an.build_report("P-1", analyses))
+    assert "R3 (S1) (3 steps)" in html  # trials that differ in sensors say so
