@@ -84,6 +84,9 @@ log = logging.getLogger("gaitrig.node")
 
 _corrupted: set[tuple[str, int]] = set()
 CHANNEL_SWITCH_INTERVAL_S = 0.0005  # GIL switch interval while a data channel is open
+# Recorded frames whose images wait to be encoded, at most: each holds the sensor's full
+# images, so a node encoding slower than it captures would otherwise grow without bound
+MAX_IMAGE_BACKLOG = 30
 
 
 _cut: set[tuple[str, int]] = set()
@@ -163,7 +166,8 @@ class _Rec:
     t_stop_local: float = float("inf")
     stop_cmd: RecStop | None = None
     n_seen: int = 0
-    pending_images: list[Any] = field(default_factory=list)
+    pending_images: list[Any] = field(default_factory=list)  # not yet encoded and written
+    images_skipped: int = 0  # frames whose images were left out (encoder behind)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
 
@@ -704,8 +708,16 @@ class NodeAgent:
             return
         rec.n_seen += 1
         if rec.cmd.streams and (rec.n_seen - 1) % rec.cmd.image_every == 0:
-            rec.pending_images.append(
-                self._pool.submit(self._record_images, rec, frame, rec.cmd.streams))
+            rec.pending_images = [f for f in rec.pending_images if not f.done()]
+            if len(rec.pending_images) >= MAX_IMAGE_BACKLOG:
+                if rec.images_skipped == 0:
+                    log.warning("recording %s: images are encoded slower than they are "
+                                "recorded; leaving some out (record images of fewer frames)",
+                                rec.cmd.rec_id)
+                rec.images_skipped += 1
+            else:
+                rec.pending_images.append(
+                    self._pool.submit(self._record_images, rec, frame, rec.cmd.streams))
 
     def _record_images(self, rec: _Rec, frame: Frame, streams: Sequence[str]) -> None:
         imgs = frame.images(streams)
@@ -752,13 +764,15 @@ class NodeAgent:
                     t_stop_local=rec.t_stop_local if rec.stop_cmd else None,
                     t_stop_server=rec.stop_cmd.t_stop_server if rec.stop_cmd else None,
                     clock_stop=rec.stop_cmd.clock if rec.stop_cmd else {},
+                    images_skipped=rec.images_skipped,
                 )
             except OSError as exc:
                 # not even meta.json could be written: tell the server anyway; the next
                 # start of the node recovers the part as incomplete
                 state, reason = "incomplete", self._write_failure(exc, rec.writer.n_frames)
                 info = rec.writer.info(state, reason)
-        log.info("recording %s %s: %d frames", info.rec_id, state, info.n_frames)
+        log.info("recording %s %s: %d frames%s", info.rec_id, state, info.n_frames,
+                 f" ({rec.images_skipped} without their images)" if rec.images_skipped else "")
         self._finished[info.rec_id] = (info, time.monotonic())
         self._send_control(dump(RecState(part=info)))
         self._prepare_manifest(info.rec_id)

@@ -5,13 +5,14 @@ from __future__ import annotations
 import contextlib
 import os
 import subprocess
-from collections.abc import Iterator
+import threading
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from app.nodes.agent import NodeAgent
+from app.nodes.agent import MAX_IMAGE_BACKLOG, NodeAgent
 from app.nodes.backends.base import Backend, Frame
 from app.nodes.protocol import RecStart, RecStop, SensorInfo
 from app.nodes.store import NodeStore
@@ -129,3 +130,29 @@ def test_start_on_a_full_disk_is_reported_as_the_parts_state(tiny_disk: Path) ->
     assert info.state == "incomplete" and info.n_frames == 0
     assert info.reason == "node S1's disk is full; nothing was recorded there"
     agent._on_frame(_frame(1))
+
+
+def test_slow_image_encoding_keeps_memory_bounded(agent: NodeAgent) -> None:
+    release = threading.Event()
+    rendered = []
+
+    def images(streams: Sequence[str]) -> dict[str, np.ndarray]:
+        release.wait(10)  # an encoder far behind the sensor
+        rendered.append(1)
+        return {"depth": np.zeros((4, 4), np.uint16)}
+
+    agent._on_command(RecStart(rec_id="R6", t_start_server=0.0, t_start_local=0.0,
+                               streams=["depth"]))
+    for k in range(300):  # ten seconds of frames, each asking for its depth image
+        f = _frame(k)
+        f.images = images
+        agent._on_frame(f)
+    rec = agent._recs["R6"]
+    assert len(rec.pending_images) <= MAX_IMAGE_BACKLOG  # not 300 frames' images held
+    assert rec.images_skipped == 300 - MAX_IMAGE_BACKLOG
+    release.set()
+    agent._on_command(RecStop(rec_id="R6", t_stop_server=0.0, t_stop_local=250 * DT))
+    recorded = [h for h, _ in agent.store.read("R6") if h["kind"] == "image"]
+    assert len(recorded) == len(rendered) == MAX_IMAGE_BACKLOG
+    assert len(_times(agent.store, "R6")) == 251  # every skeleton frame is kept
+    assert agent.store.meta("R6")["images_skipped"] == 300 - MAX_IMAGE_BACKLOG
