@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -82,3 +83,27 @@ def test_ids_cannot_traverse(tmp_path: Path) -> None:
     for bad in ("../x", "a/b", "", ".."):
         with pytest.raises(InputError):
             store.create_part(bad)
+
+
+def test_writer_memory_does_not_grow_with_the_recording(tmp_path: Path) -> None:
+    store = NodeStore(tmp_path)
+    w = store.create_part("R5")
+    msg = encode_skeletons(0, 0.0, np.zeros((1, 25, 3)), np.zeros((1, 25)))
+    w.append(0.0, "skeleton", msg)
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        for k in range(1, 30_000):  # 17 minutes at 30 fps
+            w.append(k / 30.0, "image" if k % 10 == 0 else "skeleton", msg)
+        grown = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert grown < 100_000, f"{grown} bytes held for 30 000 records"  # a list: ~4 MB
+    w.truncate_after(999.0)  # a late stop: records 29 971 … 29 999 go
+    info = w.close()
+    assert info.n_frames == 1 + sum(1 for k in range(1, 29_971) if k % 10)
+    assert info.t_last == pytest.approx(29_969 / 30.0)
+    index = json.loads((tmp_path / "R5" / "index.json").read_text())
+    assert len(index) == 29_971 and index[10] == [10 / 30.0, 10 * len(msg) + 80, "image"]
+    assert not (tmp_path / "R5" / "index.spool").exists()
+    assert info.bytes == 29_971 * (len(msg) + 8)
