@@ -654,15 +654,23 @@ def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
     figs: list[tuple[str, bytes]] = []
     meas_all: list[dict[str, Any]] = []
     ref_all: list[dict[str, Any]] = []
+    with_ref: list[str] = []
     for k, a in enumerate(good):
         ref = (references or {}).get(str(a.get("rec_id")))
         if ref:
+            with_ref.append(str(a.get("rec_id")))
             # Trials are kept apart in time so that steps of two trials never pair.
             shift = 1e5 * k
             meas_all += [{**s, "time_s": s["time_s"] + shift} for s in a["gait"]["steps"]]
             ref_all += [{**s, "time_s": s["time_s"] + shift} for s in ref]
+    basis = ""
     if ref_all:
         rows, figs = agreement_rows(meas_all, ref_all)
+        # A subject report may hold one referenced trial among many: say which.
+        n_pairs = max((r.n for r in rows), default=0)
+        basis = (f"Steps of {'recording' if len(with_ref) == 1 else 'recordings'} "
+                 f"{', '.join(with_ref)} ({len(with_ref)} of {len(good)} trials) paired with "
+                 f"the steps of the attached reference within 0.25 s: {n_pairs} pairs.")
         if not rows:
             q.notes.append("A reference recording is attached but fewer than three steps "
                            "matched it in time (within 0.25 s): check that both start "
@@ -674,7 +682,7 @@ def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
     return ReportData(subject_code, trials, title=title,
                       subject_info=subject_info or {}, session_label=session_label,
                       session_date=session_date, quality=q, agreement=rows,
-                      agreement_figures=figs)
+                      agreement_figures=figs, agreement_basis=basis)
 
 
 def analyse_file(path: Path, method: str = "crossing", left: str | None = None,

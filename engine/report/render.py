@@ -31,6 +31,8 @@ PLACEMENT_TRIALS_PER_FIGURE = 6
 FEW_STEPS_PER_TRIAL = 4
 #: Steps per side below which means and CVs are flagged as uncertain.
 MIN_STEPS_PER_SIDE = 10
+#: Paired values below which r, p and ICC of an agreement row are flagged as unreliable.
+MIN_AGREEMENT_PAIRS = 10
 
 
 @dataclass(frozen=True)
@@ -130,6 +132,7 @@ class ReportData:
     quality: QualityInfo = field(default_factory=QualityInfo)
     agreement: list[AgreementRow] = field(default_factory=list)
     agreement_figures: list[tuple[str, bytes]] = field(default_factory=list)
+    agreement_basis: str = ""  # which recordings and reference the agreement rests on
     normative: tuple[NormativeRange, ...] | list[NormativeRange] = DEFAULT_NORMATIVE_RANGES
     clinician_notes: str = ""
 
@@ -313,6 +316,8 @@ def build_context(data: ReportData) -> dict[str, Any]:
         "table": table,
         "figures": figures,
         "agreement_figures": [(c, _png_uri(p)) for c, p in data.agreement_figures],
+        "agreement_few": any(a.n < MIN_AGREEMENT_PAIRS for a in data.agreement),
+        "min_pairs": MIN_AGREEMENT_PAIRS,
         "notes": quality_notes(data, table),
         "norm_sources": [(s, "; ".join(populations.get(s, []))) for s in used_norms],
         "n_steps": len(all_steps),

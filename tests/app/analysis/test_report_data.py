@@ -95,3 +95,17 @@ def test_trials_line_gives_steps_per_trial_and_sensors_once() -> None:
     analyses[2]["sensors_used"] = ["S1"]
     html = render_html(an.build_report("P-1", analyses))
     assert "R3 (S1) (3 steps)" in html  # trials that differ in sensors say so
+
+
+def test_agreement_says_what_it_rests_on_and_flags_few_pairs() -> None:
+    """A subject report of three trials with a reference on one said neither which trial
+    nor how many pairs; rows of 3 pairs showed r, p and ICC without a caution."""
+    rng = np.random.default_rng(3)
+    analyses = [_analysis(f"R{k}", {"S1": 1.0}, "3", 1.0) for k in (1, 2, 3)]
+    meas, ref = _steps(6, 0.004, rng)
+    analyses[1]["gait"]["steps"] = meas
+    html = render_html(an.build_report("P-1", analyses, references={"R2": ref}))
+    section = html[html.index("Agreement with the reference system"):]
+    assert "recording R2 (1 of 3 trials)" in section and ": 6 pairs" in section
+    assert "<td>3&nbsp;†</td>" in section and "Fewer than 10 pairs" in section
+    assert "<td>6&nbsp;†</td>" in section
