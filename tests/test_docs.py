@@ -2,8 +2,8 @@
 
 * every ```` ```python ```` block runs as written in an empty folder (a block after
   ``<!-- docs-test: skip (why) -->`` needs a server or a recording and is only compiled);
-* every ``gaitrig <command>`` in code is a sub-command of the CLI, and every ``--option``
-  written after it is one of that sub-command's options;
+* every ``make <target>`` in code is a Makefile target; every ``gaitrig <command>`` is a
+  sub-command of the CLI, and every ``--option`` written after it is one of its options;
 * every ``--option`` given to a ``bench/<name>.py`` is one that bench parses;
 * every ``GAITRIG_*`` variable and every ``Settings.<field>`` / setting ``<field>`` named
   is a field of :class:`app.config.Settings`;
@@ -137,6 +137,13 @@ def test_cli_commands_and_options_named_in_docs_exist() -> None:
     assert not problems, "\n".join(problems)
     # The README's command table names every sub-command (a new one must be listed).
     assert set(subs) <= seen, f"sub-commands not in the docs: {sorted(set(subs) - seen)}"
+
+
+def test_make_targets_named_in_docs_exist() -> None:
+    targets = set(re.findall(r"^([a-z][\w-]*):", (ROOT / "Makefile").read_text(), re.M))
+    named = {m for _, code in _code_lines() for m in re.findall(r"\bmake ([a-z][\w-]*)", code)}
+    assert named, "the docs name no make target (README: make demo, make test)"
+    assert named <= targets, f"not in the Makefile: {sorted(named - targets)}"
 
 
 _BENCH = re.compile(r"bench/([a-z_]+)\.py(.*)")
