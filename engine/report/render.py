@@ -249,8 +249,12 @@ def quality_notes(data: ReportData, table: list[TableRow]) -> list[str]:
                      "analysed: means are uncertain and variability (CV) is not reliable "
                      f"below about {MIN_STEPS_PER_SIDE} steps per side.")
     if q.joints_tracked_pct is not None and q.joints_tracked_pct < 80.0:
-        notes.append(f"Only {q.joints_tracked_pct:.0f} % of joint samples were tracked "
-                     "by the sensors; check sensor placement and occlusions.")
+        # The share is over every frame of the recording, including those before the
+        # subject walks in and while they turn out of view: not only occlusions.
+        notes.append(f"Lower-body joints were tracked in only {q.joints_tracked_pct:.0f} % "
+                     "of the recording's frames: the subject was out of the sensors' view "
+                     "for part of the recording (before the start, turning at the ends) or "
+                     "joints were occluded; gaps show in the ankle trajectories.")
     for node, off in q.clock_uncertainty_ms.items():
         if off > 2.0:
             notes.append(f"Sensor {node}: clock uncertainty {off:.1f} ms exceeds 2 ms; "

@@ -109,3 +109,15 @@ def test_agreement_says_what_it_rests_on_and_flags_few_pairs() -> None:
     assert "recording R2 (1 of 3 trials)" in section and ": 6 pairs" in section
     assert "<td>3&nbsp;†</td>" in section and "Fewer than 10 pairs" in section
     assert "<td>6&nbsp;†</td>" in section
+
+
+def test_tracked_share_says_it_counts_every_frame_of_the_recording() -> None:
+    """47 % tracked in a recording where the walker was out of view half the time read
+    'Only 47 % of joint samples were tracked; check sensor placement and occlusions',
+    sending the clinician after a fault that was not there."""
+    a = _analysis("R1", {"S1": 1.0}, "3", 1.0)
+    a["fusion"]["tracked_pct"] = {"AnkleLeft": 47.0, "AnkleRight": 47.0}
+    html = render_html(an.build_report("P-1", [a]))
+    assert "47.0 % of the recording's frames" in html
+    assert "the subject was out of the sensors" in html
+    assert "check sensor placement and occlusions" not in html
