@@ -185,3 +185,13 @@ def test_non_latin_subject_code_in_title_and_footer(tmp_path: Path) -> None:
     fonts = subprocess.run(["pdffonts", str(tmp_path / "r.pdf")], capture_output=True,
                            text=True, check=True).stdout
     assert "Serif" not in fonts, fonts
+
+
+def test_footnote_says_what_n_counts_for_the_gait_cycle_phases() -> None:
+    """Stance showed N = 6 for three trials (one value per trial and side) while the
+    footnote said only speed and cadence were over trials."""
+    html = render_html(ReportData("P-105", _trials(3)))
+    row = re.search(r"<td[^>]*>Stance</td>\s*<td[^>]*>both</td>\s*<td>(\d+)</td>", html)
+    assert row is not None and row.group(1) == "6"
+    assert "stance, swing and double support over trials" in html
+    assert "per side for stance and swing" in html
