@@ -171,6 +171,7 @@
   // form is filled by whichever call draws, if any call asked for it.
   const detailSeq = gaitrig.latest();
   let fillWanted = false;
+  let formVersion = null;
   function dropDetail() { detailSeq.acted(); clearTimeout(timer); }
   async function loadDetail(fillForm) {
     if (subjectId === null) return;
@@ -189,10 +190,12 @@
     $("detail-hint").textContent = `${subject.n_sessions} session(s), ${subject.n_recordings} recording(s), ${bytes(subject.bytes_on_server)} on the server.`;
     $("detail-body").hidden = false;
     $("record-link").href = `/record.html#subject=${subject.id}`;
+    $("export-link").href = `/api/subjects/${subject.id}/export`;
     if (fillForm) {
       const f = $("edit-form").elements;
       f.code.value = subject.code; f.sex.value = subject.sex; f.birth_year.value = subject.birth_year ?? "";
       f.height_cm.value = cm(subject.height_m); f.leg_cm.value = cm(subject.leg_length_m); f.notes.value = subject.notes;
+      formVersion = subject.version;  // a save based on this copy is refused if someone saved since
       $("session-form").elements.date.value = new Date().toISOString().slice(0, 10);
     }
     const box = $("sessions");
@@ -223,7 +226,7 @@
   });
   $("edit-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
-    try { await api(`/api/subjects/${subjectId}`, { method: "PATCH", body: JSON.stringify(subjectBody(ev.target)) });
+    try { await api(`/api/subjects/${subjectId}`, { method: "PATCH", body: JSON.stringify({ ...subjectBody(ev.target), version: formVersion }) });
       say("edit-msg", "Saved.", true); await loadSubjects(); await loadDetail(true); }
     catch (e) { say("edit-msg", e.message); }
   });

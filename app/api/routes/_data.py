@@ -4,6 +4,8 @@ storage layout and the background sync (started by the storage router's lifespan
 
 from __future__ import annotations
 
+import hashlib
+import json
 from typing import Any, TypeVar
 
 from fastapi import HTTPException, Request, status
@@ -149,12 +151,20 @@ def subject_json(s: m.Subject, layout: StorageLayout | None = None,
         "leg_length_m": s.leg_length_m, "sex": s.sex, "birth_year": s.birth_year,
         "notes": s.notes, "n_sessions": len(s.sessions),
         "n_recordings": sum(len(x.recordings) for x in s.sessions),
+        "version": subject_version(s),
     }
     if layout is not None:
         d["bytes_on_server"] = subject_bytes(s, layout)
     if sessions:
         d["sessions"] = [session_json(x, layout) for x in s.sessions]
     return d
+
+
+def subject_version(s: m.Subject) -> str:
+    """A digest of the subject's editable fields: an edit based on another version was
+    made on a stale copy (another browser saved in between)."""
+    fields = [s.code, s.height_m, s.leg_length_m, s.sex, s.birth_year, s.notes]
+    return hashlib.sha256(json.dumps(fields).encode()).hexdigest()[:16]
 
 
 def subject_bytes(s: m.Subject, layout: StorageLayout) -> int:

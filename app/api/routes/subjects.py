@@ -25,7 +25,9 @@ from app.api.routes._data import (
     get_project,
     get_subject,
     layout_of,
+    purge,
     subject_json,
+    subject_version,
 )
 from app.db import data as m
 from app.server.storage import live_poses, stream_zip, subject_export
@@ -54,6 +56,9 @@ class SubjectIn(BaseModel):
 
 
 class SubjectPatch(BaseModel):
+    version: str | None = Field(default=None, max_length=64, description=(
+        "The subject's 'version' the edit is based on: refused (409) if someone saved "
+        "another change since."))
     code: str | None = Field(default=None, pattern=CODE_PATTERN)
     height_m: float | None = Field(default=None, ge=0.4, le=2.6)
     leg_length_m: float | None = Field(default=None, ge=0.2, le=1.5)
@@ -139,6 +144,11 @@ def update_subject(sid: int, body: SubjectPatch, request: Request, user: Current
     """Change a subject's fields (only those given)."""
     s = get_subject(db, sid)
     fields = body.model_dump(exclude_unset=True)
+    seen = fields.pop("version", None)
+    if seen is not None and seen != subject_version(s):
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"subject {s.code} was changed by someone else since you opened "
+                            "it; reload to see their change, then make yours again")
     if "code" in fields and fields["code"] != s.code:
         _code_free(db, s.project_id, fields["code"])
     if "birth_year" in fields:
@@ -148,6 +158,7 @@ def update_subject(sid: int, body: SubjectPatch, request: Request, user: Current
     for k, v in fields.items():
         setattr(s, k, v if k != "notes" or v is not None else "")
     db.commit()
+    purge(db)  # notes edited to remove a name: the old text leaves the database files too
     return subject_json(s, layout_of(request))
 
 

@@ -228,3 +228,22 @@ def test_the_export_streams_in_bounded_pieces(tmp_path: Path,
     z = zipfile.ZipFile(io.BytesIO(b"".join(pieces)))
     assert z.namelist() == ["a/frames.bin", "b.json"]
     assert z.read("a/frames.bin") == big.read_bytes() and z.testzip() is None
+
+
+def test_two_browsers_editing_one_subject(client: TestClient, tmp_path: Path) -> None:
+    """The second save, based on a copy older than the first save, is refused (409);
+    a save without a version (API scripts) still works; an edited note leaves no copy."""
+    p = client.post("/api/projects", json={"name": "S"}).json()
+    s = client.post("/api/subjects", json={"project_id": p["id"], "code": "A1",
+                                           "notes": "Jane Roe-Wqxv"}).json()
+    a = client.get(f"/api/subjects/{s['id']}").json()
+    b = client.get(f"/api/subjects/{s['id']}").json()
+    assert a["version"] == b["version"]
+    r = client.patch(f"/api/subjects/{s['id']}", json={"notes": "", "version": a["version"]})
+    assert r.status_code == 200 and r.json()["version"] != a["version"]
+    r = client.patch(f"/api/subjects/{s['id']}", json={"height_m": 1.7, "version": b["version"]})
+    assert r.status_code == 409 and "changed by someone else" in r.json()["detail"]
+    assert client.get(f"/api/subjects/{s['id']}").json()["height_m"] is None
+    assert client.patch(f"/api/subjects/{s['id']}", json={"height_m": 1.7}).status_code == 200
+    for f in tmp_path.glob("gaitrig.sqlite3*"):
+        assert b"Jane Roe-Wqxv" not in f.read_bytes(), f.name

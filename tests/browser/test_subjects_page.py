@@ -1,0 +1,61 @@
+"""Subjects page in a real browser: two browsers edit one subject (the stale save is
+refused with a message, nothing overwritten), and the subject's full export is offered."""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.browser.conftest import LiveServer, login
+
+pytestmark = pytest.mark.browser
+
+
+def _open(page: Any, server: LiveServer, sid: int) -> None:
+    page.goto(f"{server.base_url}/subjects.html#subject={sid}")
+    page.wait_for_function("document.querySelector('#edit-form [name=code]').value === 'EDT01'")
+
+
+def test_two_browsers_edit_one_subject(page: Any, browser: Any, live_server: LiveServer) -> None:
+    p = live_server.api("/api/projects", {"name": "Edit race"})
+    s = live_server.api("/api/subjects", {"project_id": p["id"], "code": "EDT01"})
+    other_ctx = browser.new_context(viewport={"width": 1400, "height": 900})
+    try:
+        other = other_ctx.new_page()
+        other.set_default_timeout(20000)
+        login(other, live_server)
+        _open(page, live_server, s["id"])
+        _open(other, live_server, s["id"])
+        page.fill("#edit-form [name=height_cm]", "172")
+        page.click("#edit-form button[type=submit]")
+        page.wait_for_function("document.getElementById('edit-msg').textContent === 'Saved.'")
+        other.fill("#edit-form [name=notes]", "uses a cane")
+        other.click("#edit-form button[type=submit]")
+        other.wait_for_function(
+            "document.getElementById('edit-msg').textContent.includes('someone else')")
+        got = live_server.api(f"/api/subjects/{s['id']}")
+        assert got["height_m"] == pytest.approx(1.72) and got["notes"] == ""
+        # after a reload the second browser saves on top of the first one's change
+        other.reload()
+        other.wait_for_function(
+            "Number(document.querySelector('#edit-form [name=height_cm]').value) === 172")
+        other.fill("#edit-form [name=notes]", "uses a cane")
+        other.click("#edit-form button[type=submit]")
+        other.wait_for_function("document.getElementById('edit-msg').textContent === 'Saved.'")
+        got = live_server.api(f"/api/subjects/{s['id']}")
+        assert got["height_m"] == pytest.approx(1.72) and got["notes"] == "uses a cane"
+        # the whole subject as one download
+        link = page.locator("#export-link")
+        assert link.get_attribute("href") == f"/api/subjects/{s['id']}/export"
+        with page.expect_download() as dl:
+            link.click()
+        z = zipfile.ZipFile(io.BytesIO(Path(dl.value.path()).read_bytes()))
+        assert json.loads(z.read("subject.json"))["code"] == "EDT01"
+        assert not page.js_errors
+    finally:
+        other_ctx.close()
