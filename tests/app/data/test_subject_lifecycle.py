@@ -76,6 +76,13 @@ def test_deleting_a_subject_leaves_no_trace(make_rig: Any, tmp_path: Path) -> No
     assert (server / "recordings" / rec).is_dir() and (server / "references" / rec).is_dir()
     assert all((d / "recordings" / rec).is_dir() for d in nodes.values())
 
+    # the nodes hold pseudonymous recording ids only; no file name on the server names
+    # the subject (its code, notes and project live in the database alone)
+    who = [CODE, NOTE.split(",")[0], "Lifecycle study"]
+    for d in nodes.values():
+        assert _traces(d, who) == []
+    assert [f for f in _traces(server, who) if not f.startswith("gaitrig.sqlite3")] == []
+
     # right of access: one zip with everything, the parts byte-identical to the nodes'
     z = zipfile.ZipFile(io.BytesIO(download(rig, f"/api/subjects/{subj['id']}/export")))
     for n in ("S1", "S2"):
