@@ -20,7 +20,7 @@ lint: bootstrap
 	$(VENV)/bin/mypy app engine
 
 bench: bootstrap
-	@set -e; for b in bench/*.py; do echo "# $$b" >&2; PYTHONPATH=$(CURDIR) $(PY) -P $$b; done
+	@set -e; for b in bench/[!_]*.py; do echo "# $$b" >&2; PYTHONPATH=$(CURDIR) $(PY) -P $$b; done
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache test-artifacts
