@@ -26,7 +26,7 @@ import time
 from collections import deque
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -87,6 +87,10 @@ CHANNEL_SWITCH_INTERVAL_S = 0.0005  # GIL switch interval while a data channel i
 # Recorded frames whose images wait to be encoded, at most: each holds the sensor's full
 # images, so a node encoding slower than it captures would otherwise grow without bound
 MAX_IMAGE_BACKLOG = 30
+# The backend clock moving this much against the monotonic clock between two reads is a
+# step (NTP setting the system clock), not drift (≤ 0.1 ms/s) or a slow read (bounded below)
+CLOCK_STEP_MIN_S = 0.02
+_CLOCK_READ_MAX_S = 0.002  # a read of both clocks slower than this is not compared
 
 
 _cut: set[tuple[str, int]] = set()
@@ -230,6 +234,12 @@ class NodeAgent:
         self._dropped_capture = 0  # written by the capture thread only
         self._submitted = 0  # written by the capture thread only
         self._handled = 0  # written by the loop only
+        # The node clock is the backend's with its steps undone (:meth:`now`)
+        self.clock_steps = 0
+        self._step_corr = 0.0  # seconds added to the backend clock
+        self._clock_base: float | None = None  # backend clock - monotonic, last read
+        self._last_step: tuple[float, float] | None = None  # (monotonic, corr before it)
+        self._frame_age = 0.0  # typical age of a frame when it is handled (s)
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -241,7 +251,7 @@ class NodeAgent:
             log.warning("recovered recording %s after a crash: %d frames kept", p.rec_id,
                         p.n_frames)
         self.info = await asyncio.to_thread(self.backend.open)
-        self.started = self.backend.now()
+        self.started = self.now()
         capture = threading.Thread(target=self._capture, name="capture", daemon=True)
         capture.start()
         try:
@@ -255,6 +265,48 @@ class NodeAgent:
                 with contextlib.suppress(OSError):
                     sock.shutdown(socket.SHUT_RDWR)
             self._pool.shutdown(wait=True)
+
+    def now(self) -> float:
+        """The node clock: the backend's, continuous across its steps.
+
+        When NTP steps the system clock, the backend's clock jumps. The server models each
+        node clock as offset + drift (a jump would corrupt that model for its whole
+        window) and a recording converts its frame times with one model, so the node
+        undoes steps: its clock keeps running at the backend's rate, and the server's
+        offset estimate absorbs the difference. Call from the event loop only.
+        """
+        m1 = time.monotonic()
+        t = self.backend.now()
+        m2 = time.monotonic()
+        if m2 - m1 <= _CLOCK_READ_MAX_S:
+            base = t - (m1 + m2) / 2.0
+            if self._clock_base is not None and abs(base - self._clock_base) >= CLOCK_STEP_MIN_S:
+                jump = base - self._clock_base
+                self._last_step = (m2, self._step_corr)
+                self._step_corr -= jump
+                self.clock_steps += 1
+                log.warning("the node's clock stepped by %+.3f s (NTP?); recorded times stay "
+                            "continuous", jump)
+            self._clock_base = base
+        return t + self._step_corr
+
+    def _destep(self, frame: Frame) -> Frame:
+        """``frame`` on the node clock (:meth:`now`). A frame stamped just before a step
+        but handled after it still carries the old clock: of the two corrections, the one
+        giving the frame its usual age is right."""
+        now = self.now()
+        corr = self._step_corr
+        if self._last_step is not None:
+            m_step, before = self._last_step
+            if time.monotonic() - m_step > 2.0:  # older frames are long handled
+                self._last_step = None
+            elif (abs(now - (frame.t_local + before) - self._frame_age)
+                  < abs(now - (frame.t_local + corr) - self._frame_age)):
+                corr = before
+        age = now - (frame.t_local + corr)
+        if 0.0 <= age < 1.0:
+            self._frame_age = 0.9 * self._frame_age + 0.1 * age
+        return frame if corr == 0.0 else replace(frame, t_local=frame.t_local + corr)
 
     def stop(self) -> None:
         """Ask :meth:`run` to finish (thread-safe)."""
@@ -342,7 +394,7 @@ class NodeAgent:
 
     async def _receiver(self, ws: ClientConnection) -> None:
         async for raw in ws:
-            t2 = self.backend.now()
+            t2 = self.now()
             if isinstance(raw, bytes):
                 await ws.send(dump(NodeError(reason="the server sends no binary messages")))
                 continue
@@ -353,7 +405,7 @@ class NodeAgent:
                 await ws.send(dump(NodeError(reason=str(exc))))
                 continue
             if isinstance(msg, Ping):
-                t3 = self.backend.now()
+                t3 = self.now()
                 await ws.send(dump(Pong(seq=msg.seq, t1=msg.t1, t2=t2, t3=t3)))
             elif isinstance(msg, RecStart | RecStop):
                 self._on_command(msg)
@@ -534,6 +586,7 @@ class NodeAgent:
 
     def _on_frame(self, frame: Frame) -> None:
         self._handled += 1
+        frame = self._destep(frame)
         self.seq += 1
         self.frames_total += 1
         self._frame_times.append(frame.t_local)
@@ -602,8 +655,8 @@ class NodeAgent:
             own = getattr(self.backend, "calibration_frames", None)
             frames = own(msg.frames) if callable(own) else self._live_calib_frames(msg.frames)
             for k, (t, c, d, cK, dK, T_dc, scale) in enumerate(frames):
-                send(encode_calib_frame(msg.req_id, k, msg.frames, t, c, d, cK, dK, T_dc,
-                                        scale))
+                send(encode_calib_frame(msg.req_id, k, msg.frames, t + self._step_corr, c, d,
+                                        cK, dK, T_dc, scale))
         except Exception as exc:  # any failure must reach the waiting server
             log.exception("calibration capture failed")
             send(calib_error(msg.req_id, f"{self.node_id}: {exc}"))
@@ -673,7 +726,7 @@ class NodeAgent:
                 log.warning("recording %s started %.2f s before the ring buffer's oldest frame",
                             msg.rec_id, self.ring.oldest - msg.t_start_local)
             self._send_control(dump(RecState(part=writer.info())))
-            late = self.backend.now() - msg.t_start_local
+            late = self.now() - msg.t_start_local
             if late > 0:
                 log.info("recording %s: command arrived %.0f ms after the start; %d frames "
                          "taken from the ring buffer", msg.rec_id, late * 1e3, writer.n_frames)

@@ -6,6 +6,7 @@ import contextlib
 import os
 import subprocess
 import threading
+import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -29,8 +30,11 @@ class _Scripted(Backend):
     def frames(self) -> Iterator[Frame]:
         return iter(())
 
+    def __init__(self) -> None:
+        self.step = 0.0  # a step of the system clock (NTP)
+
     def now(self) -> float:
-        return 0.0
+        return time.time() + self.step
 
 
 def _frame(k: int) -> Frame:
@@ -156,3 +160,30 @@ def test_slow_image_encoding_keeps_memory_bounded(agent: NodeAgent) -> None:
     assert len(recorded) == len(rendered) == MAX_IMAGE_BACKLOG
     assert len(_times(agent.store, "R6")) == 251  # every skeleton frame is kept
     assert agent.store.meta("R6")["images_skipped"] == 300 - MAX_IMAGE_BACKLOG
+
+
+@pytest.mark.parametrize("step", [0.5, -0.5, 0.05])
+def test_a_clock_step_keeps_recorded_times_continuous(tmp_path: Path, step: float) -> None:
+    backend = _Scripted()
+    agent = NodeAgent("S1", backend, "ws://127.0.0.1:1/ws/node", "token", tmp_path)
+    truth: list[float] = []  # when each frame was really captured
+
+    def frame(k: int) -> Frame:  # stamped by the backend's clock when captured
+        truth.append(time.time())
+        return Frame(backend.now(), np.full((1, 25, 3), k, np.float32),
+                     np.full((1, 25), 2, np.uint8), [0])
+
+    agent._on_command(RecStart(rec_id="R7", t_start_server=0.0, t_start_local=agent.now()))
+    for k in range(20):
+        agent._on_frame(frame(k))
+    stale = frame(20)  # captured before the step, handled after it
+    backend.step = step
+    agent._on_frame(stale)
+    for k in range(21, 60):
+        agent._on_frame(frame(k))
+    ts = np.array(_times(agent.store, "R7"))
+    assert agent.clock_steps == 1 and agent.dropped == 0
+    assert len(ts) == 60  # nothing lost to a clock going backwards
+    # every frame on one continuous clock: the step is in none of the recorded times
+    assert np.abs(ts - np.array(truth)).max() < 0.005
+    assert abs(agent.now() - time.time()) < 0.005

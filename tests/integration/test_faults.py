@@ -1,11 +1,12 @@
 """Recording faults with real server and node processes over loopback websockets.
 
-One recording on four nodes meets, at once: a second start, a node killed (SIGKILL) and
-restarted while it runs, a node whose websocket is cut (a TCP proxy between it and the
-server drops every connection), a node whose disk fills up (a 32 KiB tmpfs, when this
-runs as root), and a node that joins after the start. Then: stop, stop again, stop an
-unknown recording, delete it while it is transferred. Every frame a node wrote must end
-on the server byte-identical, and each part must say what happened to it.
+One recording on four nodes meets, at once: a second start, a node's clock stepped by
+NTP, a node killed (SIGKILL) and restarted while it runs, a node whose websocket is cut
+(a TCP proxy between it and the server drops every connection), a node whose disk fills
+up (a 32 KiB tmpfs, when this runs as root), and a node that joins after the start.
+Then: stop, stop again, stop an unknown recording, delete it while it is transferred.
+Every frame a node wrote must end on the server byte-identical, and each part must say
+what happened to it.
 """
 
 from __future__ import annotations
@@ -22,8 +23,10 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
+from app.nodes.store import NodeStore
 from tests.app.data.test_record_flow import setup_session
 from tests.integration.conftest import Rig, wait_for
 
@@ -124,8 +127,10 @@ def test_one_recording_through_node_faults(make_rig: Any, tiny_node_disk: Path |
 def _run(rig: Rig, proxy: CuttableProxy, tiny_disk: Path | None) -> None:
     nodes = ["S1", "S2", "S3"] if tiny_disk is not None else ["S1", "S2"]
     killed = rig.start_node("S1")
+    step_file = rig.tmp / "S2-clock-step"
     rig._spawn("S2", ["node", "--id", "S2", "--server", f"ws://127.0.0.1:{proxy.port}",
-                      "--data-dir", str(rig.node_dir("S2")), "--no-images"])
+                      "--data-dir", str(rig.node_dir("S2")), "--no-images"],
+               env={**rig.env, "GAITRIG_TEST_CLOCK_STEP_FILE": str(step_file)})
     if tiny_disk is not None:
         rig.start_node("S3")
     rig.wait_online(nodes, timeout=60)
@@ -136,6 +141,8 @@ def _run(rig: Rig, proxy: CuttableProxy, tiny_disk: Path | None) -> None:
     rig.start_node("S4")  # joins after the start: not part of this recording
     wait_for(lambda: all(_parts(rig, rec_id)[n]["n_frames"] > 15 for n in nodes), 30,
              "every node recording")
+    # NTP steps S2's system clock 0.4 s ahead: its recorded times must stay continuous
+    step_file.write_text("0.4")
 
     # S1 killed: its part is incomplete and says so; restarted, it reports what it kept
     os.kill(killed.pid, signal.SIGKILL)
@@ -194,3 +201,8 @@ def _run(rig: Rig, proxy: CuttableProxy, tiny_disk: Path | None) -> None:
         assert _sha(server / "frames.bin") == _sha(node / "frames.bin"), n
         assert _sha(server / "meta.json") == _sha(node / "meta.json"), n
     assert "S4" not in ps
+    # S2's clock step is in none of its recorded times (no jump, none dropped)
+    ts = [float(h["t"]) for h, _ in NodeStore(rig.node_dir("S2") / "recordings").read(rec_id)
+          if h["kind"] == "skeleton"]
+    assert max(np.diff(ts)) < 0.2 and len(ts) == ps["S2"]["n_frames"]
+    assert "clock stepped by +0.4" in rig.log_text("S2")

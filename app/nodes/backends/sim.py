@@ -18,6 +18,8 @@ costs a quarter of a full frame at the usual half size.
 
 from __future__ import annotations
 
+import logging
+import os
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -32,6 +34,8 @@ from app.nodes.backends.base import Backend, Frame, downscale_image
 from app.nodes.clock import NodeClock
 from app.nodes.protocol import SensorInfo
 from engine.errors import InputError
+
+log = logging.getLogger("gaitrig.node")
 
 WORLD_CYCLE_S = 600.0
 CHUNK_S = 10.0
@@ -78,6 +82,8 @@ class SimBackend(Backend):
                                t_ref=time.time())
         self.render_images = images
         self.report_truth = report_truth
+        self._step_file = os.environ.get("GAITRIG_TEST_CLOCK_STEP_FILE") or None
+        self._step: tuple[float, float] | None = None  # (host time, seconds) of the step
         self._closed = threading.Event()
         self._walker: Any = None
         self._renderer: Any = None
@@ -109,7 +115,23 @@ class SimBackend(Backend):
         )
 
     def now(self) -> float:
-        return self.clock.now()
+        return self._local(time.time())
+
+    def _local(self, t_host: float) -> float:
+        """The node clock at host time ``t_host``, with the test hook's step."""
+        t = self.clock.from_host(t_host)
+        if self._step_file is None:
+            return t
+        if self._step is None:
+            # TEST HOOK (GAITRIG_TEST_CLOCK_STEP_FILE=<path>): once the file exists, this
+            # node's clock jumps by the seconds written in it (an NTP step) from then on
+            try:
+                seconds = float(Path(self._step_file).read_text())
+            except (OSError, ValueError):
+                return t
+            self._step = (time.time(), seconds)
+            log.warning("TEST HOOK: the node clock steps by %+.3f s", seconds)
+        return t + (self._step[1] if t_host >= self._step[0] else 0.0)
 
     def close(self) -> None:
         self._closed.set()
@@ -166,7 +188,7 @@ class SimBackend(Backend):
                         st = np.zeros((0, 25), np.uint8)
                         ids = []
                     seg = None if caps is None else (caps[0][k], caps[1][k], caps[2])
-                    yield Frame(self.clock.from_host(float(t_host)), pos, st, ids,
+                    yield Frame(self._local(float(t_host)), pos, st, ids,
                                 self._image_fn(float(t_host), seg),
                                 self._preview_fn(float(t_host), seg))
 
@@ -276,7 +298,7 @@ class SimBackend(Backend):
                 sf = render_sensor_frames(self.sensor, self.rig, 1, self._calib_rng,
                                           CAPTURE_COLOR_SIZE, bodies=None, renderer=r)
             assert sf.depths is not None
-            yield (self.clock.from_host(t_host), sf.colors[0], sf.depths[0], r.K_color,
+            yield (self._local(t_host), sf.colors[0], sf.depths[0], r.K_color,
                    r.K_depth, self.sensor.model.T_depth_color, sf.depth_scale)
 
 
