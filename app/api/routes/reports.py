@@ -199,7 +199,13 @@ async def _save_upload(request: Request, file: UploadFile, dest_dir: Path) -> Pa
     return dest
 
 
-def _subject_info(subject: Any) -> dict[str, Any]:
+def _subject_info(subject: Any, dates: list[Any] | None = None) -> dict[str, Any]:
+    """Header facts of a subject; ``dates`` (of the sessions reported) give the age.
+
+    Normative bands depend on age (one source studied adults over 70), so the age at the
+    sessions is shown, not only the birth year. Only the year of birth is stored: the
+    age is given as approximate.
+    """
     info: dict[str, Any] = {}
     if getattr(subject, "height_m", None):
         info["Height"] = f"{subject.height_m * 100:.0f} cm"
@@ -209,6 +215,11 @@ def _subject_info(subject: Any) -> dict[str, Any]:
         info["Sex"] = subject.sex
     if getattr(subject, "birth_year", None):
         info["Born"] = str(subject.birth_year)
+        ages = sorted({d.year - subject.birth_year for d in dates or [] if d is not None})
+        if ages:
+            info["Age"] = (f"≈ {ages[0]} y" if len(ages) == 1
+                           else f"≈ {ages[0]}–{ages[-1]} y") + " at the session" + (
+                               "s" if len(dates or []) > 1 else "")
     return info
 
 
@@ -384,7 +395,7 @@ def subject_report(subject_id: int, user: CurrentUser, settings: SettingsDep, hu
         data = an.build_report(
             subject.code, analyses,
             title="Gait report" + ("" if sub is None else f" — sensors {an.subset_label(sub)}"),
-            subject_info=_subject_info(subject),
+            subject_info=_subject_info(subject, [s.date for s in sessions]),
             session_label=(sess.label if sess else f"all sessions ({len(sessions)})"),
             session_date=(str(sess.date) if sess else ", ".join(
                 sorted({str(s.date) for s in sessions if s.date}))),

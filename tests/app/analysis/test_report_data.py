@@ -121,3 +121,19 @@ def test_tracked_share_says_it_counts_every_frame_of_the_recording() -> None:
     assert "47.0 % of the recording's frames" in html
     assert "the subject was out of the sensors" in html
     assert "check sensor placement and occlusions" not in html
+
+
+def test_subject_header_gives_the_age_at_the_sessions() -> None:
+    """Only 'Born 1958' was shown: the reader had to work out the age that decides which
+    normative band applies (one source studied adults over 70)."""
+    import datetime as dt
+    from types import SimpleNamespace
+
+    from app.api.routes.reports import _subject_info
+
+    subj = SimpleNamespace(height_m=1.74, leg_length_m=None, sex="female", birth_year=1958)
+    one = _subject_info(subj, [dt.date(2026, 11, 20)])
+    assert one["Born"] == "1958" and one["Age"] == "≈ 68 y at the session"
+    two = _subject_info(subj, [dt.date(2025, 3, 1), dt.date(2026, 11, 20)])
+    assert two["Age"] == "≈ 67–68 y at the sessions"
+    assert "Age" not in _subject_info(SimpleNamespace(birth_year=None), [dt.date(2026, 1, 1)])
