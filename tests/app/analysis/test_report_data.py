@@ -137,3 +137,9 @@ def test_subject_header_gives_the_age_at_the_sessions() -> None:
     two = _subject_info(subj, [dt.date(2025, 3, 1), dt.date(2026, 11, 20)])
     assert two["Age"] == "≈ 67–68 y at the sessions"
     assert "Age" not in _subject_info(SimpleNamespace(birth_year=None), [dt.date(2026, 1, 1)])
+
+
+def test_interpolated_gaps_are_a_count_that_says_of_what() -> None:
+    """'Short gaps interpolated  71' gave a bare number: frames? %? gaps of what?"""
+    html = render_html(an.build_report("P-1", [_analysis("R1", {"S1": 1.0}, "3", 1.0)]))
+    assert "2 gaps in single joints' trajectories" in html
