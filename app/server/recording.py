@@ -111,6 +111,7 @@ class RecordingManager:
         self.start_margin_s = start_margin_s
         self.command_delay_max_s = command_delay_max_s
         self.recordings: dict[str, Recording] = {}
+        self.save_error: str | None = None  # why the last save failed, if it did
         self._tasks: set[asyncio.Task[None]] = set()
         self._load()
 
@@ -135,11 +136,25 @@ class RecordingManager:
             log.error("ignoring unreadable %s: %s", self.path, exc)
 
     def save(self) -> None:
-        """Write all recordings atomically."""
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_suffix(".tmp")
-        tmp.write_text(json.dumps([asdict(r) for r in self.recordings.values()]))
-        os.replace(tmp, self.path)
+        """Write all recordings atomically.
+
+        A failure (the server's disk full) is logged and kept in :attr:`save_error`, not
+        raised: it must not fail a start whose commands already went out, nor drop the
+        node connection whose message triggered it. The next save writes everything.
+        """
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.path.with_suffix(".tmp")
+            tmp.write_text(json.dumps([asdict(r) for r in self.recordings.values()]))
+            os.replace(tmp, self.path)
+        except OSError as exc:
+            if self.save_error is None:
+                log.error("cannot save %s (%s); recordings are kept in memory and saved "
+                          "again with the next change", self.path, exc)
+            self.save_error = (f"the server could not save its recording list ({exc}); a "
+                               "server restart now would lose the latest states")
+            return
+        self.save_error = None
 
     # ------------------------------------------------------------------ commands
 
@@ -267,4 +282,5 @@ class RecordingManager:
         d = asdict(rec)
         d["state"] = rec.state
         d["parts"] = list(d["parts"].values())
+        d["save_error"] = self.save_error
         return d

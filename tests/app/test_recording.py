@@ -95,3 +95,21 @@ def test_nodes_without_clock_cannot_record(tmp_path: Path) -> None:
     reg.connect("S1", "sim", SensorInfo(), send, restarted=True)
     with pytest.raises(InputError, match="measured clock"):
         RecordingManager(reg, tmp_path).start()
+
+
+def test_a_failing_save_neither_fails_a_start_nor_a_node_message(tmp_path: Path) -> None:
+    sent: dict[str, list[dict[str, object]]] = {}
+    (tmp_path / "recordings.tmp").mkdir()  # the atomic save's temporary file cannot be made
+
+    async def scenario() -> None:
+        mgr = RecordingManager(_registry(sent, {"S1": 0.0}), tmp_path)
+        rec = mgr.start()  # the commands are out: the start must not fail now
+        mgr.on_part("S1", PartInfo(rec_id=rec.id, state="recording", n_frames=3))
+        assert rec.parts["S1"].state == "recording"
+        assert "could not save its recording list" in mgr.to_dict(rec)["save_error"]
+        (tmp_path / "recordings.tmp").rmdir()  # space again: the next change saves it all
+        mgr.stop(rec.id)
+        assert mgr.save_error is None and mgr.to_dict(rec)["save_error"] is None
+        assert RecordingManager(NodeRegistry(), tmp_path).recordings[rec.id].t_stop
+
+    asyncio.run(scenario())
