@@ -142,3 +142,11 @@ def test_server_crash_during_recording(make_rig: object) -> None:
     # the node recorded through the outage, up to the stop the new server set
     assert part["t_first"] - r["t_start"] < 0.05
     assert t_restart < r["t_stop"] and abs(part["t_last"] - r["t_stop"]) < 0.05
+    # and the server pulls it afterwards on its own: verified, byte-identical
+    done = wait_for(lambda: (x := rig.api(f"/api/recordings/{rec['id']}"))["state"] ==
+                    "complete" and x, 60, "the transfer after the restart")
+    assert done["parts"][0]["on_server"]
+    node_part = rig.node_dir("S5") / "recordings" / rec["id"]
+    server_part = rig.tmp / "server" / "recordings" / rec["id"] / "S5"
+    for name in ("frames.bin", "index.json", "meta.json"):
+        assert (server_part / name).read_bytes() == (node_part / name).read_bytes(), name
