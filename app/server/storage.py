@@ -24,6 +24,7 @@ import json
 import os
 import shutil
 import tempfile
+import threading
 import time
 import zipfile
 from collections.abc import Callable, Iterable, Iterator
@@ -61,6 +62,9 @@ def check_id(value: str, what: str = "id") -> str:
     if not value or len(value) > 64 or set(value) - _SAFE or value in (".", ".."):
         raise InputError(f"{what} {value!r} must be 1-64 characters of A-Z a-z 0-9 _ . -")
     return value
+
+
+_TOMBSTONE_LOCK = threading.Lock()  # deletions run in worker threads
 
 
 @dataclass(frozen=True)
@@ -121,6 +125,17 @@ class StorageLayout:
         if not isinstance(raw, dict):
             return {}
         return {str(k): [str(n) for n in v] for k, v in raw.items() if isinstance(v, list)}
+
+    def add_tombstones(self, entries: dict[str, list[str]]) -> None:
+        """Add tombstones (two deletions at once must not lose each other's)."""
+        with _TOMBSTONE_LOCK:
+            self.set_tombstones({**self.tombstones(), **entries})
+
+    def drop_tombstones(self, rec_ids: Iterable[str]) -> None:
+        """Remove the tombstones of ``rec_ids``."""
+        gone = set(rec_ids)
+        with _TOMBSTONE_LOCK:
+            self.set_tombstones({k: v for k, v in self.tombstones().items() if k not in gone})
 
     def set_tombstones(self, entries: dict[str, list[str]]) -> None:
         """Replace the tombstones (atomically and durably: written, synced, renamed)."""

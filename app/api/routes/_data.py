@@ -4,6 +4,7 @@ storage layout and the background sync (started by the storage router's lifespan
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
 import json
 from typing import Any, TypeVar
@@ -177,18 +178,25 @@ def project_json(db: DbSession, p: m.Project) -> dict[str, Any]:
             "created_at": p.created_at.isoformat()}
 
 
-def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout, recs: list[m.Recording],
-                owner: Any = None, entry: AuditEvent | None = None) -> int:
+async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout,
+                      recs: list[m.Recording], owner: Any = None,
+                      entry: AuditEvent | None = None) -> int:
     """Delete recordings (and ``owner``, the session, subject or project that held them)
     everywhere: database rows, the server's files, live entries, the nodes' copies.
 
     Refused (409, nothing deleted) while one of them is recorded or transferred. Order,
-    so that a crash at any point leaves the database and the files consistent: a
-    tombstone naming the recordings is written, the rows are deleted and committed, then
-    the files go and the tombstone is cleared. A failed commit removes the tombstone and
-    keeps every file; a server that dies after the commit finishes the deletion when it
-    starts again (:func:`resume_deletions`). ``entry`` (the audit trail's record of the
-    deletion) is committed with the rows.
+    so that a crash or a concurrent transfer at any point leaves the database and the
+    files consistent:
+
+    1. in the event loop, with nothing awaited in between, the checks and the removal of
+       the live entries: no transfer and no data-sync step can start between them, and
+       a recording the backbone no longer knows is never transferred again;
+    2. a tombstone naming the recordings is written, the rows are deleted and committed
+       (with ``entry``, the audit trail's record); a failed commit drops the tombstone
+       and puts the live entries back, every file is kept;
+    3. the nodes are asked to delete their copies, the server's files go, the tombstone
+       is cleared. A server that dies before this finishes it when it starts again
+       (:func:`resume_deletions`).
 
     Returns:
         Number of recordings deleted.
@@ -203,8 +211,24 @@ def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout, recs: list[m.Rec
             raise HTTPException(status.HTTP_409_CONFLICT,
                                 f"recording {r.id} is being transferred; wait until it ends")
     plan = {r.id: recording_nodes(hub, r) for r in recs}
-    before = layout.tombstones()
-    layout.set_tombstones({**before, **plan})
+    held = {k: hub.recordings.recordings.pop(k) for k in plan if k in hub.recordings.recordings}
+    try:
+        await asyncio.to_thread(_commit_deletion, db, layout, recs, owner, entry, plan)
+    except BaseException:
+        hub.recordings.recordings.update(held)  # the rows survived, so do their live entries
+        raise
+    if held:
+        hub.recordings.save()
+    for rec_id, nodes in plan.items():
+        # sent now or when a node reconnects (TransferManager.request_deletion)
+        hub.transfers.request_deletion(rec_id, nodes)
+    await asyncio.to_thread(_remove_files, db, layout, plan)
+    return len(recs)
+
+
+def _commit_deletion(db: DbSession, layout: StorageLayout, recs: list[m.Recording],
+                     owner: Any, entry: AuditEvent | None, plan: dict[str, list[str]]) -> None:
+    layout.add_tombstones(plan)
     try:
         for r in recs:
             db.delete(r)
@@ -215,24 +239,28 @@ def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout, recs: list[m.Rec
         db.commit()
     except BaseException:
         db.rollback()
-        layout.set_tombstones(before)
+        layout.drop_tombstones(plan)
         raise
-    finish_deletions(hub, layout, plan)
+
+
+def _remove_files(db: DbSession, layout: StorageLayout, plan: dict[str, list[str]]) -> None:
+    for rec_id in plan:
+        layout.delete_recording(rec_id)
+    layout.drop_tombstones(plan)
     purge(db)
-    return len(recs)
 
 
 def finish_deletions(hub: Hub, layout: StorageLayout, plan: dict[str, list[str]]) -> None:
-    """The part of a deletion after its rows are gone: live entries (first, so no new
-    transfer starts), the nodes' copies (sent now or when a node reconnects; see
-    ``TransferManager.request_deletion``), the server's files, then the tombstones."""
+    """Everything of a deletion after its rows are gone (at start-up, for one the last
+    run did not finish): live entries, the nodes' copies, the server's files, the
+    tombstones."""
+    popped = [hub.recordings.recordings.pop(k, None) for k in plan]
+    if any(x is not None for x in popped):
+        hub.recordings.save()
     for rec_id, nodes in plan.items():
-        if hub.recordings.recordings.pop(rec_id, None) is not None:
-            hub.recordings.save()
         hub.transfers.request_deletion(rec_id, nodes)
         layout.delete_recording(rec_id)
-    left = layout.tombstones()
-    layout.set_tombstones({k: v for k, v in left.items() if k not in plan})
+    layout.drop_tombstones(plan)
 
 
 def resume_deletions(db: DbSession, hub: Hub, layout: StorageLayout) -> list[str]:
@@ -251,7 +279,7 @@ def resume_deletions(db: DbSession, hub: Hub, layout: StorageLayout) -> list[str
     todo = {k: sorted(set(v) | set(getattr(hub.recordings.recordings.get(k), "parts", {})))
             for k, v in stones.items() if k not in alive}
     finish_deletions(hub, layout, todo)
-    layout.set_tombstones({})
+    layout.drop_tombstones(stones)
     if todo:
         purge(db)
     return sorted(todo)

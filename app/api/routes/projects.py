@@ -71,7 +71,7 @@ def update_project(pid: int, body: ProjectPatch, user: CurrentUser, db: DbDep) -
 
 
 @router.post("/{pid}/delete")
-def delete_project(pid: int, body: Confirm, request: Request, user: CurrentUser, db: DbDep,
+async def delete_project(pid: int, body: Confirm, request: Request, user: CurrentUser, db: DbDep,
                    hub: HubDep) -> dict[str, Any]:
     """Delete a project with all its subjects, sessions, recordings and their files.
 
@@ -80,7 +80,7 @@ def delete_project(pid: int, body: Confirm, request: Request, user: CurrentUser,
     p = get_project(db, pid)
     check_confirm(p.name, body.confirm, f"project {p.name!r} and everything in it")
     recs = [r for s in p.subjects for x in s.sessions for r in x.recordings]
-    n = delete_rows(db, hub, layout_of(request), recs, p, audit_event(
+    n = await delete_rows(db, hub, layout_of(request), recs, p, audit_event(
         request, user, "delete", f"project {pid}",
         f"{len(p.subjects)} subject(s), {len(recs)} recording(s)"))
     return {"deleted": "project", "id": pid, "recordings_deleted": n}

@@ -103,13 +103,13 @@ def update_session(sid: int, body: SessionPatch, user: CurrentUser, db: DbDep
 
 
 @router.post("/{sid}/delete")
-def delete_session(sid: int, body: Confirm, request: Request, user: CurrentUser, db: DbDep,
+async def delete_session(sid: int, body: Confirm, request: Request, user: CurrentUser, db: DbDep,
                    hub: HubDep) -> dict[str, Any]:
     """Delete a session with its recordings and their files (confirm = subject code)."""
     s = get_session(db, sid)
     check_confirm(s.subject.code, body.confirm,
                   f"this session of {s.subject.code} and its recordings")
-    n = delete_rows(db, hub, layout_of(request), list(s.recordings), s, audit_event(
+    n = await delete_rows(db, hub, layout_of(request), list(s.recordings), s, audit_event(
         request, user, "delete", f"session {sid}",
         f"subject {s.subject_id}; {len(s.recordings)} recording(s)"))
     return {"deleted": "session", "id": sid, "recordings_deleted": n}

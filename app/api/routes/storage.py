@@ -106,7 +106,7 @@ async def delete_recording(rec_id: str, body: Confirm, request: Request, user: C
     r = get_recording(db, rec_id)
     check_confirm(r.session.subject.code, body.confirm, f"recording {rec_id}")
     nodes = recording_nodes(hub, r)
-    delete_rows(db, hub, layout_of(request), [r], entry=audit_event(
+    await delete_rows(db, hub, layout_of(request), [r], entry=audit_event(
         request, user, "delete", f"recording {rec_id}", f"session {r.session_id}"))
     started = hub.transfers.flush_deletions()
     if started:  # wait briefly so the answer can say the node copies are gone

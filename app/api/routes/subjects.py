@@ -163,7 +163,7 @@ def update_subject(sid: int, body: SubjectPatch, request: Request, user: Current
 
 
 @router.post("/{sid}/delete")
-def delete_subject(sid: int, body: Confirm, request: Request, user: CurrentUser, db: DbDep,
+async def delete_subject(sid: int, body: Confirm, request: Request, user: CurrentUser, db: DbDep,
                    hub: HubDep) -> dict[str, Any]:
     """Delete a subject, its sessions, recordings and their files on the server.
 
@@ -173,7 +173,7 @@ def delete_subject(sid: int, body: Confirm, request: Request, user: CurrentUser,
     check_confirm(s.code, body.confirm, f"subject {s.code} and all its recordings")
     recs = [r for x in s.sessions for r in x.recordings]
     # the trail names the subject by its id only: it must not keep a deleted pseudonym
-    n = delete_rows(db, hub, layout_of(request), recs, s, audit_event(
+    n = await delete_rows(db, hub, layout_of(request), recs, s, audit_event(
         request, user, "delete", f"subject {sid}",
         f"project {s.project_id}; {len(s.sessions)} session(s), {len(recs)} recording(s)"))
     return {"deleted": "subject", "id": sid, "recordings_deleted": n}

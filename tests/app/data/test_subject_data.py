@@ -54,16 +54,27 @@ def _rows(client: TestClient) -> list[str]:
 
 def test_a_failed_commit_deletes_no_file(client: TestClient, tmp_path: Path,
                                          monkeypatch: pytest.MonkeyPatch) -> None:
-    """The database refuses the deletion (locked, disk full): every file stays."""
+    """The database refuses the deletion (locked, disk full): every file stays. While
+    the rows are being deleted the backbone no longer knows the recording, so no
+    transfer can start writing into it (the data sync starts one twice a second)."""
+    from app.server.recording import Part, Recording
+
     subj = _planted(client, tmp_path)
+    hub = client.app.state.hub  # type: ignore[attr-defined]
+    hub.recordings.recordings["R1"] = Recording("R1", t_start=1.0, t_stop=2.0, parts={
+        "S1": Part("S1", state="on_node", n_frames=10)})
+    known_during_commit: list[bool] = []
 
     def locked(self: OrmSession) -> None:
+        known_during_commit.append("R1" in hub.recordings.recordings)
         raise OperationalError("COMMIT", {}, Exception("database is locked"))
 
     with monkeypatch.context() as mp:
         mp.setattr(OrmSession, "commit", locked)
         r = client.post(f"/api/subjects/{subj['id']}/delete", json={"confirm": "A1"})
     assert r.status_code >= 500
+    assert known_during_commit == [False]
+    assert "R1" in hub.recordings.recordings  # the rows survived: so does the live entry
     assert _rows(client) == ["R1"]
     assert (tmp_path / "recordings" / "R1" / "S1" / "frames.bin").is_file()
     assert (tmp_path / "references" / "R1" / "x.csv").is_file()
@@ -73,6 +84,8 @@ def test_a_failed_commit_deletes_no_file(client: TestClient, tmp_path: Path,
     assert r.status_code == 200, r.text
     assert not (tmp_path / "recordings" / "R1").exists()
     assert not (tmp_path / "references" / "R1").exists()
+    assert "R1" not in hub.recordings.recordings
+    assert hub.transfers.pending_deletions() == {"S1": ["R1"]}  # S1 is offline
 
 
 def test_a_crash_after_the_commit_is_finished_at_the_next_start(
