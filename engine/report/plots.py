@@ -81,18 +81,38 @@ def plot_ankle_heights(
     return figure_png(fig)
 
 
-def plot_steps(steps: Sequence[dict[str, Any]]) -> bytes:
-    """Step length, width and time per step, left and right."""
+def plot_steps(steps: Sequence[dict[str, Any]],
+               trial_sizes: Sequence[int] | None = None) -> bytes:
+    """Step length, width and time per step, left and right.
+
+    Args:
+        steps: gait JSON steps of all trials, trial after trial.
+        trial_sizes: steps per trial (summing to ``len(steps)``); the line of each side
+            breaks between trials, so that two walks are not drawn as one.
+    """
+    sizes = list(trial_sizes) if trial_sizes else [len(steps)]
+    trial_of = np.repeat(np.arange(len(sizes)), sizes)
     fig, axes = plt.subplots(1, 3, figsize=(7.5, 2.4))
     specs = (("length_m", "step length (cm)", 100.0), ("width_m", "step width (cm)", 100.0),
              ("duration_s", "step time (s)", 1.0))
     for ax, (key, label, scale) in zip(axes, specs, strict=True):
         for side in ("L", "R"):
-            vals = [s[key] * scale for s in steps if s["side"] == side and s.get(key) is not None]
-            ax.plot(np.arange(1, len(vals) + 1), vals, "o-", ms=3, lw=0.8,
-                    color=SIDE_COLOURS[side], label=SIDE_NAMES[side])
+            vals: list[float] = []
+            prev = None
+            for s, k in zip(steps, trial_of, strict=True):
+                if s["side"] != side or s.get(key) is None:
+                    continue
+                if prev is not None and k != prev:
+                    vals.append(np.nan)  # break the line between trials
+                vals.append(s[key] * scale)
+                prev = k
+            x = np.cumsum(np.isfinite(vals)).astype(float)
+            x[~np.isfinite(vals)] = np.nan
+            ax.plot(x, vals, "o-", ms=3, lw=0.8, color=SIDE_COLOURS[side],
+                    label=SIDE_NAMES[side])
         ax.set_title(label, fontsize=9)
-        ax.set_xlabel("step #", fontsize=8)
+        ax.set_xlabel("step # per side" + (", trial after trial" if len(sizes) > 1 else ""),
+                      fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)

@@ -301,7 +301,10 @@ def build_context(data: ReportData) -> dict[str, Any]:
             break  # one example trial keeps the report short
     all_steps = [s for t in data.trials for s in t.result.get("steps", []) or []]
     if all_steps:
-        figures.append(("Parameters per step", _png_uri(plots.plot_steps(all_steps))))
+        sizes = [len(t.result.get("steps", []) or []) for t in data.trials]
+        figures.append(("Parameters per step (lines break between trials)" if len(sizes) > 1
+                        else "Parameters per step",
+                        _png_uri(plots.plot_steps(all_steps, sizes))))
     # Sources numbered in the order the table cites them; each band shows its number.
     used_norms: list[str] = []
     populations: dict[str, list[str]] = {}

@@ -195,3 +195,29 @@ def test_footnote_says_what_n_counts_for_the_gait_cycle_phases() -> None:
     assert row is not None and row.group(1) == "6"
     assert "stance, swing and double support over trials" in html
     assert "per side for stance and swing" in html
+
+
+def test_step_plot_does_not_join_two_trials_into_one_line(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The per-step lines ran from the last step of one walk to the first of the next,
+    drawn as if they were one walk."""
+    from matplotlib.figure import Figure
+
+    from engine.report import plots
+
+    seen: list[Figure] = []
+    real = plots.figure_png
+
+    def keep(fig: Figure, dpi: int = 130) -> bytes:
+        seen.append(fig)
+        return real(fig, dpi)
+
+    monkeypatch.setattr(plots, "figure_png", keep)
+    html = render_html(ReportData("P-106", _trials(3)))
+    assert "lines break between trials" in html
+    steps_fig = next(f for f in seen if len(f.axes) == 3)
+    for ax in steps_fig.axes:
+        for line in ax.lines:
+            y = np.asarray(line.get_ydata(), dtype=float)
+            assert np.isnan(y).sum() == 2, ax.get_title()  # two breaks for three trials
+            assert np.isfinite(y).sum() == 18  # 3 trials × 6 steps per side
