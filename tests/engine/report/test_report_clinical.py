@@ -221,3 +221,15 @@ def test_step_plot_does_not_join_two_trials_into_one_line(
             y = np.asarray(line.get_ydata(), dtype=float)
             assert np.isnan(y).sum() == 2, ax.get_title()  # two breaks for three trials
             assert np.isfinite(y).sum() == 18  # 3 trials × 6 steps per side
+
+
+def test_header_facts_stay_in_the_header_grid() -> None:
+    """Four subject facts (height, sex, birth year, age) made a row of 8 cells under rows
+    of 6: the age was pushed off to the right margin."""
+    info = {"Height": "174 cm", "Sex": "female", "Born": "1958", "Age": "≈ 68 y"}
+    html = render_html(ReportData("P-107", _trials(1), subject_info=info))
+    meta = html[html.index('<table class="meta">'):]
+    meta = meta[:meta.index("</table>")]
+    rows = re.findall(r"<tr>(.*?)</tr>", meta, re.S)
+    assert all(r.count("<td") <= 6 for r in rows), rows
+    assert "≈ 68 y" in meta
