@@ -233,3 +233,18 @@ def test_header_facts_stay_in_the_header_grid() -> None:
     rows = re.findall(r"<tr>(.*?)</tr>", meta, re.S)
     assert all(r.count("<td") <= 6 for r in rows), rows
     assert "≈ 68 y" in meta
+
+
+@needs_poppler
+def test_console_html_and_pdf_show_the_same_numbers(tmp_path: Path) -> None:
+    """Both come from one template; every number of the console's tables is in the PDF."""
+    from tests.engine.report.test_report import _data
+
+    data = _data()
+    fragment = render_html(data, standalone=False)
+    text, pages = _pdf_pages(render_pdf(data), tmp_path)
+    assert pages
+    cells = re.findall(r"<td[^>]*>\s*(-?\d+\.\d+)", fragment)
+    assert len(cells) > 60
+    missing = [c for c in cells if c not in text]
+    assert not missing, missing
