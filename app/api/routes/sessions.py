@@ -14,6 +14,7 @@ from typing import Any, Literal
 from fastapi import APIRouter, HTTPException, Request, status
 from pydantic import BaseModel, Field
 from sqlalchemy import select
+from sqlalchemy.exc import IntegrityError
 
 from app.api.deps import CurrentUser, DbDep, HubDep
 from app.api.limits import BoundedRoute
@@ -25,6 +26,7 @@ from app.api.routes._data import (
     get_session,
     get_subject,
     layout_of,
+    purge,
     recording_json,
     session_json,
 )
@@ -99,6 +101,7 @@ def update_session(sid: int, body: SessionPatch, user: CurrentUser, db: DbDep
         if v is not None:
             setattr(s, k, v)
     db.commit()
+    purge(db)  # an edited note leaves no copy of the old text in the database files
     return session_json(s)
 
 
@@ -131,7 +134,15 @@ async def start_recording(sid: int, body: RecordIn, request: Request, user: Curr
                       streams=",".join(body.streams), state="recording", t_start=rec.t_start)
     db.add(row)
     datasync_of(request).write(db, row, rec)
-    db.commit()
+    try:
+        db.commit()
+    except IntegrityError as exc:  # the session was deleted while the recording started
+        db.rollback()
+        hub.recordings.stop(rec.id)
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"session {sid} was deleted while recording {rec.id} started; the "
+                            "recording was stopped and is listed as not filed under a "
+                            "session (file it under a session to keep or to delete it)") from exc
     return recording_json(row)
 
 

@@ -260,3 +260,41 @@ def test_two_browsers_editing_one_subject(client: TestClient, tmp_path: Path) ->
     assert client.patch(f"/api/subjects/{s['id']}", json={"height_m": 1.7}).status_code == 200
     for f in tmp_path.glob("gaitrig.sqlite3*"):
         assert b"Jane Roe-Wqxv" not in f.read_bytes(), f.name
+
+
+def test_a_session_deleted_while_its_recording_starts(client: TestClient,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """The deletion commits between the start's lookup of the session and its own commit:
+    409 with what happened (not a 500), and the orphan recording is stopped."""
+    from app.server.recording import Recording
+
+    p = client.post("/api/projects", json={"name": "S"}).json()
+    s = client.post("/api/subjects", json={"project_id": p["id"], "code": "A1"}).json()
+    sess = client.post("/api/sessions", json={"subject_id": s["id"]}).json()
+    hub = client.app.state.hub  # type: ignore[attr-defined]
+    stopped: list[str] = []
+
+    def start(streams: list[str], image_every: int) -> Recording:
+        with client.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+            db.delete(db.get(m.Session, sess["id"]))  # another browser's deletion
+            db.commit()
+        rec = Recording("R9", t_start=1.0)
+        hub.recordings.recordings["R9"] = rec
+        return rec
+
+    monkeypatch.setattr(hub.recordings, "start", start)
+    monkeypatch.setattr(hub.recordings, "stop", lambda rec_id: stopped.append(rec_id))
+    r = client.post(f"/api/sessions/{sess['id']}/recordings", json={})
+    assert r.status_code == 409 and "was deleted" in r.json()["detail"], r.text
+    assert stopped == ["R9"] and _rows(client) == []
+
+
+def test_an_edited_session_note_leaves_no_copy(client: TestClient, tmp_path: Path) -> None:
+    p = client.post("/api/projects", json={"name": "S"}).json()
+    s = client.post("/api/subjects", json={"project_id": p["id"], "code": "A1"}).json()
+    sess = client.post("/api/sessions", json={"subject_id": s["id"],
+                                              "notes": "came with Jane Roe-Wqxv"}).json()
+    assert client.patch(f"/api/sessions/{sess['id']}", json={"notes": "came with her daughter"}
+                        ).status_code == 200
+    for f in tmp_path.glob("gaitrig.sqlite3*"):
+        assert b"Jane Roe-Wqxv" not in f.read_bytes(), f.name
