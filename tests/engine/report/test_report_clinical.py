@@ -248,3 +248,11 @@ def test_console_html_and_pdf_show_the_same_numbers(tmp_path: Path) -> None:
     assert len(cells) > 60
     missing = [c for c in cells if c not in text]
     assert not missing, missing
+
+
+def test_table_says_which_foot_left_and_right_rows_belong_to() -> None:
+    """Whether 'left step length' ends or starts at the left foot was not said; labs use
+    both conventions, so left/right asymmetry could be read mirrored."""
+    html = render_html(ReportData("P-108", _trials(1)))
+    assert "belongs to the foot placed at its end" in html
+    assert "along and across the line of progression" in html
