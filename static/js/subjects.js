@@ -146,6 +146,18 @@
     return box;
   }
 
+  // An unfiled recording is health data all the same: deleting it needs its id typed.
+  function unfiledDelete(r) {
+    const input = el("input", { "aria-label": `type ${r.id} to delete it`, placeholder: "recording id", autocomplete: "off", size: "22" });
+    return el("details", { class: "danger-zone" }, el("summary", {}, "Delete…"),
+      el("span", { class: "form-row" }, input, el("button", { type: "button", class: "danger small", onclick: async () => {
+        try { const d = await api(`/api/storage/unfiled/${encodeURIComponent(r.id)}/delete`, { method: "POST", body: JSON.stringify({ confirm: input.value.trim() }) });
+          const left = Object.entries(d.node_copies).filter(([, v]) => v !== "deleted").map(([n, v]) => `${n}: ${v}`);
+          say("session-msg", `Recording ${r.id} deleted${left.length ? " (" + left.join("; ") + ")" : ", on the nodes too"}.`, true); await loadDetail(false); }
+        catch (e) { say("session-msg", e.message); }
+      } }, "Delete recording")));
+  }
+
   // Recordings started without a session (e.g. from the Rig page) can be filed here.
   async function showUnfiled(box, gen) {
     let recs = [];
@@ -161,7 +173,8 @@
           try { await api(`/api/sessions/${sel.value}/recordings/attach`, { method: "POST", body: JSON.stringify({ rec_id: r.id }) });
             say("session-msg", `Recording ${r.id} filed under ${subject.code}.`, true); await loadDetail(false); await loadSubjects(); }
           catch (e) { say("session-msg", e.message); }
-        } }, `File under ${subject.code}`)));
+        } }, `File under ${subject.code}`),
+        unfiledDelete(r)));
     }
     box.append(card);
   }

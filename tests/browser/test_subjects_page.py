@@ -59,3 +59,34 @@ def test_two_browsers_edit_one_subject(page: Any, browser: Any, live_server: Liv
         assert not page.js_errors
     finally:
         other_ctx.close()
+
+
+def test_delete_a_recording_filed_under_no_session(page: Any, live_server: LiveServer) -> None:
+    import time
+
+    p = live_server.api("/api/projects", {"name": "Unfiled"})
+    s = live_server.api("/api/subjects", {"project_id": p["id"], "code": "UNF01"})
+    live_server.api("/api/sessions", {"subject_id": s["id"], "label": "visit"})
+    rec = live_server.api("/api/recordings", {})["id"]
+    time.sleep(1.0)
+    live_server.api(f"/api/recordings/{rec}/stop", {})
+    page.goto(f"{live_server.base_url}/subjects.html#subject={s['id']}")
+    row = page.locator(f"[data-unfiled='{rec}']")
+    row.wait_for()
+    row.locator("summary").click()
+    row.locator("input").fill(rec[:-1])  # a wrong confirmation deletes nothing
+    row.locator("button.danger").click()
+    page.wait_for_function(
+        f"document.getElementById('session-msg').textContent.includes(\"'{rec}'\")")
+    assert rec in [r["id"] for r in live_server.api("/api/storage/unfiled")]
+    # the transfer after the stop must be over before a deletion is accepted
+    deadline = time.time() + 60
+    while (time.time() < deadline
+           and live_server.api(f"/api/recordings/{rec}")["state"] != "complete"):
+        time.sleep(0.5)
+    row.locator("input").fill(rec)
+    row.locator("button.danger").click()
+    page.wait_for_function("document.getElementById('session-msg').textContent.includes('deleted')")
+    assert rec not in [r["id"] for r in live_server.api("/api/storage/unfiled")]
+    page.wait_for_function(f"!document.querySelector(\"[data-unfiled='{rec}']\")")
+    assert not page.js_errors

@@ -226,6 +226,44 @@ async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout,
     return len(recs)
 
 
+async def delete_unfiled(db: DbSession, hub: Hub, layout: StorageLayout, rec_id: str,
+                         entry: AuditEvent | None = None) -> list[str]:
+    """Delete a recording filed under no session (started from the Rig page): the
+    server's files, its live entry and the nodes' copies, in the order of
+    :func:`delete_rows` (tombstone, commit of the audit entry, files).
+
+    Returns:
+        The nodes that hold (or held) a part of it.
+
+    Raises:
+        HTTPException: 404 unknown; 409 filed under a session, running or transferring.
+    """
+    live = hub.recordings.recordings.get(rec_id)
+    if live is None:
+        raise not_found(f"no recording {rec_id!r} on the server")
+    if db.get(m.Recording, rec_id) is not None:
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"recording {rec_id} is filed under a session; delete it from its "
+                            "subject on the Subjects page")
+    if live.t_stop is None:
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"recording {rec_id} is still running; stop it first")
+    if live.state == "transferring" or hub.transfers.running_parts(rec_id):
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"recording {rec_id} is being transferred; wait until it ends")
+    plan = {rec_id: sorted(live.parts)}
+    hub.recordings.recordings.pop(rec_id)  # in the loop, right after the checks
+    try:
+        await asyncio.to_thread(_commit_deletion, db, layout, [], None, entry, plan)
+    except BaseException:
+        hub.recordings.recordings[rec_id] = live
+        raise
+    hub.recordings.save()
+    hub.transfers.request_deletion(rec_id, plan[rec_id])
+    await asyncio.to_thread(_remove_files, db, layout, plan)
+    return plan[rec_id]
+
+
 def _commit_deletion(db: DbSession, layout: StorageLayout, recs: list[m.Recording],
                      owner: Any, entry: AuditEvent | None, plan: dict[str, list[str]]) -> None:
     layout.add_tombstones(plan)

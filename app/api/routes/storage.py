@@ -23,6 +23,7 @@ from app.api.routes._data import (
     check_confirm,
     datasync_of,
     delete_rows,
+    delete_unfiled,
     get_recording,
     layout_of,
     recording_json,
@@ -57,6 +58,10 @@ router = APIRouter(prefix="/storage", route_class=BoundedRoute, tags=["data"], l
 
 class Confirm(BaseModel):
     confirm: str = Field(max_length=200, description="The subject code typed again.")
+
+
+class ConfirmId(BaseModel):
+    confirm: str = Field(max_length=200, description="The recording id typed again.")
 
 
 @router.get("")
@@ -115,9 +120,25 @@ async def delete_recording(rec_id: str, body: Confirm, request: Request, user: C
             "node_copies": hub.transfers.deletion_status(rec_id, nodes)}
 
 
+@router.post("/unfiled/{rec_id}/delete")
+async def delete_unfiled_recording(rec_id: str, body: ConfirmId, request: Request,
+                                   user: CurrentUser, db: DbDep, hub: HubDep) -> dict[str, Any]:
+    """Delete a recording filed under no session (confirm = the recording id): the files
+    on the server and the parts on the nodes, as for a filed one."""
+    check_confirm(rec_id, body.confirm, f"recording {rec_id}")
+    nodes = await delete_unfiled(db, hub, layout_of(request), rec_id, audit_event(
+        request, user, "delete", f"recording {rec_id}", "not filed under a session"))
+    started = hub.transfers.flush_deletions()
+    if started:
+        await asyncio.wait(started, timeout=NODE_DELETE_WAIT_S)
+    return {"deleted": "recording", "id": rec_id,
+            "node_copies": hub.transfers.deletion_status(rec_id, nodes)}
+
+
 @router.get("/unfiled")
 def unfiled(user: CurrentUser, db: DbDep, hub: HubDep) -> list[dict[str, Any]]:
-    """Recordings the server knows that belong to no session yet (attach them to one)."""
+    """Recordings the server knows that belong to no session yet (attach them to one, or
+    delete them: ``POST /api/storage/unfiled/{rec_id}/delete``)."""
     filed = set(db.scalars(select(m.Recording.id)))
     out = []
     for r in sorted(hub.recordings.recordings.values(), key=lambda r: r.created, reverse=True):

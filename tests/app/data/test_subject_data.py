@@ -298,3 +298,36 @@ def test_an_edited_session_note_leaves_no_copy(client: TestClient, tmp_path: Pat
                         ).status_code == 200
     for f in tmp_path.glob("gaitrig.sqlite3*"):
         assert b"Jane Roe-Wqxv" not in f.read_bytes(), f.name
+
+
+def test_a_recording_filed_under_no_session_can_be_deleted(client: TestClient,
+                                                           tmp_path: Path) -> None:
+    """Started from the Rig page and never filed: health data all the same."""
+    from app.server.recording import Part, Recording
+
+    _make_part(tmp_path / "node-side", server=tmp_path)
+    hub = client.app.state.hub  # type: ignore[attr-defined]
+    hub.recordings.recordings["R1"] = Recording("R1", t_start=1.0, t_stop=2.0, parts={
+        "S1": Part("S1", state="complete", n_frames=60, on_server=True)})
+    hub.recordings.recordings["R2"] = Recording("R2", t_start=3.0)  # still running
+    assert [r["id"] for r in client.get("/api/storage/unfiled").json()] == ["R2", "R1"]
+    r = client.post("/api/storage/unfiled/R1/delete", json={"confirm": "R"})
+    assert r.status_code == 400 and "'R1'" in r.json()["detail"]
+    assert (tmp_path / "recordings" / "R1" / "S1" / "frames.bin").is_file()
+    r = client.post("/api/storage/unfiled/R2/delete", json={"confirm": "R2"})
+    assert r.status_code == 409 and "running" in r.json()["detail"]
+    assert client.post("/api/storage/unfiled/R7/delete", json={"confirm": "R7"}
+                       ).status_code == 404
+    r = client.post("/api/storage/unfiled/R1/delete", json={"confirm": "R1"})
+    assert r.status_code == 200, r.text
+    assert "offline" in r.json()["node_copies"]["S1"]
+    assert not (tmp_path / "recordings" / "R1").exists()
+    assert [x["id"] for x in client.get("/api/storage/unfiled").json()] == ["R2"]
+    assert client.get("/api/storage").json()["pending_node_deletions"] == {"S1": ["R1"]}
+    e = client.get("/api/audit").json()[0]
+    assert (e["action"], e["target"]) == ("delete", "recording R1")
+    # a filed recording is deleted from its subject (confirm = subject code) instead
+    _recording_row(client)
+    hub.recordings.recordings["R1"] = Recording("R1", t_start=1.0, t_stop=2.0)
+    r = client.post("/api/storage/unfiled/R1/delete", json={"confirm": "R1"})
+    assert r.status_code == 409 and "filed under a session" in r.json()["detail"]
