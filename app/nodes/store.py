@@ -252,7 +252,11 @@ class NodeStore:
             with open(folder / "frames.bin", "r+b") as f:
                 f.truncate(good_end)
                 os.fsync(f.fileno())
-            _atomic_write_json(folder / "index.json", index)
+            # a full disk (often why the node stopped) must not keep the node from starting
+            try:
+                _atomic_write_json(folder / "index.json", index)
+            except OSError as exc:
+                log.warning("index of %s not written (%s)", folder.name, exc)
             sk = [t for t, _, k in index if k == "skeleton"]
             meta.update(
                 state="incomplete",
@@ -260,7 +264,15 @@ class NodeStore:
                 n_frames=len(sk), t_first=sk[0] if sk else None, t_last=sk[-1] if sk else None,
                 bytes=good_end,
             )
-            _atomic_write_json(folder / "meta.json", meta)
+            try:
+                try:
+                    _atomic_write_json(folder / "meta.json", meta)
+                except OSError:
+                    _rewrite_json_in_place(folder / "meta.json", meta)
+            except OSError as exc:
+                log.error("recording %s cannot be closed (%s); it is recovered when the "
+                          "node starts with free disk space", folder.name, exc)
+                continue
             fixed.append(self._info(meta))
         return fixed
 

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import subprocess
 import tracemalloc
 from pathlib import Path
 
@@ -107,3 +110,24 @@ def test_writer_memory_does_not_grow_with_the_recording(tmp_path: Path) -> None:
     assert len(index) == 29_971 and index[10] == [10 / 30.0, 10 * len(msg) + 80, "image"]
     assert not (tmp_path / "R5" / "index.spool").exists()
     assert info.bytes == 29_971 * (len(msg) + 8)
+
+
+def test_recover_on_a_full_disk(tmp_path: Path) -> None:
+    mnt = tmp_path / "tiny"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=128k", "tmpfs", str(mnt)],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+    try:
+        _write(NodeStore(mnt), "R6", 200)  # never closed: the node died
+        with open(mnt / "ballast", "wb") as f, contextlib.suppress(OSError):
+            f.write(b"\0" * (1 << 20))  # and its disk is full
+        fixed = NodeStore(mnt).recover()  # the node can start again
+        assert [p.n_frames for p in fixed] == [200]
+        assert NodeStore(mnt).parts()[0].state == "incomplete"
+        assert len(list(NodeStore(mnt).read("R6"))) == 200
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)
