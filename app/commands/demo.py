@@ -105,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
     token = secrets.token_urlsafe(16)
     env = {**os.environ, "GAITRIG_ADMIN_PASSWORD": password, "GAITRIG_NODE_TOKEN": token,
            "PYTHONUNBUFFERED": "1"}
-    py = [sys.executable, "-m", "app.cli"]
+    # -P: a file in the current folder named like a module (http.py) must not shadow it
+    py = [sys.executable, "-P", "-m", "app.cli"]
     serve = [*py, "serve", "--host", args.host, "--port", str(args.port), "--viewer-port",
                   str(args.viewer_port), "--data-dir", str(data / "server"), "--log-level",
                   "warning"]

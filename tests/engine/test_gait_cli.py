@@ -88,3 +88,16 @@ def test_subprocess_on_vicon_file(shared_data: Path) -> None:
     strikes = [e for e in doc["events"] if e["kind"] == "foot_strike"]
     assert len(strikes) == 4
     assert doc["summary"]["n_steps"] == 3
+
+
+def test_output_into_a_closed_pipe_is_quiet(tmp_path: Path) -> None:
+    """``gaitrig gait FILE | head -1``: the reader leaves early; no traceback is shown."""
+    p = tmp_path / "walk.trc"
+    write_trc(p, walk_markers(synth_walk(step_length=0.66, step_width=0.13), up="y"), units="mm")
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "gait", str(p)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # the reader is gone before the first write (as `head` after its lines)
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) in (0, 1)
+    assert "Traceback" not in err and "BrokenPipe" not in err, err
