@@ -291,18 +291,20 @@ class NodeAgent:
         return t + self._step_corr
 
     def _destep(self, frame: Frame) -> Frame:
-        """``frame`` on the node clock (:meth:`now`). A frame stamped just before a step
-        but handled after it still carries the old clock: of the two corrections, the one
-        giving the frame its usual age is right."""
+        """``frame`` on the node clock (:meth:`now`).
+
+        Whether a frame's stamp stepped with the backend clock depends on the backend (the
+        simulator stamps with its clock; a sensor may stamp with its own steady device
+        clock), and a frame stamped just before a step may be handled after it. Of the
+        corrections that can apply (the current one, the one before the last step, none),
+        the one giving the frame its usual age when handled is right: they differ by at
+        least :data:`CLOCK_STEP_MIN_S`.
+        """
         now = self.now()
         corr = self._step_corr
-        if self._last_step is not None:
-            m_step, before = self._last_step
-            if time.monotonic() - m_step > 2.0:  # older frames are long handled
-                self._last_step = None
-            elif (abs(now - (frame.t_local + before) - self._frame_age)
-                  < abs(now - (frame.t_local + corr) - self._frame_age)):
-                corr = before
+        if self.clock_steps:
+            options = {corr, 0.0} | ({self._last_step[1]} if self._last_step else set())
+            corr = min(options, key=lambda c: abs(now - (frame.t_local + c) - self._frame_age))
         age = now - (frame.t_local + corr)
         if 0.0 <= age < 1.0:
             self._frame_age = 0.9 * self._frame_age + 0.1 * age

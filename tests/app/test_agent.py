@@ -163,15 +163,19 @@ def test_slow_image_encoding_keeps_memory_bounded(agent: NodeAgent) -> None:
 
 
 @pytest.mark.parametrize("step", [0.5, -0.5, 0.05])
-def test_a_clock_step_keeps_recorded_times_continuous(tmp_path: Path, step: float) -> None:
+@pytest.mark.parametrize("frames_step", [True, False])
+def test_a_clock_step_keeps_recorded_times_continuous(tmp_path: Path, step: float,
+                                                      frames_step: bool) -> None:
     backend = _Scripted()
     agent = NodeAgent("S1", backend, "ws://127.0.0.1:1/ws/node", "token", tmp_path)
     truth: list[float] = []  # when each frame was really captured
 
-    def frame(k: int) -> Frame:  # stamped by the backend's clock when captured
+    def frame(k: int) -> Frame:
+        # stamped by the backend's clock when captured, or by a device clock that does
+        # not step with the system's (a sensor's own timestamps)
         truth.append(time.time())
-        return Frame(backend.now(), np.full((1, 25, 3), k, np.float32),
-                     np.full((1, 25), 2, np.uint8), [0])
+        return Frame(backend.now() if frames_step else truth[-1],
+                     np.full((1, 25, 3), k, np.float32), np.full((1, 25), 2, np.uint8), [0])
 
     agent._on_command(RecStart(rec_id="R7", t_start_server=0.0, t_start_local=agent.now()))
     for k in range(20):
@@ -181,6 +185,8 @@ def test_a_clock_step_keeps_recorded_times_continuous(tmp_path: Path, step: floa
     agent._on_frame(stale)
     for k in range(21, 60):
         agent._on_frame(frame(k))
+        if k == 40 and step == 0.5 and not frames_step:
+            time.sleep(2.1)  # the device-clock frames stay right long after the step
     ts = np.array(_times(agent.store, "R7"))
     assert agent.clock_steps == 1 and agent.dropped == 0
     assert len(ts) == 60  # nothing lost to a clock going backwards
