@@ -256,3 +256,21 @@ def test_table_says_which_foot_left_and_right_rows_belong_to() -> None:
     html = render_html(ReportData("P-108", _trials(1)))
     assert "belongs to the foot placed at its end" in html
     assert "along and across the line of progression" in html
+
+
+@needs_poppler
+def test_a_page_break_never_parts_a_parameter_from_its_left_and_right_rows(
+        tmp_path: Path) -> None:
+    """With 70 trials the trials line pushes the table over the page: Stance's left row ended
+    page 1 and its right row opened page 2 under no parameter name."""
+    text, _ = _pdf_pages(render_pdf(ReportData("P-109", _trials(70))), tmp_path)
+    pages = text.split("\f")
+    split = False
+    for k, page in enumerate(pages):
+        lines = page.splitlines()
+        heads = [i for i, ln in enumerate(lines) if re.match(r"\s*Parameter\s+Side\s+N", ln)]
+        for i in heads:
+            first = next(ln for ln in lines[i + 1:] if ln.strip())
+            assert not re.match(r"\s*(left|right)\s+\d", first), (k + 1, first)
+        split |= bool(heads) and k > 0
+    assert split, "the table did not run over a page: the test no longer tests a break"
