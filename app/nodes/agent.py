@@ -275,9 +275,12 @@ class NodeAgent:
         undoes steps: its clock keeps running at the backend's rate, and the server's
         offset estimate absorbs the difference. Call from the event loop only.
         """
-        m1 = time.monotonic()
-        t = self.backend.now()
-        m2 = time.monotonic()
+        for _ in range(3):  # a read interrupted by another thread says nothing: again
+            m1 = time.monotonic()
+            t = self.backend.now()
+            m2 = time.monotonic()
+            if m2 - m1 <= _CLOCK_READ_MAX_S:
+                break
         if m2 - m1 <= _CLOCK_READ_MAX_S:
             base = t - (m1 + m2) / 2.0
             if self._clock_base is not None and abs(base - self._clock_base) >= CLOCK_STEP_MIN_S:
