@@ -260,6 +260,7 @@
 
   (async () => {
     await loadDisk();
+    try { $("audit").hidden = !(await api("/api/auth/me")).is_admin; } catch (e) { /* stays hidden */ }
     const m = /subject=(\d+)/.exec(location.hash);
     if (m) {
       try { const s = await api(`/api/subjects/${m[1]}`); await loadProjects(s.project_id); await select(s.id); return; }

@@ -56,6 +56,12 @@ def test_two_browsers_edit_one_subject(page: Any, browser: Any, live_server: Liv
             link.click()
         z = zipfile.ZipFile(io.BytesIO(Path(dl.value.path()).read_bytes()))
         assert json.loads(z.read("subject.json"))["code"] == "EDT01"
+        # the administrator downloads the audit trail, which recorded that export
+        page.wait_for_selector("#audit:not([hidden])")
+        with page.expect_download() as dl:
+            page.click("#audit-link")
+        trail = Path(dl.value.path()).read_text()
+        assert f"export,subject {s['id']}" in trail, trail[:500]
         assert not page.js_errors
     finally:
         other_ctx.close()
