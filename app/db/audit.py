@@ -7,9 +7,10 @@ for actions that change nothing else (a login, an export).
 
 from __future__ import annotations
 
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.db.models import AUDIT_ACTIONS, AuditEvent
+from app.db.models import AUDIT_ACTIONS, AuditEvent, User
 
 
 def event(username: str, action: str, target: str = "", detail: str = "",
@@ -30,3 +31,11 @@ def record(db: Session, username: str, action: str, target: str = "", detail: st
     """Append one entry and commit it."""
     db.add(event(username, action, target, detail, client))
     db.commit()
+
+
+def record_failed_login(db: Session, username: str, client: str) -> None:
+    """Append a failed login. A name that is no account is not kept: people type their
+    password into the user name field, and the trail must not hold it."""
+    known = db.scalar(select(User.id).where(User.username == username)) is not None
+    record(db, username if known else "(unknown user)", "login_failed",
+           detail="" if known else "no account with the name given", client=client)

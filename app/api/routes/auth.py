@@ -51,7 +51,7 @@ def login(body: LoginIn, request: Request, response: Response, db: DbDep,
     got = security.login(db, body.username, body.password, settings.session_hours)
     if got is None:
         throttle.failed(body.username, client)
-        audit.record(db, body.username, "login_failed", client=client)
+        audit.record_failed_login(db, body.username, client)
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, "wrong username or password")
     throttle.succeeded(body.username, client)
     audit.record(db, body.username, "login", client=client)

@@ -148,8 +148,14 @@ def test_audit_trail_of_logins_exports_and_deletions(client: TestClient, tmp_pat
     from app.db.models import User
 
     subj = _planted(client, tmp_path)
+    with client.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        db.add(User(username="=HYPERLINK(1)", password_hash=hash_password("pw-12345678")))
+        db.commit()
     assert TestClient(client.app).post("/api/auth/login", json={
         "username": "=HYPERLINK(1)", "password": "x"}).status_code == 401
+    # a password typed into the user name field is not kept
+    assert TestClient(client.app).post("/api/auth/login", json={
+        "username": "hunter2-secret", "password": "x"}).status_code == 401
     r = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "S1"})
     assert r.status_code == 200
     r = client.post(f"/api/subjects/{subj['id']}/delete", json={"confirm": "A1"})
@@ -157,12 +163,13 @@ def test_audit_trail_of_logins_exports_and_deletions(client: TestClient, tmp_pat
     log = client.get("/api/audit").json()
     got = [(e["username"], e["action"], e["target"]) for e in reversed(log)]
     assert got == [("admin", "login", ""), ("=HYPERLINK(1)", "login_failed", ""),
+                   ("(unknown user)", "login_failed", ""),
                    ("admin", "export", "recording R1"),
                    ("admin", "delete", f"subject {subj['id']}")], got
     assert "1 recording" in log[0]["detail"] and log[0]["client"]
     assert all(e["at"] for e in log)
     # the trail names no deleted pseudonym
-    assert "A1" not in str(log)
+    assert "A1" not in str(log) and "hunter2" not in str(log)
     # append-only, down to the database
     with client.app.state.db_sessions() as db:  # type: ignore[attr-defined]
         for stmt in ("update audit_events set username = 'x'", "delete from audit_events"):
