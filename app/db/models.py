@@ -55,9 +55,9 @@ class AuditEvent(Base):
     """One entry of the append-only audit trail: who did what, when, from where.
 
     Targets name rows by their numeric id or a recording id, never by a subject code,
-    so the trail keeps no trace of a deleted subject's pseudonym. SQLite refuses any
-    UPDATE or DELETE of this table (triggers), so an entry cannot be edited through the
-    application's database connection.
+    so the trail keeps no trace of a deleted subject's pseudonym. The database refuses
+    any UPDATE or DELETE of this table (triggers, SQLite and PostgreSQL), so an entry
+    cannot be edited through the application's database connection.
     """
 
     __tablename__ = "audit_events"
@@ -76,3 +76,11 @@ for _op in ("UPDATE", "DELETE"):
         f"CREATE TRIGGER audit_events_no_{_op.lower()} BEFORE {_op} ON audit_events "
         "BEGIN SELECT RAISE(ABORT, 'the audit trail is append-only'); END"
     ).execute_if(dialect="sqlite"))
+event.listen(AuditEvent.__table__, "after_create", DDL(
+    "CREATE OR REPLACE FUNCTION audit_events_append_only() RETURNS trigger AS $$ BEGIN "
+    "RAISE EXCEPTION 'the audit trail is append-only'; END $$ LANGUAGE plpgsql"
+).execute_if(dialect="postgresql"))
+event.listen(AuditEvent.__table__, "after_create", DDL(
+    "CREATE TRIGGER audit_events_no_change BEFORE UPDATE OR DELETE ON audit_events "
+    "FOR EACH ROW EXECUTE FUNCTION audit_events_append_only()"
+).execute_if(dialect="postgresql"))

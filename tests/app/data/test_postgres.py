@@ -114,3 +114,10 @@ def test_data_api_on_postgresql(pg_client: TestClient, tmp_path: Path) -> None:
     assert pg_client.app.state.db_sessions.kw["bind"].dialect.name == "postgresql"  # type: ignore[attr-defined]
     test_data_api.test_crud_validation_and_confirmation(pg_client)
     test_data_api.test_fused_export_keeps_the_recordings_own_poses(pg_client, tmp_path)
+
+
+def test_audit_trail_and_deletion_on_postgresql(pg_client: TestClient, tmp_path: Path) -> None:
+    """The audit trail (append-only there too) and a subject's deletion."""
+    from tests.app.data import test_subject_data
+
+    test_subject_data.test_audit_trail_of_logins_exports_and_deletions(pg_client, tmp_path)

@@ -338,3 +338,4 @@ def test_a_recording_filed_under_no_session_can_be_deleted(client: TestClient,
     hub.recordings.recordings["R1"] = Recording("R1", t_start=1.0, t_stop=2.0)
     r = client.post("/api/storage/unfiled/R1/delete", json={"confirm": "R1"})
     assert r.status_code == 409 and "filed under a session" in r.json()["detail"]
+
