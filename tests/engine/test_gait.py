@@ -447,3 +447,26 @@ def test_literal_rule_without_standing_drops_the_first_left_step_found() -> None
 def test_exclude_first_rejects_unknown_rule() -> None:
     with pytest.raises(InputError, match="exclude_first"):
         GaitAnalysis("crossing", exclude_first="left")  # type: ignore[arg-type]
+
+
+def test_heelstrike_steps_are_footprint_to_footprint_for_ankle_joints() -> None:
+    """A skeleton has ankles, no heels: at one foot's strike the other's ankle has already
+    risen and rolled forward over its toes. Steps run from footprint to footprint (each
+    foot at its own strike), so heel strike and crossing agree on the same walk; taking
+    both ankles at the strike instant made the walker's steps ≈ 8 cm short."""
+    from engine.sim.walker import Walker, WalkerParams
+    from engine.skeleton import KINECT_V2, SkeletonSeries
+
+    w = Walker(WalkerParams(), [0.0, 0.0, 0.0], [9.0, 0.0, 0.0], start_time=1.0,
+               back_and_forth=False, seed=3, horizon_s=20.0)
+    t = np.arange(0.0, 8.0, 0.01)
+    J = w.joints(t)
+    s = SkeletonSeries(t, J, np.full(J.shape[:2], 2, dtype=np.uint8), KINECT_V2)
+    cross, heel = GaitAnalysis("crossing").fit(s), GaitAnalysis("heelstrike").fit(s)
+    assert len(heel.steps_) >= 6
+    for key in ("length_m", "width_m"):
+        a = np.median([getattr(x, key) for x in cross.steps_])
+        b = np.median([getattr(x, key) for x in heel.steps_])
+        assert b == pytest.approx(a, abs=0.01), key
+    assert heel.summary_["walking_speed_m_s"] == pytest.approx(
+        cross.summary_["walking_speed_m_s"], rel=0.03)

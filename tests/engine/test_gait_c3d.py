@@ -66,7 +66,8 @@ def test_step_lengths_and_widths_match_annotated_events(walk: Path) -> None:
         if a.side == b.side:
             continue
         hb = np.array([np.interp(b.time_s, t, f.points[b.side]["heel"][:, k]) for k in range(3)])
-        ha = np.array([np.interp(b.time_s, t, f.points[a.side]["heel"][:, k]) for k in range(3)])
+        # footprint to footprint: each heel at its own annotated strike
+        ha = np.array([np.interp(a.time_s, t, f.points[a.side]["heel"][:, k]) for k in range(3)])
         L_ref, W_ref = (hb - ha) @ d, abs((hb - ha) @ lat)
         step = min(g.steps_, key=lambda s: abs(s.time_s - b.time_s))
         assert step.side == b.side and abs(step.time_s - b.time_s) < 0.02
