@@ -136,6 +136,15 @@ def test_start_on_a_full_disk_is_reported_as_the_parts_state(tiny_disk: Path) ->
     agent._on_frame(_frame(1))
 
 
+def test_start_on_a_read_only_disk_says_so(tiny_disk: Path) -> None:
+    agent = NodeAgent("S1", _Scripted(), "ws://127.0.0.1:1/ws/node", "token", tiny_disk)
+    subprocess.run(["mount", "-o", "remount,ro", str(tiny_disk)], check=True)
+    agent._on_command(RecStart(rec_id="R8", t_start_server=0.0, t_start_local=0.0))
+    info, _ = agent._finished["R8"]
+    assert info.state == "incomplete"
+    assert info.reason == "node S1's recordings folder is read-only; nothing was recorded there"
+
+
 def test_slow_image_encoding_keeps_memory_bounded(agent: NodeAgent) -> None:
     release = threading.Event()
     rendered = []
