@@ -116,7 +116,7 @@ def _sha(path: Path) -> bytes:
 def test_one_recording_through_node_faults(make_rig: Any, tiny_node_disk: Path | None
                                            ) -> None:
     rig: Rig = make_rig({"GAITRIG_TEST_CHUNK_SIZE": "1024",
-                         "GAITRIG_TEST_CHUNK_DELAY_S": "0.01"})
+                         "GAITRIG_TEST_CHUNK_DELAY_S": "0.05"})
     proxy = CuttableProxy(rig.port)
     try:
         _run(rig, proxy, tiny_node_disk)
@@ -171,7 +171,8 @@ def _run(rig: Rig, proxy: CuttableProxy, tiny_disk: Path | None) -> None:
     code, msg = _http_error(lambda: rig.api("/api/recordings/R-none/stop", method="POST"))
     assert code == 404
 
-    # pulled on their own; a deletion while they are transferred is refused
+    # pulled on their own (slowed down: 1 kB chunks, 50 ms each); a deletion while they
+    # are transferred is refused
     wait_for(lambda: any(q["state"] == "transferring" for q in _parts(rig, rec_id).values()),
              30, "a transfer under way", step=0.02)
     code, msg = _http_error(lambda: rig.api(f"/api/storage/recordings/{rec_id}/delete",
