@@ -254,7 +254,8 @@
     ev.preventDefault();
     try { const r = await api(`/api/subjects/${subjectId}/delete`, { method: "POST", body: JSON.stringify({ confirm: ev.target.elements.confirm.value }) });
       ev.target.reset(); subjectId = null; dropDetail(); $("detail-body").hidden = true; $("detail-h").textContent = "Select a subject";
-      say("delete-msg", `Subject deleted with ${r.recordings_deleted} recording(s).`, true); await loadProjects(); await loadDisk(); }
+      const left = Object.entries(r.node_copies || {}).filter(([, v]) => v !== "deleted").map(([n, v]) => `${n}: ${v}`);
+      say("delete-msg", `Subject deleted with ${r.recordings_deleted} recording(s)${r.recordings_deleted ? (left.length ? "; copies still on nodes — " + left.join("; ") : ", on the nodes too") : ""}.`, true); await loadProjects(); await loadDisk(); }
     catch (e) { say("delete-msg", e.message); }
   });
 

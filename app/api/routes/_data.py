@@ -180,7 +180,7 @@ def project_json(db: DbSession, p: m.Project) -> dict[str, Any]:
 
 async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout,
                       recs: list[m.Recording], owner: Any = None,
-                      entry: AuditEvent | None = None) -> int:
+                      entry: AuditEvent | None = None) -> dict[str, list[str]]:
     """Delete recordings (and ``owner``, the session, subject or project that held them)
     everywhere: database rows, the server's files, live entries, the nodes' copies.
 
@@ -199,7 +199,7 @@ async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout,
        (:func:`resume_deletions`).
 
     Returns:
-        Number of recordings deleted.
+        The deleted recordings and, for each, the nodes that hold (or held) a part.
     """
     for r in recs:
         live = hub.recordings.recordings.get(r.id)
@@ -223,7 +223,7 @@ async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout,
         # sent now or when a node reconnects (TransferManager.request_deletion)
         hub.transfers.request_deletion(rec_id, nodes)
     await asyncio.to_thread(_remove_files, db, layout, plan)
-    return len(recs)
+    return plan
 
 
 async def delete_unfiled(db: DbSession, hub: Hub, layout: StorageLayout, rec_id: str,
@@ -262,6 +262,23 @@ async def delete_unfiled(db: DbSession, hub: Hub, layout: StorageLayout, rec_id:
     hub.transfers.request_deletion(rec_id, plan[rec_id])
     await asyncio.to_thread(_remove_files, db, layout, plan)
     return plan[rec_id]
+
+
+NODE_DELETE_WAIT_S = 5.0  # a deletion's answer waits this long for the nodes' copies
+
+
+async def node_copies(hub: Hub, plan: dict[str, list[str]]) -> dict[str, str]:
+    """Ask the connected nodes to delete their copies now, wait briefly, and say per
+    node ``deleted`` or why not yet (e.g. ``node offline: deleted when it reconnects``)."""
+    started = hub.transfers.flush_deletions()
+    if started:
+        await asyncio.wait(started, timeout=NODE_DELETE_WAIT_S)
+    out: dict[str, str] = {}
+    for rec_id, nodes in plan.items():
+        for node, st in hub.transfers.deletion_status(rec_id, nodes).items():
+            if out.get(node, "deleted") == "deleted":
+                out[node] = st
+    return dict(sorted(out.items()))
 
 
 def _commit_deletion(db: DbSession, layout: StorageLayout, recs: list[m.Recording],

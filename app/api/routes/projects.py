@@ -16,6 +16,7 @@ from app.api.routes._data import (
     delete_rows,
     get_project,
     layout_of,
+    node_copies,
     project_json,
 )
 from app.db import data as m
@@ -80,7 +81,8 @@ async def delete_project(pid: int, body: Confirm, request: Request, user: Curren
     p = get_project(db, pid)
     check_confirm(p.name, body.confirm, f"project {p.name!r} and everything in it")
     recs = [r for s in p.subjects for x in s.sessions for r in x.recordings]
-    n = await delete_rows(db, hub, layout_of(request), recs, p, audit_event(
+    plan = await delete_rows(db, hub, layout_of(request), recs, p, audit_event(
         request, user, "delete", f"project {pid}",
         f"{len(p.subjects)} subject(s), {len(recs)} recording(s)"))
-    return {"deleted": "project", "id": pid, "recordings_deleted": n}
+    return {"deleted": "project", "id": pid, "recordings_deleted": len(plan),
+            "node_copies": await node_copies(hub, plan)}

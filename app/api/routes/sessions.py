@@ -26,6 +26,7 @@ from app.api.routes._data import (
     get_session,
     get_subject,
     layout_of,
+    node_copies,
     purge,
     recording_json,
     session_json,
@@ -112,10 +113,11 @@ async def delete_session(sid: int, body: Confirm, request: Request, user: Curren
     s = get_session(db, sid)
     check_confirm(s.subject.code, body.confirm,
                   f"this session of {s.subject.code} and its recordings")
-    n = await delete_rows(db, hub, layout_of(request), list(s.recordings), s, audit_event(
+    plan = await delete_rows(db, hub, layout_of(request), list(s.recordings), s, audit_event(
         request, user, "delete", f"session {sid}",
         f"subject {s.subject_id}; {len(s.recordings)} recording(s)"))
-    return {"deleted": "session", "id": sid, "recordings_deleted": n}
+    return {"deleted": "session", "id": sid, "recordings_deleted": len(plan),
+            "node_copies": await node_copies(hub, plan)}
 
 
 @router.post("/{sid}/recordings", status_code=201)

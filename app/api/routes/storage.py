@@ -7,7 +7,6 @@ after stop, retries, database mirror of every recording's state).
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -26,8 +25,8 @@ from app.api.routes._data import (
     delete_unfiled,
     get_recording,
     layout_of,
+    node_copies,
     recording_json,
-    recording_nodes,
     resume_deletions,
     subject_bytes,
 )
@@ -35,8 +34,6 @@ from app.db import data as m
 from app.server.datasync import DataSync
 from app.server.storage import StorageLayout
 from engine.errors import InputError
-
-NODE_DELETE_WAIT_S = 5.0
 
 
 @asynccontextmanager
@@ -110,14 +107,9 @@ async def delete_recording(rec_id: str, body: Confirm, request: Request, user: C
     reconnects). ``node_copies`` says, per node, whether its copy is gone yet."""
     r = get_recording(db, rec_id)
     check_confirm(r.session.subject.code, body.confirm, f"recording {rec_id}")
-    nodes = recording_nodes(hub, r)
-    await delete_rows(db, hub, layout_of(request), [r], entry=audit_event(
+    plan = await delete_rows(db, hub, layout_of(request), [r], entry=audit_event(
         request, user, "delete", f"recording {rec_id}", f"session {r.session_id}"))
-    started = hub.transfers.flush_deletions()
-    if started:  # wait briefly so the answer can say the node copies are gone
-        await asyncio.wait(started, timeout=NODE_DELETE_WAIT_S)
-    return {"deleted": "recording", "id": rec_id,
-            "node_copies": hub.transfers.deletion_status(rec_id, nodes)}
+    return {"deleted": "recording", "id": rec_id, "node_copies": await node_copies(hub, plan)}
 
 
 @router.post("/unfiled/{rec_id}/delete")
@@ -128,11 +120,8 @@ async def delete_unfiled_recording(rec_id: str, body: ConfirmId, request: Reques
     check_confirm(rec_id, body.confirm, f"recording {rec_id}")
     nodes = await delete_unfiled(db, hub, layout_of(request), rec_id, audit_event(
         request, user, "delete", f"recording {rec_id}", "not filed under a session"))
-    started = hub.transfers.flush_deletions()
-    if started:
-        await asyncio.wait(started, timeout=NODE_DELETE_WAIT_S)
     return {"deleted": "recording", "id": rec_id,
-            "node_copies": hub.transfers.deletion_status(rec_id, nodes)}
+            "node_copies": await node_copies(hub, {rec_id: nodes})}
 
 
 @router.get("/unfiled")

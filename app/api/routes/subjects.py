@@ -25,6 +25,7 @@ from app.api.routes._data import (
     get_project,
     get_subject,
     layout_of,
+    node_copies,
     purge,
     subject_json,
     subject_version,
@@ -173,7 +174,8 @@ async def delete_subject(sid: int, body: Confirm, request: Request, user: Curren
     check_confirm(s.code, body.confirm, f"subject {s.code} and all its recordings")
     recs = [r for x in s.sessions for r in x.recordings]
     # the trail names the subject by its id only: it must not keep a deleted pseudonym
-    n = await delete_rows(db, hub, layout_of(request), recs, s, audit_event(
+    plan = await delete_rows(db, hub, layout_of(request), recs, s, audit_event(
         request, user, "delete", f"subject {sid}",
         f"project {s.project_id}; {len(s.sessions)} session(s), {len(recs)} recording(s)"))
-    return {"deleted": "subject", "id": sid, "recordings_deleted": n}
+    return {"deleted": "subject", "id": sid, "recordings_deleted": len(plan),
+            "node_copies": await node_copies(hub, plan)}

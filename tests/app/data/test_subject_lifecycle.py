@@ -110,6 +110,7 @@ def test_deleting_a_subject_leaves_no_trace(make_rig: Any, tmp_path: Path) -> No
 
     r = rig.api(f"/api/subjects/{subj['id']}/delete", {"confirm": CODE})
     assert r["recordings_deleted"] == 2, r
+    assert r["node_copies"] == {"S1": "deleted", "S2": "deleted"}, r
     wait_for(lambda: rig.api("/api/storage")["pending_node_deletions"] == {}, 30,
              "the nodes to delete their copies")
     code, _ = http_error(lambda: rig.api(f"/api/subjects/{subj['id']}"))
