@@ -386,9 +386,22 @@ class GaitAnalysis:
         self.steps_ = steps
         self.strides_ = strides
         if len(steps) < 2:
+            # Say how much walking was seen: a long walk of which the sensors saw only a
+            # short stretch (one sensor pair covers ≈ 3.5 m) needs more coverage, not a
+            # longer walk.
+            seen = [(0.0, 0.0)]
+            for p in self.passes_:
+                c = centre[(t >= p.t_start) & (t <= p.t_end)]
+                c = c[np.isfinite(c).all(axis=1)]
+                if len(c) >= 2:
+                    seen.append((float(np.linalg.norm(c[-1, :2] - c[0, :2])),
+                                 p.t_end - p.t_start))
+            longest_m, longest_s = max(seen)
             raise InsufficientDataError(
                 f"only {len(steps)} step(s) found in {len(self.passes_)} pass(es); at least "
-                "two steps are needed — record a longer walk"
+                f"two steps are needed. The longest stretch of straight walking seen was "
+                f"{longest_m:.1f} m ({longest_s:.1f} s): record a longer walk, or, if the "
+                "subject walked farther, place or add sensors to cover more of the walkway"
             )
         self.summary_ = self._summary()
         return self

@@ -101,8 +101,13 @@ def test_back_and_forth_passes_and_turns() -> None:
 def test_fewer_than_two_steps_is_a_clear_error() -> None:
     w = synth_walk(n_steps=2)
     m = walk_markers(w)
-    with pytest.raises(InsufficientDataError, match="step"):
+    with pytest.raises(InsufficientDataError, match="step") as err:
         GaitAnalysis("crossing").fit(feet_from_markers(m))
+    # it says how much walking was seen (a long walk seen over a short stretch needs
+    # more sensor coverage, not a longer walk)
+    seen = float(str(err.value).split("seen was ")[1].split(" m")[0])
+    assert 0.5 <= seen <= 2 * 0.7 + 0.3, str(err.value)
+    assert "cover more of the walkway" in str(err.value)
 
 
 def test_standing_still_is_a_clear_error() -> None:
