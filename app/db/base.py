@@ -7,6 +7,7 @@ the tables that do not exist yet. Schema changes of later releases go through al
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +54,7 @@ def make_engine(location: Path | str) -> Engine:
     return engine
 
 
-def purge_deleted(engine: Engine) -> bool:
+def purge_deleted(engine: Engine, attempts: int = 10, wait_s: float = 0.3) -> bool:
     """Make deleted rows unrecoverable from the database files, after a deletion commits.
 
     With ``secure_delete`` SQLite zeroes deleted content in the pages it writes, but the
@@ -61,15 +62,29 @@ def purge_deleted(engine: Engine) -> bool:
     of the deleted rows) until it is checkpointed and truncated. Other databases keep dead
     rows until their own vacuum; nothing is done for them here.
 
+    A checkpoint that waits for readers holds off every writer meanwhile (the data sync
+    writes from the event loop), so each try waits at most 0.2 s; between tries nothing
+    is held.
+
     Returns:
-        True when the log was emptied (or the database is not SQLite); False when a reader
-        kept it busy (the next deletion or the automatic checkpoint catches up).
+        True when the log was emptied (or the database is not SQLite); False when readers
+        kept it busy for every try (the next deletion or edit catches up).
     """
     if engine.dialect.name != "sqlite":
         return True
-    with engine.connect() as conn:
-        row = conn.exec_driver_sql("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
-    return row is not None and row[0] == 0
+    for k in range(attempts):
+        if k:
+            time.sleep(wait_s)
+        with engine.connect() as conn:
+            before = conn.exec_driver_sql("PRAGMA busy_timeout").scalar()
+            conn.exec_driver_sql("PRAGMA busy_timeout=200")
+            try:
+                row = conn.exec_driver_sql("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
+            finally:
+                conn.exec_driver_sql(f"PRAGMA busy_timeout={int(before or 0)}")
+        if row is not None and row[0] == 0:
+            return True
+    return False
 
 
 def make_session_factory(engine: Engine) -> sessionmaker[Any]:

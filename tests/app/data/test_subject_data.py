@@ -339,3 +339,34 @@ def test_a_recording_filed_under_no_session_can_be_deleted(client: TestClient,
     r = client.post("/api/storage/unfiled/R1/delete", json={"confirm": "R1"})
     assert r.status_code == 409 and "filed under a session" in r.json()["detail"]
 
+
+
+def test_purge_gives_way_to_readers(tmp_path: Path) -> None:
+    """A reader in the middle of a long request (a report) keeps the log busy: the purge
+    gives up after its tries instead of holding every writer off; once the reader is
+    done, the deleted row is gone from every file."""
+    import sqlite3
+
+    import sqlalchemy as sa
+
+    from app.db.base import make_engine, purge_deleted
+
+    eng = make_engine(tmp_path / "g.sqlite3")
+    with eng.begin() as c:
+        c.execute(sa.text("insert into projects (name, description, created_at) "
+                          "values ('Jane Roe-Wqxv', '', '2026-01-01')"))
+    reader = sqlite3.connect(tmp_path / "g.sqlite3")
+    reader.execute("begin")
+    reader.execute("select * from projects").fetchall()  # holds a snapshot
+    with eng.begin() as c:
+        c.execute(sa.text("delete from projects"))
+    assert purge_deleted(eng, attempts=2, wait_s=0.0) is False
+    with eng.begin() as c:  # writers were not locked out
+        c.execute(sa.text("insert into projects (name, description, created_at) "
+                          "values ('other', '', '2026-01-01')"))
+    reader.rollback()
+    reader.close()
+    assert purge_deleted(eng) is True
+    eng.dispose()
+    for f in tmp_path.glob("g.sqlite3*"):
+        assert b"Jane Roe-Wqxv" not in f.read_bytes(), f.name
