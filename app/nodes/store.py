@@ -5,6 +5,7 @@ Layout under the node's data folder::
     recordings/<rec_id>/meta.json    # PartInfo + recording parameters (atomic rewrite)
     recordings/<rec_id>/frames.bin   # records: uint32 length, uint32 crc32, payload
     recordings/<rec_id>/index.json   # [[t_local, byte_offset, kind], ...] written on close
+    recordings/<rec_id>/verified.json  # the server holds a verified copy (not transferred)
 
 Each payload is one binary protocol message (:func:`app.nodes.protocol.encode_binary`),
 so a part replays exactly what was streamed. Records are flushed to the OS after every
@@ -12,6 +13,15 @@ write (survives ``kill -9``) and ``fsync``-ed at least every ``fsync_interval_s`
 power loss up to that interval). On open, :meth:`NodeStore.recover` scans parts that
 were never closed, truncates a torn or corrupt tail, rebuilds the index and marks the
 part ``incomplete`` with the reason.
+
+Retention: a node's disk would fill within weeks of clinic use if it kept every part for
+ever. Once the server has verified its copy of a part (every chunk and file checked
+against the node's manifest) it tells the node, which notes it in ``verified.json``
+(:meth:`NodeStore.mark_verified`; outside the manifest, so the part's files are not
+changed). :meth:`NodeStore.purge` then deletes verified parts by a
+:class:`RetentionPolicy`: after ``keep_verified_s``, and, whenever the free space is below
+the policy's floor, the oldest verified parts first. A part without ``verified.json`` is
+never purged: it may be the only copy.
 """
 
 from __future__ import annotations
@@ -25,7 +35,8 @@ import shutil
 import struct
 import time
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Collection, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +51,7 @@ _REC = struct.Struct("<II")
 _IDX = struct.Struct("<dqB")  # an index entry in the spool: t_local, offset, kind code
 _IDX_DTYPE = np.dtype([("t", "<f8"), ("offset", "<i8"), ("kind", "u1")])
 SPOOL = "index.spool"  # the index of an open part (index.json once it is closed)
+VERIFIED = "verified.json"  # written when the server confirms its verified copy
 MAX_RECORD = 64 * 1024 * 1024
 _ID_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
@@ -217,6 +229,54 @@ class PartWriter:
         return self.info()
 
 
+@dataclass(frozen=True)
+class RetentionPolicy:
+    """When a node deletes its copies of parts the server holds verified.
+
+    Args:
+        keep_verified_s: keep a verified part this long after its verification
+            (0: delete it as soon as it is verified).
+        min_free_bytes: below this much free space, delete verified parts, oldest
+            recording first, until there is this much again.
+        min_free_fraction: the same floor as a share of the disk's size; the larger of
+            the two applies.
+    """
+
+    keep_verified_s: float = 7 * 86400.0
+    min_free_bytes: int = 5 * 1024**3
+    min_free_fraction: float = 0.10
+
+    def floor(self, total_bytes: int) -> int:
+        """Free bytes to keep on a disk of ``total_bytes``."""
+        return max(int(self.min_free_bytes), int(self.min_free_fraction * total_bytes))
+
+
+@dataclass(frozen=True)
+class Purged:
+    """One part deleted by :meth:`NodeStore.purge`."""
+
+    rec_id: str
+    bytes: int
+    why: str
+
+
+@dataclass(frozen=True)
+class StorageUsage:
+    """What a node's recordings folder holds (bytes of the part folders)."""
+
+    held_bytes: int = 0
+    held_parts: int = 0
+    verified_bytes: int = 0
+    verified_parts: int = 0
+    purgeable_bytes: int = 0  # verified and not in use: deleted first when space is short
+    unverified_bytes: int = 0  # closed parts the server has not verified: the only copy
+    unverified_parts: int = 0
+    unverified: tuple[str, ...] = ()  # ids of those, newest first
+
+
+FreeSpaceFn = Callable[[], tuple[int, int]]  # () -> (free bytes, total bytes)
+
+
 class NodeStore:
     """A node's recordings folder.
 
@@ -333,6 +393,151 @@ class NodeStore:
     def disk_free(self) -> int:
         """Free bytes on the store's file system."""
         return shutil.disk_usage(self.root).free
+
+    def disk_space(self) -> tuple[int, int]:
+        """``(free, total)`` bytes of the store's file system."""
+        du = shutil.disk_usage(self.root)
+        return du.free, du.total
+
+    # ------------------------------------------------------------------ retention
+
+    def mark_verified(self, rec_id: str, manifest_sha256: str, at: float | None = None) -> bool:
+        """Note that the server holds a verified copy of a part (persisted, so a restart
+        of the node does not forget it).
+
+        Returns:
+            False when the part is not on this node (already purged or deleted).
+
+        Raises:
+            InputError: the part is still being recorded (it cannot have been verified).
+            OSError: ``verified.json`` could not be written.
+        """
+        folder = self.root / _check_id(rec_id)
+        meta = self._meta(folder)
+        if meta is None:
+            return False
+        if meta.get("state") == "recording":
+            raise InputError(f"recording {rec_id} is still open on this node; the server "
+                             "cannot hold a verified copy of it")
+        _atomic_write_json(folder / VERIFIED, {
+            "manifest_sha256": manifest_sha256,
+            "verified_at": time.time() if at is None else float(at)})
+        return True
+
+    def verified_at(self, rec_id: str) -> float | None:
+        """When the server confirmed its verified copy of a part; None if it has not."""
+        return _verified_at(self.root / _check_id(rec_id))
+
+    def _closed_parts(self) -> list[tuple[Path, dict[str, Any], int, float | None]]:
+        """``(folder, meta, bytes, verified_at)`` of every part not being recorded."""
+        out = []
+        for folder in sorted(p for p in self.root.iterdir() if p.is_dir()):
+            meta = self._meta(folder)
+            if meta is None or meta.get("state") == "recording":
+                continue
+            out.append((folder, meta, _dir_bytes(folder), _verified_at(folder)))
+        return out
+
+    def usage(self, exclude: Collection[str] = ()) -> StorageUsage:
+        """Bytes held, verified (and purgeable) and unverified; ``exclude``: ids of parts
+        in use (recorded or served), never counted as purgeable."""
+        held = held_n = ver = ver_n = purgeable = unver = 0
+        unverified: list[str] = []
+        for folder in sorted(p for p in self.root.iterdir() if p.is_dir()):
+            size = _dir_bytes(folder)
+            held, held_n = held + size, held_n + 1
+            meta = self._meta(folder)
+            if meta is None or meta.get("state") == "recording":
+                continue
+            if _verified_at(folder) is not None:
+                ver, ver_n = ver + size, ver_n + 1
+                purgeable += 0 if folder.name in exclude else size
+            else:
+                unver += size
+                if meta.get("n_frames"):  # a part of no frame is never transferred
+                    unverified.append(folder.name)
+        return StorageUsage(held, held_n, ver, ver_n, purgeable, unver, len(unverified),
+                            tuple(reversed(unverified)))
+
+    def purge(self, policy: RetentionPolicy, *, now: float | None = None,
+              free_space: FreeSpaceFn | None = None,
+              exclude: Collection[str] = ()) -> list[Purged]:
+        """Delete verified parts by ``policy``; never an unverified one (the only copy).
+
+        First every part verified at least ``policy.keep_verified_s`` ago; then, while the
+        free space is below ``policy.floor``, the remaining verified parts, oldest
+        recording first. Each deletion is logged.
+
+        Args:
+            policy: the retention policy.
+            now: the current time (default ``time.time()``).
+            free_space: ``() -> (free, total)`` bytes (default: the store's disk).
+            exclude: ids of parts in use (recorded or being sent), left alone.
+
+        Returns:
+            The parts deleted, in order.
+        """
+        now = time.time() if now is None else now
+        space = free_space or self.disk_space
+        verified = [(f, meta, size, at) for f, meta, size, at in self._closed_parts()
+                    if at is not None and f.name not in exclude]
+        # oldest recording first (its creation on the node; ids sort by start time too)
+        verified.sort(key=lambda x: (float(x[1].get("created") or x[3] or 0.0), x[0].name))
+        out: list[Purged] = []
+        keep_days = policy.keep_verified_s / 86400.0
+        rest = []
+        for folder, _meta, size, at in verified:
+            assert at is not None
+            if now - at >= policy.keep_verified_s:
+                why = (f"verified on the server {(now - at) / 86400.0:.1f} days ago "
+                       f"(copies are kept {keep_days:g} days)" if policy.keep_verified_s > 0
+                       else "verified on the server (copies are not kept)")
+                if self._purge_one(folder, size, why, out):
+                    continue
+            rest.append((folder, size))
+        free, total = space()
+        floor = policy.floor(total)
+        for folder, size in rest:
+            if free >= floor:
+                break
+            why = (f"only {free / 1024**3:.2f} GB free (floor {floor / 1024**3:.2f} GB); "
+                   "the oldest verified copies go first")
+            if self._purge_one(folder, size, why, out):
+                free, total = space()
+        return out
+
+    def _purge_one(self, folder: Path, size: int, why: str, out: list[Purged]) -> bool:
+        if _verified_at(folder) is None:  # re-checked: an unverified part is never deleted
+            return False
+        try:
+            shutil.rmtree(folder)
+        except FileNotFoundError:
+            return False  # deleted meanwhile (the server deleted the recording)
+        except OSError as exc:
+            log.error("could not purge recording %s (%s); it stays on this node",
+                      folder.name, exc)
+            return False
+        log.info("purged recording %s from this node (%.1f MB): %s", folder.name,
+                 size / 1e6, why)
+        out.append(Purged(folder.name, size, why))
+        return True
+
+
+def _verified_at(folder: Path) -> float | None:
+    try:
+        obj = json.loads((folder / VERIFIED).read_text())
+        return float(obj["verified_at"])
+    except (OSError, ValueError, TypeError, KeyError):
+        return None
+
+
+def _dir_bytes(folder: Path) -> int:
+    total = 0
+    for p in folder.rglob("*"):
+        with contextlib.suppress(OSError):
+            if p.is_file():
+                total += p.stat().st_size
+    return total
 
 
 def _write_all(f: Any, data: bytes) -> None:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from app.nodes.protocol import decode_skeletons, encode_skeletons
-from app.nodes.store import NodeStore
+from app.nodes.store import NodeStore, RetentionPolicy
 from engine.errors import InputError
 
 
@@ -131,3 +131,105 @@ def test_recover_on_a_full_disk(tmp_path: Path) -> None:
         assert len(list(NodeStore(mnt).read("R6"))) == 200
     finally:
         subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+# ---------------------------------------------------------------------- retention
+
+DAY = 86400.0
+
+
+class _Disk:
+    """A fake disk of ``total`` bytes whose free space is what the store's parts leave."""
+
+    def __init__(self, store: NodeStore, total: int, other: int = 0) -> None:
+        self.store, self.total, self.other = store, total, other
+
+    def __call__(self) -> tuple[int, int]:
+        return self.total - self.other - self.store.usage().held_bytes, self.total
+
+
+def _closed(store: NodeStore, rec_id: str, n: int = 30, created: float = 0.0) -> int:
+    w = store.create_part(rec_id, t_start_local=0.0)
+    w.meta["created"] = created
+    for k in range(n):
+        pos = np.full((1, 25, 3), k, np.float32)
+        w.append(k / 30.0, "skeleton", encode_skeletons(k, k / 30.0, pos, np.full((1, 25), 2)))
+    w.close("on_node")
+    return sum(p.stat().st_size for p in (store.root / rec_id).iterdir())
+
+
+def test_verified_parts_are_purged_after_the_keep_days(tmp_path: Path) -> None:
+    store = NodeStore(tmp_path)
+    for k, rec in enumerate(["R1", "R2", "R3"]):
+        _closed(store, rec, created=k)
+    store.mark_verified("R1", "a" * 64, at=0 * DAY)
+    store.mark_verified("R2", "b" * 64, at=5 * DAY)
+    policy = RetentionPolicy(keep_verified_s=7 * DAY, min_free_bytes=0, min_free_fraction=0)
+    plenty = _Disk(store, 10**9)
+    assert store.purge(policy, now=6.9 * DAY, free_space=plenty) == []
+    gone = store.purge(policy, now=7.0 * DAY, free_space=plenty)
+    assert [p.rec_id for p in gone] == ["R1"] and "7.0 days ago" in gone[0].why
+    assert [p.rec_id for p in store.parts()] == ["R2", "R3"]
+    # R3 is not verified: never purged, however old
+    gone = store.purge(policy, now=100 * DAY, free_space=plenty)
+    assert [p.rec_id for p in gone] == ["R2"]
+    assert [p.rec_id for p in store.parts()] == ["R3"]
+    assert NodeStore(tmp_path).verified_at("R3") is None
+
+
+def test_keep_zero_days_purges_as_soon_as_verified(tmp_path: Path) -> None:
+    store = NodeStore(tmp_path)
+    _closed(store, "R1")
+    policy = RetentionPolicy(keep_verified_s=0, min_free_bytes=0, min_free_fraction=0)
+    assert store.purge(policy, now=1.0, free_space=_Disk(store, 10**9)) == []
+    # the mark survives a restart of the node (a new store on the same folder)
+    assert store.mark_verified("R1", "a" * 64, at=1.0)
+    gone = NodeStore(tmp_path).purge(policy, now=1.0, free_space=_Disk(store, 10**9))
+    assert [p.rec_id for p in gone] == ["R1"] and "not kept" in gone[0].why
+    assert not (tmp_path / "R1").exists()
+    assert not store.mark_verified("R1", "a" * 64)  # gone: nothing to mark
+
+
+def test_low_space_purges_oldest_verified_first_and_never_an_unverified_part(
+        tmp_path: Path) -> None:
+    store = NodeStore(tmp_path)
+    sizes = {rec: _closed(store, rec, created=c) for rec, c in
+             [("R3", 1.0), ("R1", 3.0), ("R2", 2.0), ("R4", 4.0), ("R5", 0.0)]}
+    for rec in ("R1", "R2", "R3", "R4"):  # R5, the oldest, is not verified
+        store.mark_verified(rec, "c" * 64, at=10.0)
+    held = sum(sizes.values())
+    # free space 1.5 parts short of the floor: the two oldest verified parts go
+    size = sizes["R1"]
+    disk = _Disk(store, total=held + 10 * size, other=10 * size - size // 2)
+    policy = RetentionPolicy(keep_verified_s=7 * DAY, min_free_bytes=2 * size,
+                             min_free_fraction=0)
+    gone = store.purge(policy, now=11.0, free_space=disk)
+    assert [p.rec_id for p in gone] == ["R3", "R2"]
+    assert "floor" in gone[0].why
+    assert disk()[0] >= policy.floor(disk.total)
+    # a disk too full for any policy: every verified part goes, R5 stays (the only copy)
+    disk.other = disk.total
+    gone = store.purge(policy, now=11.0, free_space=disk, exclude={"R4"})
+    assert [p.rec_id for p in gone] == ["R1"]  # R4 is in use (exclude)
+    assert {p.rec_id for p in store.parts()} == {"R4", "R5"}
+    use = store.usage()
+    assert use.unverified == ("R5",) and use.unverified_bytes == sizes["R5"]
+    r4 = sizes["R4"] + (tmp_path / "R4" / "verified.json").stat().st_size
+    assert use.verified_parts == 1 and use.purgeable_bytes == r4
+    assert store.usage(exclude={"R4"}).purgeable_bytes == 0
+
+
+def test_floor_is_the_larger_of_bytes_and_share() -> None:
+    p = RetentionPolicy(min_free_bytes=5 * 1024**3, min_free_fraction=0.10)
+    assert p.floor(20 * 1024**3) == 5 * 1024**3
+    assert p.floor(200 * 1024**3) == 20 * 1024**3
+
+
+def test_an_open_part_cannot_be_marked_verified(tmp_path: Path) -> None:
+    store = NodeStore(tmp_path)
+    store.create_part("R1", t_start_local=0.0)
+    with pytest.raises(InputError, match="still open"):
+        store.mark_verified("R1", "a" * 64)
+    policy = RetentionPolicy(keep_verified_s=0, min_free_bytes=10**18, min_free_fraction=1)
+    assert store.purge(policy, free_space=lambda: (0, 1)) == []
+    assert store.usage().held_parts == 1 and store.usage().unverified == ()
