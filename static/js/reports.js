@@ -308,7 +308,9 @@
     const code = $("file-subject").value.trim() || "upload";
     const fd = new FormData();
     fd.append("file", f);
-    const q = new URLSearchParams({ format, subject: code, method: $("file-method").value });
+    // the code goes in the form: a URL is kept in access logs and browser history
+    fd.append("subject", code);
+    const q = new URLSearchParams({ format, method: $("file-method").value });
     if (format === "pdf") {
       // multipart POST: fetch, then hand the blob to the browser
       say("file-msg", `Analysing ${f.name}…`);

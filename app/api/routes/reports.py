@@ -14,7 +14,8 @@ Routes (all under ``/api/reports``, login required):
   or skeleton CSV) for the agreement section;
 * ``GET  /subjects/{subject_id}`` — report of a subject from all its complete recordings,
   or of one session (``session_id``);
-* ``POST /upload`` — report of an uploaded C3D/TRC/CSV file (research engineers).
+* ``POST /upload`` — report of an uploaded C3D/TRC/CSV file (research engineers); the
+  subject code printed on it is a form field (never in the URL).
 
 Heavy work (fusion, gait, PDF) runs in FastAPI's thread pool (plain ``def`` routes).
 """
@@ -28,10 +29,10 @@ import re
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, HTTPException, Query, Request, UploadFile, status
+from fastapi import APIRouter, Form, HTTPException, Query, Request, UploadFile, status
 from fastapi.responses import HTMLResponse, Response
 from sqlalchemy import select
 
@@ -242,6 +243,19 @@ def _side_groups(sensors: dict[str, list[float]]) -> dict[str, str]:
     sign = 1.0 if across[0] >= 0 else -1.0
     return {i: ("" if abs(a) <= tol else "A" if sign * a > 0 else "B")
             for i, a in zip(ids, across, strict=True)}
+
+
+#: Query parameters that would put a subject's identity into a URL (access logs,
+#: browser history, proxies): refused, the form or body carries them.
+_IDENTIFIER_PARAMS = ("subject", "subject_code", "code", "name")
+
+
+def _no_identifier_in_url(request: Request) -> None:
+    given = [k for k in _IDENTIFIER_PARAMS if k in request.query_params]
+    if given:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                            f"send {given[0]!r} as a form field, not in the URL: a URL is kept "
+                            "in access logs and browser history")
 
 
 # ---------------------------------------------------------------------------- routes
@@ -460,14 +474,21 @@ def delete_reference(rec_id: str, user: CurrentUser, settings: SettingsDep) -> d
 @router.post("/upload", response_model=None,
              max_body_size=MAX_UPLOAD_BYTES + _MULTIPART_OVERHEAD)
 async def upload_report(request: Request, file: UploadFile, user: CurrentUser,
+                        subject: Annotated[str, Form(min_length=1, max_length=40, description=(
+                            "subject code printed on the report (a form field: a URL is "
+                            "kept in access logs and browser history)"))] = "upload",
                         format: Fmt = "html",
-                        subject: str = Query("upload", min_length=1, max_length=40),
                         method: MethodQ = "crossing",
                         left: str | None = Query(None, max_length=64),
                         right: str | None = Query(None, max_length=64),
                         up: Literal["x", "y", "z", "-x", "-y", "-z"] | None = None) -> Response:
-    """Report of an uploaded C3D/TRC/skeleton-CSV file (kept only while analysed)."""
+    """Report of an uploaded C3D/TRC/skeleton-CSV file (kept only while analysed).
+
+    The subject code comes in the multipart form, never in the URL.
+    """
     import anyio
+
+    _no_identifier_in_url(request)
 
     with tempfile.TemporaryDirectory(prefix="gaitrig-upload-") as tmp:
         path = await _save_upload(request, file, Path(tmp))

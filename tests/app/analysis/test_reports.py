@@ -329,7 +329,8 @@ def test_uploaded_file_report(recorded: Recorded, tmp_path: Path) -> None:
     write_skeleton_csv(f, SkeletonSeries(w.times, P, np.full(P.shape[:2], 2, np.uint8),
                                          KINECT_V2))
     h = {"Authorization": f"Bearer {recorded.token}"}
-    r = httpx.post(f"{recorded.base}/api/reports/upload?subject=P07&format=html", headers=h,
+    r = httpx.post(f"{recorded.base}/api/reports/upload?format=html", headers=h,
+                   data={"subject": "P07"},
                    files={"file": ("walk.csv", f.read_bytes(), "text/csv")}, timeout=60)
     assert r.status_code == 200, r.text
     assert "P07" in r.text and "Step length" in r.text
