@@ -107,6 +107,26 @@ class Settings(BaseSettings):
         "moved > 1 cm / 0.5°. 0 disables the periodic check.",
     )
 
+    node_keep_verified_days: float = Field(
+        default=7.0, ge=0,
+        description="Node retention: a node keeps its copy of a recording part this many "
+        "days after the server verified its own copy, then deletes it (0: at once). A part "
+        "the server has not verified is never deleted. Environment: "
+        "GAITRIG_NODE_KEEP_VERIFIED_DAYS.",
+    )
+    node_min_free_gb: float = Field(
+        default=5.0, ge=0,
+        description="Node retention: whenever a node's disk has less free space than this "
+        "(or than node_min_free_percent of the disk, whichever is larger), it deletes "
+        "verified parts, oldest first, before their days are up. Environment: "
+        "GAITRIG_NODE_MIN_FREE_GB.",
+    )
+    node_min_free_percent: float = Field(
+        default=10.0, ge=0, le=100,
+        description="Node retention: the free-space floor as a share of the node's disk "
+        "(see node_min_free_gb). Environment: GAITRIG_NODE_MIN_FREE_PERCENT.",
+    )
+
     test_command_delay_max_s: float = Field(
         default=0.0,
         ge=0,

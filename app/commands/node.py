@@ -72,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from app.config import Settings
     from app.nodes.agent import NodeAgent, NodeRefusedError
     from app.nodes.backends.base import Backend
+    from app.nodes.store import RetentionPolicy
     from engine.errors import GaitrigError
 
     logging.basicConfig(level=args.log_level.upper(),
@@ -84,9 +85,12 @@ def run(args: argparse.Namespace) -> int:
         return 2
     assert isinstance(backend, Backend)
     data_dir = args.data_dir or settings.data_dir / "nodes" / args.id
+    retention = RetentionPolicy(keep_verified_s=settings.node_keep_verified_days * 86400.0,
+                                min_free_bytes=int(settings.node_min_free_gb * 1024**3),
+                                min_free_fraction=settings.node_min_free_percent / 100.0)
     agent = NodeAgent(args.id, backend, server_url(args.server), args.token or settings.node_token,
                       data_dir, ring_seconds=args.ring_seconds,
-                      report_true_clock=args.report_true_clock)
+                      report_true_clock=args.report_true_clock, retention=retention)
 
     async def main() -> None:
         loop = asyncio.get_running_loop()

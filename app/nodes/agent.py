@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import hashlib
 import logging
 import os
 import socket
@@ -24,7 +25,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -45,7 +46,9 @@ from app.nodes.protocol import (
     Hello,
     ManifestRequest,
     NodeError,
+    NodeStorage,
     PartInfo,
+    PartVerified,
     Ping,
     Pong,
     ProtocolError,
@@ -67,7 +70,7 @@ from app.nodes.protocol import (
     parse_server_message,
 )
 from app.nodes.ringbuffer import RingBuffer
-from app.nodes.store import NodeStore, PartWriter
+from app.nodes.store import NodeStore, PartWriter, Purged, RetentionPolicy, StorageUsage
 from app.transfer import (
     DEFAULT_CHUNK_SIZE,
     Manifest,
@@ -91,6 +94,9 @@ MAX_IMAGE_BACKLOG = 30
 # step (NTP setting the system clock), not drift (≤ 0.1 ms/s) or a slow read (bounded below)
 CLOCK_STEP_MIN_S = 0.02
 _CLOCK_READ_MAX_S = 0.002  # a read of both clocks slower than this is not compared
+RETENTION_CHECK_S = 10.0  # free space checked this often (a purge runs when it is short)
+RETENTION_FULL_S = 300.0  # a purge by age at least this often
+LOW_SPACE_WARN_S = 600.0  # "below the floor and nothing to purge" at most this often
 
 
 _cut: set[tuple[str, int]] = set()
@@ -186,6 +192,8 @@ class NodeAgent:
         data_dir: node folder; recordings go to ``data_dir/recordings``.
         ring_seconds: ring buffer length.
         report_true_clock: send the backend's test-only truths in ``status.diag``.
+        retention: when to delete parts the server holds verified (default
+            :class:`RetentionPolicy`: 7 days, floor 5 GB or 10 % of the disk).
     """
 
     def __init__(
@@ -198,6 +206,7 @@ class NodeAgent:
         *,
         ring_seconds: float = 2.0,
         report_true_clock: bool = False,
+        retention: RetentionPolicy | None = None,
     ) -> None:
         self.node_id = node_id
         self.backend = backend
@@ -240,6 +249,16 @@ class NodeAgent:
         self._clock_base: float | None = None  # backend clock - monotonic, last read
         self._last_step: tuple[float, float] | None = None  # (monotonic, corr before it)
         self._frame_age = 0.0  # typical age of a frame when it is handled (s)
+        # Retention of verified parts (:meth:`_purge`)
+        self.retention = retention or RetentionPolicy()
+        self._usage: StorageUsage | None = None
+        self._serving: dict[str, int] = {}  # parts being sent to the server: never purged
+        self._purging = False
+        self._purge_again = False
+        self.purged_parts = 0
+        self.purged_bytes = 0
+        self._last_purge: str | None = None
+        self._low_space_warned = -float("inf")
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -254,9 +273,11 @@ class NodeAgent:
         self.started = self.now()
         capture = threading.Thread(target=self._capture, name="capture", daemon=True)
         capture.start()
+        retention = asyncio.create_task(self._retention_loop())
         try:
             await self._connect_forever()
         finally:
+            retention.cancel()
             self.backend.close()
             await asyncio.to_thread(capture.join, 5.0)
             for rec in list(self._recs.values()):
@@ -432,6 +453,8 @@ class NodeAgent:
                 self._spawn(self._serve_chunks(ws, msg))
             elif isinstance(msg, DeletePart):
                 self._spawn(self._serve_delete(ws, msg))
+            elif isinstance(msg, PartVerified):
+                self._spawn(self._on_verified(msg))
             elif isinstance(msg, ServerError):
                 log.warning("server reported: %s", msg.reason)
             elif isinstance(msg, Refused):
@@ -481,7 +504,22 @@ class NodeAgent:
         except (GaitrigError, TransferError, OSError) as exc:
             await ws.send(encode_binary({**header, "error": str(exc)}))
 
+    @contextlib.contextmanager
+    def _in_use(self, rec_id: str) -> Iterator[None]:
+        """Mark a part as being sent to the server: a purge leaves it alone."""
+        self._serving[rec_id] = self._serving.get(rec_id, 0) + 1
+        try:
+            yield
+        finally:
+            self._serving[rec_id] -= 1
+            if not self._serving[rec_id]:
+                del self._serving[rec_id]
+
     async def _serve_chunks(self, ws: ClientConnection, msg: ChunkRequest) -> None:
+        with self._in_use(msg.rec_id):
+            await self._send_chunks(ws, msg)
+
+    async def _send_chunks(self, ws: ClientConnection, msg: ChunkRequest) -> None:
         folder = self.store.root / msg.rec_id
         for idx in msg.indices:
             header: dict[str, Any] = {"kind": "chunk", "req_id": msg.req_id,
@@ -520,6 +558,11 @@ class NodeAgent:
             await ws.send(encode_binary({**header, "error": f"{self.node_id}: {exc}"}))
             return
         manifest = m
+        with self._in_use(msg.rec_id):
+            await self._run_data_channel(sock, msg.rec_id, manifest)
+
+    async def _run_data_channel(self, sock: socket.socket, rec_id: str, manifest: Manifest
+                                ) -> None:
         self._channels.add(sock)
         # The sending threads take the GIL back after every chunk's sendfile; with the
         # default 5 ms switch interval the busy capture loop can make them wait that long
@@ -528,10 +571,10 @@ class NodeAgent:
             self._switch_interval = sys.getswitchinterval()
             sys.setswitchinterval(CHANNEL_SWITCH_INTERVAL_S)
         try:
-            await asyncio.to_thread(serve_channel, sock, self.store.root / msg.rec_id,
+            await asyncio.to_thread(serve_channel, sock, self.store.root / rec_id,
                                     lambda: manifest, _test_channel_hook)
         except (GaitrigError, TransferError, OSError) as exc:
-            log.info("data channel of %s closed: %s", msg.rec_id, exc)
+            log.info("data channel of %s closed: %s", rec_id, exc)
         finally:
             self._channels.discard(sock)
             if not self._channels:
@@ -550,9 +593,124 @@ class NodeAgent:
             existed = await asyncio.to_thread(self.store.delete, msg.rec_id)
             log.info("recording %s deleted on request of the server%s", msg.rec_id,
                      "" if existed else " (it was not on this node)")
+            self._storage_changed()
             await ws.send(encode_binary({**header, "deleted": True}))
         except (GaitrigError, OSError) as exc:
             await ws.send(encode_binary({**header, "error": f"{self.node_id}: {exc}"}))
+
+    # ------------------------------------------------------------------ retention
+
+    async def _on_verified(self, msg: PartVerified) -> None:
+        """The server holds a verified copy of a part: note it, then purge by policy."""
+        try:
+            noted = await asyncio.to_thread(self._note_verified, msg.rec_id,
+                                            msg.manifest_sha256)
+        except (GaitrigError, TransferError, OSError) as exc:
+            log.warning("recording %s: the server's verified copy could not be noted (%s); "
+                        "the part is kept", msg.rec_id, exc)
+            return
+        if noted:
+            await self._purge()
+
+    def _note_verified(self, rec_id: str, manifest_sha256: str) -> bool:
+        """Persist the server's verification if it is of this node's part as it is
+        (the SHA-256 of the manifest it verified against equals that of ours)."""
+        if rec_id in self._recs:
+            raise InputError(f"recording {rec_id} is still being recorded on {self.node_id}")
+        try:
+            if self.store.verified_at(rec_id) is not None:
+                return False  # already noted (the server repeats itself after a reconnect)
+            self.store.meta(rec_id)
+        except InputError:
+            return False  # not (or no longer) on this node
+        ours = hashlib.sha256(self._manifest(rec_id).to_json().encode()).hexdigest()
+        if ours != manifest_sha256:
+            log.warning("recording %s: the server's copy was verified against another "
+                        "manifest than this node's part; the part is kept", rec_id)
+            return False
+        if not self.store.mark_verified(rec_id, manifest_sha256):
+            return False
+        days = self.retention.keep_verified_s / 86400.0
+        log.info("recording %s: the server holds a verified copy; this node's copy is %s",
+                 rec_id, f"kept {days:g} days" if days > 0 else "deleted now")
+        return True
+
+    async def _purge(self) -> None:
+        """Delete verified parts by the retention policy (in a thread; one at a time, a
+        request meanwhile runs it again) and refresh the storage figures of ``status``."""
+        if self._purging:
+            self._purge_again = True
+            return
+        self._purging = True
+        try:
+            while True:
+                self._purge_again = False
+                busy = set(self._recs) | set(self._serving)
+                purged, usage, space = await asyncio.to_thread(self._purge_sync, busy)
+                self._after_purge(purged, usage, space)
+                if not self._purge_again:
+                    return
+        finally:
+            self._purging = False
+
+    def _purge_sync(self, busy: set[str]) -> tuple[list[Purged], StorageUsage, tuple[int, int]]:
+        purged = self.store.purge(self.retention, exclude=busy)
+        return purged, self.store.usage(exclude=busy), self.store.disk_space()
+
+    def _after_purge(self, purged: list[Purged], usage: StorageUsage,
+                     space: tuple[int, int]) -> None:
+        for p in purged:
+            self._manifests.pop(p.rec_id, None)
+            self._finished.pop(p.rec_id, None)
+            self.purged_parts += 1
+            self.purged_bytes += p.bytes
+            self._last_purge = (f"{time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC: "
+                                f"{p.rec_id} ({p.bytes / 1e6:.1f} MB), {p.why}")
+        self._usage = usage
+        free, total = space
+        floor = self.retention.floor(total)
+        now = time.monotonic()
+        if free < floor and now - self._low_space_warned >= LOW_SPACE_WARN_S:
+            self._low_space_warned = now
+            log.warning("only %.2f GB free on this node's disk (floor %.2f GB) and no verified "
+                        "copy left to delete: %d parts (%.2f GB) wait for the server's "
+                        "verification; transfer them", free / 1024**3, floor / 1024**3,
+                        usage.unverified_parts, usage.unverified_bytes / 1024**3)
+
+    def _storage_changed(self) -> None:
+        """A part closed or was deleted: refresh the storage figures (and purge)."""
+        loop = self._loop
+        if loop is not None and loop.is_running():
+            self._spawn(self._purge())
+
+    async def _retention_loop(self) -> None:
+        """Purge by age every :data:`RETENTION_FULL_S` and whenever the free space is below
+        the floor (checked every :data:`RETENTION_CHECK_S`), connected or not."""
+        last = -float("inf")
+        while True:
+            try:
+                free, total = await asyncio.to_thread(self.store.disk_space)
+                if (time.monotonic() - last >= RETENTION_FULL_S
+                        or free < self.retention.floor(total)):
+                    last = time.monotonic()
+                    await self._purge()
+            except OSError as exc:
+                log.warning("retention check failed: %s", exc)
+            await asyncio.sleep(RETENTION_CHECK_S)
+
+    def storage(self, total_bytes: int) -> NodeStorage | None:
+        """Storage figures for ``status`` (None until the first purge pass)."""
+        u = self._usage
+        if u is None:
+            return None
+        return NodeStorage(
+            held_bytes=u.held_bytes, held_parts=u.held_parts, verified_bytes=u.verified_bytes,
+            verified_parts=u.verified_parts, purgeable_bytes=u.purgeable_bytes,
+            unverified_bytes=u.unverified_bytes, unverified_parts=u.unverified_parts,
+            keep_verified_days=self.retention.keep_verified_s / 86400.0,
+            min_free_bytes=self.retention.floor(total_bytes), purged_parts=self.purged_parts,
+            purged_bytes=self.purged_bytes, last_purge=self._last_purge,
+            unverified=list(u.unverified[:100]))
 
     # ------------------------------------------------------------------ frames
 
@@ -834,6 +992,7 @@ class NodeAgent:
         self._finished[info.rec_id] = (info, time.monotonic())
         self._send_control(dump(RecState(part=info)))
         self._prepare_manifest(info.rec_id)
+        self._storage_changed()
 
     # ------------------------------------------------------------------ status
 
@@ -847,11 +1006,12 @@ class NodeAgent:
     async def _status_loop(self, ws: ClientConnection) -> None:
         while True:
             diag = self.backend.diagnostics(time.time()) if self.report_true_clock else {}
-            free = await asyncio.to_thread(self.store.disk_free)
+            free, total = await asyncio.to_thread(self.store.disk_space)
             await ws.send(dump(Status(fps=self.fps(), frames=self.frames_total,
                                       dropped=self.dropped + self._dropped_capture,
                                       disk_free_bytes=free,
-                                      ring_seconds=self.ring.span, diag=diag)))
+                                      ring_seconds=self.ring.span, diag=diag,
+                                      storage=self.storage(total))))
             for rec in self._recs.values():
                 self._send_control(dump(RecState(part=rec.writer.info())))
             # Re-announce parts closed in the last 30 s (the server's update is idempotent),

@@ -50,6 +50,7 @@ MAX_BINARY_HEADER = 16 * 1024
 BINARY_KINDS = ("skeleton", "image", "manifest", "chunk", "deleted", "calib", "channel")
 
 StreamName = Literal["depth", "color", "body_index"]
+RecId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
 PartState = Literal["pending", "recording", "on_node", "incomplete"]
 
 
@@ -116,6 +117,30 @@ class Pong(_Msg):
     t3: float
 
 
+class NodeStorage(BaseModel):
+    """What a node's recordings folder holds and its retention policy (``status``).
+
+    ``unverified`` lists closed parts (newest first, at most 100) the server has not
+    confirmed: the server answers ``part_verified`` for those it holds verified, so a
+    confirmation lost with a connection or a restart still arrives.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+    held_bytes: int = 0
+    held_parts: int = 0
+    verified_bytes: int = 0
+    verified_parts: int = 0
+    purgeable_bytes: int = 0
+    unverified_bytes: int = 0
+    unverified_parts: int = 0
+    keep_verified_days: float = 7.0
+    min_free_bytes: int = 0  # the free-space floor on this node's disk
+    purged_parts: int = 0  # since the agent started
+    purged_bytes: int = 0
+    last_purge: str | None = None
+    unverified: list[RecId] = Field(default_factory=list, max_length=100)
+
+
 class Status(_Msg):
     type: Literal["status"] = "status"
     fps: float = 0.0
@@ -123,6 +148,7 @@ class Status(_Msg):
     dropped: int = 0
     disk_free_bytes: int | None = None
     ring_seconds: float = 0.0
+    storage: NodeStorage | None = None
     diag: dict[str, float] = Field(
         default_factory=dict,
         description="Test-only truths (sim backend with --report-true-clock); never used.",
@@ -258,6 +284,17 @@ class DeletePart(_Msg):
     rec_id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
 
 
+class PartVerified(_Msg):
+    """The server holds a verified copy of the node's part (every chunk and file checked
+    against the manifest whose SHA-256 is ``manifest_sha256``). The node checks it against
+    its own manifest, notes it (persisted) and may then purge the part by its retention
+    policy (:class:`app.nodes.store.RetentionPolicy`). No answer."""
+
+    type: Literal["part_verified"] = "part_verified"
+    rec_id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
+    manifest_sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+
+
 class ServerError(_Msg):
     type: Literal["error"] = "error"
     reason: str
@@ -265,7 +302,7 @@ class ServerError(_Msg):
 
 ServerMessage = Annotated[
     Welcome | Refused | Ping | RecStart | RecStop | Subscribe | Snapshot | ManifestRequest
-    | ChunkRequest | DataChannel | DeletePart | CalibrationCapture | ServerError,
+    | ChunkRequest | DataChannel | DeletePart | PartVerified | CalibrationCapture | ServerError,
     Field(discriminator="type"),
 ]
 

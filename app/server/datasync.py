@@ -12,6 +12,9 @@ server. :class:`DataSync` runs beside them (twice a second) and
   the console shows which node failed and why, and a restarted server still knows;
 * asks the nodes to delete their copies of deleted recordings (now, or when they
   reconnect);
+* tells a node again which of the parts it lists as unconfirmed (``status``) the server
+  holds verified (the message sent after the transfer was lost with a connection or a
+  restart), so the node can apply its retention policy;
 * derives the recording state: ``recording`` → ``on_nodes`` → ``transferring`` →
   ``complete`` only when every part is verified on the server (``manifest.json`` in its
   folder), otherwise ``incomplete`` with the reasons; on ``complete`` it snapshots the
@@ -24,6 +27,7 @@ import asyncio
 import contextlib
 import logging
 import time
+from collections.abc import Collection
 from typing import Any
 
 from sqlalchemy import select
@@ -39,6 +43,7 @@ from engine.errors import GaitrigError, InputError
 log = logging.getLogger("gaitrig.datasync")
 
 TRANSFER_FAILED = "transfer failed"
+VERIFY_REPEAT_S = 600.0  # a node's part is told "verified" again at most this often
 
 
 def part_state(p: Part, complete_on_disk: bool) -> tuple[str, str | None]:
@@ -93,6 +98,9 @@ class DataSync:
         self._last_try: dict[str, float] = {}
         self._connected: dict[str, bool] = {}
         self._task: asyncio.Task[None] | None = None
+        self._verify_checked: dict[str, float] = {}  # node -> last look at its list
+        self._verify_sent: dict[tuple[str, str], float] = {}  # (node, rec) -> last told
+        self._notes: set[asyncio.Task[bool]] = set()
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -189,6 +197,7 @@ class DataSync:
             self._cancel_transfers_of(dropped)
         # node copies of deleted recordings: ask the connected nodes (again)
         self.hub.transfers.flush_deletions(self.retry_s)
+        self.confirm_verified(reconnected)
         with self.db_sessions() as db:
             rows = {r.id: r for r in db.scalars(select(m.Recording).where(
                 m.Recording.state != "complete"))}
@@ -209,6 +218,40 @@ class DataSync:
                                   "recordings.json is gone); the data may still be on the "
                                   "nodes")
             db.commit()
+
+    def confirm_verified(self, reconnected: Collection[str] = ()) -> list[str]:
+        """Tell each connected node which of its unconfirmed parts (its ``status``) the
+        server holds verified. A node's list is looked at every ``retry_s`` (at once after
+        a reconnect); a part is told at most every :data:`VERIFY_REPEAT_S` (a node that
+        disagrees, e.g. its part changed, is not asked in a loop).
+
+        Returns:
+            ``node/rec_id`` of the parts told now.
+        """
+        now = time.monotonic()
+        told = []
+        for s in self.hub.registry.nodes.values():
+            st = s.status.storage if s.connected and s.status is not None else None
+            if st is None or not st.unverified:
+                continue
+            if s.id not in reconnected and now - self._verify_checked.get(s.id, -1e9) < \
+                    self.retry_s:
+                continue
+            self._verify_checked[s.id] = now
+            for rec_id in st.unverified:
+                key = (s.id, rec_id)
+                if now - self._verify_sent.get(key, -1e9) < VERIFY_REPEAT_S:
+                    continue
+                if self.hub.transfers.verified_sha(rec_id, s.id) is None:
+                    continue
+                self._verify_sent[key] = now
+                task = asyncio.ensure_future(self.hub.transfers.send_verified(rec_id, s.id))
+                self._notes.add(task)
+                task.add_done_callback(self._notes.discard)
+                told.append(f"{s.id}/{rec_id}")
+        if told:
+            log.info("told nodes of their verified copies: %s", ", ".join(told))
+        return told
 
     def write(self, db: Any, row: m.Recording, rec: LiveRecording) -> None:
         """Copy one live recording's state into its row and part rows."""

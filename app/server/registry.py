@@ -175,6 +175,14 @@ class NodeRegistry:
             free = s.status.disk_free_bytes if s.status else None
             if free is not None and free < 2 * 1024**3:
                 warnings.append(f"Only {free / 1024**3:.1f} GB free on the node's disk.")
+            st = s.status.storage if s.status else None
+            if (st is not None and free is not None and free < st.min_free_bytes
+                    and st.unverified_parts):
+                warnings.append(
+                    f"The node's disk is below its free-space floor and its "
+                    f"{st.unverified_parts} parts not yet verified on the server "
+                    f"({st.unverified_bytes / 1024**3:.1f} GB) cannot be deleted: transfer "
+                    "them.")
         return {
             "id": s.id,
             "connected": s.connected,
@@ -192,6 +200,10 @@ class NodeRegistry:
                 s.connected and (est is None or (unc_ms or 0) > self.clock_warn_ms)),
             "disk_free_bytes": s.status.disk_free_bytes if s.status else None,
             "ring_seconds": s.status.ring_seconds if s.status else None,
+            # what the node holds, how much of it the server verified (and the node may
+            # delete by its retention policy)
+            "storage": (s.status.storage.model_dump(exclude={"unverified"})
+                        if s.status is not None and s.status.storage is not None else None),
             "connected_at": s.connected_at,
             "last_seen": s.last_seen or None,
             "rejected_messages": s.rejected_messages,

@@ -17,6 +17,11 @@ deletion must be real): ``delete_part`` → the node removes its part and answer
 ``deleted`` on the same request channel. Nodes that are offline are asked when they
 reconnect; the pending deletions survive a server restart in
 ``<data_dir>/node_deletions.json``.
+
+A part verified on the server is announced to its node (``part_verified`` with the
+SHA-256 of the manifest it was checked against), which may then delete its copy by its
+retention policy (:class:`app.nodes.store.RetentionPolicy`); a node that missed it lists
+its unconfirmed parts in ``status`` and :class:`app.server.datasync.DataSync` repeats it.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import asyncio
 import contextlib
 import errno
 import functools
+import hashlib
 import itertools
 import json
 import logging
@@ -39,7 +45,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
-from app.nodes.protocol import ChunkRequest, DataChannel, DeletePart, ManifestRequest, dump
+from app.nodes.protocol import (
+    ChunkRequest,
+    DataChannel,
+    DeletePart,
+    ManifestRequest,
+    PartVerified,
+    dump,
+)
 from app.server.recording import Recording, RecordingManager
 from app.server.registry import NodeRegistry, NodeSession
 from app.transfer import (
@@ -443,8 +456,36 @@ class TransferManager:
             part.on_server, part.transfer_progress = True, 1.0
             part.state = "complete" if was == "on_node" else "incomplete"
             log.info("recording %s: part of %s on the server", rec.id, node_id)
+            await self.send_verified(rec.id, node_id)
         finally:
             self.recordings.save()
+
+    def verified_sha(self, rec_id: str, node_id: str) -> str | None:
+        """SHA-256 of the manifest a part was verified against on the server; None when
+        the server holds no verified copy of it."""
+        d = self.part_dir(rec_id, node_id)
+        if not TransferSink.is_complete(d):
+            return None
+        try:
+            return hashlib.sha256((d / "manifest.json").read_bytes()).hexdigest()
+        except OSError:
+            return None
+
+    async def send_verified(self, rec_id: str, node_id: str) -> bool:
+        """Tell a node that the server holds a verified copy of its part of ``rec_id`` (it
+        may then delete its own by its retention policy). False when there is none or the
+        node is offline (it asks again in its ``status``)."""
+        sha = self.verified_sha(rec_id, node_id)
+        s = self.registry.get(node_id)
+        if sha is None or s is None or not s.connected:
+            return False
+        try:
+            await self._send(s, dump(PartVerified(rec_id=rec_id, manifest_sha256=sha)))
+        except (ConnectionError, OSError) as exc:
+            log.info("recording %s: node %s not told of its verified copy (%s)", rec_id,
+                     node_id, exc)
+            return False
+        return True
 
     # ------------------------------------------------------------------ running transfers
 

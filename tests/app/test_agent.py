@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import hashlib
 import os
 import subprocess
 import threading
@@ -15,8 +17,8 @@ import pytest
 
 from app.nodes.agent import MAX_IMAGE_BACKLOG, NodeAgent
 from app.nodes.backends.base import Backend, Frame
-from app.nodes.protocol import RecStart, RecStop, SensorInfo
-from app.nodes.store import NodeStore
+from app.nodes.protocol import PartVerified, RecStart, RecStop, SensorInfo
+from app.nodes.store import NodeStore, RetentionPolicy
 
 DT = 1.0 / 30.0
 
@@ -202,3 +204,53 @@ def test_a_clock_step_keeps_recorded_times_continuous(tmp_path: Path, step: floa
     # every frame on one continuous clock: the step is in none of the recorded times
     assert np.abs(ts - np.array(truth)).max() < 0.005
     assert abs(agent.now() - time.time()) < 0.005
+
+
+def _recorded(agent: NodeAgent, rec_id: str) -> None:
+    for k in range(40):
+        agent._on_frame(_frame(k))
+    agent._on_command(RecStart(rec_id=rec_id, t_start_server=0.0, t_start_local=0.5))
+    agent._on_command(RecStop(rec_id=rec_id, t_stop_server=0.0, t_stop_local=1.0))
+
+
+def _manifest_sha(agent: NodeAgent, rec_id: str) -> str:
+    return hashlib.sha256(agent._manifest(rec_id).to_json().encode()).hexdigest()
+
+
+def test_a_part_the_server_verified_is_purged_with_keep_zero_days(tmp_path: Path) -> None:
+    agent = NodeAgent("S1", _Scripted(), "ws://127.0.0.1:1/ws/node", "token", tmp_path,
+                      retention=RetentionPolicy(keep_verified_s=0, min_free_bytes=0,
+                                                min_free_fraction=0))
+    _recorded(agent, "R1")
+    _recorded(agent, "R2")
+    # a verification against another manifest (not this node's part as it is) is ignored
+    asyncio.run(agent._on_verified(PartVerified(rec_id="R1", manifest_sha256="0" * 64)))
+    assert agent.store.verified_at("R1") is None and agent.purged_parts == 0
+    asyncio.run(agent._on_verified(PartVerified(rec_id="R1",
+                                                manifest_sha256=_manifest_sha(agent, "R1"))))
+    assert [p.rec_id for p in agent.store.parts()] == ["R2"]  # R2: not verified, kept
+    st = agent.storage(10**12)
+    assert st is not None and st.purged_parts == 1 and "R1" in (st.last_purge or "")
+    assert st.verified_parts == 0 and st.unverified == ["R2"] and st.held_parts == 1
+    assert st.keep_verified_days == 0
+    # told again (after a reconnect) about a part it no longer has: nothing happens
+    asyncio.run(agent._on_verified(PartVerified(rec_id="R1", manifest_sha256="1" * 64)))
+    assert agent.purged_parts == 1
+
+
+def test_a_verified_part_is_kept_its_days_and_the_mark_survives_a_restart(
+        tmp_path: Path) -> None:
+    policy = RetentionPolicy(keep_verified_s=7 * 86400.0, min_free_bytes=0,
+                             min_free_fraction=0)
+    agent = NodeAgent("S1", _Scripted(), "ws://127.0.0.1:1/ws/node", "token", tmp_path,
+                      retention=policy)
+    _recorded(agent, "R1")
+    asyncio.run(agent._on_verified(PartVerified(rec_id="R1",
+                                                manifest_sha256=_manifest_sha(agent, "R1"))))
+    st = agent.storage(10**12)
+    assert st is not None and st.verified_parts == 1 and st.purgeable_bytes > 0
+    assert st.unverified == [] and st.purged_parts == 0
+    again = NodeAgent("S1", _Scripted(), "ws://127.0.0.1:1/ws/node", "token", tmp_path,
+                      retention=policy)
+    assert again.store.verified_at("R1") is not None
+    assert again.store.usage().verified_parts == 1

@@ -59,8 +59,11 @@ class Rig:
         self.tmp = tmp
         self.port = free_port()
         self.base = f"http://127.0.0.1:{self.port}"
+        # no free-space floor: a nearly full test machine must not make the nodes purge
+        # the verified copies the tests compare (test_retention sets its own)
         self.env = {**os.environ, "GAITRIG_NODE_TOKEN": TOKEN, "GAITRIG_ADMIN_PASSWORD": PASSWORD,
-                    "PYTHONUNBUFFERED": "1", **(env_extra or {})}
+                    "PYTHONUNBUFFERED": "1", "GAITRIG_NODE_MIN_FREE_GB": "0",
+                    "GAITRIG_NODE_MIN_FREE_PERCENT": "0", **(env_extra or {})}
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.logs: dict[str, Path] = {}
         self.start_server()

@@ -2,7 +2,8 @@
 
 ``GET /api/nodes`` → list of health records (``id``, ``connected``, ``fps``,
 ``dropped_frames``, ``clock_offset_ms``, ``clock_uncertainty_ms``, ``clock_drift_ppm``,
-``disk_free_bytes``, ``warnings`` in plain words, ...).
+``disk_free_bytes``, ``storage`` (held, verified, purgeable bytes), ``warnings`` in plain
+words, ...).
 """
 
 from __future__ import annotations
@@ -41,6 +42,12 @@ class NodeHealth(BaseModel):
     clock_warning: bool
     disk_free_bytes: int | None
     ring_seconds: float | None
+    storage: dict[str, Any] | None = Field(
+        default=None,
+        description="The node's recordings folder: held_bytes/parts, verified_bytes/parts "
+        "(the server holds verified copies), purgeable_bytes, unverified_bytes/parts (the "
+        "only copies), keep_verified_days, min_free_bytes (floor), purged_parts/bytes since "
+        "the node started, last_purge.")
     connected_at: float | None
     last_seen: float | None
     rejected_messages: int
