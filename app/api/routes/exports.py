@@ -56,6 +56,12 @@ _MEDIA = {"c3d": "application/octet-stream", "trc": "text/plain", "csv": "text/c
           "zip": "application/zip", "npz": "application/octet-stream"}
 
 
+def _whose(rec: m.Recording) -> str:
+    """The recording's subject and session for the audit trail: numeric ids, never the
+    subject code (the trail outlives a deleted subject and must not keep its pseudonym)."""
+    return f"subject {rec.session.subject_id}, session {rec.session_id}"
+
+
 def _download(data: bytes, filename: str, ext: str) -> Response:
     # HTTP headers are Latin-1: a clinic's file name with "ü" or "✓" as such made the
     # download a 500. ASCII fallback for old clients, the exact name as RFC 6266 filename*.
@@ -89,7 +95,8 @@ async def skeleton(rec_id: str, request: Request, user: CurrentUser, db: DbDep, 
             return export_skeleton(series if format == "csv" else uniform_series(series), format)
 
     data = await asyncio.to_thread(work)
-    audit_now(db, request, user, "export", f"recording {rec.id}", f"skeleton {format} {source}")
+    audit_now(db, request, user, "export", f"recording {rec.id}",
+              f"{_whose(rec)}; skeleton {format} {source}")
     return _download(data, f"{rec.id}_{source}.{format}", format)
 
 
@@ -119,7 +126,8 @@ async def depth(rec_id: str, request: Request, user: CurrentUser, db: DbDep,
         return depth_zip(frames) if format == "zip" else depth_npz(frames)
 
     data = await asyncio.to_thread(work)
-    audit_now(db, request, user, "export", f"recording {rec.id}", f"depth {format} {node}")
+    audit_now(db, request, user, "export", f"recording {rec.id}",
+              f"{_whose(rec)}; depth {format} {node}")
     return _download(data, f"{rec.id}_{node}_depth.{format}", format)
 
 
@@ -184,13 +192,15 @@ def download_reference(rec_id: str, ref_id: int, request: Request, user: Current
                        db: DbDep) -> Response:
     """The uploaded reference file as it was uploaded."""
     ref = _ref(db, rec_id, ref_id)
+    rec = get_recording(db, rec_id)
     path = layout_of(request).reference_dir(rec_id) / check_id(ref.stored_name, "file")
     if not path.is_file():  # e.g. the data folder was restored without it
         raise HTTPException(status.HTTP_404_NOT_FOUND,
                             f"the file of reference {ref_id} ({ref.filename!r}) is missing from "
                             "the server; delete the reference and upload it again")
     data = path.read_bytes()
-    audit_now(db, request, user, "export", f"recording {rec_id}", f"reference {ref_id}")
+    audit_now(db, request, user, "export", f"recording {rec_id}",
+              f"{_whose(rec)}; reference {ref_id}")
     return _download(data, ref.filename, ref.format)
 
 

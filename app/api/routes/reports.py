@@ -38,7 +38,7 @@ from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
 from app.api.limits import BoundedRoute
-from app.api.routes._data import get_row
+from app.api.routes._data import audit_now, get_row
 from app.db.data import Recording as DbRecording
 from app.db.data import ReferenceImport, Subject
 from app.db.data import Session as DbSession
@@ -258,6 +258,23 @@ def _no_identifier_in_url(request: Request) -> None:
                             "in access logs and browser history")
 
 
+def _subset(sensors: tuple[str, ...] | None) -> str:
+    return "all sensors" if sensors is None else f"sensors {an.subset_label(sensors)}"
+
+
+def _audit_recording(db: Any, request: Request, user: Any, rec_id: str, what: str,
+                     link: dict[str, Any] | None = None) -> None:
+    """Record that ``user`` was given ``what`` (a report, an analysis) of a recording.
+
+    The entry names the subject and session by their numeric ids, never the subject
+    code (the trail outlives a deleted subject and must not keep its pseudonym).
+    """
+    link = _recording_links(db, rec_id).get(rec_id, {}) if link is None else link
+    whose = (f"subject {link['subject_id']}, session {link['session_id']}"
+             if link.get("subject_id") is not None else "filed under no subject")
+    audit_now(db, request, user, "export", f"recording {rec_id}", f"{whose}; {what}")
+
+
 # ---------------------------------------------------------------------------- routes
 
 
@@ -282,12 +299,14 @@ def list_recordings(user: CurrentUser, settings: SettingsDep, hub: HubDep,
     return out
 
 
-def _recording_links(db: Any) -> dict[str, dict[str, Any]]:
-    """rec_id → subject/session of the data-management tables."""
-    rows = (db.query(DbRecording.id, DbRecording.state, DbSession.id, DbSession.label,
-                     DbSession.date, Subject.id, Subject.code)
-            .join(DbSession, DbRecording.session_id == DbSession.id)
-            .join(Subject, DbSession.subject_id == Subject.id).all())
+def _recording_links(db: Any, rec_id: str | None = None) -> dict[str, dict[str, Any]]:
+    """rec_id → subject/session of the data-management tables (of every recording, or
+    of ``rec_id`` only)."""
+    q = (db.query(DbRecording.id, DbRecording.state, DbSession.id, DbSession.label,
+                  DbSession.date, Subject.id, Subject.code)
+         .join(DbSession, DbRecording.session_id == DbSession.id)
+         .join(Subject, DbSession.subject_id == Subject.id))
+    rows = (q if rec_id is None else q.filter(DbRecording.id == rec_id)).all()
     return {r[0]: {"db_state": r[1], "session_id": r[2], "session_label": r[3],
                    "session_date": str(r[4]) if r[4] else "", "subject_id": r[5],
                    "subject_code": r[6]} for r in rows}
@@ -308,13 +327,18 @@ def recording_sensors(rec_id: str, user: CurrentUser, settings: SettingsDep,
 
 
 @router.get("/recordings/{rec_id}/analysis")
-def recording_analysis(rec_id: str, user: CurrentUser, settings: SettingsDep, hub: HubDep,
+def recording_analysis(rec_id: str, request: Request, user: CurrentUser,
+                       settings: SettingsDep, hub: HubDep, db: DbDep,
                        sensors: str | None = Query(None, max_length=2000,
                                                    description="e.g. S1,S3,S5; empty = all"),
                        method: MethodQ = "crossing",
                        estimator: EstimatorQ = "weighted") -> dict[str, Any]:
-    """Gait analysis of one recording (cached beside the recording)."""
-    return _analyse(settings, hub, rec_id, _sensors_param(sensors), method, estimator)
+    """Gait analysis of one recording (cached beside the recording); audited."""
+    sub = _sensors_param(sensors)
+    res = _analyse(settings, hub, rec_id, sub, method, estimator)
+    _audit_recording(db, request, user, rec_id,
+                     f"analysis json ({method}, {_subset(sub)})")
+    return res
 
 
 def _brief(a: dict[str, Any]) -> dict[str, Any]:
@@ -322,30 +346,34 @@ def _brief(a: dict[str, Any]) -> dict[str, Any]:
 
 
 @router.get("/recordings/{rec_id}/compare")
-def compare_subsets(rec_id: str, user: CurrentUser, settings: SettingsDep, hub: HubDep,
+def compare_subsets(rec_id: str, request: Request, user: CurrentUser, settings: SettingsDep,
+                    hub: HubDep, db: DbDep,
                     a: str = Query(..., max_length=2000, description="first subset, e.g. S1,S3,S5"),
                     b: str | None = Query(None, max_length=2000,
                                           description="second subset; empty = all sensors"),
                     method: MethodQ = "crossing",
                     estimator: EstimatorQ = "weighted") -> dict[str, Any]:
-    """The same recording analysed with two sensor subsets (one- vs two-sided)."""
-    ra = _analyse(settings, hub, rec_id, _sensors_param(a), method, estimator)
-    rb = _analyse(settings, hub, rec_id, _sensors_param(b), method, estimator)
+    """The same recording analysed with two sensor subsets (one- vs two-sided); audited."""
+    sa, sb = _sensors_param(a), _sensors_param(b)
+    ra = _analyse(settings, hub, rec_id, sa, method, estimator)
+    rb = _analyse(settings, hub, rec_id, sb, method, estimator)
+    _audit_recording(db, request, user, rec_id,
+                     f"analysis comparison json ({method}, {_subset(sa)} vs {_subset(sb)})")
     return {"rec_id": rec_id, "a": _brief(ra), "b": _brief(rb)}
 
 
 @router.get("/recordings/{rec_id}/report", response_model=None)
-def recording_report(rec_id: str, user: CurrentUser, settings: SettingsDep, hub: HubDep,
-                     db: DbDep, format: Fmt = "html",
+def recording_report(rec_id: str, request: Request, user: CurrentUser, settings: SettingsDep,
+                     hub: HubDep, db: DbDep, format: Fmt = "html",
                      sensors: str | None = Query(None, max_length=2000),
                      method: MethodQ = "crossing",
                      estimator: EstimatorQ = "weighted") -> Response:
-    """Report of one recording (optionally from a sensor subset)."""
+    """Report of one recording (optionally from a sensor subset); audited."""
     sub = _sensors_param(sensors)
     res = _analyse(settings, hub, rec_id, sub, method, estimator)
-    link = _recording_links(db).get(rec_id, {})
+    link = _recording_links(db, rec_id).get(rec_id, {})
     code = str(link.get("subject_code") or "unassigned")
-    title = "Gait report" + ("" if sub is None else f" — sensors {an.subset_label(sub)}")
+    title = "Gait report" + ("" if sub is None else f" — {_subset(sub)}")
     refs, ref_notes = _references(db, settings.data_dir, {rec_id: _rec_dir(settings, rec_id)},
                                   method)
     try:
@@ -360,17 +388,21 @@ def recording_report(rec_id: str, user: CurrentUser, settings: SettingsDep, hub:
     except GaitrigError as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
     data.quality.notes += ref_notes
-    return _respond(data, format, f"gait-report-{code}-{rec_id}")
+    out = _respond(data, format, f"gait-report-{code}-{rec_id}")
+    _audit_recording(db, request, user, rec_id,
+                     f"report {format} ({method}, {_subset(sub)})", link)
+    return out
 
 
 @router.get("/subjects/{subject_id}", response_model=None)
-def subject_report(subject_id: int, user: CurrentUser, settings: SettingsDep, hub: HubDep,
-                   db: DbDep, format: Fmt = "html",
+def subject_report(subject_id: int, request: Request, user: CurrentUser,
+                   settings: SettingsDep, hub: HubDep, db: DbDep, format: Fmt = "html",
                    session_id: int | None = None,
                    sensors: str | None = Query(None, max_length=2000),
                    method: MethodQ = "crossing",
                    estimator: EstimatorQ = "weighted") -> Response:
-    """Report of a subject from all complete recordings (or those of one session)."""
+    """Report of a subject from all complete recordings (or those of one session);
+    audited."""
     subject = get_row(db, Subject, subject_id)
     if subject is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no subject with id {subject_id}")
@@ -408,7 +440,7 @@ def subject_report(subject_id: int, user: CurrentUser, settings: SettingsDep, hu
     try:
         data = an.build_report(
             subject.code, analyses,
-            title="Gait report" + ("" if sub is None else f" — sensors {an.subset_label(sub)}"),
+            title="Gait report" + ("" if sub is None else f" — {_subset(sub)}"),
             subject_info=_subject_info(subject, [s.date for s in sessions]),
             session_label=(sess.label if sess else f"all sessions ({len(sessions)})"),
             session_date=(str(sess.date) if sess else ", ".join(
@@ -425,7 +457,12 @@ def subject_report(subject_id: int, user: CurrentUser, settings: SettingsDep, hu
         data.quality.notes.append(f"Recording {s} was not used: it is not complete on the "
                                   "server.")
     stamp = str(sess.date) if sess else _dt.date.today().isoformat()
-    return _respond(data, format, f"gait-report-{subject.code}-{stamp}")
+    out = _respond(data, format, f"gait-report-{subject.code}-{stamp}")
+    audit_now(db, request, user, "export", f"subject {subject_id}",
+              (f"session {session_id}" if sess else f"all sessions ({len(sessions)})")
+              + f"; report {format} of {len(analyses)} recording(s) ({method}, sensors "
+              f"{an.subset_label(sub)})")
+    return out
 
 
 @router.get("/recordings/{rec_id}/reference")
@@ -473,7 +510,7 @@ def delete_reference(rec_id: str, user: CurrentUser, settings: SettingsDep) -> d
 
 @router.post("/upload", response_model=None,
              max_body_size=MAX_UPLOAD_BYTES + _MULTIPART_OVERHEAD)
-async def upload_report(request: Request, file: UploadFile, user: CurrentUser,
+async def upload_report(request: Request, file: UploadFile, user: CurrentUser, db: DbDep,
                         subject: Annotated[str, Form(min_length=1, max_length=40, description=(
                             "subject code printed on the report (a form field: a URL is "
                             "kept in access logs and browser history)"))] = "upload",
@@ -503,4 +540,8 @@ async def upload_report(request: Request, file: UploadFile, user: CurrentUser,
                                     f"{file.filename}: {exc}") from exc
             return _respond(data, format, f"gait-report-{subject}")
 
-        return await anyio.to_thread.run_sync(work)
+        out = await anyio.to_thread.run_sync(work)
+    # an uploaded file belongs to no subject here: the entry names the file's type only
+    await anyio.to_thread.run_sync(audit_now, db, request, user, "export", "uploaded file",
+                                   f"report {format} of a {path.suffix} file ({method})")
+    return out

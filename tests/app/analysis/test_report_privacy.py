@@ -61,3 +61,51 @@ def test_the_console_sends_the_upload_code_in_the_form() -> None:
     js = (Path(__file__).resolve().parents[3] / "static" / "js" / "reports.js").read_text()
     assert 'fd.append("subject", code)' in js
     assert "subject: code" not in js
+
+
+def test_reports_analyses_and_exports_are_audited_by_numeric_id(
+        client: TestClient, tmp_path: Path) -> None:
+    from tests.app.data.walk_recording import walk_subject
+
+    ids = walk_subject(client, tmp_path)
+    sid, sess = ids["subject_id"], ids["session_id"]
+    start = client.get("/api/audit").json()[0]["id"]
+    calls = [
+        (f"/api/reports/subjects/{sid}", {"format": "pdf"}, f"subject {sid}",
+         ["all sessions (1)", "report pdf"]),
+        (f"/api/reports/subjects/{sid}", {"format": "html", "session_id": sess},
+         f"subject {sid}", [f"session {sess}", "report html"]),
+        ("/api/reports/recordings/R1/report", {"format": "pdf"}, "recording R1",
+         [f"subject {sid}, session {sess}", "report pdf"]),
+        ("/api/reports/recordings/R1/analysis", {"sensors": "S1"}, "recording R1",
+         [f"subject {sid}, session {sess}", "analysis json", "sensors S1"]),
+        ("/api/reports/recordings/R1/compare", {"a": "S1"}, "recording R1",
+         [f"subject {sid}, session {sess}", "comparison"]),
+        ("/api/exports/R1/skeleton", {"format": "csv", "source": "S1"}, "recording R1",
+         [f"subject {sid}, session {sess}", "skeleton csv S1"]),
+        ("/api/exports/R1/skeleton", {"format": "c3d"}, "recording R1",
+         [f"subject {sid}, session {sess}", "skeleton c3d fused"]),
+    ]
+    for path, params, target, words in calls:
+        r = client.get(path, params=params)
+        assert r.status_code == 200, (path, r.text[:300])
+        e = client.get("/api/audit").json()[0]
+        assert e["id"] > start, f"{path} {params} left no audit entry"
+        start = e["id"]
+        assert (e["username"], e["action"], e["target"]) == ("admin", "export", target), e
+        assert all(w in e["detail"] for w in words), (words, e)
+        assert e["client"] and e["at"]
+    # a refused request hands nothing out and records nothing
+    assert client.get(f"/api/reports/subjects/{sid}",
+                      params={"session_id": 999}).status_code == 404
+    assert client.get("/api/audit").json()[0]["id"] == start
+    # an uploaded file's report is recorded too, without the code typed for it
+    walk = _walk_csv(tmp_path / "walk.csv")
+    r = client.post("/api/reports/upload", data={"subject": "P07"},
+                    files={"file": ("walk.csv", walk, "text/csv")})
+    assert r.status_code == 200
+    e = client.get("/api/audit").json()[0]
+    assert (e["target"], e["detail"]) == ("uploaded file", "report html of a .csv file (crossing)")
+    # no entry names the subject by its code
+    log = client.get("/api/audit", params={"limit": 1000}).json()
+    assert "A1" not in str(log) and "P07" not in str(log)
