@@ -443,8 +443,11 @@ recordings/<rec_id>/      one folder per recording, as stored on the server:
                           (0 not tracked, 1 inferred, 2 tracked), Kinect v2 joint names
 references/<rec_id>/      reference recordings uploaded for a recording (C3D, TRC, CSV);
                           subject.json gives each file's original name
+reports/                  the subject's gait reports (PDF), rendered from these recordings
+                          when the export was made: one per session and, with several
+                          sessions, one of all; export-notes.json says why one is missing
 
-Gait reports are not stored: the console renders them from these recordings and
+The server stores no report: the console renders them from these recordings and
 analyses when asked (Reports page). Times are seconds, lengths metres unless a file says
 otherwise. Formats: docs/storage.md and docs/gait-json.md of gaitrig.
 """
@@ -527,7 +530,9 @@ def recording_files(layout: StorageLayout, rec_id: str) -> list[tuple[str, Path]
 
 
 def subject_export(layout: StorageLayout, info: dict[str, Any], rec_ids: list[str],
-                   live: dict[str, Any] | None = None) -> Iterator[ExportEntry]:
+                   live: dict[str, Any] | None = None,
+                   reports: Callable[[list[str]], Iterable[ExportEntry]] | None = None
+                   ) -> Iterator[ExportEntry]:
     """The entries of a subject's export (see :data:`EXPORT_README`).
 
     Args:
@@ -535,6 +540,8 @@ def subject_export(layout: StorageLayout, info: dict[str, Any], rec_ids: list[st
         info: ``subject.json`` (the subject, its project, sessions and recordings).
         rec_ids: the subject's recordings.
         live: sensor poses known now, for a recording analysed the first time.
+        reports: given the export's notes (to append to), the entries of the reports
+            (``reports/...``), after the recordings.
     """
     from app.server import analysis as an
 
@@ -555,6 +562,8 @@ def subject_export(layout: StorageLayout, info: dict[str, Any], rec_ids: list[st
         for node in parts:
             yield (f"recordings/{rec_id}/{node}/skeleton.csv",
                    functools.partial(_skeleton_csv, layout.part_dir(rec_id, node), notes))
+    if reports is not None:
+        yield from reports(notes)
     yield "export-notes.json", lambda: json.dumps(notes, indent=1).encode()
 
 

@@ -28,6 +28,7 @@ import os
 import re
 import shutil
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -143,29 +144,37 @@ def _reference_file(rec_dir: Path) -> tuple[Path, dict[str, Any]] | None:
     return (f, meta) if f.is_file() else None
 
 
-def _references(db: Any, data_dir: Path, rec_dirs: dict[str, Path], method: str
-                ) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
-    """rec_id → reference steps on the recording's time axis, and notes on failures.
+def _reference_paths(db: Any, data_dir: Path, rec_dirs: dict[str, Path]
+                     ) -> dict[str, tuple[Path, float]]:
+    """rec_id → its reference file and the reference's time of the recording's start.
 
     A reference attached on this page wins; otherwise the newest one imported on the
     Subjects page (data-management ``ReferenceImport``, assumed to start with the
     recording).
     """
-    out: dict[str, list[dict[str, Any]]] = {}
-    notes: list[str] = []
+    out: dict[str, tuple[Path, float]] = {}
     for rec_id, d in rec_dirs.items():
         ref = _reference_file(d)
         if ref is not None:
-            path, off = ref[0], float(ref[1].get("offset_s") or 0.0)
-        else:
-            imp = db.scalars(select(ReferenceImport)
-                             .where(ReferenceImport.recording_id == rec_id)
-                             .order_by(ReferenceImport.created_at.desc())).first()
-            if imp is None or not _STORED_RE.match(imp.stored_name):
-                continue
-            path, off = Path(data_dir) / "references" / rec_id / imp.stored_name, 0.0
-            if not path.is_file():
-                continue
+            out[rec_id] = (ref[0], float(ref[1].get("offset_s") or 0.0))
+            continue
+        imp = db.scalars(select(ReferenceImport)
+                         .where(ReferenceImport.recording_id == rec_id)
+                         .order_by(ReferenceImport.created_at.desc())).first()
+        if imp is None or not _STORED_RE.match(imp.stored_name):
+            continue
+        path = Path(data_dir) / "references" / rec_id / imp.stored_name
+        if path.is_file():
+            out[rec_id] = (path, 0.0)
+    return out
+
+
+def _reference_steps(paths: dict[str, tuple[Path, float]], method: str
+                     ) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
+    """rec_id → reference steps on the recording's time axis, and notes on failures."""
+    out: dict[str, list[dict[str, Any]]] = {}
+    notes: list[str] = []
+    for rec_id, (path, off) in paths.items():
         try:
             steps = an.reference_steps(path, method)
         except GaitrigError as exc:
@@ -173,6 +182,12 @@ def _references(db: Any, data_dir: Path, rec_dirs: dict[str, Path], method: str
             continue
         out[rec_id] = [{**s, "time_s": s["time_s"] + off} for s in steps]
     return out, notes
+
+
+def _references(db: Any, data_dir: Path, rec_dirs: dict[str, Path], method: str
+                ) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
+    """rec_id → reference steps on the recording's time axis, and notes on failures."""
+    return _reference_steps(_reference_paths(db, data_dir, rec_dirs), method)
 
 
 async def _save_upload(request: Request, file: UploadFile, dest_dir: Path) -> Path:
@@ -394,6 +409,89 @@ def recording_report(rec_id: str, request: Request, user: CurrentUser, settings:
     return out
 
 
+@dataclass
+class SubjectReportSource:
+    """What a subject's report needs from the database, read at once, so that the report
+    can be built after the database session closed (inside a streamed export)."""
+
+    subject_id: int
+    code: str
+    where: str  # "subject P07" or "session <label>", for messages
+    info: dict[str, Any]  # header facts (:func:`_subject_info`)
+    session_label: str
+    session_date: str
+    file_stamp: str  # date in the PDF's file name
+    recordings: list[tuple[str, str]]  # (rec_id, state) in session order
+    references: dict[str, tuple[Path, float]] = field(default_factory=dict)
+
+
+class NothingToReportError(InsufficientDataError):
+    """The subject (or session) has no recording complete on the server."""
+
+
+def subject_report_source(db: Any, data_dir: Path, subject: Any,
+                          session: Any | None = None) -> SubjectReportSource:
+    """Read what the report of ``subject`` (of all its sessions, or of ``session``)
+    needs from the database."""
+    sessions = [session] if session is not None else list(subject.sessions)
+    recs = [(r.id, r.state) for se in sessions for r in se.recordings]
+    return SubjectReportSource(
+        subject_id=subject.id, code=subject.code,
+        where=(f"session {session.label or session.date}" if session is not None
+               else f"subject {subject.code}"),
+        info=_subject_info(subject, [s.date for s in sessions]),
+        session_label=(session.label if session is not None
+                       else f"all sessions ({len(sessions)})"),
+        session_date=(str(session.date) if session is not None else ", ".join(
+            sorted({str(s.date) for s in sessions if s.date}))),
+        file_stamp=(str(session.date) if session is not None
+                    else _dt.date.today().isoformat()),
+        recordings=recs,
+        references=_reference_paths(db, data_dir, {
+            rec_id: an.recording_dir(data_dir, rec_id) for rec_id, _ in recs}))
+
+
+def build_subject_report(src: SubjectReportSource, data_dir: Path, live: dict[str, Any],
+                         sensors: tuple[str, ...] | None = None, method: str = "crossing",
+                         estimator: str = "weighted") -> ReportData:
+    """Analyse a subject's complete recordings and build its report (no database).
+
+    Raises:
+        NothingToReportError: no recording of ``src`` is complete on the server.
+        GaitrigError: the recordings give no report (e.g. no steps in any).
+    """
+    analyses: list[dict[str, Any]] = []
+    skipped: list[str] = []
+    used: set[str] = set()
+    for rec_id, state in src.recordings:
+        d = an.recording_dir(data_dir, rec_id)
+        if state != "complete" or not an.part_dirs(d):
+            skipped.append(f"{rec_id} ({state})")
+            continue
+        used.add(rec_id)
+        try:
+            analyses.append(an.analyse_recording(
+                d, an.AnalysisOptions(method, estimator, sensors), live))
+        except GaitrigError as exc:
+            analyses.append({"rec_id": rec_id, "ok": False, "error": str(exc)})
+    if not analyses:
+        more = f" (not complete on the server: {', '.join(skipped)})" if skipped else ""
+        raise NothingToReportError(f"{src.where} has no complete recording to report on{more}; "
+                              "record a walk and transfer it to the server first")
+    refs, ref_notes = _reference_steps(
+        {k: v for k, v in src.references.items() if k in used}, method)
+    data = an.build_report(
+        src.code, analyses,
+        title="Gait report" + ("" if sensors is None else f" — {_subset(sensors)}"),
+        subject_info=src.info, session_label=src.session_label,
+        session_date=src.session_date, references=refs)
+    data.quality.notes += ref_notes
+    for s_ in skipped:
+        data.quality.notes.append(f"Recording {s_} was not used: it is not complete on the "
+                                  "server.")
+    return data
+
+
 @router.get("/subjects/{subject_id}", response_model=None)
 def subject_report(subject_id: int, request: Request, user: CurrentUser,
                    settings: SettingsDep, hub: HubDep, db: DbDep, format: Fmt = "html",
@@ -406,62 +504,32 @@ def subject_report(subject_id: int, request: Request, user: CurrentUser,
     subject = get_row(db, Subject, subject_id)
     if subject is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no subject with id {subject_id}")
-    sessions = list(subject.sessions)
+    sess = None
     if session_id is not None:
-        sessions = [s for s in sessions if s.id == session_id]
-        if not sessions:
+        sess = next((s for s in subject.sessions if s.id == session_id), None)
+        if sess is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND,
                                 f"subject {subject.code} has no session with id {session_id}")
     sub = _sensors_param(sensors)
-    analyses: list[dict[str, Any]] = []
-    skipped: list[str] = []
-    rec_dirs: dict[str, Path] = {}
-    for se in sessions:
-        for rec in se.recordings:
-            d = an.recording_dir(settings.data_dir, rec.id)
-            if rec.state != "complete" or not an.part_dirs(d):
-                skipped.append(f"{rec.id} ({rec.state})")
-                continue
-            rec_dirs[rec.id] = d
-            try:
-                analyses.append(an.analyse_recording(d, an.AnalysisOptions(method, estimator, sub),
-                                                     _live_poses(hub)))
-            except GaitrigError as exc:
-                analyses.append({"rec_id": rec.id, "ok": False, "error": str(exc)})
-    where = (f"session {sessions[0].label or sessions[0].date}" if session_id is not None
-             else f"subject {subject.code}")
-    if not analyses:
-        more = f" (not complete on the server: {', '.join(skipped)})" if skipped else ""
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            f"{where} has no complete recording to report on{more}; record a "
-                            "walk and transfer it to the server first")
-    sess = sessions[0] if session_id is not None else None
-    refs, ref_notes = _references(db, settings.data_dir, rec_dirs, method)
+    src = subject_report_source(db, settings.data_dir, subject, sess)
     try:
-        data = an.build_report(
-            subject.code, analyses,
-            title="Gait report" + ("" if sub is None else f" — {_subset(sub)}"),
-            subject_info=_subject_info(subject, [s.date for s in sessions]),
-            session_label=(sess.label if sess else f"all sessions ({len(sessions)})"),
-            session_date=(str(sess.date) if sess else ", ".join(
-                sorted({str(s.date) for s in sessions if s.date}))),
-            references=refs)
+        data = build_subject_report(src, settings.data_dir, _live_poses(hub), sub, method,
+                                    estimator)
+    except NothingToReportError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
     except InsufficientDataError as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{where}: {exc}") from exc
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"{src.where}: {exc}") from exc
     except InputError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
     except GaitrigError as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{where}: {exc}") from exc
-    data.quality.notes += ref_notes
-    for s in skipped:
-        data.quality.notes.append(f"Recording {s} was not used: it is not complete on the "
-                                  "server.")
-    stamp = str(sess.date) if sess else _dt.date.today().isoformat()
-    out = _respond(data, format, f"gait-report-{subject.code}-{stamp}")
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"{src.where}: {exc}") from exc
+    out = _respond(data, format, f"gait-report-{subject.code}-{src.file_stamp}")
     audit_now(db, request, user, "export", f"subject {subject_id}",
-              (f"session {session_id}" if sess else f"all sessions ({len(sessions)})")
-              + f"; report {format} of {len(analyses)} recording(s) ({method}, sensors "
-              f"{an.subset_label(sub)})")
+              (f"session {session_id}" if sess is not None
+               else f"all sessions ({len(subject.sessions)})")
+              + f"; report {format} ({method}, {_subset(sub)})")
     return out
 
 

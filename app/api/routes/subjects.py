@@ -7,7 +7,11 @@ the clinic and unique within a project.
 from __future__ import annotations
 
 import datetime as dt
+import functools
+import logging
 import re
+from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Request, status
@@ -30,8 +34,17 @@ from app.api.routes._data import (
     subject_json,
     subject_version,
 )
+from app.api.routes.reports import (
+    SubjectReportSource,
+    build_subject_report,
+    subject_report_source,
+)
 from app.db import data as m
-from app.server.storage import live_poses, stream_zip, subject_export
+from app.server.storage import ExportEntry, live_poses, stream_zip, subject_export
+from engine.errors import GaitrigError
+from engine.report.render import render_pdf
+
+log = logging.getLogger(__name__)
 
 router = APIRouter(prefix="/subjects", route_class=BoundedRoute, tags=["data"])
 
@@ -111,6 +124,40 @@ def get_one(sid: int, request: Request, user: CurrentUser, db: DbDep) -> dict[st
     return subject_json(get_subject(db, sid), layout_of(request), sessions=True)
 
 
+def _report_pdf(src: SubjectReportSource, name: str, data_dir: Path, live: dict[str, Any],
+                notes: list[str]) -> bytes | None:
+    """One report of the export, rendered when its turn in the stream comes; a report
+    that cannot be made is left out with a note (the archive must stay whole)."""
+    try:
+        return render_pdf(build_subject_report(src, data_dir, live))
+    except GaitrigError as exc:
+        notes.append(f"{name}: not included ({exc})")
+    except Exception:  # any bug of the report must not cut the whole export short
+        log.exception("export: the report %s of subject %s failed", name, src.subject_id)
+        notes.append(f"{name}: not included (the report could not be rendered: an error "
+                     "of the server, its log says which)")
+    return None
+
+
+def _report_entries(db: DbDep, s: m.Subject, data_dir: Path, live: dict[str, Any]
+                    ) -> Callable[[list[str]], Iterator[ExportEntry]]:
+    """The subject's reports for its export: one per session and, with several
+    sessions, one of all. What they need from the database is read now."""
+    sources = [(f"reports/gait-report-session-{x.id}-{x.date}.pdf",
+                subject_report_source(db, data_dir, s, x)) for x in s.sessions]
+    if len(sources) > 1:
+        sources.append(("reports/gait-report-all-sessions.pdf",
+                        subject_report_source(db, data_dir, s)))
+
+    def entries(notes: list[str]) -> Iterator[ExportEntry]:
+        if not sources:
+            notes.append("reports: none (the subject has no session)")
+        for name, src in sources:
+            yield name, functools.partial(_report_pdf, src, name, data_dir, live, notes)
+
+    return entries
+
+
 @router.get("/{sid}/export", response_class=StreamingResponse)
 def export_subject(sid: int, request: Request, user: CurrentUser, db: DbDep,
                    hub: HubDep) -> StreamingResponse:
@@ -118,9 +165,10 @@ def export_subject(sid: int, request: Request, user: CurrentUser, db: DbDep,
 
     ``subject.json`` (the subject, project, sessions, recordings, references), every
     recording's files as stored (node parts byte-identical, sensor poses, analyses, the
-    reports' reference), each part's skeleton as CSV, the uploaded references, and a
-    ``README.txt`` describing the formats. Streamed piece by piece: the server never
-    holds the archive (or a file of it) in memory or on disk.
+    reports' reference), each part's skeleton as CSV, the uploaded references,
+    the subject's gait reports as PDF (``reports/``, rendered now) and a ``README.txt``
+    describing the formats. Streamed piece by piece: the server never holds the archive
+    (or a file of it, but for one report or skeleton CSV at a time) in memory or on disk.
     """
     s = get_subject(db, sid)
     layout = layout_of(request)
@@ -130,9 +178,11 @@ def export_subject(sid: int, request: Request, user: CurrentUser, db: DbDep,
     info["format"] = "gaitrig subject export 1 (see README.txt)"
     rec_ids = [r.id for x in s.sessions for r in x.recordings]
     # read everything from the database now: the stream runs after this session closed
-    entries = subject_export(layout, info, rec_ids, live_poses(layout, hub.registry))
+    live = live_poses(layout, hub.registry)
+    entries = subject_export(layout, info, rec_ids, live,
+                             _report_entries(db, s, layout.data_dir, live))
     audit_now(db, request, user, "export", f"subject {sid}",
-              f"zip of {len(rec_ids)} recording(s)")
+              f"zip of {len(rec_ids)} recording(s) with reports")
     code = re.sub(r"[^A-Za-z0-9_.-]", "_", s.code)  # the pattern's, even for an old row
     name = f"gaitrig-subject-{code}-{dt.date.today().isoformat()}.zip"
     return StreamingResponse(stream_zip(entries), media_type="application/zip",
