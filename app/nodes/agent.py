@@ -179,6 +179,8 @@ class _Rec:
     pending_images: list[Any] = field(default_factory=list)  # not yet encoded and written
     images_skipped: int = 0  # frames whose images were left out (encoder behind)
     lock: threading.Lock = field(default_factory=threading.Lock)
+    rebase: float = 0.0  # added to frame times (a resumed part keeps its first clock's origin)
+    gap_s: float | None = None  # a resumed part: seconds missing before this segment
 
 
 class NodeAgent:
@@ -857,32 +859,53 @@ class NodeAgent:
 
     def _on_command(self, msg: RecStart | RecStop) -> None:
         if isinstance(msg, RecStart):
-            if msg.rec_id in self._recs or any(p.rec_id == msg.rec_id for p in self.store.parts()):
+            if msg.rec_id in self._recs:
                 return  # duplicate (resent after a reconnect)
+            old = next((p for p in self.store.parts() if p.rec_id == msg.rec_id), None)
+            if old is not None and not (msg.resume and old.state == "incomplete"
+                                        and self.store.meta(msg.rec_id).get("t_stop_server")
+                                        is None):
+                return  # duplicate, or a part that was stopped: never reopened
             try:
-                writer = self.store.create_part(
-                    msg.rec_id, node_id=self.node_id, t_start_local=msg.t_start_local,
-                    t_start_server=msg.t_start_server, streams=list(msg.streams),
-                    image_every=msg.image_every, clock_start=msg.clock,
-                )
+                if old is not None:  # this node restarted during the recording: continue
+                    writer = self.store.reopen_part(
+                        msg.rec_id, t_start_local=msg.t_start_local,
+                        t_start_server=msg.t_start_server, clock_start=msg.clock,
+                        rebase_s=msg.rebase_s, agent_started=self.started)
+                    self._manifests.pop(msg.rec_id, None)
+                    self._finished.pop(msg.rec_id, None)
+                else:
+                    writer = self.store.create_part(
+                        msg.rec_id, node_id=self.node_id, t_start_local=msg.t_start_local,
+                        t_start_server=msg.t_start_server, streams=list(msg.streams),
+                        image_every=msg.image_every, clock_start=msg.clock,
+                    )
             except (GaitrigError, OSError) as exc:
                 # The server must learn it as the part's state (else the part waits as
                 # "pending" for ever); re-announced like any closed part.
                 log.error("cannot record %s: %s", msg.rec_id, exc)
                 failed = PartInfo(rec_id=msg.rec_id, state="incomplete",
                                   reason=self._write_failure(exc, 0))
+                if old is not None:  # what it holds stays as it was
+                    failed = old.model_copy(update={"reason": (
+                        f"{old.reason or 'closed early'}; not recording again: {exc}")})
                 self._finished[msg.rec_id] = (failed, time.monotonic())
                 self._send_control(dump(RecState(part=failed)))
                 return
-            rec = _Rec(msg, writer)
+            rec = _Rec(msg, writer, rebase=msg.rebase_s if old is not None else 0.0)
+            if old is not None and writer.t_last is not None:
+                rec.gap_s = max(0.0, msg.t_start_local + rec.rebase - writer.t_last)
+                log.warning("recording %s is still running: recording again into its part "
+                            "(%.1f s missing since this node stopped)", msg.rec_id, rec.gap_s)
             self._recs[msg.rec_id] = rec
             early = self._early_stops.pop(msg.rec_id, None)
             if early is not None:  # the stop overtook the start (reordered delivery)
                 rec.stop_cmd, rec.t_stop_local = early, early.t_stop_local
             # The command may arrive after its start time: take the past from the ring.
             for _t, fr in self.ring.since(msg.t_start_local):
-                self._record_frame(rec, fr, encode_skeletons(0, fr.t_local, fr.positions,
-                                                             fr.states, fr.body_ids))
+                self._record_frame(rec, fr, encode_skeletons(0, fr.t_local + rec.rebase,
+                                                             fr.positions, fr.states,
+                                                             fr.body_ids))
                 if msg.rec_id not in self._recs:
                     return
             if self.ring.oldest is not None and self.ring.oldest > msg.t_start_local:
@@ -907,7 +930,7 @@ class NodeAgent:
             if latest is not None and latest[0] > msg.t_stop_local:
                 # Frames after the stop time were written while the command travelled.
                 with rec_.lock:
-                    rec_.writer.truncate_after(msg.t_stop_local)
+                    rec_.writer.truncate_after(msg.t_stop_local + rec_.rebase)
                 self._finish(rec_, "on_node", None)
 
     def _record_frame(self, rec: _Rec, frame: Frame, msg: bytes) -> None:
@@ -916,9 +939,12 @@ class NodeAgent:
         if frame.t_local > rec.t_stop_local:
             self._finish(rec, "on_node", None)
             return
+        if rec.rebase:  # a resumed part: its frames on its first clock's origin
+            msg = encode_skeletons(self.seq, frame.t_local + rec.rebase, frame.positions,
+                                   frame.states, frame.body_ids)
         try:
             with rec.lock:
-                rec.writer.append(frame.t_local, "skeleton", msg)
+                rec.writer.append(frame.t_local + rec.rebase, "skeleton", msg)
         except OSError as exc:  # disk full, quota, I/O error: keep what is written
             self._finish(rec, "incomplete", self._write_failure(exc, rec.writer.n_frames))
             return
@@ -939,12 +965,13 @@ class NodeAgent:
         imgs = frame.images(streams)
         for name, img in imgs.items():
             data, f = encode_image(name, img, 1.0, "png")
-            header = {"kind": "image", "stream": name, "t": frame.t_local, "format": f,
+            t = frame.t_local + rec.rebase
+            header = {"kind": "image", "stream": name, "t": t, "format": f,
                       "width": img.shape[1], "height": img.shape[0], "scale": 1.0}
             try:
                 with rec.lock:
                     if not rec.writer.closed:
-                        rec.writer.append(frame.t_local, "image", encode_binary(header, data))
+                        rec.writer.append(t, "image", encode_binary(header, data))
             except OSError as exc:
                 if self._loop is not None:  # _finish waits for this thread: not from here
                     self._loop.call_soon_threadsafe(
@@ -973,11 +1000,15 @@ class NodeAgent:
         for fut in rec.pending_images:
             with contextlib.suppress(Exception):
                 fut.result(timeout=10)
+        if rec.gap_s is not None:  # a resumed part: whole but for the gap, which is said
+            gap = (f"node {self.node_id} was restarted during the recording: {rec.gap_s:.1f} s "
+                   "are missing, the frames before and after are kept")
+            state, reason = "incomplete", f"{gap}; {reason}" if reason else gap
         with rec.lock:
             try:
                 info = rec.writer.close(
                     state, reason,
-                    t_stop_local=rec.t_stop_local if rec.stop_cmd else None,
+                    t_stop_local=rec.t_stop_local + rec.rebase if rec.stop_cmd else None,
                     t_stop_server=rec.stop_cmd.t_stop_server if rec.stop_cmd else None,
                     clock_stop=rec.stop_cmd.clock if rec.stop_cmd else {},
                     images_skipped=rec.images_skipped,

@@ -199,6 +199,15 @@ class RecStart(_Msg):
     clock: dict[str, float] = Field(
         default_factory=dict, description="Server's clock model of this node, kept in the part."
     )
+    resume: bool = Field(
+        default=False,
+        description="The recording still runs and the node's part of it was closed early "
+        "(the node restarted): record again into that part, after its frames.")
+    rebase_s: float = Field(
+        default=0.0,
+        description="Add this to the node clock's times of the frames recorded now (resume): "
+        "the part's first clock model then converts them too (a restarted node's clock, "
+        "e.g. a device clock, may count from another origin).")
 
 
 class RecStop(_Msg):

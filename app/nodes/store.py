@@ -142,6 +142,20 @@ class PartWriter:
             os.fsync(self._f.fileno())
             self._last_sync = now
 
+    def _preload(self, index: list[tuple[float, int, str]]) -> None:
+        """Take the records already in ``frames.bin`` into the index (a reopened part)."""
+        rows = []
+        for t, off, kind in index:
+            if kind not in self._kinds:
+                self._kinds.append(kind)
+            rows.append(_IDX.pack(t, off, self._kinds.index(kind)))
+            if kind == "skeleton":
+                self.n_frames += 1
+                self.t_first = t if self.t_first is None else self.t_first
+                self.t_last = t
+        _write_all(self._spool, b"".join(rows))
+        self._n_entries = len(index)
+
     def _entries(self) -> np.ndarray:
         """The index so far (``t``, ``offset``, ``kind`` code), read back from the spool."""
         data = os.pread(self._spool.fileno(), self._n_entries * _IDX.size, 0)
@@ -299,6 +313,42 @@ class NodeStore:
         meta = {"rec_id": rec_id, "state": "recording", "created": time.time(), **params}
         _atomic_write_json(folder / "meta.json", meta)
         return PartWriter(folder, meta, self.fsync_interval_s)
+
+    def reopen_part(self, rec_id: str, **segment: Any) -> PartWriter:
+        """Record again into a closed part of a recording that is still running (the node
+        was restarted during it): new records go after the old ones.
+
+        ``meta.json`` keeps the part's first start (its times and clock model apply to the
+        whole part) and gets a ``segments`` list: one entry per start, with ``offset``
+        (where its records begin in ``frames.bin``) and ``segment`` (the new start's
+        parameters, e.g. ``t_start_local``, ``clock_start``, ``rebase_s``).
+
+        Raises:
+            InputError: the part is not here, still open, or the server verified it.
+        """
+        folder = self.root / _check_id(rec_id)
+        meta = self._meta(folder)
+        if meta is None:
+            raise InputError(f"recording {rec_id} is not on this node")
+        if meta.get("state") == "recording":
+            raise InputError(f"recording {rec_id} is still open on this node")
+        if _verified_at(folder) is not None:
+            raise InputError(f"recording {rec_id} was transferred already; it is not reopened")
+        if meta.get("t_stop_server") is not None:
+            raise InputError(f"recording {rec_id} was stopped; it is not reopened")
+        index, good_end = _scan(folder / "frames.bin")
+        with open(folder / "frames.bin", "r+b") as f:
+            f.truncate(good_end)
+        segments = list(meta.get("segments") or [{
+            "offset": 0, "t_start_local": meta.get("t_start_local"),
+            "t_start_server": meta.get("t_start_server"), "rebase_s": 0.0}])
+        segments.append({"offset": good_end, **segment})
+        meta.update(state="recording", segments=segments, reason=None)
+        _atomic_write_json(folder / "meta.json", meta)
+        (folder / "index.json").unlink(missing_ok=True)  # rewritten from the spool on close
+        writer = PartWriter(folder, meta, self.fsync_interval_s)
+        writer._preload(index)
+        return writer
 
     def recover(self) -> list[PartInfo]:
         """Close every part left open by a crash; returns the parts it repaired."""

@@ -15,6 +15,8 @@ server. :class:`DataSync` runs beside them (twice a second) and
 * tells a node again which of the parts it lists as unconfirmed (``status``) the server
   holds verified (the message sent after the transfer was lost with a connection or a
   restart), so the node can apply its retention policy;
+* has nodes that come back during a running recording (or join it late) record
+  (:meth:`app.server.recording.RecordingManager.rejoin`);
 * derives the recording state: ``recording`` → ``on_nodes`` → ``transferring`` →
   ``complete`` only when every part is verified on the server (``manifest.json`` in its
   folder), otherwise ``incomplete`` with the reasons; on ``complete`` it snapshots the
@@ -198,6 +200,8 @@ class DataSync:
         # node copies of deleted recordings: ask the connected nodes (again)
         self.hub.transfers.flush_deletions(self.retry_s)
         self.confirm_verified(reconnected)
+        # nodes back in (or new to) a running recording record (again)
+        self.hub.recordings.rejoin()
         with self.db_sessions() as db:
             rows = {r.id: r for r in db.scalars(select(m.Recording).where(
                 m.Recording.state != "complete"))}

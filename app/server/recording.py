@@ -13,6 +13,14 @@ Part states: ``pending`` (command sent) → ``recording`` → ``on_node`` (compl
 node's disk) or ``incomplete`` (with a reason, e.g. the node disconnected or crashed) →
 ``transferring`` → ``complete`` (verified copy on the server; :mod:`app.server.transfer`).
 An incomplete part can be transferred too; it stays ``incomplete`` with ``on_server``.
+
+A node that drops out of a running recording (crash, restart, power) and comes back while
+it still runs is told to record again (:meth:`RecordingManager.rejoin`): ``rec_start``
+with ``resume`` continues its part after the frames it kept, with ``rebase_s`` putting the
+new frames on the part's first clock model (a restarted node's clock may count from
+another origin), so the transfer and the analysis read one part as before; the part ends
+``incomplete`` saying how many seconds are missing. A node that connects after the start
+records from then on, its part saying so.
 This module keeps recordings in memory and in ``<data_dir>/recordings.json``; the data
 management database builds on :meth:`RecordingManager.to_dict`.
 """
@@ -36,6 +44,8 @@ from app.server.registry import NodeRegistry, NodeSession
 from engine.errors import InputError
 
 log = logging.getLogger("gaitrig.recording")
+
+REJOIN_AFTER_S = 1.0  # a node connected this long has reported its parts (hello)
 
 
 @dataclass
@@ -113,6 +123,7 @@ class RecordingManager:
         self.recordings: dict[str, Recording] = {}
         self.save_error: str | None = None  # why the last save failed, if it did
         self._tasks: set[asyncio.Task[None]] = set()
+        self._dropped: set[tuple[str, str]] = set()  # (rec, node) parts cut short by a drop
         self._load()
 
     # ------------------------------------------------------------------ persistence
@@ -261,6 +272,8 @@ class RecordingManager:
             part.state = info.state
         if from_hello and info.state == "recording" and rec.t_stop is not None:
             self._send_stop(rec, node_id)  # it missed the stop while disconnected
+        if from_hello and info.state == "incomplete" and rec.t_stop is None:
+            self._dropped.add((rec.id, node_id))  # restarted during it: record again
         if prev != part.state:
             log.info("recording %s part %s: %s → %s", rec.id, node_id, prev, part.state)
             self.save()
@@ -275,7 +288,59 @@ class RecordingManager:
                                f"{time.strftime('%H:%M:%S', time.gmtime())} UTC during the "
                                "recording")
                 log.warning("recording %s: %s", rec.id, part.reason)
+                if rec.t_stop is None:
+                    self._dropped.add((rec.id, node_id))
                 self.save()
+
+    def rejoin(self) -> list[str]:
+        """Bring nodes (back) into the running recording: a node whose part was cut short
+        (it dropped; restarted, its part is closed) records again into that part; a node
+        that was not there at the start records from now on. Only nodes connected for
+        :data:`REJOIN_AFTER_S` with a measured clock; each drop is answered once (a node
+        that kept recording through a network blip ignores the resume).
+
+        Returns:
+            The nodes told to record now.
+        """
+        rec = self.active()
+        if rec is None:
+            return []
+        now = time.time()
+        told = []
+        for s in self.registry.connected():
+            est = s.estimate
+            if est is None or s.connected_at is None or now - s.connected_at < REJOIN_AFTER_S:
+                continue
+            part = rec.parts.get(s.id)
+            if part is not None and (rec.id, s.id) not in self._dropped:
+                continue
+            self._dropped.discard((rec.id, s.id))
+            if part is not None and part.state != "incomplete":
+                continue  # it kept recording (a network blip): nothing to do
+            t = max(now + self.start_margin_s, rec.t_start)
+            when = time.strftime("%H:%M:%S", time.gmtime(t))
+            if part is None:
+                part = Part(s.id, clock=est.as_dict(), reason=(
+                    f"node {s.id} joined {t - rec.t_start:.0f} s after the start; recorded "
+                    f"from {when} UTC"))
+                rec.parts[s.id] = part
+                cmd = RecStart(rec_id=rec.id, t_start_server=t, t_start_local=est.to_local(t),
+                               streams=list(rec.streams), image_every=rec.image_every,  # type: ignore[arg-type]
+                               clock=est.as_dict())
+            else:
+                first = _model(part.clock) if part.clock else est
+                part.state = "pending"
+                part.reason = f"{part.reason or 'cut short'}; recording again from {when} UTC"
+                cmd = RecStart(rec_id=rec.id, t_start_server=t, t_start_local=est.to_local(t),
+                               streams=list(rec.streams), image_every=rec.image_every,  # type: ignore[arg-type]
+                               clock=est.as_dict(), resume=True,
+                               rebase_s=first.to_local(t) - est.to_local(t))
+            self._send_later(s, dump(cmd))
+            log.info("recording %s: node %s records (again): %s", rec.id, s.id, part.reason)
+            told.append(s.id)
+        if told:
+            self.save()
+        return told
 
     def to_dict(self, rec: Recording) -> dict[str, Any]:
         """JSON view of a recording (REST)."""

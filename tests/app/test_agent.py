@@ -254,3 +254,41 @@ def test_a_verified_part_is_kept_its_days_and_the_mark_survives_a_restart(
                       retention=policy)
     assert again.store.verified_at("R1") is not None
     assert again.store.usage().verified_parts == 1
+
+
+def test_a_restarted_node_records_again_into_its_part(tmp_path: Path) -> None:
+    first = NodeAgent("S1", _Scripted(), "ws://127.0.0.1:1/ws/node", "token", tmp_path)
+    for k in range(10):
+        first._on_frame(_frame(k))
+    first._on_command(RecStart(rec_id="R1", t_start_server=0.0, t_start_local=0.0))
+    for k in range(10, 40):  # up to 1.3 s, then the process dies (no stop, no close)
+        first._on_frame(_frame(k))
+    # restarted: its (device) clock now counts from another origin, 100 s ahead
+    again = NodeAgent("S1", _Scripted(), "ws://127.0.0.1:1/ws/node", "token", tmp_path)
+    assert [p.state for p in again.store.recover()] == ["incomplete"]
+    for k in range(30):
+        again._on_frame(Frame(100.0 + k * DT, np.full((1, 25, 3), 500 + k, np.float32),
+                              np.full((1, 25), 2, np.uint8), [0]))
+    # a start resent without resume (a reconnect) changes nothing
+    again._on_command(RecStart(rec_id="R1", t_start_server=0.0, t_start_local=100.5))
+    assert "R1" not in again._recs
+    # the server: record again from local 100.5 = 2.0 s on the part's first clock
+    again._on_command(RecStart(rec_id="R1", t_start_server=0.0, t_start_local=100.5,
+                               resume=True, rebase_s=-98.5))
+    for k in range(30, 70):
+        again._on_frame(Frame(100.0 + k * DT, np.full((1, 25, 3), 500 + k, np.float32),
+                              np.full((1, 25), 2, np.uint8), [0]))
+    again._on_command(RecStop(rec_id="R1", t_stop_server=0.0, t_stop_local=101.5))
+    ts = np.array(_times(again.store, "R1"))
+    assert len(ts) == 40 + 31 and np.all(np.diff(ts) > 0)
+    assert ts[39] == pytest.approx(39 * DT) and ts[40] == pytest.approx(2.0)
+    assert ts[-1] == pytest.approx(3.0)
+    part = again.store.parts()[0]
+    assert part.state == "incomplete" and part.n_frames == 71
+    assert "restarted during the recording: 0.7 s are missing" in (part.reason or "")
+    meta = again.store.meta("R1")
+    assert meta["t_stop_local"] == pytest.approx(3.0) and len(meta["segments"]) == 2
+    # a part closed normally is never reopened
+    again._on_command(RecStart(rec_id="R1", t_start_server=0.0, t_start_local=102.0,
+                               resume=True))
+    assert "R1" not in again._recs

@@ -113,3 +113,52 @@ def test_a_failing_save_neither_fails_a_start_nor_a_node_message(tmp_path: Path)
         assert RecordingManager(NodeRegistry(), tmp_path).recordings[rec.id].t_stop
 
     asyncio.run(scenario())
+
+
+def test_nodes_back_or_new_during_a_recording_record(tmp_path: Path) -> None:
+    sent: dict[str, list[dict[str, object]]] = {}
+
+    async def scenario() -> None:
+        reg = _registry(sent, {"S1": 0.5, "S2": 0.0})
+        mgr = RecordingManager(reg, tmp_path, start_margin_s=0.2)
+        rec = mgr.start()
+        await asyncio.sleep(0.01)
+        for nid in ("S1", "S2"):
+            mgr.on_part(nid, PartInfo(rec_id=rec.id, state="recording", n_frames=30))
+        send2 = reg.nodes["S2"].send
+        # S1 crashes; S2's network blips (it keeps recording)
+        for nid in ("S1", "S2"):
+            reg.disconnect(nid)
+            mgr.on_disconnect(nid)
+        assert mgr.rejoin() == []
+        # S1 restarted: its clock now counts from another origin (offset 100.5 s)
+        new = _registry(sent, {"S1": 100.5, "S3": -1.0})
+        for nid in ("S1", "S3"):  # S3 was not there at the start
+            reg.nodes[nid] = new.nodes[nid]
+        assert send2 is not None
+        reg.connect("S2", "sim", SensorInfo(), send2, restarted=False)
+        mgr.on_part("S2", PartInfo(rec_id=rec.id, state="recording", n_frames=40),
+                    from_hello=True)
+        mgr.on_part("S1", PartInfo(rec_id=rec.id, state="incomplete", n_frames=30,
+                                   reason="node stopped while recording"), from_hello=True)
+        assert mgr.rejoin() == []  # just connected: their hellos may not be in yet
+        for nid in ("S1", "S2", "S3"):
+            reg.nodes[nid].connected_at = reg.nodes[nid].connected_at - 2.0  # type: ignore[operator]
+        assert mgr.rejoin() == ["S1", "S3"]
+        await asyncio.sleep(0.01)
+        resume, late = sent["S1"][-1], sent["S3"][-1]
+        assert resume["type"] == "rec_start" and resume["resume"] is True
+        t = resume["t_start_server"]
+        assert resume["t_start_local"] == pytest.approx(t + 100.5, abs=1e-6)  # type: ignore[operator]
+        # frames of the new clock + rebase_s = the part's first clock (offset 0.5)
+        assert resume["rebase_s"] == pytest.approx(-100.0, abs=1e-6)
+        assert rec.parts["S1"].state == "pending"
+        assert "recording again from" in (rec.parts["S1"].reason or "")
+        assert late["resume"] is False and late["t_start_server"] > rec.t_start  # type: ignore[operator]
+        assert "S3 joined" in (rec.parts["S3"].reason or "")
+        assert rec.parts["S2"].state == "recording" and len(sent["S2"]) == 1  # start only
+        assert mgr.rejoin() == []  # once per drop
+        mgr.stop(rec.id)
+        assert mgr.rejoin() == []  # nothing runs
+
+    asyncio.run(scenario())

@@ -233,3 +233,34 @@ def test_an_open_part_cannot_be_marked_verified(tmp_path: Path) -> None:
     policy = RetentionPolicy(keep_verified_s=0, min_free_bytes=10**18, min_free_fraction=1)
     assert store.purge(policy, free_space=lambda: (0, 1)) == []
     assert store.usage().held_parts == 1 and store.usage().unverified == ()
+
+
+def test_a_recovered_part_is_reopened_and_continued(tmp_path: Path) -> None:
+    store = NodeStore(tmp_path)
+    _write(store, "R1", 20)  # the node died while recording
+    with open(tmp_path / "R1" / "frames.bin", "ab") as fh:
+        fh.write(b"\x40\x00\x00")  # torn tail
+    NodeStore(tmp_path).recover()
+    with pytest.raises(InputError, match="not on this node"):
+        store.reopen_part("R9")
+    w = NodeStore(tmp_path).reopen_part("R1", t_start_local=5.0, rebase_s=0.25)
+    with pytest.raises(InputError, match="still open"):
+        store.reopen_part("R1")
+    assert w.n_frames == 20 and w.t_first == 0.0
+    for k in range(10):
+        t = 5.0 + k / 30.0
+        pos = np.full((1, 25, 3), 100 + k, np.float32)
+        w.append(t, "skeleton", encode_skeletons(k, t, pos, np.full((1, 25), 2)))
+    w.truncate_after(5.0 + 7.5 / 30.0)  # a late stop still cuts only the new records
+    info = w.close("incomplete", "gap")
+    assert info.n_frames == 28 and info.t_last == pytest.approx(5.0 + 7 / 30.0)
+    frames = [decode_skeletons(h, p)[0][0, 0, 0] for h, p in store.read("R1")]
+    assert frames == [float(k) for k in range(20)] + [100.0 + k for k in range(8)]
+    index = json.loads((tmp_path / "R1" / "index.json").read_text())
+    assert len(index) == 28 and index[20][1] > index[19][1]
+    meta = store.meta("R1")
+    assert [s["offset"] for s in meta["segments"]] == [0, index[20][1]]
+    assert meta["segments"][1]["rebase_s"] == 0.25 and meta["state"] == "incomplete"
+    store.mark_verified("R1", "a" * 64)
+    with pytest.raises(InputError, match="transferred already"):
+        store.reopen_part("R1")

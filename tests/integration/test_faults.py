@@ -3,7 +3,8 @@
 One recording on four nodes meets, at once: a second start, a node's clock stepped by
 NTP, a node killed (SIGKILL) and restarted while it runs, a node whose websocket is cut
 (a TCP proxy between it and the server drops every connection), a node whose disk fills
-up (a 32 KiB tmpfs, when this runs as root), and a node that joins after the start.
+up (a 32 KiB tmpfs, when this runs as root), and a node that joins after the start. The
+restarted node records again into its part, the late one from when it joined.
 Then: stop, stop again, stop an unknown recording, delete it while it is transferred.
 Every frame a node wrote must end on the server byte-identical, and each part must say
 what happened to it.
@@ -27,6 +28,7 @@ import numpy as np
 import pytest
 
 from app.nodes.store import NodeStore
+from app.server.storage import read_part_skeleton
 from tests.app.data.test_record_flow import setup_session
 from tests.integration.conftest import Rig, wait_for
 
@@ -138,7 +140,7 @@ def _run(rig: Rig, proxy: CuttableProxy, tiny_disk: Path | None) -> None:
     rec_id = rig.api(f"/api/sessions/{ids['session']['id']}/recordings", {"label": "walk"})["id"]
     code, msg = _http_error(lambda: rig.api("/api/recordings", {}))
     assert code == 409 and "already running" in msg
-    rig.start_node("S4")  # joins after the start: not part of this recording
+    rig.start_node("S4")  # joins after the start: recorded from then on
     wait_for(lambda: all(_parts(rig, rec_id)[n]["n_frames"] > 15 for n in nodes), 30,
              "every node recording")
     # NTP steps S2's system clock 0.4 s ahead: its recorded times must stay continuous
@@ -154,18 +156,23 @@ def _run(rig: Rig, proxy: CuttableProxy, tiny_disk: Path | None) -> None:
                  (ps["S2"]["reason"] or "") and ps, 30, "S1 gone, S2 back")
     assert "node S1 disconnected at" in p["S1"]["reason"]
     assert p["S2"]["reason"].startswith("node S2 disconnected at")
-    rig.start_node("S1", name="S1-again")
+    rig.start_node("S1", name="S1-again")  # back while the recording runs: records again
     if tiny_disk is not None:  # S3's disk is full by now: it stopped, with the reason
         p = wait_for(lambda: (ps := _parts(rig, rec_id))["S3"]["state"] == "incomplete" and
                      ps, 30, "S3's full disk")
         assert p["S3"]["reason"].startswith("node S3's disk is full; recording stopped")
         assert p["S3"]["n_frames"] > 15
-    p = wait_for(lambda: "recovered" in ((ps := _parts(rig, rec_id))["S1"]["reason"] or "")
-                 and ps, 30, "S1's recovered part")
-    assert p["S1"]["state"] == "incomplete" and p["S1"]["n_frames"] > 15
+    p = wait_for(lambda: "recording again" in ((ps := _parts(rig, rec_id))["S1"]["reason"]
+                                               or "") and ps["S1"]["state"] == "recording"
+                 and ps, 30, "S1 recording again")
+    assert "recovered" in p["S1"]["reason"] and p["S1"]["n_frames"] > 15
+    n_before = p["S1"]["n_frames"]
+    p = wait_for(lambda: (ps := _parts(rig, rec_id))["S1"]["n_frames"] > n_before + 15 and
+                 ps["S4"]["n_frames"] > 15 and ps, 30, "S1 and S4 recording")
+    assert "joined" in p["S4"]["reason"] and "after the start" in p["S4"]["reason"]
 
     rec = rig.api(f"/api/recordings/{rec_id}/stop", method="POST")
-    assert {q["node_id"] for q in rec["parts"]} == set(nodes)
+    assert {q["node_id"] for q in rec["parts"]} == {*nodes, "S4"}
     code, msg = _http_error(lambda: rig.api(f"/api/recordings/{rec_id}/stop", method="POST"))
     assert code == 409 and "already stopped" in msg
     code, msg = _http_error(lambda: rig.api("/api/recordings/R-none/stop", method="POST"))
@@ -188,20 +195,27 @@ def _run(rig: Rig, proxy: CuttableProxy, tiny_disk: Path | None) -> None:
     r = wait_for(lambda: (x := rig.api(f"/api/storage/recordings/{rec_id}"))["state"] !=
                  "transferring" and x, 10, "the stored state")
     assert r["state"] == "incomplete"
-    assert "S1: node stopped while recording" in r["reason"], r["reason"]
+    assert "S1: node S1 was restarted during the recording:" in r["reason"], r["reason"]
     assert ps["S2"]["state"] == "complete"
     # S2 recorded through the outage: the whole interval
     assert ps["S2"]["t_first"] - rec["t_start"] < 0.05
     assert abs(ps["S2"]["t_last"] - rec["t_stop"]) < 0.05
     if tiny_disk is not None:
         assert ps["S3"]["state"] == "incomplete" and "S3: node S3's disk is full" in r["reason"]
-    for n in nodes:  # what each node wrote is on the server, byte for byte
+    # S1: before its crash and after its restart, on the server clock, the gap between
+    s1 = read_part_skeleton(rig.tmp / "server" / "recordings" / rec_id / "S1").times
+    assert len(s1) == ps["S1"]["n_frames"] and np.all(np.diff(s1) > 0)
+    assert s1[0] - rec["t_start"] < 0.05 and abs(s1[-1] - rec["t_stop"]) < 0.1
+    assert np.max(np.diff(s1)) > 0.5  # the restart
+    # S4 joined late: complete from then on
+    assert ps["S4"]["state"] == "complete" and ps["S4"]["t_first"] > rec["t_start"] + 0.5
+    assert abs(ps["S4"]["t_last"] - rec["t_stop"]) < 0.1
+    for n in [*nodes, "S4"]:  # what each node wrote is on the server, byte for byte
         server = rig.tmp / "server" / "recordings" / rec_id / n
         node = rig.node_dir(n) / "recordings" / rec_id
         assert not (server / ".incoming").exists()
         assert _sha(server / "frames.bin") == _sha(node / "frames.bin"), n
         assert _sha(server / "meta.json") == _sha(node / "meta.json"), n
-    assert "S4" not in ps
     # S2's clock step is in none of its recorded times (no jump, none dropped)
     ts = [float(h["t"]) for h, _ in NodeStore(rig.node_dir("S2") / "recordings").read(rec_id)
           if h["kind"] == "skeleton"]
