@@ -1,14 +1,28 @@
-"""Synchronous recordings: start, stop, list, inspect."""
+"""Synchronous recordings: start, stop, list, inspect.
+
+Besides the recording manager's view (:meth:`app.server.recording.RecordingManager.to_dict`,
+with ``save_error``), each answer says what the server knows about each part and the
+rig: a part's ``images_skipped`` (frames recorded without their images because the
+node's encoder fell behind; from the server copy's ``meta.json``, ``null`` until the part
+is on the server) and ``not_in_recording`` (nodes connected while the recording ran that
+are not part of it, with why).
+"""
 
 from __future__ import annotations
 
-from typing import Any, Literal
+import json
+import time
+from pathlib import Path
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, HTTPException, status
+from fastapi import APIRouter, HTTPException, Query, status
 from pydantic import BaseModel, Field
 
-from app.api.deps import CurrentUser, HubDep
+from app.api.deps import CurrentUser, HubDep, SettingsDep
 from app.api.limits import BoundedRoute
+from app.server.hub import Hub
+from app.server.recording import Recording
+from app.server.storage import StorageLayout
 from engine.errors import InputError
 
 router = APIRouter(prefix="/recordings", route_class=BoundedRoute, tags=["recordings"])
@@ -21,34 +35,107 @@ class StartIn(BaseModel):
     image_every: int = Field(default=1, ge=1, le=1000, description="Images of every N-th frame.")
 
 
+# meta.json path -> (mtime_ns, images_skipped): pages poll recordings twice a second
+_SKIPPED: dict[Path, tuple[int, int]] = {}
+_SKIPPED_MAX = 4096
+
+
+def _images_skipped(layout: StorageLayout, rec_id: str, node_id: str) -> int | None:
+    """Frames of a part recorded without their images, from the server copy's
+    ``meta.json`` (a part recorded before the count existed has none: 0); ``None`` when
+    the copy or its meta cannot be read."""
+    try:
+        path = layout.part_dir(rec_id, node_id) / "meta.json"
+        mtime = path.stat().st_mtime_ns
+    except (InputError, OSError):
+        return None
+    hit = _SKIPPED.get(path)
+    if hit is not None and hit[0] == mtime:
+        return hit[1]
+    try:
+        meta = json.loads(path.read_text())
+        n = int(meta.get("images_skipped", 0)) if isinstance(meta, dict) else 0
+    except (OSError, ValueError, TypeError):
+        return None
+    if len(_SKIPPED) >= _SKIPPED_MAX:
+        _SKIPPED.clear()
+    _SKIPPED[path] = (mtime, n)
+    return n
+
+
+def _not_in_recording(hub: Hub, rec: Recording) -> list[dict[str, Any]]:
+    """Nodes connected at some time while ``rec`` ran that have no part in it.
+
+    The registry keeps only each node's latest connection, so a node that joined during
+    the recording and reconnected after its stop is not listed.
+    """
+    end = rec.t_stop if rec.t_stop is not None else time.time()
+    out = []
+    for s in sorted(hub.registry.nodes.values(), key=lambda s: s.id):
+        if s.id in rec.parts or s.connected_at is None or s.connected_at > end:
+            continue
+        if not s.connected and (s.disconnected_at or 0.0) < rec.t_start:
+            continue  # gone before the start
+        if s.connected_at > rec.created:
+            hms = time.strftime("%H:%M:%S", time.gmtime(s.connected_at))
+            why = f"connected at {hms} UTC, after the start; it records from the next start"
+        else:
+            why = "its clock was not measured yet at the start"
+        out.append({"node_id": s.id, "connected_at": s.connected_at, "reason": why})
+    return out
+
+
+def _view(hub: Hub, layout: StorageLayout, rec: Recording) -> dict[str, Any]:
+    """The manager's JSON of ``rec`` with ``images_skipped`` per part and
+    ``not_in_recording``."""
+    d = hub.recordings.to_dict(rec)
+    for p in d["parts"]:
+        p["images_skipped"] = (_images_skipped(layout, rec.id, p["node_id"])
+                               if p.get("on_server") else None)
+    d["not_in_recording"] = _not_in_recording(hub, rec)
+    return d
+
+
 @router.get("")
-async def list_recordings(user: CurrentUser, hub: HubDep) -> list[dict[str, Any]]:
-    """All recordings, newest first, with per-node part states."""
-    recs = sorted(hub.recordings.recordings.values(), key=lambda r: r.created, reverse=True)
-    return [hub.recordings.to_dict(r) for r in recs]
+async def list_recordings(
+        user: CurrentUser, hub: HubDep, settings: SettingsDep,
+        ids: Annotated[str | None, Query(max_length=20000, description=(
+            "Comma-separated recording ids: only these (unknown ids are left out).")
+        )] = None) -> list[dict[str, Any]]:
+    """All recordings (or those in ``ids``), newest first, with per-node part states."""
+    recs = list(hub.recordings.recordings.values())
+    if ids is not None:
+        want = {i.strip() for i in ids.split(",") if i.strip()}
+        recs = [r for r in recs if r.id in want]
+    recs.sort(key=lambda r: r.created, reverse=True)
+    layout = StorageLayout(settings.data_dir)
+    return [_view(hub, layout, r) for r in recs]
 
 
 @router.post("", status_code=201)
-async def start_recording(body: StartIn, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+async def start_recording(body: StartIn, user: CurrentUser, hub: HubDep,
+                          settings: SettingsDep) -> dict[str, Any]:
     """Start recording on every connected node at a common server time."""
     try:
         rec = hub.recordings.start(list(body.streams), body.image_every)
     except InputError as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from exc
-    return hub.recordings.to_dict(rec)
+    return _view(hub, StorageLayout(settings.data_dir), rec)
 
 
 @router.get("/{rec_id}")
-async def get_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+async def get_recording(rec_id: str, user: CurrentUser, hub: HubDep,
+                        settings: SettingsDep) -> dict[str, Any]:
     """One recording."""
     rec = hub.recordings.recordings.get(rec_id)
     if rec is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no recording {rec_id!r}")
-    return hub.recordings.to_dict(rec)
+    return _view(hub, StorageLayout(settings.data_dir), rec)
 
 
 @router.post("/{rec_id}/transfer", status_code=202)
-async def transfer_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+async def transfer_recording(rec_id: str, user: CurrentUser, hub: HubDep,
+                             settings: SettingsDep) -> dict[str, Any]:
     """Copy every closed part to the server, verified chunk by chunk (runs in background;
     follow the parts' ``state`` and ``transfer_progress``)."""
     if rec_id not in hub.recordings.recordings:
@@ -57,11 +144,12 @@ async def transfer_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dic
         hub.transfers.start(rec_id)
     except InputError as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from exc
-    return hub.recordings.to_dict(hub.recordings.recordings[rec_id])
+    return _view(hub, StorageLayout(settings.data_dir), hub.recordings.recordings[rec_id])
 
 
 @router.post("/{rec_id}/stop")
-async def stop_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[str, Any]:
+async def stop_recording(rec_id: str, user: CurrentUser, hub: HubDep,
+                         settings: SettingsDep) -> dict[str, Any]:
     """Stop a recording now on all its nodes."""
     if rec_id not in hub.recordings.recordings:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no recording {rec_id!r}")
@@ -69,4 +157,4 @@ async def stop_recording(rec_id: str, user: CurrentUser, hub: HubDep) -> dict[st
         rec = hub.recordings.stop(rec_id)
     except InputError as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from exc
-    return hub.recordings.to_dict(rec)
+    return _view(hub, StorageLayout(settings.data_dir), rec)
