@@ -89,13 +89,42 @@
     if (recStart !== null) $("elapsed").textContent = fmtTime(Math.max(0, (recStop ?? Date.now() / 1000) - recStart));
   }
 
-  function partRow(p) {
+  // What happened to a part besides its state, from the filed part `p` and the server's
+  // live one `lp` (which keeps the reason of a part that ended complete: a node that
+  // reconnected and kept recording, a part recovered after a crash). An error only while
+  // the part is incomplete, else a note; a failed transfer is no news once the part is
+  // transferring again or complete.
+  function partWhy(p, lp) {
+    const out = [];
+    let reason = p.reason || (lp && lp.reason) || "";
+    if (p.state !== "incomplete") reason = reason.split("; transfer failed")[0].replace(/^transfer failed.*/, "");
+    if (reason) out.push(el("div", { class: p.state === "incomplete" ? "reason" : "note", "data-kind": "reason" }, reason));
+    const skipped = p.images_skipped ?? (lp ? lp.images_skipped : null);
+    if (skipped > 0)
+      out.push(el("div", { class: "note", "data-kind": "images-skipped" },
+        `${skipped} frame${skipped === 1 ? "" : "s"} recorded without ${skipped === 1 ? "its" : "their"} images: the sensor's image encoder fell behind (record images of every N-th frame with a larger N).`));
+    return out;
+  }
+
+  function partRow(p, lp) {
     const prog = el("progress", { max: "1", value: String(p.progress), "aria-label": `transfer of ${p.node_id}` });
     return el("tr", { "data-node": p.node_id, "data-state": p.state },
       el("th", { scope: "row" }, p.node_id), el("td", {}, el("span", { class: "badge st-" + p.state }, PART_TEXT[p.state] || p.state)),
       el("td", { class: "num" }, String(p.n_frames)),
       el("td", { class: "num" }, prog, ` ${Math.round(p.progress * 100)} % of ${mb(p.bytes_total)}`),
-      el("td", { class: "reason" }, p.state === "complete" ? "" : (p.reason || "")));
+      el("td", { class: "why" }, ...partWhy(p, lp)));
+  }
+
+  // The server's own view of the recording (GET /api/recordings/{id}) says what the filed
+  // one does not: that it cannot save its recording list (disk full) and which sensors
+  // are not in the recording. null: not known there (deleted meanwhile).
+  function showLive(live) {
+    const err = live ? live.save_error : null;
+    $("save-error").hidden = !err;
+    $("save-error").textContent = err ? `${err[0].toUpperCase()}${err.slice(1)}. Free space on the server's disk (the Subjects page shows how much is free); the list is saved again with the next change.` : "";
+    const out = (live && live.not_in_recording) || [];
+    $("left-out").hidden = !out.length;
+    $("left-out").replaceChildren(...out.map((n) => el("li", { "data-node": n.node_id }, `${n.node_id} is not in this recording: ${n.reason}.`)));
   }
 
   // follow() starts a new chain of polls of the recording on the page; an older chain
@@ -107,12 +136,15 @@
   async function poll(mine) {
     if (!chain.current(mine) || recId === null) return;
     try {
-      const r = await api(`/api/storage/recordings/${recId}`);
+      const [r, live] = await Promise.all([api(`/api/storage/recordings/${recId}`),
+        api(`/api/recordings/${recId}`).catch(() => null)]);
       if (!chain.current(mine)) return;
       recStart = r.t_start; recStop = r.t_stop;
       $("rec-state").replaceChildren(el("span", { class: "badge st-" + r.state, id: "state-badge", "data-state": r.state }, STATE_TEXT[r.state] || r.state),
         r.reason ? el("span", { class: "reason" }, " " + r.reason) : "");
-      $("parts").replaceChildren(...r.parts.map(partRow));
+      const lparts = new Map((live ? live.parts : []).map((p) => [p.node_id, p]));
+      $("parts").replaceChildren(...r.parts.map((p) => partRow(p, lparts.get(p.node_id))));
+      showLive(live);
       const running = r.state === "recording";
       $("start").disabled = running; $("stop").disabled = !running;
       if (!running) {
@@ -124,7 +156,9 @@
         copying = null;
         say("rec-msg", `Recording ${r.id} is copied to the server: every sensor's part verified.`, true);
       }
+      // a save error stays on screen until the server saved again
       if (r.state !== "complete") setTimeout(() => poll(mine), running ? 500 : 700);
+      else if (live && live.save_error) setTimeout(() => poll(mine), 2000);
     } catch (e) { if (chain.current(mine)) { say("rec-msg", e.message); setTimeout(() => poll(mine), 2000); } }
   }
 
@@ -137,6 +171,7 @@
       const r = await api(`/api/sessions/${sid}/recordings`, { method: "POST", body: JSON.stringify({
         label: $("label").value.trim(), streams, image_every: Number($("every").value) || 1 }) });
       recId = r.id; recStart = r.t_start; recStop = null; $("done-link").hidden = true;
+      showLive(r);
       say("rec-msg", `Recording ${r.id} started on ${r.parts.map((p) => p.node_id).join(", ")}.`, true);
       $("stop").disabled = false; $("stop").focus();
       follow();

@@ -4,6 +4,7 @@ Subjects page shows it complete with its export links; deletion needs the code."
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -66,4 +67,67 @@ def test_record_stop_transfer_and_subjects_page(page: Any, live_server: LiveServ
     page.click("#delete-form button")
     page.wait_for_function("document.getElementById('delete-msg').textContent.includes('deleted')")
     page.wait_for_function("!document.querySelector('tr[data-subject=BRW01]')")
+    assert not page.js_errors
+
+
+def _json_route(body: Any) -> Any:
+    def handle(route: Any) -> None:
+        route.fulfill(status=200, content_type="application/json", body=json.dumps(body))
+    return handle
+
+
+def test_record_page_says_what_happened_to_each_part(page: Any, live_server: LiveServer,
+                                                    artifacts_dir: Path) -> None:
+    """What the server knows beyond the part states is on the page: the reason of a part
+    that ended complete (as a note), frames recorded without images, a sensor that joined
+    after the start, and a recording list the server could not save. The server's answers
+    are given to the page (no real node can be made to drop or fill a disk here); the
+    server side of ``images_skipped`` and ``not_in_recording`` is tested on the Subjects
+    page against real recordings."""
+    rid, t0 = "R20260101-100000-abcd", 1767261600.0
+    part = {"n_frames": 90, "bytes_total": 2 ** 20, "bytes_done": 2 ** 20, "progress": 1.0,
+            "manifest_sha256": None, "attempts": 1}
+    filed = {"id": rid, "session_id": 1, "label": "walk", "notes": "", "state": "incomplete",
+             "reason": "S3 is incomplete", "t_start": t0, "t_stop": t0 + 5.0,
+             "duration_s": 5.0, "streams": ["depth"], "created_at": "2026-01-01T10:00:00",
+             "references": [], "bytes_on_server": 3 * 2 ** 20,
+             "session": {"id": 1, "date": "2026-01-01", "label": "visit"},
+             "subject": {"id": 1, "code": "FAKE1", "project_id": 1},
+             "parts": [{**part, "node_id": "S1", "state": "complete", "reason": None},
+                       {**part, "node_id": "S2", "state": "complete", "reason": None},
+                       {**part, "node_id": "S3", "state": "incomplete",
+                        "reason": "node stopped while recording; data recovered up to the "
+                                  "last intact frame"}]}
+    kept = "node S1 disconnected at 10:00:02 UTC during the recording; the node kept recording"
+    live = {"id": rid, "state": "incomplete", "t_start": t0, "t_stop": t0 + 5.0,
+            "save_error": "the server could not save its recording list ([Errno 28] No "
+                          "space left on device); a server restart now would lose the latest "
+                          "states",
+            "not_in_recording": [{"node_id": "S7", "connected_at": t0 + 2.0,
+                                  "reason": "connected at 10:00:02 UTC, after the start"}],
+            "parts": [{"node_id": "S1", "state": "complete", "reason": kept,
+                       "images_skipped": 0},
+                      {"node_id": "S2", "state": "complete", "images_skipped": 12,
+                       "reason": "transfer failed (timed out); retry when the node is online"},
+                      {"node_id": "S3", "state": "incomplete", "reason": None,
+                       "images_skipped": None}]}
+    listed = {**live, "state": "recording"}  # the page follows a recording that runs
+    page.route("**/api/recordings", _json_route([listed]))
+    page.route(f"**/api/recordings/{rid}", _json_route(live))
+    page.route(f"**/api/storage/recordings/{rid}", _json_route(filed))
+    page.goto(live_server.base_url + "/record.html")
+    page.wait_for_selector("#parts tr[data-node=S3]")
+    s1, s2 = page.locator("#parts tr[data-node=S1]"), page.locator("#parts tr[data-node=S2]")
+    # the complete part's reason is a note, not an error
+    assert "the node kept recording" in s1.inner_text()
+    assert s1.locator(".note[data-kind=reason]").count() == 1
+    assert s1.locator(".reason").count() == 0
+    assert "12 frames recorded without their images" in s2.inner_text()
+    assert "transfer failed" not in s2.inner_text()  # it succeeded since
+    assert page.locator("#parts tr[data-node=S3] .reason").inner_text().startswith(
+        "node stopped while recording")
+    banner = page.locator("#save-error")
+    assert banner.is_visible() and "No space left on device" in banner.inner_text()
+    assert "after the start" in page.inner_text("#left-out li[data-node=S7]")
+    screenshot(page, artifacts_dir, "record_part_notes")
     assert not page.js_errors
