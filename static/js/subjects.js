@@ -78,12 +78,22 @@
     await loadDetail(true);
   }
 
-  function partLine(recId, p) {
+  // `lp`: the server's live part (GET /api/recordings), which keeps the reason of a part
+  // that ended complete (a node that reconnected and kept recording, a part recovered after
+  // a crash) and counts the frames recorded without their images. A reason is an error
+  // only while the part is incomplete; a failed transfer is no news once it is complete.
+  function partLine(recId, p, lp) {
     const line = el("div", { class: "part", "data-node": p.node_id },
       el("strong", {}, p.node_id), badge(p.state),
       el("progress", { max: "1", value: String(p.progress), "aria-label": `transfer of ${p.node_id}` }),
       el("span", { class: "num" }, `${Math.round(p.progress * 100)} % of ${bytes(p.bytes_total)}, ${p.n_frames} frames`));
-    if (p.reason && p.state !== "complete") line.append(el("span", { class: "reason" }, p.reason));
+    let reason = p.reason || (lp && lp.reason) || "";
+    if (p.state !== "incomplete") reason = reason.split("; transfer failed")[0].replace(/^transfer failed.*/, "");
+    if (reason) line.append(el("span", { class: p.state === "incomplete" ? "reason" : "note", "data-kind": "reason" }, reason));
+    const skipped = p.images_skipped ?? (lp ? lp.images_skipped : null);
+    if (skipped > 0)
+      line.append(el("span", { class: "note", "data-kind": "images-skipped" },
+        `${skipped} frame${skipped === 1 ? "" : "s"} without ${skipped === 1 ? "its" : "their"} images (the sensor's image encoder fell behind)`));
     return line;
   }
 
@@ -118,14 +128,17 @@
     return box;
   }
 
-  function recordingRow(r) {
+  function recordingRow(r, live) {
     const when = r.t_start ? new Date(r.t_start * 1000).toLocaleTimeString() : "";
     const dur = r.duration_s !== null ? `${r.duration_s.toFixed(1)} s` : "running";
     const head = el("div", { class: "part" }, el("strong", {}, r.label || r.id), badge(r.state),
       el("span", { class: "hint" }, `${r.id} · ${when} · ${dur} · ${bytes(r.bytes_on_server || 0)} on the server`));
     const box = el("div", { class: "recording", "data-recording": r.id, "data-state": r.state }, head);
     if (r.reason) box.append(el("p", { class: "reason" }, r.reason));
-    for (const p of r.parts) box.append(partLine(r.id, p));
+    const lparts = new Map((live ? live.parts : []).map((p) => [p.node_id, p]));
+    for (const p of r.parts) box.append(partLine(r.id, p, lparts.get(p.node_id)));
+    for (const n of (live && live.not_in_recording) || [])
+      box.append(el("p", { class: "note", "data-left-out": n.node_id }, `${n.node_id} is not in this recording: ${n.reason}.`));
     const acts = el("div", { class: "actions" });
     if (r.state === "incomplete" || r.state === "on_nodes")
       acts.append(el("button", { type: "button", class: "secondary small", onclick: async () => {
@@ -211,10 +224,18 @@
       formVersion = subject.version;  // a save based on this copy is refused if someone saved since
       $("session-form").elements.date.value = new Date().toISOString().slice(0, 10);
     }
+    // the server's live entries of these recordings: what the filed rows do not keep
+    const ids = subject.sessions.flatMap((s) => s.recordings.map((r) => r.id));
+    let lives = [];
+    if (ids.length) {
+      try { lives = await api(`/api/recordings?ids=${encodeURIComponent(ids.join(","))}`); } catch (e) { /* the notes are optional */ }
+      if (!detailSeq.current(gen)) return;
+    }
+    const live = new Map(lives.map((x) => [x.id, x]));
     const box = $("sessions");
     box.replaceChildren(...subject.sessions.slice().reverse().map((s) => el("div", { class: "session", "data-session": s.id },
       el("h3", {}, `${s.date}${s.label ? " — " + s.label : ""}`),
-      ...(s.recordings.length ? s.recordings.map(recordingRow) : [el("p", { class: "hint" }, "No recordings yet.")]))));
+      ...(s.recordings.length ? s.recordings.map((r) => recordingRow(r, live.get(r.id))) : [el("p", { class: "hint" }, "No recordings yet.")]))));
     if (!subject.sessions.length) box.append(el("p", { class: "hint" }, "No sessions yet: add one above, then record it."));
     await showUnfiled(box, gen);
     if (!detailSeq.current(gen)) return;

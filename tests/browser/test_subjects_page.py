@@ -96,3 +96,56 @@ def test_delete_a_recording_filed_under_no_session(page: Any, live_server: LiveS
     assert rec not in [r["id"] for r in live_server.api("/api/storage/unfiled")]
     page.wait_for_function(f"!document.querySelector(\"[data-unfiled='{rec}']\")")
     assert not page.js_errors
+
+
+def test_subjects_page_says_what_happened_to_each_part(page: Any,
+                                                       live_server: LiveServer) -> None:
+    """A part recorded partly without images says so (the count comes from the server
+    copy's meta.json through GET /api/recordings), and a complete part keeps its reason
+    (e.g. its node reconnected and kept recording) as a note, not an error."""
+    import time
+
+    p = live_server.api("/api/projects", {"name": "Part notes"})
+    s = live_server.api("/api/subjects", {"project_id": p["id"], "code": "NTS01"})
+    sess = live_server.api("/api/sessions", {"subject_id": s["id"], "label": "visit"})
+    rid = live_server.api(f"/api/sessions/{sess['id']}/recordings", {"label": "walk"})["id"]
+    time.sleep(1.0)
+    live_server.api(f"/api/recordings/{rid}/stop", {})
+    deadline = time.time() + 60
+    while (time.time() < deadline
+           and live_server.api(f"/api/storage/recordings/{rid}")["state"] != "complete"):
+        time.sleep(0.5)
+    nodes = sorted(x["node_id"] for x in live_server.api(f"/api/recordings/{rid}")["parts"])
+    assert len(nodes) >= 2
+    # what a node writes into the part's meta.json when its image encoder fell behind
+    meta_path = live_server.data_dir / "server" / "recordings" / rid / nodes[0] / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    meta["images_skipped"] = 5
+    meta_path.write_text(json.dumps(meta))
+    got = live_server.api(f"/api/recordings/{rid}")
+    skipped = {x["node_id"]: x["images_skipped"] for x in got["parts"]}
+    assert skipped == {n: 5 if n == nodes[0] else 0 for n in nodes}
+    assert got["not_in_recording"] == []  # every node online was in it
+    kept = (f"node {nodes[1]} disconnected at 10:00:02 UTC during the recording; the node "
+            "kept recording")
+
+    def with_reason(route: Any) -> None:  # no real node can be made to drop here
+        resp = route.fetch()
+        body = resp.json()
+        for r in body:
+            for part in r["parts"]:
+                if r["id"] == rid and part["node_id"] == nodes[1]:
+                    part["reason"] = kept
+        route.fulfill(response=resp, json=body)
+
+    page.route("**/api/recordings?ids=*", with_reason)
+    page.goto(f"{live_server.base_url}/subjects.html#subject={s['id']}")
+    box = page.locator(f".recording[data-recording='{rid}'][data-state=complete]")
+    box.wait_for()
+    first = box.locator(f".part[data-node='{nodes[0]}']")
+    first.locator(".note[data-kind=images-skipped]").wait_for()
+    assert "5 frames without their images" in first.inner_text()
+    second = box.locator(f".part[data-node='{nodes[1]}']")
+    assert kept in second.locator(".note[data-kind=reason]").inner_text()
+    assert box.locator(".reason").count() == 0  # nothing shown as an error
+    assert not page.js_errors
