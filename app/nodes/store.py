@@ -582,11 +582,13 @@ def _verified_at(folder: Path) -> float | None:
 
 
 def _dir_bytes(folder: Path) -> int:
+    """Bytes of the files under ``folder`` (0 for what vanishes meanwhile: a part may be
+    deleted by the server's request while a purge or a status counts it)."""
     total = 0
-    for p in folder.rglob("*"):
-        with contextlib.suppress(OSError):
-            if p.is_file():
-                total += p.stat().st_size
+    for base, _dirs, files in os.walk(folder):  # os.walk skips unreadable folders
+        for name in files:
+            with contextlib.suppress(OSError):
+                total += os.stat(os.path.join(base, name)).st_size
     return total
 
 

@@ -244,7 +244,8 @@ class DataSync:
             self._verify_checked[s.id] = now
             for rec_id in st.unverified:
                 key = (s.id, rec_id)
-                if now - self._verify_sent.get(key, -1e9) < VERIFY_REPEAT_S:
+                if rec_id in (".", "..") or now - self._verify_sent.get(key, -1e9) < \
+                        VERIFY_REPEAT_S:
                     continue
                 if self.hub.transfers.verified_sha(rec_id, s.id) is None:
                     continue
