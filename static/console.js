@@ -60,11 +60,28 @@ const gaitrig = (() => {
     return n.clock_uncertainty_ms > warnMs ? el("span", { class: "warn" }, text + " (too uncertain)") : text;
   }
 
+  // Free space, and what the node's own recordings hold: parts the server has not verified
+  // yet are the only copies (the node never deletes them); verified ones are purged by its
+  // retention policy.
+  function diskCell(n) {
+    const gb = (b) => (b / 2 ** 30).toFixed(1) + " GB";
+    const free = n.disk_free_bytes === null ? "—" : gb(n.disk_free_bytes) + " free";
+    const s = n.storage;
+    if (!s || !s.held_parts) return free;
+    const parts = `${s.held_parts} recording part${s.held_parts === 1 ? "" : "s"} (${gb(s.held_bytes)})`;
+    const state = s.unverified_parts
+      ? el("span", { class: "warn" }, `${s.unverified_parts} not yet on the server`)
+      : "all verified on the server";
+    const keep = s.keep_verified_days > 0 ? `${s.keep_verified_days} days after verification` : "as soon as verified";
+    return el("span", { class: "disk", title: `Verified copies are deleted ${keep}, or earlier when free space falls below ${gb(s.min_free_bytes)}; unverified parts are never deleted.` },
+      `${free} · ${parts}, `, state);
+  }
+
   function row(n, warnMs) {
     const status = n.connected ? el("span", { class: "ok" }, "online") : el("span", { class: "off" }, "offline");
     const notes = el("ul", { class: "warnings" });
     for (const w of n.warnings) notes.append(el("li", {}, w));
-    const free = n.disk_free_bytes === null ? "—" : (n.disk_free_bytes / 2 ** 30).toFixed(1) + " GB";
+    const free = diskCell(n);
     return el("tr", { "data-node": n.id },
       el("th", { scope: "row" }, n.id), el("td", {}, status),
       el("td", { class: "num" }, n.connected ? fmt(n.fps, 1, " fps") : "—"),

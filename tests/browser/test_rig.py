@@ -58,3 +58,31 @@ def test_wrong_password_is_refused(browser: Any, live_server: LiveServer) -> Non
         assert p.url.endswith("/index.html")
     finally:
         ctx.close()
+
+
+def test_disk_column_says_what_the_node_holds(page: Any, live_server: LiveServer) -> None:
+    """Free space, and the node's own recordings: how many, and how many the server does
+    not hold verified yet (the only copies, which the node never deletes)."""
+    import json
+
+    def with_storage(route: Any) -> None:
+        nodes = json.loads(route.fetch().text())
+        for n in nodes:
+            n["storage"] = ({"held_parts": 3, "held_bytes": 3 * 2**30, "unverified_parts": 1,
+                             "keep_verified_days": 7, "min_free_bytes": 5 * 2**30}
+                            if n["id"] == "S1" else None)
+        route.fulfill(status=200, content_type="application/json", body=json.dumps(nodes))
+
+    page.route("**/api/nodes", with_storage)
+    page.reload()
+    s1, s2 = page.locator("#nodes tr[data-node=S1]"), page.locator("#nodes tr[data-node=S2]")
+    s1.wait_for()
+    page.wait_for_function(
+        "document.querySelector('#nodes tr[data-node=S1]').textContent.includes('recording part')")
+    text = s1.inner_text()
+    assert "GB free" in text and "3 recording parts (3.0 GB)" in text, text
+    assert "1 not yet on the server" in text, text
+    assert "recording part" not in s2.inner_text() and "GB free" in s2.inner_text()
+    title = s1.locator(".disk").get_attribute("title") or ""
+    assert "7 days after verification" in title and "never deleted" in title
+    assert not page.js_errors
