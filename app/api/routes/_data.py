@@ -13,6 +13,7 @@ from fastapi import HTTPException, Request, status
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
 
+from app.api.routes._exporting import EXPORTS
 from app.db import audit
 from app.db import data as m
 from app.db.base import purge_deleted
@@ -184,7 +185,8 @@ async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout,
     """Delete recordings (and ``owner``, the session, subject or project that held them)
     everywhere: database rows, the server's files, live entries, the nodes' copies.
 
-    Refused (409, nothing deleted) while one of them is recorded or transferred. Order,
+    Refused (409, nothing deleted) while one of them is recorded or transferred, or an
+    export of their subject is being downloaded. Order,
     so that a crash or a concurrent transfer at any point leaves the database and the
     files consistent:
 
@@ -211,19 +213,36 @@ async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout,
             raise HTTPException(status.HTTP_409_CONFLICT,
                                 f"recording {r.id} is being transferred; wait until it ends")
     plan = {r.id: recording_nodes(hub, r) for r in recs}
-    held = {k: hub.recordings.recordings.pop(k) for k in plan if k in hub.recordings.recordings}
+    # refused while a subject's export streams (it would end cut short); no export
+    # starts until the files are gone
+    release = EXPORTS.start_deletion(layout.data_dir, _subject_ids(recs, owner))
     try:
-        await asyncio.to_thread(_commit_deletion, db, layout, recs, owner, entry, plan)
-    except BaseException:
-        hub.recordings.recordings.update(held)  # the rows survived, so do their live entries
-        raise
-    if held:
-        hub.recordings.save()
-    for rec_id, nodes in plan.items():
-        # sent now or when a node reconnects (TransferManager.request_deletion)
-        hub.transfers.request_deletion(rec_id, nodes)
-    await asyncio.to_thread(_remove_files, db, layout, plan)
+        held = {k: hub.recordings.recordings.pop(k) for k in plan
+                if k in hub.recordings.recordings}
+        try:
+            await asyncio.to_thread(_commit_deletion, db, layout, recs, owner, entry, plan)
+        except BaseException:
+            hub.recordings.recordings.update(held)  # the rows survived, so do their entries
+            raise
+        if held:
+            hub.recordings.save()
+        for rec_id, nodes in plan.items():
+            # sent now or when a node reconnects (TransferManager.request_deletion)
+            hub.transfers.request_deletion(rec_id, nodes)
+        await asyncio.to_thread(_remove_files, db, layout, plan)
+    finally:
+        release()
     return plan
+
+
+def _subject_ids(recs: list[m.Recording], owner: Any) -> set[int]:
+    """The subjects a deletion takes data from (for :data:`EXPORTS`)."""
+    out = {r.session.subject_id for r in recs}
+    if isinstance(owner, m.Subject):
+        out.add(owner.id)
+    elif isinstance(owner, m.Project):
+        out.update(x.id for x in owner.subjects)
+    return out
 
 
 async def delete_unfiled(db: DbSession, hub: Hub, layout: StorageLayout, rec_id: str,

@@ -34,13 +34,20 @@ from app.api.routes._data import (
     subject_json,
     subject_version,
 )
+from app.api.routes._exporting import EXPORTS
 from app.api.routes.reports import (
     SubjectReportSource,
     build_subject_report,
     subject_report_source,
 )
 from app.db import data as m
-from app.server.storage import ExportEntry, live_poses, stream_zip, subject_export
+from app.server.storage import (
+    ExportEntry,
+    StorageLayout,
+    live_poses,
+    stream_zip,
+    subject_export,
+)
 from engine.errors import GaitrigError
 from engine.report.render import render_pdf
 
@@ -169,9 +176,42 @@ def export_subject(sid: int, request: Request, user: CurrentUser, db: DbDep,
     the subject's gait reports as PDF (``reports/``, rendered now) and a ``README.txt``
     describing the formats. Streamed piece by piece: the server never holds the archive
     (or a file of it, but for one report or skeleton CSV at a time) in memory or on disk.
+
+    While the download runs, deleting the subject (or a session, recording or project
+    of it) is refused (409) instead of cutting the archive short
+    (:mod:`app.api.routes._exporting`).
     """
-    s = get_subject(db, sid)
     layout = layout_of(request)
+    # claimed before anything is read: a deletion that ended before this is seen whole
+    release = EXPORTS.start_export(layout.data_dir, sid)
+    try:
+        db.rollback()  # no read transaction older than the claim
+        response = _export_response(sid, request, user, db, hub, layout, release)
+    except BaseException:
+        release()
+        raise
+    return response
+
+
+class _ReleasingStream(StreamingResponse):
+    """A streamed response that releases its export claim when sending ends: done,
+    failed, or the client went away (the stream is then cancelled)."""
+
+    def __init__(self, content: Iterator[bytes], release: Callable[[], None],
+                 **kwargs: Any) -> None:
+        super().__init__(content, **kwargs)
+        self._release = release
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        finally:
+            self._release()
+
+
+def _export_response(sid: int, request: Request, user: Any, db: DbDep, hub: HubDep,
+                     layout: StorageLayout, release: Callable[[], None]) -> StreamingResponse:
+    s = get_subject(db, sid)
     info = subject_json(s, layout, sessions=True)
     info["project"] = {"id": s.project.id, "name": s.project.name}
     info["exported_at"] = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
@@ -185,8 +225,8 @@ def export_subject(sid: int, request: Request, user: CurrentUser, db: DbDep,
               f"zip of {len(rec_ids)} recording(s) with reports")
     code = re.sub(r"[^A-Za-z0-9_.-]", "_", s.code)  # the pattern's, even for an old row
     name = f"gaitrig-subject-{code}-{dt.date.today().isoformat()}.zip"
-    return StreamingResponse(stream_zip(entries), media_type="application/zip",
-                             headers={"Content-Disposition": f'attachment; filename="{name}"'})
+    return _ReleasingStream(stream_zip(entries), release, media_type="application/zip",
+                            headers={"Content-Disposition": f'attachment; filename="{name}"'})
 
 
 @router.patch("/{sid}")
