@@ -53,7 +53,11 @@ def part_state(p: Part, complete_on_disk: bool) -> tuple[str, str | None]:
     if p.state == "transferring":
         return "transferring", None
     if p.on_server and p.state == "complete" and complete_on_disk:
-        return "complete", None
+        # what happened on the way stays on record (the node reconnected and kept
+        # recording, or recorded again after a restart); a failed transfer retried since
+        # is over
+        keep = p.reason if p.reason and not p.reason.startswith(TRANSFER_FAILED) else None
+        return "complete", keep
     if p.state == "incomplete":
         return "incomplete", p.reason or "the node reported the part incomplete"
     if p.state == "on_node" and p.reason and p.reason.startswith(TRANSFER_FAILED):

@@ -103,6 +103,14 @@ def test_part_and_recording_states() -> None:
     rec.t_stop = 2.0
     ok = Part("S1", state="complete", on_server=True, n_frames=10)
     assert part_state(ok, True) == ("complete", None)
+    # a complete part keeps what happened on the way, not a transfer failure retried since
+    noted = Part("S3", state="complete", on_server=True, n_frames=10,
+                 reason="node S3 disconnected at 10:00:00 UTC during the recording; the node "
+                        "kept recording")
+    assert part_state(noted, True) == ("complete", noted.reason)
+    retried = Part("S4", state="complete", on_server=True, n_frames=10,
+                   reason="transfer failed (connection lost); retry")
+    assert part_state(retried, True) == ("complete", None)
     # the server's copy vanished: never reported complete
     assert part_state(ok, False)[0] == "incomplete"
     failed = Part("S2", state="on_node", n_frames=10,
