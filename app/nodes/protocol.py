@@ -81,6 +81,10 @@ class SensorInfo(BaseModel):
     T_world_sensor: list[list[float]] | None = Field(
         default=None, description="Known pose (the simulator's truth); calibration replaces it."
     )
+    warnings: list[Annotated[str, Field(max_length=2000)]] = Field(
+        default_factory=list, max_length=8,
+        description="Problems of the node's sensor setup (e.g. no body-tracking SDK), "
+                    "shown with the node's health.")
 
 
 class PartInfo(BaseModel):

@@ -166,6 +166,7 @@ class NodeRegistry:
                     f"Clock differs from the server by {offset_ms:+.1f} ms; gaitrig corrects "
                     "this, but running chrony/PTP on the node keeps it below "
                     f"{self.clock_warn_ms:g} ms.")
+            warnings.extend(s.sensor.warnings)
             if now - s.last_seen > self.stale_s:
                 warnings.append(f"No frames for {now - s.last_seen:.0f} s.")
             elif 0 < fps < 20:

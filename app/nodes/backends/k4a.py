@@ -1,30 +1,59 @@
 """Azure Kinect / Orbbec Femto backend through ``pyk4a`` (optional extra ``gaitrig[k4a]``).
 
 Not testable on machines without the device; it implements the same contract as the
-``sim`` backend. ``pyk4a`` delivers depth, colour (registered to depth) and IR; it does
-not wrap the body-tracking SDK (k4abt), so this backend streams and records images with
-**empty skeleton frames**. Adding k4abt skeletons means filling ``Frame.positions`` /
-``states`` (Azure joint set) in :meth:`K4ABackend.frames`; nothing else changes.
+``sim`` backend. ``pyk4a`` delivers depth, colour (registered to depth) and IR; skeletons
+come from the Azure Kinect Body Tracking SDK (k4abt 1.1) through the small ctypes binding
+:mod:`app.nodes.backends._k4abt`, because pyk4a does not wrap it. Without the SDK the
+node still streams and records images, with **empty skeleton frames**, and says so once
+(log and a warning on the rig page, :attr:`K4ABackend.warnings`) with how to install it.
+
+Skeletons: every capture is enqueued and its result popped before the next one
+(synchronous: at 30 fps this needs the GPU mode; the CPU fallback is slower and the
+device then drops captures, which lowers the frame rate but never mistimes a frame).
+Joint positions are the SDK's, in the depth camera frame — x right, y down, z forward,
+the OpenCV convention the ``sim`` backend and calibration use for the sensor frame —
+converted from mm to m, in the ``K4ABT_JOINT_*`` order, which equals
+:data:`engine.skeleton.AZURE_KINECT_JOINTS`. Tracking states from the joint confidence:
+HIGH/MEDIUM → TRACKED, LOW (occluded, predicted) → INFERRED, NONE (out of range) →
+NOT_TRACKED with NaN positions, as the simulator reports untracked joints.
+
+Which body: one per frame, the gait subject. The body followed so far is kept while the
+tracker still reports its id (a person stepping into the view mid-walk does not take the
+stream over); when it is lost, or at the start, the nearest body (smallest pelvis
+distance) is chosen — in a gait lab the walking subject, not the clinician at the side.
 
 Frame times: the device timestamp (µs since the device started) is mapped once onto the
 host clock at the first frame, so ``t_local`` runs on the node computer's clock, which
-chrony/PTP and the server's estimator take care of.
+chrony/PTP and the server's estimator take care of. The body frame's device timestamp is
+its capture's depth timestamp and goes through the same mapping.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from app.nodes.backends import _k4abt
 from app.nodes.backends.base import Backend, Frame
 from app.nodes.protocol import SensorInfo
 from engine.errors import InputError
-from engine.skeleton import AZURE_KINECT_JOINTS
+from engine.skeleton import AZURE_KINECT_JOINTS, TrackingState
+
+log = logging.getLogger("gaitrig.node")
+
+#: k4abt_joint_confidence_level_t → TrackingState (index = confidence level)
+CONFIDENCE_TO_STATE = np.array([TrackingState.NOT_TRACKED, TrackingState.INFERRED,
+                                TrackingState.TRACKED, TrackingState.TRACKED], np.uint8)
+
+#: how long one capture may wait for the tracker's queue and result (ms)
+TRACK_TIMEOUT_MS = 2000
 
 
 def _require_pyk4a() -> Any:
@@ -37,21 +66,62 @@ def _require_pyk4a() -> Any:
     return pyk4a
 
 
+def choose_body(body_ids: Sequence[int], positions_mm: NDArray[np.float32],
+                previous: int | None) -> int | None:
+    """Index of the body to stream: the one followed so far if still reported, otherwise
+    the nearest (smallest pelvis distance); None without bodies."""
+    if not body_ids:
+        return None
+    if previous is not None and previous in body_ids:
+        return list(body_ids).index(previous)
+    pelvis = positions_mm[:, AZURE_KINECT_JOINTS.index("PELVIS")]
+    return int(np.argmin(np.linalg.norm(pelvis, axis=1)))
+
+
+def skeleton_arrays(body: _k4abt.BodyFrame, previous: int | None
+                    ) -> tuple[NDArray[np.float32], NDArray[np.uint8], list[int]]:
+    """A body frame → the node frame's ``(positions (B,32,3) m, states (B,32), ids)``.
+
+    ``B`` is 1 (the chosen body, :func:`choose_body`) or 0.
+    """
+    J = len(AZURE_KINECT_JOINTS)
+    k = choose_body(body.body_ids, body.positions_mm, previous)
+    if k is None:
+        return np.zeros((0, J, 3), np.float32), np.zeros((0, J), np.uint8), []
+    conf = np.clip(body.confidence[k], 0, len(CONFIDENCE_TO_STATE) - 1)
+    states = CONFIDENCE_TO_STATE[conf]
+    pos = body.positions_mm[k].astype(np.float32) * np.float32(1e-3)  # mm → m
+    pos[states == TrackingState.NOT_TRACKED] = np.nan
+    return pos[None], states[None], [body.body_ids[k]]
+
+
 class K4ABackend(Backend):
     """An Azure Kinect (or Orbbec Femto with the K4A wrapper) through pyk4a.
 
     Args:
         device: device index.
+        body_tracking: track skeletons with k4abt (False: images only, no warning).
+        processing_mode: k4abt mode (``gpu`` falls back to ``cpu``; see
+            :data:`app.nodes.backends._k4abt.PROCESSING_MODES`).
+        k4abt_path: the libk4abt file (None: the system's).
     """
 
     name = "k4a"
 
-    def __init__(self, device: int = 0) -> None:
+    def __init__(self, device: int = 0, body_tracking: bool = True,
+                 processing_mode: str = "gpu", k4abt_path: str | Path | None = None) -> None:
         self._pyk4a = _require_pyk4a()
         self.device = device
+        self.body_tracking = body_tracking
+        self.processing_mode = processing_mode
+        self.k4abt_path = k4abt_path
         self._k4a: Any = None
+        self._tracker: _k4abt.Tracker | None = None
+        self._body_id: int | None = None
         self._closed = threading.Event()
         self._t0: tuple[float, float] | None = None
+        #: problems to show on the rig page (e.g. no body tracking SDK), said once
+        self.warnings: list[str] = []
 
     def open(self) -> SensorInfo:
         pyk4a = self._pyk4a
@@ -61,13 +131,36 @@ class K4ABackend(Backend):
         self._k4a = pyk4a.PyK4A(cfg, device_id=self.device)
         self._k4a.start()
         cal = self._k4a.calibration
+        if self.body_tracking:
+            self._open_tracker(cal)
         K_d = np.asarray(cal.get_camera_matrix(pyk4a.CalibrationType.DEPTH)).tolist()
         # the colour image we send is ``transformed_color``: resampled into the DEPTH
         # camera's geometry, so it has the depth camera's size and intrinsics (and the
         # identity as colour → depth transform), not the 1280×720 colour camera's
-        return SensorInfo(model="Azure Kinect (pyk4a)", depth_size=(640, 576),
+        model = "Azure Kinect (pyk4a" + (", k4abt)" if self._tracker else ", no skeletons)")
+        return SensorInfo(model=model, depth_size=(640, 576),
                           color_size=(640, 576), depth_K=K_d, color_K=K_d,
-                          fov_deg=(75.0, 65.0), rate_hz=30.0, joint_set="azure_kinect")
+                          fov_deg=(75.0, 65.0), rate_hz=30.0, joint_set="azure_kinect",
+                          warnings=list(self.warnings))
+
+    def _open_tracker(self, calibration: Any) -> None:
+        """Create the body tracker; without the SDK, warn once and go on without."""
+        try:
+            lib = _k4abt.load_library(self.k4abt_path)
+            self._tracker = _k4abt.Tracker(lib, _k4abt.calibration_pointer(calibration),
+                                           self.processing_mode)
+        except _k4abt.K4ABTUnavailable as exc:
+            msg = str(exc)
+            msg = (msg[:1].upper() + msg[1:])[:1500]
+            log.warning("%s", msg)
+            self.warnings.append(msg)
+            return
+        if self._tracker.mode != self.processing_mode:
+            msg = (f"Body tracking runs in {self._tracker.mode.upper()} mode (no GPU tracker "
+                   f"could be created in {self.processing_mode.upper()} mode): skeletons "
+                   "may come at a lower frame rate.")
+            log.warning("%s", msg)
+            self.warnings.append(msg)
 
     def now(self) -> float:
         return time.time()
@@ -75,22 +168,45 @@ class K4ABackend(Backend):
     def close(self) -> None:
         self._closed.set()
 
-    def frames(self) -> Iterator[Frame]:
+    def _t_local(self, device_usec: int) -> float:
+        dev_t = device_usec * 1e-6
+        if self._t0 is None:
+            self._t0 = (time.time(), dev_t)
+        return self._t0[0] + (dev_t - self._t0[1])
+
+    def _skeleton(self, cap: Any) -> tuple[NDArray[np.float32], NDArray[np.uint8],
+                                           list[int], int | None]:
+        """The capture's skeleton arrays and the body frame's device timestamp (None
+        without a tracker or when tracking this capture failed)."""
         J = len(AZURE_KINECT_JOINTS)
+        ids: list[int] = []
+        empty = (np.zeros((0, J, 3), np.float32), np.zeros((0, J), np.uint8), ids, None)
+        if self._tracker is None:
+            return empty
+        body = self._tracker.track(_k4abt.capture_handle(cap), TRACK_TIMEOUT_MS)
+        if body is None:
+            return empty
+        pos, st, ids = skeleton_arrays(body, self._body_id)
+        if ids:
+            self._body_id = ids[0]
+        return pos, st, ids, body.device_timestamp_usec
+
+    def frames(self) -> Iterator[Frame]:
         try:
             while not self._closed.is_set():
                 cap = self._k4a.get_capture()
                 if cap.depth is None:
                     continue
-                dev_t = cap.depth_timestamp_usec * 1e-6
-                if self._t0 is None:
-                    self._t0 = (time.time(), dev_t)
-                t_local = self._t0[0] + (dev_t - self._t0[1])
-                pos = np.zeros((0, J, 3), np.float32)
-                st = np.zeros((0, J), np.uint8)
+                pos, st, ids, body_usec = self._skeleton(cap)
+                # the body frame's timestamp is its capture's depth timestamp
+                t_local = self._t_local(cap.depth_timestamp_usec if body_usec is None
+                                        else body_usec)
                 depth, color = cap.depth, cap.transformed_color
-                yield Frame(t_local, pos, st, [], _images(depth, color))
+                yield Frame(t_local, pos, st, ids, _images(depth, color))
         finally:
+            if self._tracker is not None:
+                self._tracker.close()
+                self._tracker = None
             self._k4a.stop()
 
 

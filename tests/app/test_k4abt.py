@@ -1,0 +1,301 @@
+"""k4abt skeletons of the ``k4a`` backend, without hardware.
+
+A stand-in ``libk4abt`` (``tests/app/k4abt_stub/k4abt_stub.c``, the SDK's exact function
+signatures and struct layouts) is compiled at test time and scripted with bodies; a fake
+``pyk4a`` hands over capsules like the real one. What this cannot check: the real SDK's
+tracking, its GPU/CPU runtime and the real pyk4a capsules (see ``docs/backbone.md``).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import shutil
+import subprocess
+import sys
+import types
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from app.nodes.backends import _k4abt
+from app.nodes.protocol import SensorInfo
+from app.server.registry import NodeRegistry
+from engine.skeleton import AZURE_KINECT_JOINTS, TrackingState
+
+STUB_SRC = Path(__file__).parent / "k4abt_stub" / "k4abt_stub.c"
+
+#: k4abt_joint_id_t, in order, as written in k4abttypes.h (Body Tracking SDK 1.1.x)
+SDK_JOINTS = (
+    "PELVIS", "SPINE_NAVEL", "SPINE_CHEST", "NECK", "CLAVICLE_LEFT", "SHOULDER_LEFT",
+    "ELBOW_LEFT", "WRIST_LEFT", "HAND_LEFT", "HANDTIP_LEFT", "THUMB_LEFT",
+    "CLAVICLE_RIGHT", "SHOULDER_RIGHT", "ELBOW_RIGHT", "WRIST_RIGHT", "HAND_RIGHT",
+    "HANDTIP_RIGHT", "THUMB_RIGHT", "HIP_LEFT", "KNEE_LEFT", "ANKLE_LEFT", "FOOT_LEFT",
+    "HIP_RIGHT", "KNEE_RIGHT", "ANKLE_RIGHT", "FOOT_RIGHT", "HEAD", "NOSE", "EYE_LEFT",
+    "EAR_LEFT", "EYE_RIGHT", "EAR_RIGHT",
+)
+
+
+@pytest.fixture(scope="module")
+def stub_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    cc = shutil.which("gcc") or shutil.which("cc")
+    if cc is None or sys.platform == "win32":
+        pytest.skip("no C compiler (gcc/cc) to build the stand-in libk4abt")
+    out = tmp_path_factory.mktemp("k4abt") / "libk4abt_stub.so"
+    subprocess.run([cc, "-shared", "-fPIC", "-O1", "-Wall", "-Werror", "-o", str(out),
+                    str(STUB_SRC)], check=True, capture_output=True, timeout=60)
+    return out
+
+
+@pytest.fixture
+def stub(stub_path: Path) -> Iterator[ctypes.CDLL]:
+    lib = ctypes.CDLL(str(stub_path))  # the same handle as the binding's: shared state
+    lib.stub_script.argtypes = [ctypes.c_uint64, ctypes.c_uint32,
+                                ctypes.POINTER(ctypes.c_uint32),
+                                ctypes.POINTER(ctypes.c_float), ctypes.c_uint64]
+    lib.stub_last_config.argtypes = [ctypes.POINTER(ctypes.c_int32)] * 3 + [
+        ctypes.POINTER(ctypes.c_void_p)]
+    lib.stub_last_model_path.restype = ctypes.c_char_p
+    lib.stub_sizeof_skeleton.restype = ctypes.c_size_t
+    lib.stub_sizeof_config.restype = ctypes.c_size_t
+    lib.stub_reset(0)
+    yield lib
+    lib.stub_reset(0)
+
+
+def script(stub: ctypes.CDLL, capture: int, bodies: list[tuple[int, float]], ts: int) -> None:
+    """The result the stub returns for ``capture``: ``(id, pelvis z mm)`` per body."""
+    n = len(bodies)
+    ids = (ctypes.c_uint32 * max(n, 1))(*[b[0] for b in bodies])
+    zs = (ctypes.c_float * max(n, 1))(*[b[1] for b in bodies])
+    assert stub.stub_script(capture, n, ids, zs, ts) == 0
+
+
+# --------------------------------------------------------------------------- fake pyk4a
+
+_new_capsule = ctypes.pythonapi.PyCapsule_New
+_new_capsule.restype = ctypes.py_object
+_new_capsule.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_void_p]
+
+
+class FakeCalibration:
+    def __init__(self) -> None:
+        self.buffer = ctypes.create_string_buffer(2048)  # stands for a k4a_calibration_t
+        self._calibration_handle = _new_capsule(ctypes.addressof(self.buffer),
+                                                _k4abt.CAPSULE_CALIBRATION, None)
+
+    def get_camera_matrix(self, kind: Any) -> np.ndarray:
+        return np.array([[504.0, 0, 320], [0, 504.0, 288], [0, 0, 1]])
+
+
+class FakeCapture:
+    def __init__(self, handle: int, depth_usec: int) -> None:
+        self.cell = ctypes.c_void_p(handle)  # pyk4a's capsule holds a k4a_capture_t*
+        self._capture_handle = _new_capsule(ctypes.addressof(self.cell),
+                                            _k4abt.CAPSULE_CAPTURE, None)
+        self.depth = np.full((4, 5), 1500, np.uint16)
+        self.depth_timestamp_usec = depth_usec
+        self.transformed_color = np.zeros((4, 5, 4), np.uint8)
+
+
+def fake_pyk4a(captures: list[FakeCapture]) -> types.ModuleType:
+    mod = types.ModuleType("pyk4a")
+    ns = types.SimpleNamespace
+    mod.ColorResolution = ns(RES_720P=1)  # type: ignore[attr-defined]
+    mod.DepthMode = ns(NFOV_UNBINNED=2)  # type: ignore[attr-defined]
+    mod.FPS = ns(FPS_30=2)  # type: ignore[attr-defined]
+    mod.CalibrationType = ns(DEPTH=0)  # type: ignore[attr-defined]
+    mod.Config = lambda **kw: kw  # type: ignore[attr-defined]
+
+    class PyK4A:
+        def __init__(self, config: Any, device_id: int = 0) -> None:
+            self.calibration = FakeCalibration()
+            self.stopped = False
+
+        def start(self) -> None:
+            pass
+
+        def stop(self) -> None:
+            self.stopped = True
+
+        def get_capture(self) -> FakeCapture:
+            return captures.pop(0)
+
+    mod.PyK4A = PyK4A  # type: ignore[attr-defined]
+    return mod
+
+
+def backend(monkeypatch: pytest.MonkeyPatch, captures: list[FakeCapture],
+            lib: Path | str) -> Any:
+    monkeypatch.setitem(sys.modules, "pyk4a", fake_pyk4a(captures))
+    from app.nodes.backends.k4a import K4ABackend
+
+    return K4ABackend(k4abt_path=lib)
+
+
+# --------------------------------------------------------------------------- tests
+
+
+def test_layouts_and_joint_order_match_the_sdk(stub: ctypes.CDLL) -> None:
+    assert stub.stub_sizeof_skeleton() == ctypes.sizeof(_k4abt.Skeleton) == 32 * 32
+    assert stub.stub_sizeof_config() == ctypes.sizeof(_k4abt.TrackerConfiguration)
+    assert SDK_JOINTS == AZURE_KINECT_JOINTS
+    assert len(SDK_JOINTS) == _k4abt.JOINT_COUNT
+
+
+def test_tracker_gets_calibration_and_configuration(stub: ctypes.CDLL, stub_path: Path) -> None:
+    cal = FakeCalibration()
+    lib = _k4abt.load_library(stub_path)
+    tr = _k4abt.Tracker(lib, _k4abt.calibration_pointer(cal), "cuda", sensor_orientation=3,
+                        gpu_device_id=1, model_path="/opt/model.onnx")
+    o, m, g = ctypes.c_int32(), ctypes.c_int32(), ctypes.c_int32()
+    c = ctypes.c_void_p()
+    assert stub.stub_last_config(ctypes.byref(o), ctypes.byref(m), ctypes.byref(g),
+                                 ctypes.byref(c)) == 1
+    assert (o.value, m.value, g.value) == (3, _k4abt.PROCESSING_MODES["cuda"], 1)
+    assert c.value == ctypes.addressof(cal.buffer)
+    assert stub.stub_last_model_path() == b"/opt/model.onnx"
+    assert tr.mode == "cuda"
+    with pytest.raises(_k4abt.K4ABTUnavailable, match="no other tracker runs"):
+        _k4abt.Tracker(lib, _k4abt.calibration_pointer(cal))  # one per process
+    tr.close()
+    assert stub.stub_last_config(ctypes.byref(o), ctypes.byref(m), ctypes.byref(g),
+                                 ctypes.byref(c)) == 0
+
+
+def test_binding_reads_bodies_ids_and_timestamp(stub: ctypes.CDLL, stub_path: Path) -> None:
+    lib = _k4abt.load_library(stub_path)
+    tr = _k4abt.Tracker(lib, _k4abt.calibration_pointer(FakeCalibration()))
+    try:
+        script(stub, 0x51, [(3, 2500.0), (8, 1200.0)], 123_456_789)
+        bf = tr.track(_k4abt.capture_handle(FakeCapture(0x51, 0)))
+        assert bf is not None
+        assert bf.device_timestamp_usec == 123_456_789
+        assert bf.body_ids == [3, 8]
+        j = np.arange(32)
+        assert np.array_equal(bf.positions_mm[1, :, 0], 800 + j)
+        assert np.array_equal(bf.positions_mm[1, :, 1], -10.0 * j)
+        assert np.array_equal(bf.positions_mm[0, :, 2], 2500 + j)
+        assert np.array_equal(bf.orientations[0, :, 0], np.ones(32))  # w first
+        assert np.array_equal(bf.orientations[0, :, 1], 0.5 * j)
+        assert np.array_equal(bf.confidence[0], j % 4)
+        assert stub.stub_released() == 1  # the body frame went back to the SDK
+        assert tr.track(_k4abt.capture_handle(FakeCapture(0x99, 0))) is None  # refused
+    finally:
+        tr.close()
+
+
+def test_backend_streams_the_chosen_body_in_metres(
+        stub: ctypes.CDLL, stub_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    t0 = 5_000_000
+    script(stub, 1, [(7, 2000.0)], t0)
+    script(stub, 2, [(9, 1500.0), (7, 3000.0)], t0 + 33_333)  # 7 is kept: followed
+    script(stub, 3, [], t0 + 66_666)  # nobody
+    script(stub, 4, [(11, 2500.0), (9, 1800.0)], t0 + 100_000)  # 7 lost: nearest = 9
+    caps = [FakeCapture(k, t0 + d) for k, d in
+            ((1, 0), (2, 33_333), (3, 66_666), (4, 100_000))]
+    be = backend(monkeypatch, caps, stub_path)
+    info = be.open()
+    assert info.joint_set == "azure_kinect" and info.warnings == []
+    gen = be.frames()
+    frames = [next(gen) for _ in range(4)]
+    gen.close()
+    assert stub.stub_released() == 4
+
+    assert [f.body_ids for f in frames] == [[7], [7], [], [9]]
+    f = frames[1]
+    assert f.positions.shape == (1, 32, 3) and f.positions.dtype == np.float32
+    j = np.arange(32)
+    expect = np.stack([(700 + j) / 1000, -10 * j / 1000, (3000 + j) / 1000], axis=1)
+    states = f.states[0]
+    assert np.array_equal(states[j % 4 == 0], np.full(8, TrackingState.NOT_TRACKED))
+    assert np.array_equal(states[j % 4 == 1], np.full(8, TrackingState.INFERRED))
+    assert np.all(states[j % 4 >= 2] == TrackingState.TRACKED)  # MEDIUM and HIGH
+    seen = j % 4 != 0
+    np.testing.assert_allclose(f.positions[0][seen], expect[seen], rtol=1e-6)
+    assert np.all(np.isnan(f.positions[0][~seen]))  # NONE: no position, as the sim
+    # the image axes are untouched: x right, y down (negative y = above), z forward
+    assert frames[3].positions[0, 1, 2] == pytest.approx(1.801)
+    assert frames[2].positions.shape == (0, 32, 3) and frames[2].states.shape == (0, 32)
+    dt = [fr.t_local - frames[0].t_local for fr in frames]
+    np.testing.assert_allclose(dt, [0.0, 0.033333, 0.066666, 0.1], atol=1e-6)
+    img = frames[0].images(["depth", "color"])
+    assert img["depth"].shape == (4, 5) and img["color"].shape == (4, 5, 3)
+    assert be._k4a.stopped
+
+
+def test_body_timestamp_drives_frame_time(
+        stub: ctypes.CDLL, stub_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    script(stub, 1, [(1, 2000.0)], 1_000_000)
+    script(stub, 2, [(1, 2000.0)], 1_500_000)  # the body frame's own time, not the depth's
+    be = backend(monkeypatch, [FakeCapture(1, 1_000_000), FakeCapture(2, 1_400_000)],
+                 stub_path)
+    be.open()
+    gen = be.frames()
+    a, b = next(gen), next(gen)
+    gen.close()
+    assert b.t_local - a.t_local == pytest.approx(0.5, abs=1e-6)
+
+
+def test_gpu_failure_falls_back_to_cpu_with_a_warning(
+        stub: ctypes.CDLL, stub_path: Path, monkeypatch: pytest.MonkeyPatch,
+        caplog: pytest.LogCaptureFixture) -> None:
+    stub.stub_reset(1)  # GPU modes fail, as without CUDA
+    script(stub, 1, [(4, 2000.0)], 10)
+    be = backend(monkeypatch, [FakeCapture(1, 10)], stub_path)
+    with caplog.at_level(logging.WARNING, "gaitrig.node"):
+        info = be.open()
+    assert len(info.warnings) == 1 and "CPU mode" in info.warnings[0]
+    gen = be.frames()
+    assert next(gen).body_ids == [4]
+    gen.close()
+
+
+def test_without_the_sdk_images_flow_and_the_node_says_why(
+        monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture,
+        tmp_path: Path) -> None:
+    be = backend(monkeypatch, [FakeCapture(1, 0), FakeCapture(2, 33_333)],
+                 tmp_path / "libk4abt.so")
+    with caplog.at_level(logging.WARNING, "gaitrig.node"):
+        info = be.open()
+        gen = be.frames()
+        frames = [next(gen), next(gen)]
+        gen.close()
+    assert len(info.warnings) == 1
+    msg = info.warnings[0]
+    assert "Body Tracking SDK" in msg and "apt install libk4abt1.1-dev" in msg
+    assert "no skeletons" in info.model
+    said = [r for r in caplog.records if "Body Tracking SDK" in r.getMessage()]
+    assert len(said) == 1  # once, not per frame
+    assert all(f.positions.shape == (0, 32, 3) and f.body_ids == [] for f in frames)
+    assert frames[1].t_local - frames[0].t_local == pytest.approx(0.033333, abs=1e-6)
+    assert frames[0].images(["depth"])["depth"].shape == (4, 5)
+
+    # the warning reaches the node's health record (rig page, GET /api/nodes)
+    reg = NodeRegistry()
+
+    async def send(text: str) -> None:
+        pass
+
+    s = reg.connect("K1", "k4a", SensorInfo.model_validate(info.model_dump()), send,
+                    restarted=True)
+    assert msg in reg.health(s)["warnings"]
+
+
+def test_a_library_that_is_not_k4abt_is_refused() -> None:
+    libc = "libc.so.6" if sys.platform.startswith("linux") else None
+    if libc is None:
+        pytest.skip("needs glibc's libc.so.6 as a library that is not k4abt")
+    with pytest.raises(_k4abt.K4ABTUnavailable, match="is not the Azure Kinect Body"):
+        _k4abt.load_library(libc)
+
+
+def test_capsule_of_another_kind_is_refused() -> None:
+    cap = FakeCapture(1, 0)
+    with pytest.raises(_k4abt.K4ABTUnavailable, match=r"pyk4a ≥ 1\.2"):
+        _k4abt.capsule_pointer(cap._capture_handle, _k4abt.CAPSULE_CALIBRATION)
+    with pytest.raises(_k4abt.K4ABTUnavailable):
+        _k4abt.capsule_pointer(object(), _k4abt.CAPSULE_CAPTURE)
