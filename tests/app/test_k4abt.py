@@ -61,6 +61,7 @@ def stub(stub_path: Path) -> Iterator[ctypes.CDLL]:
     lib.stub_last_model_path.restype = ctypes.c_char_p
     lib.stub_sizeof_skeleton.restype = ctypes.c_size_t
     lib.stub_sizeof_config.restype = ctypes.c_size_t
+    lib.stub_images_released.restype = ctypes.c_int
     lib.stub_reset(0)
     yield lib
     lib.stub_reset(0)
@@ -133,7 +134,7 @@ def backend(monkeypatch: pytest.MonkeyPatch, captures: list[FakeCapture],
     monkeypatch.setitem(sys.modules, "pyk4a", fake_pyk4a(captures))
     from app.nodes.backends.k4a import K4ABackend
 
-    return K4ABackend(k4abt_path=lib)
+    return K4ABackend(k4abt_path=lib, k4a_path=lib)  # the stub stands for libk4a too
 
 
 # --------------------------------------------------------------------------- tests
@@ -168,7 +169,8 @@ def test_tracker_gets_calibration_and_configuration(stub: ctypes.CDLL, stub_path
 
 def test_binding_reads_bodies_ids_and_timestamp(stub: ctypes.CDLL, stub_path: Path) -> None:
     lib = _k4abt.load_library(stub_path)
-    tr = _k4abt.Tracker(lib, _k4abt.calibration_pointer(FakeCalibration()))
+    tr = _k4abt.Tracker(lib, _k4abt.calibration_pointer(FakeCalibration()),
+                        image_lib=_k4abt.load_image_library(stub_path))
     try:
         script(stub, 0x51, [(3, 2500.0), (8, 1200.0)], 123_456_789)
         bf = tr.track(_k4abt.capture_handle(FakeCapture(0x51, 0)))
@@ -183,6 +185,13 @@ def test_binding_reads_bodies_ids_and_timestamp(stub: ctypes.CDLL, stub_path: Pa
         assert np.array_equal(bf.orientations[0, :, 1], 0.5 * j)
         assert np.array_equal(bf.confidence[0], j % 4)
         assert stub.stub_released() == 1  # the body frame went back to the SDK
+        # body index map: column c = SDK body c, the stride's padding dropped
+        assert bf.body_index is not None and bf.body_index.shape == (6, 8)
+        assert np.array_equal(bf.body_index[0], [0, 1, 255, 255, 255, 255, 255, 255])
+        assert stub.stub_images_released() == 1
+        script(stub, 0x52, [(3, -1.0)], 1)  # the stub's "no map" frame
+        bf = tr.track(_k4abt.capture_handle(FakeCapture(0x52, 0)))
+        assert bf is not None and bf.body_index is None and bf.body_ids == [3]
         assert tr.track(_k4abt.capture_handle(FakeCapture(0x99, 0))) is None  # refused
     finally:
         tr.close()
@@ -224,6 +233,14 @@ def test_backend_streams_the_chosen_body_in_metres(
     np.testing.assert_allclose(dt, [0.0, 0.033333, 0.066666, 0.1], atol=1e-6)
     img = frames[0].images(["depth", "color"])
     assert img["depth"].shape == (4, 5) and img["color"].shape == (4, 5, 3)
+    # body index: the streamed body's pixels 0, everything else 255 (SDK index 1 = id 7)
+    bi = frames[1].images(["body_index"])["body_index"]
+    assert bi.dtype == np.uint8 and bi.shape == (6, 8)
+    assert np.array_equal(bi[3], [255, 0, 255, 255, 255, 255, 255, 255])
+    assert np.all(frames[2].images(["body_index"])["body_index"] == 255)
+    assert np.array_equal(frames[3].images(["body_index"])["body_index"][0, :3],
+                          [255, 0, 255])  # id 9 is SDK index 1 there
+    assert stub.stub_images_released() == 4
     assert be._k4a.stopped
 
 

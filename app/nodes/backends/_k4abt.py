@@ -12,9 +12,13 @@ Sources of every signature and layout:
   ``k4abt_frame_get_body_skeleton(frame, uint32_t index, k4abt_skeleton_t*)``,
   ``k4abt_frame_get_body_id(frame, uint32_t) → uint32_t`` (``K4ABT_INVALID_BODY_ID`` =
   0xFFFFFFFF on failure), ``k4abt_frame_get_device_timestamp_usec → uint64_t``,
-  ``k4abt_frame_release``, ``k4abt_tracker_shutdown``, ``k4abt_tracker_destroy``
-  (``k4abt_frame_get_body_index_map`` is not bound: the body-index image would need
-  libk4a's image functions too, and the node does not stream it from k4a yet).
+  ``k4abt_frame_get_body_index_map → k4a_image_t`` (CUSTOM8, the depth image's size,
+  pixel = index of the body in the frame or ``K4ABT_BODY_INDEX_MAP_BACKGROUND`` 255;
+  released with ``k4a_image_release``), ``k4abt_frame_release``,
+  ``k4abt_tracker_shutdown``, ``k4abt_tracker_destroy``.
+* ``k4a.h`` (sensor SDK 1.4, libk4a): ``k4a_image_get_buffer → uint8_t*``,
+  ``k4a_image_get_width_pixels`` / ``_height_pixels`` / ``_stride_bytes → int``,
+  ``k4a_image_release`` — only to copy the body index map out.
 * ``k4abttypes.h`` (SDK 1.1.x): ``k4abt_tracker_configuration_t`` = {enum
   sensor_orientation, enum processing_mode, int32_t gpu_device_id, const char*
   model_path} (1.0.x had no ``model_path``: 1.0 is not supported); ``k4abt_joint_t`` =
@@ -173,10 +177,43 @@ def _declare(lib: ctypes.CDLL) -> None:
         "k4abt_frame_get_body_skeleton": (c_int, [vp, u32, ctypes.POINTER(Skeleton)]),
         "k4abt_frame_get_body_id": (u32, [vp, u32]),
         "k4abt_frame_get_device_timestamp_usec": (ctypes.c_uint64, [vp]),
+        "k4abt_frame_get_body_index_map": (vp, [vp]),
     }
     for name, (restype, argtypes) in sig.items():
         fn = getattr(lib, name)
         fn.restype, fn.argtypes = restype, argtypes
+
+
+def load_image_library(path: str | Path | None = None) -> ctypes.CDLL | None:
+    """libk4a's image functions (for the body index map), or None if not loadable.
+
+    pyk4a has already loaded libk4a into the process, so the system's is found.
+    """
+    if path is not None:
+        names = [str(path)]
+    elif sys.platform == "win32":
+        names = ["k4a.dll"]
+    else:
+        names = [n for n in (ctypes.util.find_library("k4a"), "libk4a.so", "libk4a.so.1.4")
+                 if n]
+    for name in names:
+        try:
+            lib = ctypes.CDLL(name)
+            vp, c_int = ctypes.c_void_p, ctypes.c_int
+            sig: dict[str, tuple[Any, list[Any]]] = {
+                "k4a_image_get_buffer": (ctypes.POINTER(ctypes.c_uint8), [vp]),
+                "k4a_image_get_width_pixels": (c_int, [vp]),
+                "k4a_image_get_height_pixels": (c_int, [vp]),
+                "k4a_image_get_stride_bytes": (c_int, [vp]),
+                "k4a_image_release": (None, [vp]),
+            }
+            for fn_name, (restype, argtypes) in sig.items():
+                fn = getattr(lib, fn_name)
+                fn.restype, fn.argtypes = restype, argtypes
+        except (OSError, AttributeError):
+            continue
+        return lib
+    return None
 
 
 # --------------------------------------------------------------------------- capsules
@@ -230,6 +267,8 @@ class BodyFrame:
             forward), millimetres, ``K4ABT_JOINT_*`` order.
         orientations: ``(B, 32, 4)`` float32 quaternions (w, x, y, z).
         confidence: ``(B, 32)`` int32 ``k4abt_joint_confidence_level_t``.
+        body_index: ``(H, W)`` uint8 body index map (pixel = position of the body in
+            ``body_ids``, 255 = background), None without libk4a's image functions.
     """
 
     device_timestamp_usec: int
@@ -237,6 +276,7 @@ class BodyFrame:
     positions_mm: NDArray[np.float32]
     orientations: NDArray[np.float32]
     confidence: NDArray[np.int32]
+    body_index: NDArray[np.uint8] | None = None
 
 
 class Tracker:
@@ -251,6 +291,8 @@ class Tracker:
             2 counter-clockwise 90°, 3 upside down).
         gpu_device_id: GPU index for GPU modes.
         model_path: another model file (None: the SDK's default).
+        image_lib: libk4a (:func:`load_image_library`) to copy the body index map out;
+            None: frames carry no body index map.
 
     Raises:
         K4ABTUnavailable: no tracker could be created.
@@ -258,11 +300,12 @@ class Tracker:
 
     def __init__(self, lib: ctypes.CDLL, calibration: int, processing_mode: str = "gpu",
                  sensor_orientation: int = 0, gpu_device_id: int = 0,
-                 model_path: str | None = None) -> None:
+                 model_path: str | None = None, image_lib: ctypes.CDLL | None = None) -> None:
         if processing_mode not in PROCESSING_MODES:
             raise InputError(f"unknown body-tracking processing mode {processing_mode!r}; "
                              f"use one of {', '.join(PROCESSING_MODES)}")
         self._lib = lib
+        self._image_lib = image_lib
         self._handle = ctypes.c_void_p()
         # keep the path's bytes alive while the SDK may read them
         self._model = model_path.encode() if model_path else None
@@ -302,7 +345,7 @@ class Tracker:
         if lib.k4abt_tracker_pop_result(h, ctypes.byref(frame), timeout_ms) != _WAIT_SUCCEEDED:
             return None
         try:
-            return _read_frame(lib, frame)
+            return _read_frame(lib, frame, self._image_lib)
         finally:
             lib.k4abt_frame_release(frame)
 
@@ -314,10 +357,12 @@ class Tracker:
             self._handle = ctypes.c_void_p()
 
 
-def _read_frame(lib: ctypes.CDLL, frame: ctypes.c_void_p) -> BodyFrame:
+def _read_frame(lib: ctypes.CDLL, frame: ctypes.c_void_p,
+                image_lib: ctypes.CDLL | None) -> BodyFrame:
     n = int(lib.k4abt_frame_get_num_bodies(frame))
     ids: list[int] = []
     records = []
+    kept = np.full(256, 255, np.uint8)  # SDK body index → index in ``ids`` (255: dropped)
     skel = Skeleton()
     for i in range(n):
         if lib.k4abt_frame_get_body_skeleton(frame, i, ctypes.byref(skel)) != _RESULT_SUCCEEDED:
@@ -325,8 +370,15 @@ def _read_frame(lib: ctypes.CDLL, frame: ctypes.c_void_p) -> BodyFrame:
         body_id = int(lib.k4abt_frame_get_body_id(frame, i))
         if body_id == INVALID_BODY_ID:
             continue
+        if i < 255:
+            kept[i] = len(ids)
         ids.append(body_id)
         records.append(np.frombuffer(bytes(skel), _JOINT_DTYPE).copy())
+    body_index = None
+    if image_lib is not None:
+        body_index = _copy_body_index(lib, image_lib, frame)
+        if body_index is not None:
+            body_index = kept[body_index]
     rec = (np.stack(records) if records
            else np.zeros((0, JOINT_COUNT), _JOINT_DTYPE))
     return BodyFrame(
@@ -335,4 +387,24 @@ def _read_frame(lib: ctypes.CDLL, frame: ctypes.c_void_p) -> BodyFrame:
         positions_mm=np.ascontiguousarray(rec["position"], np.float32),
         orientations=np.ascontiguousarray(rec["orientation"], np.float32),
         confidence=np.ascontiguousarray(rec["confidence"], np.int32),
+        body_index=body_index,
     )
+
+
+def _copy_body_index(lib: ctypes.CDLL, image_lib: ctypes.CDLL, frame: ctypes.c_void_p
+                     ) -> NDArray[np.uint8] | None:
+    """The frame's body index map copied out (the SDK's image is released here)."""
+    img = lib.k4abt_frame_get_body_index_map(frame)
+    if not img:
+        return None
+    try:
+        w = int(image_lib.k4a_image_get_width_pixels(img))
+        h = int(image_lib.k4a_image_get_height_pixels(img))
+        stride = int(image_lib.k4a_image_get_stride_bytes(img))
+        buf = image_lib.k4a_image_get_buffer(img)
+        if w <= 0 or h <= 0 or stride < w or not buf:
+            return None
+        raw = np.ctypeslib.as_array(buf, shape=(h * stride,))
+        return raw.reshape(h, stride)[:, :w].copy()
+    finally:
+        image_lib.k4a_image_release(img)

@@ -17,6 +17,11 @@ converted from mm to m, in the ``K4ABT_JOINT_*`` order, which equals
 HIGH/MEDIUM → TRACKED, LOW (occluded, predicted) → INFERRED, NONE (out of range) →
 NOT_TRACKED with NaN positions, as the simulator reports untracked joints.
 
+Body index images (live view, recordings with ``body_index``) come from the tracker's
+body index map, copied out with libk4a's image functions: the streamed body's pixels are
+0, all others 255 (as the simulator marks bodies it does not report); none without the
+SDK.
+
 Which body: one per frame, the gait subject. The body followed so far is kept while the
 tracker still reports its id (a person stepping into the view mid-walk does not take the
 stream over); when it is lost, or at the start, the nearest body (smallest pelvis
@@ -95,6 +100,18 @@ def skeleton_arrays(body: _k4abt.BodyFrame, previous: int | None
     return pos[None], states[None], [body.body_ids[k]]
 
 
+def body_index_image(body: _k4abt.BodyFrame, streamed: list[int]
+                     ) -> NDArray[np.uint8] | None:
+    """The body index map of the streamed body: its pixels 0 (it is body 0 of the frame),
+    every other pixel 255, as the simulator marks bodies it does not report."""
+    if body.body_index is None:
+        return None
+    out = np.full(body.body_index.shape, 255, np.uint8)
+    if streamed:
+        out[body.body_index == body.body_ids.index(streamed[0])] = 0
+    return out
+
+
 class K4ABackend(Backend):
     """An Azure Kinect (or Orbbec Femto with the K4A wrapper) through pyk4a.
 
@@ -104,17 +121,21 @@ class K4ABackend(Backend):
         processing_mode: k4abt mode (``gpu`` falls back to ``cpu``; see
             :data:`app.nodes.backends._k4abt.PROCESSING_MODES`).
         k4abt_path: the libk4abt file (None: the system's).
+        k4a_path: the libk4a file whose image functions copy the body index map out
+            (None: the system's, already loaded by pyk4a).
     """
 
     name = "k4a"
 
     def __init__(self, device: int = 0, body_tracking: bool = True,
-                 processing_mode: str = "gpu", k4abt_path: str | Path | None = None) -> None:
+                 processing_mode: str = "gpu", k4abt_path: str | Path | None = None,
+                 k4a_path: str | Path | None = None) -> None:
         self._pyk4a = _require_pyk4a()
         self.device = device
         self.body_tracking = body_tracking
         self.processing_mode = processing_mode
         self.k4abt_path = k4abt_path
+        self.k4a_path = k4a_path
         self._k4a: Any = None
         self._tracker: _k4abt.Tracker | None = None
         self._body_id: int | None = None
@@ -148,7 +169,8 @@ class K4ABackend(Backend):
         try:
             lib = _k4abt.load_library(self.k4abt_path)
             self._tracker = _k4abt.Tracker(lib, _k4abt.calibration_pointer(calibration),
-                                           self.processing_mode)
+                                           self.processing_mode,
+                                           image_lib=_k4abt.load_image_library(self.k4a_path))
         except _k4abt.K4ABTUnavailable as exc:
             msg = str(exc)
             msg = (msg[:1].upper() + msg[1:])[:1500]
@@ -175,12 +197,12 @@ class K4ABackend(Backend):
         return self._t0[0] + (dev_t - self._t0[1])
 
     def _skeleton(self, cap: Any) -> tuple[NDArray[np.float32], NDArray[np.uint8],
-                                           list[int], int | None]:
-        """The capture's skeleton arrays and the body frame's device timestamp (None
-        without a tracker or when tracking this capture failed)."""
+                                           list[int], int | None, NDArray[np.uint8] | None]:
+        """The capture's skeleton arrays, the body frame's device timestamp (None without
+        a tracker or when tracking this capture failed) and body index image (or None)."""
         J = len(AZURE_KINECT_JOINTS)
         ids: list[int] = []
-        empty = (np.zeros((0, J, 3), np.float32), np.zeros((0, J), np.uint8), ids, None)
+        empty = (np.zeros((0, J, 3), np.float32), np.zeros((0, J), np.uint8), ids, None, None)
         if self._tracker is None:
             return empty
         body = self._tracker.track(_k4abt.capture_handle(cap), TRACK_TIMEOUT_MS)
@@ -189,7 +211,7 @@ class K4ABackend(Backend):
         pos, st, ids = skeleton_arrays(body, self._body_id)
         if ids:
             self._body_id = ids[0]
-        return pos, st, ids, body.device_timestamp_usec
+        return pos, st, ids, body.device_timestamp_usec, body_index_image(body, ids)
 
     def frames(self) -> Iterator[Frame]:
         try:
@@ -197,12 +219,12 @@ class K4ABackend(Backend):
                 cap = self._k4a.get_capture()
                 if cap.depth is None:
                     continue
-                pos, st, ids, body_usec = self._skeleton(cap)
+                pos, st, ids, body_usec, body_index = self._skeleton(cap)
                 # the body frame's timestamp is its capture's depth timestamp
                 t_local = self._t_local(cap.depth_timestamp_usec if body_usec is None
                                         else body_usec)
                 depth, color = cap.depth, cap.transformed_color
-                yield Frame(t_local, pos, st, ids, _images(depth, color))
+                yield Frame(t_local, pos, st, ids, _images(depth, color, body_index))
         finally:
             if self._tracker is not None:
                 self._tracker.close()
@@ -210,11 +232,14 @@ class K4ABackend(Backend):
             self._k4a.stop()
 
 
-def _images(depth: NDArray[np.uint16], color: NDArray[np.uint8] | None) -> Any:
+def _images(depth: NDArray[np.uint16], color: NDArray[np.uint8] | None,
+            body_index: NDArray[np.uint8] | None = None) -> Any:
     def images(streams: Sequence[str]) -> dict[str, NDArray[np.uint8] | NDArray[np.uint16]]:
         out: dict[str, NDArray[np.uint8] | NDArray[np.uint16]] = {}
         if "depth" in streams:
             out["depth"] = depth
+        if "body_index" in streams and body_index is not None:
+            out["body_index"] = body_index
         if "color" in streams and color is not None:
             out["color"] = np.ascontiguousarray(color[..., 2::-1])  # BGRA → RGB
         return out

@@ -59,12 +59,13 @@ static int tracker_alive = 0, fail_gpu = 0, released = 0;
 static k4abt_tracker_configuration_t last_config;
 static const void *last_calibration = NULL;
 static char last_model_path[256];
+static int images_released = 0;
 
 /* ---- test controls (not SDK functions) */
 void stub_reset(int fail_gpu_modes) {
     n_script = 0; q_head = q_tail = 0; tracker_alive = 0; released = 0;
     fail_gpu = fail_gpu_modes; memset(&last_config, 0, sizeof last_config);
-    last_calibration = NULL; last_model_path[0] = 0;
+    last_calibration = NULL; last_model_path[0] = 0; images_released = 0;
 }
 int stub_script(uint64_t capture, uint32_t n, const uint32_t *ids, const float *pelvis_z, uint64_t ts) {
     if (n_script >= MAX_SCRIPT || n > MAX_BODIES) return -1;
@@ -139,4 +140,25 @@ k4a_result_t k4abt_frame_get_body_skeleton(k4abt_frame_t f, uint32_t index, k4ab
     }
     return K4A_RESULT_SUCCEEDED;
 }
-k4a_image_t k4abt_frame_get_body_index_map(k4abt_frame_t f) { (void)f; return NULL; }
+
+/* ---- body index map: an 8 x 6 CUSTOM8 image, stride 10, column c holds body index c
+ * for c < number of bodies, else K4ABT_BODY_INDEX_MAP_BACKGROUND (255); a NULL image for
+ * frames scripted with pelvis_z[0] < 0 (a tracker without a map). The k4a_image_*
+ * functions below stand in for libk4a's (k4a.h, sensor SDK 1.4). */
+typedef struct { int w, h, stride; uint8_t buf[60]; } stub_image_t;
+int stub_images_released(void) { return images_released; }
+k4a_image_t k4abt_frame_get_body_index_map(k4abt_frame_t f) {
+    scripted_t *s = (scripted_t *)f;
+    if (!s || (s->n > 0 && s->pelvis_z[0] < 0)) return NULL;
+    stub_image_t *im = calloc(1, sizeof *im);
+    im->w = 8; im->h = 6; im->stride = 10;
+    for (int r = 0; r < im->h; r++)
+        for (int c = 0; c < im->stride; c++)
+            im->buf[r * im->stride + c] = (uint8_t)((uint32_t)c < s->n ? c : (c < im->w ? 255 : 77));
+    return (k4a_image_t)im;
+}
+uint8_t *k4a_image_get_buffer(k4a_image_t image) { return image ? ((stub_image_t *)image)->buf : NULL; }
+int k4a_image_get_width_pixels(k4a_image_t image) { return image ? ((stub_image_t *)image)->w : 0; }
+int k4a_image_get_height_pixels(k4a_image_t image) { return image ? ((stub_image_t *)image)->h : 0; }
+int k4a_image_get_stride_bytes(k4a_image_t image) { return image ? ((stub_image_t *)image)->stride : 0; }
+void k4a_image_release(k4a_image_t image) { if (image) { images_released++; free(image); } }
