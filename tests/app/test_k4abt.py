@@ -62,6 +62,7 @@ def stub(stub_path: Path) -> Iterator[ctypes.CDLL]:
     lib.stub_sizeof_skeleton.restype = ctypes.c_size_t
     lib.stub_sizeof_config.restype = ctypes.c_size_t
     lib.stub_images_released.restype = ctypes.c_int
+    lib.stub_delay_pops.argtypes = [ctypes.c_int]
     lib.stub_reset(0)
     yield lib
     lib.stub_reset(0)
@@ -242,6 +243,26 @@ def test_backend_streams_the_chosen_body_in_metres(
                           [255, 0, 255])  # id 9 is SDK index 1 there
     assert stub.stub_images_released() == 4
     assert be._k4a.stopped
+
+
+def test_a_late_result_is_dropped_not_carried_one_frame_behind(
+        stub: ctypes.CDLL, stub_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    script(stub, 1, [(5, 2000.0)], 1_000_000)
+    script(stub, 2, [(5, 2100.0)], 1_033_333)
+    script(stub, 3, [(5, 2200.0)], 1_066_666)
+    be = backend(monkeypatch, [FakeCapture(k, 1_000_000 + 33_333 * (k - 1) + (k == 3))
+                               for k in (1, 2, 3)], stub_path)
+    be.open()
+    stub.stub_delay_pops(1)  # capture 1's result comes too late
+    gen = be.frames()
+    a, b, c = next(gen), next(gen), next(gen)
+    gen.close()
+    assert a.body_ids == [] and a.positions.shape == (0, 32, 3)  # timed out: no skeleton
+    assert stub.stub_released() == 3  # capture 1's late result was released, not streamed
+    # capture 2 gets its own body (pelvis z 2.1 m), capture 3 too (1 µs off: its own)
+    assert b.positions[0, 1, 2] == pytest.approx(2.101)
+    assert c.positions[0, 1, 2] == pytest.approx(2.201)
+    assert b.t_local - a.t_local == pytest.approx(0.033333, abs=1e-6)
 
 
 def test_body_timestamp_drives_frame_time(

@@ -62,6 +62,13 @@ PROCESSING_MODES = {"gpu": 0, "cpu": 1, "cuda": 2, "tensorrt": 3, "directml": 4}
 _RESULT_SUCCEEDED = 0
 _WAIT_SUCCEEDED, _WAIT_FAILED, _WAIT_TIMEOUT = 0, 1, 2
 
+#: stale results (of captures whose pop timed out) dropped at most per capture; the SDK
+#: queues only a few frames
+_MAX_STALE = 4
+#: a result this close to the capture's depth timestamp is its own (the SDK copies the
+#: depth timestamp; the margin, under half a frame at 30 fps, only guards against rounding)
+_SAME_CAPTURE_USEC = 10_000
+
 CAPSULE_CALIBRATION = b"pyk4a calibration handle"
 CAPSULE_CAPTURE = b"pyk4a capture handle"
 
@@ -323,13 +330,17 @@ class Tracker:
             "Body Tracking SDK install (its ONNX model and runtime next to libk4abt), the "
             "GPU driver/CUDA for GPU mode, and that no other tracker runs in this process")
 
-    def track(self, capture: int, timeout_ms: int = K4A_WAIT_INFINITE) -> BodyFrame | None:
+    def track(self, capture: int, timeout_ms: int = K4A_WAIT_INFINITE,
+              device_timestamp_usec: int | None = None) -> BodyFrame | None:
         """Enqueue one capture and pop its result (synchronous: one in, one out).
 
         Args:
             capture: ``k4a_capture_t`` handle (:func:`capture_handle`); the SDK takes its
                 own reference, the caller keeps its capture.
             timeout_ms: how long to wait for the queue and for the result.
+            device_timestamp_usec: the capture's depth timestamp: results of older
+                captures still queued (their pop timed out earlier) are dropped, so the
+                stream does not stay one frame behind its images after a slow frame.
 
         Returns:
             The body frame, or None when the capture was refused (e.g. no depth image)
@@ -341,13 +352,20 @@ class Tracker:
         if lib.k4abt_tracker_enqueue_capture(h, ctypes.c_void_p(capture),
                                              timeout_ms) != _WAIT_SUCCEEDED:
             return None
-        frame = ctypes.c_void_p()
-        if lib.k4abt_tracker_pop_result(h, ctypes.byref(frame), timeout_ms) != _WAIT_SUCCEEDED:
-            return None
-        try:
-            return _read_frame(lib, frame, self._image_lib)
-        finally:
-            lib.k4abt_frame_release(frame)
+        for _ in range(_MAX_STALE + 1):
+            frame = ctypes.c_void_p()
+            if lib.k4abt_tracker_pop_result(h, ctypes.byref(frame),
+                                            timeout_ms) != _WAIT_SUCCEEDED:
+                return None
+            try:
+                ts = int(lib.k4abt_frame_get_device_timestamp_usec(frame))
+                if (device_timestamp_usec is not None
+                        and ts < device_timestamp_usec - _SAME_CAPTURE_USEC):
+                    continue  # a stale result: released in finally
+                return _read_frame(lib, frame, self._image_lib)
+            finally:
+                lib.k4abt_frame_release(frame)
+        return None
 
     def close(self) -> None:
         """Shut the tracker down and destroy it (idempotent)."""

@@ -205,7 +205,8 @@ class K4ABackend(Backend):
         empty = (np.zeros((0, J, 3), np.float32), np.zeros((0, J), np.uint8), ids, None, None)
         if self._tracker is None:
             return empty
-        body = self._tracker.track(_k4abt.capture_handle(cap), TRACK_TIMEOUT_MS)
+        body = self._tracker.track(_k4abt.capture_handle(cap), TRACK_TIMEOUT_MS,
+                                   cap.depth_timestamp_usec)
         if body is None:
             return empty
         pos, st, ids = skeleton_arrays(body, self._body_id)

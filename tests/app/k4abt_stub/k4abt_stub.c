@@ -60,12 +60,14 @@ static k4abt_tracker_configuration_t last_config;
 static const void *last_calibration = NULL;
 static char last_model_path[256];
 static int images_released = 0;
+static int pop_delays = 0;
 
 /* ---- test controls (not SDK functions) */
 void stub_reset(int fail_gpu_modes) {
     n_script = 0; q_head = q_tail = 0; tracker_alive = 0; released = 0;
     fail_gpu = fail_gpu_modes; memset(&last_config, 0, sizeof last_config);
     last_calibration = NULL; last_model_path[0] = 0; images_released = 0;
+    pop_delays = 0;
 }
 int stub_script(uint64_t capture, uint32_t n, const uint32_t *ids, const float *pelvis_z, uint64_t ts) {
     if (n_script >= MAX_SCRIPT || n > MAX_BODIES) return -1;
@@ -79,6 +81,8 @@ int stub_last_config(int32_t *orientation, int32_t *mode, int32_t *gpu, const vo
     *gpu = last_config.gpu_device_id; *calibration = last_calibration;
     return tracker_alive;
 }
+/* the next n pops time out although a result is queued (a slow tracker) */
+void stub_delay_pops(int n) { pop_delays = n; }
 const char *stub_last_model_path(void) { return last_model_path; }
 int stub_released(void) { return released; }
 size_t stub_sizeof_skeleton(void) { return sizeof(k4abt_skeleton_t); }
@@ -116,6 +120,7 @@ k4a_wait_result_t k4abt_tracker_pop_result(k4abt_tracker_t tracker_handle,
     (void)timeout_in_ms;
     if (tracker_handle == NULL || !tracker_alive) return K4A_WAIT_RESULT_FAILED;
     if (q_head == q_tail) return K4A_WAIT_RESULT_TIMEOUT;
+    if (pop_delays > 0) { pop_delays--; return K4A_WAIT_RESULT_TIMEOUT; }
     *body_frame_handle = (k4abt_frame_t)queue[q_head++ % MAX_SCRIPT];
     return K4A_WAIT_RESULT_SUCCEEDED;
 }
