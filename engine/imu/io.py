@@ -13,6 +13,9 @@ non-monotonic time, units contradicted by the magnitudes) or warnings collected 
 from __future__ import annotations
 
 import csv
+import re
+from array import array
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,11 +28,18 @@ from engine.errors import InputError
 FloatArray = NDArray[np.float64]
 
 G = 9.80665
-#: unit name -> factor to SI (rad/s, m/s², µT)
-GYR_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0, "dps": np.pi / 180.0}
-ACC_UNITS = {"m/s2": 1.0, "m/s^2": 1.0, "m/s²": 1.0, "g": G}
-MAG_UNITS = {"ut": 1.0, "µt": 1.0, "g": 100.0, "gauss": 100.0, "nt": 1e-3, "mt": 1e3,
-             "norm": 1.0}
+#: unit name -> factor to SI (rad/s, m/s², µT); matched case-insensitively, spaces ignored
+GYR_UNITS = {"rad/s": 1.0, "rad/sec": 1.0, "rads": 1.0, "deg/s": np.pi / 180.0,
+             "deg/sec": np.pi / 180.0, "°/s": np.pi / 180.0, "dps": np.pi / 180.0}
+ACC_UNITS = {"m/s2": 1.0, "m/s^2": 1.0, "m/s²": 1.0, "m/s/s": 1.0, "ms-2": 1.0,
+             "m*s-2": 1.0, "g": G, "mg": G / 1000.0}
+MAG_UNITS = {"ut": 1.0, "µt": 1.0, "μt": 1.0, "g": 100.0, "gauss": 100.0, "mg": 0.1,
+             "mgauss": 0.1, "nt": 1e-3, "mt": 1e3, "norm": 1.0}
+#: time unit -> factor to s
+TIME_UNITS = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6,
+              "ns": 1e-9}
+#: largest CSV read (the whole file is parsed in memory); split bigger recordings
+MAX_CSV_BYTES = 256 * 2**20
 #: plausibility bounds for magnitude-based unit checks
 _MAX_GYR_RAD = 40.0          # ≈ 2300 deg/s, above every body-worn gyroscope range
 _EARTH_FIELD_UT = (15.0, 80.0)
@@ -97,12 +107,16 @@ def _finalise(
     if not np.all(np.isfinite(time)):
         raise InputError(f"{name}: time column contains NaN/inf; fix or drop those rows")
     dts = np.diff(time)
+    _check_rounded_time(name, time)
     if np.any(dts <= 0):
         i = int(np.argmax(dts <= 0))
         raise InputError(
             f"{name}: time is not strictly increasing at sample {i + 1} "
             f"({time[i]:.6g} s -> {time[i + 1]:.6g} s); sort the file or remove duplicates")
-    fs = float(frequency) if frequency else float(1.0 / np.median(dts))
+    # the mean of the regular steps: a clock rounded to a few µs (epoch times with few
+    # digits) makes single steps jitter, gaps would bias a plain mean
+    fs = float(frequency) if frequency else float(
+        1.0 / np.mean(dts[dts < 1.5 * np.median(dts)]))
     if np.max(dts) > 1.5 * np.median(dts) + 1e-12:
         n_gap = int(np.sum(dts > 1.5 * np.median(dts)))
         warnings.append(f"{n_gap} gap(s) in the time stamps (largest {np.max(dts):.3g} s); "
@@ -114,11 +128,49 @@ def _finalise(
         if bad.any():
             warnings.append(f"{int(bad.sum())} {what} sample(s) are NaN/inf "
                             f"(first at {time[int(np.argmax(bad))]:.4g} s); they are skipped")
+    for arr, what in ((gyr, "gyroscope"), (acc, "accelerometer"), (mag, "magnetometer")):
+        if arr is not None:
+            _check_channels(np.asarray(arr, dtype=float), what, warnings)
     if check_units:
         _check_units(gyr, acc, mag, meta, name, warnings)
     return ImuRecording(time=time, gyr=gyr, acc=acc, mag=None if mag is None else
                         np.asarray(mag, dtype=float), frequency=fs, name=name, meta=meta,
                         warnings=warnings)
+
+
+def _check_rounded_time(name: str, time: FloatArray, unit: str = "s") -> None:
+    """InputError when many time steps are 0: a clock rounded coarser than the sampling
+    step (32-bit floats keep 24 bits, so epoch seconds fall on a 128-s grid)."""
+    dts = np.diff(time[np.isfinite(time)])
+    n_same = int(np.sum(dts == 0))
+    if n_same > max(2, len(dts) // 20):
+        raise InputError(
+            f"{name}: {n_same} of {len(dts)} time steps are 0 — the time stamps are rounded "
+            f"more coarsely than the sampling step (values reach {np.max(np.abs(time)):.6g} "
+            f"{unit}; stored as 32-bit floats or with too few digits?); export time in double "
+            "precision or relative to the start, or drop the time column and pass the "
+            "sampling frequency")
+
+
+def _check_channels(arr: FloatArray, what: str, warnings: list[str]) -> None:
+    """Warn about dead (constant) and saturated (clipped at the range) axes."""
+    for k, ax in enumerate("XYZ"):
+        c = arr[:, k]
+        c = c[np.isfinite(c)]
+        if len(c) < 10:
+            continue
+        if np.ptp(c) == 0:
+            warnings.append(f"{what} {ax} is constant ({c[0]:.4g}) — a dead channel?")
+            continue
+        if what == "magnetometer":
+            continue  # a slow, coarsely quantised field dwells on its extreme values
+        top = np.max(np.abs(c))
+        at = np.abs(c) == top
+        # the longest run of samples stuck at the extreme value: a clipped sensor
+        run = np.diff(np.flatnonzero(np.diff(np.r_[0, at.astype(np.int8), 0])))[::2]
+        if len(run) and int(run.max()) >= 5:
+            warnings.append(f"{what} {ax} saturates at ±{top:.4g} ({int(at.sum())} samples); "
+                            "the sensor range was exceeded, values there are wrong")
 
 
 def _check_units(gyr: FloatArray, acc: FloatArray, mag: FloatArray | None,
@@ -164,33 +216,95 @@ def _check_units(gyr: FloatArray, acc: FloatArray, mag: FloatArray | None,
 # ------------------------------------------------------------------------ formats
 
 
-def _read_csv(path: Path) -> tuple[list[str], FloatArray]:
+_COMMENTS = ("#", "//", "%")
+_NAN_CELLS = {"", "nan", "na", "n/a", "null", "none", "-"}
+
+
+def _text_lines(path: Path) -> Iterator[str]:
+    """The file's lines (BOM and line ends removed), or InputError for an unreadable,
+    empty, oversized or binary file."""
     try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            sample = fh.read(4096)
-            fh.seek(0)
-            try:
-                dialect: Any = csv.Sniffer().sniff(sample, delimiters=",;\t")
-            except csv.Error:
-                dialect = csv.excel
-            rows = list(csv.reader(fh, dialect))
+        size = path.stat().st_size
+        with path.open("rb") as fh:
+            head = fh.read(4096)
     except OSError as e:
         raise InputError(f"cannot read {path}: {e}") from None
-    if len(rows) < 2:
-        raise InputError(f"{path.name}: CSV needs a header row and data rows")
-    header = [h.strip() for h in rows[0]]
-    data = []
-    for i, r in enumerate(rows[1:], start=2):
-        if not any(c.strip() for c in r):
-            continue
-        if len(r) != len(header):
-            raise InputError(f"{path.name}: line {i} has {len(r)} fields, header has "
-                             f"{len(header)}")
+    if size == 0 or not head.strip():
+        raise InputError(f"{path.name}: the file is empty")
+    if size > MAX_CSV_BYTES:
+        raise InputError(f"{path.name}: {size / 2**20:.0f} MB is more than the "
+                         f"{MAX_CSV_BYTES // 2**20} MB a CSV may have; split the recording")
+    control = sum(1 for c in head if c < 32 and c not in (9, 10, 13))
+    if control > len(head) // 100:
+        raise InputError(f"{path.name}: not a text CSV (binary content); export the "
+                         "recording as CSV text")
+    encoding = "utf-8-sig"
+    try:
+        with path.open(encoding=encoding) as fh:
+            for _ in fh:
+                pass
+    except UnicodeDecodeError:
+        encoding = "latin-1"  # Windows exports write '°' and 'µ' in cp1252/latin-1
+    except OSError as e:
+        raise InputError(f"cannot read {path}: {e}") from None
+    with path.open(encoding=encoding, newline="") as fh:
+        for line in fh:
+            yield line.rstrip("\r\n")
+
+
+def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
+    """Parse a numeric CSV with one header row.
+
+    Accepts comma, semicolon or tab separators (chosen from the header), a decimal comma
+    (with ``;`` or tab separators), comment lines (``#``, ``//``, ``%``), blank lines, a BOM,
+    CRLF, empty/NaN cells and one units row under the header.
+
+    Returns:
+        header, ``(N, C)`` data, and the units row (``[]`` when there is none).
+    """
+    lines = (ln for ln in _text_lines(path)
+             if ln.strip() and not ln.lstrip().startswith(_COMMENTS))
+    first = next(lines, None)
+    if first is None:
+        raise InputError(f"{path.name}: the file holds no header row or data")
+    delim = "\t" if "\t" in first else ";" if ";" in first else ","
+    header = [h.strip().strip('"').strip() for h in next(csv.reader([first], delimiter=delim))]
+    while header and not header[-1]:
+        header.pop()  # a trailing separator
+    n = len(header)
+    if n < 2:
+        raise InputError(f"{path.name}: the header has {n} column(s); expected a separated "
+                         "header such as time,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z")
+    values = array("d")
+    units: list[str] = []
+    rows = 0
+    for i, r in enumerate(csv.reader(lines, delimiter=delim), start=2):
+        if len(r) > n and not any(c.strip() for c in r[n:]):
+            r = r[:n]
+        if len(r) != n:
+            raise InputError(f"{path.name}: data row {i} has {len(r)} fields, header has {n}")
         try:
-            data.append([float(c) if c.strip() else np.nan for c in r])
+            values.extend(float(c.replace(",", ".")) if c.strip().lower() not in _NAN_CELLS
+                          else np.nan for c in r)
         except ValueError:
-            raise InputError(f"{path.name}: line {i} has a non-numeric value") from None
-    return header, np.asarray(data, dtype=float).reshape(-1, len(header))
+            if rows == 0 and not units and all(not _is_number(c) for c in r):
+                units = [c.strip().strip("()[]") for c in r]  # a units row under the header
+                continue
+            bad = next(c for c in r if not _is_number(c) and c.strip().lower() not in _NAN_CELLS)
+            raise InputError(f"{path.name}: data row {i} has a non-numeric value {bad[:40]!r}"
+                             ) from None
+        rows += 1
+    if rows == 0:
+        raise InputError(f"{path.name}: CSV needs a header row and data rows")
+    return header, np.frombuffer(values, dtype=float).reshape(rows, n).copy(), units
+
+
+def _is_number(c: str) -> bool:
+    try:
+        float(c.replace(",", "."))
+    except ValueError:
+        return False
+    return True
 
 
 _XIO_GROUPS = {
@@ -214,7 +328,7 @@ def load_xio_csv(path: str | Path, frequency: float | None = None) -> ImuRecordi
         InputError: missing columns, unknown units, bad timing.
     """
     p = Path(path)
-    header, data = _read_csv(p)
+    header, data, _ = _read_csv(p)
     warnings: list[str] = []
     cols: dict[str, FloatArray] = {}
     units: dict[str, str] = {}
@@ -350,72 +464,265 @@ def load_broad(path: str | Path) -> ImuRecording:
     return rec
 
 
+_GROUP_ALIASES = {
+    "gyr": ("gyr", "gyro", "gyros", "gyroscope", "angvel", "angularvelocity", "angularrate",
+            "rotationrate", "omega", "w"),
+    "acc": ("acc", "accel", "accelerometer", "acceleration", "a"),
+    "mag": ("mag", "magn", "magnetometer", "magneticfield", "compass", "m"),
+}
+_TIME_ALIASES = ("time", "t", "timestamp", "timestamps", "times", "sampletime", "elapsedtime")
+_COUNTER_ALIASES = ("packetnumber", "packetcounter", "packet", "sample", "samplenumber",
+                    "samplecounter", "counter", "index", "idx", "frame", "framenumber")
+_GROUP_NAMES = {"gyr": "gyroscope", "acc": "accelerometer", "mag": "magnetometer"}
+
+
+def _split_header(h: str) -> tuple[str, str]:
+    """``"Gyro X (deg/s)"`` -> ``("gyrox", "deg/s")``: a lower-case alphanumeric key and
+    the unit in trailing brackets (``""`` when there is none)."""
+    unit = ""
+    m = re.search(r"[(\[{]([^)\]}]*)[)\]}]\s*$", h)
+    if m:
+        unit, h = m.group(1).strip(), h[:m.start()]
+    return re.sub(r"[^a-z0-9]", "", h.lower()), unit
+
+
+def _find_columns(header: list[str], units_row: list[str]) -> tuple[
+        dict[str, list[int]], int | None, str, int | None, dict[int, str]]:
+    """Column indices of each group's X, Y, Z, of the time and of a sample counter."""
+    keys: list[str] = []
+    units: dict[int, str] = {}
+    for i, h in enumerate(header):
+        k, u = _split_header(h)
+        keys.append(k)
+        u = u or (units_row[i] if i < len(units_row) else "")
+        if u:
+            units[i] = u
+    groups: dict[str, list[int]] = {}
+    for g, aliases in _GROUP_ALIASES.items():
+        idx = [next((i for i, k in enumerate(keys) if k in {a + ax for a in aliases}), -1)
+               for ax in "xyz"]
+        if all(i >= 0 for i in idx):
+            groups[g] = idx
+    t_idx, t_unit = None, ""
+    for i, k in enumerate(keys):
+        if k in _TIME_ALIASES:
+            t_idx = i
+            break
+        suffix = next((k[len(a):] for a in _TIME_ALIASES if k.startswith(a)
+                       and k[len(a):] in TIME_UNITS), None)
+        if suffix is not None:
+            t_idx, t_unit = i, suffix
+            break
+    if t_idx is not None:
+        t_unit = units.get(t_idx, t_unit)
+    c_idx = next((i for i, k in enumerate(keys) if k in _COUNTER_ALIASES), None)
+    return groups, t_idx, t_unit, c_idx, units
+
+
+def _detect(g: str, raw: FloatArray) -> tuple[str, str] | None:
+    """Guess a group's unit from its magnitudes: ``(unit, why)`` or ``None`` if ambiguous.
+
+    Gravity fixes the accelerometer unit and the Earth's field (25-65 µT) the
+    magnetometer's; a gyroscope is only sure to be in deg/s when its rates would be
+    impossible in rad/s — a slow walk in deg/s looks like a fast one in rad/s.
+    """
+    norm = np.linalg.norm(raw, axis=1)
+    norm = norm[np.isfinite(norm)]
+    if not len(norm):
+        return None
+    med = float(np.median(norm))
+    if g == "gyr":
+        p99 = float(np.percentile(norm, 99))
+        if p99 > _MAX_GYR_RAD:
+            return "deg/s", f"rates reach {p99:.0f}, impossible in rad/s"
+        return None
+    bands = ({"g": (0.5, 2.0), "m/s2": (5.0, 20.0), "mg": (500.0, 2000.0)} if g == "acc" else
+             {"uT": (20.0, 70.0), "G": (0.2, 0.7), "mT": (0.02, 0.07), "nT": (2e4, 7e4)})
+    for unit, (lo, hi) in bands.items():
+        if lo < med < hi:
+            return unit, f"median magnitude {med:.3g}"
+    return None
+
+
 def load_csv(
     path: str | Path,
     *,
-    gyr_unit: str,
-    acc_unit: str,
+    gyr_unit: str | None = None,
+    acc_unit: str | None = None,
     mag_unit: str | None = None,
-    time_unit: str = "s",
+    time_unit: str | None = None,
     frequency: float | None = None,
 ) -> ImuRecording:
-    """Read a generic CSV with columns ``time, gyr_x, gyr_y, gyr_z, acc_x, ... [mag_x ...]``.
+    """Read a generic IMU CSV: time (or a sample counter), gyroscope, accelerometer and
+    optionally magnetometer X/Y/Z columns, as other labs name them.
 
-    Units are declared by the caller and checked against the magnitudes in the data.
+    Column names are matched ignoring case, spaces, ``_`` and a unit in brackets:
+    ``gyr_x``, ``Gyr_X``, ``gyro x (deg/s)``, ``GyroscopeX``, ``wx``; ``acc_x``,
+    ``Accelerometer X (g)``, ``ax``; ``mag_x``, ``Magnetometer X (uT)``, ``mx``; ``time``,
+    ``t``, ``timestamp``, ``time_ms``; ``Packet number``, ``sample``, ``counter``. Other
+    columns (quaternions, temperature ...) are ignored with a warning.
+
+    Each unit is taken, in this order, from the argument (an explicit override), from the
+    header (``(deg/s)`` or a units row under it), or from the magnitudes: gravity tells g
+    from m/s², the Earth's field µT from gauss, mT or nT, the median step the time unit,
+    rates above 40 rad/s mean deg/s. What was assumed is said in ``warnings`` and
+    ``meta["units_from"]``; a slow recording whose gyroscope unit cannot be told is refused
+    until ``gyr_unit`` is given.
 
     Args:
-        path: the CSV file (comma, semicolon or tab separated, one header row).
-        gyr_unit: ``"rad/s"`` or ``"deg/s"``.
-        acc_unit: ``"m/s2"`` or ``"g"``.
-        mag_unit: ``"uT"``, ``"nT"``, ``"G"``, ``"norm"`` or ``None`` when there is no
-            magnetometer.
-        time_unit: ``"s"`` or ``"ms"``; without a ``time`` column, ``frequency`` is used.
-        frequency: sampling rate, Hz, when there is no time column.
+        path: the CSV file (comma, semicolon or tab separated, decimal point or comma).
+        gyr_unit: ``"rad/s"`` or ``"deg/s"``; ``None`` = header or detection.
+        acc_unit: ``"m/s2"``, ``"g"`` or ``"mg"``; ``None`` = header or detection.
+        mag_unit: ``"uT"``, ``"nT"``, ``"mT"``, ``"G"``, ``"mG"``, ``"norm"``, ``"none"``
+            (ignore the magnetometer) or ``None`` (header or detection; no magnetometer
+            when the file has none).
+        time_unit: ``"s"``, ``"ms"``, ``"us"`` or ``"ns"``; ``None`` = header or detection.
+        frequency: sampling rate, Hz: needed without a time column (with a sample counter,
+            dropped samples keep their place).
 
     Raises:
-        InputError: missing columns, unknown units, units contradicted by the data,
-            non-monotonic time.
+        InputError: missing columns, unknown or undeterminable units, units contradicted
+            by the data, bad timing.
     """
     p = Path(path)
-    header, data = _read_csv(p)
-    lower = [h.lower() for h in header]
-    want = [f"{s}_{a}" for s in ("gyr", "acc") for a in "xyz"]
-    if mag_unit is not None:
-        want += [f"mag_{a}" for a in "xyz"]
-    missing = [w for w in want if w not in lower]
+    header, data, units_row = _read_csv(p)
+    if len(data) < 2:
+        raise InputError(f"{p.name}: need at least two samples, got {len(data)}")
+    groups, t_idx, t_unit, c_idx, col_units = _find_columns(header, units_row)
+    declared = {"gyr": gyr_unit, "acc": acc_unit, "mag": mag_unit}
+    need = ["gyr", "acc"] + (["mag"] if mag_unit not in (None, "none") else [])
+    missing = [g for g in need if g not in groups]
     if missing:
-        raise InputError(f"{p.name}: missing column(s) {missing}; expected "
-                         f"time, {', '.join(want)} (found {header})")
+        raise InputError(
+            f"{p.name}: missing column(s): no {' or '.join(_GROUP_NAMES[g] for g in missing)} "
+            "X/Y/Z; "
+            "name them e.g. time, gyr_x, gyr_y, gyr_z, acc_x, acc_y, acc_z[, mag_x, mag_y, "
+            f"mag_z] (found {header})")
+    if mag_unit == "none":
+        groups.pop("mag", None)
     warnings: list[str] = []
-    known = set(want) | {"time"}
-    unknown = [h for h in header if h.lower() not in known]
-    if unknown:
-        warnings.append(f"ignored unknown column(s): {', '.join(unknown)}")
+    meta: dict[str, Any] = {"format": "csv", "source": str(p), "units_from": {},
+                            "columns": header}
+    tables = {"gyr": GYR_UNITS, "acc": ACC_UNITS, "mag": MAG_UNITS}
+    out: dict[str, FloatArray] = {}
+    for g, idx in groups.items():
+        raw = data[:, idx]
+        what = _GROUP_NAMES[g]
+        in_header = next((col_units[i] for i in idx if i in col_units), "")
+        unit, source = declared[g], "declared"
+        if unit is None and in_header:
+            unit, source = in_header, "header"
+        if unit is None:
+            found = _detect(g, raw)
+            if found is None:
+                hint = {"gyr": "rad/s or deg/s", "acc": "m/s2, g or mg",
+                        "mag": "uT, G, mT, nT or norm"}[g]
+                raise InputError(
+                    f"{p.name}: generic CSV needs declared units — cannot tell the {what} "
+                    f"unit from the data; declare {g}_unit ({hint})")
+            unit, source = found[0], "detected"
+            warnings.append(f"assumed {what} in {unit} ({found[1]}); declare {g}_unit if "
+                            "that is wrong")
+        elif source == "declared" and in_header and not np.isclose(
+                _unit(tables[g], in_header, what) if _known(tables[g], in_header) else -1.0,
+                _unit(tables[g], unit, what)):
+            warnings.append(f"declared {what} unit {unit!r} overrides the header's "
+                            f"{in_header!r}")
+        try:
+            factor = _unit(tables[g], unit, what)
+        except InputError as e:
+            raise InputError(f"{p.name}: {e} (from the {source} units"
+                             + (f"; declare {g}_unit)" if source == "header" else ")")) from None
+        out[g] = raw * factor
+        meta[f"{g}_unit"] = unit
+        meta["units_from"][g] = source
+    meta.setdefault("mag_unit", "")
+    used = {i for idx in groups.values() for i in idx}
+    time = _csv_time(p, data, t_idx, t_unit, c_idx, time_unit, frequency, meta, warnings)
+    used |= {i for i in (t_idx, c_idx) if i is not None}
+    ignored = [h for i, h in enumerate(header) if i not in used]
+    if ignored:
+        warnings.append(f"ignored column(s): {', '.join(ignored)}")
+    gyr, acc, mag = out["gyr"], out["acc"], out.get("mag")
+    time, keep = _drop_repeated_rows(time, np.column_stack([a for a in (gyr, acc, mag)
+                                                           if a is not None]), warnings)
+    return _finalise(time, gyr[keep], acc[keep], None if mag is None else mag[keep], p.stem,
+                     meta, warnings, frequency=frequency)
 
-    def block(prefix: str) -> FloatArray:
-        return np.stack([data[:, lower.index(f"{prefix}_{a}")] for a in "xyz"], axis=1)
 
-    gyr = block("gyr") * _unit(GYR_UNITS, gyr_unit, "gyroscope")
-    acc = block("acc") * _unit(ACC_UNITS, acc_unit, "accelerometer")
-    mag = None if mag_unit is None else block("mag") * _unit(MAG_UNITS, mag_unit, "magnetometer")
-    if "time" in lower:
-        scale = {"s": 1.0, "ms": 1e-3}.get(time_unit)
-        if scale is None:
-            raise InputError(f"time_unit must be 's' or 'ms', got {time_unit!r}")
-        time = data[:, lower.index("time")] * scale
-    elif frequency:
-        time = np.arange(len(data)) / float(frequency)
-    else:
-        raise InputError(f"{p.name}: no 'time' column; pass the sampling frequency")
-    meta = {"format": "csv", "source": str(p), "gyr_unit": gyr_unit, "acc_unit": acc_unit,
-            "mag_unit": mag_unit or ""}
-    return _finalise(time, gyr, acc, mag, p.stem, meta, warnings, frequency=frequency)
+def _known(table: dict[str, float], unit: str) -> bool:
+    return unit.strip().lower().replace(" ", "") in {k.lower() for k in table}
+
+
+def _csv_time(p: Path, data: FloatArray, t_idx: int | None, t_unit: str, c_idx: int | None,
+              time_unit: str | None, frequency: float | None, meta: dict[str, Any],
+              warnings: list[str]) -> FloatArray:
+    """Time in s from a time column (unit declared, in the header or from the step), a
+    sample counter and the rate, or the rate alone."""
+    if t_idx is None:
+        if not frequency:
+            raise InputError(f"{p.name}: no time column; pass the sampling frequency")
+        if c_idx is None:
+            meta["time_from"] = "frequency"
+            return np.arange(len(data)) / float(frequency)
+        c = data[:, c_idx]
+        if not np.all(np.isfinite(c)):
+            raise InputError(f"{p.name}: the sample counter {c_idx + 1} has empty cells")
+        d = np.diff(c)
+        if np.any(d < 0) and c.max() > 0:  # a wrapping packet counter (uint8/16/32)
+            d[d < 0] += 2.0 ** np.ceil(np.log2(c.max() + 1))
+        meta["time_from"] = "counter"
+        return np.r_[0.0, np.cumsum(d)] / float(frequency)
+    raw = data[:, t_idx]
+    _check_rounded_time(p.name, raw, "(file units)")
+    dts = np.diff(raw[np.isfinite(raw)])
+    step = float(np.median(dts[dts > 0])) if np.any(dts > 0) else 0.0
+    unit, source = time_unit, "declared"
+    if unit is None and t_unit:
+        unit, source = t_unit, "header"
+    if unit is None:
+        # IMUs sample at 4 Hz-4 kHz: each unit's step range is one decade band of its own
+        unit = next((u for u, f in (("s", 1.0), ("ms", 1e-3), ("us", 1e-6), ("ns", 1e-9))
+                     if step and 1 / 4000 <= step * f < 1 / 4), None)
+        if unit is None:
+            raise InputError(f"{p.name}: cannot tell the time unit from the median step "
+                             f"{step:g}; declare time_unit (s, ms, us or ns)")
+        source = "detected"
+        warnings.append(f"assumed time in {unit} (median step {step:g} = "
+                        f"{1 / (step * TIME_UNITS[unit]):.4g} Hz); declare time_unit if "
+                        "that is wrong")
+    scale = TIME_UNITS.get(unit.strip().lower())
+    if scale is None:
+        raise InputError(f"{p.name}: unknown time unit {unit!r}; use one of s, ms, us, ns")
+    if step and not 0.5 <= 1 / (step * scale) <= 20000:
+        better = next((u for u, f in (("s", 1.0), ("ms", 1e-3), ("us", 1e-6), ("ns", 1e-9))
+                       if 1 / 4000 <= step * f < 1 / 4), None)
+        raise InputError(
+            f"{p.name}: with time in {unit} ({source}) the samples are "
+            f"{step * scale:g} s apart ({1 / (step * scale):.3g} Hz), not an IMU rate"
+            + (f"; the time is probably in {better}, declare time_unit {better!r}"
+               if better else "; check the time column"))
+    meta["time_unit"], meta["time_from"] = unit, source
+    return raw * scale
+
+
+def _drop_repeated_rows(time: FloatArray, values: FloatArray,
+                        warnings: list[str]) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Drop rows that repeat the previous row exactly (same time, same values): loggers
+    write them when a packet is sent twice. A repeated time with other values stays an
+    error (in :func:`_finalise`)."""
+    same = np.r_[False, (time[1:] == time[:-1])
+                 & np.all((values[1:] == values[:-1]) | (np.isnan(values[1:])
+                                                         & np.isnan(values[:-1])), axis=1)]
+    if same.any():
+        warnings.append(f"dropped {int(same.sum())} repeated row(s) (same time and values)")
+    return time[~same], ~same
 
 
 def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
     """Read any supported IMU file, choosing the reader from extension and content.
 
-    ``**kwargs`` go to :func:`load_csv` (units) or :func:`load_xio_csv` (frequency).
+    ``**kwargs`` go to :func:`load_csv` (units, frequency) for text files.
 
     Raises:
         InputError: unsupported file or any reader error.
@@ -435,15 +742,9 @@ def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
             raise _damaged(p, e) from None
         return load_broad(p) if "imu_gyr" in names else load_madgwick_mat(p)
     if suf in (".csv", ".txt", ".tsv"):
-        try:
-            with p.open(encoding="utf-8-sig") as fh:
-                first = fh.readline()
-        except OSError as e:
-            raise InputError(f"cannot read {p}: {e}") from None
-        if "Gyroscope X" in first:
-            return load_xio_csv(p, frequency=kwargs.get("frequency"))
-        if "gyr_unit" not in kwargs or "acc_unit" not in kwargs:
-            raise InputError(f"{p.name}: generic CSV needs declared units (gyr_unit, acc_unit "
-                             "and mag_unit if there is a magnetometer)")
-        return load_csv(p, **kwargs)
+        # x-IMU exports are one case of the generic reader (their headers carry the units)
+        rec = load_csv(p, **kwargs)
+        if any(h.startswith("Gyroscope X") for h in rec.meta.get("columns", ())):
+            rec.meta["format"] = "x-imu-csv"
+        return rec
     raise InputError(f"{p.name}: unsupported IMU file type {suf!r}; use .csv, .mat or .hdf5")
