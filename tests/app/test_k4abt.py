@@ -337,3 +337,21 @@ def test_capsule_of_another_kind_is_refused() -> None:
         _k4abt.capsule_pointer(cap._capture_handle, _k4abt.CAPSULE_CALIBRATION)
     with pytest.raises(_k4abt.K4ABTUnavailable):
         _k4abt.capsule_pointer(object(), _k4abt.CAPSULE_CAPTURE)
+
+
+def test_system_search_without_the_sdk_says_how_to_install(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import ctypes.util
+
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: None)
+    monkeypatch.setattr(_k4abt.ctypes, "CDLL", _no_such_library)
+    with pytest.raises(_k4abt.K4ABTUnavailable) as info:
+        _k4abt.load_library()
+    msg = str(info.value)
+    assert "Body Tracking SDK 1.1" in msg and "libk4abt1.1-dev" in msg
+    assert "libk4abt.so.1.1" in msg  # the names tried
+    assert _k4abt.load_image_library() is None  # no libk4a: no body index, no crash
+
+
+def _no_such_library(name: str, *args: Any, **kwargs: Any) -> ctypes.CDLL:
+    raise OSError(f"{name}: cannot open shared object file")
