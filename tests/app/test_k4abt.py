@@ -355,3 +355,17 @@ def test_system_search_without_the_sdk_says_how_to_install(
 
 def _no_such_library(name: str, *args: Any, **kwargs: Any) -> ctypes.CDLL:
     raise OSError(f"{name}: cannot open shared object file")
+
+
+def test_a_pyk4a_without_capture_capsules_stops_tracking_not_the_stream(
+        stub: ctypes.CDLL, stub_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    cap = FakeCapture(1, 0)
+    cap._capture_handle = object()  # what an incompatible pyk4a would hand over
+    be = backend(monkeypatch, [cap, FakeCapture(2, 33_333)], stub_path)
+    be.open()
+    gen = be.frames()
+    a, b = next(gen), next(gen)
+    gen.close()
+    assert a.body_ids == [] and b.body_ids == []
+    assert b.images(["depth"])["depth"].shape == (4, 5)
+    assert any("pyk4a" in w for w in be.warnings)

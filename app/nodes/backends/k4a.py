@@ -205,8 +205,15 @@ class K4ABackend(Backend):
         empty = (np.zeros((0, J, 3), np.float32), np.zeros((0, J), np.uint8), ids, None, None)
         if self._tracker is None:
             return empty
-        body = self._tracker.track(_k4abt.capture_handle(cap), TRACK_TIMEOUT_MS,
-                                   cap.depth_timestamp_usec)
+        try:
+            handle = _k4abt.capture_handle(cap)
+        except _k4abt.K4ABTUnavailable as exc:  # a pyk4a without capture capsules
+            log.warning("body tracking stopped: %s", exc)
+            self.warnings.append(f"Body tracking stopped: {exc}")
+            self._tracker.close()
+            self._tracker = None
+            return empty
+        body = self._tracker.track(handle, TRACK_TIMEOUT_MS, cap.depth_timestamp_usec)
         if body is None:
             return empty
         pos, st, ids = skeleton_arrays(body, self._body_id)
