@@ -4,8 +4,10 @@
 Madgwick ``.mat``, BROAD ``.hdf5``/``.mat``, generic CSV with declared units), ``sensors``
 (one name per file, e.g. ``chest``, ``thigh_l``; default the file name), optional
 ``skeleton`` (skeleton CSV, ``engine.io.csv``), ``filter`` (``ours`` | ``madgwick``),
-``beta``, ``synchronise``, ``n_jumps`` and, for generic CSV, ``gyr_unit``, ``acc_unit``,
-``mag_unit``, ``time_unit``, ``frequency``.
+``beta``, ``synchronise``, ``n_jumps`` and, for CSV, ``gyr_unit``, ``acc_unit``,
+``mag_unit``, ``time_unit`` (``s``/``ms``/``us``/``ns``), ``frequency``: each overrides the
+unit in the file's header or the one detected from the data (``engine.imu.io.load_csv``;
+what was assumed comes back in the warnings).
 
 Instead of a skeleton file, ``recording`` and ``recording_node`` take one sensor's
 skeleton from a recording already transferred to the server (placed in the world by the
@@ -124,7 +126,7 @@ async def upload_session(
     gyr_unit: Annotated[str | None, Form()] = None,
     acc_unit: Annotated[str | None, Form()] = None,
     mag_unit: Annotated[str | None, Form()] = None,
-    time_unit: Annotated[Literal["s", "ms"], Form()] = "s",
+    time_unit: Annotated[Literal["s", "ms", "us", "ns"] | None, Form()] = None,
     frequency: Annotated[float | None, Form(gt=0, le=10000)] = None,
     recording: Annotated[str | None, Form(max_length=64)] = None,
     recording_node: Annotated[str | None, Form(max_length=64)] = None,
@@ -136,7 +138,7 @@ async def upload_session(
     if len(files) > MAX_FILES:
         raise InputError(f"at most {MAX_FILES} IMU files per session")
     names = _sensor_names(files, [s.strip() for s in sensors if s.strip()])
-    kwargs: dict[str, Any] = {"time_unit": time_unit}
+    kwargs: dict[str, Any] = {"time_unit": time_unit} if time_unit else {}
     if gyr_unit:
         kwargs["gyr_unit"] = gyr_unit
     if acc_unit:
