@@ -187,11 +187,14 @@ def _check_units(gyr: FloatArray, acc: FloatArray, mag: FloatArray | None,
     an = an[np.isfinite(an)]
     if len(an):
         med = float(np.median(an))
-        if 0.5 < med < 2.0:
+        if med < 4.0:  # no worn accelerometer feels less than 0.4 g on median
             raise InputError(
                 f"{name}: median acceleration is {med:.2f} m/s² after conversion (declared "
-                f"{meta.get('acc_unit')!r}); gravity alone is 9.81 m/s², so the data is "
-                "probably in g — declare acc unit 'g'")
+                f"{meta.get('acc_unit')!r}); gravity alone is 9.81 m/s²: "
+                + ("the data is probably in g — declare acc unit 'g' — or "
+                   if 0.5 < med < 2.0 else "")
+                + "gravity was removed (a 'linear acceleration' export): the filters need "
+                "the raw accelerometer")
         if 50.0 < med < 200.0:
             raise InputError(
                 f"{name}: median acceleration is {med:.0f} m/s² after conversion (declared "
@@ -282,7 +285,10 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
         if len(r) > n and not any(c.strip() for c in r[n:]):
             r = r[:n]
         if len(r) != n:
-            raise InputError(f"{path.name}: data row {i} has {len(r)} fields, header has {n}")
+            hint = ("; decimal commas need ';' or tab separators" if delim == "," and len(r) > n
+                    else "")
+            raise InputError(f"{path.name}: data row {i} has {len(r)} fields, header has {n}"
+                             + hint)
         try:
             values.extend(float(c.replace(",", ".")) if c.strip().lower() not in _NAN_CELLS
                           else np.nan for c in r)
@@ -536,8 +542,15 @@ def _detect(g: str, raw: FloatArray) -> tuple[str, str] | None:
         if p99 > _MAX_GYR_RAD:
             return "deg/s", f"rates reach {p99:.0f}, impossible in rad/s"
         return None
-    bands = ({"g": (0.5, 2.0), "m/s2": (5.0, 20.0), "mg": (500.0, 2000.0)} if g == "acc" else
-             {"uT": (20.0, 70.0), "G": (0.2, 0.7), "mT": (0.02, 0.07), "nT": (2e4, 7e4)})
+    if g == "acc":
+        # gravity: the median magnitude within 25 % of 1 g, and rarely far below it — a
+        # 'linear acceleration' (gravity removed) of ~1 m/s² must not pass for g
+        p10 = float(np.percentile(norm, 10))
+        for unit, one_g in (("g", 1.0), ("m/s2", G), ("mg", 1000.0)):
+            if 0.8 * one_g < med < 1.25 * one_g and p10 > 0.5 * one_g:
+                return unit, f"median magnitude {med:.3g}"
+        return None
+    bands = {"uT": (20.0, 70.0), "G": (0.2, 0.7), "mT": (0.02, 0.07), "nT": (2e4, 7e4)}
     for unit, (lo, hi) in bands.items():
         if lo < med < hi:
             return unit, f"median magnitude {med:.3g}"
@@ -615,7 +628,8 @@ def load_csv(
         if unit is None:
             found = _detect(g, raw)
             if found is None:
-                hint = {"gyr": "rad/s or deg/s", "acc": "m/s2, g or mg",
+                hint = {"gyr": "rad/s or deg/s",
+                        "acc": "m/s2, g or mg; gravity must not be removed",
                         "mag": "uT, G, mT, nT or norm"}[g]
                 raise InputError(
                     f"{p.name}: generic CSV needs declared units — cannot tell the {what} "

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from engine.errors import InputError
-from engine.geometry import quat_from_rotvec, quat_to_matrix
+from engine.geometry import quat_conj, quat_from_rotvec, quat_rotate, quat_to_matrix
 from engine.imu import io as imu_io
 from engine.imu.io import G, ImuRecording, load_imu
 from engine.sim.imu import simulate_imu
@@ -392,7 +392,8 @@ def test_gaps_saturation_dead_channel(base: ImuRecording, tmp_path: Path) -> Non
         d[:, 3] = np.clip(d[:, 3], -lim, lim)  # gyr_z clipped at a (too small) range
         d[:, 5] = 0.25  # acc_y stuck
 
-    rec = load_imu(_write(tmp_path / "clip.csv", base, Layout(), edit=_edit_rows(clip)))
+    rec = load_imu(_write(tmp_path / "clip.csv", base, Layout(), edit=_edit_rows(clip)),
+                   acc_unit="m/s2")  # a stuck axis can hide gravity from the detection
     said = " ".join(rec.warnings)
     assert "gyroscope Z saturates" in said and "accelerometer Y is constant" in said
     rec = load_imu(_write(tmp_path / "ok.csv", base, Layout()))
@@ -432,3 +433,20 @@ def test_broken_files(base: ImuRecording, tmp_path: Path, monkeypatch: pytest.Mo
     _error(p, "non-numeric value 'abc'")
     p.write_text("time,foo,bar\n0,1,2\n0.01,1,2\n")
     _error(p, "missing column.*gyroscope or accelerometer")
+
+
+def test_gravity_free_acceleration_is_not_taken_for_g(tmp_path: Path) -> None:
+    """A 'linear acceleration' export (gravity removed, ~1 m/s²) must not pass for g."""
+    base = _synthetic()
+    assert base.quat_ref is not None
+    g_sensor = quat_rotate(quat_conj(base.quat_ref), np.array([0.0, 0.0, G]))
+    lin = replace(base, acc=base.acc - g_sensor)
+    p = _write(tmp_path / "lin.csv", lin, Layout())
+    _error(p, "declare acc_unit.*gravity must not be removed")
+    _error(p, "linear acceleration", acc_unit="m/s2")
+
+
+def test_decimal_comma_with_comma_separator_is_named(base: ImuRecording,
+                                                     tmp_path: Path) -> None:
+    _error(_write(tmp_path / "dc.csv", base, Layout(decimal_comma=True)),
+           "decimal commas need ';'")
