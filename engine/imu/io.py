@@ -29,10 +29,15 @@ FloatArray = NDArray[np.float64]
 
 G = 9.80665
 #: unit name -> factor to SI (rad/s, m/s², µT); matched case-insensitively, spaces ignored
-GYR_UNITS = {"rad/s": 1.0, "rad/sec": 1.0, "rads": 1.0, "deg/s": np.pi / 180.0,
-             "deg/sec": np.pi / 180.0, "°/s": np.pi / 180.0, "dps": np.pi / 180.0}
+GYR_UNITS = {"rad/s": 1.0, "rad/sec": 1.0, "rads": 1.0, "rads-1": 1.0, "deg/s": np.pi / 180.0,
+             "deg/sec": np.pi / 180.0, "degs-1": np.pi / 180.0, "°/s": np.pi / 180.0,
+             "dps": np.pi / 180.0}
 ACC_UNITS = {"m/s2": 1.0, "m/s^2": 1.0, "m/s²": 1.0, "m/s/s": 1.0, "ms-2": 1.0,
-             "m*s-2": 1.0, "g": G, "mg": G / 1000.0}
+             "m*s-2": 1.0, "m/(s^2)": 1.0, "m/s**2": 1.0, "g": G, "mg": G / 1000.0}
+#: units written into column names (``gyr_x_dps``, ``acc_x_ms2``) -> unit
+_NAME_UNITS = {"dps": "deg/s", "degs": "deg/s", "deg": "deg/s", "rads": "rad/s", "rad": "rad/s",
+               "ms2": "m/s2", "g": "g", "mg": "mg", "ut": "uT", "gauss": "G", "nt": "nT",
+               "mt": "mT"}
 MAG_UNITS = {"ut": 1.0, "µt": 1.0, "μt": 1.0, "g": 100.0, "gauss": 100.0, "mg": 0.1,
              "mgauss": 0.1, "nt": 1e-3, "mt": 1e3, "norm": 1.0}
 #: time unit -> factor to s
@@ -302,7 +307,8 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
         rows += 1
     if rows == 0:
         raise InputError(f"{path.name}: CSV needs a header row and data rows")
-    return header, np.frombuffer(values, dtype=float).reshape(rows, n).copy(), units
+    # a view on the array's buffer (writable, kept alive by the view): no second copy
+    return header, np.frombuffer(values, dtype=float).reshape(rows, n), units
 
 
 def _is_number(c: str) -> bool:
@@ -476,7 +482,7 @@ _GROUP_ALIASES = {
     "acc": ("acc", "accel", "accelerometer", "acceleration", "a"),
     "mag": ("mag", "magn", "magnetometer", "magneticfield", "compass", "m"),
 }
-_TIME_ALIASES = ("time", "t", "timestamp", "timestamps", "times", "sampletime", "elapsedtime")
+_TIME_ALIASES = ("time", "t", "timestamp", "sampletime", "elapsedtime")  # +unit: time_s
 _COUNTER_ALIASES = ("packetnumber", "packetcounter", "packet", "sample", "samplenumber",
                     "samplecounter", "counter", "index", "idx", "frame", "framenumber")
 _GROUP_NAMES = {"gyr": "gyroscope", "acc": "accelerometer", "mag": "magnetometer"}
@@ -507,6 +513,14 @@ def _find_columns(header: list[str], units_row: list[str]) -> tuple[
     for g, aliases in _GROUP_ALIASES.items():
         idx = [next((i for i, k in enumerate(keys) if k in {a + ax for a in aliases}), -1)
                for ax in "xyz"]
+        if not all(i >= 0 for i in idx):  # a unit in the name: gyr_x_dps, acc_x_ms2
+            found = [next(((i, k[len(a) + 1:]) for i, k in enumerate(keys) for a in aliases
+                           if k.startswith(a + ax) and k[len(a) + 1:] in _NAME_UNITS),
+                          (-1, "")) for ax in "xyz"]
+            idx = [i for i, _ in found]
+            for i, u in found:
+                if i >= 0 and i not in units:
+                    units[i] = _NAME_UNITS[u]
         if all(i >= 0 for i in idx):
             groups[g] = idx
     t_idx, t_unit = None, ""

@@ -282,16 +282,21 @@ HEADERS = {
               "mag": "Magnetometer{A}"},
     "short": {"time": "t", "gyr": "w{a}", "acc": "a{a}", "mag": "m{a}"},
     "dotted": {"time": "time", "gyr": "gyr.{a}", "acc": "acc.{a}", "mag": "mag.{a}"},
+    "unit_in_name": {"time": "time_s", "gyr": "gyro_{a}_dps", "acc": "acc_{a}_g",
+                     "mag": "mag_{a}_uT"},
 }
 
 
 @pytest.mark.parametrize("style", sorted(HEADERS))
 def test_header_names(base: ImuRecording, tmp_path: Path, style: str) -> None:
     lay = Layout(names=HEADERS[style], gyr="deg/s", acc="g",
-                 header_units=style != "xsens", time=None if style == "xsens" else "s",
+                 header_units=style not in ("xsens", "unit_in_name"),
+                 time=None if style == "xsens" else "s",
                  counter="PacketCounter" if style == "xsens" else None)
     rec = load_imu(_write(tmp_path / "n.csv", base, lay), frequency=base.frequency)
     _same(base, rec, t0=-base.time[0] if style == "xsens" else 0.0)
+    if style != "xsens":
+        assert not any("assumed" in w for w in rec.warnings), rec.warnings
 
 
 LAYOUTS: dict[str, Layout] = {
@@ -450,3 +455,11 @@ def test_decimal_comma_with_comma_separator_is_named(base: ImuRecording,
                                                      tmp_path: Path) -> None:
     _error(_write(tmp_path / "dc.csv", base, Layout(decimal_comma=True)),
            "decimal commas need ';'")
+
+
+def test_empty_time_cell_is_refused(base: ImuRecording, tmp_path: Path) -> None:
+    def hole(d: np.ndarray) -> None:
+        d[20, 0] = np.nan
+
+    _error(_write(tmp_path / "tnan.csv", base, Layout(), edit=_edit_rows(hole)),
+           "time column contains NaN")
