@@ -32,6 +32,12 @@ log = logging.getLogger(__name__)
 _PASSED_HEADERS = ("content-type", "content-encoding", "cache-control", "etag", "last-modified")
 #: Largest viser message forwarded (point clouds of six sensors fit well within it).
 MAX_MESSAGE_BYTES = 64 * 1024 * 1024
+#: Messages from viser held for one browser before the proxy stops reading from viser.
+UPSTREAM_QUEUE = 4
+#: A browser that takes no message for this long is dropped (close code 1013).
+SEND_STALL_S = 20.0
+#: How long closing waits for the other side (browser or viser) to take the close frame.
+CLOSE_TIMEOUT_S = 5.0
 
 router = APIRouter(prefix="/viewer", tags=["viewer"])
 
@@ -87,9 +93,26 @@ async def viewer_page(request: Request, path: str = "") -> Response:
     return Response(content=body, status_code=r.status_code, headers=passed)
 
 
+async def _close_browser(ws: WebSocket, code: int = 1000, reason: str = "") -> None:
+    """Close the browser's side, waiting at most ``CLOSE_TIMEOUT_S`` for it to take the
+    close frame (a browser that reads nothing never does; the server then drops the
+    connection when the handler returns)."""
+    with contextlib.suppress(RuntimeError, WebSocketDisconnect, TimeoutError, OSError):
+        async with asyncio.timeout(CLOSE_TIMEOUT_S):
+            await ws.close(code=code, reason=reason)
+
+
 @router.websocket("")
 async def viewer_socket(ws: WebSocket) -> None:
-    """The viser websocket, forwarded both ways for a logged-in session only."""
+    """The viser websocket, forwarded both ways for a logged-in session only.
+
+    Backpressure, not buffering: each side is read only once the previous message went
+    out on the other, so a browser that falls behind slows the viser server's stream to
+    it (viser keeps the newest state of each scene node and drops stale updates) instead
+    of growing this process's memory: at most ``UPSTREAM_QUEUE`` messages wait here, plus
+    the socket buffers. A browser that takes nothing for ``SEND_STALL_S`` is dropped
+    (close code 1013, try again later) so it does not hold a viser stream open forever.
+    """
     viewer = getattr(ws.app.state, "viewer", None)
     if _session_user(ws) is None:
         await ws.close(code=4401, reason="not logged in")  # as the console's other sockets
@@ -100,14 +123,18 @@ async def viewer_socket(ws: WebSocket) -> None:
     protocols = [p.strip() for p in ws.headers.get("sec-websocket-protocol", "").split(",")
                  if p.strip()]
     try:
+        # compression=None: viser's messages are zstd + raw float arrays already;
+        # deflating them again only costs CPU and latency on both ends
         upstream = await websockets.connect(
             f"ws://127.0.0.1:{viewer.port}", subprotocols=protocols or None,  # type: ignore[arg-type]
-            max_size=MAX_MESSAGE_BYTES, open_timeout=10, compression=None)
+            max_size=MAX_MESSAGE_BYTES, max_queue=UPSTREAM_QUEUE, open_timeout=10,
+            close_timeout=CLOSE_TIMEOUT_S, compression=None)
     except (OSError, websockets.WebSocketException, TimeoutError):
         log.warning("3D view proxy: the viser server is not answering")
-        await ws.close(code=1011)
+        await ws.close(code=1011, reason="the 3D view is not answering; reload the page")
         return
     await ws.accept(subprotocol=upstream.subprotocol)
+    stalled = False
 
     async def to_viewer() -> None:
         while True:
@@ -118,11 +145,17 @@ async def viewer_socket(ws: WebSocket) -> None:
             await upstream.send(data if data is not None else msg.get("text") or "")
 
     async def to_browser() -> None:
+        nonlocal stalled
+        # the ASGI send itself: one dict per message, no further wrapping or copy
+        send = ws.send
         async for data in upstream:
-            if isinstance(data, bytes):
-                await ws.send_bytes(data)
-            else:
-                await ws.send_text(data)
+            key = "bytes" if isinstance(data, bytes) else "text"
+            try:
+                async with asyncio.timeout(SEND_STALL_S):
+                    await send({"type": "websocket.send", key: data})
+            except TimeoutError:
+                stalled = True
+                return
 
     tasks = [asyncio.create_task(to_viewer()), asyncio.create_task(to_browser())]
     try:
@@ -132,8 +165,18 @@ async def viewer_socket(ws: WebSocket) -> None:
             t.cancel()
         for t in tasks:
             with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect,
-                                     websockets.WebSocketException, RuntimeError):
+                                     websockets.WebSocketException, RuntimeError, OSError):
                 await t
-        await upstream.close()
-        with contextlib.suppress(RuntimeError):
-            await ws.close()
+        # viser first: its stream to this client stops at once, whatever the browser does
+        if stalled:
+            # what viser has queued for this browser is stale: no closing handshake behind it
+            upstream.transport.abort()
+        with contextlib.suppress(websockets.WebSocketException, OSError):
+            await upstream.close()
+        if stalled:
+            log.warning("3D view proxy: a browser took nothing for %.0f s; dropped it",
+                        SEND_STALL_S)
+            await _close_browser(ws, 1013, f"the 3D view stalled: this browser took no data "
+                                           f"for {SEND_STALL_S:.0f} s; reload the page")
+        else:
+            await _close_browser(ws)

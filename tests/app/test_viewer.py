@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import json
 import socket
-from collections.abc import Iterator
+import threading
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -131,3 +134,142 @@ def test_viewer_proxy_says_when_the_view_is_off(tmp_path: Path) -> None:
         r = client.get("/viewer/")
         assert r.status_code == 404 and "--no-viewer" in r.json()["detail"]
         assert client.get("/api/system").json()["viewer_url"] is None
+
+
+# ------------------------------------------------------- the proxy with a real server
+
+
+def _wait_for(cond: Callable[[], bool], timeout_s: float, what: str,
+              tick: Callable[[], None] = lambda: None) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        tick()
+        time.sleep(0.05)
+
+
+@pytest.fixture
+def live_server(tmp_path: Path) -> Iterator[tuple[int, Any, str]]:
+    """A real server (uvicorn in a thread: the proxy's backpressure needs real sockets,
+    which TestClient does not have) with the 3D view on; its port, viewer and a token."""
+    import httpx
+    import uvicorn
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    settings = Settings(data_dir=tmp_path, viewer_enabled=True, viewer_port=0,
+                        node_token="tok-tok-tok", admin_password="pw")
+    server = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port,
+                                           log_level="warning", ws_per_message_deflate=False))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        _wait_for(lambda: server.started, 30, "the server to start")
+        r = httpx.post(f"http://127.0.0.1:{port}/api/auth/login",
+                       json={"username": "admin", "password": "pw"}, timeout=10)
+        yield port, server.config.app.state.viewer, r.json()["token"]
+    finally:
+        server.should_exit = True
+        thread.join(15)
+
+
+def _camera_message() -> bytes:
+    # what the viser page sends first: viser counts a client from its first camera message
+    import msgspec
+
+    return msgspec.msgpack.encode({
+        "type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0], "position": [0.0, -3.0, 2.0],
+        "fov": 1.0, "near": 0.01, "far": 100.0, "image_height": 720, "image_width": 1280,
+        "look_at": [3.0, 0.0, 1.0], "up_direction": [0.0, 0.0, 1.0]})
+
+
+def test_proxy_drops_a_browser_that_reads_nothing(
+        live_server: tuple[int, Any, str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A browser tab that stops reading (frozen, backgrounded) must not make the server
+    buffer the 3D view's stream for it without bound: the proxy stops reading from viser
+    (which keeps only the newest state per scene node), then drops that browser with close
+    code 1013 and lets go of its viser stream."""
+    from websockets.client import ClientProtocol
+    from websockets.uri import parse_uri
+
+    from app.viewer import proxy
+
+    monkeypatch.setattr(proxy, "SEND_STALL_S", 0.5)
+    port, viewer, token = live_server
+    proto = ClientProtocol(parse_uri(f"ws://127.0.0.1:{port}/viewer"),
+                           subprotocols=[f"viser-v{viser.__version__}"],  # type: ignore[list-item]
+                           max_size=None)
+    req = proto.connect()
+    req.headers["Authorization"] = f"Bearer {token}"
+    proto.send_request(req)
+    sock = socket.socket()
+    # a small receive window: the stall reaches the server after little data
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 16 * 1024)
+    sock.settimeout(10.0)
+    sock.connect(("127.0.0.1", port))
+    try:
+        sock.sendall(b"".join(proto.data_to_send()))
+        while proto.handshake_exc is None and not any(
+                hasattr(e, "status_code") for e in proto.events_received()):
+            proto.receive_data(sock.recv(65536))
+        assert proto.handshake_exc is None
+        proto.send_binary(_camera_message())  # browser → viser goes through the proxy
+        sock.sendall(b"".join(proto.data_to_send()))
+        _wait_for(lambda: len(viewer.server.get_clients()) == 1, 10, "viser to see the browser")
+
+        # from here on the browser reads nothing; the scene keeps changing (~5 MB clouds
+        # under four names, as the live view redraws its per-sensor clouds)
+        rng = np.random.default_rng(0)
+        pts = rng.normal(size=(350_000, 3)).astype(np.float32)
+        cols = rng.integers(0, 255, size=(350_000, 3), dtype=np.uint8)
+        k = iter(range(10**6))
+
+        def redraw() -> None:
+            viewer.server.scene.add_point_cloud(f"/stall/{next(k) % 4}", pts, cols)
+
+        _wait_for(lambda: len(viewer.server.get_clients()) == 0, 30,
+                  "the proxy to let go of the stalled browser's viser stream", redraw)
+
+        # the browser reads again: what was on the wire, then the close frame with its code
+        while proto.close_rcvd is None:
+            data = sock.recv(1 << 20)
+            if not data:
+                break
+            proto.receive_data(data)
+            proto.events_received()
+        assert proto.close_rcvd is not None, "the proxy closed without a close frame"
+        assert proto.close_rcvd.code == 1013
+        assert "stalled" in proto.close_rcvd.reason and "reload" in proto.close_rcvd.reason
+    finally:
+        sock.close()
+
+
+def test_proxy_forwards_the_stream_and_lets_go(live_server: tuple[int, Any, str]) -> None:
+    """Over real sockets: viser's scene reaches the browser through the proxy, the
+    browser's messages reach viser, and a browser that leaves ends its viser stream."""
+    import websockets.sync.client
+    import zstandard
+
+    port, viewer, token = live_server
+    with websockets.sync.client.connect(
+            f"ws://127.0.0.1:{port}/viewer", subprotocols=[f"viser-v{viser.__version__}"],  # type: ignore[list-item]
+            additional_headers={"Authorization": f"Bearer {token}"}, max_size=None,
+            compression=None) as ws:
+        assert ws.subprotocol == f"viser-v{viser.__version__}"
+        ws.send(_camera_message())
+        _wait_for(lambda: len(viewer.server.get_clients()) == 1, 10, "viser to see the browser")
+        viewer.server.scene.add_point_cloud("/proxied", np.zeros((1000, 3), np.float32),
+                                            (255, 0, 0))
+        dctx = zstandard.ZstdDecompressor()
+        seen = False
+        deadline = time.monotonic() + 10
+        while not seen and time.monotonic() < deadline:
+            msg = ws.recv(timeout=5)
+            assert isinstance(msg, bytes)
+            # viser's framing: sizes, then its zstd-compressed msgpack (names in there)
+            n_inner, n_comp = (int.from_bytes(msg[i:i + 8], "little") for i in (0, 8))
+            seen = b"/proxied" in dctx.decompress(msg[16:16 + n_comp], max_output_size=n_inner)
+        assert seen, "the new point cloud never came through the proxy"
+    _wait_for(lambda: len(viewer.server.get_clients()) == 0, 10, "the proxy to close viser's side")
