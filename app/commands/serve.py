@@ -48,7 +48,11 @@ def run(args: argparse.Namespace) -> int:
     app = create_app(settings)
     print(f"gaitrig server on http://{settings.host}:{settings.port}/ "
           f"(nodes connect to ws://{settings.host}:{settings.port}/ws/node)", flush=True)
+    # ws_per_message_deflate off: what goes over the websockets is compressed already (the
+    # 3D view's zstd + float arrays, PNG/JPEG images); deflating it again cost the server
+    # CPU and ~25 ms per 3D-view message (bench/viewer_proxy.py)
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
+                ws_per_message_deflate=False,
                 ws_max_size=settings.ws_transport_max_bytes, ws_ping_interval=10,
                 ws_ping_timeout=20, timeout_graceful_shutdown=3)
     return 0
