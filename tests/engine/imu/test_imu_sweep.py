@@ -463,3 +463,19 @@ def test_empty_time_cell_is_refused(base: ImuRecording, tmp_path: Path) -> None:
 
     _error(_write(tmp_path / "tnan.csv", base, Layout(), edit=_edit_rows(hole)),
            "time column contains NaN")
+
+
+def test_wrapping_packet_counter(base: ImuRecording, tmp_path: Path) -> None:
+    """A uint8 packet counter (0..255, 0, 1 ...) with dropped packets keeps the time."""
+    keep = np.ones(len(base), bool)
+    keep[300:305] = False
+
+    def wrap(d: np.ndarray, _h: list[str]) -> np.ndarray:
+        d = d.copy()
+        d[:, 0] = (d[:, 0] + 200) % 256
+        return d[keep]
+
+    p = _write(tmp_path / "wrap.csv", base, Layout(time=None, counter="Packet number"),
+               edit=wrap)
+    rec = load_imu(p, frequency=base.frequency)
+    assert np.allclose(rec.time, base.time[keep] - base.time[0], atol=1e-9)
