@@ -133,7 +133,7 @@ def main() -> None:
     ap.add_argument("--nodes", type=int, default=6)
     ap.add_argument("--seconds", type=float, default=8.0, help="counting window per phase (s)")
     ap.add_argument("--warmup", type=float, default=3.0, help="s before counting, per phase")
-    ap.add_argument("--rounds", type=int, default=2, help="direct/proxy phase pairs")
+    ap.add_argument("--rounds", type=int, default=3, help="direct/proxy phase pairs")
     ap.add_argument("--no-deflate", action="store_true",
                     help="the clients do not offer permessage-deflate (browsers do)")
     args = ap.parse_args()

@@ -174,9 +174,9 @@ async def viewer_socket(ws: WebSocket) -> None:
         with contextlib.suppress(websockets.WebSocketException, OSError):
             await upstream.close()
         if stalled:
-            log.warning("3D view proxy: a browser took nothing for %.0f s; dropped it",
+            log.warning("3D view proxy: a browser took nothing for %g s; dropped it",
                         SEND_STALL_S)
             await _close_browser(ws, 1013, f"the 3D view stalled: this browser took no data "
-                                           f"for {SEND_STALL_S:.0f} s; reload the page")
+                                           f"for {SEND_STALL_S:g} s; reload the page")
         else:
             await _close_browser(ws)
