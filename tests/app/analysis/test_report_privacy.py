@@ -3,28 +3,20 @@ or analysis handed out is in the audit trail (by numeric id, never the subject c
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.config import Settings
-from app.main import create_app
 from engine.io.csv import write_skeleton_csv
 from engine.sim.straight_walk import synth_walk, walk_skeleton
 from engine.skeleton import KINECT_V2, SkeletonSeries
 
 
 @pytest.fixture
-def client(tmp_path: Path) -> Iterator[TestClient]:
-    s = Settings(data_dir=tmp_path, viewer_enabled=False, node_token="test-node-token",
-                 admin_password="secret-pw")
-    with TestClient(create_app(s), raise_server_exceptions=False) as c:
-        r = c.post("/api/auth/login", json={"username": "admin", "password": "secret-pw"})
-        c.headers["Authorization"] = f"Bearer {r.json()['token']}"
-        yield c
+def client(admin_client: TestClient) -> TestClient:
+    return admin_client
 
 
 def _walk_csv(path: Path) -> bytes:

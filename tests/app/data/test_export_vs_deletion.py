@@ -9,7 +9,6 @@ import contextlib
 import io
 import threading
 import zipfile
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -21,21 +20,14 @@ from fastapi.testclient import TestClient
 from app.api.routes import _data
 from app.api.routes import subjects as subjects_route
 from app.api.routes._exporting import EXPORTS
-from app.config import Settings
-from app.main import create_app
 from tests.app.data.walk_recording import walk_subject
 
 WAIT_S = 60.0  # only a bound for a broken test; nothing is timed
 
 
 @pytest.fixture
-def client(tmp_path: Path) -> Iterator[TestClient]:
-    s = Settings(data_dir=tmp_path, viewer_enabled=False, node_token="test-node-token",
-                 admin_password="secret-pw")
-    with TestClient(create_app(s), raise_server_exceptions=False) as c:
-        r = c.post("/api/auth/login", json={"username": "admin", "password": "secret-pw"})
-        c.headers["Authorization"] = f"Bearer {r.json()['token']}"
-        yield c
+def client(admin_client: TestClient) -> TestClient:
+    return admin_client
 
 
 def test_a_deletion_waits_for_the_export_being_downloaded(

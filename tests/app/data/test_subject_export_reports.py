@@ -7,26 +7,18 @@ import io
 import json
 import subprocess
 import zipfile
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
 
 from app.api.routes import subjects as subjects_route
-from app.config import Settings
-from app.main import create_app
 from tests.app.data.walk_recording import walk_subject
 
 
 @pytest.fixture
-def client(tmp_path: Path) -> Iterator[TestClient]:
-    s = Settings(data_dir=tmp_path, viewer_enabled=False, node_token="test-node-token",
-                 admin_password="secret-pw")
-    with TestClient(create_app(s), raise_server_exceptions=False) as c:
-        r = c.post("/api/auth/login", json={"username": "admin", "password": "secret-pw"})
-        c.headers["Authorization"] = f"Bearer {r.json()['token']}"
-        yield c
+def client(admin_client: TestClient) -> TestClient:
+    return admin_client
 
 
 def _pdf_text(pdf: bytes) -> str:
