@@ -137,9 +137,14 @@ def _make_part(tmp_path: Path, server: Path | None = None) -> Path:
         st[0, 3] = TrackingState.NOT_TRACKED if k == 10 else TrackingState.TRACKED
         w.append(105.0 + k / 30, "skeleton", encode_skeletons(k, 105.0 + k / 30, pos, st))
     w.close()
-    src = store.root / "R1"
-    m = build_manifest(src, "R1", "S1", ["meta.json", "index.json", "frames.bin"])
-    dest = StorageLayout(server or tmp_path / "server").part_dir("R1", "S1")
+    return _sink_part(store.root / "R1", "R1", "S1", server or tmp_path / "server")
+
+
+def _sink_part(src: Path, rec_id: str, node: str, data_dir: Path) -> Path:
+    """A node's closed part copied into the server's layout through the transfer sink
+    (manifest, every chunk, sealed, finalised), as a transfer would; returns its folder."""
+    m = build_manifest(src, rec_id, node, ["meta.json", "index.json", "frames.bin"])
+    dest = StorageLayout(data_dir).part_dir(rec_id, node)
     sink = TransferSink(dest, m)
     for name, idx in sink.missing_chunks():
         sink.write_chunk(name, idx, read_chunk(src, m, name, idx))

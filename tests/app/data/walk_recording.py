@@ -10,11 +10,9 @@ from fastapi.testclient import TestClient
 
 from app.nodes.protocol import encode_skeletons
 from app.nodes.store import NodeStore
-from app.server.storage import StorageLayout
-from app.transfer import TransferSink, build_manifest, read_chunk
 from engine.sim.straight_walk import synth_walk, walk_skeleton
 from engine.skeleton import TrackingState
-from tests.app.data.test_data_api import _recording_row
+from tests.app.data.test_data_api import _recording_row, _sink_part
 
 #: S1 stands at the walkway's end, 1 m high, looking back along it (world -X), so the
 #: walker comes towards it: camera +Z = world -X, +Y (down) = world -Z, +X = world +Y.
@@ -36,16 +34,7 @@ def walk_part(data_dir: Path, work: Path, rec_id: str = "R1", node: str = "S1") 
         t_node = 100.0 + float(t)
         wr.append(t_node, "skeleton", encode_skeletons(k, t_node, cam[k][None], st))
     wr.close()
-    src = store.root / rec_id
-    m = build_manifest(src, rec_id, node, ["meta.json", "index.json", "frames.bin"])
-    dest = StorageLayout(data_dir).part_dir(rec_id, node)
-    sink = TransferSink(dest, m)
-    for name, idx in sink.missing_chunks():
-        sink.write_chunk(name, idx, read_chunk(src, m, name, idx))
-    for f in m.files:
-        sink.seal_file(f.name)
-    sink.finalize()
-    return dest
+    return _sink_part(store.root / rec_id, rec_id, node, data_dir)
 
 
 def calibrate_s1(data_dir: Path) -> None:
