@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import hashlib
-import os
 import subprocess
 import threading
 import time
@@ -19,6 +18,7 @@ from app.nodes.agent import MAX_IMAGE_BACKLOG, NodeAgent
 from app.nodes.backends.base import Backend, Frame
 from app.nodes.protocol import PartVerified, RecStart, RecStop, SensorInfo
 from app.nodes.store import NodeStore, RetentionPolicy
+from tests.tmpfs import mounted_tmpfs
 
 DT = 1.0 / 30.0
 
@@ -94,18 +94,8 @@ def test_stop_overtaking_start(agent: NodeAgent) -> None:
 @pytest.fixture
 def tiny_disk(tmp_path: Path) -> Iterator[Path]:
     """A 64 KiB tmpfs: a node disk that fills up within a few seconds of skeletons."""
-    mnt = tmp_path / "tiny"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root")
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)],
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
-    try:
+    with mounted_tmpfs(tmp_path / "tiny", "64k") as mnt:
         yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
 def test_disk_full_closes_the_part_incomplete_and_keeps_the_frames(tiny_disk: Path) -> None:

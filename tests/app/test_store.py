@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
-import subprocess
 import tracemalloc
 from pathlib import Path
 
@@ -15,6 +13,7 @@ import pytest
 from app.nodes.protocol import decode_skeletons, encode_skeletons
 from app.nodes.store import NodeStore, RetentionPolicy
 from engine.errors import InputError
+from tests.tmpfs import mounted_tmpfs
 
 
 def _write(store: NodeStore, rec_id: str, n: int) -> None:
@@ -113,15 +112,7 @@ def test_writer_memory_does_not_grow_with_the_recording(tmp_path: Path) -> None:
 
 
 def test_recover_on_a_full_disk(tmp_path: Path) -> None:
-    mnt = tmp_path / "tiny"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root")
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=128k", "tmpfs", str(mnt)],
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
-    try:
+    with mounted_tmpfs(tmp_path / "tiny", "128k") as mnt:
         _write(NodeStore(mnt), "R6", 200)  # never closed: the node died
         with open(mnt / "ballast", "wb") as f, contextlib.suppress(OSError):
             f.write(b"\0" * (1 << 20))  # and its disk is full
@@ -129,8 +120,6 @@ def test_recover_on_a_full_disk(tmp_path: Path) -> None:
         assert [p.n_frames for p in fixed] == [200]
         assert NodeStore(mnt).parts()[0].state == "incomplete"
         assert len(list(NodeStore(mnt).read("R6"))) == 200
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
 # ---------------------------------------------------------------------- retention

@@ -27,6 +27,7 @@ from app.transfer import (
     read_chunk,
 )
 from tests.app.transfer._parts import make_part, sha
+from tests.tmpfs import mounted_tmpfs
 
 CHUNK = 64 * 1024
 
@@ -161,18 +162,8 @@ def test_different_manifest_in_same_folder_refused(tmp_path: Path, part):
 
 @pytest.fixture()
 def small_tmpfs(tmp_path: Path):
-    mnt = tmp_path / "tmpfs"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root")
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(mnt)],
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
-    try:
+    with mounted_tmpfs(tmp_path / "tmpfs", "256k") as mnt:
         yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
 def test_disk_full_gives_clear_error_and_loses_nothing(tmp_path: Path, small_tmpfs: Path):
