@@ -11,6 +11,7 @@ import re
 import shutil
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -18,6 +19,23 @@ import pytest
 
 from engine.report.render import ReportData, TrialData, render_html, render_pdf
 from tests.engine.report.test_report import _trial
+
+
+@pytest.fixture
+def drawn(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
+    """The matplotlib figures the report's plots render, in order."""
+    from engine.report import plots
+
+    seen: list[Any] = []
+    real = plots.figure_png
+
+    def keep(fig: Any, dpi: int = 130) -> bytes:
+        seen.append(fig)
+        return real(fig, dpi)
+
+    monkeypatch.setattr(plots, "figure_png", keep)
+    return seen
+
 
 needs_poppler = pytest.mark.skipif(shutil.which("pdftoppm") is None,
                                    reason="poppler-utils not installed")
@@ -119,21 +137,12 @@ def test_each_normative_band_cites_its_source_and_population() -> None:
 
 
 def test_ankle_plot_marks_foot_placements_and_names_the_marks(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+        drawn: list[Any]) -> None:
     """The crossing method's events ('placement', the published method and the console's
     default) were not drawn at all, and the dashed foot-strike lines had no legend."""
-    from matplotlib.figure import Figure
-
     from engine.report import plots
 
-    seen: list[Figure] = []
-    real = plots.figure_png
-
-    def keep(fig: Figure, dpi: int = 130) -> bytes:
-        seen.append(fig)
-        return real(fig, dpi)
-
-    monkeypatch.setattr(plots, "figure_png", keep)
+    seen = drawn
     t = np.linspace(0.0, 3.0, 100)
     h = {"L": 0.1 + 0.05 * np.sin(6 * t), "R": 0.1 + 0.05 * np.cos(6 * t)}
     for kind, name in (("placement", "foot placement"), ("foot_strike", "foot strike")):
@@ -149,21 +158,12 @@ def test_ankle_plot_marks_foot_placements_and_names_the_marks(
 
 
 def test_top_view_panels_share_one_scale_and_say_the_across_axis_is_stretched(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+        drawn: list[Any]) -> None:
     """Each trial's panel was autoscaled (a 1.4 m trial drawn as long as a 3.5 m one) and
     nothing said that cm across and m along are not to scale."""
-    from matplotlib.figure import Figure
-
     from engine.report import plots
 
-    seen: list[Figure] = []
-    real = plots.figure_png
-
-    def keep(fig: Figure, dpi: int = 130) -> bytes:
-        seen.append(fig)
-        return real(fig, dpi)
-
-    monkeypatch.setattr(plots, "figure_png", keep)
+    seen = drawn
     long_walk = [{"side": "LR"[i % 2], "position": [0.7 * i, 0.05 * (-1) ** i, 0.0]}
                  for i in range(6)]
     short_walk = long_walk[:3]
@@ -198,21 +198,11 @@ def test_footnote_says_what_n_counts_for_the_gait_cycle_phases() -> None:
 
 
 def test_step_plot_does_not_join_two_trials_into_one_line(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+        drawn: list[Any]) -> None:
     """The per-step lines ran from the last step of one walk to the first of the next,
     drawn as if they were one walk."""
-    from matplotlib.figure import Figure
 
-    from engine.report import plots
-
-    seen: list[Figure] = []
-    real = plots.figure_png
-
-    def keep(fig: Figure, dpi: int = 130) -> bytes:
-        seen.append(fig)
-        return real(fig, dpi)
-
-    monkeypatch.setattr(plots, "figure_png", keep)
+    seen = drawn
     html = render_html(ReportData("P-106", _trials(3)))
     assert "lines break between trials" in html
     steps_fig = next(f for f in seen if len(f.axes) == 3)
