@@ -29,6 +29,7 @@ from fastapi.staticfiles import StaticFiles
 import app.api.routes as routes_pkg
 from app.api.deps import get_current_user
 from app.api.routes import auth
+from app.api.routes._exporting import ExportGuard
 from app.api.security import LoginThrottle, ensure_admin
 from app.config import DEFAULT_NODE_TOKEN, Settings, get_settings
 from app.db.base import make_engine, make_session_factory
@@ -160,6 +161,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.hub = Hub(settings)
+    app.state.exports = ExportGuard()  # this app's own: apps in one process never share it
     app.state.login_throttle = LoginThrottle(settings.login_max_failures,
                                              settings.login_lockout_s)
     app.state.viewer = None

@@ -19,6 +19,7 @@ from fastapi import Depends, HTTPException, Request, status
 from sqlalchemy.orm import Session
 from starlette.requests import HTTPConnection
 
+from app.api.routes._exporting import ExportGuard
 from app.api.security import user_for_token
 from app.config import Settings
 from app.db.models import User
@@ -52,10 +53,17 @@ def get_registry(request: Request) -> NodeRegistry:
     return get_hub(request).registry
 
 
+def get_exports(request: Request) -> ExportGuard:
+    """The app's guard of subject exports against deletions (``app.state.exports``)."""
+    guard: ExportGuard = request.app.state.exports
+    return guard
+
+
 SettingsDep = Annotated[Settings, Depends(get_app_settings)]
 HubDep = Annotated[Hub, Depends(get_hub)]
 RegistryDep = Annotated[NodeRegistry, Depends(get_registry)]
 DbDep = Annotated[Session, Depends(get_db)]
+ExportsDep = Annotated[ExportGuard, Depends(get_exports)]
 
 
 def request_token(request: HTTPConnection) -> str | None:

@@ -13,7 +13,7 @@ from fastapi import HTTPException, Request, status
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
 
-from app.api.routes._exporting import EXPORTS
+from app.api.routes._exporting import ExportGuard
 from app.db import audit
 from app.db import data as m
 from app.db.base import purge_deleted
@@ -179,7 +179,7 @@ def project_json(db: DbSession, p: m.Project) -> dict[str, Any]:
             "created_at": p.created_at.isoformat()}
 
 
-async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout,
+async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout, exports: ExportGuard,
                       recs: list[m.Recording], owner: Any = None,
                       entry: AuditEvent | None = None) -> dict[str, list[str]]:
     """Delete recordings (and ``owner``, the session, subject or project that held them)
@@ -215,7 +215,7 @@ async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout,
     plan = {r.id: recording_nodes(hub, r) for r in recs}
     # refused while a subject's export streams (it would end cut short); no export
     # starts until the files are gone
-    release = EXPORTS.start_deletion(layout.data_dir, _subject_ids(recs, owner))
+    release = exports.start_deletion(_subject_ids(recs, owner))
     try:
         held = {k: hub.recordings.recordings.pop(k) for k in plan
                 if k in hub.recordings.recordings}
@@ -236,7 +236,7 @@ async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout,
 
 
 def _subject_ids(recs: list[m.Recording], owner: Any) -> set[int]:
-    """The subjects a deletion takes data from (for :data:`EXPORTS`)."""
+    """The subjects a deletion takes data from (for the app's :class:`ExportGuard`)."""
     out = {r.session.subject_id for r in recs}
     if isinstance(owner, m.Subject):
         out.add(owner.id)

@@ -5,6 +5,10 @@ of the subject (or of one of its sessions or recordings, or of its project) star
 meanwhile is refused (409) until the download ends; an export asked for while such a
 deletion runs is refused likewise. Simpler than exporting from a snapshot, which would
 keep a deleted subject's data on the server for as long as a download lasts.
+
+Each app holds its own guard (``app.state.exports``, made by
+:func:`app.main.create_app`; routes reach it through :data:`app.api.deps.ExportsDep`),
+so two apps in one process never share one.
 """
 
 from __future__ import annotations
@@ -12,7 +16,6 @@ from __future__ import annotations
 import threading
 from collections import Counter
 from collections.abc import Callable, Iterable
-from pathlib import Path
 
 from fastapi import HTTPException, status
 
@@ -20,20 +23,21 @@ Release = Callable[[], None]
 
 
 class ExportGuard:
-    """Which subjects are being exported or deleted (thread-safe: exports start in the
-    thread pool, deletions in the event loop)."""
+    """Which subjects of one app's database are being exported or deleted (thread-safe:
+    exports start in the thread pool, deletions in the event loop)."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._exporting: Counter[tuple[str, int]] = Counter()
-        self._deleting: Counter[tuple[str, int]] = Counter()
+        self._exporting: Counter[int] = Counter()
+        self._deleting: Counter[int] = Counter()
 
-    @staticmethod
-    def _keys(data_dir: Path, subject_ids: Iterable[int]) -> list[tuple[str, int]]:
-        root = str(Path(data_dir).resolve())
-        return sorted({(root, int(s)) for s in subject_ids})
+    @property
+    def exporting(self) -> set[int]:
+        """The subjects whose export is being downloaded now."""
+        with self._lock:
+            return set(self._exporting)
 
-    def start_export(self, data_dir: Path, subject_id: int) -> Release:
+    def start_export(self, subject_id: int) -> Release:
         """Claim a subject for an export (call before reading it from the database).
 
         Returns:
@@ -42,7 +46,7 @@ class ExportGuard:
         Raises:
             HTTPException: 409 while the subject, or part of it, is being deleted.
         """
-        keys = self._keys(data_dir, [subject_id])
+        keys = [int(subject_id)]
         with self._lock:
             if any(self._deleting[k] for k in keys):
                 raise HTTPException(status.HTTP_409_CONFLICT,
@@ -51,15 +55,15 @@ class ExportGuard:
             self._exporting.update(keys)
         return self._releaser(self._exporting, keys)
 
-    def start_deletion(self, data_dir: Path, subject_ids: Iterable[int]) -> Release:
+    def start_deletion(self, subject_ids: Iterable[int]) -> Release:
         """Claim subjects for a deletion of theirs.
 
         Raises:
             HTTPException: 409 while an export of one of them is being downloaded.
         """
-        keys = self._keys(data_dir, subject_ids)
+        keys = sorted({int(s) for s in subject_ids})
         with self._lock:
-            busy = [k[1] for k in keys if self._exporting[k]]
+            busy = [k for k in keys if self._exporting[k]]
             if busy:
                 raise HTTPException(status.HTTP_409_CONFLICT,
                                     f"subject {busy[0]}'s export is being downloaded; delete "
@@ -67,8 +71,7 @@ class ExportGuard:
             self._deleting.update(keys)
         return self._releaser(self._deleting, keys)
 
-    def _releaser(self, counts: Counter[tuple[str, int]], keys: list[tuple[str, int]]
-                  ) -> Release:
+    def _releaser(self, counts: Counter[int], keys: list[int]) -> Release:
         done = False
 
         def release() -> None:
@@ -83,7 +86,3 @@ class ExportGuard:
                         del counts[k]
 
         return release
-
-
-#: The server's guard (keys hold the data folder, so servers in one process are apart).
-EXPORTS = ExportGuard()

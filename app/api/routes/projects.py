@@ -8,7 +8,7 @@ from fastapi import APIRouter, HTTPException, Request, status
 from pydantic import BaseModel, Field
 from sqlalchemy import select
 
-from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.deps import CurrentUser, DbDep, ExportsDep, HubDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     audit_event,
@@ -73,7 +73,7 @@ def update_project(pid: int, body: ProjectPatch, user: CurrentUser, db: DbDep) -
 
 @router.post("/{pid}/delete")
 async def delete_project(pid: int, body: Confirm, request: Request, user: CurrentUser, db: DbDep,
-                   hub: HubDep) -> dict[str, Any]:
+                   hub: HubDep, exports: ExportsDep) -> dict[str, Any]:
     """Delete a project with all its subjects, sessions, recordings and their files.
 
     The body must repeat the project name (``{"confirm": "<name>"}``).
@@ -81,7 +81,7 @@ async def delete_project(pid: int, body: Confirm, request: Request, user: Curren
     p = get_project(db, pid)
     check_confirm(p.name, body.confirm, f"project {p.name!r} and everything in it")
     recs = [r for s in p.subjects for x in s.sessions for r in x.recordings]
-    plan = await delete_rows(db, hub, layout_of(request), recs, p, audit_event(
+    plan = await delete_rows(db, hub, layout_of(request), exports, recs, p, audit_event(
         request, user, "delete", f"project {pid}",
         f"{len(p.subjects)} subject(s), {len(recs)} recording(s)"))
     return {"deleted": "project", "id": pid, "recordings_deleted": len(plan),

@@ -16,7 +16,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 
-from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.deps import CurrentUser, DbDep, ExportsDep, HubDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     audit_event,
@@ -108,14 +108,15 @@ def update_session(sid: int, body: SessionPatch, user: CurrentUser, db: DbDep
 
 @router.post("/{sid}/delete")
 async def delete_session(sid: int, body: Confirm, request: Request, user: CurrentUser, db: DbDep,
-                   hub: HubDep) -> dict[str, Any]:
+                   hub: HubDep, exports: ExportsDep) -> dict[str, Any]:
     """Delete a session with its recordings and their files (confirm = subject code)."""
     s = get_session(db, sid)
     check_confirm(s.subject.code, body.confirm,
                   f"this session of {s.subject.code} and its recordings")
-    plan = await delete_rows(db, hub, layout_of(request), list(s.recordings), s, audit_event(
-        request, user, "delete", f"session {sid}",
-        f"subject {s.subject_id}; {len(s.recordings)} recording(s)"))
+    plan = await delete_rows(db, hub, layout_of(request), exports, list(s.recordings), s,
+                             audit_event(request, user, "delete", f"session {sid}",
+                                         f"subject {s.subject_id}; "
+                                         f"{len(s.recordings)} recording(s)"))
     return {"deleted": "session", "id": sid, "recordings_deleted": len(plan),
             "node_copies": await node_copies(hub, plan)}
 

@@ -15,7 +15,7 @@ from fastapi import APIRouter, FastAPI, HTTPException, Request, status
 from pydantic import BaseModel, Field
 from sqlalchemy import select
 
-from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.deps import CurrentUser, DbDep, ExportsDep, HubDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     audit_event,
@@ -101,13 +101,13 @@ async def retry_transfer(rec_id: str, request: Request, user: CurrentUser, db: D
 
 @router.post("/recordings/{rec_id}/delete")
 async def delete_recording(rec_id: str, body: Confirm, request: Request, user: CurrentUser,
-                           db: DbDep, hub: HubDep) -> dict[str, Any]:
+                           db: DbDep, hub: HubDep, exports: ExportsDep) -> dict[str, Any]:
     """Delete a recording everywhere (confirm = the subject code): rows and files on the
     server, and the parts on the nodes (an offline node deletes its part when it
     reconnects). ``node_copies`` says, per node, whether its copy is gone yet."""
     r = get_recording(db, rec_id)
     check_confirm(r.session.subject.code, body.confirm, f"recording {rec_id}")
-    plan = await delete_rows(db, hub, layout_of(request), [r], entry=audit_event(
+    plan = await delete_rows(db, hub, layout_of(request), exports, [r], entry=audit_event(
         request, user, "delete", f"recording {rec_id}", f"session {r.session_id}"))
     return {"deleted": "recording", "id": rec_id, "node_copies": await node_copies(hub, plan)}
 

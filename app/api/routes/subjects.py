@@ -19,7 +19,7 @@ from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
 from sqlalchemy import select
 
-from app.api.deps import CurrentUser, DbDep, HubDep
+from app.api.deps import CurrentUser, DbDep, ExportsDep, HubDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import (
     audit_event,
@@ -34,7 +34,6 @@ from app.api.routes._data import (
     subject_json,
     subject_version,
 )
-from app.api.routes._exporting import EXPORTS
 from app.api.routes.reports import (
     SubjectReportSource,
     build_subject_report,
@@ -167,7 +166,7 @@ def _report_entries(db: DbDep, s: m.Subject, data_dir: Path, live: dict[str, Any
 
 @router.get("/{sid}/export", response_class=StreamingResponse)
 def export_subject(sid: int, request: Request, user: CurrentUser, db: DbDep,
-                   hub: HubDep) -> StreamingResponse:
+                   hub: HubDep, exports: ExportsDep) -> StreamingResponse:
     """Everything held about a subject as one zip (right of access, data portability).
 
     ``subject.json`` (the subject, project, sessions, recordings, references), every
@@ -183,7 +182,7 @@ def export_subject(sid: int, request: Request, user: CurrentUser, db: DbDep,
     """
     layout = layout_of(request)
     # claimed before anything is read: a deletion that ended before this is seen whole
-    release = EXPORTS.start_export(layout.data_dir, sid)
+    release = exports.start_export(sid)
     try:
         db.rollback()  # no read transaction older than the claim
         response = _export_response(sid, request, user, db, hub, layout, release)
@@ -255,7 +254,7 @@ def update_subject(sid: int, body: SubjectPatch, request: Request, user: Current
 
 @router.post("/{sid}/delete")
 async def delete_subject(sid: int, body: Confirm, request: Request, user: CurrentUser, db: DbDep,
-                   hub: HubDep) -> dict[str, Any]:
+                   hub: HubDep, exports: ExportsDep) -> dict[str, Any]:
     """Delete a subject, its sessions, recordings and their files on the server.
 
     The body must repeat the subject code (``{"confirm": "<code>"}``).
@@ -264,7 +263,7 @@ async def delete_subject(sid: int, body: Confirm, request: Request, user: Curren
     check_confirm(s.code, body.confirm, f"subject {s.code} and all its recordings")
     recs = [r for x in s.sessions for r in x.recordings]
     # the trail names the subject by its id only: it must not keep a deleted pseudonym
-    plan = await delete_rows(db, hub, layout_of(request), recs, s, audit_event(
+    plan = await delete_rows(db, hub, layout_of(request), exports, recs, s, audit_event(
         request, user, "delete", f"subject {sid}",
         f"project {s.project_id}; {len(s.sessions)} session(s), {len(recs)} recording(s)"))
     return {"deleted": "subject", "id": sid, "recordings_deleted": len(plan),

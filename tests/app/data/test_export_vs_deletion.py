@@ -19,7 +19,8 @@ from fastapi.testclient import TestClient
 
 from app.api.routes import _data
 from app.api.routes import subjects as subjects_route
-from app.api.routes._exporting import EXPORTS
+from app.config import Settings
+from app.main import create_app
 from tests.app.data.walk_recording import walk_subject
 
 WAIT_S = 60.0  # only a bound for a broken test; nothing is timed
@@ -134,6 +135,33 @@ def test_a_download_cancelled_midway_frees_the_subject(
 
     client.portal.call(download)  # type: ignore[union-attr]
     assert sent[0]["status"] == 200 and gone.is_set()
-    assert not EXPORTS._exporting, EXPORTS._exporting
+    assert not client.app.state.exports.exporting  # type: ignore[attr-defined]
+    r = client.post(f"/api/subjects/{sid}/delete", json={"confirm": "A1"})
+    assert r.status_code == 200, r.text
+
+
+def test_two_apps_in_one_process_keep_their_own_guard(client: TestClient,
+                                                      tmp_path: Path) -> None:
+    """The guard lives on each app (``app.state.exports``): an export held by one app
+    refuses that app's deletion only, not another app's of a subject with the same id."""
+    sid = walk_subject(client, tmp_path)["subject_id"]
+    other_dir = tmp_path / "other"
+    s = Settings(data_dir=other_dir, viewer_enabled=False, node_token="test-node-token",
+                 admin_password="secret-pw")
+    with TestClient(create_app(s), raise_server_exceptions=False) as other:
+        r = other.post("/api/auth/login", json={"username": "admin", "password": "secret-pw"})
+        other.headers["Authorization"] = f"Bearer {r.json()['token']}"
+        other_sid = walk_subject(other, other_dir)["subject_id"]
+        assert other_sid == sid  # the same id in two databases
+        guard = client.app.state.exports  # type: ignore[attr-defined]
+        assert guard is not other.app.state.exports  # type: ignore[attr-defined]
+        release = guard.start_export(sid)  # an export of the first app under way
+        try:
+            r = client.post(f"/api/subjects/{sid}/delete", json={"confirm": "A1"})
+            assert r.status_code == 409, r.text
+            r = other.post(f"/api/subjects/{other_sid}/delete", json={"confirm": "A1"})
+            assert r.status_code == 200, r.text
+        finally:
+            release()
     r = client.post(f"/api/subjects/{sid}/delete", json={"confirm": "A1"})
     assert r.status_code == 200, r.text
