@@ -56,8 +56,43 @@ K4A_WAIT_INFINITE = -1
 # k4abt_joint_confidence_level_t
 CONFIDENCE_NONE, CONFIDENCE_LOW, CONFIDENCE_MEDIUM, CONFIDENCE_HIGH = 0, 1, 2, 3
 
-# k4abt_tracker_processing_mode_t
+# k4abt_tracker_processing_mode_t: "gpu" lets the SDK choose (DirectML on Windows, CUDA
+# on Linux); "directml" is Windows only; "tensorrt" is experimental in the SDK
 PROCESSING_MODES = {"gpu": 0, "cpu": 1, "cuda": 2, "tensorrt": 3, "directml": 4}
+
+# k4abt_sensor_orientation_t: how the sensor is mounted (a hint for the tracker's network;
+# joint positions stay in the depth camera frame whatever the orientation)
+SENSOR_ORIENTATIONS = {"default": 0, "clockwise90": 1, "counterclockwise90": 2,
+                       "flip180": 3}
+
+
+def sensor_orientation_value(orientation: str | int) -> int:
+    """``k4abt_sensor_orientation_t`` of a name of :data:`SENSOR_ORIENTATIONS` (or its
+    value, passed through).
+
+    Raises:
+        InputError: neither a known name nor a value 0–3.
+    """
+    if isinstance(orientation, str):
+        key = orientation.strip().lower().replace("_", "").replace("-", "")
+        if key in SENSOR_ORIENTATIONS:
+            return SENSOR_ORIENTATIONS[key]
+    elif not isinstance(orientation, bool) and orientation in SENSOR_ORIENTATIONS.values():
+        return int(orientation)
+    raise InputError(f"unknown sensor orientation {orientation!r}; use one of "
+                     f"{', '.join(SENSOR_ORIENTATIONS)}")
+
+
+def check_processing_mode(mode: str) -> str:
+    """``mode`` if it is a key of :data:`PROCESSING_MODES`.
+
+    Raises:
+        InputError: an unknown mode (the message lists the known ones).
+    """
+    if mode not in PROCESSING_MODES:
+        raise InputError(f"unknown body-tracking processing mode {mode!r}; "
+                         f"use one of {', '.join(PROCESSING_MODES)}")
+    return mode
 
 _RESULT_SUCCEEDED = 0
 _WAIT_SUCCEEDED, _WAIT_FAILED, _WAIT_TIMEOUT = 0, 1, 2
@@ -294,23 +329,25 @@ class Tracker:
         calibration: ``k4a_calibration_t*`` (:func:`calibration_pointer`).
         processing_mode: a key of :data:`PROCESSING_MODES`; ``"gpu"`` falls back to
             ``"cpu"`` when no GPU tracker can be created (:attr:`mode` says which runs).
-        sensor_orientation: ``k4abt_sensor_orientation_t`` (0 default, 1 clockwise 90°,
-            2 counter-clockwise 90°, 3 upside down).
+        sensor_orientation: how the sensor is mounted: a key of
+            :data:`SENSOR_ORIENTATIONS` (``"default"``, ``"clockwise90"``,
+            ``"counterclockwise90"``, ``"flip180"`` upside down) or its
+            ``k4abt_sensor_orientation_t`` value 0–3.
         gpu_device_id: GPU index for GPU modes.
         model_path: another model file (None: the SDK's default).
         image_lib: libk4a (:func:`load_image_library`) to copy the body index map out;
             None: frames carry no body index map.
 
     Raises:
+        InputError: an unknown processing mode or sensor orientation.
         K4ABTUnavailable: no tracker could be created.
     """
 
     def __init__(self, lib: ctypes.CDLL, calibration: int, processing_mode: str = "gpu",
-                 sensor_orientation: int = 0, gpu_device_id: int = 0,
+                 sensor_orientation: str | int = 0, gpu_device_id: int = 0,
                  model_path: str | None = None, image_lib: ctypes.CDLL | None = None) -> None:
-        if processing_mode not in PROCESSING_MODES:
-            raise InputError(f"unknown body-tracking processing mode {processing_mode!r}; "
-                             f"use one of {', '.join(PROCESSING_MODES)}")
+        check_processing_mode(processing_mode)
+        orientation = sensor_orientation_value(sensor_orientation)
         self._lib = lib
         self._image_lib = image_lib
         self._handle = ctypes.c_void_p()
@@ -318,7 +355,7 @@ class Tracker:
         self._model = model_path.encode() if model_path else None
         modes = [processing_mode] + (["cpu"] if processing_mode == "gpu" else [])
         for mode in modes:
-            cfg = TrackerConfiguration(sensor_orientation, PROCESSING_MODES[mode],
+            cfg = TrackerConfiguration(orientation, PROCESSING_MODES[mode],
                                        gpu_device_id, self._model)
             rc = lib.k4abt_tracker_create(ctypes.c_void_p(calibration), cfg,
                                           ctypes.byref(self._handle))

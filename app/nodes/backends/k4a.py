@@ -118,22 +118,39 @@ class K4ABackend(Backend):
     Args:
         device: device index.
         body_tracking: track skeletons with k4abt (False: images only, no warning).
-        processing_mode: k4abt mode (``gpu`` falls back to ``cpu``; see
-            :data:`app.nodes.backends._k4abt.PROCESSING_MODES`).
+        processing_mode: k4abt mode, a key of
+            :data:`app.nodes.backends._k4abt.PROCESSING_MODES`: ``gpu`` (the SDK's choice:
+            CUDA on Linux, DirectML on Windows; falls back to ``cpu`` with a warning),
+            ``cuda``, ``directml`` (Windows), ``tensorrt`` (experimental in the SDK) or
+            ``cpu``; an explicit GPU mode that cannot start is not replaced by ``cpu``.
+        sensor_orientation: how the sensor is mounted, a key of
+            :data:`app.nodes.backends._k4abt.SENSOR_ORIENTATIONS` (``default``,
+            ``clockwise90``, ``counterclockwise90``, ``flip180``): tells the tracker's
+            network which way up people appear. Joint positions stay in the depth camera
+            frame; the calibration places the sensor whichever way it is mounted.
+        gpu_device_id: the GPU the tracker runs on in a GPU mode.
         k4abt_path: the libk4abt file (None: the system's).
         k4a_path: the libk4a file whose image functions copy the body index map out
             (None: the system's, already loaded by pyk4a).
+
+    Raises:
+        InputError: an unknown processing mode or orientation (checked first, so a
+            mistyped option is named even on a machine without pyk4a), or no pyk4a.
     """
 
     name = "k4a"
 
     def __init__(self, device: int = 0, body_tracking: bool = True,
                  processing_mode: str = "gpu", k4abt_path: str | Path | None = None,
-                 k4a_path: str | Path | None = None) -> None:
+                 k4a_path: str | Path | None = None, sensor_orientation: str = "default",
+                 gpu_device_id: int = 0) -> None:
+        self.processing_mode = _k4abt.check_processing_mode(processing_mode)
+        self.sensor_orientation = sensor_orientation
+        _k4abt.sensor_orientation_value(sensor_orientation)  # refuse a typo before opening
+        self.gpu_device_id = int(gpu_device_id)
         self._pyk4a = _require_pyk4a()
         self.device = device
         self.body_tracking = body_tracking
-        self.processing_mode = processing_mode
         self.k4abt_path = k4abt_path
         self.k4a_path = k4a_path
         self._k4a: Any = None
@@ -170,6 +187,8 @@ class K4ABackend(Backend):
             lib = _k4abt.load_library(self.k4abt_path)
             self._tracker = _k4abt.Tracker(lib, _k4abt.calibration_pointer(calibration),
                                            self.processing_mode,
+                                           sensor_orientation=self.sensor_orientation,
+                                           gpu_device_id=self.gpu_device_id,
                                            image_lib=_k4abt.load_image_library(self.k4a_path))
         except _k4abt.K4ABTUnavailable as exc:
             msg = str(exc)
