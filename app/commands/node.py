@@ -38,6 +38,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     rep.add_argument("--loop", action="store_true", help="replay in a loop")
     k4a = parser.add_argument_group("k4a backend")
     k4a.add_argument("--device", type=int, default=0, help="device index")
+    k4a.add_argument("--body-tracking", default="gpu",
+                     choices=["gpu", "cuda", "directml", "tensorrt", "cpu", "off"],
+                     help="Body Tracking SDK processing mode: gpu (default; the SDK's GPU "
+                          "runtime, CPU if none starts), cuda, directml (Windows), tensorrt, "
+                          "cpu, or off (images only, no skeletons)")
+    k4a.add_argument("--sensor-orientation", default="default",
+                     choices=["default", "clockwise90", "counterclockwise90", "flip180"],
+                     help="how the sensor is mounted, for the body tracker (default: "
+                          "upright; flip180: upside down)")
 
 
 def server_url(address: str) -> str:
@@ -65,7 +74,10 @@ def make_backend(args: argparse.Namespace) -> object:
         return ReplayBackend(args.recording, loop=args.loop)
     from app.nodes.backends.k4a import K4ABackend
 
-    return K4ABackend(device=args.device)
+    mode = args.body_tracking
+    return K4ABackend(device=args.device, body_tracking=mode != "off",
+                      processing_mode="gpu" if mode == "off" else mode,
+                      sensor_orientation=args.sensor_orientation)
 
 
 def run(args: argparse.Namespace) -> int:
