@@ -24,6 +24,7 @@ import pytest
 from app.nodes.backends import _k4abt
 from app.nodes.protocol import SensorInfo
 from app.server.registry import NodeRegistry
+from engine.errors import InputError
 from engine.skeleton import AZURE_KINECT_JOINTS, TrackingState
 
 STUB_SRC = Path(__file__).parent / "k4abt_stub" / "k4abt_stub.c"
@@ -369,3 +370,90 @@ def test_a_pyk4a_without_capture_capsules_stops_tracking_not_the_stream(
     assert a.body_ids == [] and b.body_ids == []
     assert b.images(["depth"])["depth"].shape == (4, 5)
     assert any("pyk4a" in w for w in be.warnings)
+
+
+# --------------------------------------------------------------------------- node options
+
+
+def _node_args(*argv: str) -> Any:
+    import argparse
+
+    from app.commands import node
+
+    parser = argparse.ArgumentParser()
+    node.add_arguments(parser)
+    return parser.parse_args(["--id", "K1", "--backend", "k4a", *argv])
+
+
+@pytest.mark.parametrize(("argv", "orientation", "mode"), [
+    ((), 0, "gpu"),
+    (("--sensor-orientation", "clockwise90", "--body-tracking", "cpu"), 1, "cpu"),
+    (("--sensor-orientation", "counterclockwise90", "--body-tracking", "cuda"), 2, "cuda"),
+    (("--sensor-orientation", "flip180", "--body-tracking", "directml"), 3, "directml"),
+])
+def test_node_options_reach_the_tracker_configuration(
+        stub: ctypes.CDLL, stub_path: Path, monkeypatch: pytest.MonkeyPatch,
+        argv: tuple[str, ...], orientation: int, mode: str) -> None:
+    from app.commands.node import make_backend
+
+    monkeypatch.setitem(sys.modules, "pyk4a", fake_pyk4a([FakeCapture(1, 0)]))
+    # the system search finds the stand-in, as it would find the installed SDK
+    monkeypatch.setattr(_k4abt, "_candidates", lambda: [str(stub_path)])
+    be = make_backend(_node_args(*argv))
+    info = be.open()  # type: ignore[attr-defined]
+    assert info.warnings == [] and "k4abt" in info.model
+    o, m, g = ctypes.c_int32(), ctypes.c_int32(), ctypes.c_int32()
+    c = ctypes.c_void_p()
+    assert stub.stub_last_config(ctypes.byref(o), ctypes.byref(m), ctypes.byref(g),
+                                 ctypes.byref(c)) == 1
+    assert (o.value, m.value) == (orientation, _k4abt.PROCESSING_MODES[mode])
+    be._tracker.close()  # type: ignore[attr-defined]
+
+
+def test_an_explicit_gpu_mode_that_fails_is_not_replaced_by_cpu(
+        stub: ctypes.CDLL, stub_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    stub.stub_reset(1)  # GPU modes fail, as without CUDA
+    be = backend(monkeypatch, [FakeCapture(1, 10)], stub_path)
+    be.processing_mode = "cuda"
+    info = be.open()
+    assert be._tracker is None and "no skeletons" in info.model
+    assert len(info.warnings) == 1 and "modes tried: cuda" in info.warnings[0]
+
+
+def test_body_tracking_off_streams_images_without_a_warning(
+        stub: ctypes.CDLL, monkeypatch: pytest.MonkeyPatch) -> None:
+    from app.commands.node import make_backend
+
+    monkeypatch.setitem(sys.modules, "pyk4a", fake_pyk4a([FakeCapture(1, 0)]))
+    be: Any = make_backend(_node_args("--body-tracking", "off"))
+    info = be.open()
+    assert be._tracker is None and info.warnings == []
+    frame = next(be.frames())
+    assert frame.body_ids == [] and frame.images(["depth"])["depth"].shape == (4, 5)
+    assert stub.stub_last_config(*(ctypes.byref(ctypes.c_int32()) for _ in range(3)),
+                                 ctypes.byref(ctypes.c_void_p())) == 0  # no tracker made
+
+
+def test_orientation_names_and_values() -> None:
+    assert [_k4abt.sensor_orientation_value(n) for n in _k4abt.SENSOR_ORIENTATIONS] == [
+        0, 1, 2, 3]
+    assert _k4abt.sensor_orientation_value("Clockwise_90") == 1
+    assert _k4abt.sensor_orientation_value(3) == 3
+    for bad in ("upside-down", 4, True):
+        with pytest.raises(InputError, match="clockwise90"):
+            _k4abt.sensor_orientation_value(bad)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(("kwargs", "named"), [
+    ({"sensor_orientation": "sideways"}, "flip180"),
+    ({"processing_mode": "opencl"}, "directml"),
+])
+def test_a_bad_k4a_option_is_named_before_pyk4a_is_needed(
+        monkeypatch: pytest.MonkeyPatch, kwargs: dict[str, str], named: str) -> None:
+    from app.nodes.backends.k4a import K4ABackend
+
+    monkeypatch.setitem(sys.modules, "pyk4a", None)  # not installed
+    with pytest.raises(InputError, match=named):
+        K4ABackend(**kwargs)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="pip install"):
+        K4ABackend()
