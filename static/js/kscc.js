@@ -89,11 +89,11 @@
     try {
       const s = await api("/api/kscc/session");
       if (mine !== generation) return;
-      if (shown.fresh(n)) render(s);
-    } catch (e) {
-      if (mine !== generation) return;
+      if (s.running) { if (shown.fresh(n)) render(s); }
       // (a stale "no session", asked before the user's Start, must not stop the new one)
-      if (/no KSCC session/.test(e.message) && shown.fresh(n)) { stopPolling(); render(null); return; }
+      else if (shown.fresh(n)) { stopPolling(); render(null); return; }
+    } catch (e) {
+      if (mine !== generation) return;  // else a failed poll is asked again
     }
     setTimeout(() => poll(mine), 300);
   }
@@ -258,7 +258,7 @@
     // a session running already (started elsewhere) is shown; unless the user started or
     // stopped one meanwhile, which this answer may predate
     const asked = generation, n = shown.ask();
-    try { const s = await api("/api/kscc/session"); if (asked === generation && shown.fresh(n)) { render(s); startPolling(); } }
+    try { const s = await api("/api/kscc/session"); if (asked === generation && shown.fresh(n)) { if (s.running) { render(s); startPolling(); } else render(null); } }
     catch (e) { if (asked === generation) render(null); }
     setInterval(() => { loadSources().catch(() => {}); loadAreas().catch(() => {}); }, 5000);
   })();

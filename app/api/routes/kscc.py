@@ -5,8 +5,10 @@ active-area trapezoids.
 * ``POST /api/kscc/session`` — start: ``{"a": source, "b": source, "countdown_s",
   "by_role"}``; a source is ``{"kind": "node", "node_id"}`` or ``{"kind": "remote",
   "url", "node_id", "token"}``.
-* ``GET /api/kscc/session`` — both sides (link, countdown, stillness progress, calibration,
-  latest universal-frame skeleton) and the comparison (difference over time, similarity).
+* ``GET /api/kscc/session`` — ``"running": true`` with both sides (link, countdown,
+  stillness progress, calibration, latest universal-frame skeleton) and the comparison
+  (difference over time, similarity); with no session running (a normal state, which the
+  page polls) 200 and ``"running": false`` with ``sides`` and ``comparison`` null.
 * ``POST /api/kscc/session/restart`` ``{"side": "a"|"b"|"both"}``, ``DELETE
   /api/kscc/session``.
 * ``GET/POST /api/kscc/shares``, ``DELETE /api/kscc/shares/{node_id}`` — share a node of
@@ -132,21 +134,37 @@ async def start_session(request: Request, body: SessionIn, user: CurrentUser) ->
         sess = await m.start(spec(body.a), spec(body.b), body.countdown_s, body.by_role)
     except PeerNotAllowedError as e:
         raise HTTPException(status.HTTP_403_FORBIDDEN, str(e)) from None
-    return sess.status()
+    return _running(sess)
+
+
+#: Said while no session runs (``GET /session``'s idle state; 404 of a restart).
+IDLE_MESSAGE = "no KSCC session; choose two skeleton sources and start one"
+
+
+def _running(sess: KsccSession) -> dict[str, Any]:
+    """A running session's JSON, marked as running (as ``GET /session`` answers it)."""
+    return {"running": True, **sess.status()}
 
 
 def _session(request: Request) -> KsccSession:
     sess = manager(request.app).session
     if sess is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND,
-                            "no KSCC session; choose two skeleton sources and start one")
+        raise HTTPException(status.HTTP_404_NOT_FOUND, IDLE_MESSAGE)
     return sess
 
 
 @router.get("/session")
 async def get_session(request: Request, user: CurrentUser) -> dict[str, Any]:
-    """Both sides' progress and the comparison."""
-    return _session(request).status()
+    """Both sides' progress and the comparison, or the idle state.
+
+    No session is a normal state, not an error: the page polls this, and a 404 would be
+    logged by the browser on every poll.
+    """
+    sess = manager(request.app).session
+    if sess is None:
+        return {"running": False, "message": IDLE_MESSAGE, "sides": None, "by_role": None,
+                "comparison": None}
+    return _running(sess)
 
 
 @router.post("/session/restart")
@@ -155,7 +173,7 @@ async def restart(request: Request, body: RestartIn, user: CurrentUser) -> dict[
     sess = _session(request)
     for k in ("a", "b") if body.side == "both" else (body.side,):
         sess.sides[k].restart()
-    return sess.status()
+    return _running(sess)
 
 
 @router.delete("/session", status_code=204)

@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import httpx
 import numpy as np
 import pytest
 import uvicorn
@@ -239,8 +240,22 @@ def test_user_who_keeps_moving_and_mismatched_joint_sets(client: TestClient) -> 
         assert len(s["comparison"]["joints"]) == len([r for r in KINECT_V2.roles
                                                       if r in KINECT_V1.roles])
         assert s["comparison"]["similarity"] > 70
+    assert client.get("/api/kscc/session").json()["running"] is True
     assert client.delete("/api/kscc/session").status_code == 204
-    assert client.get("/api/kscc/session").status_code == 404
+    _assert_idle(client)
+    # a restart with nothing to restart is still refused, saying what to do
+    r = client.post("/api/kscc/session/restart", json={"side": "both"})
+    assert r.status_code == 404 and "start one" in r.json()["detail"], r.text
+
+
+def _assert_idle(client: httpx.Client) -> None:
+    """No session running is a normal state: 200 with an explicit idle answer (the page
+    polls it; a 404 would be logged by the browser on every poll)."""
+    r = client.get("/api/kscc/session")
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["running"] is False and d["sides"] is None and d["comparison"] is None, d
+    assert "start one" in d["message"]
 
 
 def test_active_area_per_node(client: TestClient) -> None:
@@ -360,7 +375,7 @@ def test_two_site_link(two_sites: tuple[Site, Site, list[ScriptedNode]]) -> None
             "b": {**remote, "url": url, "token": LINK_TOKEN}, "countdown_s": 0})
         assert r.status_code == 403, r.text
         assert "kscc_peers" in r.json()["detail"] and url in r.json()["detail"]
-    assert site_a.http.get("/api/kscc/session").status_code == 404  # nothing started
+    _assert_idle(site_a.http)  # nothing started
     # wrong token: refused, and the page is told why
     r = site_a.http.post("/api/kscc/session", json={
         "a": {"kind": "node", "node_id": "S1"},
