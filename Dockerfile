@@ -3,10 +3,10 @@
 FROM python:3.11-slim
 
 # Open3D needs libGL/libgomp, Azure Kinect/Femto nodes libusb; weasyprint (PDF reports)
-# needs pango/harfbuzz.
+# needs pango/harfbuzz; fonts-wqy-microhei (5 MB) sets CJK names that DejaVu lacks.
 RUN apt-get update \
  && apt-get install -y --no-install-recommends libusb-1.0-0 libgl1 libgomp1 libpango-1.0-0 \
-      libpangoft2-1.0-0 libharfbuzz-subset0 fonts-dejavu-core \
+      libpangoft2-1.0-0 libharfbuzz-subset0 fonts-dejavu-core fonts-wqy-microhei \
  && rm -rf /var/lib/apt/lists/*
 
 WORKDIR /opt/gaitrig

@@ -2,21 +2,62 @@
 
 from __future__ import annotations
 
+import functools
 import io
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, ParamSpec, TypeVar
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib import font_manager
 from matplotlib.figure import Figure
 
 SIDE_COLOURS = {"L": "#1f77b4", "R": "#d62728"}
 SIDE_NAMES = {"L": "left", "R": "right"}
 #: Gait events marked on the ankle trajectories (``events[].kind`` of the gait JSON).
 EVENT_NAMES = {"foot_strike": "foot strike (dashed)", "placement": "foot placement (dashed)"}
+#: Tried after DejaVu Sans for the glyphs it lacks (CJK trial names in the panel titles);
+#: the same fallbacks as the report template's CSS (``fonts-wqy-microhei`` is installed
+#: by ``scripts/bootstrap.sh`` and the Dockerfile).
+FALLBACK_FAMILIES = ("WenQuanYi Micro Hei", "Noto Sans CJK JP", "Noto Sans CJK SC")
+#: lower-case file-name parts (without "-") of those fonts
+_FALLBACK_FILES = ("wqymicrohei", "notosanscjk")
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+@functools.cache
+def font_families() -> list[str]:
+    """``DejaVu Sans`` followed by the installed fallback families, for ``font.family``."""
+    names = {f.name for f in font_manager.fontManager.ttflist}
+    if not any(f in names for f in FALLBACK_FAMILIES):
+        # matplotlib caches its font list across runs: a font installed after the cache
+        # was written (apt-get after the first plot) is missing from it until added here
+        for path in font_manager.findSystemFonts():
+            if any(k in Path(path).name.lower().replace("-", "") for k in _FALLBACK_FILES):
+                try:
+                    font_manager.fontManager.addfont(path)
+                except (OSError, RuntimeError, ValueError):
+                    continue  # an unreadable font file: no fallback from it
+        names = {f.name for f in font_manager.fontManager.ttflist}
+    return ["DejaVu Sans", *(f for f in FALLBACK_FAMILIES if f in names)]
+
+
+def _fallback_fonts(plot: Callable[P, R]) -> Callable[P, R]:
+    """Draw ``plot``'s figure with :func:`font_families` (matplotlib ≥ 3.6 falls back
+    glyph by glyph through the list), without changing the caller's rcParams."""
+
+    @functools.wraps(plot)
+    def wrapped(*args: P.args, **kwargs: P.kwargs) -> R:
+        with plt.rc_context({"font.family": font_families()}):
+            return plot(*args, **kwargs)
+
+    return wrapped
 
 
 def figure_png(fig: Figure, dpi: int = 130) -> bytes:
@@ -27,6 +68,7 @@ def figure_png(fig: Figure, dpi: int = 130) -> bytes:
     return buf.getvalue()
 
 
+@_fallback_fonts
 def plot_foot_placements(trials: Sequence[tuple[str, Sequence[dict[str, Any]]]]) -> bytes:
     """Foot placements seen from above, one row of markers per trial.
 
@@ -57,6 +99,7 @@ def plot_foot_placements(trials: Sequence[tuple[str, Sequence[dict[str, Any]]]])
     return figure_png(fig)
 
 
+@_fallback_fonts
 def plot_ankle_heights(
     times: np.ndarray, heights: dict[str, np.ndarray], events: Sequence[dict[str, Any]] = ()
 ) -> bytes:
@@ -81,6 +124,7 @@ def plot_ankle_heights(
     return figure_png(fig)
 
 
+@_fallback_fonts
 def plot_steps(steps: Sequence[dict[str, Any]],
                trial_sizes: Sequence[int] | None = None) -> bytes:
     """Step length, width and time per step, left and right.
@@ -120,6 +164,7 @@ def plot_steps(steps: Sequence[dict[str, Any]],
     return figure_png(fig)
 
 
+@_fallback_fonts
 def plot_bland_altman(measured: np.ndarray, reference: np.ndarray, title: str,
                       unit: str) -> bytes:
     """Bland–Altman plot: difference vs mean with bias and ±1.96·SD limits."""
