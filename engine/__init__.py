@@ -4,6 +4,131 @@ No web, no database, no global state. Files are read or written only by explicit
 ``load_*``/``save_*``/``read_*``/``write_*`` functions. Time is the first axis of every
 series. Units are SI (m, s, rad); the world frame is right-handed, Z up, origin at
 marker 1. Transforms are 4×4 and named ``T_<to>_<from>``; quaternions are w-first.
+
+The names most analyses need are importable from here (``from engine import
+GaitAnalysis, load_feet``); each is loaded from its module on first use, so ``import
+engine`` stays cheap. Where things live:
+
+* files → trajectories: :func:`~engine.mocap.load_feet` (C3D/TRC/skeleton CSV → per-foot
+  trajectories in m, Z up; units, up axis and marker names detected),
+  :mod:`engine.io` (``read_c3d``, ``read_trc``, ``read_skeleton_csv`` and the writers);
+* gait: :class:`~engine.gait.GaitAnalysis` (``fit`` → ``steps_``, ``strides_``,
+  ``events_``, ``passes_``, ``summary_``; ``to_records`` for tables, ``to_dict`` for the
+  JSON document of ``docs/gait-json.md``);
+* several sensors → one skeleton: :func:`~engine.integration.integrate_skeletons`;
+* agreement with a reference (seed 000's statistics): :mod:`engine.agreement`;
+* skeletons and joint sets: :mod:`engine.skeleton`; SE(3)/quaternions:
+  :mod:`engine.geometry`; comparing two motions (DTW): :mod:`engine.compare`;
+* calibration, coverage, IMU fusion, KSCC, reports, the simulated lab:
+  :mod:`engine.calibration`, :mod:`engine.coverage`, :mod:`engine.imu`,
+  :mod:`engine.kscc`, :mod:`engine.report`, :mod:`engine.sim`;
+* errors: every user-caused problem raises a :class:`~engine.errors.GaitrigError`
+  (:class:`~engine.errors.InputError`, :class:`~engine.errors.InsufficientDataError`,
+  :class:`~engine.errors.CalibrationError`) whose message says what to fix.
+
+A worked example on a real Vicon trial: ``examples/vicon_trial.py``; more in
+``docs/research.md``.
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 __version__ = "0.1.0"
+
+#: public name → the module that defines it
+_EXPORTS: dict[str, str] = {
+    "GaitAnalysis": "engine.gait", "GaitEvent": "engine.gait", "Step": "engine.gait",
+    "Stride": "engine.gait", "WalkPass": "engine.gait",
+    "FeetTrajectories": "engine.mocap", "load_feet": "engine.mocap",
+    "feet_from_markers": "engine.mocap", "feet_from_skeleton": "engine.mocap",
+    "MarkerTrajectories": "engine.io.markers", "MarkerEvent": "engine.io.markers",
+    "read_c3d": "engine.io.c3d", "write_c3d": "engine.io.c3d",
+    "write_skeleton_c3d": "engine.io.c3d",
+    "read_trc": "engine.io.trc", "write_trc": "engine.io.trc",
+    "read_skeleton_csv": "engine.io.csv", "write_skeleton_csv": "engine.io.csv",
+    "SkeletonSeries": "engine.skeleton", "TrackingState": "engine.skeleton",
+    "JointSet": "engine.skeleton", "joint_set_for": "engine.skeleton",
+    "SensorStream": "engine.integration", "integrate_skeletons": "engine.integration",
+    # not the function ``agreement``: ``engine.agreement`` is its module
+    "Agreement": "engine.agreement", "agreement_levels": "engine.agreement",
+    "match_steps": "engine.agreement", "match_events": "engine.agreement",
+    "bland_altman_png": "engine.agreement",
+    "GaitrigError": "engine.errors", "InputError": "engine.errors",
+    "InsufficientDataError": "engine.errors", "CalibrationError": "engine.errors",
+}
+
+__all__ = [
+    "Agreement",
+    "CalibrationError",
+    "FeetTrajectories",
+    "GaitAnalysis",
+    "GaitEvent",
+    "GaitrigError",
+    "InputError",
+    "InsufficientDataError",
+    "JointSet",
+    "MarkerEvent",
+    "MarkerTrajectories",
+    "SensorStream",
+    "SkeletonSeries",
+    "Step",
+    "Stride",
+    "TrackingState",
+    "WalkPass",
+    "__version__",
+    "agreement_levels",
+    "bland_altman_png",
+    "feet_from_markers",
+    "feet_from_skeleton",
+    "integrate_skeletons",
+    "joint_set_for",
+    "load_feet",
+    "match_events",
+    "match_steps",
+    "read_c3d",
+    "read_skeleton_csv",
+    "read_trc",
+    "write_c3d",
+    "write_skeleton_c3d",
+    "write_skeleton_csv",
+    "write_trc",
+]
+
+if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ loads them
+    from engine.agreement import (
+        Agreement,
+        agreement_levels,
+        bland_altman_png,
+        match_events,
+        match_steps,
+    )
+    from engine.errors import (
+        CalibrationError,
+        GaitrigError,
+        InputError,
+        InsufficientDataError,
+    )
+    from engine.gait import GaitAnalysis, GaitEvent, Step, Stride, WalkPass
+    from engine.integration import SensorStream, integrate_skeletons
+    from engine.io.c3d import read_c3d, write_c3d, write_skeleton_c3d
+    from engine.io.csv import read_skeleton_csv, write_skeleton_csv
+    from engine.io.markers import MarkerEvent, MarkerTrajectories
+    from engine.io.trc import read_trc, write_trc
+    from engine.mocap import FeetTrajectories, feet_from_markers, feet_from_skeleton, load_feet
+    from engine.skeleton import JointSet, SkeletonSeries, TrackingState, joint_set_for
+
+
+def __getattr__(name: str) -> Any:
+    """Load a re-exported name from its module on first use (PEP 562)."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'engine' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

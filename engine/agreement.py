@@ -148,6 +148,36 @@ def match_steps(measured: Sequence[_Timed], reference: Sequence[_Timed],
     return pairs
 
 
+def match_events(measured: Sequence[Any], reference: Sequence[Any], max_dt_s: float = 0.1
+                 ) -> list[tuple[Any, Any]]:
+    """Pair measured with reference gait events of the same side and kind.
+
+    For event timing against annotated events (e.g. Vicon Nexus foot strikes and foot
+    offs carried in a C3D's ``EVENT`` group, :attr:`engine.mocap.FeetTrajectories.events`)
+    on the same time axis: objects with ``side``, ``kind`` and ``time_s`` such as
+    :class:`engine.gait.GaitEvent` and :class:`engine.io.markers.MarkerEvent`. Pairing is
+    that of :func:`match_steps`, per kind (``"foot_strike"``, ``"foot_off"``,
+    ``"placement"``); events of another kind or without a side are left out.
+
+    Args:
+        measured: detected events.
+        reference: reference events.
+        max_dt_s: the largest time difference paired (s); the default, 0.1 s, is well
+            under the ≈ 0.6 s between a foot's strike and its off.
+
+    Returns:
+        ``(measured, reference)`` pairs sorted by reference time; the timing error of a
+        pair is ``measured.time_s - reference.time_s``.
+    """
+    pairs: list[tuple[Any, Any]] = []
+    for kind in sorted({str(e.kind) for e in measured}):
+        m = [e for e in measured if e.kind == kind and e.side in ("L", "R")]
+        r = [e for e in reference if e.kind == kind and e.side in ("L", "R")]
+        pairs += match_steps(m, r, max_dt_s)
+    pairs.sort(key=lambda p: p[1].time_s)
+    return pairs
+
+
 def agreement_levels(
     trials: Mapping[str, Sequence[tuple[Sequence[Any], Sequence[Any]]]],
     attr: str,

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import os
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
@@ -33,11 +34,13 @@ from scipy.signal import find_peaks
 
 from engine.errors import InputError, InsufficientDataError
 from engine.io.markers import MarkerEvent, MarkerTrajectories
-from engine.mocap import FeetTrajectories, feet_from_markers, feet_from_skeleton
+from engine.mocap import FeetTrajectories, feet_from_markers, feet_from_skeleton, load_feet
 from engine.skeleton import SkeletonSeries
 
 FloatArray = NDArray[np.float64]
 Method = Literal["crossing", "heelstrike"]
+#: The tables :meth:`GaitAnalysis.to_records` gives.
+Table = Literal["steps", "strides", "events", "passes", "summary"]
 
 #: Below this centre speed (m/s) a subject is standing, not walking.
 MIN_WALK_SPEED = 0.15
@@ -292,12 +295,19 @@ class GaitAnalysis:
             that is off the true line of progression by an angle ψ biases left and right
             step widths by ∓ψ·step length (the pattern of seed 000's Tables 2–3).
 
-    Attributes (after :meth:`fit`):
+    Attributes (after :meth:`fit`; seconds on the input's time axis, metres on the floor):
         passes_: straight passes with their directions.
         events_: detected events, sorted by time.
         steps_: included steps.
         strides_: included strides.
         summary_: summary parameters (see ``docs/gait-json.md``).
+
+    Tables: :meth:`to_records` gives any of these as flat rows (``pandas.DataFrame``
+    takes them as they are); :meth:`to_dict` the JSON document of ``gaitrig gait --json``.
+
+    Example:
+        >>> ga = GaitAnalysis("heelstrike").fit("walk.c3d")  # doctest: +SKIP
+        >>> ga.summary_["walking_speed_m_s"], ga.to_records("steps")[0]  # doctest: +SKIP
     """
 
     def __init__(self, method: Method = "crossing",
@@ -324,23 +334,37 @@ class GaitAnalysis:
 
     # ------------------------------------------------------------------ fitting
     def fit(self, trajectories: FeetTrajectories | SkeletonSeries | MarkerTrajectories
-            ) -> GaitAnalysis:
+            | str | os.PathLike[str]) -> GaitAnalysis:
         """Detect passes, events, steps and strides; compute the summary.
 
         Args:
             trajectories: per-foot trajectories (:mod:`engine.mocap`), or a world-frame
-                Z-up skeleton, or mocap markers (mapped automatically).
+                Z-up skeleton, or mocap markers (mapped automatically), or the path of a
+                .c3d/.trc/.csv file (read with :func:`engine.mocap.load_feet`'s
+                detection; call ``load_feet`` yourself to give marker names, units or
+                the up axis).
+
+        Returns:
+            self, with the ``*_`` result attributes set.
 
         Raises:
-            InputError: no usable foot data.
+            InputError: no usable foot data, an unreadable file, or an object of another
+                type.
             InsufficientDataError: no straight walking found or fewer than two steps.
         """
+        if isinstance(trajectories, str | os.PathLike):
+            trajectories = load_feet(os.fspath(trajectories))
         if isinstance(trajectories, SkeletonSeries):
             feet = feet_from_skeleton(trajectories)
         elif isinstance(trajectories, MarkerTrajectories):
             feet = feet_from_markers(trajectories)
-        else:
+        elif hasattr(trajectories, "times") and hasattr(trajectories, "foot"):
             feet = trajectories
+        else:
+            raise InputError(
+                f"GaitAnalysis.fit takes FeetTrajectories (engine.mocap.load_feet), "
+                f"MarkerTrajectories, a world-frame Z-up SkeletonSeries or a .c3d/.trc/.csv "
+                f"path, not {type(trajectories).__name__}")
         t = np.asarray(feet.times, dtype=float)
         if len(t) < 5:
             raise InsufficientDataError(f"only {len(t)} frames; a gait analysis needs a walk "
@@ -906,14 +930,62 @@ class GaitAnalysis:
             "stance_pct": {"mean": float(np.mean(allst)), "left_mean": side_stats(stance["L"]),
                            "right_mean": side_stats(stance["R"])},
             "swing_pct": {"mean": 100.0 - float(np.mean(allst)),
-                          "left_mean": None if not stance["L"] else 100 - np.mean(stance["L"]),
-                          "right_mean": None if not stance["R"] else 100 - np.mean(stance["R"])},
+                          "left_mean": None if not stance["L"]
+                          else 100.0 - float(np.mean(stance["L"])),
+                          "right_mean": None if not stance["R"]
+                          else 100.0 - float(np.mean(stance["R"]))},
             "double_support_pct": {"mean": side_stats(dsup)} if dsup else None,
         }
 
     # ------------------------------------------------------------------ output
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "summary_"):
+            raise InputError("this GaitAnalysis has no results yet: call fit(...) first")
+
+    def to_records(self, table: Table = "steps") -> list[dict[str, Any]]:
+        """One table of the results as flat rows, for ``pandas.DataFrame(rows)`` or CSV.
+
+        Units are in the column names (SI: ``_s``, ``_m``, ``_pct``); times are on the
+        input's time axis; ``pass_index`` says which straight pass a row belongs to.
+
+        Args:
+            table: ``"steps"`` (side, time_s, length_m, width_m, duration_s, pass_index),
+                ``"strides"`` (side, time_s, length_m, duration_s, pass_index),
+                ``"events"`` (side, kind, time_s, pass_index), ``"passes"`` (pass_index,
+                t_start_s, t_end_s, direction_x, direction_y, excluded_first) or
+                ``"summary"`` (one row per parameter of :attr:`summary_`: parameter,
+                mean, sd, cv_pct, left_mean, right_mean, asymmetry_pct; None where a
+                statistic does not apply or cannot be computed).
+
+        Raises:
+            InputError: an unknown table, or :meth:`fit` was not called.
+        """
+        self._check_fitted()
+        if table == "steps":
+            return [asdict(r) for r in self.steps_]
+        if table == "strides":
+            return [asdict(r) for r in self.strides_]
+        if table == "events":
+            return [asdict(r) for r in self.events_]
+        if table == "passes":
+            return [{"pass_index": k, "t_start_s": p.t_start, "t_end_s": p.t_end,
+                     "direction_x": p.direction[0], "direction_y": p.direction[1],
+                     "excluded_first": p.excluded_first} for k, p in enumerate(self.passes_)]
+        if table == "summary":
+            cols = ("mean", "sd", "cv_pct", "left_mean", "right_mean", "asymmetry_pct")
+            out: list[dict[str, Any]] = []
+            for key, val in self.summary_.items():
+                if key in ("method", "n_passes", "n_steps", "n_strides"):
+                    continue
+                stats = val if isinstance(val, dict) else {"mean": val}
+                out.append({"parameter": key, **{c: stats.get(c) for c in cols}})
+            return out
+        raise InputError(f"unknown table {table!r}; use steps, strides, events, passes "
+                         "or summary")
+
     def to_dict(self) -> dict[str, Any]:
         """The stable JSON document (``docs/gait-json.md``)."""
+        self._check_fitted()
         def clean(o: Any) -> Any:
             if isinstance(o, dict):
                 return {k: clean(v) for k, v in o.items()}
@@ -938,6 +1010,7 @@ class GaitAnalysis:
 
     def marker_events(self) -> list[MarkerEvent]:
         """Detected events in the form the C3D/TRC writers take (``EVENT`` group)."""
+        self._check_fitted()
         labels = {"foot_strike": "Foot Strike", "foot_off": "Foot Off",
                   "placement": "Foot Placement"}
         return [MarkerEvent(e.time_s, e.side, e.kind, labels[e.kind]) for e in self.events_]

@@ -102,6 +102,16 @@ class FeetTrajectories:
     sources: dict[str, str] = field(default_factory=dict)
     events: list[MarkerEvent] = field(default_factory=list)
 
+    def __repr__(self) -> str:
+        # A notebook shows the object: what it holds, not seven arrays of numbers.
+        span = (f"{self.times[0]:.2f}–{self.times[-1]:.2f} s" if len(self.times)
+                else "empty")
+        parts = {s: sorted(p) for s, p in self.points.items()}
+        return (f"FeetTrajectories({len(self.times)} frames, {span}, {self.rate:g} Hz, "
+                f"points={parts}, primary={self.primary}, "
+                f"pelvis={'yes' if self.pelvis is not None else 'no'}, "
+                f"{len(self.events)} events, sources={self.sources})")
+
     def foot(self, side: str, part: str | None = None) -> FloatArray:
         """``(T, 3)`` trajectory of ``part`` (default: the primary point) of ``side``."""
         pts = self.points[side]

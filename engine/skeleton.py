@@ -204,6 +204,16 @@ class SkeletonSeries:
     def __len__(self) -> int:
         return len(self.times)
 
+    def __repr__(self) -> str:
+        # A notebook shows the object: its shape and span, not the arrays.
+        T = len(self.times)
+        span = f"{self.times[0]:.2f}–{self.times[-1]:.2f} s" if T else "empty"
+        rate = f", {(T - 1) / (self.times[-1] - self.times[0]):.4g} Hz" if T > 1 else ""
+        tracked = (100.0 * float(np.mean(self.states == TrackingState.TRACKED))
+                   if self.states.size else 0.0)
+        return (f"SkeletonSeries({self.joint_set.name}, {T} frames, {span}{rate}, "
+                f"{tracked:.0f} % of joints tracked, meta={self.meta})")
+
     def joint(self, name: str) -> NDArray[np.float64]:
         """``(T, 3)`` trajectory of one joint."""
         return self.positions[:, self.joint_set.index(name)]

@@ -101,6 +101,15 @@ class MarkerTrajectories:
     def __len__(self) -> int:
         return len(self.times)
 
+    def __repr__(self) -> str:
+        # A notebook shows the object: its shape, span and labels, not the arrays.
+        T = len(self.times)
+        span = f"{self.times[0]:.2f}–{self.times[-1]:.2f} s" if T else "empty"
+        shown = ", ".join(self.labels[:12]) + (", …" if len(self.labels) > 12 else "")
+        return (f"MarkerTrajectories({T} frames, {span}, {self.rate:g} Hz, "
+                f"{len(self.labels)} markers [{shown}], file units {self.units!r} "
+                f"(positions in m), {len(self.events)} events)")
+
     def index(self, label: str) -> int:
         """Index of ``label`` (exact match), or InputError listing the labels."""
         try:

@@ -125,3 +125,22 @@ def test_bad_input() -> None:
         icc_a1(np.ones(5))
     r, p = pearson([1, 1, 1], [1, 2, 3])
     assert np.isnan(r) and np.isnan(p)
+
+
+def test_match_events_pairs_same_side_and_kind() -> None:
+    from engine.agreement import match_events
+    from engine.gait import GaitEvent
+    from engine.io.markers import MarkerEvent
+
+    ref = [MarkerEvent(1.00, "L", "foot_strike", "Foot Strike"),
+           MarkerEvent(1.05, "R", "foot_off", "Foot Off"),
+           MarkerEvent(1.55, "R", "foot_strike", "Foot Strike"),
+           MarkerEvent(1.20, "", "general", "Event")]  # no side: never paired
+    det = [GaitEvent("L", "foot_strike", 1.01), GaitEvent("R", "foot_off", 1.02),
+           GaitEvent("L", "foot_off", 1.04),  # only a right foot off nearby: unpaired
+           GaitEvent("R", "foot_strike", 1.80)]  # 0.25 s late: beyond max_dt_s
+    pairs = match_events(det, ref)
+    assert [(m.side, m.kind, r.time_s) for m, r in pairs] == [
+        ("L", "foot_strike", 1.00), ("R", "foot_off", 1.05)]
+    assert [round(m.time_s - r.time_s, 3) for m, r in pairs] == [0.01, -0.03]
+    assert len(match_events(det, ref, max_dt_s=0.3)) == 3

@@ -475,3 +475,85 @@ def test_heelstrike_steps_are_footprint_to_footprint_for_ankle_joints() -> None:
         assert b == pytest.approx(a, abs=0.01), key
     assert heel.summary_["walking_speed_m_s"] == pytest.approx(
         cross.summary_["walking_speed_m_s"], rel=0.03)
+
+
+# ------------------------------------------------------------------ research API
+
+
+def test_to_records_gives_flat_tables_in_si_units() -> None:
+    w = synth_walk(step_length=0.7, step_width=0.1, step_time=0.55, rate=100.0)
+    g = GaitAnalysis("heelstrike").fit(walk_markers(w))
+    steps = g.to_records("steps")
+    assert len(steps) == len(g.steps_) >= 4
+    assert set(steps[0]) == {"side", "time_s", "length_m", "width_m", "duration_s",
+                             "pass_index"}
+    assert [r["length_m"] for r in steps] == [s.length_m for s in g.steps_]
+    assert all(r["length_m"] == pytest.approx(0.7, abs=0.01) for r in steps)
+    assert set(g.to_records("strides")[0]) == {"side", "time_s", "length_m", "duration_s",
+                                               "pass_index"}
+    events = g.to_records("events")
+    assert {r["kind"] for r in events} == {"foot_strike", "foot_off"}
+    assert [r["time_s"] for r in events] == sorted(r["time_s"] for r in events)
+    (p,) = g.to_records("passes")
+    assert p["pass_index"] == 0 and p["t_start_s"] < p["t_end_s"]
+    assert p["direction_x"] == pytest.approx(1.0, abs=0.01)  # synth_walk walks along +x
+    summary = {r["parameter"]: r for r in g.to_records("summary")}
+    assert summary["step_length_m"]["mean"] == g.summary_["step_length_m"]["mean"]
+    assert summary["walking_speed_m_s"]["mean"] == pytest.approx(0.7 / 0.55, rel=0.02)
+    assert summary["walking_speed_m_s"]["sd"] is None
+    assert set(summary["stance_pct"]) == {"parameter", "mean", "sd", "cv_pct", "left_mean",
+                                          "right_mean", "asymmetry_pct"}
+    assert "method" not in summary and "n_steps" not in summary
+    # plain Python values all through: json (and pandas) take the rows as they are
+    json.dumps([steps, events, summary, p])
+    with pytest.raises(InputError, match="unknown table 'footprints'"):
+        g.to_records("footprints")  # type: ignore[arg-type]
+
+
+def test_summary_values_are_python_floats() -> None:
+    g = GaitAnalysis("heelstrike").fit(walk_markers(synth_walk(rate=100.0)))
+    for key in ("stance_pct", "swing_pct"):
+        for v in g.summary_[key].values():
+            assert type(v) is float, (key, v)
+
+
+def test_fit_takes_a_file_path(tmp_path: object) -> None:
+    from pathlib import Path
+
+    from engine.io.trc import write_trc
+
+    f = Path(str(tmp_path)) / "walk.trc"
+    write_trc(f, walk_markers(synth_walk(step_length=0.66)))
+    for arg in (f, str(f)):
+        g = GaitAnalysis().fit(arg)
+        assert g.summary_["step_length_m"]["mean"] == pytest.approx(0.66, abs=0.01)
+    with pytest.raises(InputError, match="not found"):
+        GaitAnalysis().fit(f.with_name("missing.trc"))
+
+
+def test_fit_of_another_type_and_results_before_fit_are_clear_errors() -> None:
+    with pytest.raises(InputError, match=r"FeetTrajectories .* not ndarray"):
+        GaitAnalysis().fit(np.zeros((100, 3)))  # type: ignore[arg-type]
+    g = GaitAnalysis()
+    for call in (g.to_dict, g.to_records, g.marker_events, g.to_json):
+        with pytest.raises(InputError, match=r"call fit\(\.\.\.\) first"):
+            call()
+
+
+def test_reprs_summarise_instead_of_printing_arrays() -> None:
+    from engine.sim.straight_walk import walk_skeleton
+    from engine.skeleton import KINECT_V2, SkeletonSeries
+
+    w = synth_walk(rate=100.0)
+    m = walk_markers(w)
+    feet = feet_from_markers(m)
+    P = walk_skeleton(w)
+    s = SkeletonSeries(w.times, P, np.full(P.shape[:2], 2, dtype=np.uint8), KINECT_V2)
+    for obj, words in ((m, ["MarkerTrajectories(", "100 Hz", "markers", "LHEE"]),
+                       (feet, ["FeetTrajectories(", "100 Hz", "'heel'", "pelvis=yes"]),
+                       (s, ["SkeletonSeries(kinect_v2", f"{len(w.times)} frames",
+                            "100 % of joints tracked"])):
+        text = repr(obj)
+        assert len(text) < 800, text
+        for word in words:
+            assert word in text, (word, text)
