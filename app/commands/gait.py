@@ -7,11 +7,40 @@ human-readable summary and step table. Errors: one line on stderr, exit code 2.
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from typing import Any, Literal
 
 HELP = "gait parameters (steps, strides, speed, cadence ...) of a C3D/TRC/CSV file"
+
+
+#: The vertical axes ``--up`` takes.
+AXES = ("x", "y", "z", "-x", "-y", "-z")
+#: ``--up`` given without an axis (yet: a negative axis follows as its own word).
+_AXIS_PENDING = "?"
+
+
+class _Up(argparse.Action):
+    """``--up AXIS``, or ``--up`` alone, waiting for the :class:`_NegativeAxis` after it
+    (choices checked here: argparse would check the waiting mark against them)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        if values is not None and values not in AXES:
+            parser.error(f"argument --up: invalid choice: {values!r} (choose from "
+                         f"{', '.join(AXES)})")
+        setattr(namespace, self.dest, _AXIS_PENDING if values is None else values)
+
+
+class _NegativeAxis(argparse.Action):
+    """The ``-x``/``-y``/``-z`` right after ``--up`` (``--up -y``), which argparse parses
+    as an option; anywhere else it is an error that names the spelling to use."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        if getattr(namespace, self.dest, None) != _AXIS_PENDING:
+            parser.error(f"unrecognized argument {option_string}: for a vertical axis "
+                         f"pointing down write --up {option_string}")
+        setattr(namespace, self.dest, option_string)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,11 +49,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--left", metavar="NAME",
                         help="left-foot marker to analyse (default: automatic, e.g. LANK/LHEE)")
     parser.add_argument("--right", metavar="NAME", help="right-foot marker to analyse")
-    parser.add_argument("--up", choices=["x", "y", "z", "-x", "-y", "-z"],
+    parser.add_argument("--up", nargs="?", action=_Up, metavar="{" + ",".join(AXES) + "}",
                         help="vertical axis of the file, '-y' for Y down (default: detected)")
-    # argparse takes "-y" in "--up -y" for an unknown option unless it looks like a
-    # negative number to the parser; this command has no option spelt like an axis.
-    parser._negative_number_matcher = re.compile(r"^-(\d+|\d*\.\d+|[xyz])$")
+    # argparse reads the "-y" of "--up -y" as an option of its own, not as --up's value:
+    # so it is one (hidden), which hands its axis to the --up just before it
+    for axis in ("x", "y", "z"):
+        parser.add_argument(f"-{axis}", dest="up", nargs=0, action=_NegativeAxis,
+                            help=argparse.SUPPRESS)
     parser.add_argument("--units", choices=["mm", "cm", "m"],
                         help="length unit of the file's numbers (default: from the file)")
     parser.add_argument("--method", choices=["crossing", "heelstrike"], default="crossing",
@@ -83,6 +114,10 @@ def run(args: argparse.Namespace) -> int:
     from engine.gait import GaitAnalysis
     from engine.mocap import load_feet
 
+    if args.up == _AXIS_PENDING:
+        print(f"gaitrig gait: error: --up needs an axis: one of {', '.join(AXES)}",
+              file=sys.stderr)
+        return 2
     excl: bool | Literal["auto", "L", "R"] = (
         args.exclude_first if args.exclude_first in ("auto", "L", "R")
         else args.exclude_first == "yes")

@@ -101,3 +101,34 @@ def test_output_into_a_closed_pipe_is_quiet(tmp_path: Path) -> None:
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=60) in (0, 1)
     assert "Traceback" not in err and "BrokenPipe" not in err, err
+
+
+@pytest.mark.parametrize("argv", [["--up", "-y"], ["--up=-y"], ["--up", "-y", "--json"]])
+def test_a_negative_axis_is_read_as_the_value_of_up(argv: list[str]) -> None:
+    """``--up -y`` (argparse would take "-y" for an option) means the same as ``--up=-y``."""
+    from app.cli import build_parser
+
+    args = build_parser().parse_args(["gait", "walk.trc", *argv])
+    assert args.up == "-y" and args.file == "walk.trc"
+
+
+@pytest.mark.parametrize(("argv", "said"), [
+    (["-y"], "write --up -y"),                 # an axis without --up
+    (["--up", "y", "-x"], "write --up -x"),    # a second axis after a complete --up
+    (["--up", "w"], "invalid choice: 'w'"),
+])
+def test_an_axis_in_the_wrong_place_is_refused(argv: list[str], said: str,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as e:
+        main(["gait", "walk.trc", *argv])
+    assert e.value.code == 2
+    assert said in capsys.readouterr().err
+
+
+def test_up_without_an_axis_says_which(tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    p = tmp_path / "walk.trc"
+    write_trc(p, walk_markers(synth_walk(), up="y"), units="mm")
+    rc, out, err = _run([str(p), "--up"], capsys)
+    assert rc == 2 and out == ""
+    assert "--up needs an axis" in err and "-y" in err
