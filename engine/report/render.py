@@ -41,7 +41,7 @@ class Parameter:
 
     key: str
     label: str
-    source: str  # "steps", "strides" or "summary"
+    source: str  # "steps", "strides", "summary" or "pooled" (speed, cadence)
     field: str
     unit: str  # display unit
     scale: float  # SI → display
@@ -50,9 +50,10 @@ class Parameter:
 
 
 PARAMETERS: tuple[Parameter, ...] = (
-    Parameter("walking_speed_m_s", "Walking speed", "summary", "walking_speed_m_s", "m/s",
+    # "pooled": over every step of every trial (see pace()), not a mean of trial values
+    Parameter("walking_speed_m_s", "Walking speed", "pooled", "walking_speed_m_s", "m/s",
               1.0, 2, False),
-    Parameter("cadence_steps_min", "Cadence", "summary", "cadence_steps_min", "steps/min",
+    Parameter("cadence_steps_min", "Cadence", "pooled", "cadence_steps_min", "steps/min",
               1.0, 1, False),
     Parameter("step_length_m", "Step length", "steps", "length_m", "cm", 100.0, 1, True),
     Parameter("stride_length_m", "Stride length", "strides", "length_m", "cm", 100.0, 1, True),
@@ -179,6 +180,79 @@ def _collect(param: Parameter, trials: list[TrialData], side: str | None) -> np.
     return arr[np.isfinite(arr)]
 
 
+@dataclass(frozen=True)
+class Pace:
+    """Walking speed and cadence of some steps, pooled over them (gait JSON definition).
+
+    Attributes:
+        n_steps: steps with a step time.
+        time_s: Σ step times, s.
+        length_m: Σ step lengths of the steps that have a length and a time, m.
+        speed_m_s: Σ step lengths / Σ step times (of the steps with both), or NaN.
+        cadence_steps_min: 60 · steps / Σ step times, or NaN.
+    """
+
+    n_steps: int
+    time_s: float
+    length_m: float
+    speed_m_s: float
+    cadence_steps_min: float
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, int | float) and math.isfinite(v)
+
+
+def pace(trials: list[TrialData]) -> Pace:
+    """Walking speed and cadence pooled over all steps of ``trials``.
+
+    The session's speed is Σ step lengths / Σ step times over every step of every trial
+    (the per-trial definition of the gait JSON's ``walking_speed_m_s``, extended to the
+    session) and cadence 60 · steps / Σ step times: a long walk weighs by its steps, a
+    two-step trial does not count as much as a 20-step one, as a mean of the trials'
+    values would have it.
+    """
+    steps = [s for t in trials for s in t.result.get("steps", []) or []
+             if _finite(s.get("duration_s")) and s["duration_s"] > 0]
+    t_all = float(sum(s["duration_s"] for s in steps))
+    both = [s for s in steps if _finite(s.get("length_m"))]
+    t_len = float(sum(s["duration_s"] for s in both))
+    length = float(sum(s["length_m"] for s in both))
+    return Pace(len(steps), t_all, length, length / t_len if t_len > 0 else math.nan,
+                60.0 * len(steps) / t_all if t_all > 0 else math.nan)
+
+
+_PACE_ATTRS = {"walking_speed_m_s": "speed_m_s", "cadence_steps_min": "cadence_steps_min"}
+
+
+def _pooled(param: Parameter, trials: list[TrialData]) -> tuple[int, float, float, float]:
+    """N (trials with a value), the pooled value, and SD/CV between the trials' values.
+
+    A trial whose steps carry no times keeps its summary value for the per-trial spread,
+    but adds nothing to the pooled value; with no step times at all the pooled value is
+    the mean of the trials' summary values.
+    """
+    attr = _PACE_ATTRS[param.key]
+    per_trial = []
+    for t in trials:
+        v = getattr(pace([t]), attr)
+        if not math.isfinite(v):
+            v = (t.result.get("summary", {}) or {}).get(param.field)
+        if _finite(v):
+            per_trial.append(float(v))
+    n, mean, sd, _ = _stats(np.asarray(per_trial, dtype=float))
+    pooled = getattr(pace(trials), attr)
+    if math.isfinite(pooled):
+        mean = pooled
+    cv = 100.0 * sd / abs(mean) if n > 1 and mean else math.nan
+    return n, mean, sd, cv
+
+
+def trial_paces(trials: list[TrialData]) -> list[tuple[str, Pace]]:
+    """``(name, pace)`` of each trial, for the report's per-trial table."""
+    return [(t.name, pace([t])) for t in trials]
+
+
 def _stats(vals: np.ndarray) -> tuple[int, float, float, float]:
     n = len(vals)
     if n == 0:
@@ -195,6 +269,10 @@ def spatiotemporal_table(
 ) -> list[TableRow]:
     """Mean ± SD, CV, left/right and asymmetry of every parameter with data.
 
+    Walking speed and cadence are pooled over all steps of all trials (:func:`pace`), with
+    N = trials and SD/CV between the trials' own values; the other parameters are means
+    over steps, strides or (stance, swing, double support) trials.
+
     Asymmetry is the symmetry index ``100·|L − R| / ((L + R) / 2)`` (Robinson et al.,
     J Manipulative Physiol Ther 1987), 0 % = perfectly symmetric.
     """
@@ -205,10 +283,13 @@ def spatiotemporal_table(
         sides: list[str | None] = [None, "L", "R"] if p.sided else [None]
         per_side: dict[str, TableRow] = {}
         for side in sides:
-            vals = _collect(p, trials, side)
-            if side is None and len(vals) == 0 and p.sided:
-                vals = np.concatenate([_collect(p, trials, "L"), _collect(p, trials, "R")])
-            n, mean, sd, cv = _stats(vals)
+            if p.source == "pooled":
+                n, mean, sd, cv = _pooled(p, trials)
+            else:
+                vals = _collect(p, trials, side)
+                if side is None and len(vals) == 0 and p.sided:
+                    vals = np.concatenate([_collect(p, trials, "L"), _collect(p, trials, "R")])
+                n, mean, sd, cv = _stats(vals)
             if n == 0:
                 continue
             row = TableRow(p.label, p.unit, side or "", n, mean * p.scale, sd * p.scale, cv,
@@ -329,6 +410,8 @@ def build_context(data: ReportData) -> dict[str, Any]:
         "norm_sources": [(s, "; ".join(populations.get(s, []))) for s in used_norms],
         "n_steps": len(all_steps),
         "trial_steps": [(t.name, len(t.result.get("steps", []) or [])) for t in data.trials],
+        "trial_paces": trial_paces(data.trials),
+        "session_pace": pace(data.trials),
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "version": __version__,
     }
