@@ -48,6 +48,7 @@ from app.nodes.protocol import (
     NodeError,
     NodeStorage,
     PartInfo,
+    PartList,
     PartVerified,
     Ping,
     Pong,
@@ -68,6 +69,7 @@ from app.nodes.protocol import (
     encode_calib_frame,
     encode_skeletons,
     parse_server_message,
+    part_batches,
 )
 from app.nodes.ringbuffer import RingBuffer
 from app.nodes.store import NodeStore, PartWriter, Purged, RetentionPolicy, StorageUsage
@@ -388,9 +390,12 @@ class NodeAgent:
 
     async def _session(self, ws: ClientConnection) -> None:
         assert self.info is not None
-        parts = self.store.parts()[-200:]
+        # newest first (the ones a recording may still wait for), in bounded messages: a
+        # node offline through a long day holds more parts than one message may carry
+        batches = part_batches(self.store.parts()[::-1])
         await ws.send(dump(Hello(node_id=self.node_id, token=self.token,
-                                 backend=self.backend.name, sensor=self.info, parts=parts,
+                                 backend=self.backend.name, sensor=self.info,
+                                 parts=batches[0] if batches else [],
                                  agent_started=self.started)))
         first = await asyncio.wait_for(ws.recv(), 10)
         msg = parse_server_message(first)
@@ -398,6 +403,8 @@ class NodeAgent:
             raise NodeRefusedError(f"server refused node {self.node_id}: {msg.reason}")
         if not isinstance(msg, Welcome):
             raise ProtocolError(f"expected welcome, got {msg.type}")
+        for batch in batches[1:]:
+            await ws.send(dump(PartList(parts=batch)))
         log.info("connected to %s", self.server_url)
         self._ever_connected = True
         self._ws = ws

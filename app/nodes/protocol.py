@@ -23,8 +23,9 @@ exchanges and converts; recording commands carry both the server time and the se
 conversion into the node's local time, so nodes never need to know the offset.
 
 Session: the node opens ``/ws/node`` and sends ``hello`` (id, token, protocol version,
-sensor description, parts it holds). The server answers ``welcome`` or ``refused`` (with a
-reason, then closes with code 4401/4400). Afterwards the server sends ``ping`` every
+sensor description, parts it holds: as many as :data:`PART_LIST_BYTES` allow, the rest in
+``parts`` messages right after the welcome). The server answers ``welcome`` or ``refused``
+(with a reason, then closes with code 4401/4400). Afterwards the server sends ``ping`` every
 ~0.1 s, ``rec_start``/``rec_stop`` for synchronous recordings, ``subscribe`` for image
 streams at N fps, ``snapshot`` for a one-off image set; the node streams skeleton frames,
 ``status`` once per second, ``rec_state`` when a recording part changes, and answers
@@ -35,6 +36,7 @@ from __future__ import annotations
 
 import json
 import struct
+from collections.abc import Sequence
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -111,6 +113,43 @@ class Hello(_Msg):
     parts: list[PartInfo] = Field(default_factory=list, max_length=10000)
 
 
+#: Bytes of part listings in one control message (``hello`` or ``parts``): well under the
+#: server's limit on a control message (``Settings.max_control_bytes``, 64 KiB), which the
+#: node does not know before its hello is answered.
+PART_LIST_BYTES = 16 * 1024
+
+
+class PartList(_Msg):
+    """More of the parts a node holds, sent right after the server's welcome when they
+    did not all fit its hello (a node offline through a long clinic day holds hundreds);
+    the server takes them as the hello's."""
+
+    type: Literal["parts"] = "parts"
+    parts: list[PartInfo] = Field(min_length=1, max_length=10000)
+
+
+def part_batches(parts: Sequence[PartInfo], max_bytes: int = PART_LIST_BYTES
+                 ) -> list[list[PartInfo]]:
+    """Split a listing into consecutive batches of at most ``max_bytes`` of JSON each.
+
+    A part is never split, and a part larger than ``max_bytes`` alone (it cannot be: its
+    fields are bounded) gets a batch of its own.
+
+    Returns:
+        The batches in order; none for no parts.
+    """
+    out: list[list[PartInfo]] = []
+    size = max_bytes + 1
+    for p in parts:
+        n = len(p.model_dump_json()) + 1  # and its comma
+        if size + n > max_bytes:
+            out.append([])
+            size = 0
+        out[-1].append(p)
+        size += n
+    return out
+
+
 class Pong(_Msg):
     """Reply to :class:`Ping`: t2 = node receive time, t3 = node send time (local clock)."""
 
@@ -169,7 +208,8 @@ class NodeError(_Msg):
     reason: str = Field(max_length=2000)
 
 
-NodeMessage = Annotated[Hello | Pong | Status | RecState | NodeError, Field(discriminator="type")]
+NodeMessage = Annotated[Hello | PartList | Pong | Status | RecState | NodeError,
+                        Field(discriminator="type")]
 
 # --------------------------------------------------------------------------- server → node
 

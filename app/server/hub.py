@@ -25,6 +25,7 @@ from app.config import Settings
 from app.nodes.protocol import (
     Hello,
     NodeError,
+    PartList,
     Ping,
     Pong,
     ProtocolError,
@@ -191,6 +192,9 @@ class Hub:
             elif isinstance(m, RecState):
                 s.parts[m.part.rec_id] = m.part
                 self.recordings.on_part(s.id, m.part)
+            elif isinstance(m, PartList):  # the rest of the hello's listing
+                for part in m.parts:
+                    self.recordings.on_part(s.id, part, from_hello=True)
             elif isinstance(m, NodeError):
                 log.warning("node %s reported: %s", s.id, m.reason)
             elif isinstance(m, Hello):

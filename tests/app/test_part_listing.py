@@ -1,0 +1,134 @@
+"""A node's listing of the parts it holds, on connecting: complete however many there are
+(a node offline through a long clinic day), in control messages the server accepts."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import uvicorn
+
+from app.config import Settings
+from app.main import create_app
+from app.nodes.agent import NodeAgent
+from app.nodes.backends.base import Backend, Frame
+from app.nodes.protocol import (
+    PART_LIST_BYTES,
+    Hello,
+    PartInfo,
+    PartList,
+    SensorInfo,
+    dump,
+    parse_node_message,
+    part_batches,
+)
+from app.nodes.store import NodeStore
+
+N_PARTS = 260  # more than the 200 a hello used to carry
+NODE_TOKEN = "test-node-token"
+WAIT_S = 60.0  # only a bound for a broken test; nothing is timed
+
+
+class _Idle(Backend):
+    """A sensor that sends nothing: the test is about the connection's first messages."""
+
+    name = "idle"
+
+    def open(self) -> SensorInfo:
+        return SensorInfo()
+
+    def frames(self) -> Iterator[Frame]:
+        return iter(())
+
+    def now(self) -> float:
+        return time.time()
+
+
+def _part(k: int, reason: str | None = None) -> PartInfo:
+    return PartInfo(rec_id=f"R{k:04d}", state="on_node", n_frames=900 + k, t_first=1e9 + k,
+                    t_last=1e9 + k + 30.0, bytes=123_456_789, reason=reason)
+
+
+def test_batches_keep_every_part_in_order_and_each_fits_a_control_message() -> None:
+    parts = [_part(k, "x" * (k % 7) * 300 or None) for k in range(N_PARTS)]
+    batches = part_batches(parts)
+    assert len(batches) > 1
+    assert [p for b in batches for p in b] == parts
+    default_limit = Settings().max_control_bytes
+    for i, b in enumerate(batches):
+        msg = dump(Hello(node_id="S1", token=NODE_TOKEN, parts=b)) if i == 0 \
+            else dump(PartList(parts=b))
+        assert len(msg) <= default_limit
+        assert len("[" + ",".join(p.model_dump_json() for p in b) + "]") <= PART_LIST_BYTES
+        assert parse_node_message(msg, default_limit).parts == b
+    assert part_batches([]) == []
+    # a part alone is never split, even one larger than the budget
+    assert part_batches(parts[:3], max_bytes=10) == [[p] for p in parts[:3]]
+
+
+@pytest.fixture
+def server(tmp_path: Path) -> Iterator[tuple[Settings, object]]:
+    """A real server on a loopback port, that knows N_PARTS stopped recordings whose part
+    on node S1 it last saw recording (the node was offline when they ended)."""
+    data = tmp_path / "server"
+    data.mkdir()
+    now = time.time()
+    recs = [{"id": f"R{k:04d}", "t_start": now - 3600 + k, "t_stop": now - 3590 + k,
+             "parts": {"S1": {"node_id": "S1", "state": "recording"}}}
+            for k in range(N_PARTS)]
+    (data / "recordings.json").write_text(json.dumps(recs))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    settings = Settings(data_dir=data, viewer_enabled=False, node_token=NODE_TOKEN,
+                        admin_password="secret-pw", port=port)
+    app = create_app(settings)
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port,
+                                        log_level="warning"))
+    th = threading.Thread(target=srv.run, daemon=True)
+    th.start()
+    deadline = time.monotonic() + WAIT_S
+    while not srv.started:
+        assert time.monotonic() < deadline, "server did not start"
+        time.sleep(0.05)
+    try:
+        yield settings, app
+    finally:
+        srv.should_exit = True
+        th.join(10)
+
+
+def test_a_node_holding_more_parts_than_one_message_lists_them_all(
+        server: tuple[Settings, object], tmp_path: Path) -> None:
+    settings, app = server
+    node_dir = tmp_path / "node"
+    store = NodeStore(node_dir / "recordings")
+    for k in range(N_PARTS):
+        store.create_part(f"R{k:04d}").close("on_node")
+    assert len(part_batches(store.parts())) > 1  # the listing needs several messages
+    agent = NodeAgent("S1", _Idle(), f"ws://127.0.0.1:{settings.port}/ws/node", NODE_TOKEN,
+                      node_dir)
+    th = threading.Thread(target=asyncio.run, args=(agent.run(),), daemon=True)
+    th.start()
+    recordings = app.state.hub.recordings.recordings  # type: ignore[attr-defined]
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while True:
+            states = {r.id: r.parts["S1"].state for r in list(recordings.values())}
+            if all(v == "on_node" for v in states.values()):
+                break
+            left = sorted(k for k, v in states.items() if v != "on_node")
+            assert time.monotonic() < deadline, f"{len(left)} parts never listed: {left[:5]}"
+            time.sleep(0.1)
+    finally:
+        agent.stop()
+        th.join(10)
+    assert len(states) == N_PARTS
+    hub = app.state.hub  # type: ignore[attr-defined]
+    assert hub.registry.get("S1").rejected_messages == 0
