@@ -157,6 +157,9 @@ class RecordingPart(Base):
     bytes_done: Mapped[int] = mapped_column(BigInteger, default=0)
     manifest_sha256: Mapped[str | None] = mapped_column(String(64), nullable=True)
     attempts: Mapped[int] = mapped_column(Integer, default=0)
+    # frames recorded without their images (the node's encoder fell behind), from the
+    # server copy's meta.json when the part arrived; None before (or before revision 0002)
+    images_skipped: Mapped[int | None] = mapped_column(Integer, nullable=True)
     updated_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=_now,
                                                  onupdate=_now)
 

@@ -39,7 +39,7 @@ from app.db import data as m
 from app.server.hub import Hub
 from app.server.recording import Part
 from app.server.recording import Recording as LiveRecording
-from app.server.storage import StorageLayout, recording_poses
+from app.server.storage import StorageLayout, part_meta, recording_poses
 from engine.errors import GaitrigError, InputError
 
 log = logging.getLogger("gaitrig.datasync")
@@ -283,6 +283,8 @@ class DataSync:
                    "bytes_total": p.bytes, "bytes_done": done}
             if st == "complete" and pr.manifest_sha256 is None:
                 new["manifest_sha256"] = _manifest_sha(self.layout, rec.id, node_id)
+            if st == "complete" and pr.images_skipped is None:  # stored once it arrived
+                new["images_skipped"] = _images_skipped(self.layout, rec.id, node_id)
             for k, v in new.items():
                 if getattr(pr, k) != v:
                     setattr(pr, k, v)
@@ -298,6 +300,16 @@ class DataSync:
         if (row.state, row.reason, row.t_start, row.t_stop) != (state, reason, rec.t_start,
                                                                 rec.t_stop):
             row.state, row.reason, row.t_start, row.t_stop = state, reason, rec.t_start, rec.t_stop
+
+
+def _images_skipped(layout: StorageLayout, rec_id: str, node_id: str) -> int | None:
+    """Frames of a part on the server recorded without their images, from its
+    ``meta.json`` (a part recorded before the count existed has none: 0); ``None`` when
+    the meta cannot be read (asked again at the next pass)."""
+    try:
+        return int(part_meta(layout.part_dir(rec_id, node_id)).get("images_skipped", 0))
+    except (InputError, ValueError, TypeError):
+        return None
 
 
 def _manifest_sha(layout: StorageLayout, rec_id: str, node_id: str) -> str | None:

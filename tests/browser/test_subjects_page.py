@@ -3,8 +3,10 @@ refused with a message, nothing overwritten), and the subject's full export is o
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
+import sqlite3
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -117,11 +119,18 @@ def test_subjects_page_says_what_happened_to_each_part(page: Any,
         time.sleep(0.5)
     nodes = sorted(x["node_id"] for x in live_server.api(f"/api/recordings/{rid}")["parts"])
     assert len(nodes) >= 2
-    # what a node writes into the part's meta.json when its image encoder fell behind
-    meta_path = live_server.data_dir / "server" / "recordings" / rid / nodes[0] / "meta.json"
+    # what a node writes into the part's meta.json when its image encoder fell behind,
+    # and the server stores in the part's row when the part arrives (done by now: the
+    # recording is complete; no real node can be made to fall behind here)
+    server_dir = live_server.data_dir / "server"
+    meta_path = server_dir / "recordings" / rid / nodes[0] / "meta.json"
     meta = json.loads(meta_path.read_text())
     meta["images_skipped"] = 5
     meta_path.write_text(json.dumps(meta))
+    with contextlib.closing(sqlite3.connect(server_dir / "gaitrig.sqlite3")) as db, db:
+        n = db.execute("update recording_parts set images_skipped = 5 where recording_id = ? "
+                       "and node_id = ? and images_skipped = 0", (rid, nodes[0])).rowcount
+    assert n == 1  # the count stored on arrival (0 then) is what the page shows
     got = live_server.api(f"/api/recordings/{rid}")
     skipped = {x["node_id"]: x["images_skipped"] for x in got["parts"]}
     assert skipped == {n: 5 if n == nodes[0] else 0 for n in nodes}

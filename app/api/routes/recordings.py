@@ -3,23 +3,29 @@
 Besides the recording manager's view (:meth:`app.server.recording.RecordingManager.to_dict`,
 with ``save_error``), each answer says what the server knows about each part and the
 rig: a part's ``images_skipped`` (frames recorded without their images because the
-node's encoder fell behind; from the server copy's ``meta.json``, ``null`` until the part
-is on the server) and ``not_in_recording`` (nodes connected while the recording ran that
-are not part of it, with why).
+node's encoder fell behind; stored in the part's database row when the part arrives on
+the server, read from the server copy's ``meta.json`` for a part without one, e.g. one
+that arrived before the column existed or a recording filed under no session; ``null``
+until the part is on the server) and ``not_in_recording`` (nodes connected while the
+recording ran that are not part of it, with why).
 """
 
 from __future__ import annotations
 
 import json
 import time
+from collections.abc import Collection
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query, status
 from pydantic import BaseModel, Field
+from sqlalchemy import select
+from sqlalchemy.orm import Session as DbSession
 
-from app.api.deps import CurrentUser, HubDep, SettingsDep
+from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
 from app.api.limits import BoundedRoute
+from app.db.data import RecordingPart
 from app.server.hub import Hub
 from app.server.recording import Recording
 from app.server.storage import StorageLayout
@@ -85,20 +91,37 @@ def _not_in_recording(hub: Hub, rec: Recording) -> list[dict[str, Any]]:
     return out
 
 
-def _view(hub: Hub, layout: StorageLayout, rec: Recording) -> dict[str, Any]:
-    """The manager's JSON of ``rec`` with ``images_skipped`` per part and
+def _stored_skipped(db: DbSession, rec_ids: Collection[str] | None = None
+                    ) -> dict[tuple[str, str], int]:
+    """``images_skipped`` stored in the part rows, by ``(rec_id, node_id)`` (of
+    ``rec_ids`` only, if given); parts without a stored count are left out."""
+    q = select(RecordingPart.recording_id, RecordingPart.node_id,
+               RecordingPart.images_skipped).where(RecordingPart.images_skipped.is_not(None))
+    if rec_ids is not None:
+        q = q.where(RecordingPart.recording_id.in_(list(rec_ids)))
+    return {(r, n): k for r, n, k in db.execute(q) if k is not None}
+
+
+def _view(hub: Hub, layout: StorageLayout, rec: Recording,
+          stored: dict[tuple[str, str], int] | None = None) -> dict[str, Any]:
+    """The manager's JSON of ``rec`` with ``images_skipped`` per part (from ``stored``,
+    see :func:`_stored_skipped`, else from the server copy's meta.json) and
     ``not_in_recording``."""
     d = hub.recordings.to_dict(rec)
     for p in d["parts"]:
-        p["images_skipped"] = (_images_skipped(layout, rec.id, p["node_id"])
-                               if p.get("on_server") else None)
+        if not p.get("on_server"):
+            p["images_skipped"] = None
+            continue
+        n = (stored or {}).get((rec.id, p["node_id"]))
+        p["images_skipped"] = n if n is not None else _images_skipped(layout, rec.id,
+                                                                       p["node_id"])
     d["not_in_recording"] = _not_in_recording(hub, rec)
     return d
 
 
 @router.get("")
 async def list_recordings(
-        user: CurrentUser, hub: HubDep, settings: SettingsDep,
+        user: CurrentUser, hub: HubDep, settings: SettingsDep, db: DbDep,
         ids: Annotated[str | None, Query(max_length=20000, description=(
             "Comma-separated recording ids: only these (unknown ids are left out).")
         )] = None) -> list[dict[str, Any]]:
@@ -109,7 +132,8 @@ async def list_recordings(
         recs = [r for r in recs if r.id in want]
     recs.sort(key=lambda r: r.created, reverse=True)
     layout = StorageLayout(settings.data_dir)
-    return [_view(hub, layout, r) for r in recs]
+    stored = _stored_skipped(db, [r.id for r in recs] if ids is not None else None)
+    return [_view(hub, layout, r, stored) for r in recs]
 
 
 @router.post("", status_code=201)
@@ -125,12 +149,12 @@ async def start_recording(body: StartIn, user: CurrentUser, hub: HubDep,
 
 @router.get("/{rec_id}")
 async def get_recording(rec_id: str, user: CurrentUser, hub: HubDep,
-                        settings: SettingsDep) -> dict[str, Any]:
+                        settings: SettingsDep, db: DbDep) -> dict[str, Any]:
     """One recording."""
     rec = hub.recordings.recordings.get(rec_id)
     if rec is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no recording {rec_id!r}")
-    return _view(hub, StorageLayout(settings.data_dir), rec)
+    return _view(hub, StorageLayout(settings.data_dir), rec, _stored_skipped(db, [rec_id]))
 
 
 @router.post("/{rec_id}/transfer", status_code=202)
