@@ -50,7 +50,7 @@ from engine.gait import GaitAnalysis
 from engine.integration import SensorStream, integrate_skeletons
 from engine.mocap import FeetTrajectories, feet_from_skeleton
 from engine.report.render import AgreementRow, QualityInfo, ReportData, TrialData
-from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState, joint_set_for
+from engine.skeleton import JOINT_SETS, SkeletonSeries, TrackingState
 
 _log = logging.getLogger(__name__)
 
@@ -164,7 +164,12 @@ def read_part(part_dir: Path) -> SkeletonSeries:
         raise InsufficientDataError(f"sensor {part_dir.name}: the recording part holds "
                                     f"{len(times)} skeleton frame(s)")
     J = n_joints or 25
-    js = KINECT_V2 if len(KINECT_V2.joints) == J else joint_set_for([str(k) for k in range(J)])
+    # The stream carries no joint names: the joint count tells the set (as in
+    # app.server.storage.read_part_skeleton); a k4a node's 32 joints are Azure Kinect's.
+    js = next((j for j in JOINT_SETS.values() if len(j.joints) == J), None)
+    if js is None:
+        raise InputError(f"sensor {part_dir.name}: skeletons with {J} joints match no known "
+                         f"joint set ({', '.join(sorted(JOINT_SETS))})")
     P = np.asarray(pos, dtype=float)
     S = np.asarray(sts, dtype=np.uint8)
     P[S == TrackingState.NOT_TRACKED] = np.nan
