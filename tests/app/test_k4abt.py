@@ -457,3 +457,24 @@ def test_a_bad_k4a_option_is_named_before_pyk4a_is_needed(
         K4ABackend(**kwargs)  # type: ignore[arg-type]
     with pytest.raises(InputError, match="pip install"):
         K4ABackend()
+
+
+def test_a_k4a_nodes_recording_part_reads_as_azure_kinect_skeletons(tmp_path: Path) -> None:
+    # The server's analysis reads a part's skeleton stream, which carries no joint names:
+    # 32 joints must be the Azure Kinect set (it raised "unknown joint set" before).
+    from app.nodes.protocol import encode_skeletons
+    from app.nodes.store import NodeStore
+    from app.server.analysis import read_part
+
+    store = NodeStore(tmp_path / "K1")
+    part = store.create_part("R20260101-000000-ab12")
+    J = len(AZURE_KINECT_JOINTS)
+    for k in range(5):
+        pos = np.full((1, J, 3), 2.0, np.float32)
+        pos[0, :, 0] = 0.01 * k
+        part.append(k / 30, "skeleton", encode_skeletons(k, k / 30, pos,
+                                                         np.full((1, J), 2, np.uint8)))
+    part.close()
+    s = read_part(tmp_path / "K1" / "R20260101-000000-ab12")
+    assert s.joint_set.name == "azure_kinect" and s.positions.shape == (5, J, 3)
+    np.testing.assert_allclose(s.joint("ANKLE_LEFT")[:, 0], 0.01 * np.arange(5), atol=1e-6)
