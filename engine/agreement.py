@@ -27,8 +27,12 @@ FloatArray = NDArray[np.float64]
 
 
 class _Timed(Protocol):
-    side: str
-    time_s: float
+    # read-only, so that frozen dataclasses (engine.gait.Step) type-check as steps
+    @property
+    def side(self) -> str: ...
+
+    @property
+    def time_s(self) -> float: ...
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,78 @@
+"""The worked examples in ``examples/`` run and say what they claim."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _load(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(name, ROOT / "examples" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_vicon_trial_on_the_real_file(shared_data: Path, tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    trial = shared_data / "mocap" / "kineticstoolkit" / "walk.c3d"
+    if not trial.is_file():
+        pytest.skip(f"{trial} absent")
+    ex = _load("vicon_trial")
+    res = ex.analyse(trial, tmp_path)
+    out = capsys.readouterr().out
+    assert "LHEE" in out and "walking_speed_m_s" in out
+    # every one of the file's 4 + 4 Nexus events found, each within 20 ms
+    assert sorted(res["timing_ms"]) == ["foot_off", "foot_strike"]
+    for kind, d in res["timing_ms"].items():
+        assert len(d) == 4 and max(abs(x) for x in d) < 20.0, (kind, d)
+    with (tmp_path / "steps.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(res["steps"]) >= 3
+    assert all(0.3 < float(r["length_m"]) < 0.8 for r in rows)
+    assert rows[0].keys() == res["steps"][0].keys()
+
+
+def test_vicon_trial_refuses_a_bad_file_with_a_message(tmp_path: Path) -> None:
+    bad = tmp_path / "notes.txt"
+    bad.write_text("not a trial")
+    run = subprocess.run([sys.executable, str(ROOT / "examples" / "vicon_trial.py"), str(bad),
+                          "--out", str(tmp_path / "out")], capture_output=True, text=True,
+                         timeout=120, cwd=ROOT)
+    assert run.returncode == 2
+    assert "unsupported file type '.txt'" in run.stderr and "Traceback" not in run.stderr
+
+
+def test_compare_with_reference_demo_agrees_and_writes_pairs(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    ex = _load("compare_with_reference")
+    pairs = ex.demo_files(tmp_path)
+    res = ex.compare(pairs, csv_path=tmp_path / "pairs.csv")
+    for side in ("L", "R"):
+        length = res["length_m"][side]
+        assert length.n >= 15 and abs(length.bias) < 0.01 and length.icc_a1 > 0.9
+        assert abs(res["duration_s"][side].bias) < 0.005
+    with (tmp_path / "pairs.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == sum(a.n for a in res["length_m"].values())
+    assert "ICC(A,1)" in capsys.readouterr().out
+
+
+def test_compare_with_reference_names_a_time_offset(tmp_path: Path) -> None:
+    ex = _load("compare_with_reference")
+    pairs = ex.demo_files(tmp_path, n=1)
+    from engine.errors import InputError
+
+    with pytest.raises(InputError, match="not on one time axis; give --offset"):
+        ex.compare(pairs, offset_s=3.0)
+    # the right offset undoes a shifted reference
+    assert ex.compare(pairs, offset_s=0.0)["length_m"]["L"].n >= 4
