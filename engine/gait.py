@@ -89,7 +89,16 @@ STANDING_LOOKBACK_S = 2.5
 
 @dataclass(frozen=True)
 class GaitEvent:
-    """A detected gait event."""
+    """A detected gait event.
+
+    Attributes:
+        side: ``"L"`` or ``"R"``.
+        kind: ``"placement"`` (method ``crossing``), ``"foot_strike"`` or ``"foot_off"``
+            (method ``heelstrike``) — the kinds of :class:`engine.io.markers.MarkerEvent`,
+            so :func:`engine.agreement.match_events` pairs them with a file's annotations.
+        time_s: seconds on the input's time axis.
+        pass_index: index of the straight pass in :attr:`GaitAnalysis.passes_`.
+    """
 
     side: str  # "L" | "R"
     kind: str  # "foot_strike" | "foot_off" | "placement"
@@ -99,7 +108,16 @@ class GaitEvent:
 
 @dataclass(frozen=True)
 class Step:
-    """One step, assigned to the foot placed at its end (``side``)."""
+    """One step, assigned to the foot placed at its end (``side``; seed 000, Fig. 6).
+
+    Attributes:
+        side: the foot placed at the end of the step, ``"L"`` or ``"R"``.
+        time_s: time of that placement / foot strike (s, the input's time axis).
+        length_m: distance between the two feet along the pass's walking direction (m).
+        width_m: distance between them perpendicular to it, on the floor (m, ≥ 0).
+        duration_s: step time, since the other foot's previous event (s).
+        pass_index: index of the straight pass in :attr:`GaitAnalysis.passes_`.
+    """
 
     side: str
     time_s: float
@@ -111,7 +129,15 @@ class Step:
 
 @dataclass(frozen=True)
 class Stride:
-    """One stride: two successive events of the same foot."""
+    """One stride: two successive events of the same foot.
+
+    Attributes:
+        side: the foot, ``"L"`` or ``"R"``.
+        time_s: time of the stride's second event (s, the input's time axis).
+        length_m: distance between the two footprints along the walking direction (m).
+        duration_s: stride time (s).
+        pass_index: index of the straight pass in :attr:`GaitAnalysis.passes_`.
+    """
 
     side: str
     time_s: float
@@ -122,7 +148,13 @@ class Stride:
 
 @dataclass(frozen=True)
 class WalkPass:
-    """A straight walking segment and its direction on the floor."""
+    """A straight walking segment and its direction on the floor.
+
+    Attributes:
+        t_start, t_end: its span (s, the input's time axis).
+        direction: unit ``(x, y)`` walking direction on the floor (world frame, Z up).
+        excluded_first: its first step/stride were dropped (``exclude_first``).
+    """
 
     t_start: float
     t_end: float

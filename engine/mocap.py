@@ -26,6 +26,7 @@ from engine.io.markers import (
     labelled_vertical_axis,
     to_z_up,
     unit_scale,
+    up_rotation,
 )
 from engine.skeleton import SkeletonSeries
 
@@ -154,6 +155,7 @@ def _check_units(P: FloatArray, labels: list[str], units: str) -> None:
 def _check_up(P: FloatArray, labels: list[str], up: str) -> None:
     """A vertical axis given by the user must not contradict labelled pelvis/head and
     foot markers (a wrong one turns a height into a step width without a word)."""
+    up_rotation(up)  # "w" is not an axis: say so rather than that it contradicts the body
     found = labelled_vertical_axis(P, labels)
     if found is not None and found != up.strip().lower().lstrip("+"):
         raise InputError(f"--up {up} contradicts the markers: the pelvis/head are above the "
@@ -326,8 +328,28 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
               up: str | None = None, units: str | None = None) -> FeetTrajectories:
     """Read a C3D, TRC or skeleton CSV file and return its per-foot trajectories.
 
+    What was detected is in the result: ``sources`` (the marker/joint labels used per
+    foot point and the pelvis, and the up axis), ``events`` (the file's annotated
+    events, e.g. Vicon Nexus foot strikes); ``print(feet)`` shows both.
+
+    Args:
+        path: a ``.c3d``, ``.trc`` or skeleton ``.csv`` (``time,<Joint>_x,_y,_z[,_state]``)
+            file.
+        left, right: the foot marker (or joint) names to analyse, both or neither
+            (``gaitrig gait --left/--right``); default: found automatically (Plug-in Gait
+            ``LANK/LHEE/LTOE``, ``L.Ankle``, ``LeftAnkle``, ``Subject:`` prefixes, ...).
+        up: the vertical axis of the file, ``"x"``, ``"y"``, ``"z"`` or ``"-x"``, ``"-y"``,
+            ``"-z"`` (``--up``); default: detected from the body.
+        units: ``"mm"``, ``"cm"`` or ``"m"`` (``--units``), overriding the file's own
+            unit or the one guessed from the body size.
+
+    Returns:
+        Per-foot trajectories in metres, Z up, on the file's time axis.
+
     Raises:
-        InputError: unknown extension, unreadable file or no usable foot data.
+        InputError: unknown extension, unreadable file, no usable foot data, or a
+            ``left``/``right``/``up``/``units`` that contradicts the file (the message
+            says which).
     """
     from engine.io.c3d import read_c3d
     from engine.io.csv import read_skeleton_csv

@@ -557,3 +557,11 @@ def test_reprs_summarise_instead_of_printing_arrays() -> None:
         assert len(text) < 800, text
         for word in words:
             assert word in text, (word, text)
+
+
+def test_an_up_that_is_no_axis_is_named_as_such() -> None:
+    m = walk_markers(synth_walk())
+    with pytest.raises(InputError, match=r"must be one of x, y, z .* got 'w'"):
+        feet_from_markers(m, up="w")
+    with pytest.raises(InputError, match="contradicts the markers"):
+        feet_from_markers(m, up="y")  # an axis, but the wrong one
