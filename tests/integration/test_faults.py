@@ -17,7 +17,6 @@ import hashlib
 import os
 import signal
 import socket
-import subprocess
 import threading
 import urllib.error
 from collections.abc import Iterator
@@ -31,6 +30,7 @@ from app.nodes.store import NodeStore
 from app.server.storage import read_part_skeleton
 from tests.app.data.test_record_flow import setup_session
 from tests.integration.conftest import Rig, wait_for
+from tests.tmpfs import tmpfs_if_possible
 
 pytestmark = pytest.mark.slow
 
@@ -86,16 +86,8 @@ class CuttableProxy:
 def tiny_node_disk(tmp_path: Path) -> Iterator[Path | None]:
     """The recordings folder of node S3 on a 32 KiB tmpfs (None when it cannot be
     mounted: the disk-full part of the test is skipped then)."""
-    folder = tmp_path / "nodes" / "S3" / "recordings"
-    folder.mkdir(parents=True)
-    mounted = os.geteuid() == 0 and subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=32k", "tmpfs", str(folder)],
-        capture_output=True).returncode == 0
-    try:
-        yield folder if mounted else None
-    finally:
-        if mounted:
-            subprocess.run(["umount", "-l", str(folder)], capture_output=True)
+    with tmpfs_if_possible(tmp_path / "nodes" / "S3" / "recordings", "32k") as folder:
+        yield folder
 
 
 def _http_error(fn: Any) -> tuple[int, str]:

@@ -14,7 +14,6 @@ import hashlib
 import json
 import shutil
 import signal
-import subprocess
 import time
 from pathlib import Path
 from typing import Any
@@ -23,6 +22,7 @@ import pytest
 
 from tests.app.data.test_record_flow import record, setup_session, wait_state
 from tests.integration.conftest import Rig, wait_for
+from tests.tmpfs import mounted_tmpfs
 
 
 def assert_identical(rig: Rig, server_dir: Path, rec_id: str, node_id: str) -> None:
@@ -81,14 +81,11 @@ def test_corrupt_chunk_server_kill_and_node_cut_all_resume(make_rig: Any, tmp_pa
 
 @pytest.mark.timeout(300)
 def test_disk_full_on_the_server(make_rig: Any, tmp_path: Path) -> None:
-    recs = tmp_path / "server" / "recordings"
-    recs.mkdir(parents=True)
-    if shutil.which("mount") is None:
-        pytest.skip("no mount command to create a small tmpfs")
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(recs)],
-                             capture_output=True)
-    if mounted.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.decode().strip()}")
+    with mounted_tmpfs(tmp_path / "server" / "recordings", "2m") as recs:
+        _disk_full_on_the_server(make_rig, tmp_path, recs)
+
+
+def _disk_full_on_the_server(make_rig: Any, tmp_path: Path, recs: Path) -> None:
     try:
         rig: Rig = make_rig()
         rig.start_node("S1")
@@ -114,7 +111,6 @@ def test_disk_full_on_the_server(make_rig: Any, tmp_path: Path) -> None:
         rig.api(f"/api/storage/recordings/{second}/transfer", {})
         assert wait_state(rig, second, {"complete"})["state"] == "complete"
         assert_identical(rig, tmp_path / "server", second, "S1")
-    finally:
+    finally:  # the server lets go of the disk before it is unmounted
         for r_ in list(getattr(make_rig, "rigs", [])):
             r_.close()
-        subprocess.run(["umount", "-l", str(recs)], capture_output=True)
