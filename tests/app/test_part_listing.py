@@ -17,37 +17,21 @@ import uvicorn
 from app.config import Settings
 from app.main import create_app
 from app.nodes.agent import NodeAgent
-from app.nodes.backends.base import Backend, Frame
 from app.nodes.protocol import (
     PART_LIST_BYTES,
     Hello,
     PartInfo,
     PartList,
-    SensorInfo,
     dump,
     parse_node_message,
     part_batches,
 )
 from app.nodes.store import NodeStore
+from tests.app.test_agent import _Scripted  # a sensor that sends nothing
 
 N_PARTS = 260  # more than the 200 a hello used to carry
 NODE_TOKEN = "test-node-token"
 WAIT_S = 60.0  # only a bound for a broken test; nothing is timed
-
-
-class _Idle(Backend):
-    """A sensor that sends nothing: the test is about the connection's first messages."""
-
-    name = "idle"
-
-    def open(self) -> SensorInfo:
-        return SensorInfo()
-
-    def frames(self) -> Iterator[Frame]:
-        return iter(())
-
-    def now(self) -> float:
-        return time.time()
 
 
 def _part(k: int, reason: str | None = None) -> PartInfo:
@@ -112,7 +96,7 @@ def test_a_node_holding_more_parts_than_one_message_lists_them_all(
     for k in range(N_PARTS):
         store.create_part(f"R{k:04d}").close("on_node")
     assert len(part_batches(store.parts())) > 1  # the listing needs several messages
-    agent = NodeAgent("S1", _Idle(), f"ws://127.0.0.1:{settings.port}/ws/node", NODE_TOKEN,
+    agent = NodeAgent("S1", _Scripted(), f"ws://127.0.0.1:{settings.port}/ws/node", NODE_TOKEN,
                       node_dir)
     th = threading.Thread(target=asyncio.run, args=(agent.run(),), daemon=True)
     th.start()
