@@ -1,9 +1,14 @@
 """Import of inertial recordings into one typed :class:`ImuRecording`.
 
 Formats: x-IMU CSV exports (``Gyroscope X (deg/s)``, ``Accelerometer X (g)``,
-``Magnetometer X (G)`` ...), Madgwick's ``ExampleData.mat``, BROAD trials (HDF5 or .mat)
-and a generic CSV whose units are declared by the caller. Everything is converted to SI:
-time s, gyr rad/s, acc m/s², mag µT (or left as given when declared ``"norm"``).
+``Magnetometer X (G)`` ...), Shimmer Consensys CSVs (``Shimmer_8C4F_Gyro_X_CAL`` with a
+units row; ``sep=`` line), Xsens / Movella DOT CSVs (metadata lines, ``PacketCounter``,
+``SampleTimeFine``, ``Acc_X``, ``Gyr_X``, ``Mag_X``), Madgwick's ``ExampleData.mat``, BROAD
+trials (HDF5 or .mat) and a generic CSV whose units are declared by the caller or read
+from the header. A CSV with several sensors' columns (prefixed per sensor) is read one
+sensor at a time (``sensor=``). Everything is converted to SI: time s, gyr rad/s,
+acc m/s², mag µT (or left as given when ``"norm"``: declared, or arbitrary units such as
+Shimmer's ``local_flux`` and Xsens' a.u.).
 
 Problems the data itself reveals are either errors (:class:`InputError`: missing columns,
 non-monotonic time, units contradicted by the magnitudes) or warnings collected in
@@ -13,6 +18,7 @@ non-monotonic time, units contradicted by the magnitudes) or warnings collected 
 from __future__ import annotations
 
 import csv
+import itertools
 import re
 from array import array
 from collections.abc import Iterator
@@ -41,8 +47,11 @@ _NAME_UNITS = {"dps": "deg/s", "degs": "deg/s", "deg": "deg/s", "rads": "rad/s",
 MAG_UNITS = {"ut": 1.0, "µt": 1.0, "μt": 1.0, "g": 100.0, "gauss": 100.0, "mg": 0.1,
              "mgauss": 0.1, "nt": 1e-3, "mt": 1e3, "norm": 1.0}
 #: time unit -> factor to s
-TIME_UNITS = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6,
-              "ns": 1e-9}
+TIME_UNITS = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "msec": 1e-3, "msecs": 1e-3, "us": 1e-6,
+              "µs": 1e-6, "μs": 1e-6, "100us": 1e-4, "ns": 1e-9}
+#: magnetometer units scaled to the local field (Shimmer, Xsens): read as ``"norm"``
+_ARBITRARY_MAG_UNITS = {"local_flux", "localflux", "a.u.", "a.u", "au", "arb.unit",
+                        "arbitrary"}
 #: largest CSV read (the whole file is parsed in memory); split bigger recordings
 MAX_CSV_BYTES = 256 * 2**20
 #: plausibility bounds for magnitude-based unit checks
@@ -270,12 +279,23 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
     Returns:
         header, ``(N, C)`` data, and the units row (``[]`` when there is none).
     """
-    lines = (ln for ln in _text_lines(path)
-             if ln.strip() and not ln.lstrip().startswith(_COMMENTS))
-    first = next(lines, None)
+    lines: Iterator[str] = (ln for ln in _text_lines(path)
+                            if ln.strip() and not ln.lstrip().startswith(_COMMENTS))
+    # Excel's "sep=<c>" first line (Shimmer Consensys exports) names the separator
+    head = list(itertools.islice(lines, _PREAMBLE_LINES))
+    forced = None
+    if head and (m := re.fullmatch(r'"?sep=(\\t|.?)"?', head[0].strip("\r\n "),
+                                   re.IGNORECASE)):
+        forced = "\t" if m.group(1) in ("", "\\t") else m.group(1)
+        head = head[1:]
+    # metadata lines before the header without a comment mark (Movella DOT's
+    # "DeviceTag: 3"): the header is the first line with three or more fields
+    start = next((i for i, ln in enumerate(head) if _n_fields(ln, forced) >= 3), 0)
+    lines = itertools.chain(head[start + 1:], lines)
+    first = head[start] if head else None
     if first is None:
         raise InputError(f"{path.name}: the file holds no header row or data")
-    delim = "\t" if "\t" in first else ";" if ";" in first else ","
+    delim = forced or ("\t" if "\t" in first else ";" if ";" in first else ",")
     header = [h.strip().strip('"').strip() for h in next(csv.reader([first], delimiter=delim))]
     while header and not header[-1]:
         header.pop()  # a trailing separator
@@ -285,6 +305,7 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
                          "header such as time,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z")
     values = array("d")
     units: list[str] = []
+    fmt_row = False
     rows = 0
     for i, r in enumerate(csv.reader(lines, delimiter=delim), start=2):
         if len(r) > n and not any(c.strip() for c in r[n:]):
@@ -298,8 +319,14 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
             values.extend(float(c.replace(",", ".")) if c.strip().lower() not in _NAN_CELLS
                           else np.nan for c in r)
         except ValueError:
+            if rows == 0 and not units and not fmt_row and r and all(
+                    c.strip().upper() in ("CAL", "RAW", "UNCAL") for c in r):
+                # Shimmer's older three-row header: names, CAL/RAW, units
+                header = [f"{h}_{c.strip()}" for h, c in zip(header, r, strict=True)]
+                fmt_row = True
+                continue
             if rows == 0 and not units and all(not _is_number(c) for c in r):
-                units = [c.strip().strip("()[]") for c in r]  # a units row under the header
+                units = [_unbracket(c) for c in r]  # a units row under the header
                 continue
             bad = next(c for c in r if not _is_number(c) and c.strip().lower() not in _NAN_CELLS)
             raise InputError(f"{path.name}: data row {i} has a non-numeric value {bad[:40]!r}"
@@ -309,6 +336,27 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
         raise InputError(f"{path.name}: CSV needs a header row and data rows")
     # a view on the array's buffer (writable, kept alive by the view): no second copy
     return header, np.frombuffer(values, dtype=float).reshape(rows, n), units
+
+
+#: lines looked at for a "sep=" line and a metadata preamble before the header
+_PREAMBLE_LINES = 64
+
+
+def _n_fields(line: str, delim: str | None) -> int:
+    """Non-empty-ended field count of a line with its own (or the forced) separator."""
+    d = delim or ("\t" if "\t" in line else ";" if ";" in line else ",")
+    cells = next(csv.reader([line], delimiter=d))
+    while cells and not cells[-1].strip():
+        cells.pop()
+    return len(cells)
+
+
+def _unbracket(c: str) -> str:
+    """``"(deg/s)"`` -> ``"deg/s"``; ``"m/(s^2)"`` keeps its brackets."""
+    c = c.strip()
+    if len(c) > 1 and (c[0], c[-1]) in (("(", ")"), ("[", "]"), ("{", "}")):
+        c = c[1:-1].strip()
+    return c
 
 
 def _is_number(c: str) -> bool:
@@ -482,61 +530,198 @@ _GROUP_ALIASES = {
     "acc": ("acc", "accel", "accelerometer", "acceleration", "a"),
     "mag": ("mag", "magn", "magnetometer", "magneticfield", "compass", "m"),
 }
-_TIME_ALIASES = ("time", "t", "timestamp", "sampletime", "elapsedtime")  # +unit: time_s
+#: names that say "time" (+ a unit: ``time_s``); Shimmer's ``Timestamp_Unix_CAL``, Xsens'
+#: ``SampleTimeFine`` (a wrapping uint32 clock: µs on Movella DOT, 100 µs ticks on MTi)
+_TIME_ALIASES = ("time", "timestamp", "sampletime", "elapsedtime", "timestampunix",
+                 "unixtimestamp", "timestampsync", "timestampsyncunix", "systemtimestamp",
+                 "sampletimefine")
+#: a bare ``t`` is time only when it increases: some exports call the temperature ``T``
+_WEAK_TIME_ALIASES = ("t",)
 _COUNTER_ALIASES = ("packetnumber", "packetcounter", "packet", "sample", "samplenumber",
                     "samplecounter", "counter", "index", "idx", "frame", "framenumber")
 _GROUP_NAMES = {"gyr": "gyroscope", "acc": "accelerometer", "mag": "magnetometer"}
+#: units that mark a column as a temperature: never the time
+_TEMPERATURE_UNITS = {"c", "°c", "degc", "degreesc", "celsius", "℃", "k", "kelvin", "°f",
+                      "degf", "f"}
+#: name tokens that qualify a channel: Shimmer's calibrated/raw suffixes, and its two
+#: accelerometers, low-noise (``Accel_LN``, preferred) and wide-range (``Accel_WR``)
+_CAL_TOKENS = ("cal", "calibrated")
+_RAW_TOKENS = ("raw", "uncal", "uncalibrated")
+_ACC_VARIANTS = {"ln": 0, "wr": 1}
 
 
 def _split_header(h: str) -> tuple[str, str]:
-    """``"Gyro X (deg/s)"`` -> ``("gyrox", "deg/s")``: a lower-case alphanumeric key and
-    the unit in trailing brackets (``""`` when there is none)."""
-    unit = ""
+    """``"Gyro X (deg/s)"`` -> ``("Gyro X", "deg/s")``: the name and the unit in trailing
+    brackets (``""`` when there is none)."""
     m = re.search(r"[(\[{]([^)\]}]*)[)\]}]\s*$", h)
     if m:
-        unit, h = m.group(1).strip(), h[:m.start()]
-    return re.sub(r"[^a-z0-9]", "", h.lower()), unit
+        return h[:m.start()], m.group(1).strip()
+    return h, ""
 
 
-def _find_columns(header: list[str], units_row: list[str]) -> tuple[
-        dict[str, list[int]], int | None, str, int | None, dict[int, str]]:
-    """Column indices of each group's X, Y, Z, of the time and of a sample counter."""
-    keys: list[str] = []
-    units: dict[int, str] = {}
-    for i, h in enumerate(header):
-        k, u = _split_header(h)
-        keys.append(k)
-        u = u or (units_row[i] if i < len(units_row) else "")
-        if u:
-            units[i] = u
+def _is_channel(key: str) -> bool:
+    """Whether a lower-case alphanumeric key names a channel this reader knows."""
+    for aliases in _GROUP_ALIASES.values():
+        for a in aliases:
+            if len(key) > len(a) and key.startswith(a) and key[len(a)] in "xyz" and (
+                    len(key) == len(a) + 1 or key[len(a) + 1:] in _NAME_UNITS):
+                return True
+    if key in _COUNTER_ALIASES:
+        return True
+    return any(key == a or (key.startswith(a) and key[len(a):] in TIME_UNITS)
+               for a in _TIME_ALIASES + _WEAK_TIME_ALIASES)
+
+
+@dataclass(frozen=True)
+class _Column:
+    """One header cell read as ``<sensor prefix> <channel> [qualifiers] (unit)``."""
+
+    prefix: str   # the sensor it belongs to as written (``Shimmer_8C4F``), "" for none
+    key: str      # lower-case alphanumeric channel (``accelx``, ``timestampunix``)
+    unit: str
+    rank: int     # 0 = preferred; 1 = second choice (a wide-range accelerometer)
+    raw: bool     # uncalibrated counts: never used
+
+
+def _parse_column(h: str, unit_cell: str) -> _Column:
+    name, unit = _split_header(h)
+    words = re.findall(r"[A-Za-z0-9]+", name)
+    low = [w.lower() for w in words]
+    raw = bool(low) and low[-1] in _RAW_TOKENS
+    while low and low[-1] in _CAL_TOKENS + _RAW_TOKENS:
+        low.pop()
+    unit = unit or unit_cell
+    # the shortest sensor prefix that leaves a known channel: Shimmer_8C4F_Gyro_X_CAL
+    for i in range(len(low)):
+        tail = low[i:]
+        key = "".join(w for w in tail if w not in _ACC_VARIANTS or len(tail) == 1)
+        if key and _is_channel(key):
+            rank = max((_ACC_VARIANTS.get(w, 0) for w in tail), default=0)
+            return _Column("_".join(words[:i]), key, unit, rank, raw)
+    return _Column("", "".join(low), unit, 0, raw)
+
+
+@dataclass
+class _Layout:
+    """Where one sensor's channels are in a CSV."""
+
+    groups: dict[str, list[int]]
+    t_idx: int | None
+    t_unit: str
+    c_idx: int | None
+    units: dict[int, str]
+    sensor: str = ""
+    sensors: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+class MultipleSensorsError(InputError):
+    """A CSV holds several sensors' channels and none was chosen.
+
+    Attributes:
+        sensors: the sensors found (their column-name prefixes), in file order.
+    """
+
+    def __init__(self, message: str, sensors: list[str]) -> None:
+        super().__init__(message)
+        self.sensors = sensors
+
+
+def _groups_of(cols: list[_Column], prefix: str) -> tuple[dict[str, list[int]],
+                                                          dict[int, str]]:
+    """Column indices of each complete X/Y/Z group of one sensor, and units named in keys."""
     groups: dict[str, list[int]] = {}
+    name_units: dict[int, str] = {}
+    mine = [(i, c) for i, c in enumerate(cols) if c.prefix == prefix and not c.raw]
+    mine.sort(key=lambda ic: ic[1].rank)  # the low-noise accelerometer first
     for g, aliases in _GROUP_ALIASES.items():
-        idx = [next((i for i, k in enumerate(keys) if k in {a + ax for a in aliases}), -1)
+        idx = [next((i for i, c in mine if c.key in {a + ax for a in aliases}), -1)
                for ax in "xyz"]
         if not all(i >= 0 for i in idx):  # a unit in the name: gyr_x_dps, acc_x_ms2
-            found = [next(((i, k[len(a) + 1:]) for i, k in enumerate(keys) for a in aliases
-                           if k.startswith(a + ax) and k[len(a) + 1:] in _NAME_UNITS),
+            found = [next(((i, c.key[len(a) + 1:]) for i, c in mine for a in aliases
+                           if c.key.startswith(a + ax) and c.key[len(a) + 1:] in _NAME_UNITS),
                           (-1, "")) for ax in "xyz"]
             idx = [i for i, _ in found]
             for i, u in found:
-                if i >= 0 and i not in units:
-                    units[i] = _NAME_UNITS[u]
+                if i >= 0:
+                    name_units[i] = _NAME_UNITS[u]
         if all(i >= 0 for i in idx):
             groups[g] = idx
+    return groups, name_units
+
+
+def _is_temperature(c: _Column) -> bool:
+    return "temp" in c.key or c.unit.strip().lower().replace(" ", "") in _TEMPERATURE_UNITS
+
+
+def _increasing(v: FloatArray) -> bool:
+    """Time-like values: finite, never decreasing, rising on most steps."""
+    d = np.diff(v)
+    return bool(len(d) and np.all(np.isfinite(v)) and np.all(d >= 0) and np.mean(d > 0) > 0.5)
+
+
+def _find_columns(header: list[str], units_row: list[str], data: FloatArray, name: str,
+                  sensor: str | None = None) -> _Layout:
+    """Which columns hold the chosen sensor's X/Y/Z groups, its time and sample counter.
+
+    Columns may carry a sensor prefix (``Shimmer_8C4F_Gyro_X_CAL``, ``S2_acc_x``); a file
+    with several sensors needs ``sensor`` (a prefix, or its last part such as ``8C4F``).
+
+    Raises:
+        MultipleSensorsError: several sensors and no (or no matching) choice.
+    """
+    cols = [_parse_column(h, units_row[i] if i < len(units_row) else "")
+            for i, h in enumerate(header)]
+    prefixes = list(dict.fromkeys(c.prefix for c in cols))
+    complete = [p for p in prefixes if {"gyr", "acc"} <= set(_groups_of(cols, p)[0])]
+    chosen = ""
+    if sensor:
+        want = sensor.strip().lower()
+        hits = [p for p in complete if p.lower() == want] or [
+            p for p in complete if p.lower().split("_")[-1] == want
+            or p.lower().endswith("_" + want)]
+        if len(hits) != 1:
+            raise MultipleSensorsError(
+                f"{name}: no sensor {sensor!r} in the file; it holds "
+                + (", ".join(p or "(unprefixed columns)" for p in complete) or "no complete "
+                   "gyroscope + accelerometer set") + "; choose one of those", complete)
+        chosen = hits[0]
+    elif len(complete) > 1:
+        listing = ", ".join(p or "(unprefixed columns)" for p in complete)
+        raise MultipleSensorsError(
+            f"{name}: the file holds {len(complete)} sensors ({listing}); choose the one to "
+            f"read with sensor (e.g. {complete[-1]!r})", complete)
+    elif complete:
+        chosen = complete[0]
+    groups, name_units = _groups_of(cols, chosen)
+    units = {i: c.unit for i, c in enumerate(cols) if c.unit}
+    for i, u in name_units.items():
+        units.setdefault(i, u)
+    notes: list[str] = []
+    # time: the sensor's own column, else a shared (unprefixed) one; a strong name first,
+    # a bare 't' only when it increases; never a temperature
     t_idx, t_unit = None, ""
-    for i, k in enumerate(keys):
-        if k in _TIME_ALIASES:
-            t_idx = i
-            break
-        suffix = next((k[len(a):] for a in _TIME_ALIASES if k.startswith(a)
-                       and k[len(a):] in TIME_UNITS), None)
-        if suffix is not None:
-            t_idx, t_unit = i, suffix
-            break
+    for strong in (True, False):
+        for p in dict.fromkeys((chosen, "")):
+            for i, c in enumerate(cols):
+                if t_idx is not None or c.prefix != p or c.raw or _is_temperature(c):
+                    continue
+                aliases = _TIME_ALIASES if strong else _WEAK_TIME_ALIASES
+                base = next((a for a in aliases if c.key == a or (
+                    c.key.startswith(a) and c.key[len(a):] in TIME_UNITS)), None)
+                if base is None:
+                    continue
+                suffix = c.key[len(base):]
+                if not strong and not suffix and not _increasing(data[:, i]):
+                    notes.append(f"column {header[i]!r} does not increase, so it is not "
+                                 "taken for the time")
+                    continue
+                t_idx, t_unit = i, suffix
     if t_idx is not None:
         t_unit = units.get(t_idx, t_unit)
-    c_idx = next((i for i, k in enumerate(keys) if k in _COUNTER_ALIASES), None)
-    return groups, t_idx, t_unit, c_idx, units
+    c_idx = next((i for p in dict.fromkeys((chosen, "")) for i, c in enumerate(cols)
+                  if c.prefix == p and c.key in _COUNTER_ALIASES), None)
+    return _Layout(groups, t_idx, t_unit, c_idx, units, chosen, complete, notes)
 
 
 def _detect(g: str, raw: FloatArray) -> tuple[str, str] | None:
@@ -564,7 +749,9 @@ def _detect(g: str, raw: FloatArray) -> tuple[str, str] | None:
             if 0.8 * one_g < med < 1.25 * one_g and p10 > 0.5 * one_g:
                 return unit, f"median magnitude {med:.3g}"
         return None
-    bands = {"uT": (20.0, 70.0), "G": (0.2, 0.7), "mT": (0.02, 0.07), "nT": (2e4, 7e4)}
+    # "norm": Xsens' a.u. (1 = the field at calibration); gauss stays below 0.7 on Earth
+    bands = {"uT": (20.0, 70.0), "G": (0.2, 0.7), "norm": (0.75, 1.5), "mT": (0.02, 0.07),
+             "nT": (2e4, 7e4)}
     for unit, (lo, hi) in bands.items():
         if lo < med < hi:
             return unit, f"median magnitude {med:.3g}"
@@ -579,6 +766,7 @@ def load_csv(
     mag_unit: str | None = None,
     time_unit: str | None = None,
     frequency: float | None = None,
+    sensor: str | None = None,
 ) -> ImuRecording:
     """Read a generic IMU CSV: time (or a sample counter), gyroscope, accelerometer and
     optionally magnetometer X/Y/Z columns, as other labs name them.
@@ -606,8 +794,13 @@ def load_csv(
         time_unit: ``"s"``, ``"ms"``, ``"us"`` or ``"ns"``; ``None`` = header or detection.
         frequency: sampling rate, Hz: needed without a time column (with a sample counter,
             dropped samples keep their place).
+        sensor: which sensor to read from a file with several (columns prefixed per
+            sensor: ``Shimmer_8C4F_Gyro_X_CAL``, ``S2_Acc_X``): the prefix
+            (``Shimmer_8C4F``) or its last part (``8C4F``); ``None`` for a one-sensor file.
 
     Raises:
+        MultipleSensorsError: several sensors in the file and ``sensor`` names none of
+            them (the message and ``.sensors`` list those found).
         InputError: missing columns, unknown or undeterminable units, units contradicted
             by the data, bad timing.
     """
@@ -615,7 +808,9 @@ def load_csv(
     header, data, units_row = _read_csv(p)
     if len(data) < 2:
         raise InputError(f"{p.name}: need at least two samples, got {len(data)}")
-    groups, t_idx, t_unit, c_idx, col_units = _find_columns(header, units_row)
+    lay = _find_columns(header, units_row, data, p.name, sensor)
+    groups, t_idx, t_unit, c_idx, col_units = (lay.groups, lay.t_idx, lay.t_unit, lay.c_idx,
+                                               lay.units)
     declared = {"gyr": gyr_unit, "acc": acc_unit, "mag": mag_unit}
     need = ["gyr", "acc"] + (["mag"] if mag_unit not in (None, "none") else [])
     missing = [g for g in need if g not in groups]
@@ -627,9 +822,12 @@ def load_csv(
             f"mag_z] (found {header})")
     if mag_unit == "none":
         groups.pop("mag", None)
-    warnings: list[str] = []
+    warnings: list[str] = list(lay.notes)
     meta: dict[str, Any] = {"format": "csv", "source": str(p), "units_from": {},
                             "columns": header}
+    if lay.sensor:
+        meta["sensor"] = lay.sensor
+        meta["sensors"] = lay.sensors
     tables = {"gyr": GYR_UNITS, "acc": ACC_UNITS, "mag": MAG_UNITS}
     out: dict[str, FloatArray] = {}
     for g, idx in groups.items():
@@ -651,6 +849,9 @@ def load_csv(
             unit, source = found[0], "detected"
             warnings.append(f"assumed {what} in {unit} ({found[1]}); declare {g}_unit if "
                             "that is wrong")
+        if g == "mag" and unit.strip().lower().replace(" ", "") in _ARBITRARY_MAG_UNITS:
+            # Shimmer 'local_flux', Xsens 'a.u.': scaled to the local field, direction only
+            unit = "norm"
         elif source == "declared" and in_header and not np.isclose(
                 _unit(tables[g], in_header, what) if _known(tables[g], in_header) else -1.0,
                 _unit(tables[g], unit, what)):
@@ -666,7 +867,9 @@ def load_csv(
         meta["units_from"][g] = source
     meta.setdefault("mag_unit", "")
     used = {i for idx in groups.values() for i in idx}
-    time = _csv_time(p, data, t_idx, t_unit, c_idx, time_unit, frequency, meta, warnings)
+    clock = t_idx is not None and _parse_column(header[t_idx], "").key == "sampletimefine"
+    time = _csv_time(p, data, t_idx, t_unit, c_idx, time_unit, frequency, meta, warnings,
+                     clock=clock)
     used |= {i for i in (t_idx, c_idx) if i is not None}
     ignored = [h for i, h in enumerate(header) if i not in used]
     if ignored:
@@ -684,12 +887,16 @@ def _known(table: dict[str, float], unit: str) -> bool:
 
 def _csv_time(p: Path, data: FloatArray, t_idx: int | None, t_unit: str, c_idx: int | None,
               time_unit: str | None, frequency: float | None, meta: dict[str, Any],
-              warnings: list[str]) -> FloatArray:
+              warnings: list[str], *, clock: bool = False) -> FloatArray:
     """Time in s from a time column (unit declared, in the header or from the step), a
-    sample counter and the rate, or the rate alone."""
+    sample counter and the rate, or the rate alone.
+
+    ``clock``: the column is Xsens' ``SampleTimeFine``, a uint32 clock that wraps after
+    2³² ticks — µs on Movella DOT, 100 µs ticks on MTi/MTw (told apart by the rate)."""
     if t_idx is None:
         if not frequency:
-            raise InputError(f"{p.name}: no time column; pass the sampling frequency")
+            why = "".join(f" ({w})" for w in warnings if w.endswith("taken for the time"))
+            raise InputError(f"{p.name}: no time column{why}; pass the sampling frequency")
         if c_idx is None:
             meta["time_from"] = "frequency"
             return np.arange(len(data)) / float(frequency)
@@ -703,8 +910,15 @@ def _csv_time(p: Path, data: FloatArray, t_idx: int | None, t_unit: str, c_idx: 
         return np.r_[0.0, np.cumsum(d)] / float(frequency)
     raw = data[:, t_idx]
     _check_rounded_time(p.name, raw, "(file units)")
+    if clock and np.all(np.isfinite(raw)):
+        d = np.diff(raw)
+        wrap = d < -(2.0 ** 31)
+        if wrap.any():
+            raw = raw + np.r_[0.0, np.cumsum(wrap)] * 2.0 ** 32
     dts = np.diff(raw[np.isfinite(raw)])
     step = float(np.median(dts[dts > 0])) if np.any(dts > 0) else 0.0
+    if clock and not t_unit and time_unit is None and step:
+        t_unit = "us" if step >= 250 else "100us"  # 4 kHz in µs: no IMU rate is faster
     unit, source = time_unit, "declared"
     if unit is None and t_unit:
         unit, source = t_unit, "header"

@@ -79,6 +79,7 @@
     const fd = new FormData();
     for (const f of $("files").files) fd.append("files", f);
     for (const n of $("sensors").value.split(",").map((s) => s.trim()).filter(Boolean)) fd.append("sensors", n);
+    if ($("file_sensors").value.trim()) for (const c of $("file_sensors").value.split(",")) fd.append("file_sensors", c.trim());
     if ($("skeleton").files.length) fd.append("skeleton", $("skeleton").files[0]);
     else if ($("recording").value) {
       const [rec, node] = $("recording").value.split("|");

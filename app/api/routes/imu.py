@@ -7,7 +7,10 @@ Madgwick ``.mat``, BROAD ``.hdf5``/``.mat``, generic CSV with declared units), `
 ``beta``, ``synchronise``, ``n_jumps`` and, for CSV, ``gyr_unit``, ``acc_unit``,
 ``mag_unit``, ``time_unit`` (``s``/``ms``/``us``/``ns``), ``frequency``: each overrides the
 unit in the file's header or the one detected from the data (``engine.imu.io.load_csv``;
-what was assumed comes back in the warnings).
+what was assumed comes back in the warnings). ``file_sensors`` picks the sensor to read
+from a CSV holding several (two Shimmers, an Xsens export of several DOTs): one per file
+(empty for a one-sensor file) or one for all; without it such a file is refused with the
+list of its sensors. Upload the file twice, with two choices, to use two of its sensors.
 
 Instead of a skeleton file, ``recording`` and ``recording_node`` take one sensor's
 skeleton from a recording already transferred to the server (placed in the world by the
@@ -42,7 +45,7 @@ from app.server.imu_analysis import (
 )
 from engine.errors import InputError
 from engine.imu.fusion import PAPER_SENSORS
-from engine.imu.io import ImuRecording, load_imu
+from engine.imu.io import ImuRecording, MultipleSensorsError, load_imu
 from engine.io.csv import read_skeleton_csv
 from engine.skeleton import SkeletonSeries
 
@@ -95,12 +98,15 @@ async def _save(upload: UploadFile, folder: Path, stem: str) -> Path:
     return path
 
 
-def _sensor_names(files: list[UploadFile], sensors: list[str]) -> list[str]:
+def _sensor_names(files: list[UploadFile], sensors: list[str],
+                  choices: list[str] | None = None) -> list[str]:
     if sensors and len(sensors) != len(files):
         raise InputError(f"give one sensor name per file ({len(files)} files, "
                          f"{len(sensors)} names)")
-    names = sensors or [re.sub(r"[^A-Za-z0-9_\-]", "_", Path(f.filename or "imu").stem)[:40]
-                        or "imu" for f in files]
+    # default: the file name, and the sensor chosen in it (one file uploaded per sensor)
+    stems = [Path(f.filename or "imu").stem + (f"_{c}" if c else "")
+             for f, c in zip(files, choices or [""] * len(files), strict=True)]
+    names = sensors or [re.sub(r"[^A-Za-z0-9_\-]", "_", s)[:40] or "imu" for s in stems]
     for n in names:
         if not _NAME_RE.match(n):
             raise InputError(f"sensor name {n!r}: use letters, digits, '_' or '-' (e.g. chest, "
@@ -108,6 +114,24 @@ def _sensor_names(files: list[UploadFile], sensors: list[str]) -> list[str]:
     if len(set(names)) != len(names):
         raise InputError(f"sensor names must differ; got {names}")
     return names
+
+
+def _file_sensors(files: list[UploadFile], choices: list[str]) -> list[str]:
+    """The sensor to read from each file ("" = the file's only one): one per file or one
+    for all."""
+    choices = [c.strip() for c in choices]
+    for c in choices:
+        if c and not _NAME_RE.match(c):
+            raise InputError(f"sensor in file {c!r}: use the column prefix the file gives "
+                             "its sensor (letters, digits, '_' or '-', e.g. Shimmer_8C4F)")
+    if not any(choices):
+        return [""] * len(files)
+    if len(choices) == 1:
+        return choices * len(files)
+    if len(choices) != len(files):
+        raise InputError(f"give one sensor-in-file choice per file or one for all "
+                         f"({len(files)} files, {len(choices)} choices)")
+    return choices
 
 
 @router.post("/sessions", max_body_size=MAX_REQUEST_BYTES)
@@ -130,6 +154,7 @@ async def upload_session(
     frequency: Annotated[float | None, Form(gt=0, le=10000)] = None,
     recording: Annotated[str | None, Form(max_length=64)] = None,
     recording_node: Annotated[str | None, Form(max_length=64)] = None,
+    file_sensors: Annotated[list[str], Form()] = [],  # noqa: B006 - FastAPI form default
 ) -> dict[str, Any]:
     """Process uploaded IMU files (and optionally a depth skeleton); see the module doc."""
     files = [f for f in files if f.filename]
@@ -137,7 +162,8 @@ async def upload_session(
         raise InputError("choose at least one IMU file")
     if len(files) > MAX_FILES:
         raise InputError(f"at most {MAX_FILES} IMU files per session")
-    names = _sensor_names(files, [s.strip() for s in sensors if s.strip()])
+    choices = _file_sensors(files, file_sensors)
+    names = _sensor_names(files, [s.strip() for s in sensors if s.strip()], choices)
     kwargs: dict[str, Any] = {"time_unit": time_unit} if time_unit else {}
     if gyr_unit:
         kwargs["gyr_unit"] = gyr_unit
@@ -163,9 +189,13 @@ async def upload_session(
 
         def work() -> ImuJob:
             recs: dict[str, ImuRecording] = {}
-            for name, path, up in zip(names, paths, files, strict=True):
+            for name, path, up, choice in zip(names, paths, files, choices, strict=True):
                 try:
-                    rec = _load(path, kwargs)
+                    rec = _load(path, {**kwargs, "sensor": choice} if choice else kwargs)
+                except MultipleSensorsError as e:
+                    msg = str(e).replace(path.name, up.filename or name).replace(
+                        "with sensor", "in 'Sensor in file' (form field file_sensors)")
+                    raise InputError(msg) from None
                 except InputError as e:
                     # the engine names our temporary file; name the user's instead
                     msg = str(e).replace(path.name, up.filename or name).replace(
