@@ -269,7 +269,8 @@ def _text_lines(path: Path) -> Iterator[str]:
             yield line.rstrip("\r\n")
 
 
-def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
+def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str],
+                                   dict[int, tuple[int, str]]]:
     """Parse a numeric CSV with one header row.
 
     Accepts comma, semicolon or tab separators (chosen from the header), a decimal comma
@@ -277,7 +278,8 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
     CRLF, empty/NaN cells and one units row under the header.
 
     Returns:
-        header, ``(N, C)`` data, and the units row (``[]`` when there is none).
+        header, ``(N, C)`` data, the units row (``[]`` when there is none) and the
+        columns holding text: index -> (row number, first text cell); NaN in the data.
     """
     lines: Iterator[str] = (ln for ln in _text_lines(path)
                             if ln.strip() and not ln.lstrip().startswith(_COMMENTS))
@@ -305,6 +307,7 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
                          "header such as time,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z")
     values = array("d")
     units: list[str] = []
+    text: dict[int, tuple[int, str]] = {}
     fmt_row = False
     rows = 0
     for i, r in enumerate(csv.reader(lines, delimiter=delim), start=2):
@@ -315,10 +318,12 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
                     else "")
             raise InputError(f"{path.name}: data row {i} has {len(r)} fields, header has {n}"
                              + hint)
+        mark = len(values)
         try:
             values.extend(float(c.replace(",", ".")) if c.strip().lower() not in _NAN_CELLS
                           else np.nan for c in r)
         except ValueError:
+            del values[mark:]  # the cells read before the bad one
             if rows == 0 and not units and not fmt_row and r and all(
                     c.strip().upper() in ("CAL", "RAW", "UNCAL") for c in r):
                 # Shimmer's older three-row header: names, CAL/RAW, units
@@ -328,14 +333,28 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str]]:
             if rows == 0 and not units and all(not _is_number(c) for c in r):
                 units = [_unbracket(c) for c in r]  # a units row under the header
                 continue
-            bad = next(c for c in r if not _is_number(c) and c.strip().lower() not in _NAN_CELLS)
-            raise InputError(f"{path.name}: data row {i} has a non-numeric value {bad[:40]!r}"
-                             ) from None
+            # a text cell (Shimmer's formatted date column): NaN here; an error only if
+            # the column is one the reader uses (see _text_error)
+            for k, c in enumerate(r):
+                if _is_number(c):
+                    values.append(float(c.replace(",", ".")))
+                else:
+                    values.append(np.nan)
+                    if c.strip().lower() not in _NAN_CELLS:
+                        text.setdefault(k, (i, c))
         rows += 1
     if rows == 0:
         raise InputError(f"{path.name}: CSV needs a header row and data rows")
     # a view on the array's buffer (writable, kept alive by the view): no second copy
-    return header, np.frombuffer(values, dtype=float).reshape(rows, n), units
+    return header, np.frombuffer(values, dtype=float).reshape(rows, n), units, text
+
+
+def _text_error(path: Path, text: dict[int, tuple[int, str]], used: set[int]) -> None:
+    """InputError for the first text cell in a column the reader uses."""
+    bad = sorted((row, c) for k, (row, c) in text.items() if k in used)
+    if bad:
+        row, c = bad[0]
+        raise InputError(f"{path.name}: data row {row} has a non-numeric value {c[:40]!r}")
 
 
 #: lines looked at for a "sep=" line and a metadata preamble before the header
@@ -388,7 +407,8 @@ def load_xio_csv(path: str | Path, frequency: float | None = None) -> ImuRecordi
         InputError: missing columns, unknown units, bad timing.
     """
     p = Path(path)
-    header, data, _ = _read_csv(p)
+    header, data, _, text = _read_csv(p)
+    _text_error(p, text, set(range(len(header))))
     warnings: list[str] = []
     cols: dict[str, FloatArray] = {}
     units: dict[str, str] = {}
@@ -661,7 +681,8 @@ def _increasing(v: FloatArray) -> bool:
 
 
 def _find_columns(header: list[str], units_row: list[str], data: FloatArray, name: str,
-                  sensor: str | None = None) -> _Layout:
+                  sensor: str | None = None,
+                  text: dict[int, tuple[int, str]] | None = None) -> _Layout:
     """Which columns hold the chosen sensor's X/Y/Z groups, its time and sample counter.
 
     Columns may carry a sensor prefix (``Shimmer_8C4F_Gyro_X_CAL``, ``S2_acc_x``); a file
@@ -712,6 +733,10 @@ def _find_columns(header: list[str], units_row: list[str], data: FloatArray, nam
                 if base is None:
                     continue
                 suffix = c.key[len(base):]
+                if text and i in text:  # a formatted date ("2021/01/02 15:23:28.123")
+                    notes.append(f"column {header[i]!r} holds text ({text[i][1][:30]!r}), "
+                                 "so it is not taken for the time")
+                    continue
                 if not strong and not suffix and not _increasing(data[:, i]):
                     notes.append(f"column {header[i]!r} does not increase, so it is not "
                                  "taken for the time")
@@ -805,12 +830,14 @@ def load_csv(
             by the data, bad timing.
     """
     p = Path(path)
-    header, data, units_row = _read_csv(p)
+    header, data, units_row, text = _read_csv(p)
     if len(data) < 2:
         raise InputError(f"{p.name}: need at least two samples, got {len(data)}")
-    lay = _find_columns(header, units_row, data, p.name, sensor)
+    lay = _find_columns(header, units_row, data, p.name, sensor, text)
     groups, t_idx, t_unit, c_idx, col_units = (lay.groups, lay.t_idx, lay.t_unit, lay.c_idx,
                                                lay.units)
+    _text_error(p, text, {i for idx in groups.values() for i in idx}
+                | {i for i in (t_idx, c_idx) if i is not None})
     declared = {"gyr": gyr_unit, "acc": acc_unit, "mag": mag_unit}
     need = ["gyr", "acc"] + (["mag"] if mag_unit not in (None, "none") else [])
     missing = [g for g in need if g not in groups]

@@ -43,14 +43,14 @@ def _fmt(v: float) -> str:
 
 def _shimmer(p: Path, sensors: dict[str, ImuRecording], *, sep: str = "\t",
              sep_line: bool = True, cal_row: bool = False, wide_range: bool = False,
-             unix_ms: float = 1.7e12) -> Path:
+             formatted: bool = False, unix_ms: float = 1.7e12) -> Path:
     """A Consensys export of one or more Shimmers (time as Unix ms)."""
     names: list[str] = []
     kinds: list[str] = []
     units: list[str] = []
     cols: list[np.ndarray] = []
 
-    def add(name: str, unit: str, values: np.ndarray, kind: str = "CAL") -> None:
+    def add(name: str, unit: str, values: np.ndarray | list[str], kind: str = "CAL") -> None:
         names.append(name + ("" if cal_row else f"_{kind}"))
         kinds.append(kind)
         units.append(unit)
@@ -59,6 +59,9 @@ def _shimmer(p: Path, sensors: dict[str, ImuRecording], *, sep: str = "\t",
     for dev, r in sensors.items():
         s = f"Shimmer_{dev}"
         assert r.mag is not None
+        if formatted:  # the date as text, e.g. 2023/11/14 22:13:20.010
+            add(f"{s}_TimestampSync_FormattedUnix", "no units",
+                [f"2023/11/14 22:13:{20 + t:06.3f}" for t in r.time])
         add(f"{s}_Timestamp_Unix", "ms", unix_ms + 1000.0 * r.time)
         for k, ax in enumerate("XYZ"):
             add(f"{s}_Accel_LN_{ax}", "no units", np.round(2048 + 100 * r.acc[:, k]), "RAW")
@@ -79,8 +82,8 @@ def _shimmer(p: Path, sensors: dict[str, ImuRecording], *, sep: str = "\t",
     if cal_row:
         lines.append(sep.join(kinds) + sep)
     lines.append(sep.join(units) + sep)
-    data = np.column_stack(cols)
-    lines += [sep.join(_fmt(v) for v in row) + sep for row in data]
+    cells = [c if isinstance(c, list) else [_fmt(v) for v in c] for c in cols]
+    lines += [sep.join(row) + sep for row in zip(*cells, strict=True)]
     p.write_text("\n".join(lines) + "\n")
     return p
 
@@ -120,6 +123,16 @@ def test_shimmer_without_sep_line_and_with_a_cal_raw_row(
     rec = load_imu(_shimmer(tmp_path / "old.csv", {"8C4F": a}, sep_line=False,
                             cal_row=True))
     _same_motion(a, rec, mag_scale=0.01)
+
+
+def test_shimmer_formatted_date_column_is_ignored(recs: tuple[ImuRecording, ImuRecording],
+                                                 tmp_path: Path) -> None:
+    """Consensys can add the date as text; the numeric Unix time is read instead."""
+    a, _ = recs
+    rec = load_imu(_shimmer(tmp_path / "fmt.csv", {"8C4F": a}, formatted=True))
+    _same_motion(a, rec, mag_scale=0.01)
+    assert any("TimestampSync_FormattedUnix_CAL" in w for w in rec.warnings
+               if w.startswith("ignored"))
 
 
 def test_shimmer_low_noise_accelerometer_is_preferred(recs: tuple[ImuRecording, ImuRecording],
@@ -272,3 +285,36 @@ def test_temperature_columns_are_never_the_time(recs: tuple[ImuRecording, ImuRec
     p = _plain(tmp_path / "temp_only.csv", a, {name: _temperature(a, rising=True)}, None)
     with pytest.raises(InputError, match="no time column"):
         load_imu(p)
+
+
+def test_a_text_time_column_is_passed_over(recs: tuple[ImuRecording, ImuRecording],
+                                           tmp_path: Path) -> None:
+    a, _ = recs
+    dates = np.array([f"2023-11-14 22:13:{20 + t:06.3f}" for t in a.time])
+    base = _plain(tmp_path / "x.csv", a, {}, "time_s").read_text().splitlines()
+    text = ["Timestamp," + base[0]] + [f"{d},{ln}" for d, ln in zip(dates, base[1:],
+                                                                    strict=True)]
+    p = tmp_path / "dates.csv"
+    p.write_text("\n".join(text) + "\n")
+    rec = load_imu(p)
+    assert np.allclose(rec.time, a.time)
+    assert any("'Timestamp' holds text" in w for w in rec.warnings)
+    only = [ln.split(",", 1)[0] + "," + ln.split(",", 2)[2] for ln in text]  # no time_s
+    p.write_text("\n".join(only) + "\n")
+    with pytest.raises(InputError, match=r"no time column \(column 'Timestamp' holds text"):
+        load_imu(p)
+
+
+def test_units_row_with_an_empty_cell(recs: tuple[ImuRecording, ImuRecording],
+                                      tmp_path: Path) -> None:
+    """A units row whose first cell is empty (a counter has no unit) left a stray value in
+    the data and the reader crashed (ValueError: cannot reshape) instead of reading it."""
+    a, _ = recs
+    lines = _plain(tmp_path / "x.csv", a, {"sample": np.arange(len(a), dtype=float)},
+                   "time").read_text().splitlines()
+    lines.insert(1, ",s,deg/s,deg/s,deg/s,g,g,g")
+    p = tmp_path / "units.csv"
+    p.write_text("\n".join(lines) + "\n")
+    rec = load_imu(p)
+    assert np.allclose(rec.time, a.time) and np.allclose(rec.gyr, a.gyr)
+    assert rec.meta["units_from"] == {"gyr": "header", "acc": "header"}
