@@ -44,8 +44,22 @@ def setup_session(rig: Rig, code: str = "P001") -> dict[str, Any]:
     return {"project": p, "subject": s, "session": sess}
 
 
-def record(rig: Rig, session_id: int, seconds: float = 1.5) -> str:
-    rec = rig.api(f"/api/sessions/{session_id}/recordings", {"label": "walk 1"})
+def two_node_rig(make_rig: Any) -> Rig:
+    """A server with node S1 (with images) and node S2 (another simulated walker), both
+    online."""
+    rig: Rig = make_rig()
+    rig.start_node("S1", images=True)
+    rig.start_node("S2", "--seed", "1")
+    rig.wait_online(["S1", "S2"])
+    return rig
+
+
+def record(rig: Rig, session_id: int, seconds: float = 1.5,
+           streams: list[str] | None = None) -> str:
+    """A recording filed under the session, ``seconds`` long (images of ``streams`` of
+    every 5th frame). Returns its id."""
+    rec = rig.api(f"/api/sessions/{session_id}/recordings",
+                  {"label": "walk 1", "streams": streams or [], "image_every": 5})
     time.sleep(seconds)
     rig.api(f"/api/recordings/{rec['id']}/stop", {})
     return str(rec["id"])
@@ -71,10 +85,7 @@ def http_error(fn: Any) -> tuple[int, str]:
 
 @pytest.mark.timeout(300)
 def test_recording_is_filed_transferred_and_verified(make_rig: Any, tmp_path: Path) -> None:
-    rig: Rig = make_rig()
-    rig.start_node("S1", images=True)
-    rig.start_node("S2", "--seed", "1")
-    rig.wait_online(["S1", "S2"])
+    rig = two_node_rig(make_rig)
     ids = setup_session(rig)
     rec_id = rig.api(f"/api/sessions/{ids['session']['id']}/recordings",
                      {"streams": ["depth"], "image_every": 5})["id"]

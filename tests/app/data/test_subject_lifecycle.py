@@ -8,7 +8,6 @@ from __future__ import annotations
 import io
 import json
 import sqlite3
-import time
 import urllib.error
 import zipfile
 from pathlib import Path
@@ -16,8 +15,15 @@ from typing import Any
 
 import pytest
 
-from tests.app.data.test_record_flow import download, http_error, upload, wait_state
-from tests.integration.conftest import Rig, wait_for
+from tests.app.data.test_record_flow import (
+    download,
+    http_error,
+    record,
+    two_node_rig,
+    upload,
+    wait_state,
+)
+from tests.integration.conftest import wait_for
 
 CODE = "ZQ7311"  # distinctive, so a byte search cannot hit anything else
 NOTE = "Jane Roe-Wqxv, knee replacement 2019"
@@ -37,21 +43,9 @@ def _traces(root: Path, needles: list[str]) -> list[str]:
     return found
 
 
-def _record(rig: Rig, session_id: int, seconds: float, streams: list[str] | None = None
-            ) -> str:
-    rec = rig.api(f"/api/sessions/{session_id}/recordings",
-                  {"label": "walk", "streams": streams or [], "image_every": 5})
-    time.sleep(seconds)
-    rig.api(f"/api/recordings/{rec['id']}/stop", {})
-    return str(rec["id"])
-
-
 @pytest.mark.timeout(400)
 def test_deleting_a_subject_leaves_no_trace(make_rig: Any, tmp_path: Path) -> None:
-    rig: Rig = make_rig()
-    rig.start_node("S1", images=True)
-    rig.start_node("S2", "--seed", "1")
-    rig.wait_online(["S1", "S2"])
+    rig = two_node_rig(make_rig)
     p = rig.api("/api/projects", {"name": "Lifecycle study"})
     subj = rig.api("/api/subjects", {"project_id": p["id"], "code": CODE, "notes": NOTE,
                                      "height_m": 1.7, "birth_year": 1961})
@@ -59,9 +53,9 @@ def test_deleting_a_subject_leaves_no_trace(make_rig: Any, tmp_path: Path) -> No
     sess = rig.api("/api/sessions", {"subject_id": subj["id"], "label": "baseline"})
     keep_sess = rig.api("/api/sessions", {"subject_id": keep["id"], "label": "baseline"})
 
-    rec = _record(rig, sess["id"], 1.5, ["depth"])
+    rec = record(rig, sess["id"], 1.5, ["depth"])
     assert wait_state(rig, rec, {"complete", "incomplete"})["state"] == "complete"
-    kept = _record(rig, keep_sess["id"], 1.0)
+    kept = record(rig, keep_sess["id"], 1.0)
     assert wait_state(rig, kept, {"complete", "incomplete"})["state"] == "complete"
     # derived data: an analysis (cached on disk, whatever its outcome) and a reference
     try:
