@@ -737,7 +737,8 @@ def _find_columns(header: list[str], units_row: list[str], data: FloatArray, nam
                     notes.append(f"column {header[i]!r} holds text ({text[i][1][:30]!r}), "
                                  "so it is not taken for the time")
                     continue
-                if not strong and not suffix and not _increasing(data[:, i]):
+                said = c.unit.strip().lower() in TIME_UNITS  # "T (s)": time by its unit
+                if not strong and not suffix and not said and not _increasing(data[:, i]):
                     notes.append(f"column {header[i]!r} does not increase, so it is not "
                                  "taken for the time")
                     continue

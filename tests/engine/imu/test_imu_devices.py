@@ -269,6 +269,12 @@ def test_a_bare_t_that_increases_is_the_time(recs: tuple[ImuRecording, ImuRecord
     a, _ = recs
     rec = load_imu(_plain(tmp_path / "t.csv", a, {}, "t"))
     assert np.allclose(rec.time, a.time)
+    # with a time unit it is the time even when it goes back: that is then the error
+    lines = _plain(tmp_path / "t.csv", a, {}, "T (s)").read_text().splitlines()
+    lines[5], lines[6] = lines[6], lines[5]
+    (tmp_path / "back.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match="not strictly increasing"):
+        load_imu(tmp_path / "back.csv")
 
 
 @pytest.mark.parametrize("name", ["Temperature", "Temp", "T_degC", "T (°C)", "temp_c",
