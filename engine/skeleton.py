@@ -214,6 +214,22 @@ class SkeletonSeries:
         return (f"SkeletonSeries({self.joint_set.name}, {T} frames, {span}{rate}, "
                 f"{tracked:.0f} % of joints tracked, meta={self.meta})")
 
+    def to_columns(self, with_states: bool = True) -> dict[str, NDArray[Any]]:
+        """The series as named columns: ``time`` (s), ``<Joint>_x/_y/_z`` (m, NaN where a
+        joint has no estimate) and ``<Joint>_state`` (:class:`TrackingState` values).
+
+        The columns and their order are those of the skeleton CSV
+        (:func:`engine.io.csv.write_skeleton_csv`), so ``pandas.DataFrame(s.to_columns())``
+        is the table that file holds. The arrays are copies.
+        """
+        cols: dict[str, NDArray[Any]] = {"time": self.times.copy()}
+        for k, j in enumerate(self.joint_set.joints):
+            for a, axis in enumerate("xyz"):
+                cols[f"{j}_{axis}"] = self.positions[:, k, a].copy()
+            if with_states:
+                cols[f"{j}_state"] = self.states[:, k].copy()
+        return cols
+
     def joint(self, name: str) -> NDArray[np.float64]:
         """``(T, 3)`` trajectory of one joint."""
         return self.positions[:, self.joint_set.index(name)]
