@@ -17,7 +17,8 @@ engine`` stays cheap. Where things live:
   JSON document of ``docs/gait-json.md``);
 * several sensors → one skeleton: :func:`~engine.integration.integrate_skeletons`;
 * agreement with a reference (seed 000's statistics): :mod:`engine.agreement`;
-* skeletons and joint sets: :mod:`engine.skeleton`; SE(3)/quaternions:
+* skeletons and joint sets: :mod:`engine.skeleton` (``SkeletonSeries.to_columns`` gives
+  the named columns of the skeleton CSV, for pandas); SE(3)/quaternions:
   :mod:`engine.geometry`; comparing two motions (DTW): :mod:`engine.compare`;
 * calibration, coverage, IMU fusion, KSCC, reports, the simulated lab:
   :mod:`engine.calibration`, :mod:`engine.coverage`, :mod:`engine.imu`,
