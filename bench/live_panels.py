@@ -26,18 +26,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
-import ctypes
 import json
 import os
-import secrets
-import signal
 import struct
-import subprocess
 import sys
-import tempfile
 import time
-import urllib.request
 from pathlib import Path
 from typing import Any
 
@@ -47,61 +40,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench._procs import free_port, stop  # noqa: E402
-
-
-def _request(url: str, data: dict[str, Any] | None = None, token: str | None = None) -> Any:
-    headers = {"Content-Type": "application/json"}
-    if token:
-        headers["Authorization"] = f"Bearer {token}"
-    body = json.dumps(data).encode() if data is not None else None
-    with urllib.request.urlopen(urllib.request.Request(url, data=body, headers=headers),
-                                timeout=10) as r:
-        return json.loads(r.read())
-
-
-def _die_with_parent() -> None:
-    # Linux: the child gets SIGTERM when the bench dies, even by kill -9 (as in the demo).
-    with contextlib.suppress(OSError):
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-
-
-def _start(tmp: Path, n_nodes: int) -> tuple[list[subprocess.Popen[bytes]], str, int, int, str]:
-    port, vport = free_port(), free_port()
-    password, token = secrets.token_urlsafe(9), secrets.token_urlsafe(16)
-    env = {**os.environ, "GAITRIG_ADMIN_PASSWORD": password, "GAITRIG_NODE_TOKEN": token,
-           "PYTHONUNBUFFERED": "1"}
-    py = [sys.executable, "-m", "app.cli"]
-    log = (tmp / "rig.log").open("wb")
-    # Each process in its own session, as ``gaitrig demo`` starts them (and as separate
-    # computers would be): with the kernel's autogroup scheduling, a session shares the
-    # CPU with other sessions as a whole, so one session for the rig and the browser
-    # would let the browser's threads starve the nodes.
-    opts: dict[str, Any] = {"cwd": ROOT, "env": env, "stdout": log, "stderr": subprocess.STDOUT,
-                            "start_new_session": True, "preexec_fn": _die_with_parent}
-    procs = [subprocess.Popen([*py, "serve", "--host", "127.0.0.1", "--port", str(port),
-                               "--viewer-port", str(vport), "--data-dir", str(tmp / "server"),
-                               "--log-level", "warning"], **opts)]
-    for k in range(1, n_nodes + 1):
-        procs.append(subprocess.Popen(
-            [*py, "node", "--id", f"S{k}", "--backend", "sim", "--server",
-             f"ws://127.0.0.1:{port}", "--data-dir", str(tmp / "nodes" / f"S{k}"),
-             "--log-level", "warning", "--report-true-clock"], **opts))
-    return procs, f"http://127.0.0.1:{port}", port, vport, password
-
-
-def _wait_online(base: str, token: str, n: int, timeout: float) -> list[dict[str, Any]]:
-    deadline = time.time() + timeout
-    while True:
-        try:
-            nodes = _request(base + "/api/nodes", token=token)
-            if sum(1 for x in nodes if x["connected"]) >= n:
-                return list(nodes)
-        except OSError:
-            pass
-        if time.time() > deadline:
-            raise TimeoutError(f"not all {n} nodes came online within {timeout:.0f} s")
-        time.sleep(0.5)
+from bench._rig import cpu_s, request, sim_rig  # noqa: E402
 
 
 def _true_host_time(t_local: float, diag: dict[str, float]) -> float:
@@ -123,19 +62,6 @@ async def _viewer_client(vport: str | int, stop: asyncio.Event) -> None:
                 await asyncio.wait_for(ws.recv(), 0.5)
             except TimeoutError:
                 continue
-
-
-def _cpu_s(pids: list[int]) -> list[float]:
-    """User + system CPU seconds used so far by each process (Linux ``/proc``)."""
-    tick = os.sysconf("SC_CLK_TCK")
-    out = []
-    for pid in pids:
-        try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-            out.append((int(fields[11]) + int(fields[12])) / tick)
-        except (OSError, IndexError, ValueError):
-            out.append(float("nan"))
-    return out
 
 
 async def _panels(port: int, token: str, n_nodes: int, warmup: float, seconds: float,
@@ -169,9 +95,9 @@ async def _panels(port: int, token: str, n_nodes: int, warmup: float, seconds: f
             if t_start is None and len(got) >= n_nodes:
                 t_start = now + warmup
             if t_start is not None and not cpu0 and now >= t_start:
-                cpu0 = _cpu_s(pids)
+                cpu0 = cpu_s(pids)
             if t_start is not None and now > t_start + seconds:
-                cpu1 = _cpu_s(pids)
+                cpu1 = cpu_s(pids)
                 break
             if now > deadline:
                 raise TimeoutError(f"panels of only {sorted(got)} arrived")
@@ -237,14 +163,14 @@ def _browser(base: str, password: str, n_nodes: int, warmup: float, seconds: flo
             page.wait_for_timeout(1000 * warmup)
             count = "Object.fromEntries(Object.entries(window.liveStats.nodes)" \
                     ".map(([k, v]) => [k, v.frames]))"
-            f0, cpu0, t0 = page.evaluate(count), _cpu_s(pids), time.time()
+            f0, cpu0, t0 = page.evaluate(count), cpu_s(pids), time.time()
             lat: list[float] = []
             while time.time() < t0 + seconds:
                 page.wait_for_timeout(500)
                 lat += [v for v in page.evaluate(
                     "Object.values(window.liveStats.nodes).map((n) => n.latency_ms)")
                     if v is not None]
-            f1, cpu1, t1 = page.evaluate(count), _cpu_s(pids), time.time()
+            f1, cpu1, t1 = page.evaluate(count), cpu_s(pids), time.time()
         finally:
             b.close()
     fps = {k: round((f1[k] - f0.get(k, 0)) / (t1 - t0), 2) for k in sorted(f1)}
@@ -270,20 +196,9 @@ def main() -> None:
                     help="with --browser: the page without its 3D view")
     args = ap.parse_args()
     load_before = os.getloadavg()
-    tmp = Path(tempfile.mkdtemp(prefix="gaitrig-bench-live-"))
-    procs, base, port, vport, password = _start(tmp, args.nodes)
-    try:
-        deadline = time.time() + 120
-        while True:
-            try:
-                token = _request(base + "/api/auth/login",
-                                 {"username": "admin", "password": password})["token"]
-                break
-            except OSError as exc:
-                if time.time() > deadline or procs[0].poll() is not None:
-                    raise SystemExit(f"the server did not start; see {tmp / 'rig.log'}") from exc
-                time.sleep(0.3)
-        _wait_online(base, token, args.nodes, 120)
+    with sim_rig("gaitrig-bench-live-", args.nodes) as rig:
+        procs, base, port, vport, password, token = (rig.procs, rig.base, rig.port, rig.vport,
+                                                     rig.password, rig.token)
 
         async def run() -> tuple[Any, float, float, list[float]]:
             stop = asyncio.Event()
@@ -309,10 +224,8 @@ def main() -> None:
         else:
             got, offset, rtt, cpu = asyncio.run(run())
         load_after = os.getloadavg()
-        nodes = {n["id"]: n for n in _request(base + "/api/nodes", token=token)}
-        status = _request(base + "/api/live/status", token=token)
-    finally:
-        stop(procs)
+        nodes = {n["id"]: n for n in request(base + "/api/nodes", token=token)}
+        status = request(base + "/api/live/status", token=token)
     fps: dict[str, float] = {}
     lat: list[float] = []
     true_lat: list[float] = []

@@ -26,7 +26,6 @@ import asyncio
 import json
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -36,8 +35,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench._procs import stop  # noqa: E402
-from bench.live_panels import _cpu_s, _request, _start, _wait_online  # noqa: E402
+from bench._rig import cpu_s, sim_rig  # noqa: E402
 
 
 def _stamp(msg: bytes, dctx: Any) -> float | None:
@@ -99,9 +97,9 @@ async def _phase(url: str, headers: dict[str, str], deflate: bool, warmup: float
                 last_camera = now
                 await ws.send(camera)
             if not cpu0 and now >= t_start:
-                cpu0, c0 = _cpu_s([server_pid]), time.process_time()
+                cpu0, c0 = cpu_s([server_pid]), time.process_time()
             if now >= t_end:
-                cpu1, c1 = _cpu_s([server_pid]), time.process_time()
+                cpu1, c1 = cpu_s([server_pid]), time.process_time()
                 break
             try:
                 msg = await asyncio.wait_for(ws.recv(), max(0.01, min(t_end - now, 0.5)))
@@ -138,33 +136,18 @@ def main() -> None:
                     help="the clients do not offer permessage-deflate (browsers do)")
     args = ap.parse_args()
     load_before = os.getloadavg()
-    tmp = Path(tempfile.mkdtemp(prefix="gaitrig-bench-viewer-proxy-"))
-    procs, base, port, vport, password = _start(tmp, args.nodes)
     rows: dict[str, list[dict[str, Any]]] = {"direct": [], "proxy": []}
-    try:
-        deadline = time.time() + 120
-        while True:
-            try:
-                token = _request(base + "/api/auth/login",
-                                 {"username": "admin", "password": password})["token"]
-                break
-            except OSError as exc:
-                if time.time() > deadline or procs[0].poll() is not None:
-                    raise SystemExit(f"the server did not start; see {tmp / 'rig.log'}") from exc
-                time.sleep(0.3)
-        _wait_online(base, token, args.nodes, 120)
-        targets = {"direct": (f"ws://127.0.0.1:{vport}", {}),
-                   "proxy": (f"ws://127.0.0.1:{port}/viewer",
-                             {"Cookie": f"gaitrig_session={token}"})}
+    with sim_rig("gaitrig-bench-viewer-proxy-", args.nodes) as rig:
+        targets = {"direct": (f"ws://127.0.0.1:{rig.vport}", {}),
+                   "proxy": (f"ws://127.0.0.1:{rig.port}/viewer",
+                             {"Cookie": f"gaitrig_session={rig.token}"})}
         for r in range(args.rounds):
             for mode in (("direct", "proxy") if r % 2 == 0 else ("proxy", "direct")):
                 url, headers = targets[mode]
                 rows[mode].append(asyncio.run(_phase(url, headers, not args.no_deflate,
                                                      args.warmup, args.seconds,
-                                                     procs[0].pid)))
+                                                     rig.procs[0].pid)))
         load_after = os.getloadavg()
-    finally:
-        stop(procs)
     keys = ("MB_per_s", "msgs_per_s", "latency_ms_median", "latency_ms_p95",
             "server_cpu_cores", "client_cpu_cores", "server_rss_mb")
     fig = {m: {k: _median(rows[m], k) for k in keys} for m in rows}
