@@ -166,6 +166,13 @@ def _check_rounded_time(name: str, time: FloatArray, unit: str = "s") -> None:
             "sampling frequency")
 
 
+def _saturates(arr: FloatArray) -> bool:
+    """Whether an axis sticks at its extreme value (the check of :func:`_check_channels`)."""
+    w: list[str] = []
+    _check_channels(np.asarray(arr, dtype=float), "accelerometer", w)
+    return any("saturates" in x for x in w)
+
+
 def _check_channels(arr: FloatArray, what: str, warnings: list[str]) -> None:
     """Warn about dead (constant) and saturated (clipped at the range) axes."""
     for k, ax in enumerate("XYZ"):
@@ -633,6 +640,7 @@ class _Layout:
     sensor: str = ""
     sensors: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    second: dict[str, list[int]] = field(default_factory=dict)  # see _groups_of
 
 
 class MultipleSensorsError(InputError):
@@ -647,11 +655,13 @@ class MultipleSensorsError(InputError):
         self.sensors = sensors
 
 
-def _groups_of(cols: list[_Column], prefix: str) -> tuple[dict[str, list[int]],
-                                                          dict[int, str]]:
-    """Column indices of each complete X/Y/Z group of one sensor, and units named in keys."""
+def _groups_of(cols: list[_Column], prefix: str) -> tuple[
+        dict[str, list[int]], dict[int, str], dict[str, list[int]]]:
+    """Column indices of each complete X/Y/Z group of one sensor, units named in keys, and
+    second-choice groups (Shimmer's wide-range accelerometer beside the low-noise one)."""
     groups: dict[str, list[int]] = {}
     name_units: dict[int, str] = {}
+    second: dict[str, list[int]] = {}
     mine = [(i, c) for i, c in enumerate(cols) if c.prefix == prefix and not c.raw]
     mine.sort(key=lambda ic: ic[1].rank)  # the low-noise accelerometer first
     for g, aliases in _GROUP_ALIASES.items():
@@ -667,7 +677,11 @@ def _groups_of(cols: list[_Column], prefix: str) -> tuple[dict[str, list[int]],
                     name_units[i] = _NAME_UNITS[u]
         if all(i >= 0 for i in idx):
             groups[g] = idx
-    return groups, name_units
+            alt = [next((i for i, c in mine if c.rank == 1 and c.key in {a + ax for a in aliases}),
+                        -1) for ax in "xyz"]
+            if all(i >= 0 for i in alt) and alt != idx:
+                second[g] = alt
+    return groups, name_units, second
 
 
 def _is_temperature(c: _Column) -> bool:
@@ -714,7 +728,7 @@ def _find_columns(header: list[str], units_row: list[str], data: FloatArray, nam
             f"read with sensor (e.g. {complete[-1]!r})", complete)
     elif complete:
         chosen = complete[0]
-    groups, name_units = _groups_of(cols, chosen)
+    groups, name_units, second = _groups_of(cols, chosen)
     units = {i: c.unit for i, c in enumerate(cols) if c.unit}
     for i, u in name_units.items():
         units.setdefault(i, u)
@@ -747,7 +761,7 @@ def _find_columns(header: list[str], units_row: list[str], data: FloatArray, nam
         t_unit = units.get(t_idx, t_unit)
     c_idx = next((i for p in dict.fromkeys((chosen, "")) for i, c in enumerate(cols)
                   if c.prefix == p and c.key in _COUNTER_ALIASES), None)
-    return _Layout(groups, t_idx, t_unit, c_idx, units, chosen, complete, notes)
+    return _Layout(groups, t_idx, t_unit, c_idx, units, chosen, complete, notes, second)
 
 
 def _detect(g: str, raw: FloatArray) -> tuple[str, str] | None:
@@ -851,6 +865,12 @@ def load_csv(
     if mag_unit == "none":
         groups.pop("mag", None)
     warnings: list[str] = list(lay.notes)
+    if "acc" in lay.second and _saturates(data[:, groups["acc"]]):
+        # Shimmer3's low-noise accelerometer ends at ±2 g: a shank's heel strikes exceed it
+        warnings.append(f"the low-noise accelerometer ({header[groups['acc'][0]]} …) "
+                        "saturates; the wide-range one "
+                        f"({header[lay.second['acc'][0]]} …) is read instead")
+        groups["acc"] = lay.second["acc"]
     meta: dict[str, Any] = {"format": "csv", "source": str(p), "units_from": {},
                             "columns": header}
     if lay.sensor:

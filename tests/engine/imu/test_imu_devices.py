@@ -43,7 +43,8 @@ def _fmt(v: float) -> str:
 
 def _shimmer(p: Path, sensors: dict[str, ImuRecording], *, sep: str = "\t",
              sep_line: bool = True, cal_row: bool = False, wide_range: bool = False,
-             formatted: bool = False, unix_ms: float = 1.7e12) -> Path:
+             formatted: bool = False, ln_clip: float | None = None,
+             unix_ms: float = 1.7e12) -> Path:
     """A Consensys export of one or more Shimmers (time as Unix ms)."""
     names: list[str] = []
     kinds: list[str] = []
@@ -65,11 +66,13 @@ def _shimmer(p: Path, sensors: dict[str, ImuRecording], *, sep: str = "\t",
         add(f"{s}_Timestamp_Unix", "ms", unix_ms + 1000.0 * r.time)
         for k, ax in enumerate("XYZ"):
             add(f"{s}_Accel_LN_{ax}", "no units", np.round(2048 + 100 * r.acc[:, k]), "RAW")
+        ln = r.acc if ln_clip is None else np.clip(r.acc, -ln_clip, ln_clip)
         for k, ax in enumerate("XYZ"):
-            add(f"{s}_Accel_LN_{ax}", "m/(s^2)", r.acc[:, k])
-        if wide_range:  # a second accelerometer: the low-noise one is read
+            add(f"{s}_Accel_LN_{ax}", "m/(s^2)", ln[:, k])
+        if wide_range:  # a second accelerometer: the low-noise one is read unless clipped
             for k, ax in enumerate("XYZ"):
-                add(f"{s}_Accel_WR_{ax}", "m/(s^2)", 1.05 * r.acc[:, k])
+                add(f"{s}_Accel_WR_{ax}", "m/(s^2)",
+                    (1.05 if ln_clip is None else 1.0) * r.acc[:, k])
         add(f"{s}_Battery", "mVolts", np.full(len(r), 3900.0))
         for k, ax in enumerate("XYZ"):
             add(f"{s}_Gyro_{ax}", "deg/s", np.rad2deg(r.gyr[:, k]))
@@ -141,6 +144,20 @@ def test_shimmer_low_noise_accelerometer_is_preferred(recs: tuple[ImuRecording, 
     rec = load_imu(_shimmer(tmp_path / "wr.csv", {"8C4F": a}, wide_range=True))
     _same_motion(a, rec)  # not the 5 % larger wide-range values
     assert any("Accel_WR_X_CAL" in w for w in rec.warnings if w.startswith("ignored"))
+
+
+def test_shimmer_wide_range_accelerometer_when_the_low_noise_one_saturates(
+        recs: tuple[ImuRecording, ImuRecording], tmp_path: Path) -> None:
+    a, _ = recs
+    rec = load_imu(_shimmer(tmp_path / "clip.csv", {"8C4F": a}, wide_range=True,
+                            ln_clip=0.95 * G))
+    _same_motion(a, rec)
+    assert any("low-noise accelerometer (Shimmer_8C4F_Accel_LN_X_CAL …) saturates" in w
+               and "Accel_WR_X_CAL" in w for w in rec.warnings), rec.warnings
+    # without a wide-range one the clipped values are read, and the saturation said
+    rec = load_imu(_shimmer(tmp_path / "clip1.csv", {"8C4F": a}, ln_clip=0.95 * G))
+    assert any("saturates" in w for w in rec.warnings)
+    assert np.max(np.abs(rec.acc)) == pytest.approx(0.95 * G)
 
 
 def test_two_shimmers_in_one_file_need_a_choice(recs: tuple[ImuRecording, ImuRecording],
