@@ -1,4 +1,4 @@
-"""Azure Kinect / Orbbec Femto backend through ``pyk4a`` (optional extra ``gaitrig[k4a]``).
+"""Azure Kinect / Orbbec Femto backend through ``pyk4a`` (optional extra ``.[k4a]``).
 
 Not testable on machines without the device; it implements the same contract as the
 ``sim`` backend. ``pyk4a`` delivers depth, colour (registered to depth) and IR; skeletons
@@ -66,8 +66,10 @@ def _require_pyk4a() -> Any:
         import pyk4a
     except ImportError as exc:
         raise InputError(
-            "the k4a backend needs pyk4a and the Azure Kinect SDK: install the SDK "
-            "(libk4a) and run `pip install gaitrig[k4a]`") from exc
+            "the k4a backend needs pyk4a and the Azure Kinect Sensor SDK: install the SDK "
+            "(libk4a 1.4, or Orbbec's K4A wrapper for a Femto), then run "
+            "`.venv/bin/pip install -e '.[k4a]'` in the gaitrig folder (steps: "
+            "docs/backbone.md, 'Hardware backend')") from exc
     return pyk4a
 
 
