@@ -178,11 +178,13 @@ def read_part(part_dir: Path) -> SkeletonSeries:
 
 def _swap_pairs(names: tuple[str, ...]) -> list[tuple[int, int]]:
     pairs = []
-    for i, n in enumerate(names):
-        if n.endswith("Left"):
-            other = n[: -len("Left")] + "Right"
-            if other in names:
-                pairs.append((i, names.index(other)))
+    # Kinect v1/v2 names end in "Left"; Azure Kinect's (a k4a node) in "_LEFT".
+    for left, right in (("Left", "Right"), ("_LEFT", "_RIGHT")):
+        for i, n in enumerate(names):
+            if n.endswith(left):
+                other = n[: -len(left)] + right
+                if other in names:
+                    pairs.append((i, names.index(other)))
     return pairs
 
 
