@@ -478,3 +478,41 @@ def test_a_k4a_nodes_recording_part_reads_as_azure_kinect_skeletons(tmp_path: Pa
     s = read_part(tmp_path / "K1" / "R20260101-000000-ab12")
     assert s.joint_set.name == "azure_kinect" and s.positions.shape == (5, J, 3)
     np.testing.assert_allclose(s.joint("ANKLE_LEFT")[:, 0], 0.01 * np.arange(5), atol=1e-6)
+
+
+def test_back_facing_azure_kinect_skeletons_are_unmirrored_as_kinect_v2_ones() -> None:
+    # Azure Kinect body tracking also fits a person seen from behind as facing the
+    # sensor (front/back flips: Azure-Kinect-Sensor-SDK issues 575, 1330); the server's
+    # un-mirroring found no left/right pairs in its "_LEFT" names and did nothing.
+    from app.server.analysis import unmirror_back_facing
+    from engine.sim.straight_walk import synth_walk, walk_skeleton
+    from engine.skeleton import AZURE_KINECT, KINECT_V2, SkeletonSeries
+
+    w = synth_walk(n_steps=8, rate=30.0)  # walks along +x
+    P2 = walk_skeleton(w)
+    mirrored = P2.copy()
+    for i, n in enumerate(KINECT_V2.joints):  # labels swapped, as a tracker from behind
+        if n.endswith("Left"):
+            mirrored[:, i] = P2[:, KINECT_V2.index(n[:-4] + "Right")]
+            mirrored[:, KINECT_V2.index(n[:-4] + "Right")] = P2[:, i]
+    J = len(AZURE_KINECT.joints)
+    truth = np.full((len(w.times), J, 3), np.nan)
+    seen = truth.copy()
+    for role, name in AZURE_KINECT.roles.items():
+        if role in KINECT_V2.roles:
+            k2 = KINECT_V2.index(KINECT_V2.roles[role])
+            truth[:, AZURE_KINECT.index(name)] = P2[:, k2]
+            seen[:, AZURE_KINECT.index(name)] = mirrored[:, k2]
+    states = np.full((len(w.times), J), 2, np.uint8)
+    behind = np.array([-6.0, 0.0, 1.0])  # the sensor sees the subject's back
+    fixed, frac = unmirror_back_facing(SkeletonSeries(w.times, seen, states, AZURE_KINECT),
+                                       behind)
+    assert frac > 0.9
+    ok = np.isfinite(truth).all(axis=2).all(axis=0)
+    moving = slice(10, -10)  # the ends take the nearest walking frame's decision
+    np.testing.assert_allclose(fixed.positions[moving][:, ok], truth[moving][:, ok])
+    # seen from the front, the same labels are right and nothing is swapped
+    front = np.array([12.0, 0.0, 1.0])
+    _, frac = unmirror_back_facing(SkeletonSeries(w.times, truth, states, AZURE_KINECT),
+                                   front)
+    assert frac == 0.0
