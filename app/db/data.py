@@ -76,7 +76,7 @@ class Subject(Base):
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     project_id: Mapped[int] = mapped_column(ForeignKey("projects.id", ondelete="CASCADE"),
                                             index=True)
-    code: Mapped[str] = mapped_column(String(40))
+    code: Mapped[str] = mapped_column(String(40), index=True)
     height_m: Mapped[float | None] = mapped_column(Float, nullable=True)
     leg_length_m: Mapped[float | None] = mapped_column(Float, nullable=True)
     sex: Mapped[str] = mapped_column(String(10), default="unknown")
@@ -117,12 +117,13 @@ class Recording(Base):
                                             index=True)
     label: Mapped[str] = mapped_column(String(120), default="")
     notes: Mapped[str] = mapped_column(Text, default="")
-    state: Mapped[str] = mapped_column(String(16), default="recording")
+    state: Mapped[str] = mapped_column(String(16), default="recording", index=True)
     reason: Mapped[str | None] = mapped_column(Text, nullable=True)
     t_start: Mapped[float | None] = mapped_column(Float, nullable=True)  # server epoch s
     t_stop: Mapped[float | None] = mapped_column(Float, nullable=True)
     streams: Mapped[str] = mapped_column(String(120), default="")  # comma separated
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=_now)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=_now,
+                                                 index=True)
 
     session: Mapped[Session] = relationship(back_populates="recordings")
     parts: Mapped[list[RecordingPart]] = relationship(

@@ -102,7 +102,7 @@ def test_migrations_on_postgresql(pg_url: str) -> None:
         eng = make_engine(pg_url)
         assert eng.dialect.name == "postgresql"
         with eng.connect() as c:
-            assert c.execute(sa.text("select version_num from alembic_version")).scalar() == "0002"
+            assert c.execute(sa.text("select version_num from alembic_version")).scalar() == "0003"
             tables = set(sa.inspect(c).get_table_names())
         eng.dispose()
     assert {"projects", "subjects", "sessions", "recordings", "recording_parts",
