@@ -195,6 +195,16 @@ class ComparisonResult:
     similarity: float
     scale_m: float
 
+    def __repr__(self) -> str:
+        # A notebook shows the result: its figures, not the (K, J) arrays.
+        return (f"ComparisonResult({len(self.joints)} joints, {len(self.path)} aligned "
+                f"frame pairs, mean distance {100 * self.mean_distance_m:.2f} cm, "
+                f"similarity {self.similarity:.1f} (scale {self.scale_m:g} m))")
+
+    def per_joint(self) -> dict[str, float]:
+        """``{joint: mean distance (m)}`` — :attr:`per_joint_mean_m` by name."""
+        return {j: float(d) for j, d in zip(self.joints, self.per_joint_mean_m, strict=True)}
+
     @property
     def distance_over_time(self) -> FloatArray:
         """``(K,)`` mean joint distance of each aligned pair (the UI's difference plot)."""
