@@ -56,6 +56,7 @@ _EXPORTS: dict[str, str] = {
     "Agreement": "engine.agreement", "agreement_levels": "engine.agreement",
     "match_steps": "engine.agreement", "match_events": "engine.agreement",
     "bland_altman_png": "engine.agreement",
+    "KsccCalibrator": "engine.kscc", "compare_motions": "engine.compare",
     "GaitrigError": "engine.errors", "InputError": "engine.errors",
     "InsufficientDataError": "engine.errors", "CalibrationError": "engine.errors",
 }
@@ -70,6 +71,7 @@ __all__ = [
     "InputError",
     "InsufficientDataError",
     "JointSet",
+    "KsccCalibrator",
     "MarkerEvent",
     "MarkerTrajectories",
     "SensorStream",
@@ -81,6 +83,7 @@ __all__ = [
     "__version__",
     "agreement_levels",
     "bland_altman_png",
+    "compare_motions",
     "feet_from_markers",
     "feet_from_skeleton",
     "integrate_skeletons",
@@ -105,6 +108,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ lo
         match_events,
         match_steps,
     )
+    from engine.compare import compare_motions
     from engine.errors import (
         CalibrationError,
         GaitrigError,
@@ -117,6 +121,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ lo
     from engine.io.csv import read_skeleton_csv, write_skeleton_csv
     from engine.io.markers import MarkerEvent, MarkerTrajectories
     from engine.io.trc import read_trc, write_trc
+    from engine.kscc import KsccCalibrator
     from engine.mocap import FeetTrajectories, feet_from_markers, feet_from_skeleton, load_feet
     from engine.skeleton import JointSet, SkeletonSeries, TrackingState, joint_set_for
 
