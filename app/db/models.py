@@ -48,7 +48,8 @@ class LoginSession(Base):
 
 
 #: What the audit trail records (``AuditEvent.action``).
-AUDIT_ACTIONS = ("login", "login_failed", "logout", "export", "delete")
+AUDIT_ACTIONS = ("login", "login_failed", "logout", "password_change", "export", "delete",
+                 "backup", "restore")
 
 
 class AuditEvent(Base):

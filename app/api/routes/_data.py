@@ -18,6 +18,7 @@ from app.db import audit
 from app.db import data as m
 from app.db.base import purge_deleted
 from app.db.models import AuditEvent, User
+from app.server import erasures
 from app.server.datasync import DataSync
 from app.server.hub import Hub
 from app.server.storage import StorageLayout
@@ -303,6 +304,8 @@ async def node_copies(hub: Hub, plan: dict[str, list[str]]) -> dict[str, str]:
 def _commit_deletion(db: DbSession, layout: StorageLayout, recs: list[m.Recording],
                      owner: Any, entry: AuditEvent | None, plan: dict[str, list[str]]) -> None:
     layout.add_tombstones(plan)
+    # kept for good, so that restoring an older backup deletes this again (docs/backup.md)
+    eid = erasures.begin(layout.data_dir, recs, owner, plan)
     try:
         for r in recs:
             db.delete(r)
@@ -314,7 +317,9 @@ def _commit_deletion(db: DbSession, layout: StorageLayout, recs: list[m.Recordin
     except BaseException:
         db.rollback()
         layout.drop_tombstones(plan)
+        erasures.finish(layout.data_dir, eid, committed=False)
         raise
+    erasures.finish(layout.data_dir, eid, committed=True)
 
 
 def _remove_files(db: DbSession, layout: StorageLayout, plan: dict[str, list[str]]) -> None:
@@ -346,6 +351,7 @@ def resume_deletions(db: DbSession, hub: Hub, layout: StorageLayout) -> list[str
     Returns:
         The recordings whose deletion was finished.
     """
+    erasures.settle(db, layout.data_dir)  # a deletion logged but cut short by a crash
     stones = layout.tombstones()
     if not stones:
         return []

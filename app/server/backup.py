@@ -1,0 +1,696 @@
+"""Backup, verification and restore of a server's data folder and database.
+
+An archive is one uncompressed tar file (the recordings are compressed already; an
+uncompressed tar can be read member by member without unpacking it)::
+
+    database/gaitrig.sqlite3     the SQLite database, taken with SQLite's online backup
+                                 API (a consistent snapshot while the server writes)
+    files/<path>                 every file of the data folder, except the database and
+                                 parts still being transferred
+    files/erasures.jsonl         the erasure log, copied last (app.server.erasures)
+    gaitrig-backup.json          the manifest, last: gaitrig version, alembic revision,
+                                 counts, created time, size and SHA-256 of every member,
+                                 what was left out and why
+
+The database is copied first and the files after it, so a recording that completes
+meanwhile is at worst a file the database does not know yet, never a row without its
+files; a recording deleted meanwhile is in the erasure log copied last, which the
+restore applies. Files are streamed (1 MiB at a time) and hashed as they are written:
+memory stays bounded whatever the size of the data folder.
+
+With PostgreSQL the archive holds the files only; the database is backed up with
+``pg_dump`` (the manifest and the command's output say so).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import shutil
+import sqlite3
+import tarfile
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path, PurePosixPath
+from typing import IO, Any, BinaryIO
+
+from sqlalchemy import desc, select
+from sqlalchemy.engine import make_url
+
+from app.server import erasures
+from engine.errors import InputError
+
+FORMAT = "gaitrig-backup/1"
+MANIFEST = "gaitrig-backup.json"
+DB_MEMBER = "database/gaitrig.sqlite3"
+FILES = "files/"
+ERASURE_MEMBER = FILES + erasures.LOG_NAME
+_BUF = 1 << 20
+_COUNTED = ("projects", "subjects", "sessions", "recordings", "recording_parts",
+            "reference_imports", "users", "audit_events")
+#: Files of the data folder that are never copied: the database (snapshotted instead)
+#: and its journals, and the temporary files of atomic writes.
+_DB_FILES = ("gaitrig.sqlite3", "gaitrig.sqlite3-wal", "gaitrig.sqlite3-shm",
+             "gaitrig.sqlite3-journal")
+
+PG_HOW = ("the database is PostgreSQL: this archive holds the files only. Back up the "
+          "database at the same time with pg_dump (pg_dump -Fc -f gaitrig.pgdump "
+          "\"$GAITRIG_DATABASE_URL\" with the driver part '+psycopg' removed) and keep "
+          "both together; restore it with pg_restore before running gaitrig restore")
+
+
+class BackupError(InputError):
+    """A backup cannot be made, verified or restored; the message says what to do."""
+
+
+def gaitrig_version() -> str:
+    """The installed gaitrig version (``dev`` when run from a bare checkout)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("gaitrig")
+    except PackageNotFoundError:
+        return "dev"
+
+
+def sqlite_path(db_url: str) -> Path | None:
+    """The file of a SQLite database URL (None for any other database)."""
+    url = make_url(db_url)
+    if url.get_backend_name() != "sqlite":
+        return None
+    if not url.database or url.database == ":memory:":
+        raise BackupError(f"{db_url}: an in-memory database cannot be backed up")
+    return Path(url.database)
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+# ----------------------------------------------------------------------------- backup
+
+
+@dataclass
+class BackupResult:
+    """What :func:`create_backup` wrote.
+
+    Attributes:
+        path: the archive.
+        manifest: its manifest (see the module docstring).
+    """
+
+    path: Path
+    manifest: dict[str, Any]
+
+    @property
+    def skipped(self) -> list[dict[str, str]]:
+        """What was left out (``path`` and ``why``), e.g. a part still transferring."""
+        out: list[dict[str, str]] = self.manifest["skipped"]
+        return out
+
+
+class _Hashing(io.RawIOBase):
+    """A file read through SHA-256 (what tarfile copies into the archive)."""
+
+    def __init__(self, fh: BinaryIO) -> None:
+        self.fh = fh
+        self.sha = hashlib.sha256()
+
+    def readable(self) -> bool:
+        return True
+
+    def read(self, n: int = -1) -> bytes:
+        b = self.fh.read(n)
+        self.sha.update(b)
+        return b
+
+
+def _add_file(tar: tarfile.TarFile, name: str, path: Path) -> dict[str, Any]:
+    with open(path, "rb") as fh:
+        st = os.fstat(fh.fileno())  # the file opened: an atomic replace after it is harmless
+        info = tarfile.TarInfo(name)
+        info.size, info.mtime, info.mode = st.st_size, int(st.st_mtime), 0o600
+        src = _Hashing(fh)
+        tar.addfile(info, src)  # type: ignore[arg-type]
+    return {"name": name, "size": st.st_size, "sha256": src.sha.hexdigest()}
+
+
+def _add_bytes(tar: tarfile.TarFile, name: str, data: bytes) -> dict[str, Any]:
+    info = tarfile.TarInfo(name)
+    info.size, info.mtime, info.mode = len(data), int(time.time()), 0o600
+    tar.addfile(info, io.BytesIO(data))
+    return {"name": name, "size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+
+
+def _is_part_dir(d: Path, rel: PurePosixPath) -> bool:
+    # recordings/<rec_id>/<node_id>/ holding (or receiving) a node's part
+    return (len(rel.parts) == 3 and rel.parts[0] == "recordings"
+            and any((d / n).exists() for n in (".incoming", "manifest.json", "meta.json",
+                                               "frames.bin")))
+
+
+def _walk(data_dir: Path, skipped: list[dict[str, str]],
+          skip_files: set[Path]) -> Iterator[tuple[PurePosixPath, Path]]:
+    """Every file to copy (relative name, path), sorted; fills ``skipped``."""
+    for root, dirs, files in os.walk(data_dir):
+        here = Path(root)
+        rel_dir = PurePosixPath(here.relative_to(data_dir).as_posix())
+        dirs.sort()
+        keep = []
+        for d in dirs:
+            rel = rel_dir / d
+            if (here / d).is_symlink():
+                skipped.append({"path": str(rel), "why": "a symbolic link (not followed)"})
+            elif _is_part_dir(here / d, rel) and not (
+                    (here / d / "manifest.json").is_file()
+                    and not (here / d / ".incoming").exists()):
+                skipped.append({"path": str(rel),
+                                "why": "part still being transferred (not complete on the "
+                                       "server): back up again once it is complete"})
+            else:
+                keep.append(d)
+        dirs[:] = keep
+        for f in sorted(files):
+            p, rel = here / f, rel_dir / f
+            if p in skip_files or (rel_dir == PurePosixPath(".") and f in _DB_FILES):
+                continue
+            if f.endswith(".tmp") or rel == PurePosixPath(erasures.LOG_NAME):
+                continue  # half-written atomic writes; the erasure log goes last
+            if p.is_symlink() or not p.is_file():
+                skipped.append({"path": str(rel), "why": "not a regular file"})
+                continue
+            yield rel, p
+
+
+def _snapshot_sqlite(src: Path, dst: Path) -> dict[str, Any]:
+    """A consistent copy of a live SQLite database (online backup API), with its
+    revision, row counts and integrity."""
+    if not src.is_file():
+        raise BackupError(f"no database at {src}: is this the server's data folder? (give "
+                          "--data-dir, or set GAITRIG_DATA_DIR / GAITRIG_DATABASE_URL)")
+    s = sqlite3.connect(f"file:{src}?mode=ro", uri=True, timeout=30)
+    d = sqlite3.connect(dst)
+    try:
+        at = _now()
+        s.backup(d)  # one step: one read transaction, so one instant of the database
+        d.execute("PRAGMA journal_mode=DELETE")  # the copy is one self-contained file
+        info = {"dialect": "sqlite", "member": DB_MEMBER, "snapshot_at": at}
+        info.update(_db_facts(d))
+    finally:
+        d.close()
+        s.close()
+    if info["integrity"] != "ok":
+        raise BackupError(f"the database {src} fails its integrity check "
+                          f"({info['integrity'][:200]}): do not overwrite your older backups; "
+                          "copy the data folder as it is and ask for help")
+    return info
+
+
+def _db_facts(c: sqlite3.Connection) -> dict[str, Any]:
+    tables = {r[0] for r in c.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    rev = None
+    if "alembic_version" in tables:
+        row = c.execute("SELECT version_num FROM alembic_version").fetchone()
+        rev = row[0] if row else None
+    counts = {t: int(c.execute(f'SELECT count(*) FROM "{t}"').fetchone()[0])
+              for t in _COUNTED if t in tables}
+    check = "; ".join(r[0] for r in c.execute("PRAGMA integrity_check"))
+    return {"alembic_revision": rev, "counts": counts, "integrity": check}
+
+
+def backup_name(now: datetime | None = None) -> str:
+    """The archive name used when the destination is a folder."""
+    return f"gaitrig-backup-{(now or datetime.now(UTC)):%Y%m%d-%H%M%S}.tar"
+
+
+def create_backup(data_dir: Path, dest: Path, db_url: str | None = None) -> BackupResult:
+    """Back up a (possibly running) server's data folder and database into one archive.
+
+    Args:
+        data_dir: the server's data folder.
+        dest: the archive to write (``.tar``), or an existing folder to write
+            ``gaitrig-backup-<UTC time>.tar`` into. Never overwritten.
+        db_url: the database URL (``Settings.db_url``); default the SQLite file of
+            ``data_dir``.
+
+    Returns:
+        The archive and its manifest.
+
+    Raises:
+        BackupError: no data folder or database, the destination exists or lies inside
+            the data folder, the database fails its integrity check.
+    """
+    data_dir = Path(data_dir).resolve()
+    if not data_dir.is_dir():
+        raise BackupError(f"no data folder at {data_dir} (give --data-dir or set "
+                          "GAITRIG_DATA_DIR)")
+    dest = Path(dest)
+    if dest.is_dir():
+        dest = dest / backup_name()
+    dest = dest.resolve()
+    if dest.exists():
+        raise BackupError(f"{dest} exists already: a backup never overwrites a file; give a "
+                          "new name or a folder")
+    if dest.is_relative_to(data_dir):
+        raise BackupError(f"{dest} is inside the data folder {data_dir}: put backups on "
+                          "another disk (or at least outside the data folder)")
+    if not dest.parent.is_dir():
+        raise BackupError(f"the folder {dest.parent} does not exist")
+    db_url = db_url or f"sqlite:///{data_dir / 'gaitrig.sqlite3'}"
+    db_file = sqlite_path(db_url)
+    created = _now()
+    skipped: list[dict[str, str]] = []
+    entries: list[dict[str, Any]] = []
+    notes: list[str] = []
+    partial = dest.with_name(dest.name + ".partial")
+    try:
+        with tarfile.open(partial, "w", format=tarfile.PAX_FORMAT) as tar:
+            if db_file is not None:
+                with tempfile.TemporaryDirectory(dir=dest.parent, prefix=".gaitrig-db-") as t:
+                    snap = Path(t) / "gaitrig.sqlite3"
+                    db = _snapshot_sqlite(db_file, snap)
+                    entries.append(_add_file(tar, DB_MEMBER, snap))
+            else:
+                db = {"dialect": make_url(db_url).get_backend_name(), "member": None,
+                      "alembic_revision": None, "counts": {}, "how": PG_HOW}
+                notes.append(PG_HOW)
+            skip = {db_file.resolve()} if db_file is not None else set()
+            for rel, path in _walk(data_dir, skipped, skip):
+                try:
+                    entries.append(_add_file(tar, FILES + str(rel), path))
+                except FileNotFoundError:  # deleted since the walk saw it
+                    skipped.append({"path": str(rel), "why": "deleted during the backup"})
+            _check_parts(data_dir, entries, notes)
+            log = erasures.log_path(data_dir)
+            if log.is_file():  # last: it names every deletion made during the backup
+                entries.append(_add_bytes(tar, ERASURE_MEMBER, log.read_bytes()))
+            files = [e for e in entries if e["name"].startswith(FILES)]
+            manifest = {
+                "format": FORMAT, "gaitrig_version": gaitrig_version(),
+                "created_at": created, "finished_at": _now(),
+                "alembic_revision": db.get("alembic_revision"), "database": db,
+                "counts": {**db.get("counts", {}), "files": len(files),
+                           "file_bytes": sum(e["size"] for e in files)},
+                "members": entries, "skipped": skipped, "notes": notes,
+            }
+            _add_bytes(tar, MANIFEST, json.dumps(manifest, indent=1).encode())
+        with open(partial, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.chmod(partial, 0o600)  # health data: readable by its owner only
+        os.replace(partial, dest)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+    return BackupResult(dest, manifest)
+
+
+def _check_parts(data_dir: Path, entries: list[dict[str, Any]], notes: list[str]) -> None:
+    """Compare each part file's SHA-256 with the node's manifest (bit rot on the server)."""
+    by_name = {e["name"]: e for e in entries}
+    for e in entries:
+        name = e["name"]
+        if not (name.startswith(FILES + "recordings/") and name.endswith("/manifest.json")):
+            continue
+        folder = name[: -len("manifest.json")]
+        try:  # a few kB, immutable once the part is complete
+            man = json.loads((data_dir / name[len(FILES):]).read_text())
+        except (OSError, ValueError):
+            continue
+        for f in man.get("files", []) if isinstance(man, dict) else []:
+            got = by_name.get(folder + str(f.get("name")))
+            if got is not None and f.get("sha256") and got["sha256"] != f["sha256"]:
+                notes.append(f"{folder[len(FILES):]}{f['name']}: its SHA-256 differs from the "
+                             "node's manifest (damaged on the server's disk); copied as it is")
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+@dataclass
+class VerifyResult:
+    """What :func:`verify_backup` found.
+
+    Attributes:
+        manifest: the archive's manifest.
+        problems: every mismatch found ([] when the archive is good).
+        checked: members whose SHA-256 was checked.
+    """
+
+    manifest: dict[str, Any]
+    problems: list[str] = field(default_factory=list)
+    checked: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def _open(archive: Path) -> tarfile.TarFile:
+    archive = Path(archive)
+    if not archive.is_file():
+        raise BackupError(f"no backup archive at {archive}")
+    try:
+        return tarfile.open(archive, "r:")
+    except tarfile.TarError as exc:
+        raise BackupError(f"{archive} is not a gaitrig backup (not an uncompressed tar "
+                          f"archive: {exc}); give the .tar file that gaitrig backup wrote "
+                          "(decrypt it first if you encrypted it)") from exc
+
+
+def read_manifest(tar: tarfile.TarFile, archive: Path) -> dict[str, Any]:
+    """The manifest of an open archive.
+
+    Raises:
+        BackupError: the archive is not a gaitrig backup or of a newer format.
+    """
+    try:
+        fh = tar.extractfile(MANIFEST)
+        man = json.loads(fh.read()) if fh is not None else None
+    except (KeyError, ValueError, tarfile.TarError) as exc:
+        raise BackupError(f"{archive} is not a gaitrig backup (no readable {MANIFEST}): "
+                          "give an archive written by gaitrig backup") from exc
+    if not isinstance(man, dict) or not str(man.get("format", "")).startswith(
+            "gaitrig-backup/"):
+        raise BackupError(f"{archive} is not a gaitrig backup ({MANIFEST} of another format)")
+    if man["format"] != FORMAT:
+        raise BackupError(f"{archive} is a {man['format']} archive; this gaitrig reads "
+                          f"{FORMAT}: restore it with a newer gaitrig")
+    return man
+
+
+def _safe_rel(name: str) -> PurePosixPath:
+    rel = PurePosixPath(name)
+    if rel.is_absolute() or ".." in rel.parts or not rel.parts:
+        raise BackupError(f"unsafe path {name!r} in the archive: it is damaged or not a "
+                          "gaitrig backup")
+    return rel
+
+
+def _copy_hashing(src: IO[bytes], dst: IO[bytes] | None) -> tuple[int, str]:
+    sha, n = hashlib.sha256(), 0
+    while b := src.read(_BUF):
+        sha.update(b)
+        n += len(b)
+        if dst is not None:
+            dst.write(b)
+    return n, sha.hexdigest()
+
+
+def _members(tar: tarfile.TarFile, man: dict[str, Any], problems: list[str],
+             want: Callable[[str], Path | None]) -> int:
+    """Check every member against the manifest, writing each one ``want`` names to its
+    path (hashed as written). Returns how many were checked."""
+    expected = {e["name"]: e for e in man.get("members", [])}
+    seen: set[str] = set()
+    checked = 0
+    for info in tar:
+        if info.name == MANIFEST:
+            continue
+        _safe_rel(info.name)
+        e = expected.get(info.name)
+        if e is None:
+            problems.append(f"{info.name}: in the archive but not in its manifest")
+            continue
+        if not info.isfile():
+            problems.append(f"{info.name}: not a regular file")
+            continue
+        seen.add(info.name)
+        target = want(info.name)
+        src = tar.extractfile(info)
+        assert src is not None
+        if target is not None:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            with open(target, "wb") as out:
+                size, sha = _copy_hashing(src, out)
+        else:
+            size, sha = _copy_hashing(src, None)
+        checked += 1
+        if size != e["size"] or sha != e["sha256"]:
+            problems.append(f"{info.name}: checksum mismatch (SHA-256 {sha[:12]}…, manifest "
+                            f"{str(e['sha256'])[:12]}…): the archive is damaged")
+    for name in sorted(set(expected) - seen):
+        problems.append(f"{name}: listed in the manifest but missing from the archive")
+    return checked
+
+
+def verify_backup(archive: Path) -> VerifyResult:
+    """Check every member's SHA-256 and the database's integrity, restoring nothing.
+
+    Raises:
+        BackupError: not a gaitrig backup (what is damaged inside one is reported in
+            :attr:`VerifyResult.problems`).
+    """
+    archive = Path(archive)
+    with _open(archive) as tar, tempfile.TemporaryDirectory(prefix="gaitrig-verify-") as t:
+        man = read_manifest(tar, archive)
+        res = VerifyResult(man)
+        db_tmp = Path(t) / "gaitrig.sqlite3"
+        try:
+            res.checked = _members(tar, man, res.problems,
+                                   lambda n: db_tmp if n == DB_MEMBER else None)
+        except (tarfile.TarError, OSError) as exc:
+            res.problems.append(f"the archive is damaged or cut short ({exc})")
+        if man["database"].get("member") and db_tmp.is_file():
+            try:
+                c = sqlite3.connect(db_tmp)
+                try:
+                    check = _db_facts(c)["integrity"]
+                finally:
+                    c.close()
+            except sqlite3.DatabaseError as exc:
+                check = str(exc)
+            if check != "ok":
+                res.problems.append(f"{DB_MEMBER}: PRAGMA integrity_check failed: "
+                                    f"{check[:300]}")
+    return res
+
+
+# ----------------------------------------------------------------------------- restore
+
+
+@dataclass
+class RestoreResult:
+    """What :func:`restore_backup` did.
+
+    Attributes:
+        data_dir: the restored data folder.
+        manifest: the archive's manifest.
+        revision_before: the database's alembic revision in the archive.
+        revision_after: after the migration (the running gaitrig's head).
+        erased_recordings: recordings the erasure logs deleted again (rows and files).
+        erasures_applied: entries of the logs applied.
+        notes: what the operator must know (PostgreSQL, parts left out of the backup).
+        with_current_log: a current erasure log was given (not --without-deletion-log).
+    """
+
+    data_dir: Path
+    manifest: dict[str, Any]
+    revision_before: str | None = None
+    revision_after: str | None = None
+    erased_recordings: list[str] = field(default_factory=list)
+    erasures_applied: int = 0
+    notes: list[str] = field(default_factory=list)
+    with_current_log: bool = True
+
+
+def read_erasure_log(path: Path) -> list[erasures.Erasure]:
+    """The erasure log in ``path``: a log file (``erasures.jsonl``), a data folder, or a
+    (newer) backup archive, which carries the log as it was when it was made.
+
+    Raises:
+        BackupError: none found there, or not readable as one.
+    """
+    path = Path(path)
+    try:
+        if path.is_dir():
+            if (path / "gaitrig.sqlite3").is_file() and not erasures.log_path(path).exists():
+                return []  # a server's data folder where nothing was deleted yet
+            if not erasures.log_path(path).is_file():
+                raise BackupError(f"{path} holds no {erasures.LOG_NAME}: give the data "
+                                  "folder of the server, its erasure log, or a newer backup")
+            return erasures.read(path)
+        if path.is_file() and tarfile.is_tarfile(path):
+            with _open(path) as tar:
+                read_manifest(tar, path)
+                try:
+                    fh = tar.extractfile(ERASURE_MEMBER)
+                except KeyError:
+                    return []  # that server had deleted nothing yet
+                return erasures.parse(fh.read().decode() if fh else "", f"{path}")
+        if path.is_file():
+            return erasures.parse(path.read_text(), str(path))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise BackupError(f"{path}: {exc}") from exc
+    raise BackupError(f"no erasure log at {path}")
+
+
+def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
+                   *, without_deletion_log: bool = False, force: bool = False,
+                   db_url: str | None = None, actor: str = "",
+                   client: str = "") -> RestoreResult:
+    """Restore an archive into an empty data folder, bring the database to the current
+    alembic head and delete again everything the erasure logs say was deleted.
+
+    The archive is checked completely while it is unpacked into a folder beside
+    ``data_dir``; only when everything matched are its contents moved into
+    ``data_dir``. Files of erased recordings are never written.
+
+    Args:
+        archive: the backup.
+        data_dir: the data folder to restore into: empty or missing (or ``force``).
+        deletion_logs: the current erasure logs (the server's ``erasures.jsonl``, its
+            data folder, or a newer backup); the archive's own log is always applied.
+        without_deletion_log: restore without a current log (the operator states there
+            is none: nothing was deleted since the backup, or the log is lost).
+        force: replace what ``data_dir`` holds (its erasure log is applied first).
+        db_url: for an archive without a database (PostgreSQL): that database, restored
+            with ``pg_restore`` beforehand; it is migrated and the erasures applied to it.
+        actor: who restores (audit trail). client: from where.
+
+    Raises:
+        BackupError: a damaged or wrong archive, a non-empty folder without ``force``,
+            no erasure log and no ``without_deletion_log``; nothing is changed then.
+    """
+    archive, data_dir = Path(archive).resolve(), Path(data_dir).resolve()
+    with _open(archive) as tar:
+        man = read_manifest(tar, archive)
+    current: list[list[erasures.Erasure]] = [read_erasure_log(p) for p in deletion_logs]
+    existing = data_dir.is_dir() and any(data_dir.iterdir())
+    if data_dir.exists() and not data_dir.is_dir():
+        raise BackupError(f"{data_dir} is a file, not a folder")
+    if existing and not force:
+        raise BackupError(f"{data_dir} is not empty: restore into an empty folder, or give "
+                          "--force to replace everything in it (a restore never merges)")
+    if existing:
+        current.append(erasures.read(data_dir))  # the replaced server's own deletions
+    if not current and not without_deletion_log:
+        raise BackupError(
+            "give the current erasure log with --deletion-log (the server's data folder or "
+            f"its {erasures.LOG_NAME}, or the newest backup): a backup made before a subject "
+            "was deleted would bring that subject back. Only if no deletion was made since "
+            "this backup, or the log is lost, give --without-deletion-log instead")
+    has_db = bool(man["database"].get("member"))
+    if not has_db and not db_url:
+        raise BackupError(
+            "this backup holds no database (the server used PostgreSQL): restore the "
+            "database's pg_dump with pg_restore first, then run the restore again with "
+            "GAITRIG_DATABASE_URL set to it (it is migrated and the deletions applied to it)")
+    res = RestoreResult(data_dir, man, revision_before=man.get("alembic_revision"),
+                        with_current_log=bool(current))
+    data_dir.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{data_dir.name}.restoring-", dir=data_dir.parent))
+    try:
+        with _open(archive) as tar:
+            own: list[erasures.Erasure] = []
+            try:
+                fh = tar.extractfile(ERASURE_MEMBER)
+                own = erasures.parse(fh.read().decode() if fh else "", f"{archive}")
+            except KeyError:
+                pass
+            entries = erasures.merge(own, *current)
+            erased = {r for e in entries if e.state != "void" for r in e.recordings}
+            erased |= {str(i) for e in entries if e.state != "void"
+                       for t, i, _ in e.rows if t == "recordings"}
+            problems: list[str] = []
+            _members(tar, man, problems, lambda n: _target(stage, n, erased))
+        if problems:
+            raise BackupError(f"{archive} is damaged; nothing was restored: "
+                              + "; ".join(problems[:5])
+                              + (f" (and {len(problems) - 5} more)" if len(problems) > 5 else ""))
+        # the merged log goes with the data: the next backup carries it on
+        _write_log(stage, entries)
+        url = f"sqlite:///{stage / 'gaitrig.sqlite3'}" if has_db else str(db_url)
+        _finish_database(url, stage, entries, res, actor, client, archive)
+        if existing:
+            for p in sorted(data_dir.iterdir()):
+                shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
+        data_dir.mkdir(parents=True, exist_ok=True)
+        for p in sorted(stage.iterdir()):
+            os.replace(p, data_dir / p.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    res.notes += [f"{s['path']}: not in the backup ({s['why']})" for s in man["skipped"]]
+    if not has_db:
+        res.notes.append("the database is the PostgreSQL database of GAITRIG_DATABASE_URL "
+                         "(restored by you with pg_restore); it was migrated and the "
+                         "deletions applied to it")
+    return res
+
+
+def _target(stage: Path, name: str, erased: set[str]) -> Path | None:
+    if name == DB_MEMBER:
+        return stage / "gaitrig.sqlite3"
+    if name == ERASURE_MEMBER or not name.startswith(FILES):
+        return None  # the merged log is written after; the manifest stays in the archive
+    rel = _safe_rel(name[len(FILES):])
+    if len(rel.parts) >= 2 and rel.parts[0] in ("recordings", "references") and (
+            rel.parts[1] in erased):
+        return None  # a deleted recording's files are never written again
+    return stage.joinpath(*rel.parts)
+
+
+def _write_log(stage: Path, entries: list[erasures.Erasure]) -> None:
+    lines = []
+    for e in entries:
+        lines.append({"id": e.id, "state": "started", "at": e.at,
+                      "rows": [list(r) for r in e.rows], "recordings": e.recordings})
+        if e.state != "started":
+            lines.append({"id": e.id, "state": e.state, "at": e.at})
+    if lines:
+        erasures.log_path(stage).write_text(
+            "".join(json.dumps(x, separators=(",", ":")) + "\n" for x in lines))
+
+
+def _finish_database(url: str, stage: Path, entries: list[erasures.Erasure],
+                     res: RestoreResult, actor: str, client: str, archive: Path) -> None:
+    """Migrate to head, apply the erasures, tombstone the erased recordings (the server
+    finishes their node copies and live entries when it starts), audit, purge."""
+    from sqlalchemy import text
+
+    from app.db import audit
+    from app.db.base import make_engine, make_session_factory, purge_deleted
+    from app.server.storage import StorageLayout
+
+    engine = make_engine(url)  # migrates to the current head
+    try:
+        with engine.connect() as c:
+            res.revision_after = c.execute(text("SELECT version_num FROM alembic_version")
+                                           ).scalar()
+        with make_session_factory(engine)() as db:
+            plan = erasures.apply(db, entries)
+            res.erasures_applied = sum(1 for e in entries if e.state != "void")
+            res.erased_recordings = sorted(plan)
+            layout = StorageLayout(stage)
+            for rec_id in plan:
+                layout.delete_recording(rec_id)  # e.g. an analysis written after the rows
+            if plan:
+                layout.add_tombstones(plan)
+            audit.record(db, actor or "(command line)", "restore", archive.name[:200],
+                         f"backup of {res.manifest.get('created_at')}, revision "
+                         f"{res.revision_before} -> {res.revision_after}; "
+                         f"{len(plan)} deleted recordings kept deleted"
+                         + ("" if res.with_current_log else
+                            "; WITHOUT a current erasure log (--without-deletion-log)"),
+                         client)
+        if engine.dialect.name == "sqlite":
+            with engine.connect() as c:  # no page of an erased row left in the file
+                c.exec_driver_sql("VACUUM")
+            purge_deleted(engine)
+    finally:
+        engine.dispose()
+
+
+def last_backup(db: Any) -> datetime | None:
+    """When the last successful backup was made (from the audit trail), or None."""
+    from app.db.models import AuditEvent
+
+    at = db.scalar(select(AuditEvent.at).where(AuditEvent.action == "backup")
+                   .order_by(desc(AuditEvent.id)).limit(1))
+    if at is not None and at.tzinfo is None:
+        at = at.replace(tzinfo=UTC)
+    return at  # type: ignore[no-any-return]

@@ -1,0 +1,376 @@
+"""``gaitrig backup`` / ``restore``: an online backup of a running server (in process),
+verification, restore into a fresh folder with the database migrated to the current
+head, refusals with clear messages, and deletions that survive a restore of an older
+backup (the erasure log)."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import sqlite3
+import tarfile
+import zipfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import sqlalchemy as sa
+from fastapi.testclient import TestClient
+
+from app.cli import main
+from app.config import Settings
+from app.db import data as m
+from app.main import create_app
+from app.nodes.protocol import encode_skeletons
+from app.nodes.store import NodeStore
+from app.server import backup as bk
+from engine.skeleton import TrackingState
+from tests.app.data.test_data_api import _sink_part
+
+GONE = "QX4417"  # a distinctive code: a byte search of the restored files cannot hit else
+KEEP = "KP0042"
+
+
+def _head() -> str:
+    from alembic.config import Config
+    from alembic.script import ScriptDirectory
+
+    cfg = Config()
+    cfg.set_main_option("script_location", str(m.ALEMBIC_DIR))
+    head = ScriptDirectory.from_config(cfg).get_current_head()
+    assert head is not None
+    return head
+
+
+def _client(data_dir: Path) -> TestClient:
+    s = Settings(data_dir=data_dir, viewer_enabled=False, node_token="test-node-token",
+                 admin_password="secret-pw")
+    c = TestClient(create_app(s))
+    c.__enter__()
+    r = c.post("/api/auth/login", json={"username": "admin", "password": "secret-pw"})
+    c.headers["Authorization"] = f"Bearer {r.json()['token']}"
+    return c
+
+
+@pytest.fixture
+def server(tmp_path: Path) -> Iterator[TestClient]:
+    """A running server (in process) on ``tmp_path/var``."""
+    c = _client(tmp_path / "var")
+    yield c
+    c.__exit__(None, None, None)
+
+
+def _part(tmp: Path, data_dir: Path, rec_id: str, node: str, seed: int) -> None:
+    """A node part of 30 frames copied into the data folder as a transfer would."""
+    rng = np.random.default_rng(seed)
+    store = NodeStore(tmp / "node" / node)
+    w = store.create_part(rec_id, node_id=node,
+                          clock_start={"offset_s": 0.0, "drift": 0.0, "t_ref": 0.0})
+    for k in range(30):
+        pos = rng.normal(0, 0.3, (1, 25, 3)) + np.array([0, 0, 2.5])
+        st = np.full((1, 25), TrackingState.TRACKED, np.uint8)
+        w.append(k / 30, "skeleton", encode_skeletons(k, k / 30, pos, st))
+    w.close()
+    _sink_part(store.root / rec_id, rec_id, node, data_dir)
+
+
+def _subject(c: TestClient, data_dir: Path, tmp: Path, project_id: int, code: str,
+             rec_id: str) -> dict[str, Any]:
+    """A subject with one session and one complete recording (a part, a reference)."""
+    s = c.post("/api/subjects", json={"project_id": project_id, "code": code,
+                                      "notes": f"notes of {code}"}).json()
+    sess = c.post("/api/sessions", json={"subject_id": s["id"]}).json()
+    with c.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        db.add(m.Recording(id=rec_id, session_id=sess["id"], state="complete", streams=""))
+        db.add(m.RecordingPart(recording_id=rec_id, node_id="S1", state="complete",
+                               n_frames=30))
+        db.commit()
+    _part(tmp, data_dir, rec_id, "S1", len(code))
+    ref = data_dir / "references" / rec_id / "a1.csv"
+    ref.parent.mkdir(parents=True)
+    ref.write_text(f"reference of {rec_id}\n")
+    return s
+
+
+def _files(root: Path) -> dict[str, str]:
+    """SHA-256 of every recording and reference file below a data folder."""
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for d in ("recordings", "references") for p in sorted((root / d).rglob("*"))
+            if p.is_file()}
+
+
+def _cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def _subjects(c: TestClient) -> list[tuple[str, list[str]]]:
+    out = []
+    for s in c.get("/api/subjects").json():
+        full = c.get(f"/api/subjects/{s['id']}").json()
+        out.append((s["code"], [r["id"] for x in full["sessions"] for r in x["recordings"]]))
+    return sorted(out)
+
+
+def test_round_trip_of_a_running_server(server: TestClient, tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    var = tmp_path / "var"
+    assert server.get("/api/system").json()["last_backup_at"] is None
+    p = server.post("/api/projects", json={"name": "Study"}).json()
+    _subject(server, var, tmp_path, p["id"], KEEP, "R20260101-100000-aaaa")
+    _subject(server, var, tmp_path, p["id"], "KP0043", "R20260101-110000-bbbb")
+    # a part still arriving: left out and named
+    (var / "recordings" / "R20260101-110000-bbbb" / "S2" / ".incoming").mkdir(parents=True)
+    before = _subjects(server)
+    dest = tmp_path / "backups"
+    dest.mkdir()
+    code, out, err = _cli(capsys, "backup", str(dest), "--data-dir", str(var))
+    assert code == 0, err
+    archive = next(dest.glob("gaitrig-backup-*.tar"))
+    assert "2 subjects, 2 recordings" in out
+    assert "left out: recordings/R20260101-110000-bbbb/S2: part still being transferred" in out
+    man = bk.verify_backup(archive).manifest
+    assert man["alembic_revision"] == _head() and man["counts"]["subjects"] == 2
+    assert man["gaitrig_version"] and man["created_at"] and all(
+        len(e["sha256"]) == 64 for e in man["members"])
+    assert (archive.stat().st_mode & 0o777) == 0o600
+    # the backup is an audit event and the console learns its time
+    at = server.get("/api/system").json()["last_backup_at"]
+    assert at is not None and at[:10] == man["created_at"][:10]
+    ev = server.get("/api/audit", params={"action": "backup"}).json()
+    ev = ev.get("events", ev) if isinstance(ev, dict) else ev
+    assert ev and ev[0]["target"] == archive.name and "(command line)" in ev[0]["username"]
+
+    code, out, err = _cli(capsys, "backup", "--verify", str(archive))
+    assert code == 0 and "every checksum matches" in out, err
+    fresh = tmp_path / "fresh"
+    code, out, err = _cli(capsys, "restore", str(archive), "--data-dir", str(fresh),
+                          "--deletion-log", str(var))
+    assert code == 0, err
+    assert f"revision {_head()} -> {_head()}" in out
+    assert _files(fresh) == {k: v for k, v in _files(var).items() if "/S2/" not in k}
+    c2 = _client(fresh)
+    try:
+        assert _subjects(c2) == before
+        r = c2.get("/api/storage/recordings/R20260101-100000-aaaa").json()
+        assert r["state"] == "complete" and r["bytes_on_server"] > 0
+        ev = c2.get("/api/audit", params={"action": "restore"}).json()
+        ev = ev.get("events", ev) if isinstance(ev, dict) else ev
+        assert ev and ev[0]["target"] == archive.name
+    finally:
+        c2.__exit__(None, None, None)
+
+
+def _flip(archive: Path, member: str) -> None:
+    with tarfile.open(archive) as tar:
+        off = tar.getmember(member).offset_data
+    with open(archive, "r+b") as fh:
+        fh.seek(off + 10)
+        b = fh.read(1)
+        fh.seek(off + 10)
+        fh.write(bytes([b[0] ^ 0xFF]))
+
+
+def test_verify_detects_a_damaged_file_and_restore_refuses_it(
+        server: TestClient, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    var = tmp_path / "var"
+    p = server.post("/api/projects", json={"name": "Study"}).json()
+    _subject(server, var, tmp_path, p["id"], KEEP, "R20260101-100000-aaaa")
+    archive = bk.create_backup(var, tmp_path / "b.tar").path
+    frames = "files/recordings/R20260101-100000-aaaa/S1/frames.bin"
+    _flip(archive, frames)
+    code, _out, err = _cli(capsys, "backup", "--verify", str(archive))
+    assert code == 1 and f"{frames}: checksum mismatch" in err
+    fresh = tmp_path / "fresh"
+    code, _out, err = _cli(capsys, "restore", str(archive), "--data-dir", str(fresh),
+                           "--without-deletion-log")
+    assert code == 2 and "is damaged; nothing was restored" in err and frames in err
+    assert not fresh.exists() or not any(fresh.iterdir())
+    assert not list(tmp_path.glob(".fresh.restoring-*"))  # the staging folder is gone
+
+
+def test_restore_refuses_a_non_empty_folder_and_wrong_archives(
+        server: TestClient, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    var = tmp_path / "var"
+    archive = bk.create_backup(var, tmp_path / "b.tar").path
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "notes.txt").write_text("mine")
+    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
+                         "--without-deletion-log")
+    assert code == 2 and "is not empty" in err and "--force" in err
+    assert [p.name for p in full.iterdir()] == ["notes.txt"]
+    # without the current erasure log the restore does not start, and says why
+    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(tmp_path / "x"))
+    assert code == 2 and "--deletion-log" in err and "bring that subject back" in err
+    assert not (tmp_path / "x").exists()
+    # a subject export (zip), a tar of something else, a missing file
+    z = tmp_path / "export.zip"
+    with zipfile.ZipFile(z, "w") as zf:
+        zf.writestr("subject.json", "{}")
+    other = tmp_path / "other.tar"
+    with tarfile.open(other, "w") as tar:
+        tar.addfile(tarfile.TarInfo("hello.txt"), io.BytesIO(b""))
+    for bad, msg in [(z, "is not a gaitrig backup (not an uncompressed tar"),
+                     (other, "is not a gaitrig backup (no readable gaitrig-backup.json"),
+                     (tmp_path / "nope.tar", "no backup archive at")]:
+        code, _o, err = _cli(capsys, "restore", str(bad), "--data-dir", str(tmp_path / "y"),
+                             "--without-deletion-log")
+        assert code == 2 and msg in err, err
+        code, _o, err = _cli(capsys, "backup", "--verify", str(bad))
+        assert code == 2 and msg in err, err
+    # --force replaces (never merges): the old file is gone afterwards
+    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
+                         "--without-deletion-log", "--force")
+    assert code == 0, err
+    assert not (full / "notes.txt").exists() and (full / "gaitrig.sqlite3").is_file()
+    # a backup never overwrites, nor goes into the data folder
+    code, _o, err = _cli(capsys, "backup", str(archive), "--data-dir", str(var))
+    assert code == 2 and "exists already" in err
+    code, _o, err = _cli(capsys, "backup", str(var / "b.tar"), "--data-dir", str(var))
+    assert code == 2 and "inside the data folder" in err
+
+
+def _traces(root: Path, needle: str) -> list[str]:
+    return [str(p.relative_to(root)) for p in sorted(root.rglob("*"))
+            if needle in p.name or (p.is_file() and needle.encode() in p.read_bytes())]
+
+
+def test_a_deleted_subject_stays_deleted_after_restoring_an_older_backup(
+        server: TestClient, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    var = tmp_path / "var"
+    p = server.post("/api/projects", json={"name": "Study"}).json()
+    _subject(server, var, tmp_path, p["id"], KEEP, "R20260101-100000-aaaa")
+    gone = _subject(server, var, tmp_path, p["id"], GONE, "R20260101-110000-gone")
+    old = bk.create_backup(var, tmp_path / "before-deletion.tar").path
+    r = server.post(f"/api/subjects/{gone['id']}/delete", json={"confirm": GONE})
+    assert r.status_code == 200, r.text
+    # SQLite gives the next subject the deleted one's id: it must not be taken for it
+    new = server.post("/api/subjects", json={"project_id": p["id"], "code": "NW0001"}).json()
+    assert new["id"] == gone["id"]
+    log = (var / "erasures.jsonl").read_text()
+    assert GONE not in log and "R20260101-110000-gone" in log  # ids only, no pseudonym
+
+    # 1) the old backup restored with the server's current erasure log
+    a = tmp_path / "a"
+    code, out, err = _cli(capsys, "restore", str(old), "--data-dir", str(a),
+                          "--deletion-log", str(var / "erasures.jsonl"))
+    assert code == 0, err
+    assert "1 deleted recording(s) kept deleted" in out
+    assert _traces(a, GONE) == []  # not in the database file, not in any file name
+    assert not (a / "recordings" / "R20260101-110000-gone").exists()
+    assert not (a / "references" / "R20260101-110000-gone").exists()
+    c = _client(a)
+    try:
+        assert _subjects(c) == [(KEEP, ["R20260101-100000-aaaa"])]
+        # the server finished the rest of the deletion when it started (tombstones)
+        assert json.loads((a / "deletions.json").read_text()) == {}
+    finally:
+        c.__exit__(None, None, None)
+    # ... and the next backup of the restored server carries the log on
+    assert "R20260101-110000-gone" in (a / "erasures.jsonl").read_text()
+
+    # 2) a newer backup serves as the log (the data folder was lost with the server)
+    newer = bk.create_backup(var, tmp_path / "after-deletion.tar").path
+    b = tmp_path / "b"
+    code, _o, err = _cli(capsys, "restore", str(old), "--data-dir", str(b),
+                         "--deletion-log", str(newer))
+    assert code == 0, err
+    assert _traces(b, GONE) == []
+    # 3) the newer backup restored: the later subject with the reused id is kept
+    n = tmp_path / "n"
+    code, _o, err = _cli(capsys, "restore", str(newer), "--data-dir", str(n),
+                         "--deletion-log", str(var))
+    assert code == 0, err
+    with sqlite3.connect(n / "gaitrig.sqlite3") as db:
+        codes = sorted(r[0] for r in db.execute("select code from subjects"))
+    assert codes == [KEEP, "NW0001"]
+    # 4) without a log, only on the operator's word: the subject is back (and said so)
+    w = tmp_path / "w"
+    code, out, err = _cli(capsys, "restore", str(old), "--data-dir", str(w),
+                          "--without-deletion-log")
+    assert code == 0 and "WARNING: restored without the current erasure log" in out
+    with sqlite3.connect(w / "gaitrig.sqlite3") as db:
+        assert GONE in [r[0] for r in db.execute("select code from subjects")]
+        detail = db.execute("select detail from audit_events where action='restore'"
+                            ).fetchone()[0]
+    assert "WITHOUT a current erasure log" in detail
+
+
+def _old_database(data_dir: Path) -> None:
+    """A data folder whose database is at alembic revision 0001 (an older release)."""
+    from alembic.config import Config
+
+    import app.db.models  # noqa: F401
+    from alembic import command
+    from app.db.base import Base
+
+    data_dir.mkdir(parents=True)
+    eng = sa.create_engine(f"sqlite:///{data_dir / 'gaitrig.sqlite3'}")
+    Base.metadata.create_all(eng, tables=[t for n, t in Base.metadata.tables.items()
+                                          if n not in m.DATA_TABLES])
+    cfg = Config()
+    cfg.set_main_option("script_location", str(m.ALEMBIC_DIR))
+    with eng.begin() as conn:
+        cfg.attributes["connection"] = conn
+        command.upgrade(cfg, "0001")
+    with eng.begin() as conn:
+        t = "'2025-05-01 10:00:00.000000'"
+        conn.execute(sa.text(f"insert into projects (id, name, description, created_at) "
+                             f"values (1, 'Old study', '', {t})"))
+        conn.execute(sa.text(f"insert into subjects (id, project_id, code, sex, notes, "
+                             f"created_at) values (1, 1, 'OLD001', 'unknown', '', {t})"))
+        conn.execute(sa.text(f"insert into sessions (id, subject_id, date, label, notes, "
+                             f"created_at) values (1, 1, '2025-05-01', 'baseline', '', {t})"))
+        conn.execute(sa.text(f"insert into recordings (id, session_id, label, notes, state, "
+                             f"streams, created_at) values ('R20250501-100000-0001', 1, '', "
+                             f"'', 'complete', '', {t})"))
+        conn.execute(sa.text(f"insert into recording_parts (recording_id, node_id, state, "
+                             f"n_frames, bytes_total, bytes_done, attempts, updated_at) "
+                             f"values ('R20250501-100000-0001', 'S1', 'complete', 30, 0, 0, "
+                             f"1, {t})"))
+    eng.dispose()
+
+
+def test_a_backup_of_an_older_release_is_migrated_on_restore(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    old = tmp_path / "old"
+    _old_database(old)
+    _part(tmp_path, old, "R20250501-100000-0001", "S1", 3)
+    archive = bk.create_backup(old, tmp_path / "old.tar").path  # the database untouched
+    assert bk.verify_backup(archive).manifest["alembic_revision"] == "0001"
+    fresh = tmp_path / "fresh"
+    code, out, err = _cli(capsys, "restore", str(archive), "--data-dir", str(fresh),
+                          "--without-deletion-log")
+    assert code == 0, err
+    assert f"revision 0001 -> {_head()}" in out
+    c = _client(fresh)
+    try:
+        assert _subjects(c) == [("OLD001", ["R20250501-100000-0001"])]
+        r = c.get("/api/storage/recordings/R20250501-100000-0001").json()
+        assert r["parts"][0]["state"] == "complete" and r["bytes_on_server"] > 0
+    finally:
+        c.__exit__(None, None, None)
+    with sqlite3.connect(fresh / "gaitrig.sqlite3") as db:
+        cols = [r[1] for r in db.execute("pragma table_info(recording_parts)")]
+    assert "images_skipped" in cols  # revision 0002 ran
+
+
+def test_postgres_archives_hold_the_files_and_say_what_to_do(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    var = tmp_path / "var"
+    var.mkdir()
+    (var / "calibrations").mkdir()
+    (var / "calibrations" / "v1.json").write_text("{}")
+    res = bk.create_backup(var, tmp_path / "pg.tar",
+                           "postgresql+psycopg://gaitrig:pw@db.invalid/gaitrig")
+    assert res.manifest["database"]["member"] is None
+    assert any("pg_dump" in n for n in res.manifest["notes"])
+    assert bk.verify_backup(res.path).ok
+    # restoring it needs the database restored with pg_restore first
+    with pytest.raises(bk.BackupError, match="pg_restore"):
+        bk.restore_backup(res.path, tmp_path / "r", [], without_deletion_log=True)
