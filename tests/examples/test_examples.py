@@ -76,3 +76,37 @@ def test_compare_with_reference_names_a_time_offset(tmp_path: Path) -> None:
         ex.compare(pairs, offset_s=3.0)
     # the right offset undoes a shifted reference
     assert ex.compare(pairs, offset_s=0.0)["length_m"]["L"].n >= 4
+
+
+def test_batch_gait_keeps_going_past_bad_files(tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    from engine.io.trc import write_trc
+    from engine.sim.straight_walk import synth_walk, walk_markers
+
+    data = tmp_path / "lab"
+    (data / "P01").mkdir(parents=True)
+    write_trc(data / "P01" / "walk1.trc", walk_markers(synth_walk(step_length=0.62)))
+    write_trc(data / "P01" / "walk2.trc", walk_markers(synth_walk(step_length=0.74)))
+    (data / "P01" / "notes.csv").write_text("a,b\n1,2\n")  # not a skeleton CSV
+    write_trc(data / "short.trc", walk_markers(synth_walk(n_steps=2)))  # too little walking
+    ex = _load("batch_gait")
+    out, steps = tmp_path / "summary.csv", tmp_path / "steps.csv"
+    assert ex.main([str(data), "--out", str(out), "--steps", str(steps)]) == 0
+    with out.open() as f:
+        rows = {r["file"]: r for r in csv.DictReader(f)}
+    assert sorted(rows) == ["P01/notes.csv", "P01/walk1.trc", "P01/walk2.trc", "short.trc"]
+    assert float(rows["P01/walk1.trc"]["step_length_m"]) == pytest.approx(0.62, abs=0.01)
+    assert float(rows["P01/walk2.trc"]["step_length_m"]) == pytest.approx(0.74, abs=0.01)
+    assert rows["P01/walk1.trc"]["error"] == ""
+    assert "first column must be 'time'" in rows["P01/notes.csv"]["error"]
+    assert "step" in rows["short.trc"]["error"]
+    with steps.open() as f:
+        srows = list(csv.DictReader(f))
+    assert {r["file"] for r in srows} == {"P01/walk1.trc", "P01/walk2.trc"}
+    assert len(srows) == sum(int(rows[k]["n_steps"]) for k in ("P01/walk1.trc",
+                                                                "P01/walk2.trc"))
+    assert "2 of 4 files analysed" in capsys.readouterr().out
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert ex.main([str(empty), "--out", str(tmp_path / "none.csv")]) == 2
+    assert "no .c3d, .trc or .csv file" in capsys.readouterr().err
