@@ -109,9 +109,23 @@ const gaitrig = (() => {
     return { ask() { return ++asked; }, current(n) { return n === asked; }, acted() { asked++; } };
   }
 
+  // A quiet reminder for administrators (only they get last_backup_at): no backup for
+  // 7 days, or none ever (gaitrig backup, docs/backup.md).
+  function backupNotice(sys) {
+    if (!("last_backup_at" in sys) || document.getElementById("backup-notice")) return;
+    const at = sys.last_backup_at ? Date.parse(sys.last_backup_at) : NaN;
+    if (at && Date.now() - at < 7 * 86400e3) return;
+    const text = sys.last_backup_at
+      ? `No backup of this server since ${new Date(at).toLocaleDateString()}.`
+      : "This server has never been backed up.";
+    document.getElementById("summary").before(el("p", { id: "backup-notice", role: "status" },
+      text + " Run gaitrig backup on the server (see docs/backup.md)."));
+  }
+
   async function rigPage() {
     const sys = await api("/api/system");
     document.getElementById("token-warning").hidden = !sys.node_token_is_default;
+    backupNotice(sys);
     const nodeSeq = newest();
     async function refresh() {
       const n = nodeSeq.ask();
