@@ -33,7 +33,7 @@ from collections.abc import Collection
 from typing import Any
 
 from sqlalchemy import select
-from sqlalchemy.orm import sessionmaker
+from sqlalchemy.orm import selectinload, sessionmaker
 
 from app.db import data as m
 from app.server.hub import Hub
@@ -207,8 +207,10 @@ class DataSync:
         # nodes back in (or new to) a running recording record (again)
         self.hub.recordings.rejoin()
         with self.db_sessions() as db:
+            # parts loaded with their rows: one query, not one per recording (a clinic
+            # keeps every incomplete recording for good)
             rows = {r.id: r for r in db.scalars(select(m.Recording).where(
-                m.Recording.state != "complete"))}
+                m.Recording.state != "complete").options(selectinload(m.Recording.parts)))}
             done = set(db.scalars(select(m.Recording.id).where(
                 m.Recording.state == "complete")))
             # every stopped recording is transferred, filed under a session or not yet

@@ -12,6 +12,7 @@ from typing import Any, TypeVar
 from fastapi import HTTPException, Request, status
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
+from sqlalchemy.orm import selectinload
 
 from app.api.routes._exporting import ExportGuard
 from app.db import audit
@@ -83,6 +84,24 @@ def get_project(db: DbSession, pid: int) -> m.Project:
 
 def get_subject(db: DbSession, sid: int) -> m.Subject:
     s = get_row(db, m.Subject, sid)
+    if s is None:
+        raise not_found(f"no subject {sid}")
+    return s
+
+
+#: Loader options that read a session's recordings with their parts and references in
+#: three queries (one per table) instead of one query per session and per recording.
+SESSION_TREE = (selectinload(m.Session.recordings).selectinload(m.Recording.parts),
+                selectinload(m.Session.recordings).selectinload(m.Recording.references))
+
+
+def get_subject_tree(db: DbSession, sid: int) -> m.Subject:
+    """:func:`get_subject` with its sessions, recordings, parts and references loaded at
+    once (four queries whatever their number)."""
+    if not -MAX_DB_ID - 1 <= sid <= MAX_DB_ID:
+        raise not_found(f"no subject {sid}")
+    s = db.scalar(select(m.Subject).where(m.Subject.id == sid).options(
+        *(selectinload(m.Subject.sessions).options(o) for o in SESSION_TREE)))
     if s is None:
         raise not_found(f"no subject {sid}")
     return s
@@ -163,6 +182,16 @@ def subject_json(s: m.Subject, layout: StorageLayout | None = None,
     return d
 
 
+def subject_list_json(s: m.Subject, n_sessions: int, n_recordings: int,
+                      bytes_on_server: int) -> dict[str, Any]:
+    """:func:`subject_json` (with the bytes on the server) from counts the list query
+    gave, without loading the subject's sessions and recordings."""
+    return {"id": s.id, "project_id": s.project_id, "code": s.code, "height_m": s.height_m,
+            "leg_length_m": s.leg_length_m, "sex": s.sex, "birth_year": s.birth_year,
+            "notes": s.notes, "n_sessions": n_sessions, "n_recordings": n_recordings,
+            "version": subject_version(s), "bytes_on_server": bytes_on_server}
+
+
 def subject_version(s: m.Subject) -> str:
     """A digest of the subject's editable fields: an edit based on another version was
     made on a stale copy (another browser saved in between)."""
@@ -174,8 +203,10 @@ def subject_bytes(s: m.Subject, layout: StorageLayout) -> int:
     return sum(layout.recording_bytes(r.id) for x in s.sessions for r in x.recordings)
 
 
-def project_json(db: DbSession, p: m.Project) -> dict[str, Any]:
-    n = db.scalar(select(func.count()).select_from(m.Subject).where(m.Subject.project_id == p.id))
+def project_json(db: DbSession, p: m.Project, n_subjects: int | None = None) -> dict[str, Any]:
+    """A project with its number of subjects (counted now unless given)."""
+    n = n_subjects if n_subjects is not None else db.scalar(
+        select(func.count()).select_from(m.Subject).where(m.Subject.project_id == p.id))
     return {"id": p.id, "name": p.name, "description": p.description, "n_subjects": n or 0,
             "created_at": p.created_at.isoformat()}
 

@@ -1,8 +1,10 @@
 """The audit trail for administrators: logins, exports and deletions (who, when, what).
 
 ``GET /api/audit`` lists entries newest first (``limit``, ``before`` = an entry id for the
-next page); ``format=csv`` downloads them (the download is itself recorded). The trail is
-append-only: no route changes or deletes an entry, and SQLite refuses to.
+next page; the ``X-Total-Count`` header counts the entries matching ``action`` and
+``before``, i.e. this page and those after it); ``format=csv`` downloads them (the
+download is itself recorded). The trail is append-only: no route changes or deletes an
+entry, and SQLite refuses to.
 """
 
 from __future__ import annotations
@@ -12,11 +14,12 @@ import io
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from app.api.deps import CurrentUser, DbDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import audit_now
+from app.api.routes._paging import set_total
 from app.db.models import AuditEvent
 
 router = APIRouter(prefix="/audit", route_class=BoundedRoute, tags=["audit"])
@@ -35,7 +38,7 @@ def _cell(v: Any) -> Any:
 
 
 @router.get("", response_model=None)
-def entries(request: Request, user: CurrentUser, db: DbDep,
+def entries(request: Request, response: Response, user: CurrentUser, db: DbDep,
             limit: Annotated[int, Query(ge=1, le=10000)] = 200,
             before: Annotated[int | None, Query(ge=1, le=2**63 - 1)] = None,
             action: Annotated[str | None, Query(max_length=16)] = None,
@@ -45,13 +48,15 @@ def entries(request: Request, user: CurrentUser, db: DbDep,
     if not user.is_admin:
         raise HTTPException(status.HTTP_403_FORBIDDEN,
                             "only an administrator may read the audit trail")
-    q = select(AuditEvent).order_by(AuditEvent.id.desc()).limit(limit)
+    where = []
     if before is not None:
-        q = q.where(AuditEvent.id < before)
+        where.append(AuditEvent.id < before)
     if action:
-        q = q.where(AuditEvent.action == action)
+        where.append(AuditEvent.action == action)
+    q = select(AuditEvent).where(*where).order_by(AuditEvent.id.desc()).limit(limit)
     rows = [_json(e) for e in db.scalars(q)]
     if format == "json":
+        set_total(response, db.scalar(select(func.count(AuditEvent.id)).where(*where)) or 0)
         return rows
     buf = io.StringIO()
     w = csv.DictWriter(buf, FIELDS)

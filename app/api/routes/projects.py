@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Request, status
+from fastapi import APIRouter, HTTPException, Request, Response, status
 from pydantic import BaseModel, Field
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from app.api.deps import CurrentUser, DbDep, ExportsDep, HubDep
 from app.api.limits import BoundedRoute
@@ -19,6 +19,7 @@ from app.api.routes._data import (
     node_copies,
     project_json,
 )
+from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, like_pattern, page_of, set_total
 from app.db import data as m
 
 router = APIRouter(prefix="/projects", route_class=BoundedRoute, tags=["data"])
@@ -38,10 +39,30 @@ class Confirm(BaseModel):
     confirm: str = Field(max_length=200, description="The project name typed again.")
 
 
+#: Projects per page of ``GET /api/projects``: by default, and at most.
+PROJECTS_PAGE, PROJECTS_PAGE_MAX = 500, 1000
+
+
 @router.get("")
-def list_projects(user: CurrentUser, db: DbDep) -> list[dict[str, Any]]:
-    """All projects with their number of subjects."""
-    return [project_json(db, p) for p in db.scalars(select(m.Project).order_by(m.Project.name))]
+def list_projects(response: Response, user: CurrentUser, db: DbDep, q: SearchQ = None,
+                  limit: LimitQ = None, offset: OffsetQ = 0) -> list[dict[str, Any]]:
+    """Projects by name with their number of subjects, a page at a time (``limit`` ≤
+    1000, default 500; ``offset``; ``X-Total-Count`` header), ``q`` searching the name.
+
+    Two queries whatever the number of projects (the count; the page with its subject
+    counts).
+    """
+    page = page_of(limit, offset, PROJECTS_PAGE, PROJECTS_PAGE_MAX)
+    where = []
+    if q and q.strip():
+        where.append(m.Project.name.ilike(like_pattern(q.strip()), escape="\\"))
+    set_total(response, db.scalar(select(func.count(m.Project.id)).where(*where)) or 0)
+    n_subj = (select(func.count(m.Subject.id)).where(m.Subject.project_id == m.Project.id)
+              .correlate(m.Project).scalar_subquery())
+    rows = db.execute(select(m.Project, n_subj).where(*where)
+                      .order_by(m.Project.name, m.Project.id)
+                      .limit(page.limit).offset(page.offset)).all()
+    return [project_json(db, p, n or 0) for p, n in rows]
 
 
 @router.post("", status_code=201)

@@ -18,13 +18,14 @@ from collections.abc import Collection
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, HTTPException, Query, status
+from fastapi import APIRouter, HTTPException, Query, Response, status
 from pydantic import BaseModel, Field
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
 from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
 from app.api.limits import BoundedRoute
+from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, page_of, set_total
 from app.db.data import RecordingPart
 from app.server.hub import Hub
 from app.server.recording import Recording
@@ -119,20 +120,46 @@ def _view(hub: Hub, layout: StorageLayout, rec: Recording,
     return d
 
 
+#: Recordings per page of ``GET /api/recordings``: by default, and at most.
+RECORDINGS_PAGE, RECORDINGS_PAGE_MAX = 100, 500
+LiveState = Literal["recording", "stopping", "on_nodes", "transferring", "complete",
+                    "incomplete"]
+
+
 @router.get("")
 async def list_recordings(
-        user: CurrentUser, hub: HubDep, settings: SettingsDep, db: DbDep,
+        response: Response, user: CurrentUser, hub: HubDep, settings: SettingsDep,
+        db: DbDep,
         ids: Annotated[str | None, Query(max_length=20000, description=(
             "Comma-separated recording ids: only these (unknown ids are left out).")
-        )] = None) -> list[dict[str, Any]]:
-    """All recordings (or those in ``ids``), newest first, with per-node part states."""
+        )] = None,
+        state: Annotated[LiveState | None, Query(description="Only recordings in this state.")
+                         ] = None,
+        q: SearchQ = None, limit: LimitQ = None, offset: OffsetQ = 0) -> list[dict[str, Any]]:
+    """The server's recordings (or those in ``ids``), newest first, with per-node part
+    states, a page at a time (``limit`` ≤ 500, default 100, 500 with ``ids``; ``offset``;
+    ``X-Total-Count`` header), ``state`` and ``q`` (part of the id) filtering them.
+
+    Only the page's recordings are looked at further: one query for their stored
+    ``images_skipped``, a ``meta.json`` read for a part on the server without one.
+    """
+    # a subject's recordings asked by id come whole (up to the largest page)
+    page = page_of(limit, offset, RECORDINGS_PAGE if ids is None else RECORDINGS_PAGE_MAX,
+                   RECORDINGS_PAGE_MAX)
     recs = list(hub.recordings.recordings.values())
     if ids is not None:
         want = {i.strip() for i in ids.split(",") if i.strip()}
         recs = [r for r in recs if r.id in want]
+    if state is not None:
+        recs = [r for r in recs if r.state == state]
+    if q and q.strip():
+        needle = q.strip().lower()
+        recs = [r for r in recs if needle in r.id.lower()]
     recs.sort(key=lambda r: r.created, reverse=True)
+    set_total(response, len(recs))
+    recs = recs[page.offset:page.offset + page.limit]
     layout = StorageLayout(settings.data_dir)
-    stored = _stored_skipped(db, [r.id for r in recs] if ids is not None else None)
+    stored = _stored_skipped(db, [r.id for r in recs]) if recs else {}
     return [_view(hub, layout, r, stored) for r in recs]
 
 

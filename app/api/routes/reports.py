@@ -40,6 +40,7 @@ from sqlalchemy import select
 from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import audit_now, get_row
+from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, like_pattern, page_of, set_total
 from app.db.data import Recording as DbRecording
 from app.db.data import ReferenceImport, Subject
 from app.db.data import Session as DbSession
@@ -293,35 +294,91 @@ def _audit_recording(db: Any, request: Request, user: Any, rec_id: str, what: st
 # ---------------------------------------------------------------------------- routes
 
 
+#: Recordings per page of ``GET /api/reports/recordings``: by default, and at most.
+REPORT_RECORDINGS_PAGE, REPORT_RECORDINGS_PAGE_MAX = 100, 500
+
+
 @router.get("/recordings")
-def list_recordings(user: CurrentUser, settings: SettingsDep, hub: HubDep,
-                    db: DbDep) -> list[dict[str, Any]]:
-    """Recordings with sensor data on the server, newest first, with their subject."""
+def list_recordings(response: Response, user: CurrentUser, settings: SettingsDep,
+                    hub: HubDep, db: DbDep, q: SearchQ = None,
+                    subject_id: Annotated[int | None, Query(ge=1, le=2**63 - 1)] = None,
+                    limit: LimitQ = None, offset: OffsetQ = 0) -> list[dict[str, Any]]:
+    """Recordings with sensor data on the server, newest first, with their subject, a
+    page at a time (``limit`` ≤ 500, default 100; ``offset``; ``X-Total-Count``
+    header); ``q`` searches the recording id and session label, ``subject_id`` keeps one
+    subject's (a subject is found by its code with ``POST /api/subjects/search``: a code
+    in a URL would be kept in access logs).
+
+    Which recordings have a folder on the server comes from one listing of the
+    recordings folder, their order and subjects from the database (two queries); only
+    the page's folders are read (their parts and reference). A folder whose parts are
+    not there yet (the first part still arriving) is left out of its page.
+    """
+    page = page_of(limit, offset, REPORT_RECORDINGS_PAGE, REPORT_RECORDINGS_PAGE_MAX)
     root = Path(settings.data_dir) / an.RECORDINGS_DIR
-    out: list[dict[str, Any]] = []
-    links = _recording_links(db)
-    if root.is_dir():
-        for d in root.iterdir():
-            parts = an.part_dirs(d) if d.is_dir() else {}
-            if not parts:
+    try:
+        with os.scandir(root) as it:
+            on_server = {e.name for e in it if e.is_dir()}
+    except OSError:  # no recording reached the server yet
+        on_server = set()
+    needle = q.strip() if q and q.strip() else None
+    filed = (select(DbRecording.id, DbRecording.created_at)
+             .join(DbSession, DbRecording.session_id == DbSession.id)
+             .join(Subject, DbSession.subject_id == Subject.id))
+    if needle is not None:
+        pat = like_pattern(needle)
+        filed = filed.where(DbSession.label.ilike(pat, escape="\\")
+                            | DbRecording.id.ilike(pat, escape="\\"))
+    if subject_id is not None:
+        filed = filed.where(Subject.id == subject_id)
+    live = hub.recordings.recordings
+    rows: list[tuple[float, str]] = [
+        (live[r].created if r in live else _epoch_s(c), r)
+        for r, c in db.execute(filed) if r in on_server]
+    if subject_id is None:  # recordings filed under no session (e.g. from the Rig page)
+        known = set(db.scalars(select(DbRecording.id)))
+        for name in on_server - known:
+            if needle is not None and needle.lower() not in name.lower():
                 continue
-            rec = hub.recordings.recordings.get(d.name)
-            created = rec.created if rec is not None else d.stat().st_mtime
-            out.append({"id": d.name, "created": created, "sensors": list(parts),
-                        "has_reference": _reference_file(d) is not None,
-                        **links.get(d.name, {})})
-    out.sort(key=lambda r: r["created"], reverse=True)
+            rec = live.get(name)
+            try:
+                rows.append((rec.created if rec is not None else (root / name).stat().st_mtime,
+                             name))
+            except OSError:
+                continue
+    rows.sort(reverse=True)
+    set_total(response, len(rows))
+    chosen = rows[page.offset:page.offset + page.limit]
+    links = _recording_links(db, [r for _, r in chosen])
+    out: list[dict[str, Any]] = []
+    for created, rec_id in chosen:
+        d = root / rec_id
+        parts = an.part_dirs(d)
+        if not parts:
+            continue
+        out.append({"id": rec_id, "created": created, "sensors": list(parts),
+                    "has_reference": _reference_file(d) is not None,
+                    **links.get(rec_id, {})})
     return out
 
 
-def _recording_links(db: Any, rec_id: str | None = None) -> dict[str, dict[str, Any]]:
-    """rec_id → subject/session of the data-management tables (of every recording, or
-    of ``rec_id`` only)."""
-    q = (db.query(DbRecording.id, DbRecording.state, DbSession.id, DbSession.label,
-                  DbSession.date, Subject.id, Subject.code)
-         .join(DbSession, DbRecording.session_id == DbSession.id)
-         .join(Subject, DbSession.subject_id == Subject.id))
-    rows = (q if rec_id is None else q.filter(DbRecording.id == rec_id)).all()
+def _epoch_s(t: _dt.datetime) -> float:
+    """Seconds since the epoch of a stored time (SQLite gives it back without its UTC
+    zone)."""
+    return (t if t.tzinfo is not None else t.replace(tzinfo=_dt.UTC)).timestamp()
+
+
+def _recording_links(db: Any, rec_ids: str | list[str]) -> dict[str, dict[str, Any]]:
+    """rec_id → subject/session of the data-management tables, of ``rec_ids`` (one id
+    or a list)."""
+    want = [rec_ids] if isinstance(rec_ids, str) else rec_ids
+    if not want:
+        return {}
+    rows = (db.query(DbRecording.id, DbRecording.state, DbSession.id, DbSession.label,
+                     DbSession.date, Subject.id, Subject.code)
+            .join(DbSession, DbRecording.session_id == DbSession.id)
+            .join(Subject, DbSession.subject_id == Subject.id)
+            .filter(DbRecording.id.in_(want)).all())
     return {r[0]: {"db_state": r[1], "session_id": r[2], "session_label": r[3],
                    "session_date": str(r[4]) if r[4] else "", "subject_id": r[5],
                    "subject_code": r[6]} for r in rows}

@@ -25,6 +25,7 @@ from app.api.routes._data import (
     delete_rows,
     get_session,
     get_subject,
+    get_subject_tree,
     layout_of,
     node_copies,
     purge,
@@ -70,8 +71,9 @@ class Confirm(BaseModel):
 @router.get("")
 def list_sessions(request: Request, user: CurrentUser, db: DbDep,
                   subject_id: int) -> list[dict[str, Any]]:
-    """Sessions of a subject, with their recordings."""
-    s = get_subject(db, subject_id)
+    """Sessions of a subject, with their recordings (four queries whatever their
+    number: the subject, its sessions, their recordings, parts and references)."""
+    s = get_subject_tree(db, subject_id)
     layout = layout_of(request)
     return [session_json(x, layout) for x in s.sessions]
 

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter, FastAPI, HTTPException, Request, status
+from fastapi import APIRouter, FastAPI, HTTPException, Query, Request, status
 from pydantic import BaseModel, Field
 from sqlalchemy import select
+from sqlalchemy.orm import selectinload
 
 from app.api.deps import CurrentUser, DbDep, ExportsDep, HubDep
 from app.api.limits import BoundedRoute
@@ -62,12 +63,17 @@ class ConfirmId(BaseModel):
 
 
 @router.get("")
-def usage(request: Request, user: CurrentUser, db: DbDep, hub: HubDep) -> dict[str, Any]:
+def usage(request: Request, user: CurrentUser, db: DbDep, hub: HubDep,
+          subjects_too: Annotated[bool, Query(alias="subjects", description=(
+              "false: only the disk and pending deletions, without the bytes of every "
+              "subject (which reads every recording folder)"))] = True) -> dict[str, Any]:
     """Disk of the data folder, bytes stored per subject, and the node copies of deleted
     recordings still to delete (``pending_node_deletions``: node id → recording ids)."""
     layout = layout_of(request)
     subjects = []
-    for s in db.scalars(select(m.Subject).order_by(m.Subject.project_id, m.Subject.code)):
+    q = (select(m.Subject).order_by(m.Subject.project_id, m.Subject.code)
+         .options(selectinload(m.Subject.sessions).selectinload(m.Session.recordings)))
+    for s in db.scalars(q) if subjects_too else ():
         subjects.append({"id": s.id, "project_id": s.project_id, "code": s.code,
                          "bytes": subject_bytes(s, layout),
                          "n_recordings": sum(len(x.recordings) for x in s.sessions)})

@@ -14,10 +14,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, Literal
 
-from fastapi import APIRouter, HTTPException, Request, status
+from fastapi import APIRouter, HTTPException, Request, Response, status
 from fastapi.responses import StreamingResponse
 from pydantic import BaseModel, Field
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from app.api.deps import CurrentUser, DbDep, ExportsDep, HubDep
 from app.api.limits import BoundedRoute
@@ -28,11 +28,21 @@ from app.api.routes._data import (
     delete_rows,
     get_project,
     get_subject,
+    get_subject_tree,
     layout_of,
     node_copies,
     purge,
     subject_json,
+    subject_list_json,
     subject_version,
+)
+from app.api.routes._paging import (
+    MAX_OFFSET,
+    LimitQ,
+    OffsetQ,
+    like_pattern,
+    page_of,
+    set_total,
 )
 from app.api.routes.reports import (
     SubjectReportSource,
@@ -98,16 +108,85 @@ def _code_free(db: DbDep, project_id: int, code: str) -> None:
                             f"subject code {code!r} is already used in this project")
 
 
+#: Subjects per page of ``GET /api/subjects``: by default, and at most.
+SUBJECTS_PAGE, SUBJECTS_PAGE_MAX = 100, 500
+SubjectSort = Literal["code", "-code", "created", "-created"]
+_SUBJECT_ORDER = {"code": (m.Subject.code, m.Subject.id),
+                  "-code": (m.Subject.code.desc(), m.Subject.id.desc()),
+                  "created": (m.Subject.created_at, m.Subject.id),
+                  "-created": (m.Subject.created_at.desc(), m.Subject.id.desc())}
+
+
+class SubjectSearch(BaseModel):
+    """A page of subjects, as the query of ``GET /api/subjects`` plus the search text
+    (in the body: a subject code must not reach the access logs in a URL)."""
+
+    q: str = Field(default="", max_length=100, description=(
+        "Part of the code (case-insensitive); empty: every subject."))
+    project_id: int | None = None
+    sort: SubjectSort = "code"
+    limit: int | None = Field(default=None, ge=1)
+    offset: int = Field(default=0, ge=0, le=MAX_OFFSET)
+
+
 @router.get("")
-def list_subjects(request: Request, user: CurrentUser, db: DbDep,
-                  project_id: int | None = None) -> list[dict[str, Any]]:
-    """Subjects (of one project if ``project_id`` is given) with disk usage."""
-    q = select(m.Subject).order_by(m.Subject.code)
-    if project_id is not None:
-        get_project(db, project_id)
-        q = q.where(m.Subject.project_id == project_id)
+def list_subjects(request: Request, response: Response, user: CurrentUser, db: DbDep,
+                  project_id: int | None = None, sort: SubjectSort = "code",
+                  limit: LimitQ = None, offset: OffsetQ = 0) -> list[dict[str, Any]]:
+    """Subjects (of one project if ``project_id`` is given) with disk usage, a page at a
+    time (``limit`` ≤ 500, default 100; ``offset``; the ``X-Total-Count`` header gives
+    the number matching), ``sort`` by ``code`` or ``created`` (``-`` for descending).
+    Searching a code: ``POST /api/subjects/search``.
+    """
+    if "q" in request.query_params:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                            "search subjects with POST /api/subjects/search {\"q\": ...}: a "
+                            "code in the URL would be kept in access logs")
+    return _subjects_page(request, response, db, SubjectSearch(
+        project_id=project_id, sort=sort, limit=limit, offset=offset))
+
+
+@router.post("/search")
+def search_subjects(body: SubjectSearch, request: Request, response: Response,
+                    user: CurrentUser, db: DbDep) -> list[dict[str, Any]]:
+    """A page of the subjects whose code contains ``q`` (case-insensitive), as
+    ``GET /api/subjects`` answers it (``X-Total-Count``: how many match)."""
+    return _subjects_page(request, response, db, body)
+
+
+def _subjects_page(request: Request, response: Response, db: DbDep, f: SubjectSearch
+                   ) -> list[dict[str, Any]]:
+    """Three queries whatever the number of subjects: the count, the page with each
+    subject's numbers of sessions and recordings, and the page's recording ids (for the
+    bytes on the server, summed from the page's recording folders only)."""
+    page = page_of(f.limit, f.offset, SUBJECTS_PAGE, SUBJECTS_PAGE_MAX)
+    where = []
+    if f.project_id is not None:
+        get_project(db, f.project_id)
+        where.append(m.Subject.project_id == f.project_id)
+    if f.q.strip():
+        where.append(m.Subject.code.ilike(like_pattern(f.q.strip()), escape="\\"))
+    set_total(response, db.scalar(select(func.count(m.Subject.id)).where(*where)) or 0)
+    n_sess = (select(func.count(m.Session.id)).where(m.Session.subject_id == m.Subject.id)
+              .correlate(m.Subject).scalar_subquery())
+    n_rec = (select(func.count(m.Recording.id))
+             .join(m.Session, m.Recording.session_id == m.Session.id)
+             .where(m.Session.subject_id == m.Subject.id)
+             .correlate(m.Subject).scalar_subquery())
+    rows = db.execute(select(m.Subject, n_sess, n_rec).where(*where)
+                      .order_by(*_SUBJECT_ORDER[f.sort])
+                      .limit(page.limit).offset(page.offset)).all()
+    recs: dict[int, list[str]] = {}
+    if rows:
+        for sid, rec_id in db.execute(
+                select(m.Session.subject_id, m.Recording.id)
+                .join(m.Recording, m.Recording.session_id == m.Session.id)
+                .where(m.Session.subject_id.in_([s.id for s, _, _ in rows]))):
+            recs.setdefault(sid, []).append(rec_id)
     layout = layout_of(request)
-    return [subject_json(s, layout) for s in db.scalars(q)]
+    return [subject_list_json(s, ns or 0, nr or 0,
+                              sum(layout.recording_bytes(r) for r in recs.get(s.id, ())))
+            for s, ns, nr in rows]
 
 
 @router.post("", status_code=201)
@@ -127,7 +206,7 @@ def create_subject(body: SubjectIn, request: Request, user: CurrentUser,
 @router.get("/{sid}")
 def get_one(sid: int, request: Request, user: CurrentUser, db: DbDep) -> dict[str, Any]:
     """A subject with its sessions and their recordings (states, parts, progress)."""
-    return subject_json(get_subject(db, sid), layout_of(request), sessions=True)
+    return subject_json(get_subject_tree(db, sid), layout_of(request), sessions=True)
 
 
 def _report_pdf(src: SubjectReportSource, name: str, data_dir: Path, live: dict[str, Any],
