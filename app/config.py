@@ -62,6 +62,14 @@ class Settings(BaseSettings):
         default=None, description="First-run admin password; generated and printed when unset."
     )
     session_hours: float = Field(default=12.0, gt=0, description="Lifetime of a console login.")
+    allowed_origins: list[str] = Field(
+        default_factory=list,
+        description="Other origins (https://gait.clinic.example.org) whose pages may send "
+        "state-changing requests and open websockets with the console's cookie. Needed "
+        "only when a reverse proxy serves the console under a name it does not pass on "
+        "as Host or X-Forwarded-Host; requests from any other origin are refused (403). "
+        "Environment: GAITRIG_ALLOWED_ORIGINS='[\"https://gait.clinic.example.org\"]'.",
+    )
     login_max_failures: int = Field(
         default=5, ge=1, description="Failed logins per user and address before a pause."
     )

@@ -28,6 +28,7 @@ from fastapi.staticfiles import StaticFiles
 
 import app.api.routes as routes_pkg
 from app.api.deps import get_current_user
+from app.api.hardening import SecurityMiddleware
 from app.api.routes import auth
 from app.api.routes._exporting import ExportGuard
 from app.api.security import LoginThrottle, ensure_admin
@@ -201,4 +202,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     if STATIC_DIR.is_dir():
         app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="static")
+    # outermost: cross-site requests are refused before anything runs; every answer (the
+    # static console and error pages included) carries the security headers
+    app.add_middleware(SecurityMiddleware, allowed_origins=settings.allowed_origins,
+                       static_dir=STATIC_DIR)
     return app
