@@ -62,6 +62,26 @@ class Settings(BaseSettings):
         default=None, description="First-run admin password; generated and printed when unset."
     )
     session_hours: float = Field(default=12.0, gt=0, description="Lifetime of a console login.")
+    session_idle_minutes: float = Field(
+        default=30.0, gt=0,
+        description="A login unused this long ends (idle timeout); every authenticated "
+        "request starts it over. Environment: GAITRIG_SESSION_IDLE_MINUTES.",
+    )
+    cookie_secure: bool | None = Field(
+        default=None,
+        description="Send the session cookie over HTTPS only. Unset: whenever the request "
+        "came over HTTPS (directly or per X-Forwarded-Proto from a trusted proxy, "
+        "GAITRIG_FORWARDED_ALLOW_IPS). Set true behind a TLS proxy that uvicorn does not "
+        "trust. Environment: GAITRIG_COOKIE_SECURE.",
+    )
+    forwarded_allow_ips: str = Field(
+        default="127.0.0.1",
+        description="Addresses of reverse proxies whose X-Forwarded-Proto/-For headers "
+        "are believed (uvicorn's forwarded_allow_ips): the client address in the audit "
+        "trail and HTTPS for the cookie come from them. Comma-separated, '*' for any "
+        "(only when nothing but the proxy can reach the port). Environment: "
+        "GAITRIG_FORWARDED_ALLOW_IPS.",
+    )
     allowed_origins: list[str] = Field(
         default_factory=list,
         description="Other origins (https://gait.clinic.example.org) whose pages may send "

@@ -77,11 +77,15 @@ def request_token(request: HTTPConnection) -> str | None:
 def get_current_user(request: Request, db: DbDep) -> User:
     """The logged-in user, or HTTP 401 saying how to log in."""
     token = request_token(request)
-    user = user_for_token(db, token) if token else None
+    settings: Settings = request.app.state.settings
+    # this request is activity: the login's idle timeout starts over
+    user = user_for_token(db, token, settings.session_idle_minutes * 60,
+                          settings.session_hours * 3600) if token else None
     if user is None:
         raise HTTPException(
             status.HTTP_401_UNAUTHORIZED,
-            detail="not logged in: POST /api/auth/login with your username and password",
+            detail="not logged in (or the login expired or was idle too long): POST "
+                   "/api/auth/login with your username and password",
             headers={"WWW-Authenticate": "Bearer"},
         )
     return user

@@ -64,8 +64,36 @@ def ensure_admin(db: Session, username: str, password: str | None) -> str | None
     return generated
 
 
-def login(db: Session, username: str, password: str, hours: float) -> tuple[str, datetime] | None:
-    """Check credentials; returns a new ``(token, expiry)`` or None."""
+#: Shortest password accepted for a new password (NIST SP 800-63B asks for ≥ 8; a
+#: clinic's shared workstation account deserves more).
+MIN_PASSWORD_LENGTH = 12
+
+
+def password_problem(password: str, username: str) -> str | None:
+    """Why ``password`` is not acceptable for ``username`` (a sentence), or None.
+
+    The policy of NIST SP 800-63B: a minimum length and no obviously guessable value; no
+    composition rules (they make passwords harder to remember, not to guess).
+    """
+    if len(password) < MIN_PASSWORD_LENGTH:
+        return (f"the password must have at least {MIN_PASSWORD_LENGTH} characters "
+                f"(it has {len(password)}); a few words make a good one")
+    if len(password) > 256:
+        return "the password must have at most 256 characters"
+    if len(set(password)) < 4:
+        return "the password repeats too few characters; choose a less predictable one"
+    if username and username.lower() in password.lower():
+        return "the password must not contain the user name"
+    return None
+
+
+def login(db: Session, username: str, password: str, hours: float,
+          idle_s: float | None = None) -> tuple[str, datetime] | None:
+    """Check credentials; returns a new ``(token, expiry)`` or None.
+
+    The expiry is the sooner of ``hours`` from now and, with ``idle_s``, the idle timeout
+    (pushed on by every authenticated request, see :func:`user_for_token`).
+    """
     user = db.scalar(select(User).where(User.username == username))
     if user is None:
         hash_password(password)  # same cost whether or not the user exists
@@ -73,21 +101,44 @@ def login(db: Session, username: str, password: str, hours: float) -> tuple[str,
     if not verify_password(password, user.password_hash):
         return None
     token = secrets.token_urlsafe(32)
-    expires = datetime.now(UTC) + timedelta(hours=hours)
-    db.add(LoginSession(token_sha256=_token_hash(token), user_id=user.id, expires_at=expires))
-    db.execute(delete(LoginSession).where(LoginSession.expires_at < datetime.now(UTC)))
+    now = datetime.now(UTC)
+    expires = now + timedelta(seconds=min(hours * 3600, idle_s if idle_s else hours * 3600))
+    db.add(LoginSession(token_sha256=_token_hash(token), user_id=user.id, created_at=now,
+                        expires_at=expires))
+    db.execute(delete(LoginSession).where(LoginSession.expires_at < now))
     db.commit()
     return token, expires
 
 
-def user_for_token(db: Session, token: str) -> User | None:
-    """The user of a valid, unexpired token."""
+def _aware(t: datetime) -> datetime:
+    return t if t.tzinfo else t.replace(tzinfo=UTC)
+
+
+#: The idle expiry is written back at most this often per login (not on every request).
+_TOUCH_S = 60.0
+
+
+def user_for_token(db: Session, token: str, idle_s: float | None = None,
+                   lifetime_s: float | None = None) -> User | None:
+    """The user of a valid, unexpired token.
+
+    With ``idle_s`` (the idle timeout) and ``lifetime_s`` (the absolute lifetime), this
+    request counts as activity: the login's expiry moves to ``idle_s`` from now, never
+    past ``lifetime_s`` after the login (written at most once a minute).
+    """
     sess = db.scalar(select(LoginSession).where(LoginSession.token_sha256 == _token_hash(token)))
     if sess is None:
         return None
-    exp = sess.expires_at if sess.expires_at.tzinfo else sess.expires_at.replace(tzinfo=UTC)
-    if exp < datetime.now(UTC):
+    now = datetime.now(UTC)
+    exp = _aware(sess.expires_at)
+    if exp < now:
         return None
+    if idle_s and lifetime_s:
+        new = min(_aware(sess.created_at) + timedelta(seconds=lifetime_s),
+                  now + timedelta(seconds=idle_s))
+        if (new - exp).total_seconds() > _TOUCH_S:
+            sess.expires_at = new
+            db.commit()
     return sess.user
 
 
@@ -97,19 +148,40 @@ def logout(db: Session, token: str) -> None:
     db.commit()
 
 
+def change_password(db: Session, user: User, new_password: str, keep_token: str | None) -> int:
+    """Set ``user``'s password and end every other login of theirs.
+
+    Returns:
+        How many other logins were ended.
+    """
+    user.password_hash = hash_password(new_password)
+    q = delete(LoginSession).where(LoginSession.user_id == user.id)
+    if keep_token:
+        q = q.where(LoginSession.token_sha256 != _token_hash(keep_token))
+    ended = int(getattr(db.execute(q), "rowcount", 0) or 0)
+    db.commit()
+    return ended
+
+
 @dataclass
 class LoginThrottle:
-    """Failed logins per (user name, client address): after ``max_failures`` within
-    ``window_s`` that pair is refused until the oldest of them is ``window_s`` old.
+    """Failed logins per (user name, client address), and per address over all names.
 
-    Each guess already costs ~50 ms of scrypt; this bounds a password guesser to a handful
-    of tries per window on one address without locking the user out from elsewhere (the
+    After ``max_failures`` within ``window_s`` for one name from one address, that pair is
+    refused until the oldest of them is ``window_s`` old; after ``ADDRESS_FACTOR`` times as
+    many from one address under any names (a password spray over user names), the address
+    is. Each guess already costs ~50 ms of scrypt; this bounds a guesser to a handful of
+    tries per window on one address without locking the user out from elsewhere (the
     lab's own workstation). In memory: a server restart forgets it, as it should.
     """
 
     max_failures: int = 5
     window_s: float = 300.0
     _failures: dict[tuple[str, str], list[float]] = field(default_factory=dict)
+
+    #: Failures from one address under any names, as a multiple of ``max_failures``.
+    ADDRESS_FACTOR = 4
+    _ANY = "\x00any"  # not a user name (names are typed text)
 
     def _recent(self, key: tuple[str, str], now: float) -> list[float]:
         kept = [t for t in self._failures.get(key, []) if now - t < self.window_s]
@@ -119,20 +191,33 @@ class LoginThrottle:
             self._failures.pop(key, None)
         return kept
 
+    def _limits(self, username: str, client: str) -> list[tuple[tuple[str, str], int]]:
+        return [((username.lower(), client), self.max_failures),
+                ((self._ANY, client), self.max_failures * self.ADDRESS_FACTOR)]
+
     def retry_after(self, username: str, client: str, now: float | None = None) -> float:
         """Seconds until this pair may try again (0: now)."""
         now = time.monotonic() if now is None else now
-        recent = self._recent((username.lower(), client), now)
-        if len(recent) < self.max_failures:
-            return 0.0
-        return max(0.0, recent[-self.max_failures] + self.window_s - now)
+        wait = 0.0
+        for key, limit in self._limits(username, client):
+            recent = self._recent(key, now)
+            if len(recent) >= limit:
+                wait = max(wait, recent[-limit] + self.window_s - now)
+        return max(0.0, wait)
 
-    def failed(self, username: str, client: str, now: float | None = None) -> None:
+    def failed(self, username: str, client: str, now: float | None = None) -> bool:
+        """Count a failed login.
+
+        Returns:
+            True when this failure starts a pause (the caller records that in the audit
+            trail).
+        """
         now = time.monotonic() if now is None else now
-        key = (username.lower(), client)
-        self._failures[key] = [*self._recent(key, now), now][-self.max_failures:]
-        if len(self._failures) > 10_000:  # bounded memory under a spray of names
+        for key, limit in self._limits(username, client):
+            self._failures[key] = [*self._recent(key, now), now][-limit:]
+        while len(self._failures) > 10_000:  # bounded memory under a spray of names
             self._failures.pop(next(iter(self._failures)))
+        return self.retry_after(username, client, now) > 0
 
     def succeeded(self, username: str, client: str) -> None:
         self._failures.pop((username.lower(), client), None)

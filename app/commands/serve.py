@@ -52,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
     # 3D view's zstd + float arrays, PNG/JPEG images); deflating it again cost the server
     # CPU and ~25 ms per 3D-view message (bench/viewer_proxy.py)
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
-                ws_per_message_deflate=False,
+                ws_per_message_deflate=False, proxy_headers=True,
+                forwarded_allow_ips=settings.forwarded_allow_ips,
                 ws_max_size=settings.ws_transport_max_bytes, ws_ping_interval=10,
                 ws_ping_timeout=20, timeout_graceful_shutdown=3)
     return 0

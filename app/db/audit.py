@@ -33,9 +33,12 @@ def record(db: Session, username: str, action: str, target: str = "", detail: st
     db.commit()
 
 
-def record_failed_login(db: Session, username: str, client: str) -> None:
-    """Append a failed login. A name that is no account is not kept: people type their
-    password into the user name field, and the trail must not hold it."""
+def record_failed_login(db: Session, username: str, client: str, note: str = "") -> None:
+    """Append a failed login (``note``: what followed, e.g. a pause). A name that is no
+    account is not kept: people type their password into the user name field, and the
+    trail must not hold it."""
     known = db.scalar(select(User.id).where(User.username == username)) is not None
-    record(db, username if known else "(unknown user)", "login_failed",
-           detail="" if known else "no account with the name given", client=client)
+    detail = "; ".join(x for x in ("" if known else "no account with the name given", note)
+                       if x)
+    record(db, username if known else "(unknown user)", "login_failed", detail=detail,
+           client=client)

@@ -139,3 +139,169 @@ def test_security_headers_on_console_and_api(client: TestClient) -> None:
 def test_hsts_when_served_over_https(tmp_path: Path) -> None:
     with TestClient(create_app(_settings(tmp_path)), base_url="https://testserver") as c:
         assert c.get("/rig.html").headers["strict-transport-security"].startswith("max-age=")
+
+
+# ---------------------------------------------------------------------------- sessions
+
+
+def _set_cookie(r: Any) -> str:
+    return "; ".join(v for k, v in r.headers.multi_items() if k.lower() == "set-cookie")
+
+
+def test_session_cookie_flags(tmp_path: Path) -> None:
+    """HttpOnly and SameSite=Strict always; Secure over HTTPS (directly or as a trusted
+    proxy reports it) or when the operator says so."""
+    with TestClient(create_app(_settings(tmp_path / "a"))) as c:
+        cookie = _set_cookie(_login(c)).lower()
+        assert "httponly" in cookie and "samesite=strict" in cookie
+        assert "secure" not in cookie.replace("samesite", "")  # plain http on a workstation
+    with TestClient(create_app(_settings(tmp_path / "b")), base_url="https://testserver") as c:
+        assert "; secure" in _set_cookie(_login(c)).lower()
+    with TestClient(create_app(_settings(tmp_path / "c", cookie_secure=True))) as c:
+        assert "; secure" in _set_cookie(_login(c)).lower()
+
+
+def test_logout_ends_the_login_on_the_server(client: TestClient) -> None:
+    token = _login(client).json()["token"]
+    bearer = {"Authorization": f"Bearer {token}"}
+    assert client.get("/api/auth/me", headers=bearer).status_code == 200
+    assert client.post("/api/auth/logout", headers=bearer).status_code == 204
+    # a copy of the token (or of the cookie) is worthless afterwards
+    assert client.get("/api/auth/me", headers=bearer).status_code == 401
+    client.cookies.set("gaitrig_session", token)
+    assert client.get("/api/auth/me").status_code == 401
+
+
+def test_login_never_adopts_a_planted_session(client: TestClient) -> None:
+    """Session fixation: a login mints a new token and sets it as the cookie; a token
+    someone put into the browser before is not what the victim's login authenticates."""
+    planted = _login(client).json()["token"]
+    client.cookies.clear()
+    client.cookies.set("gaitrig_session", "planted-by-someone-else")
+    r = _login(client)
+    assert r.json()["token"] not in (planted, "planted-by-someone-else")
+    assert f"gaitrig_session={r.json()['token']}" in _set_cookie(r)
+
+
+def _login_session(client: TestClient) -> Any:
+    from sqlalchemy import select
+
+    from app.db.models import LoginSession
+
+    db = client.app.state.db_sessions()  # type: ignore[attr-defined]
+    return db, db.scalars(select(LoginSession)).one()
+
+
+def test_idle_timeout_and_absolute_lifetime(tmp_path: Path) -> None:
+    from datetime import UTC, datetime, timedelta
+
+    s = _settings(tmp_path, session_idle_minutes=30, session_hours=12)
+    with TestClient(create_app(s)) as c:
+        body = _login(c).json()
+        left = datetime.fromisoformat(body["expires_at"]) - datetime.now(UTC)
+        assert timedelta(minutes=29) < left <= timedelta(minutes=30)  # idle, not 12 h
+        bearer = {"Authorization": f"Bearer {body['token']}"}
+        c.cookies.clear()
+
+        def expiry() -> datetime:
+            db, sess = _login_session(c)
+            with db:
+                return sess.expires_at.replace(tzinfo=UTC)
+
+        def set_times(expires: datetime, created: datetime | None = None) -> None:
+            db, sess = _login_session(c)
+            with db:
+                sess.expires_at = expires
+                if created is not None:
+                    sess.created_at = created
+                db.commit()
+
+        now = datetime.now(UTC)
+        set_times(now + timedelta(seconds=10))  # idle for almost 30 min
+        assert c.get("/api/auth/me", headers=bearer).status_code == 200
+        assert expiry() - now > timedelta(minutes=29)  # activity: the idle clock restarts
+        # never past the absolute lifetime after the login
+        set_times(now + timedelta(seconds=10), created=now - timedelta(hours=12, minutes=-5))
+        assert c.get("/api/auth/me", headers=bearer).status_code == 200
+        assert expiry() - now < timedelta(minutes=6)
+        set_times(now - timedelta(seconds=1))  # idle too long
+        r = c.get("/api/auth/me", headers=bearer)
+        assert r.status_code == 401 and "idle" in r.json()["detail"]
+
+
+# --------------------------------------------------------------------------- passwords
+
+
+def _audit(client: TestClient, bearer: dict[str, str], action: str) -> list[dict[str, Any]]:
+    r = client.get("/api/audit", params={"action": action}, headers=bearer)
+    assert r.status_code == 200, r.text
+    return list(r.json())
+
+
+def test_password_change_policy_and_other_sessions_end(client: TestClient) -> None:
+    other = {"Authorization": f"Bearer {_login(client).json()['token']}"}
+    client.cookies.clear()  # another browser
+    me = {"Authorization": f"Bearer {_login(client).json()['token']}"}
+    client.cookies.clear()
+    url = "/api/auth/password"
+    r = client.post(url, headers=me, json={"current_password": "nope-nope-nope",
+                                           "new_password": "a fine new passphrase"})
+    assert r.status_code == 403 and "current password" in r.json()["detail"]
+    for bad, why in [("short-pw", "at least 12"), ("admin-and-more-1", "user name"),
+                     ("aaaaaaaaaaaaaaaa", "repeats"), (PASSWORD, "differ")]:
+        r = client.post(url, headers=me, json={"current_password": PASSWORD,
+                                               "new_password": bad})
+        assert r.status_code == 422 and why in r.json()["detail"], (bad, r.text)
+    r = client.post(url, headers=me, json={"current_password": PASSWORD,
+                                           "new_password": "horse battery staple 7"})
+    assert r.status_code == 204, r.text
+    assert client.get("/api/auth/me", headers=other).status_code == 401  # ended
+    assert client.get("/api/auth/me", headers=me).status_code == 200  # this one stays
+    assert client.post("/api/auth/login", json={"username": "admin", "password": PASSWORD}
+                       ).status_code == 401
+    _login(client, "horse battery staple 7")
+    changes = _audit(client, me, "password_change")
+    assert len(changes) == 1 and "1 other login" in changes[0]["detail"]
+
+
+def test_first_run_password_policy_helper() -> None:
+    from app.api.security import password_problem
+
+    assert password_problem("correct horse battery", "admin") is None
+    assert "12" in (password_problem("pw", "admin") or "")
+
+
+# ----------------------------------------------------------------------------- logins
+
+
+def test_failed_logins_same_answer_throttled_and_audited(client: TestClient) -> None:
+    """Unknown user and wrong password answer alike (no user enumeration); after five
+    failures the name is paused for that address (429) and the pause is in the trail."""
+    unknown = client.post("/api/auth/login", json={"username": "nobody", "password": "x"})
+    wrong = client.post("/api/auth/login", json={"username": "admin", "password": "x"})
+    assert unknown.status_code == wrong.status_code == 401
+    assert unknown.json() == wrong.json()
+    for _ in range(4):
+        assert client.post("/api/auth/login", json={"username": "admin", "password": "x"}
+                           ).status_code == 401
+    r = client.post("/api/auth/login", json={"username": "admin", "password": PASSWORD})
+    assert r.status_code == 429 and int(r.headers["retry-after"]) > 0  # even the right one
+    from app.api.security import LoginThrottle
+
+    client.app.state.login_throttle = LoginThrottle(5, 300.0)  # type: ignore[attr-defined]
+    bearer = {"Authorization": f"Bearer {_login(client).json()['token']}"}
+    failed = _audit(client, bearer, "login_failed")
+    assert len(failed) == 6
+    assert sum("paused" in e["detail"] for e in failed) == 1
+
+
+def test_password_spray_over_many_names_is_paused_per_address() -> None:
+    from app.api.security import LoginThrottle
+
+    th = LoginThrottle(max_failures=5, window_s=300.0)
+    for k in range(19):
+        th.failed(f"user{k}", "10.0.0.9", now=1000.0 + k)
+    assert th.retry_after("user-new", "10.0.0.9", now=1020.0) == 0
+    assert th.failed("user19", "10.0.0.9", now=1020.0)  # the 20th name: the address pauses
+    assert th.retry_after("user-new", "10.0.0.9", now=1021.0) > 0
+    assert th.retry_after("user-new", "10.0.0.10", now=1021.0) == 0  # others unaffected

@@ -1,4 +1,12 @@
-"""Console login: ``POST /api/auth/login``, ``POST /api/auth/logout``, ``GET /api/auth/me``."""
+"""Console login: ``POST /api/auth/login``, ``POST /api/auth/logout``, ``GET /api/auth/me``,
+``POST /api/auth/password`` (change one's own password).
+
+The session cookie is ``HttpOnly``, ``SameSite=Strict`` and ``Secure`` whenever the request
+came over HTTPS (through a reverse proxy: ``X-Forwarded-Proto`` from a proxy uvicorn trusts,
+see ``GAITRIG_FORWARDED_ALLOW_IPS``) or ``GAITRIG_COOKIE_SECURE`` is set. Every login
+mints a new random token (a token the browser already held is never promoted, so there is
+no session fixation); a logout ends the token on the server.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +18,7 @@ from pydantic import BaseModel, Field
 from app.api import security
 from app.api.deps import SESSION_COOKIE, CurrentUser, DbDep, SettingsDep, request_token
 from app.api.limits import BoundedRoute
+from app.config import Settings
 from app.db import audit
 
 router = APIRouter(prefix="/auth", route_class=BoundedRoute, tags=["auth"])
@@ -24,6 +33,11 @@ class LoginOut(BaseModel):
     token: str
     expires_at: datetime
     username: str
+
+
+class PasswordIn(BaseModel):
+    current_password: str = Field(min_length=1, max_length=256)
+    new_password: str = Field(min_length=1, max_length=256)
 
 
 class UserOut(BaseModel):
@@ -48,17 +62,29 @@ def login(body: LoginIn, request: Request, response: Response, db: DbDep,
                             f"too many wrong passwords for {body.username!r}; try again in "
                             f"{minutes} min or ask the administrator to reset the password",
                             headers={"Retry-After": str(int(wait) + 1)})
-    got = security.login(db, body.username, body.password, settings.session_hours)
+    got = security.login(db, body.username, body.password, settings.session_hours,
+                         settings.session_idle_minutes * 60)
     if got is None:
-        throttle.failed(body.username, client)
-        audit.record_failed_login(db, body.username, client)
+        paused = throttle.failed(body.username, client)
+        audit.record_failed_login(
+            db, body.username, client,
+            note=f"further logins paused for {settings.login_lockout_s:g} s" if paused else "")
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, "wrong username or password")
     throttle.succeeded(body.username, client)
     audit.record(db, body.username, "login", client=client)
     token, expires = got
     response.set_cookie(SESSION_COOKIE, token, httponly=True, samesite="strict",
+                        secure=cookie_secure(request, settings),
                         max_age=int(settings.session_hours * 3600))
     return LoginOut(token=token, expires_at=expires, username=body.username)
+
+
+def cookie_secure(request: Request, settings: Settings) -> bool:
+    """Whether the session cookie is sent over HTTPS only: ``settings.cookie_secure`` when
+    set, else whether this request came over HTTPS."""
+    if settings.cookie_secure is not None:
+        return settings.cookie_secure
+    return request.url.scheme == "https"
 
 
 @router.post("/logout", status_code=204)
@@ -69,7 +95,41 @@ def logout(request: Request, response: Response, user: CurrentUser, db: DbDep) -
         security.logout(db, token)
     audit.record(db, user.username, "logout",
                  client=request.client.host if request.client else "")
-    response.delete_cookie(SESSION_COOKIE)
+    response.delete_cookie(SESSION_COOKIE, httponly=True, samesite="strict",
+                           secure=cookie_secure(request, request.app.state.settings))
+
+
+@router.post("/password", status_code=204)
+def change_password(body: PasswordIn, request: Request, user: CurrentUser, db: DbDep,
+                    settings: SettingsDep) -> None:
+    """Change one's own password (``{"current_password", "new_password"}``).
+
+    The new one must have at least 12 characters and not contain the user name. Every
+    other login of this user ends (a stolen session does not survive the change); wrong
+    current passwords count as failed logins (throttled, audited).
+    """
+    throttle: security.LoginThrottle = request.app.state.login_throttle
+    client = request.client.host if request.client else "?"
+    wait = throttle.retry_after(user.username, client)
+    if wait > 0:
+        raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS,
+                            f"too many wrong passwords; try again in {max(1, round(wait / 60))} "
+                            "min", headers={"Retry-After": str(int(wait) + 1)})
+    if not security.verify_password(body.current_password, user.password_hash):
+        paused = throttle.failed(user.username, client)
+        audit.record_failed_login(
+            db, user.username, client,
+            note="wrong current password at a password change"
+            + (f"; paused for {settings.login_lockout_s:g} s" if paused else ""))
+        raise HTTPException(status.HTTP_403_FORBIDDEN, "the current password is wrong")
+    problem = security.password_problem(body.new_password, user.username)
+    if problem is None and body.new_password == body.current_password:
+        problem = "the new password must differ from the current one"
+    if problem:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, problem)
+    ended = security.change_password(db, user, body.new_password, request_token(request))
+    audit.record(db, user.username, "password_change",
+                 detail=f"{ended} other login(s) ended", client=client)
 
 
 @router.get("/me", response_model=UserOut)
