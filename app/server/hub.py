@@ -21,6 +21,7 @@ from typing import Any
 from fastapi import WebSocket, WebSocketDisconnect
 from starlette.websockets import WebSocketState
 
+from app.api.security import LoginThrottle
 from app.config import Settings
 from app.nodes.protocol import (
     Hello,
@@ -68,6 +69,9 @@ class Hub:
                                          data_host=settings.host,
                                          data_port=settings.transfer_port)
         self._sockets: dict[str, WebSocket] = {}
+        #: Wrong pairing tokens per address: a rogue process on the LAN guessing the token
+        #: gets a handful of tries per window, as a password guesser does at the login.
+        self._token_failures = LoginThrottle(5, 300.0)
         self._agent_started: dict[str, float] = {}
         self.skeleton_listeners: list[Callable[[NodeSession], None]] = []
         #: Binary kind → handler ``(session, header, payload)`` for kinds other modules own
@@ -105,11 +109,24 @@ class Hub:
         if not isinstance(hello, Hello):
             await self._refuse(ws, peer, f"expected hello first, got {hello.type}", CLOSE_PROTOCOL)
             return
+        if hello.node_id in (".", ".."):  # names a folder of the server's recordings
+            await self._refuse(ws, peer, f"node id {hello.node_id!r} is not allowed; use "
+                               "letters, digits, '_', '-' or '.' (e.g. S1)", CLOSE_PROTOCOL)
+            return
+        address = ws.client.host if ws.client else "?"
+        wait = self._token_failures.retry_after("node", address)
+        if wait > 0:
+            await self._refuse(ws, peer, f"too many wrong pairing tokens from {address}; "
+                               f"connections from it are refused for {wait:.0f} s more",
+                               CLOSE_REFUSED)
+            return
         if not secrets.compare_digest(hello.token.encode(), self.settings.node_token.encode()):
+            self._token_failures.failed("node", address)
             await self._refuse(ws, peer, f"wrong pairing token for node {hello.node_id}; start "
                                "the node with the token shown in the server settings",
                                CLOSE_REFUSED)
             return
+        self._token_failures.succeeded("node", address)
         old = self._sockets.get(hello.node_id)
         if old is not None:
             log.warning("node %s reconnected from %s; closing its previous connection",

@@ -305,3 +305,36 @@ def test_password_spray_over_many_names_is_paused_per_address() -> None:
     assert th.failed("user19", "10.0.0.9", now=1020.0)  # the 20th name: the address pauses
     assert th.retry_after("user-new", "10.0.0.9", now=1021.0) > 0
     assert th.retry_after("user-new", "10.0.0.10", now=1021.0) == 0  # others unaffected
+
+
+# -------------------------------------------------------------------------- node link
+
+
+def _hello(client: TestClient, node_id: str, token: str) -> dict[str, Any]:
+    import json
+
+    from app.nodes.protocol import Hello, dump
+
+    with client.websocket_connect("/ws/node") as ws:
+        ws.send_text(dump(Hello(node_id=node_id, token=token)))
+        return dict(json.loads(ws.receive_text()))
+
+
+def test_node_ids_that_name_folders_are_refused(client: TestClient) -> None:
+    """A node's id becomes a folder under recordings/<rec_id>/: '.' and '..' would put its
+    files into the recording's or all recordings' folder."""
+    for bad in (".", ".."):
+        m = _hello(client, bad, "review-node-token-1")
+        assert m["type"] == "refused" and "not allowed" in m["reason"], m
+    assert _hello(client, "S.1", "review-node-token-1")["type"] == "welcome"
+
+
+def test_pairing_token_guessing_is_paused_per_address(client: TestClient) -> None:
+    for k in range(5):
+        m = _hello(client, "S1", f"guess-{k:08d}")
+        assert m["type"] == "refused" and "wrong pairing token" in m["reason"]
+    # the right token from the same address now waits too: guessing cannot go on
+    m = _hello(client, "S1", "review-node-token-1")
+    assert m["type"] == "refused" and "too many wrong pairing tokens" in m["reason"]
+    client.app.state.hub._token_failures._failures.clear()  # type: ignore[attr-defined]
+    assert _hello(client, "S1", "review-node-token-1")["type"] == "welcome"
