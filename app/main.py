@@ -12,6 +12,7 @@ console page drop an HTML file into
 from __future__ import annotations
 
 import importlib
+import ipaddress
 import logging
 import pkgutil
 import sys
@@ -31,14 +32,14 @@ from app.api.deps import get_current_user
 from app.api.hardening import SecurityMiddleware
 from app.api.routes import auth
 from app.api.routes._exporting import ExportGuard
-from app.api.security import LoginThrottle, ensure_admin
+from app.api.security import LoginThrottle, ensure_admin, password_problem
 from app.config import DEFAULT_NODE_TOKEN, Settings, get_settings
 from app.db.base import make_engine, make_session_factory
 from app.server.hub import Hub
 from app.server.registry import NodeSession
 from app.viewer import proxy as viewer_proxy
 from app.viewer.scene import SensorView
-from engine.errors import CalibrationError, GaitrigError
+from engine.errors import CalibrationError, GaitrigError, InputError
 
 log = logging.getLogger("gaitrig.server")
 
@@ -93,9 +94,48 @@ def validation_message(errors: Sequence[Any]) -> str:
     return "; ".join(msgs) or "the request is not valid"
 
 
+def _loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+def deployment_problems(settings: Settings) -> list[str]:
+    """Why these settings must not serve the clinic network (empty: none).
+
+    A server on a loopback address serves one workstation (a demo, a developer, tests);
+    one on any other interface is reachable from the network, and then the shipped node
+    pairing token (public in the docs) and a weak first-run admin password are refused.
+    """
+    if _loopback(settings.host):
+        return []
+    problems = []
+    if settings.node_token == DEFAULT_NODE_TOKEN:
+        problems.append("the node pairing token is the shipped 'change-me-node-token', which "
+                        "anyone who read the docs knows: set GAITRIG_NODE_TOKEN (server and "
+                        "nodes) to a secret of your own, e.g. the output of "
+                        "`python -c 'import secrets; print(secrets.token_urlsafe(24))'`")
+    if settings.admin_password:
+        why = password_problem(settings.admin_password, settings.admin_user)
+        if why:
+            problems.append(f"GAITRIG_ADMIN_PASSWORD is too weak ({why}); unset it to have a "
+                            "strong one generated and printed at the first start")
+    return problems
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
-    """Build the server app (nothing starts until the ASGI server runs the lifespan)."""
+    """Build the server app (nothing starts until the ASGI server runs the lifespan).
+
+    Raises:
+        InputError: the server would listen beyond this machine with settings that are
+            unsafe there (see :func:`deployment_problems`).
+    """
     settings = settings or get_settings()
+    problems = deployment_problems(settings)
+    if problems:
+        raise InputError(f"refusing to serve {settings.host}:{settings.port} to the network: "
+                         + "; ".join(problems))
     settings.data_dir.mkdir(parents=True, exist_ok=True)
 
     @asynccontextmanager

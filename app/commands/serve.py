@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 from pathlib import Path
 
 HELP = "run the server (console, REST API, node websocket, 3D view)"
@@ -45,7 +46,13 @@ def run(args: argparse.Namespace) -> int:
     assert isinstance(settings, Settings)
     logging.basicConfig(level=args.log_level.upper(),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    app = create_app(settings)
+    from engine.errors import GaitrigError
+
+    try:
+        app = create_app(settings)
+    except GaitrigError as e:  # unsafe settings for the network: say what to change
+        print(f"gaitrig serve: {e}", file=sys.stderr)
+        return 2
     print(f"gaitrig server on http://{settings.host}:{settings.port}/ "
           f"(nodes connect to ws://{settings.host}:{settings.port}/ws/node)", flush=True)
     # ws_per_message_deflate off: what goes over the websockets is compressed already (the

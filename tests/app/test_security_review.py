@@ -338,3 +338,30 @@ def test_pairing_token_guessing_is_paused_per_address(client: TestClient) -> Non
     assert m["type"] == "refused" and "too many wrong pairing tokens" in m["reason"]
     client.app.state.hub._token_failures._failures.clear()  # type: ignore[attr-defined]
     assert _hello(client, "S1", "review-node-token-1")["type"] == "welcome"
+
+
+# ------------------------------------------------------------------- production start
+
+
+def test_network_facing_server_refuses_shipped_token_and_weak_password(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from app.cli import main
+    from app.config import DEFAULT_NODE_TOKEN
+    from engine.errors import InputError
+
+    with pytest.raises(InputError, match="change-me-node-token"):
+        create_app(_settings(tmp_path, host="0.0.0.0", node_token=DEFAULT_NODE_TOKEN))
+    with pytest.raises(InputError, match="ADMIN_PASSWORD is too weak"):
+        create_app(_settings(tmp_path, host="10.1.2.3", admin_password="admin123"))
+    # a strong password or none (generated and printed): fine on the network
+    create_app(_settings(tmp_path, host="0.0.0.0", admin_password="tall green tripods 4"))
+    create_app(_settings(tmp_path, host="0.0.0.0", admin_password=None))
+    # one workstation (loopback): the demo's and the tests' short settings stay allowed
+    create_app(_settings(tmp_path, host="127.0.0.1", node_token=DEFAULT_NODE_TOKEN,
+                         admin_password="pw"))
+    # `gaitrig serve` says what to change instead of a traceback
+    code = main(["serve", "--host", "0.0.0.0", "--no-viewer", "--data-dir", str(tmp_path),
+                 "--token", DEFAULT_NODE_TOKEN])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "GAITRIG_NODE_TOKEN" in err and "Traceback" not in err
