@@ -202,7 +202,8 @@ const gaitrig = (() => {
             state.append(" ", b);
           }
           return el("tr", { "data-recording": r.id }, el("th", { scope: "row" }, r.id),
-            el("td", {}, new Date(r.t_start * 1000).toISOString().slice(0, 19).replace("T", " ")),
+            // the user's own clock and date format (was UTC, an hour or more off the wall clock)
+            el("td", {}, new Date(r.t_start * 1000).toLocaleString()),
             el("td", { class: "num" }, len), state, el("td", {}, parts));
         }));
       } catch (e) { /* shown by the node refresh */ }
@@ -214,3 +215,14 @@ const gaitrig = (() => {
   }
   return { api, toLogin, newest, latest, release, loginPage, rigPage };
 })();
+
+// The browser refuses a field that does not match its pattern with "Please match the
+// requested format.", which does not say which format: a field with a pattern says its
+// title (written as an instruction) instead. Cleared as soon as the user types again.
+document.addEventListener("invalid", (ev) => {
+  const f = ev.target;
+  if (f.validity && f.validity.patternMismatch && f.title) f.setCustomValidity(f.title);
+}, true);
+document.addEventListener("input", (ev) => {
+  if (ev.target.setCustomValidity) ev.target.setCustomValidity("");
+}, true);

@@ -83,6 +83,7 @@
     const when = new Date(doc.created_iso).toLocaleString();
     $("res-summary").textContent = `${head} (${when}, ${doc.meta.source || "captured"}): `
       + `${sens.length} sensors, ${doc.edges.length} sensor–marker edges, worst sensor residual ${(worst * 1000).toFixed(2)} mm.`;
+    $("res-details").hidden = false;
     drawGraph(doc);
     const icp = Object.fromEntries((doc.meta.icp || []).map((r) => [r.sensor, r]));
     const tb = $("sensor-table").querySelector("tbody"); tb.replaceChildren();
@@ -140,7 +141,7 @@
       tb.append(row([n, cell, p.error || ""]));
     }
     $("cap-state").textContent = j.state === "capturing" ? "Capturing…" : j.state === "computing"
-      ? "Computing: markers → 3D corners → graph → joint optimisation → ICP…" : "";
+      ? "Computing the sensor poses from the markers…" : "";
   }
 
   let pendingJob = null;
@@ -219,6 +220,12 @@
     const rows = await gaitrig.api("/api/calibration");
     if (!historySeq.current(mine)) return rows;
     const tb = $("history").querySelector("tbody"); tb.replaceChildren();
+    // (headings over nothing looked like a list still loading)
+    if (!rows.length) {
+      const tr = el("tr");
+      tr.append(el("td", "No saved calibration yet: capture one in step 2 and accept it.", { colspan: "6" }));
+      tb.append(tr);
+    }
     rows.forEach((c, i) => {
       const btn = el("button", i === 0 ? "active" : "Restore", { type: "button" });
       if (i === 0) btn.disabled = true;
@@ -243,6 +250,8 @@
   async function refresh() {
     const n = shownSeq.ask();
     const rows = await history();
+    if (!rows.length && pendingJob === null && shownSeq.current(n))
+      $("res-summary").textContent = "No calibration yet: capture one in step 2 (no sensors? run the simulated one there).";
     if (!rows.length || pendingJob !== null) return;
     const active = await gaitrig.api("/api/calibration/active");
     if (shownSeq.current(n) && pendingJob === null) show(active, false);

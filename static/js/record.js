@@ -144,6 +144,7 @@
         r.reason ? el("span", { class: "reason" }, " " + r.reason) : "");
       const lparts = new Map((live ? live.parts : []).map((p) => [p.node_id, p]));
       $("parts").replaceChildren(...r.parts.map((p) => partRow(p, lparts.get(p.node_id))));
+      $("parts-table").hidden = false;  // (headings over nothing before the first recording)
       showLive(live);
       const running = r.state === "recording";
       $("start").disabled = running; $("stop").disabled = !running;
@@ -166,6 +167,12 @@
     const sid = $("session").value;
     if (!sid) { say("rec-msg", "Choose a subject and a session first (or add them on the left)."); return; }
     const streams = ["depth", "color"].filter((s) => $(s).checked);
+    // checked here: the server's refusal named its field ("image_every: Input should be…")
+    if (!$("every").checkValidity()) {
+      say("rec-msg", "Images of every N-th frame: enter a whole number from 1 to 1000.");
+      $("every").focus();
+      return;
+    }
     $("start").disabled = true;
     try {
       const r = await api(`/api/sessions/${sid}/recordings`, { method: "POST", body: JSON.stringify({

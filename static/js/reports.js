@@ -340,12 +340,15 @@
   $("pdf").addEventListener("click", (ev) => {
     ev.preventDefault();
     const url = subjectQuery("pdf");
+    // (a keyboard user's Enter on the greyed link did nothing visible)
     if (url) downloadPdf(url, "subject-msg", "gait-report.pdf");
+    else say("subject-msg", "Choose a subject first.", true);
   });
   $("rec-pdf").addEventListener("click", (ev) => {
     ev.preventDefault();
     const url = recQuery("pdf");
     if (url) downloadPdf(url, "cmp-msg", "gait-report.pdf");
+    else say("cmp-msg", "Choose a recording and at least one sensor in subset A.", true);
   });
   $("recording").addEventListener("change", recordingChanged);
   $("compare").addEventListener("click", compare);
@@ -354,6 +357,31 @@
   $("ref-remove").addEventListener("click", removeReference);
   $("file-form").addEventListener("submit", (ev) => { ev.preventDefault(); analyseFile("html"); });
   $("file-pdf").addEventListener("click", () => analyseFile("pdf"));
-  loadSubjects();
+  // The Subjects page links here with #subject=ID[&session=ID]: that report is chosen and
+  // shown at once (the choice is kept in the address, so a reload shows it again).
+  function keepChoice() {
+    const q = new URLSearchParams();
+    if ($("subject").value) q.set("subject", $("subject").value);
+    if ($("subject").value && $("session").value) q.set("session", $("session").value);
+    history.replaceState(null, "", q.toString() ? `#${q}` : location.pathname);
+  }
+  $("subject").addEventListener("change", keepChoice);
+  $("session").addEventListener("change", keepChoice);
+  async function fromAddress() {
+    const q = new URLSearchParams(location.hash.slice(1));
+    const sid = q.get("subject");
+    if (!sid) return;
+    if (!subjects.some((s) => String(s.id) === sid)) {
+      say("subject-msg", "The subject of this link is not on the server any more: choose one above.", true);
+      return;
+    }
+    $("subject").value = sid;
+    await subjectChanged();
+    const sess = q.get("session");
+    if (sess && [...$("session").options].some((o) => o.value === sess)) $("session").value = sess;
+    setLink($("pdf"), subjectQuery("pdf"));
+    $("subject-form").requestSubmit();
+  }
+  loadSubjects().then(fromAddress);
   loadRecordings();
 })();

@@ -62,7 +62,7 @@
     if (!subjectsSeq.current(mine)) return;
     body.replaceChildren(...ss.map((s) => {
       const tr = el("tr", { class: "clickable" + (s.id === subjectId ? " selected" : ""), "data-subject": s.code },
-        el("th", { scope: "row" }, el("a", { href: `#subject=${s.id}`, onclick: (ev) => { ev.preventDefault(); select(s.id); } }, s.code)),
+        el("th", { scope: "row", class: "code-cell" }, el("a", { href: `#subject=${s.id}`, onclick: (ev) => { ev.preventDefault(); select(s.id); } }, s.code)),
         el("td", { class: "num" }, String(s.n_sessions)), el("td", { class: "num" }, String(s.n_recordings)),
         el("td", { class: "num" }, bytes(s.bytes_on_server)));
       tr.addEventListener("click", () => select(s.id));
@@ -216,13 +216,18 @@
     $("detail-hint").textContent = `${subject.n_sessions} session(s), ${subject.n_recordings} recording(s), ${bytes(subject.bytes_on_server)} on the server.`;
     $("detail-body").hidden = false;
     $("record-link").href = `/record.html#subject=${subject.id}`;
+    // (the recordings were listed here but the way to their gait report was not)
+    $("report-link").href = `/reports.html#subject=${subject.id}`;
     $("export-link").href = `/api/subjects/${subject.id}/export`;
     if (fillForm) {
       const f = $("edit-form").elements;
       f.code.value = subject.code; f.sex.value = subject.sex; f.birth_year.value = subject.birth_year ?? "";
       f.height_cm.value = cm(subject.height_m); f.leg_cm.value = cm(subject.leg_length_m); f.notes.value = subject.notes;
       formVersion = subject.version;  // a save based on this copy is refused if someone saved since
-      $("session-form").elements.date.value = new Date().toISOString().slice(0, 10);
+      // today on the user's calendar (toISOString's UTC date was yesterday or tomorrow
+      // for part of the day away from Greenwich)
+      const d = new Date();
+      $("session-form").elements.date.value = `${d.getFullYear()}-${String(d.getMonth() + 1).padStart(2, "0")}-${String(d.getDate()).padStart(2, "0")}`;
     }
     // the server's live entries of these recordings: what the filed rows do not keep
     const ids = subject.sessions.flatMap((s) => s.recordings.map((r) => r.id));
@@ -234,7 +239,9 @@
     const live = new Map(lives.map((x) => [x.id, x]));
     const box = $("sessions");
     box.replaceChildren(...subject.sessions.slice().reverse().map((s) => el("div", { class: "session", "data-session": s.id },
-      el("h3", {}, `${s.date}${s.label ? " — " + s.label : ""}`),
+      el("h3", {}, `${s.date}${s.label ? " — " + s.label : ""}`,
+        s.recordings.some((r) => r.state === "complete")
+          ? el("a", { class: "button session-report", href: `/reports.html#subject=${subject.id}&session=${s.id}` }, "Gait report of this session") : null),
       ...(s.recordings.length ? s.recordings.map((r) => recordingRow(r, live.get(r.id))) : [el("p", { class: "hint" }, "No recordings yet.")]))));
     if (!subject.sessions.length) box.append(el("p", { class: "hint" }, "No sessions yet: add one above, then record it."));
     await showUnfiled(box, gen);

@@ -1,0 +1,246 @@
+"""A physiotherapist's first day with the console, and what tripped her up.
+
+Each test is one thing a person met on a walk-through of the whole day (log in, rig,
+calibration, live view, a subject's walks, their report) at a laptop's 1024×768 or a
+tablet's 768 px, checked by what the page shows: visible text, boxes on the screen,
+where the keyboard focus is, and no JavaScript error.
+"""
+
+from __future__ import annotations
+
+import time
+import urllib.error
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.browser.conftest import LiveServer, login, screenshot
+
+pytestmark = pytest.mark.browser
+
+LONG_CODE = "LONGCODE_abcdefghijklmnopqrstuvwxyz01234"  # the longest code allowed (40)
+
+
+@dataclass
+class Walked:
+    """A subject with one session holding one complete walk, and a long-coded subject."""
+
+    subject_id: int
+    session_id: int
+    code: str
+    long_id: int
+
+
+@pytest.fixture(scope="module")
+def walked(live_server: LiveServer) -> Iterator[Walked]:
+    """One short walk recorded through the API and copied to the server (shared by the
+    module: the report tests need a complete recording, and recording takes seconds)."""
+    srv = live_server
+    srv.login()
+    project = srv.api("/api/projects", {"name": "Walk-through"})
+    subject = srv.api("/api/subjects", {"project_id": project["id"], "code": "WLK01"})
+    session = srv.api("/api/sessions", {"subject_id": subject["id"], "label": "first visit"})
+    long = srv.api("/api/subjects", {"project_id": project["id"], "code": LONG_CODE})
+    for _ in range(3):  # the simulated walker may be turning: walk again until it has steps
+        _record_walk(srv, session["id"])
+        try:
+            srv.api(f"/api/reports/subjects/{subject['id']}?format=html", timeout=120)
+            break
+        except urllib.error.HTTPError as e:
+            if e.code not in (400, 422):  # "record a longer walk"
+                raise
+    else:
+        raise RuntimeError("three simulated walks gave no gait result")
+    yield Walked(subject["id"], session["id"], subject["code"], long["id"])
+
+
+def _wait_report(page: Any) -> None:
+    """Wait until the Reports page shows a report or says why not (then fail with that)."""
+    page.wait_for_function("!document.getElementById('report-section').hidden || "
+                           "document.getElementById('subject-msg').classList.contains('error')",
+                           timeout=120_000)
+    assert page.locator("#report").is_visible(), page.inner_text("#subject-msg")
+
+
+def _record_walk(srv: LiveServer, session_id: int) -> None:
+    rec = srv.api(f"/api/sessions/{session_id}/recordings",
+                  {"label": "walk", "streams": [], "image_every": 3})
+    time.sleep(7.0)  # a few steps of the simulated walker
+    srv.api(f"/api/recordings/{rec['id']}/stop", {}, method="POST")
+    deadline = time.time() + 60
+    while srv.api(f"/api/storage/recordings/{rec['id']}")["state"] != "complete":
+        if time.time() > deadline:
+            raise TimeoutError(f"recording {rec['id']} was not copied to the server in 60 s")
+        time.sleep(0.3)
+
+
+def _no_js_error(page: Any) -> None:
+    assert not page.js_errors, page.js_errors
+
+
+def test_subject_page_leads_to_the_gait_report(page: Any, live_server: LiveServer,
+                                               walked: Walked, artifacts_dir: Path) -> None:
+    """After recording, the clinician is on the subject's page: the way to the gait report
+    was not there (the Reports page had to be found in the menu and the subject chosen
+    again from a list of every project's subjects)."""
+    page.set_viewport_size({"width": 1024, "height": 768})
+    page.goto(f"{live_server.base_url}/subjects.html#subject={walked.subject_id}")
+    page.get_by_role("link", name="Gait report…").click()
+    page.wait_for_url("**/reports.html#subject=*")
+    # the subject's report is shown without choosing anything again
+    _wait_report(page)
+    assert walked.code in page.inner_text("#report")
+    assert page.evaluate("document.getElementById('subject').selectedOptions[0].textContent"
+                         ).startswith(walked.code)
+    screenshot(page, artifacts_dir, "walkthrough_report_from_subject")
+
+    # one session's report from the session's own link
+    page.goto(f"{live_server.base_url}/subjects.html#subject={walked.subject_id}")
+    page.get_by_role("link", name="Gait report of this session").click()
+    page.wait_for_url("**/reports.html#subject=*&session=*")
+    _wait_report(page)
+    assert "first visit" in page.evaluate(
+        "document.getElementById('session').selectedOptions[0].textContent")
+    _no_js_error(page)
+
+
+def test_pdf_link_without_a_subject_says_what_to_do(page: Any, live_server: LiveServer) -> None:
+    """Enter on the greyed "Download PDF" link did nothing at all for a keyboard user."""
+    page.goto(f"{live_server.base_url}/reports.html")
+    page.wait_for_function("document.querySelectorAll('#subject option').length > 1")
+    page.focus("#pdf")
+    page.keyboard.press("Enter")
+    page.wait_for_function("document.getElementById('subject-msg').textContent.length > 0")
+    assert "Choose a subject" in page.inner_text("#subject-msg")
+    _no_js_error(page)
+
+
+@pytest.mark.parametrize("name", ["live", "calibrate"])
+def test_tablet_width_needs_no_sideways_scrolling(page: Any, live_server: LiveServer,
+                                                  artifacts_dir: Path, name: str) -> None:
+    """On a 768 px tablet the Live page (depth panels beside the 3D view) and the Calibrate
+    page (coverage map beside the planning form) ran off the right edge of the screen, and
+    the header's "Log out" broke over two lines."""
+    page.set_viewport_size({"width": 768, "height": 1024})
+    page.goto(f"{live_server.base_url}/{name}.html")
+    page.wait_for_load_state("load")
+    page.wait_for_timeout(1500)  # the first answers arrive and draw
+    screenshot(page, artifacts_dir, f"walkthrough_tablet_{name}")
+    sw, cw = page.evaluate("[document.documentElement.scrollWidth, "
+                           "document.documentElement.clientWidth]")
+    assert sw <= cw, f"{name}: {sw} px wide on a {cw} px screen"
+    one_line = page.evaluate("""() => { const b = document.getElementById('logout');
+        return b.clientHeight < 2 * parseFloat(getComputedStyle(b).lineHeight); }""")
+    assert one_line, "'Log out' wraps onto two lines"
+    if name == "calibrate":  # the planned poses had no units (the current ones had)
+        heads = page.locator("#planned").locator("xpath=..").locator("thead").inner_text().lower()
+        assert "(m)" in heads and "(°)" in heads, heads
+    _no_js_error(page)
+
+
+def test_long_subject_code_stays_inside_its_card(page: Any, live_server: LiveServer,
+                                                 walked: Walked, artifacts_dir: Path) -> None:
+    """A 40-character code ran out of the Subjects table over the subject's details (its
+    sessions and size hidden) and pushed the Record page's subject list out of its card."""
+    page.set_viewport_size({"width": 1024, "height": 768})
+    page.goto(f"{live_server.base_url}/subjects.html#subject={walked.long_id}")
+    row = page.locator(f"tr[data-subject='{LONG_CODE}']")
+    row.wait_for()
+    card = page.locator("section[aria-labelledby=subj-h]").bounding_box()
+    for cell in row.locator("th a, td").all():
+        box = cell.bounding_box()
+        assert box["x"] + box["width"] <= card["x"] + card["width"] + 0.5, cell.inner_text()
+    screenshot(page, artifacts_dir, "walkthrough_long_code_subjects")
+
+    page.goto(f"{live_server.base_url}/record.html#subject={walked.long_id}")
+    page.wait_for_function(f"document.getElementById('subject').selectedOptions[0]"
+                           f"?.textContent === '{LONG_CODE}'")
+    card = page.locator("section[aria-labelledby=who-h]").bounding_box()
+    box = page.locator("#subject").bounding_box()
+    assert box["x"] + box["width"] <= card["x"] + card["width"] + 0.5
+    _no_js_error(page)
+
+
+def test_calibration_wizard_without_a_calibration_says_so(page: Any,
+                                                          live_server: LiveServer) -> None:
+    """With nothing calibrated the wizard's result showed an empty graph frame, three tables
+    of headings over nothing and an empty saved-calibrations table. (The server is shared
+    with tests that calibrate: its list is answered empty here.)"""
+    page.route("**/api/calibration", lambda route: route.fulfill(
+        status=200, body="[]", headers={"Content-Type": "application/json"})
+        if route.request.method == "GET" else route.continue_())
+    page.goto(f"{live_server.base_url}/calibration-wizard.html")
+    page.wait_for_function("document.getElementById('history').innerText"
+                           ".includes('No saved calibration yet')")
+    assert "capture one in step 2" in page.inner_text("#res-summary")
+    assert not page.locator("#graph").is_visible()
+    assert not page.locator("#sensor-table").is_visible()
+    _no_js_error(page)
+
+
+def test_record_page_refuses_a_bad_image_interval_in_plain_words(
+        page: Any, live_server: LiveServer, walked: Walked) -> None:
+    """An image interval out of range reached the server, whose refusal read
+    "image_every: Input should be less than or equal to 1000"; before any recording the
+    sensors' table was headings over nothing."""
+    page.set_viewport_size({"width": 1024, "height": 768})
+    page.goto(f"{live_server.base_url}/record.html#subject={walked.subject_id}")
+    page.wait_for_function("document.getElementById('session').value !== ''")
+    assert not page.locator("#parts").is_visible()
+    page.fill("#every", "5000")
+    page.click("#start")
+    page.wait_for_function("document.getElementById('rec-msg').textContent.length > 0")
+    msg = page.inner_text("#rec-msg")
+    assert "whole number from 1 to 1000" in msg and "image_every" not in msg, msg
+    assert page.evaluate("document.activeElement.id") == "every"  # where to fix it
+    assert not any(r["state"] == "recording" for r in live_server.api("/api/recordings"))
+    _no_js_error(page)
+
+
+def test_code_field_says_which_characters_are_allowed(page: Any,
+                                                      live_server: LiveServer) -> None:
+    """A code with a space was refused with the browser's bare "Please match the requested
+    format." — which format was said nowhere."""
+    page.goto(f"{live_server.base_url}/subjects.html")
+    field = page.locator("#subject-form input[name=code]")
+    field.fill("P 017")
+    field.press("Enter")
+    said = field.evaluate("e => e.validationMessage")
+    assert "no spaces" in said, said
+    _no_js_error(page)
+
+
+def test_dates_are_the_users_own(browser: Any, live_server: LiveServer, walked: Walked) -> None:
+    """A clinician in Auckland read recording starts in UTC (eleven hours off her wall
+    clock, labelled "(UTC)") on the Rig page, and early in her morning the Subjects page
+    offered yesterday's date for a new session (the UTC date)."""
+    context = browser.new_context(viewport={"width": 1024, "height": 768},
+                                  timezone_id="Pacific/Auckland", locale="en-NZ")
+    try:
+        page = context.new_page()
+        page.set_default_timeout(20000)
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        # 2026-01-15 12:30 UTC is 01:30 on the 16th in Auckland (NZDT, UTC+13)
+        page.clock.set_fixed_time("2026-01-15T12:30:00Z")
+        login(page, live_server)
+        t0 = 1768471200  # 2026-01-15 10:00:00 UTC = 23:00:00 in Auckland
+        listed = [{"id": "R20260115-100000-0001", "state": "complete", "t_start": t0,
+                   "t_stop": t0 + 5.0, "parts": []}]
+        page.route("**/api/recordings", lambda route: route.fulfill(
+            status=200, json=listed) if route.request.method == "GET" else route.continue_())
+        page.goto(f"{live_server.base_url}/rig.html")
+        cell = page.locator("tr[data-recording] td").first
+        cell.wait_for()
+        assert "11:00:00" in cell.inner_text(), cell.inner_text()  # 11 pm, her time
+        assert "UTC" not in page.locator("table").nth(1).locator("thead").inner_text()
+
+        page.goto(f"{live_server.base_url}/subjects.html#subject={walked.subject_id}")
+        page.wait_for_function("document.querySelector('#session-form [name=date]').value")
+        assert page.input_value("#session-form [name=date]") == "2026-01-16"
+        assert not errors, errors
+    finally:
+        context.close()
