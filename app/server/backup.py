@@ -193,7 +193,7 @@ def _snapshot_sqlite(src: Path, dst: Path) -> dict[str, Any]:
     if not src.is_file():
         raise BackupError(f"no database at {src}: is this the server's data folder? (give "
                           "--data-dir, or set GAITRIG_DATA_DIR / GAITRIG_DATABASE_URL)")
-    s = sqlite3.connect(f"file:{src}?mode=ro", uri=True, timeout=30)
+    s = sqlite3.connect(f"{src.resolve().as_uri()}?mode=ro", uri=True, timeout=30)
     d = sqlite3.connect(dst)
     try:
         at = _now()
@@ -457,16 +457,9 @@ def verify_backup(archive: Path) -> VerifyResult:
             res.problems.append(f"the archive is damaged or cut short ({exc})")
         if man["database"].get("member") and db_tmp.is_file():
             try:
-                c = sqlite3.connect(db_tmp)
-                try:
-                    check = _db_facts(c)["integrity"]
-                finally:
-                    c.close()
-            except sqlite3.DatabaseError as exc:
-                check = str(exc)
-            if check != "ok":
-                res.problems.append(f"{DB_MEMBER}: PRAGMA integrity_check failed: "
-                                    f"{check[:300]}")
+                _check_integrity(db_tmp, archive)
+            except BackupError as exc:
+                res.problems.append(f"{DB_MEMBER}: {exc}")
     return res
 
 
@@ -602,6 +595,8 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
             raise BackupError(f"{archive} is damaged; nothing was restored: "
                               + "; ".join(problems[:5])
                               + (f" (and {len(problems) - 5} more)" if len(problems) > 5 else ""))
+        if has_db:
+            _check_integrity(stage / "gaitrig.sqlite3", archive)
         # the merged log goes with the data: the next backup carries it on
         _write_log(stage, entries)
         url = f"sqlite:///{stage / 'gaitrig.sqlite3'}" if has_db else str(db_url)
@@ -620,6 +615,20 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
                          "(restored by you with pg_restore); it was migrated and the "
                          "deletions applied to it")
     return res
+
+
+def _check_integrity(db: Path, archive: Path) -> None:
+    try:
+        c = sqlite3.connect(db)
+        try:
+            check = _db_facts(c)["integrity"]
+        finally:
+            c.close()
+    except sqlite3.DatabaseError as exc:
+        check = str(exc)
+    if check != "ok":
+        raise BackupError(f"the database in {archive} fails PRAGMA integrity_check "
+                          f"({check[:200]}); nothing was restored: use another backup")
 
 
 def _target(stage: Path, name: str, erased: set[str]) -> Path | None:

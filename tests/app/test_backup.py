@@ -374,3 +374,34 @@ def test_postgres_archives_hold_the_files_and_say_what_to_do(
     # restoring it needs the database restored with pg_restore first
     with pytest.raises(bk.BackupError, match="pg_restore"):
         bk.restore_backup(res.path, tmp_path / "r", [], without_deletion_log=True)
+
+
+def test_verify_and_restore_check_the_database_integrity(
+        server: TestClient, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    var = tmp_path / "var"
+    p = server.post("/api/projects", json={"name": "Study"}).json()
+    _subject(server, var, tmp_path, p["id"], KEEP, "R20260101-100000-aaaa")
+    good = bk.create_backup(var, tmp_path / "good.tar").path
+    # an archive whose checksums all match but whose database is damaged inside (as if
+    # it had been damaged before it was hashed)
+    bad = tmp_path / "bad.tar"
+    with tarfile.open(good) as src, tarfile.open(bad, "w") as dst:
+        man = json.loads(src.extractfile(bk.MANIFEST).read())  # type: ignore[union-attr]
+        for info in src.getmembers():
+            data = src.extractfile(info).read()  # type: ignore[union-attr]
+            if info.name == bk.DB_MEMBER:
+                page = 4096
+                data = data[:page * 2] + b"\xff" * 64 + data[page * 2 + 64:]
+                for e in man["members"]:
+                    if e["name"] == info.name:
+                        e["sha256"] = hashlib.sha256(data).hexdigest()
+            if info.name == bk.MANIFEST:
+                data = json.dumps(man).encode()
+            info.size = len(data)
+            dst.addfile(info, io.BytesIO(data))
+    code, _o, err = _cli(capsys, "backup", "--verify", str(bad))
+    assert code == 1 and "integrity_check" in err, err
+    code, _o, err = _cli(capsys, "restore", str(bad), "--data-dir", str(tmp_path / "r"),
+                         "--without-deletion-log")
+    assert code == 2 and "fails PRAGMA integrity_check" in err, err
+    assert not (tmp_path / "r").exists()
