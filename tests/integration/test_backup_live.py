@@ -94,3 +94,45 @@ def test_backup_while_a_part_arrives_then_restore(make_rig: Any, tmp_path: Path)
                           .read_text())["files"]
     finally:
         rig2.close()
+
+
+@pytest.mark.browser
+@pytest.mark.timeout(200)
+def test_console_reminds_the_administrator_of_backups(make_rig: Any, browser: Any,
+                                                     tmp_path: Path) -> None:
+    from tests.integration.conftest import PASSWORD
+
+    rig: Rig = make_rig()
+    page = browser.new_context(viewport={"width": 1400, "height": 900}).new_page()
+    page.set_default_timeout(20000)
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(rig.base + "/index.html")
+    page.fill("#username", "admin")
+    page.fill("#password", PASSWORD)
+    page.click("button[type=submit]")
+    page.wait_for_url("**/rig.html", timeout=15000)
+    # never backed up: a quiet status line (not an alert), saying what to run
+    page.wait_for_selector("#backup-notice", state="visible")
+    note = page.locator("#backup-notice")
+    assert "never been backed up" in note.inner_text() and "gaitrig backup" in note.inner_text()
+    assert note.get_attribute("role") == "status"
+    # a backup made: gone
+    p = _gaitrig(rig, "backup", str(tmp_path / "b.tar"), "--data-dir", str(tmp_path / "server"))
+    assert p.returncode == 0, p.stderr
+    page.reload()
+    page.wait_for_selector("#summary")
+    page.wait_for_function("document.getElementById('summary').textContent !== 'Loading…'")
+    assert page.locator("#backup-notice").count() == 0
+
+    # the last one 8 days ago: said, with its date
+    def old(route: Any) -> None:
+        body = route.fetch().json()
+        route.fulfill(status=200, content_type="application/json",
+                      body=json.dumps({**body, "last_backup_at": "2020-01-02T03:00:00+00:00"}))
+
+    page.route("**/api/system", old)
+    page.reload()
+    page.wait_for_selector("#backup-notice", state="visible")
+    assert "No backup of this server since" in page.inner_text("#backup-notice")
+    assert not errors
