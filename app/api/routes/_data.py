@@ -117,8 +117,10 @@ def get_session(db: DbSession, sid: int) -> m.Session:
 def get_recording(db: DbSession, rec_id: str) -> m.Recording:
     r = db.get(m.Recording, rec_id)
     if r is None:
-        raise not_found(f"no recording {rec_id!r} in the database (start recordings from the "
-                        "Record page, or attach one to a session)")
+        raise not_found(f"no recording {rec_id!r} in the database: it is not filed under a "
+                        "session. File it on the Subjects page (\"Recordings not filed under a "
+                        "session\") or with POST /api/sessions/{session_id}/recordings/attach "
+                        "{\"rec_id\": …}, and start new ones from the Record page")
     return r
 
 

@@ -320,6 +320,11 @@ def test_a_recording_filed_under_no_session_can_be_deleted(client: TestClient,
         "S1": Part("S1", state="complete", n_frames=60, on_server=True)})
     hub.recordings.recordings["R2"] = Recording("R2", t_start=3.0)  # still running
     assert [r["id"] for r in client.get("/api/storage/unfiled").json()] == ["R2", "R1"]
+    # an export of it is refused with how to file it (not a bare "no recording")
+    r = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "S1"})
+    assert r.status_code == 404
+    assert "Subjects page" in r.json()["detail"]
+    assert "/api/sessions/{session_id}/recordings/attach" in r.json()["detail"]
     r = client.post("/api/storage/unfiled/R1/delete", json={"confirm": "R"})
     assert r.status_code == 400 and "'R1'" in r.json()["detail"]
     assert (tmp_path / "recordings" / "R1" / "S1" / "frames.bin").is_file()
