@@ -405,3 +405,41 @@ def test_verify_and_restore_check_the_database_integrity(
                          "--without-deletion-log")
     assert code == 2 and "fails PRAGMA integrity_check" in err, err
     assert not (tmp_path / "r").exists()
+
+
+def test_erasure_log_entries_settle_after_a_crash_and_void_ones_are_not_applied(
+        server: TestClient, tmp_path: Path) -> None:
+    from app.server import erasures
+
+    var = tmp_path / "var"
+    p = server.post("/api/projects", json={"name": "Study"}).json()
+    a = _subject(server, var, tmp_path, p["id"], KEEP, "R20260101-100000-aaaa")
+    b = _subject(server, var, tmp_path, p["id"], GONE, "R20260101-110000-gone")
+    with server.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        sa_, sb = db.get(m.Subject, a["id"]), db.get(m.Subject, b["id"])
+        # a deletion logged, then the server died before its commit: the rows survive
+        e1 = erasures.begin(var, [], sa_, {})
+        # one logged and committed, then the server died before it wrote "done"
+        e2 = erasures.begin(var, [], sb, {"R20260101-110000-gone": ["S1"]})
+        db.delete(sb)
+        db.commit()
+        assert erasures.settle(db, var) == 2
+        states = {e.id: e.state for e in erasures.read(var)}
+        assert states == {e1: "void", e2: "done"}
+        assert erasures.settle(db, var) == 0  # settled once
+    # a restore applies the done one only
+    log = (var / "erasures.jsonl").read_text()
+    assert KEEP not in log and GONE not in log
+    archive = bk.create_backup(var, tmp_path / "b.tar").path
+    res = bk.restore_backup(archive, tmp_path / "r", [var])
+    assert res.erased_recordings == ["R20260101-110000-gone"]
+    with sqlite3.connect(tmp_path / "r" / "gaitrig.sqlite3") as c:
+        assert [r[0] for r in c.execute("select code from subjects")] == [KEEP]
+    # a log cut short by a crash while appending its last line is read up to it; damage
+    # elsewhere is named
+    cut = tmp_path / "cut.jsonl"
+    cut.write_text(log + '{"id": "x", "sta')
+    assert len(bk.read_erasure_log(cut)) == 2
+    cut.write_text('{"id": "x", "sta\n' + log)
+    with pytest.raises(bk.BackupError, match="line 1: not an erasure log entry"):
+        bk.read_erasure_log(cut)
