@@ -15,6 +15,7 @@ import importlib
 import ipaddress
 import logging
 import pkgutil
+import secrets
 import sys
 from collections.abc import AsyncIterator, Sequence
 from contextlib import asynccontextmanager
@@ -29,7 +30,7 @@ from fastapi.staticfiles import StaticFiles
 
 import app.api.routes as routes_pkg
 from app.api.deps import get_current_user
-from app.api.hardening import SecurityMiddleware
+from app.api.hardening import BASE_HEADERS, SecurityMiddleware
 from app.api.routes import auth
 from app.api.routes._exporting import ExportGuard
 from app.api.security import LoginThrottle, ensure_admin, password_problem
@@ -231,6 +232,18 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             return JSONResponse({"detail": str(exc), "unreachable": exc.unreachable},
                                 status_code=422)
         return JSONResponse({"detail": str(exc)}, status_code=400)
+
+    @app.exception_handler(Exception)
+    async def internal_error(request: Request, exc: Exception) -> JSONResponse:
+        # A bug, not the user's input: the log gets the traceback under a reference the
+        # person can quote; the answer names no file, query or library internals.
+        ref = secrets.token_hex(4)
+        log.error("internal error %s on %s %s", ref, request.method, request.url.path,
+                  exc_info=exc)
+        return JSONResponse({"detail": f"internal error (reference {ref}): the request "
+                                       "could not be completed; the server log has the "
+                                       "details under this reference"}, status_code=500,
+                            headers={"cache-control": "no-store", **BASE_HEADERS})
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(_req: Request, exc: RequestValidationError) -> JSONResponse:

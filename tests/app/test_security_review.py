@@ -365,3 +365,87 @@ def test_network_facing_server_refuses_shipped_token_and_weak_password(
     assert code == 2
     err = capsys.readouterr().err
     assert "GAITRIG_NODE_TOKEN" in err and "Traceback" not in err
+
+
+# ----------------------------------------------------------------------- error answers
+
+
+def test_an_unexpected_error_leaks_no_internals(tmp_path: Path,
+                                                caplog: pytest.LogCaptureFixture) -> None:
+    """A bug answers 500 with a reference to the server log: no traceback, path or SQL."""
+    from fastapi import APIRouter
+
+    app = create_app(_settings(tmp_path))
+    boom = APIRouter()
+
+    @boom.get("/api/boom-for-test")
+    def _boom() -> None:
+        raise RuntimeError(f"SELECT * FROM subjects WHERE code='P01' -- {tmp_path}/gaitrig.db")
+
+    app.router.routes.insert(0, boom.routes[0])
+    with TestClient(app, raise_server_exceptions=False) as c:
+        r = c.get("/api/boom-for-test")
+    assert r.status_code == 500
+    detail = r.json()["detail"]
+    assert "reference" in detail
+    for leak in ("SELECT", str(tmp_path), "Traceback", "RuntimeError", ".py"):
+        assert leak not in r.text, leak
+    assert r.headers["cache-control"] == "no-store"
+    ref = detail.split("reference ")[1].split(")")[0]
+    assert any(ref in rec.getMessage() for rec in caplog.records)  # findable in the log
+
+
+def _c3d_param(raw: bytes, group: str, name: str) -> int:
+    """Byte offset of the data of C3D parameter ``group:name`` (the parameter section:
+    records of name length, group id, name, offset to the next record, type, dims)."""
+    import struct
+
+    off, groups, found = (raw[0] - 1) * 512 + 4, {}, {}
+    while True:
+        nlen, gid = struct.unpack_from("bb", raw, off)
+        if nlen == 0:
+            break
+        label = bytes(raw[off + 2: off + 2 + abs(nlen)]).decode()
+        nxt_at = off + 2 + abs(nlen)
+        if gid < 0:
+            groups[-gid] = label
+        else:
+            ndim = raw[nxt_at + 3]
+            found[(gid, label)] = nxt_at + 4 + ndim
+        nxt = struct.unpack_from("<h", raw, nxt_at)[0]
+        if nxt == 0:
+            break
+        off = nxt_at + nxt
+    gid = next(k for k, v in groups.items() if v == group)
+    return int(found[(gid, name)])
+
+
+def test_uploaded_file_names_are_never_paths(client: TestClient, tmp_path: Path,
+                                             shared_data: Path) -> None:
+    """A reference upload named '../../x.c3d' is stored under a random name in the
+    recording's folder; a C3D whose parameters claim 32000 markers reads only what the
+    file holds (ezc3d stops at the end of the data) instead of allocating for the claim."""
+    import struct
+
+    from app.db import data as m
+
+    _login(client)
+    sid = _subject(client, "UPL01")
+    sess = client.post("/api/sessions", json={"subject_id": sid}).json()
+    with client.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        db.add(m.Recording(id="R1", session_id=sess["id"], state="complete", streams=""))
+        db.commit()
+    raw = bytearray((shared_data / "mocap" / "kineticstoolkit" / "walk.c3d").read_bytes())
+    struct.pack_into("<h", raw, _c3d_param(bytes(raw), "POINT", "USED"), 32000)  # beyond the data
+    before = {p for p in tmp_path.rglob("*") if p.is_file()}
+    r = client.post("/api/exports/R1/references", headers={"Origin": BASE},
+                    files={"file": ("../../../../evil.c3d", bytes(raw))})
+    assert r.status_code in (201, 400), r.text
+    assert str(tmp_path) not in r.text
+    if r.status_code == 201:
+        assert r.json()["filename"] == "evil.c3d"
+        assert r.json()["n_frames"] < 1000  # what the file holds, not the claim
+    new = {p for p in tmp_path.rglob("*") if p.is_file()} - before
+    assert not (tmp_path.parent / "evil.c3d").exists()
+    for p in new:
+        assert "evil" not in p.name, p  # stored under a random name, inside data_dir
