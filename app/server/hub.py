@@ -49,6 +49,11 @@ log = logging.getLogger("gaitrig.hub")
 CLOSE_REFUSED = 4401
 CLOSE_PROTOCOL = 4400
 CLOSE_REPLACED = 4409
+CLOSE_BUSY = 1013  # try again later
+#: Node connections that have not yet presented a valid hello, at once. Each may send one
+#: message up to the transport limit before it is checked, so this bounds what anonymous
+#: clients on the LAN can make the server hold (as the data channel's MAX_HANDSHAKES).
+MAX_PENDING_HELLOS = 8
 
 
 class Hub:
@@ -69,6 +74,7 @@ class Hub:
                                          data_host=settings.host,
                                          data_port=settings.transfer_port)
         self._sockets: dict[str, WebSocket] = {}
+        self._pending_hellos = 0
         #: Wrong pairing tokens per address: a rogue process on the LAN guessing the token
         #: gets a handful of tries per window, as a password guesser does at the login.
         self._token_failures = LoginThrottle(5, 300.0)
@@ -92,11 +98,18 @@ class Hub:
         """Serve one node connection until it closes."""
         await ws.accept()
         peer = f"{ws.client.host}:{ws.client.port}" if ws.client else "?"
+        if self._pending_hellos >= MAX_PENDING_HELLOS:
+            await self._refuse(ws, peer, f"{MAX_PENDING_HELLOS} connections are already "
+                               "waiting to say hello; try again in a few seconds", CLOSE_BUSY)
+            return
+        self._pending_hellos += 1
         try:
             first = await asyncio.wait_for(ws.receive(), timeout=10.0)
         except (TimeoutError, WebSocketDisconnect):
             await self._refuse(ws, peer, "no hello within 10 s", CLOSE_PROTOCOL)
             return
+        finally:
+            self._pending_hellos -= 1
         text = first.get("text")
         if text is None:
             await self._refuse(ws, peer, "first message must be a JSON hello", CLOSE_PROTOCOL)

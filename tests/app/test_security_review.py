@@ -340,6 +340,24 @@ def test_pairing_token_guessing_is_paused_per_address(client: TestClient) -> Non
     assert _hello(client, "S1", "review-node-token-1")["type"] == "welcome"
 
 
+def test_anonymous_node_connections_are_bounded(client: TestClient) -> None:
+    """Connections that have not said hello yet (each may send one large message before
+    it is checked) are capped; the next one is told to come back later."""
+    import contextlib
+    import json
+
+    from app.server.hub import MAX_PENDING_HELLOS
+
+    with contextlib.ExitStack() as stack:
+        for _ in range(MAX_PENDING_HELLOS):
+            stack.enter_context(client.websocket_connect("/ws/node"))
+        with client.websocket_connect("/ws/node") as ws:
+            m = json.loads(ws.receive_text())
+            assert m["type"] == "refused" and "try again" in m["reason"], m
+    # once they are gone, a node pairs as usual
+    assert _hello(client, "S1", "review-node-token-1")["type"] == "welcome"
+
+
 # ------------------------------------------------------------------- production start
 
 
