@@ -19,6 +19,18 @@
 
   let recId = null, recStart = null, recStop = null, subjectId = null;
 
+  // A page of a list with how many match in all (the X-Total-Count header). With `body`,
+  // a POST: a subject code searched for goes in the body, never in a URL (access logs).
+  async function listPage(path, body) {
+    const opts = body === undefined ? {} : { method: "POST", body: JSON.stringify(body) };
+    const r = await fetch(path, { credentials: "same-origin", ...opts, headers: { "Content-Type": "application/json" } });
+    if (r.status === 401) { gaitrig.toLogin(); throw new Error("not logged in"); }
+    if (!r.ok) { let d = r.statusText; try { d = (await r.json()).detail; } catch (e) { /* not JSON */ } throw new Error(d); }
+    const items = await r.json();
+    return { items, total: Number(r.headers.get("X-Total-Count") ?? items.length) };
+  }
+  const SUBJECTS_SHOWN = 50;  // a clinic's thousands are found by typing part of the code
+
   async function fillProjects(want) {
     const ps = await api("/api/projects");
     const sel = $("project");
@@ -36,11 +48,22 @@
   const subjectsSeq = gaitrig.latest(), sessionsSeq = gaitrig.latest();
   async function fillSubjects(want) {
     const mine = subjectsSeq.ask();
-    const ss = await api(`/api/subjects?project_id=${$("project").value}`);
+    const pid = Number($("project").value), q = $("subject-q").value.trim();
+    let { items: ss, total } = q
+      ? await listPage("/api/subjects/search", { q, project_id: pid, limit: SUBJECTS_SHOWN })
+      : await listPage(`/api/subjects?project_id=${pid}&sort=-created&limit=${SUBJECTS_SHOWN}`);
+    // the subject asked for (just added, or from the address) is offered even when the
+    // search or the page does not show it
+    if (want && !ss.some((s) => s.id === Number(want))) {
+      try { const s = await api(`/api/subjects/${want}`); if (s.project_id === pid) { ss = [s, ...ss]; total += 1; } } catch (e) { /* gone */ }
+    }
     if (!subjectsSeq.current(mine)) return;
     const sel = $("subject");
     sel.replaceChildren(...ss.map((s) => el("option", { value: s.id }, s.code)));
-    if (!ss.length) sel.append(el("option", { value: "" }, "— add a subject —"));
+    if (!ss.length) sel.append(el("option", { value: "" }, q ? `— no code contains “${q}” —` : "— add a subject —"));
+    $("subject-count").textContent = total > ss.length
+      ? `${ss.length} of ${total} subjects shown${q ? "" : " (the newest)"}: type part of the code to find another.`
+      : (q && ss.length ? `${ss.length} subject${ss.length === 1 ? "" : "s"} with “${q}” in the code.` : "");
     if (want) sel.value = want;
     await fillSessions();
   }
@@ -58,6 +81,16 @@
 
   $("project").addEventListener("change", () => fillSubjects());
   $("subject").addEventListener("change", () => fillSessions());
+  let typing = null;
+  $("subject-q").addEventListener("input", () => {
+    clearTimeout(typing);
+    typing = setTimeout(() => fillSubjects().catch((e) => say("who-msg", e.message)), 250);
+  });
+  $("subject-q").addEventListener("keydown", (ev) => {
+    if (ev.key !== "Enter") return;
+    ev.preventDefault(); clearTimeout(typing);
+    fillSubjects().then(() => $("subject").focus()).catch((e) => say("who-msg", e.message));
+  });
   $("new-subject").addEventListener("submit", async (ev) => {
     ev.preventDefault();
     try {
@@ -207,6 +240,7 @@
     } catch (e) { say("who-msg", e.message); }
     // A recording already running (started before this page was opened) is followed.
     try {
+      // (the newest page: a running recording is the newest)
       const live = (await api("/api/recordings")).find((r) => r.state === "recording");
       if (live) {
         try { await api(`/api/storage/recordings/${live.id}`); recId = live.id; follow(); }

@@ -22,6 +22,26 @@
     return r;
   }
   const json = async (path, options) => (await call(path, options)).json();
+  // A page of a list with how many match in all (the X-Total-Count header). With `body`,
+  // a POST: a subject code searched for goes in the body, never in a URL (access logs).
+  async function listPage(path, body) {
+    const r = await call(path, body === undefined ? {} : { method: "POST", body: JSON.stringify(body),
+      headers: { "Content-Type": "application/json" } });
+    const items = await r.json();
+    return { items, total: Number(r.headers.get("X-Total-Count") ?? items.length) };
+  }
+  const SHOWN = 100;  // a clinic's thousands are found by typing part of the code or id
+  function countText(id, shown, total, q, what) {
+    $(id).textContent = total > shown
+      ? `${shown} of ${total} ${what} shown: type in the search field above to find another.`
+      : (q ? `${total} ${total === 1 ? what.replace(/s$/, "") : what} found.` : "");
+  }
+  function onSearch(input, run) {
+    let typing = null;
+    input.addEventListener("input", () => { clearTimeout(typing); typing = setTimeout(run, 250); });
+    // Enter searches now (instead of submitting the report form around the field)
+    input.addEventListener("keydown", (ev) => { if (ev.key === "Enter") { ev.preventDefault(); clearTimeout(typing); run(); } });
+  }
 
   function say(id, text, isError = false) {
     const p = $(id);
@@ -70,17 +90,39 @@
     return `/api/reports/subjects/${encodeURIComponent(sid)}?${q}`;
   }
 
+  const subjectsSeq = gaitrig.latest();
   async function loadSubjects() {
+    const mine = subjectsSeq.ask();
+    const q = $("subject-q").value.trim();
+    let total;
     try {
-      subjects = await json("/api/subjects");
+      ({ items: subjects, total } = q ? await listPage("/api/subjects/search", { q, sort: "code", limit: SHOWN })
+        : await listPage(`/api/subjects?sort=-created&limit=${SHOWN}`));
     } catch (e) { say("subject-msg", "Cannot load subjects: " + e.message, true); return; }
-    const sel = $("subject");
-    sel.replaceChildren(el("option", subjects.length ? "Choose a subject…" : "No subjects yet", { value: "" }));
+    if (!subjectsSeq.current(mine)) return;
+    const sel = $("subject"), was = sel.value;
+    sel.replaceChildren(el("option", subjects.length ? "Choose a subject…" : q ? `No subject code contains “${q}”` : "No subjects yet", { value: "" }));
     for (const s of subjects) {
       sel.append(el("option", `${s.code} — ${s.n_sessions} session(s), ${s.n_recordings} recording(s)`,
         { value: String(s.id) }));
     }
-    if (!subjects.length) say("subject-msg", "Add a subject and record a walk on the Record page first.");
+    countText("subject-count", subjects.length, total, q, "subjects");
+    // the subject of the address (a link #subject=ID, or the one chosen) stays offered
+    const linked = /subject=(\d+)/.exec(location.hash);
+    if (linked && !q) await offerSubject(linked[1]);
+    if (!subjectsSeq.current(mine)) return;
+    if (was && subjects.some((s) => String(s.id) === was)) sel.value = was;
+    else if (was) subjectChanged();  // the chosen subject left the list
+    if (!total && !q) say("subject-msg", "Add a subject and record a walk on the Record page first.");
+  }
+  // the subject of a link (#subject=ID) is offered even when it is not among those listed
+  async function offerSubject(sid) {
+    if (subjects.some((s) => String(s.id) === sid)) return true;
+    let s;
+    try { s = await json(`/api/subjects/${encodeURIComponent(sid)}`); } catch (e) { return false; }
+    subjects.push(s);
+    $("subject").append(el("option", `${s.code} — ${s.n_sessions} session(s), ${s.n_recordings} recording(s)`, { value: String(s.id) }));
+    return true;
   }
 
   async function subjectChanged() {
@@ -160,15 +202,23 @@
   }
   function updateRecLinks() { setLink($("rec-pdf"), recQuery("pdf")); }
 
+  const recordingsSeq = gaitrig.latest();
   async function loadRecordings() {
-    let recs = [];
-    try { recs = await json("/api/reports/recordings"); } catch (e) { say("cmp-msg", e.message, true); return; }
-    const sel = $("recording");
-    sel.replaceChildren(el("option", recs.length ? "Choose a recording…" : "No recording on the server yet", { value: "" }));
+    const mine = recordingsSeq.ask();
+    const q = $("recording-q").value.trim();
+    let recs = [], total = 0;
+    try { ({ items: recs, total } = await listPage(`/api/reports/recordings?limit=${SHOWN}${q ? "&q=" + encodeURIComponent(q) : ""}`)); }
+    catch (e) { say("cmp-msg", e.message, true); return; }
+    if (!recordingsSeq.current(mine)) return;
+    countText("recording-count", recs.length, total, q, "recordings");
+    const sel = $("recording"), was = sel.value;
+    sel.replaceChildren(el("option", recs.length ? "Choose a recording…" : q ? `No recording matches “${q}”` : "No recording on the server yet", { value: "" }));
     for (const r of recs) {
       const who = r.subject_code ? `${r.subject_code}, ${r.session_date} ${r.session_label || ""}` : "no subject";
       sel.append(el("option", `${r.id} — ${who} — ${r.sensors.length} sensors`, { value: r.id }));
     }
+    if (was && recs.some((r) => r.id === was)) sel.value = was;
+    else if (was) recordingChanged();  // the chosen recording left the list
   }
 
   async function recordingChanged() {
@@ -351,6 +401,8 @@
     else say("cmp-msg", "Choose a recording and at least one sensor in subset A.", true);
   });
   $("recording").addEventListener("change", recordingChanged);
+  onSearch($("subject-q"), loadSubjects);
+  onSearch($("recording-q"), loadRecordings);
   $("compare").addEventListener("click", compare);
   $("rec-report").addEventListener("click", recReport);
   $("ref-form").addEventListener("submit", attachReference);
