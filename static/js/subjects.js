@@ -32,9 +32,21 @@
       notes: f.notes.value };
   }
 
+  // A page of a list with how many match in all (the X-Total-Count header). With `body`,
+  // a POST: a subject code searched for goes in the body, never in a URL (access logs).
+  async function listPage(path, body) {
+    const opts = body === undefined ? {} : { method: "POST", body: JSON.stringify(body) };
+    const r = await fetch(path, { credentials: "same-origin", ...opts, headers: { "Content-Type": "application/json" } });
+    if (r.status === 401) { gaitrig.toLogin(); throw new Error("not logged in"); }
+    if (!r.ok) { let d = r.statusText; try { d = (await r.json()).detail; } catch (e) { /* not JSON */ } throw new Error(d); }
+    const items = await r.json();
+    return { items, total: Number(r.headers.get("X-Total-Count") ?? items.length) };
+  }
+
   async function loadDisk() {
     try {
-      const u = await api("/api/storage");
+      // (the disk only: the bytes of every subject read every recording folder)
+      const u = await api("/api/storage?subjects=false");
       $("disk").textContent = `Server disk: ${bytes(u.disk.free)} free of ${bytes(u.disk.total)}.`;
     } catch (e) { $("disk").textContent = "Disk usage unavailable: " + e.message; }
   }
@@ -53,13 +65,26 @@
 
   // Lists overlap (a click on a subject, a deletion, a project change): a list asked
   // before a newer one is dropped, else it could bring back a subject just deleted.
+  // A clinic has thousands of subjects: the list shows a page of them, searched and
+  // ordered by the server.
+  const PAGE = 50;
+  let offset = 0;
   const subjectsSeq = gaitrig.latest();
   async function loadSubjects() {
     const mine = subjectsSeq.ask();
     const body = $("subjects");
-    if (projectId === null) { body.replaceChildren(); return; }
-    const ss = await api(`/api/subjects?project_id=${projectId}`);
+    if (projectId === null) { body.replaceChildren(); $("subjects-count").textContent = ""; return; }
+    const q = $("subject-q").value.trim(), sort = $("subject-sort").value;
+    const { items: ss, total } = q
+      ? await listPage("/api/subjects/search", { q, project_id: projectId, sort, limit: PAGE, offset })
+      : await listPage(`/api/subjects?project_id=${projectId}&sort=${encodeURIComponent(sort)}&limit=${PAGE}&offset=${offset}`);
     if (!subjectsSeq.current(mine)) return;
+    if (!ss.length && offset > 0 && total > 0) { offset = Math.max(0, Math.floor((total - 1) / PAGE) * PAGE); return loadSubjects(); }
+    $("subjects-count").textContent = total
+      ? `Subjects ${offset + 1}–${offset + ss.length} of ${total}${q ? ` with “${q}” in the code` : ""}.`
+      : (q ? `No subject code contains “${q}” in this project.` : "");
+    $("subjects-prev").disabled = offset === 0;
+    $("subjects-next").disabled = offset + ss.length >= total;
     body.replaceChildren(...ss.map((s) => {
       const tr = el("tr", { class: "clickable" + (s.id === subjectId ? " selected" : ""), "data-subject": s.code },
         el("th", { scope: "row", class: "code-cell" }, el("a", { href: `#subject=${s.id}`, onclick: (ev) => { ev.preventDefault(); select(s.id); } }, s.code)),
@@ -68,8 +93,16 @@
       tr.addEventListener("click", () => select(s.id));
       return tr;
     }));
-    if (!ss.length) body.append(el("tr", {}, el("td", { colspan: "4", class: "hint" }, "No subjects in this project yet.")));
+    if (!ss.length && !q) body.append(el("tr", {}, el("td", { colspan: "4", class: "hint" }, "No subjects in this project yet.")));
   }
+  function turnPage(by) { offset = Math.max(0, offset + by); loadSubjects().catch((e) => say("subject-msg", e.message)); }
+  let typing = null;
+  function searchNow() { clearTimeout(typing); offset = 0; loadSubjects().catch((e) => say("subject-msg", e.message)); }
+  $("subject-q").addEventListener("input", () => { clearTimeout(typing); typing = setTimeout(searchNow, 250); });
+  $("subject-search").addEventListener("submit", (ev) => { ev.preventDefault(); searchNow(); });
+  $("subject-sort").addEventListener("change", searchNow);
+  $("subjects-prev").addEventListener("click", () => turnPage(-PAGE));
+  $("subjects-next").addEventListener("click", () => turnPage(PAGE));
 
   async function select(id) {
     subjectId = id;
@@ -97,15 +130,42 @@
     return line;
   }
 
+  // A recording's export that the server refuses (a part not on the server, too many
+  // images…) was a failed download in the browser's download bar, without the reason:
+  // these go through fetch, and a refusal is said beside the links.
+  async function download(ev) {
+    ev.preventDefault();
+    const a = ev.currentTarget, msg = a.parentNode.querySelector(".msg");
+    const tell = (text, good) => { msg.textContent = text; msg.className = "msg " + (good ? "good" : "bad"); };
+    tell(`Preparing ${a.textContent}…`, true);
+    try {
+      const r = await fetch(a.href, { credentials: "same-origin" });
+      if (r.status === 401) { gaitrig.toLogin(); return; }
+      if (!r.ok) {
+        let d = r.statusText; try { d = (await r.json()).detail || d; } catch (e) { /* not JSON */ }
+        tell(`${a.textContent} not exported: ${d}`); return;
+      }
+      const m = /filename="([^"]+)"/.exec(r.headers.get("Content-Disposition") || "");
+      const name = m ? m[1] : "";
+      const url = URL.createObjectURL(await r.blob());
+      const tmp = el("a", { href: url, download: name });
+      document.body.append(tmp); tmp.click(); tmp.remove();
+      setTimeout(() => URL.revokeObjectURL(url), 10000);
+      tell(`${a.textContent} downloaded${name ? " (" + name + ")" : ""}.`, true);
+    } catch (e) { tell(`${a.textContent} not exported: ${e.message}`); }
+  }
+
   function exportLinks(r) {
     const box = el("div", { class: "actions" }, el("span", { class: "hint" }, "Export:"));
+    const link = (href, text) => el("a", { class: "button", href, download: "", onclick: download }, text);
     for (const f of ["c3d", "trc", "csv"])
-      box.append(el("a", { class: "button", href: `/api/exports/${r.id}/skeleton?format=${f}&source=fused`, download: "" }, `fused ${f.toUpperCase()}`));
+      box.append(link(`/api/exports/${r.id}/skeleton?format=${f}&source=fused`, `fused ${f.toUpperCase()}`));
     for (const p of r.parts.filter((p) => p.state === "complete")) {
-      box.append(el("a", { class: "button", href: `/api/exports/${r.id}/skeleton?format=csv&source=${encodeURIComponent(p.node_id)}`, download: "" }, `${p.node_id} CSV`));
+      box.append(link(`/api/exports/${r.id}/skeleton?format=csv&source=${encodeURIComponent(p.node_id)}`, `${p.node_id} CSV`));
       if (r.streams.includes("depth"))
-        box.append(el("a", { class: "button", href: `/api/exports/${r.id}/depth?node=${encodeURIComponent(p.node_id)}&format=zip`, download: "" }, `${p.node_id} depth PNG`));
+        box.append(link(`/api/exports/${r.id}/depth?node=${encodeURIComponent(p.node_id)}&format=zip`, `${p.node_id} depth PNG`));
     }
+    box.append(el("span", { class: "msg", role: "status" }));
     return box;
   }
 
@@ -251,7 +311,7 @@
     if (busy) timer = setTimeout(() => loadDetail(false), 1000);
   }
 
-  $("project").addEventListener("change", async (ev) => { projectId = Number(ev.target.value); subjectId = null; dropDetail(); $("detail-body").hidden = true; await loadSubjects(); });
+  $("project").addEventListener("change", async (ev) => { projectId = Number(ev.target.value); subjectId = null; offset = 0; dropDetail(); $("detail-body").hidden = true; await loadSubjects(); });
   $("project-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
     try { const p = await api("/api/projects", { method: "POST", body: JSON.stringify({ name: ev.target.elements.name.value.trim() }) });
@@ -288,7 +348,7 @@
   });
 
   (async () => {
-    await loadDisk();
+    loadDisk();  // not waited for: the subjects are what the user came for
     try { $("audit").hidden = !(await api("/api/auth/me")).is_admin; } catch (e) { /* stays hidden */ }
     const m = /subject=(\d+)/.exec(location.hash);
     if (m) {
