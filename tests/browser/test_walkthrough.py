@@ -244,3 +244,25 @@ def test_dates_are_the_users_own(browser: Any, live_server: LiveServer, walked: 
         assert not errors, errors
     finally:
         context.close()
+
+
+def test_refused_export_says_why_and_a_good_one_downloads(page: Any, live_server: LiveServer,
+                                                          walked: Walked) -> None:
+    """An export the server refused was only a failed entry in the browser's download bar,
+    the reason (here: the sensor's part is not on the server) never shown."""
+    page.goto(f"{live_server.base_url}/subjects.html#subject={walked.subject_id}")
+    rec = page.locator(".recording[data-state=complete]").first
+    rec.wait_for()
+    detail = "sensor S1's part of this recording is not on the server"
+    page.route(lambda url: "/skeleton?" in url and "source=S1" in url,
+               lambda route: route.fulfill(status=404, json={"detail": detail}))
+    rec.get_by_role("link", name="S1 CSV").click()
+    refused = rec.get_by_role("status").filter(has_text="not exported")
+    refused.wait_for()
+    assert detail in refused.inner_text()
+
+    with page.expect_download() as got:
+        rec.get_by_role("link", name="fused CSV").click()
+    assert got.value.suggested_filename.endswith(".csv"), got.value.suggested_filename
+    rec.get_by_role("status").filter(has_text="fused CSV downloaded").wait_for()
+    _no_js_error(page)
