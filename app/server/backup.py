@@ -586,11 +586,10 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
             except KeyError:
                 pass
             entries = erasures.merge(own, *current)
-            erased = {r for e in entries if e.state != "void" for r in e.recordings}
-            erased |= {str(i) for e in entries if e.state != "void"
-                       for t, i, _ in e.rows if t == "recordings"}
+            erased = erasures.erased_keys(entries)
+            left_out: dict[str, list[str]] = {}  # erased recordings found in the archive
             problems: list[str] = []
-            _members(tar, man, problems, lambda n: _target(stage, n, erased))
+            _members(tar, man, problems, lambda n: _target(stage, n, erased, left_out))
         if problems:
             raise BackupError(f"{archive} is damaged; nothing was restored: "
                               + "; ".join(problems[:5])
@@ -600,7 +599,7 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
         # the merged log goes with the data: the next backup carries it on
         _write_log(stage, entries)
         url = f"sqlite:///{stage / 'gaitrig.sqlite3'}" if has_db else str(db_url)
-        _finish_database(url, stage, entries, res, actor, client, archive)
+        _finish_database(url, stage, entries, res, actor, client, archive, left_out)
         if existing:
             for p in sorted(data_dir.iterdir()):
                 shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
@@ -631,15 +630,18 @@ def _check_integrity(db: Path, archive: Path) -> None:
                           f"({check[:200]}); nothing was restored: use another backup")
 
 
-def _target(stage: Path, name: str, erased: set[str]) -> Path | None:
+def _target(stage: Path, name: str, erased: dict[str, list[str]],
+            left_out: dict[str, list[str]]) -> Path | None:
     if name == DB_MEMBER:
         return stage / "gaitrig.sqlite3"
     if name == ERASURE_MEMBER or not name.startswith(FILES):
         return None  # the merged log is written after; the manifest stays in the archive
     rel = _safe_rel(name[len(FILES):])
-    if len(rel.parts) >= 2 and rel.parts[0] in ("recordings", "references") and (
-            rel.parts[1] in erased):
-        return None  # a deleted recording's files are never written again
+    if len(rel.parts) >= 2 and rel.parts[0] in ("recordings", "references"):
+        nodes = erased.get(erasures.rec_key(rel.parts[1]))
+        if nodes is not None:
+            left_out[rel.parts[1]] = nodes
+            return None  # a deleted recording's files are never written again
     return stage.joinpath(*rel.parts)
 
 
@@ -656,7 +658,8 @@ def _write_log(stage: Path, entries: list[erasures.Erasure]) -> None:
 
 
 def _finish_database(url: str, stage: Path, entries: list[erasures.Erasure],
-                     res: RestoreResult, actor: str, client: str, archive: Path) -> None:
+                     res: RestoreResult, actor: str, client: str, archive: Path,
+                     left_out: dict[str, list[str]]) -> None:
     """Migrate to head, apply the erasures, tombstone the erased recordings (the server
     finishes their node copies and live entries when it starts), audit, purge."""
     from sqlalchemy import text
@@ -672,6 +675,8 @@ def _finish_database(url: str, stage: Path, entries: list[erasures.Erasure],
                                            ).scalar()
         with make_session_factory(engine)() as db:
             plan = erasures.apply(db, entries)
+            for rec_id, nodes in {**left_out, **_live_entries(stage, entries)}.items():
+                plan[rec_id] = sorted(set(plan.get(rec_id, [])) | set(nodes))
             res.erasures_applied = sum(1 for e in entries if e.state != "void")
             res.erased_recordings = sorted(plan)
             layout = StorageLayout(stage)
@@ -692,6 +697,22 @@ def _finish_database(url: str, stage: Path, entries: list[erasures.Erasure],
             purge_deleted(engine)
     finally:
         engine.dispose()
+
+
+def _live_entries(stage: Path, entries: list[erasures.Erasure]) -> dict[str, list[str]]:
+    """The erased recordings among the hub's live entries (``recordings.json``): an
+    unfiled recording has no row and maybe no files, only its entry."""
+    erased = erasures.erased_keys(entries)
+    try:
+        raw = json.loads((stage / "recordings.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    out: dict[str, list[str]] = {}
+    for r in raw if isinstance(raw, list) else []:
+        rid = str(r.get("id", "")) if isinstance(r, dict) else ""
+        if rid and erasures.rec_key(rid) in erased:
+            out[rid] = sorted(set(erased[erasures.rec_key(rid)]) | set(r.get("parts") or {}))
+    return out
 
 
 def last_backup(db: Any) -> datetime | None:

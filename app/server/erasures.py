@@ -5,14 +5,16 @@ not bring the subject back (the deletion was the data subject's right), so every
 deletion is appended to ``<data_dir>/erasures.jsonl`` and ``gaitrig restore`` deletes
 again, from the restored database and files, whatever the log says was deleted.
 
-The log holds no pseudonym and no content: a row is named by its table, numeric id and
-creation time (ids can be reused by SQLite after the newest row is deleted; the creation
-time, to the microsecond, tells a later row with the same id apart), a recording by its
-random id with the nodes that held a part. Lines are appended and synced, never
-rewritten::
+The log holds no pseudonym, no content and not even the deleted recordings' ids (after
+a deletion only the audit trail names them): a row is named by its table, numeric id
+and creation time (ids can be reused by SQLite after the newest row is deleted; the
+creation time, to the microsecond, tells a later row with the same id apart), a
+recording by a keyed SHA-256 of its id (:func:`rec_key`; a restore recognises the
+recordings of the backup by it) with the nodes that held a part. Lines are appended and
+synced, never rewritten::
 
     {"id": "<hex>", "state": "started", "at": "...", "rows": [["subjects", 5, "..."]],
-     "recordings": {"R20261122-101500-ab12": ["S1", "S2"]}}
+     "recordings": {"<rec_key of R20261122-101500-ab12>": ["S1", "S2"]}}
     {"id": "<hex>", "state": "done", "at": "..."}        # the deletion committed
     {"id": "<hex>", "state": "void", "at": "..."}        # it failed: nothing was deleted
 
@@ -24,6 +26,7 @@ applies every entry that is not ``void``.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import threading
@@ -34,6 +37,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
 from app.db import data as m
@@ -50,6 +54,12 @@ _LOCK = threading.Lock()  # deletions run in worker threads
 def log_path(data_dir: Path) -> Path:
     """The erasure log of a data folder."""
     return Path(data_dir) / LOG_NAME
+
+
+def rec_key(rec_id: str) -> str:
+    """How the log names a recording: a SHA-256 of its id (the id itself would be a trace
+    of the deleted recording; a restore computes the key of every recording it holds)."""
+    return hashlib.sha256(b"gaitrig erasure log\0" + rec_id.encode()).hexdigest()
 
 
 def stamp(value: datetime | None) -> str:
@@ -74,8 +84,10 @@ class Erasure:
         state: ``started``, ``done`` or ``void``.
         at: when the deletion started (UTC, ISO 8601).
         rows: ``(table, id, created_at)`` of the rows deleted (their children went with
-            them: a subject's sessions and recordings).
-        recordings: recording id → the nodes that held a part.
+            them: a subject's sessions and recordings); a recording's id is its
+            :func:`rec_key`.
+        recordings: :func:`rec_key` of each recording deleted → the nodes that held a
+            part.
     """
 
     id: str
@@ -118,10 +130,11 @@ def begin(data_dir: Path, recs: Iterable[m.Recording], owner: Any,
     if owner is not None:
         table = str(owner.__tablename__)
         rows.append([table, int(owner.id), stamp(owner.created_at)])
-    rows += [["recordings", r.id, stamp(r.created_at)] for r in recs]
+    rows += [["recordings", rec_key(r.id), stamp(r.created_at)] for r in recs]
     eid = uuid.uuid4().hex
     _append(log_path(data_dir), {"id": eid, "state": "started", "at": _now(), "rows": rows,
-                                 "recordings": {k: sorted(v) for k, v in plan.items()}})
+                                 "recordings": {rec_key(k): sorted(v)
+                                                for k, v in plan.items()}})
     return eid
 
 
@@ -184,10 +197,18 @@ def merge(*logs: Iterable[Erasure]) -> list[Erasure]:
     return sorted(out.values(), key=lambda e: e.at)
 
 
-def _row(db: DbSession, table: str, row_id: int | str, created: str) -> Any:
+def _rec_ids(db: DbSession) -> dict[str, str]:
+    """:func:`rec_key` → id of every recording row."""
+    return {rec_key(i): i for i in db.scalars(select(m.Recording.id))}
+
+
+def _row(db: DbSession, table: str, row_id: int | str, created: str,
+         rec_ids: dict[str, str]) -> Any:
     model = _MODELS.get(table)
     if model is None:
         return None
+    if table == "recordings":
+        row_id = rec_ids.get(str(row_id), "")
     obj = db.get(model, row_id)
     if obj is None or stamp(obj.created_at) != created:
         return None  # gone, or a later row that reuses the id
@@ -202,10 +223,10 @@ def settle(db: DbSession, data_dir: Path) -> int:
         How many entries were settled.
     """
     n = 0
-    for e in read(data_dir):
-        if e.state != "started":
-            continue
-        alive = any(_row(db, t, i, c) is not None for t, i, c in e.rows)
+    todo = [e for e in read(data_dir) if e.state == "started"]
+    ids = _rec_ids(db) if todo else {}
+    for e in todo:
+        alive = any(_row(db, t, i, c, ids) is not None for t, i, c in e.rows)
         finish(data_dir, e.id, committed=not alive)
         n += 1
     return n
@@ -219,25 +240,42 @@ def apply(db: DbSession, entries: Iterable[Erasure]) -> dict[str, list[str]]:
     recordings, parts and references). Commits.
 
     Returns:
-        Every recording id the entries name (deleted rows and unfiled recordings) →
-        the nodes that held a part: their files are to go as well.
+        The id of every recording row deleted → the nodes that held a part: their files
+        are to go as well (the recordings filed under no session have no row: the
+        caller finds them by :func:`erased_keys`).
     """
+    ids = _rec_ids(db)
+    keys = erased_keys(entries)
     recs: dict[str, set[str]] = {}
     for e in entries:
         if e.state == "void":
             continue
-        for rec_id, nodes in e.recordings.items():
-            recs.setdefault(rec_id, set()).update(nodes)
         for table, row_id, created in e.rows:
-            obj = _row(db, table, row_id, created)
+            obj = _row(db, table, row_id, created, ids)
             if obj is None:
                 continue
             for r in _recordings_of(obj):
                 recs.setdefault(r.id, set()).update(p.node_id for p in r.parts)
             db.delete(obj)
             db.flush()
+    for rec_id in list(recs):
+        recs[rec_id].update(keys.get(rec_key(rec_id), []))
     db.commit()
     return {k: sorted(v) for k, v in sorted(recs.items())}
+
+
+def erased_keys(entries: Iterable[Erasure]) -> dict[str, list[str]]:
+    """:func:`rec_key` of every recording the (not void) entries deleted → its nodes."""
+    out: dict[str, set[str]] = {}
+    for e in entries:
+        if e.state == "void":
+            continue
+        for k, nodes in e.recordings.items():
+            out.setdefault(k, set()).update(nodes)
+        for t, i, _ in e.rows:
+            if t == "recordings":
+                out.setdefault(str(i), set())
+    return {k: sorted(v) for k, v in out.items()}
 
 
 def _recordings_of(obj: Any) -> list[m.Recording]:

@@ -27,6 +27,7 @@ from app.main import create_app
 from app.nodes.protocol import encode_skeletons
 from app.nodes.store import NodeStore
 from app.server import backup as bk
+from app.server import erasures
 from engine.skeleton import TrackingState
 from tests.app.data.test_data_api import _sink_part
 
@@ -252,8 +253,10 @@ def test_a_deleted_subject_stays_deleted_after_restoring_an_older_backup(
     # SQLite gives the next subject the deleted one's id: it must not be taken for it
     new = server.post("/api/subjects", json={"project_id": p["id"], "code": "NW0001"}).json()
     assert new["id"] == gone["id"]
+    # the log names no pseudonym and not even the recording's id (only a keyed hash)
     log = (var / "erasures.jsonl").read_text()
-    assert GONE not in log and "R20260101-110000-gone" in log  # ids only, no pseudonym
+    assert GONE not in log and "R20260101-110000-gone" not in log
+    assert erasures.rec_key("R20260101-110000-gone") in log
 
     # 1) the old backup restored with the server's current erasure log
     a = tmp_path / "a"
@@ -272,7 +275,7 @@ def test_a_deleted_subject_stays_deleted_after_restoring_an_older_backup(
     finally:
         c.__exit__(None, None, None)
     # ... and the next backup of the restored server carries the log on
-    assert "R20260101-110000-gone" in (a / "erasures.jsonl").read_text()
+    assert erasures.rec_key("R20260101-110000-gone") in (a / "erasures.jsonl").read_text()
 
     # 2) a newer backup serves as the log (the data folder was lost with the server)
     newer = bk.create_backup(var, tmp_path / "after-deletion.tar").path
@@ -409,8 +412,6 @@ def test_verify_and_restore_check_the_database_integrity(
 
 def test_erasure_log_entries_settle_after_a_crash_and_void_ones_are_not_applied(
         server: TestClient, tmp_path: Path) -> None:
-    from app.server import erasures
-
     var = tmp_path / "var"
     p = server.post("/api/projects", json={"name": "Study"}).json()
     a = _subject(server, var, tmp_path, p["id"], KEEP, "R20260101-100000-aaaa")
@@ -443,3 +444,36 @@ def test_erasure_log_entries_settle_after_a_crash_and_void_ones_are_not_applied(
     cut.write_text('{"id": "x", "sta\n' + log)
     with pytest.raises(bk.BackupError, match="line 1: not an erasure log entry"):
         bk.read_erasure_log(cut)
+
+
+def test_a_deleted_unfiled_recording_stays_deleted(server: TestClient, tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """A recording filed under no session (Rig page) has no row: only its files and the
+    hub's live entry (recordings.json) bring it back, and the restore removes both."""
+    from app.server.recording import Part, Recording
+
+    var = tmp_path / "var"
+    rid = "R20260101-120000-unfd"
+    hub = server.app.state.hub  # type: ignore[attr-defined]
+    hub.recordings.recordings[rid] = Recording(id=rid, t_start=1.0, t_stop=2.0,
+                                               parts={"S1": Part("S1", state="complete")})
+    hub.recordings.save()
+    _part(tmp_path, var, rid, "S1", 5)
+    old = bk.create_backup(var, tmp_path / "old.tar").path
+    r = server.post(f"/api/storage/unfiled/{rid}/delete", json={"confirm": rid})
+    assert r.status_code == 200, r.text
+    assert rid not in (var / "erasures.jsonl").read_text()
+    a = tmp_path / "a"
+    code, out, err = _cli(capsys, "restore", str(old), "--data-dir", str(a),
+                          "--deletion-log", str(var))
+    assert code == 0, err
+    assert "1 deleted recording(s) kept deleted" in out
+    assert not (a / "recordings" / rid).exists()
+    assert json.loads((a / "deletions.json").read_text()) == {rid: ["S1"]}
+    c = _client(a)  # the server finishes it: the live entry goes, the node is asked
+    try:
+        assert c.get("/api/storage/unfiled").json() == []
+        assert rid not in (a / "recordings.json").read_text()
+        assert c.get("/api/storage").json()["pending_node_deletions"] == {"S1": [rid]}
+    finally:
+        c.__exit__(None, None, None)
