@@ -18,7 +18,9 @@ from app.server import backup as bk
 from tests.app.data.test_record_flow import record, setup_session, wait_state
 from tests.integration.conftest import Rig, wait_for
 
-SLOW = {"GAITRIG_TEST_CHUNK_SIZE": "1024", "GAITRIG_TEST_CHUNK_DELAY_S": "0.1"}
+# ~60 chunks of 512 bytes per 3-s part at 0.3 s each (two channels): the transfer lasts
+# ~9 s, well beyond the start-up of the backup command on a loaded machine
+SLOW = {"GAITRIG_TEST_CHUNK_SIZE": "512", "GAITRIG_TEST_CHUNK_DELAY_S": "0.3"}
 
 
 def _gaitrig(rig: Rig, *args: str) -> subprocess.CompletedProcess[str]:
