@@ -34,7 +34,7 @@ import os
 import random
 import secrets
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +94,19 @@ class Recording:
         if states <= {"on_node", "complete"}:
             return "on_nodes"
         return "stopping"
+
+
+_PART_FIELDS = tuple(f.name for f in fields(Part))
+_RECORDING_FIELDS = tuple(f.name for f in fields(Recording) if f.name != "parts")
+
+
+def _plain(rec: Recording) -> dict[str, Any]:
+    """``asdict(rec)`` for JSON, without its deep copies: a server keeps every recording
+    it made (tens of thousands after years) and writes them all on every change, where
+    ``asdict`` took seconds of the event loop (``bench/list_scale.py``)."""
+    d = {k: getattr(rec, k) for k in _RECORDING_FIELDS}
+    d["parts"] = {k: {f: getattr(p, f) for f in _PART_FIELDS} for k, p in rec.parts.items()}
+    return d
 
 
 def _model(clock: dict[str, float]) -> ClockEstimate:
@@ -156,7 +169,7 @@ class RecordingManager:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             tmp = self.path.with_suffix(".tmp")
-            tmp.write_text(json.dumps([asdict(r) for r in self.recordings.values()]))
+            tmp.write_text(json.dumps([_plain(r) for r in self.recordings.values()]))
             os.replace(tmp, self.path)
         except OSError as exc:
             if self.save_error is None:

@@ -234,3 +234,25 @@ def test_migration_0003_adds_the_indexes(tmp_path: Path) -> None:
     eng.dispose()
     assert {"ix_recordings_state", "ix_recordings_created_at", "ix_subjects_code"} <= names
     assert "ix_recordings_" in plan
+
+
+def test_recording_list_is_saved_as_asdict_wrote_it(tmp_path: Path) -> None:
+    """recordings.json (every recording the server made, written on every change) is
+    built without ``asdict``'s deep copies, and reads back the same."""
+    from dataclasses import asdict
+
+    from app.server.recording import Part, Recording, RecordingManager, _plain
+    from app.server.registry import NodeRegistry
+
+    rec = Recording("R20260101-100000-abcd", 1767261600.0, 1767261625.0, 1767261599.5,
+                    ["depth"], 3, {"S1": Part("S1", "complete", "kept", 750, 4096, 1.0, 26.0,
+                                              1767261600.0, 1767261625.0,
+                                              {"offset_s": 0.5, "drift": 1e-6, "t_ref": 3.0},
+                                              True, 1.0),
+                                   "S2": Part("S2")})
+    assert _plain(rec) == asdict(rec)
+    rm = RecordingManager(NodeRegistry(), tmp_path)
+    rm.recordings[rec.id] = rec
+    rm.save()
+    again = RecordingManager(NodeRegistry(), tmp_path).recordings[rec.id]
+    assert asdict(again) == asdict(rec)
