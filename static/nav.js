@@ -46,6 +46,19 @@
       window.location.href = "/index.html";
     });
     header.replaceChildren(brand, nav, view3d, logout);
+    // Keyboard users went through the ten header links on every page before reaching it:
+    // the first Tab offers a jump to the page's own content.
+    const main = document.querySelector("main");
+    if (main) {
+      if (!main.id) main.id = "main";
+      main.tabIndex = -1;
+      const skip = document.createElement("a");
+      skip.className = "skip-link";
+      skip.href = "#" + main.id;
+      skip.textContent = "Skip to the page";
+      skip.addEventListener("click", (ev) => { ev.preventDefault(); main.focus(); });
+      header.before(skip);
+    }
     fetch("/api/system", { credentials: "same-origin" })
       .then((r) => (r.ok ? r.json() : null))
       .then((sys) => { if (sys && sys.viewer_url) { view3d.href = sys.viewer_url; view3d.hidden = false; } })

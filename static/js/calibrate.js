@@ -73,7 +73,7 @@
   }
 
   async function guarded(fn) {
-    $("plan-error").textContent = "";
+    $("plan-error").textContent = ""; $("move-status").textContent = "";
     try { await fn(); } catch (e) { $("plan-error").textContent = e.message; }
   }
 
@@ -95,9 +95,16 @@
         changed(await gaitrig.api(`/api/planning/sensors/${encodeURIComponent(id)}`, { method: "PUT",
           body: JSON.stringify({ position: [+$("move-x").value, +$("move-y").value, +$("move-z").value],
             yaw_deg: +$("move-yaw").value, pitch_deg: +$("move-pitch").value }) }));
+        // (Apply with the values unchanged showed nothing at all: was it taken?)
+        const s = plan.sensors.find((x) => x.id === id);
+        if (s) $("move-status").textContent = `${id} planned at x ${f2(s.position[0])} m, y ${f2(s.position[1])} m, ` +
+          `height ${f2(s.position[2])} m, yaw ${s.yaw_deg.toFixed(0)}°, pitch ${s.pitch_deg.toFixed(0)}°; the map shows its coverage.`;
       });
     });
-    $("plan-reset").addEventListener("click", () => guarded(async () => changed(await gaitrig.api("/api/planning/reset", { method: "POST" }))));
+    $("plan-reset").addEventListener("click", () => guarded(async () => {
+      changed(await gaitrig.api("/api/planning/reset", { method: "POST" }));
+      $("move-status").textContent = "The plan is the rig's current sensor poses again.";
+    }));
     $("save-form").addEventListener("submit", (ev) => {
       ev.preventDefault();
       guarded(async () => {

@@ -18,7 +18,7 @@
 
   $("sheet-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
-    $("sheet-error").textContent = "";
+    $("sheet-error").textContent = ""; $("sheet-error").className = "warn";
     const q = new URLSearchParams({ ids: $("sheet-ids").value, size: String(Number($("sheet-size").value) / 100),
       paper: $("sheet-paper").value });
     let r;
@@ -31,6 +31,8 @@
     const url = URL.createObjectURL(await r.blob());
     const a = el("a", "", { href: url, download: "markers.pdf" });
     document.body.append(a); a.click(); a.remove();
+    $("sheet-error").className = "good";
+    $("sheet-error").textContent = "Marker sheet downloaded (markers.pdf): print it at 100 % and check the scale bar.";
   });
 
   const SVGNS = "http://www.w3.org/2000/svg";

@@ -266,3 +266,47 @@ def test_refused_export_says_why_and_a_good_one_downloads(page: Any, live_server
     assert got.value.suggested_filename.endswith(".csv"), got.value.suggested_filename
     rec.get_by_role("status").filter(has_text="fused CSV downloaded").wait_for()
     _no_js_error(page)
+
+
+def test_first_tab_skips_the_header(page: Any, live_server: LiveServer) -> None:
+    """A keyboard user went through the ten header links on every page before reaching
+    the page itself; the first Tab now offers to skip them, visibly."""
+    page.goto(f"{live_server.base_url}/record.html")
+    page.wait_for_function("document.querySelectorAll('#project option').length > 0")
+    page.keyboard.press("Tab")
+    skip = page.get_by_role("link", name="Skip to the page")
+    assert skip.evaluate("e => e === document.activeElement")
+    box = skip.bounding_box()
+    assert box is not None and box["x"] >= 0 and box["y"] >= 0  # on the screen while focused
+    page.keyboard.press("Enter")
+    page.keyboard.press("Tab")
+    # the next stop is the page's first control, not the header's first link
+    assert page.evaluate("!!document.activeElement.closest('main')"), page.evaluate(
+        "document.activeElement.outerHTML.slice(0, 120)")
+    _no_js_error(page)
+
+
+def test_planning_buttons_say_what_they_did(page: Any, live_server: LiveServer) -> None:
+    """Apply with the values already in the form, and "Reset to the rig" when nothing was
+    moved, changed nothing on the screen: was the click taken?"""
+    page.goto(f"{live_server.base_url}/calibrate.html")
+    page.wait_for_function("document.getElementById('move-x').value !== ''")
+    sensor = page.input_value("#move-id")
+    page.click("#move-apply")
+    status = page.get_by_role("status").filter(has_text="planned at")
+    status.wait_for()
+    assert sensor in status.inner_text() and " m" in status.inner_text()
+    page.click("#plan-reset")
+    page.get_by_role("status").filter(has_text="current sensor poses").wait_for()
+    _no_js_error(page)
+
+
+def test_marker_sheet_download_is_confirmed(page: Any, live_server: LiveServer) -> None:
+    """The marker sheet's Download PDF gave no word on the page (a download bar the user
+    may not notice, and the 100 % print advice above the button)."""
+    page.goto(f"{live_server.base_url}/calibration-wizard.html")
+    with page.expect_download() as got:
+        page.click("#sheet-form button[type=submit]")
+    assert got.value.suggested_filename == "markers.pdf"
+    page.get_by_text("Marker sheet downloaded").wait_for()
+    _no_js_error(page)
