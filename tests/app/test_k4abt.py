@@ -95,13 +95,22 @@ class FakeCalibration:
 
 
 class FakeCapture:
-    def __init__(self, handle: int, depth_usec: int) -> None:
+    """A pyk4a 1.5 capture; ``get_capture`` returns it ``latency_s`` after mid-exposure
+    (on the fake host clock, :data:`HOST`)."""
+
+    def __init__(self, handle: int, depth_usec: int, latency_s: float = 0.004) -> None:
         self.cell = ctypes.c_void_p(handle)  # pyk4a's capsule holds a k4a_capture_t*
         self._capture_handle = _new_capsule(ctypes.addressof(self.cell),
                                             _k4abt.CAPSULE_CAPTURE, None)
         self.depth = np.full((4, 5), 1500, np.uint16)
         self.depth_timestamp_usec = depth_usec
+        self.depth_system_timestamp_nsec = 0  # 0: pyk4a had none; the wall clock is used
         self.transformed_color = np.zeros((4, 5, 4), np.uint8)
+        self.latency_s = latency_s
+
+
+#: the fake host clock (s): the device clock started at host time 1000 s
+HOST = {"now": 1000.0}
 
 
 def fake_pyk4a(captures: list[FakeCapture]) -> types.ModuleType:
@@ -114,9 +123,10 @@ def fake_pyk4a(captures: list[FakeCapture]) -> types.ModuleType:
     mod.Config = lambda **kw: kw  # type: ignore[attr-defined]
 
     class PyK4A:
-        def __init__(self, config: Any, device_id: int = 0) -> None:
+        def __init__(self, config: Any, device_id: int = 0, thread_safe: bool = True) -> None:
             self.calibration = FakeCalibration()
             self.stopped = False
+            self.thread_safe = thread_safe
 
         def start(self) -> None:
             pass
@@ -125,7 +135,9 @@ def fake_pyk4a(captures: list[FakeCapture]) -> types.ModuleType:
             self.stopped = True
 
         def get_capture(self) -> FakeCapture:
-            return captures.pop(0)
+            cap = captures.pop(0)
+            HOST["now"] = 1000.0 + cap.depth_timestamp_usec * 1e-6 + cap.latency_s
+            return cap
 
     mod.PyK4A = PyK4A  # type: ignore[attr-defined]
     return mod
@@ -134,9 +146,18 @@ def fake_pyk4a(captures: list[FakeCapture]) -> types.ModuleType:
 def backend(monkeypatch: pytest.MonkeyPatch, captures: list[FakeCapture],
             lib: Path | str) -> Any:
     monkeypatch.setitem(sys.modules, "pyk4a", fake_pyk4a(captures))
+    fake_host_clock(monkeypatch)
     from app.nodes.backends.k4a import K4ABackend
 
     return K4ABackend(k4abt_path=lib, k4a_path=lib)  # the stub stands for libk4a too
+
+
+def fake_host_clock(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The backend reads :data:`HOST` as its wall clock and ``perf_counter_ns``."""
+    from app.nodes.backends import k4a
+
+    monkeypatch.setattr(k4a, "_wall", lambda: HOST["now"])
+    monkeypatch.setattr(k4a, "_perf_ns", lambda: round(HOST["now"] * 1e9))
 
 
 # --------------------------------------------------------------------------- tests
@@ -334,7 +355,7 @@ def test_a_library_that_is_not_k4abt_is_refused() -> None:
 
 def test_capsule_of_another_kind_is_refused() -> None:
     cap = FakeCapture(1, 0)
-    with pytest.raises(_k4abt.K4ABTUnavailable, match=r"pyk4a ≥ 1\.2"):
+    with pytest.raises(_k4abt.K4ABTUnavailable, match=r"pyk4a 1\.0\.1 to 1\.5\.0"):
         _k4abt.capsule_pointer(cap._capture_handle, _k4abt.CAPSULE_CALIBRATION)
     with pytest.raises(_k4abt.K4ABTUnavailable):
         _k4abt.capsule_pointer(object(), _k4abt.CAPSULE_CAPTURE)
@@ -516,3 +537,150 @@ def test_back_facing_azure_kinect_skeletons_are_unmirrored_as_kinect_v2_ones() -
     _, frac = unmirror_back_facing(SkeletonSeries(w.times, truth, states, AZURE_KINECT),
                                    front)
     assert frac == 0.0
+
+
+# --------------------------------------------------------------------------- checked
+# against the SDKs (docs/backbone.md, "What was checked against the SDKs")
+
+
+def test_field_offsets_match_the_sdk_headers(stub: ctypes.CDLL) -> None:
+    # k4abttypes.h 1.1: joint {float3 position, quaternion w,x,y,z, enum confidence},
+    # configuration {orientation, mode, int32 gpu_device_id, const char* model_path}
+    stub.stub_offsetof.restype = ctypes.c_long
+    stub.stub_offsetof.argtypes = [ctypes.c_char_p]
+    stub.stub_sizeof_joint.restype = stub.stub_sizeof_body.restype = ctypes.c_size_t
+    J, Q, C = _k4abt.Joint, _k4abt._Quaternion, _k4abt.TrackerConfiguration
+    ours = {
+        "joint.position": J.position.offset,
+        "joint.orientation": J.orientation.offset,
+        "joint.orientation.w": J.orientation.offset + Q.w.offset,
+        "joint.orientation.z": J.orientation.offset + Q.z.offset,
+        "joint.confidence_level": J.confidence_level.offset,
+        "config.sensor_orientation": C.sensor_orientation.offset,
+        "config.processing_mode": C.processing_mode.offset,
+        "config.gpu_device_id": C.gpu_device_id.offset,
+        "config.model_path": C.model_path.offset,
+    }
+    for name, offset in ours.items():
+        assert stub.stub_offsetof(name.encode()) == offset, name
+    assert stub.stub_sizeof_joint() == ctypes.sizeof(J) == _k4abt._JOINT_DTYPE.itemsize
+    assert stub.stub_sizeof_body() == 4 + ctypes.sizeof(_k4abt.Skeleton)  # k4abt_body_t
+    # enum values of k4abttypes.h 1.1
+    assert _k4abt.PROCESSING_MODES == {"gpu": 0, "cpu": 1, "cuda": 2, "tensorrt": 3,
+                                       "directml": 4}
+    assert (_k4abt.CONFIDENCE_NONE, _k4abt.CONFIDENCE_LOW, _k4abt.CONFIDENCE_MEDIUM,
+            _k4abt.CONFIDENCE_HIGH) == (0, 1, 2, 3)
+
+
+def test_body_tracking_sdk_1_0_is_refused_not_misfed(tmp_path: Path) -> None:
+    # 1.0's configuration has no model_path: a 1.1 configuration passed by value would be
+    # misread, so the binding refuses a libk4abt without 1.1's system-timestamp function
+    cc = shutil.which("gcc") or shutil.which("cc")
+    if cc is None or sys.platform == "win32":
+        pytest.skip("no C compiler (gcc/cc) to build the stand-in libk4abt 1.0")
+    lib = tmp_path / "libk4abt_1_0.so"
+    subprocess.run([cc, "-DSTUB_K4ABT_1_0", "-shared", "-fPIC", "-O1", "-Wall", "-Werror",
+                    "-o", str(lib), str(STUB_SRC)], check=True, capture_output=True,
+                   timeout=60)
+    with pytest.raises(_k4abt.K4ABTUnavailable, match=r"older than 1\.1") as info:
+        _k4abt.load_library(lib)
+    assert "libk4abt1.1-dev" in str(info.value)
+    assert "libk4abt.so.1.0" not in _k4abt._candidates()
+
+
+def test_pyk4a_is_opened_so_that_waiting_for_a_capture_releases_the_gil(
+        stub: ctypes.CDLL, stub_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # pyk4a's thread_safe=True (its default) keeps the GIL in k4a_device_get_capture
+    # (pyk4a.cpp _gil_release), which would stall the node's websocket loop
+    be = backend(monkeypatch, [FakeCapture(1, 0)], stub_path)
+    be.body_tracking = False
+    be.open()
+    assert be._k4a.thread_safe is False
+
+
+def test_a_slow_first_tracking_does_not_shift_the_frame_times(
+        stub: ctypes.CDLL, stub_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # capture 2 is read 1.5 s late (the tracker's first frame took that long) and has no
+    # SDK host timestamp; capture 3 has one: its arrival, not the late read, counts
+    for k in (1, 2, 3):
+        script(stub, k, [(1, 2000.0)], 1_000_000 + 33_333 * (k - 1))
+    caps = [FakeCapture(1, 1_000_000), FakeCapture(2, 1_033_333, latency_s=1.5),
+            FakeCapture(3, 1_066_666, latency_s=1.4)]
+    caps[2].depth_system_timestamp_nsec = round((1000.0 + 1.066666 + 0.004) * 1e9)
+    be = backend(monkeypatch, caps, stub_path)
+    be.open()
+    gen = be.frames()
+    frames = [next(gen) for _ in range(3)]
+    gen.close()
+    # every frame: device time + the 4 ms latency of the fastest arrival
+    expect = [1000.0 + 1.0 + 0.004, 1000.0 + 1.033333 + 0.004, 1000.0 + 1.066666 + 0.004]
+    np.testing.assert_allclose([f.t_local for f in frames], expect, atol=1e-6)
+    assert be.warnings == []
+
+
+def test_arrival_uses_the_sdk_host_timestamp_when_plausible(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from app.nodes.backends.k4a import arrival_time
+
+    fake_host_clock(monkeypatch)
+    HOST["now"] = 2000.0
+    cap = FakeCapture(1, 0)
+    cap.depth_system_timestamp_nsec = round(1999.98 * 1e9)  # received 20 ms ago
+    assert arrival_time(cap) == pytest.approx(1999.98, abs=1e-6)
+    for bad in (0, round(1990.0 * 1e9), round(2000.5 * 1e9)):  # none, 10 s old, future
+        cap.depth_system_timestamp_nsec = bad
+        assert arrival_time(cap) == 2000.0
+    del cap.depth_system_timestamp_nsec  # a pyk4a before 1.5
+    assert arrival_time(cap) == 2000.0
+
+
+def test_device_clock_follows_drift_and_ignores_late_frames() -> None:
+    from app.nodes.backends.k4a import DeviceClock
+
+    rng = np.random.default_rng(3)
+    clock = DeviceClock()
+    drift = 50e-6  # the device crystal 50 ppm fast against the host clock
+    errors = []
+    for k in range(30 * 120):  # two minutes at 30 fps
+        true_t = 500.0 + k / 30  # host time of mid-exposure
+        dev_usec = round((k / 30) * (1 + drift) * 1e6)
+        latency = 0.010 + rng.exponential(0.005) + (2.0 if k % 97 == 5 else 0.0)
+        t = clock.t_local(dev_usec, true_t + latency)
+        errors.append(t - (true_t + 0.010))
+    assert clock.warning is None
+    # within a millisecond of the minimum latency, after the first frames
+    assert np.max(np.abs(errors[60:])) < 1e-3
+    # without the window the 50 ppm drift would have reached 6 ms by the end
+
+
+@pytest.mark.parametrize(("stamps", "why"), [
+    ([0] * 5, "do not advance"),  # Femto on Windows without the metadata driver
+    ([round(k * 1e6 / 30 / 1000) for k in range(900)], "keep pace"),  # ms, not µs
+])
+def test_device_clock_gives_up_timestamps_that_are_not_a_clock(
+        stamps: list[int], why: str) -> None:
+    from app.nodes.backends.k4a import DeviceClock
+
+    clock = DeviceClock()
+    times = [clock.t_local(u, 100.0 + k / 30) for k, u in enumerate(stamps)]
+    assert clock.fallback and why in (clock.warning or "")
+    assert times[-1] == pytest.approx(100.0 + (len(stamps) - 1) / 30)  # arrival times
+    assert "metadata driver" in (clock.warning or "")
+
+
+def test_timestamps_that_are_not_a_clock_warn_once_and_keep_streaming(
+        stub: ctypes.CDLL, stub_path: Path, monkeypatch: pytest.MonkeyPatch,
+        caplog: pytest.LogCaptureFixture) -> None:
+    caps = [FakeCapture(k, 0) for k in (1, 2, 3)]
+    for k, cap in enumerate(caps):
+        cap.latency_s = 0.004 + k / 30  # arrives a frame apart, device time stuck at 0
+    be = backend(monkeypatch, caps, stub_path)
+    be.body_tracking = False
+    be.open()
+    with caplog.at_level(logging.WARNING, "gaitrig.node"):
+        gen = be.frames()
+        frames = [next(gen) for _ in range(3)]
+        gen.close()
+    assert len(be.warnings) == 1 and "do not advance" in be.warnings[0]
+    assert len([r for r in caplog.records if "do not advance" in r.getMessage()]) == 1
+    np.testing.assert_allclose(np.diff([f.t_local for f in frames]), [1 / 30, 1 / 30])

@@ -2,36 +2,48 @@
 
 ``pyk4a`` wraps the sensor SDK (libk4a) but not body tracking, so the ``k4a`` backend
 binds exactly the functions it needs here. Target: Body Tracking SDK **1.1.x** (1.1.0 –
-1.1.2, the last release, also used with Orbbec Femto through Orbbec's K4A wrapper).
-Sources of every signature and layout:
+1.1.2, the last release, also used unchanged with an Orbbec Femto through Orbbec's K4A
+wrapper). Every signature and layout below was checked against the SDK's own text; the
+sources (API reference pages, header copies, pyKinectAzure's binding, pyk4a's sources)
+are listed in ``docs/backbone.md``, "What was checked against the SDKs":
 
 * ``k4abt.h`` (SDK 1.1.x): ``k4abt_tracker_create(const k4a_calibration_t*,
-  k4abt_tracker_configuration_t, k4abt_tracker_t*)``, ``k4abt_tracker_enqueue_capture
-  (tracker, k4a_capture_t, int32_t timeout_ms)``, ``k4abt_tracker_pop_result(tracker,
-  k4abt_frame_t*, int32_t timeout_ms)``, ``k4abt_frame_get_num_bodies → uint32_t``,
-  ``k4abt_frame_get_body_skeleton(frame, uint32_t index, k4abt_skeleton_t*)``,
-  ``k4abt_frame_get_body_id(frame, uint32_t) → uint32_t`` (``K4ABT_INVALID_BODY_ID`` =
-  0xFFFFFFFF on failure), ``k4abt_frame_get_device_timestamp_usec → uint64_t``,
-  ``k4abt_frame_get_body_index_map → k4a_image_t`` (CUSTOM8, the depth image's size,
-  pixel = index of the body in the frame or ``K4ABT_BODY_INDEX_MAP_BACKGROUND`` 255;
-  released with ``k4a_image_release``), ``k4abt_frame_release``,
-  ``k4abt_tracker_shutdown``, ``k4abt_tracker_destroy``.
+  k4abt_tracker_configuration_t, k4abt_tracker_t*) → k4a_result_t`` (the calibration by
+  pointer, the configuration **by value**), ``k4abt_tracker_enqueue_capture(tracker,
+  k4a_capture_t, int32_t timeout_ms) → k4a_wait_result_t`` (TIMEOUT: input queue full;
+  FAILED e.g. a capture without depth), ``k4abt_tracker_pop_result(tracker,
+  k4abt_frame_t*, int32_t timeout_ms) → k4a_wait_result_t``,
+  ``k4abt_frame_get_num_bodies → uint32_t``, ``k4abt_frame_get_body_skeleton(frame,
+  uint32_t index, k4abt_skeleton_t*) → k4a_result_t``, ``k4abt_frame_get_body_id(frame,
+  uint32_t) → uint32_t`` (``K4ABT_INVALID_BODY_ID`` = 0xFFFFFFFF on failure),
+  ``k4abt_frame_get_device_timestamp_usec → uint64_t``,
+  ``k4abt_frame_get_system_timestamp_nsec → uint64_t`` (new in 1.1: bound only to tell
+  1.1 from 1.0), ``k4abt_frame_get_body_index_map → k4a_image_t`` (8 bits a pixel, the
+  depth image's size, pixel = index of the body in the frame or
+  ``K4ABT_BODY_INDEX_MAP_BACKGROUND`` 255; released with ``k4a_image_release``),
+  ``k4abt_frame_release``, ``k4abt_tracker_shutdown`` then ``k4abt_tracker_destroy``.
 * ``k4a.h`` (sensor SDK 1.4, libk4a): ``k4a_image_get_buffer → uint8_t*``,
   ``k4a_image_get_width_pixels`` / ``_height_pixels`` / ``_stride_bytes → int``,
   ``k4a_image_release`` — only to copy the body index map out.
 * ``k4abttypes.h`` (SDK 1.1.x): ``k4abt_tracker_configuration_t`` = {enum
   sensor_orientation, enum processing_mode, int32_t gpu_device_id, const char*
-  model_path} (1.0.x had no ``model_path``: 1.0 is not supported); ``k4abt_joint_t`` =
-  {``k4a_float3_t`` position (mm, depth camera frame), ``k4a_quaternion_t`` orientation
-  (w, x, y, z), ``k4abt_joint_confidence_level_t`` (int: NONE 0, LOW 1, MEDIUM 2, HIGH
-  3)}; ``k4abt_skeleton_t`` = 32 joints in ``k4abt_joint_id_t`` order.
+  model_path} (24 bytes on 64-bit). SDK 1.0.x has no ``model_path`` (12 bytes): a 1.1
+  configuration handed to 1.0 by value would be misread, so a library without
+  ``k4abt_frame_get_system_timestamp_nsec`` (absent from the 1.0.1 API) is refused.
+  ``k4abt_joint_t`` = {``k4a_float3_t`` position (mm, depth camera frame),
+  ``k4a_quaternion_t`` orientation (w, x, y, z), ``k4abt_joint_confidence_level_t`` (int:
+  NONE 0 out of range, LOW 1 occluded/predicted, MEDIUM 2 the highest the SDK gives, HIGH
+  3 "placeholder for future SDK")}: 32 bytes; ``k4abt_skeleton_t`` = 32 joints in
+  ``k4abt_joint_id_t`` order (1024 bytes).
 * ``k4atypes.h`` (sensor SDK 1.4): ``k4a_result_t`` (SUCCEEDED 0, FAILED 1),
   ``k4a_wait_result_t`` (SUCCEEDED 0, FAILED 1, TIMEOUT 2), ``k4a_float3_t`` = 3 floats;
   handles are opaque pointers.
-* ``pyk4a`` ≥ 1.2 (``pyk4a.cpp``): ``Calibration._calibration_handle`` is a PyCapsule
-  named ``"pyk4a calibration handle"`` holding a ``k4a_calibration_t*``;
-  ``PyK4ACapture._capture_handle`` one named ``"pyk4a capture handle"`` holding a
-  ``k4a_capture_t*`` (a pointer to the handle, dereferenced here).
+* ``pyk4a`` 1.0.1 – 1.5.0 (``pyk4a.cpp``, checked in the 1.0.1, 1.1.0, 1.2.0 and 1.5.0
+  sources): ``Calibration._calibration_handle`` is a PyCapsule named ``"pyk4a calibration
+  handle"`` holding a malloc'd ``k4a_calibration_t*``; ``PyK4ACapture._capture_handle``
+  one named ``"pyk4a capture handle"`` holding a malloc'd ``k4a_capture_t*`` (a pointer to
+  the handle, dereferenced here). Both are private attributes, not API: pyk4a 0.x had no
+  capsules, and a later pyk4a may change them, which :func:`capsule_pointer` reports.
 """
 
 from __future__ import annotations
@@ -175,7 +187,8 @@ def _candidates() -> list[str]:
         names.append(str(sdk / "release" / "bin" / "k4abt.dll"))
         return names
     found = ctypes.util.find_library("k4abt")
-    return [n for n in (found, "libk4abt.so", "libk4abt.so.1.1", "libk4abt.so.1.0") if n]
+    # no "libk4abt.so.1.0": SDK 1.0 takes a shorter configuration (refused in _declare)
+    return [n for n in (found, "libk4abt.so", "libk4abt.so.1.1") if n]
 
 
 def load_library(path: str | Path | None = None) -> ctypes.CDLL:
@@ -200,10 +213,19 @@ def load_library(path: str | Path | None = None) -> ctypes.CDLL:
         try:
             _declare(lib)
         except AttributeError as exc:
+            if hasattr(lib, "k4abt_tracker_create"):
+                raise K4ABTUnavailable(
+                    f"{name} is an Azure Kinect Body Tracking SDK older than 1.1 (it has no "
+                    f"{_SDK_1_1_MARKER}); its tracker configuration differs from 1.1's, so "
+                    f"it cannot be used; {INSTALL_HINT}") from None
             raise K4ABTUnavailable(f"{name} is not the Azure Kinect Body Tracking SDK "
                                    f"({exc}); {INSTALL_HINT}") from None
         return lib
     raise K4ABTUnavailable(f"{INSTALL_HINT} (tried: {'; '.join(errors)})")
+
+
+#: a function Body Tracking SDK 1.1 has and 1.0 lacks (1.1.x API reference vs 1.0.1's)
+_SDK_1_1_MARKER = "k4abt_frame_get_system_timestamp_nsec"
 
 
 def _declare(lib: ctypes.CDLL) -> None:
@@ -220,6 +242,7 @@ def _declare(lib: ctypes.CDLL) -> None:
         "k4abt_frame_get_body_id": (u32, [vp, u32]),
         "k4abt_frame_get_device_timestamp_usec": (ctypes.c_uint64, [vp]),
         "k4abt_frame_get_body_index_map": (vp, [vp]),
+        _SDK_1_1_MARKER: (ctypes.c_uint64, [vp]),
     }
     for name, (restype, argtypes) in sig.items():
         fn = getattr(lib, name)
@@ -272,8 +295,10 @@ def capsule_pointer(capsule: object, name: bytes) -> int:
     is_valid = ctypes.pythonapi.PyCapsule_IsValid
     is_valid.restype, is_valid.argtypes = ctypes.c_int, [ctypes.py_object, ctypes.c_char_p]
     if not is_valid(capsule, name):
-        raise K4ABTUnavailable(f"pyk4a did not hand over a {name.decode()!r} capsule; "
-                               "body tracking needs pyk4a ≥ 1.2")
+        raise K4ABTUnavailable(
+            f"this pyk4a does not hold its handles in a {name.decode()!r} capsule, as pyk4a "
+            "1.0.1 to 1.5.0 do; skeletons need one of those (gaitrig's `.[k4a]` extra "
+            "installs pyk4a 1.5)")
     ptr = get(capsule, name)
     if not ptr:
         raise K4ABTUnavailable(f"empty {name.decode()!r} capsule")

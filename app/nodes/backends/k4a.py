@@ -27,10 +27,22 @@ tracker still reports its id (a person stepping into the view mid-walk does not 
 stream over); when it is lost, or at the start, the nearest body (smallest pelvis
 distance) is chosen — in a gait lab the walking subject, not the clinician at the side.
 
-Frame times: the device timestamp (µs since the device started) is mapped once onto the
-host clock at the first frame, so ``t_local`` runs on the node computer's clock, which
-chrony/PTP and the server's estimator take care of. The body frame's device timestamp is
-its capture's depth timestamp and goes through the same mapping.
+Frame times (:class:`DeviceClock`): the device timestamp (µs, mid-exposure, from the
+sensor's own clock) is mapped onto the host clock by the smallest arrival latency seen in
+the last 10 s, so ``t_local`` runs on the node computer's clock (which chrony/PTP and the
+server's estimator take care of) while keeping the device's exact frame spacing. The
+arrival is the SDK's host timestamp of the depth image (``depth_system_timestamp_nsec``,
+``CLOCK_MONOTONIC``/``QueryPerformanceCounter``, the clock of ``time.perf_counter_ns``),
+read before body tracking, so a slow tracker (its first frame takes seconds) does not
+delay the frame times. The body frame's device timestamp (its capture's depth
+timestamp) goes through the same mapping. Device timestamps that do not run like a clock
+(0 or repeated — an Orbbec Femto on Windows without Orbbec's metadata driver — or at a
+wrong rate, e.g. a wrapper counting ms) are replaced by the arrival times, with a warning.
+
+pyk4a is opened with ``thread_safe=False``: with pyk4a's default (True) every blocking call
+— ``get_capture`` waits up to a frame period — holds the GIL, which would stall the
+node's websocket loop (clock pings) most of the time; all pyk4a calls are made from the
+capture thread, so pyk4a's own locking is not needed.
 """
 
 from __future__ import annotations
@@ -38,6 +50,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -59,6 +72,109 @@ CONFIDENCE_TO_STATE = np.array([TrackingState.NOT_TRACKED, TrackingState.INFERRE
 
 #: how long one capture may wait for the tracker's queue and result (ms)
 TRACK_TIMEOUT_MS = 2000
+
+#: host clocks read for the arrival of a capture (module attributes: tests replace them)
+_wall = time.time
+_perf_ns = time.perf_counter_ns
+#: an SDK host timestamp older than this (s) is not the capture's arrival (a wrapper that
+#: sets it wrongly): the wall clock at ``get_capture``'s return is used instead
+_MAX_ARRIVAL_AGE_S = 5.0
+
+
+def arrival_time(cap: Any) -> float:
+    """Host time (``time.time`` scale, s) at which the capture's depth image arrived.
+
+    pyk4a 1.5's ``depth_system_timestamp_nsec`` is libk4a's host timestamp ("captured at
+    the moment host PC finishes receiving the image": ``CLOCK_MONOTONIC`` on Linux,
+    ``QueryPerformanceCounter`` on Windows, i.e. ``time.perf_counter_ns``); without it (0,
+    missing, implausible) the wall clock now. Call it right after ``get_capture``.
+    """
+    wall, perf = _wall(), _perf_ns()
+    sys_ns = int(getattr(cap, "depth_system_timestamp_nsec", 0) or 0)
+    age = (perf - sys_ns) * 1e-9
+    if sys_ns > 0 and 0.0 <= age < _MAX_ARRIVAL_AGE_S:
+        return wall - age
+    return wall
+
+
+class DeviceClock:
+    """Maps a sensor's device timestamps (µs) onto the host clock (s).
+
+    ``t_local = device time + offset``, the offset being the smallest ``arrival − device
+    time`` of the last :attr:`window_s` of host time: the frame that came through fastest
+    bounds the latency best, a late one (tracker warm-up, a busy USB bus) moves nothing,
+    and the window follows the drift of the device's crystal against the host clock.
+
+    Device times that are not a clock — not increasing (0, repeated: Orbbec's wrapper on
+    Windows without its metadata driver gives none) or, over at least
+    :attr:`rate_span_s`, drifting from the host by more than :attr:`rate_tolerance` (a
+    wrapper counting ms) — are given up for good: from then on ``t_local`` is the arrival
+    time and :attr:`warning` says why.
+
+    Args:
+        window_s: host-time window of the latency minimum.
+        rate_tolerance: largest plausible |device rate / host rate − 1|.
+        rate_span_s: host time after which the rate is checked.
+    """
+
+    def __init__(self, window_s: float = 10.0, rate_tolerance: float = 0.02,
+                 rate_span_s: float = 10.0) -> None:
+        self.window_s = window_s
+        self.rate_tolerance = rate_tolerance
+        self.rate_span_s = rate_span_s
+        self._recent: deque[tuple[float, float]] = deque()  # (arrival s, offset s)
+        self._start: tuple[float, float] | None = None  # (first arrival, its offset)
+        self._last_dev: float | None = None
+        self._first_best = 0.0
+        self.warning: str | None = None
+
+    @property
+    def fallback(self) -> bool:
+        """True once device timestamps were given up for arrival times."""
+        return self.warning is not None
+
+    def t_local(self, device_usec: int, arrival_s: float,
+                stamp_usec: int | None = None) -> float:
+        """Record one capture and return the host time of ``stamp_usec``.
+
+        Args:
+            device_usec: the capture's depth image device timestamp (µs).
+            arrival_s: its host arrival time (:func:`arrival_time`).
+            stamp_usec: the device time to convert (default ``device_usec``; the body
+                frame's timestamp).
+        """
+        if self.fallback:
+            return arrival_s
+        dev = device_usec * 1e-6
+        if self._last_dev is not None and dev <= self._last_dev:
+            return self._give_up(arrival_s, f"device timestamps do not advance ({device_usec}"
+                                 f" µs after {round(self._last_dev * 1e6)} µs)")
+        self._last_dev = dev
+        offset = arrival_s - dev
+        if self._start is None:
+            self._start = (arrival_s, offset)
+        recent = self._recent
+        recent.append((arrival_s, offset))
+        while recent[0][0] < arrival_s - self.window_s:
+            recent.popleft()
+        best = min(o for _, o in recent)
+        elapsed = arrival_s - self._start[0]
+        if elapsed <= self.window_s:
+            self._first_best = best  # the first window's minimum
+        elif elapsed >= self.rate_span_s:
+            # a device clock off by a factor (1 + r) moves the best offset by about r·t
+            drift = best - self._first_best
+            if abs(drift) > self.rate_tolerance * elapsed:
+                return self._give_up(arrival_s, "device timestamps do not keep pace with "
+                                     f"the host clock ({drift:+.3g} s in {elapsed:.3g} s)")
+        return (dev if stamp_usec is None else stamp_usec * 1e-6) + best
+
+    def _give_up(self, arrival_s: float, why: str) -> float:
+        self.warning = (f"Frame times come from the node computer's clock at arrival, not "
+                        f"from the sensor: {why}. They are less exact (USB and driver "
+                        "latency); on Windows with an Orbbec Femto install Orbbec's metadata "
+                        "driver (obsensor_metadata_win10.ps1), then restart the node.")
+        return arrival_s
 
 
 def _require_pyk4a() -> Any:
@@ -159,7 +275,7 @@ class K4ABackend(Backend):
         self._tracker: _k4abt.Tracker | None = None
         self._body_id: int | None = None
         self._closed = threading.Event()
-        self._t0: tuple[float, float] | None = None
+        self._clock = DeviceClock()
         #: problems to show on the rig page (e.g. no body tracking SDK), said once
         self.warnings: list[str] = []
 
@@ -168,7 +284,8 @@ class K4ABackend(Backend):
         cfg = pyk4a.Config(color_resolution=pyk4a.ColorResolution.RES_720P,
                            depth_mode=pyk4a.DepthMode.NFOV_UNBINNED,
                            camera_fps=pyk4a.FPS.FPS_30, synchronized_images_only=True)
-        self._k4a = pyk4a.PyK4A(cfg, device_id=self.device)
+        # thread_safe=False: pyk4a then releases the GIL while it blocks (module docstring)
+        self._k4a = pyk4a.PyK4A(cfg, device_id=self.device, thread_safe=False)
         self._k4a.start()
         cal = self._k4a.calibration
         if self.body_tracking:
@@ -211,11 +328,12 @@ class K4ABackend(Backend):
     def close(self) -> None:
         self._closed.set()
 
-    def _t_local(self, device_usec: int) -> float:
-        dev_t = device_usec * 1e-6
-        if self._t0 is None:
-            self._t0 = (time.time(), dev_t)
-        return self._t0[0] + (dev_t - self._t0[1])
+    def _t_local(self, depth_usec: int, arrival_s: float, stamp_usec: int | None) -> float:
+        t = self._clock.t_local(depth_usec, arrival_s, stamp_usec)
+        if self._clock.warning is not None and self._clock.warning not in self.warnings:
+            log.warning("%s", self._clock.warning)
+            self.warnings.append(self._clock.warning)
+        return t
 
     def _skeleton(self, cap: Any) -> tuple[NDArray[np.float32], NDArray[np.uint8],
                                            list[int], int | None, NDArray[np.uint8] | None]:
@@ -246,12 +364,12 @@ class K4ABackend(Backend):
         try:
             while not self._closed.is_set():
                 cap = self._k4a.get_capture()
+                arrival = arrival_time(cap)  # before tracking, which may take long
                 if cap.depth is None:
                     continue
                 pos, st, ids, body_usec, body_index = self._skeleton(cap)
                 # the body frame's timestamp is its capture's depth timestamp
-                t_local = self._t_local(cap.depth_timestamp_usec if body_usec is None
-                                        else body_usec)
+                t_local = self._t_local(cap.depth_timestamp_usec, arrival, body_usec)
                 depth, color = cap.depth, cap.transformed_color
                 yield Frame(t_local, pos, st, ids, _images(depth, color, body_index))
         finally:

@@ -2,11 +2,18 @@
  *
  * Exports the SDK functions app/nodes/backends/_k4abt.py binds, with the signatures of
  * k4abt.h (Body Tracking SDK 1.1.x) and the type layouts of k4abttypes.h / k4atypes.h,
- * written out here so the test needs no SDK headers. Bodies are scripted per capture
+ * written out here so the test needs no SDK headers. They are copied from the SDK's
+ * headers, not from the binding (sources: docs/backbone.md, "What was checked against
+ * the SDKs"); the test compares sizes and field offsets with the binding's ctypes
+ * structures, so a binding layout that drifts from the SDK's fails.
+ * Built with -DSTUB_K4ABT_1_0 it stands for Body Tracking SDK 1.0.x instead: the 1.0
+ * configuration {orientation, processing_mode, gpu_device_id} and no
+ * k4abt_frame_get_system_timestamp_nsec, which the binding must refuse to load. Bodies are scripted per capture
  * handle with stub_script(); joint values follow a formula the test checks:
  *   position (mm) = (id * 100 + j, -10 * j, pelvis_z + j), orientation (w,x,y,z) =
  *   (1, 0.5 * j, 0, 0), confidence = j % 4 (NONE, LOW, MEDIUM, HIGH cycling).
  */
+#include <stddef.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -23,23 +30,31 @@ typedef struct _k4a_image_t *k4a_image_t;
 #define K4ABT_JOINT_COUNT 32
 typedef struct _k4abt_tracker_t *k4abt_tracker_t;
 typedef struct _k4abt_frame_t *k4abt_frame_t;
-typedef enum { K4ABT_SENSOR_ORIENTATION_DEFAULT = 0 } k4abt_sensor_orientation_t;
+typedef enum { K4ABT_SENSOR_ORIENTATION_DEFAULT = 0, K4ABT_SENSOR_ORIENTATION_CLOCKWISE90,
+               K4ABT_SENSOR_ORIENTATION_COUNTERCLOCKWISE90,
+               K4ABT_SENSOR_ORIENTATION_FLIP180 } k4abt_sensor_orientation_t;
 typedef enum { K4ABT_TRACKER_PROCESSING_MODE_GPU = 0, K4ABT_TRACKER_PROCESSING_MODE_CPU,
-               K4ABT_TRACKER_PROCESSING_MODE_GPU_CUDA } k4abt_tracker_processing_mode_t;
+               K4ABT_TRACKER_PROCESSING_MODE_GPU_CUDA, K4ABT_TRACKER_PROCESSING_MODE_GPU_TENSORRT,
+               K4ABT_TRACKER_PROCESSING_MODE_GPU_DIRECTML } k4abt_tracker_processing_mode_t;
 typedef struct _k4abt_tracker_configuration_t {
     k4abt_sensor_orientation_t sensor_orientation;
     k4abt_tracker_processing_mode_t processing_mode;
     int32_t gpu_device_id;
-    const char *model_path;
+#ifndef STUB_K4ABT_1_0
+    const char *model_path; /* new in 1.1.0 */
+#endif
 } k4abt_tracker_configuration_t;
 typedef union { struct { float w, x, y, z; } wxyz; float v[4]; } k4a_quaternion_t;
-typedef enum { K4ABT_JOINT_CONFIDENCE_NONE = 0 } k4abt_joint_confidence_level_t;
+typedef enum { K4ABT_JOINT_CONFIDENCE_NONE = 0, K4ABT_JOINT_CONFIDENCE_LOW = 1,
+               K4ABT_JOINT_CONFIDENCE_MEDIUM = 2, K4ABT_JOINT_CONFIDENCE_HIGH = 3,
+               K4ABT_JOINT_CONFIDENCE_LEVELS_COUNT = 4 } k4abt_joint_confidence_level_t;
 typedef struct _k4abt_joint_t {
     k4a_float3_t position;
     k4a_quaternion_t orientation;
     k4abt_joint_confidence_level_t confidence_level;
 } k4abt_joint_t;
 typedef struct _k4abt_skeleton_t { k4abt_joint_t joints[K4ABT_JOINT_COUNT]; } k4abt_skeleton_t;
+typedef struct _k4abt_body_t { uint32_t id; k4abt_skeleton_t skeleton; } k4abt_body_t;
 
 #define MAX_BODIES 4
 #define MAX_SCRIPT 64
@@ -87,6 +102,27 @@ const char *stub_last_model_path(void) { return last_model_path; }
 int stub_released(void) { return released; }
 size_t stub_sizeof_skeleton(void) { return sizeof(k4abt_skeleton_t); }
 size_t stub_sizeof_config(void) { return sizeof(k4abt_tracker_configuration_t); }
+size_t stub_sizeof_joint(void) { return sizeof(k4abt_joint_t); }
+size_t stub_sizeof_body(void) { return sizeof(k4abt_body_t); }
+/* offsets the binding's ctypes structures must reproduce, -1 for an unknown name */
+long stub_offsetof(const char *field) {
+    static const struct { const char *name; size_t off; } table[] = {
+        {"joint.position", offsetof(k4abt_joint_t, position)},
+        {"joint.orientation", offsetof(k4abt_joint_t, orientation)},
+        {"joint.orientation.w", offsetof(k4abt_joint_t, orientation.wxyz.w)},
+        {"joint.orientation.z", offsetof(k4abt_joint_t, orientation.wxyz.z)},
+        {"joint.confidence_level", offsetof(k4abt_joint_t, confidence_level)},
+        {"config.sensor_orientation", offsetof(k4abt_tracker_configuration_t, sensor_orientation)},
+        {"config.processing_mode", offsetof(k4abt_tracker_configuration_t, processing_mode)},
+        {"config.gpu_device_id", offsetof(k4abt_tracker_configuration_t, gpu_device_id)},
+#ifndef STUB_K4ABT_1_0
+        {"config.model_path", offsetof(k4abt_tracker_configuration_t, model_path)},
+#endif
+    };
+    for (size_t i = 0; i < sizeof table / sizeof table[0]; i++)
+        if (strcmp(table[i].name, field) == 0) return (long)table[i].off;
+    return -1;
+}
 
 /* ---- k4abt.h */
 k4a_result_t k4abt_tracker_create(const k4a_calibration_t *sensor_calibration,
@@ -94,7 +130,9 @@ k4a_result_t k4abt_tracker_create(const k4a_calibration_t *sensor_calibration,
                                   k4abt_tracker_t *tracker_handle) {
     if (sensor_calibration == NULL || tracker_handle == NULL || tracker_alive) return K4A_RESULT_FAILED;
     last_config = config; last_calibration = sensor_calibration;
+#ifndef STUB_K4ABT_1_0
     if (config.model_path) { strncpy(last_model_path, config.model_path, 255); last_model_path[255] = 0; }
+#endif
     if (fail_gpu && config.processing_mode != K4ABT_TRACKER_PROCESSING_MODE_CPU) return K4A_RESULT_FAILED;
     tracker_alive = 1;
     *tracker_handle = (k4abt_tracker_t)&tracker_alive;
@@ -131,6 +169,10 @@ uint32_t k4abt_frame_get_body_id(k4abt_frame_t f, uint32_t index) {
     return ((scripted_t *)f)->ids[index];
 }
 uint64_t k4abt_frame_get_device_timestamp_usec(k4abt_frame_t f) { return f ? ((scripted_t *)f)->ts : 0; }
+#ifndef STUB_K4ABT_1_0
+/* new in 1.1.0 (absent from the 1.0.1 API reference): the binding's 1.1 marker */
+uint64_t k4abt_frame_get_system_timestamp_nsec(k4abt_frame_t f) { return f ? 1000 * ((scripted_t *)f)->ts : 0; }
+#endif
 k4a_result_t k4abt_frame_get_body_skeleton(k4abt_frame_t f, uint32_t index, k4abt_skeleton_t *skeleton) {
     scripted_t *s = (scripted_t *)f;
     if (!s || !skeleton || index >= s->n) return K4A_RESULT_FAILED;
