@@ -48,8 +48,8 @@ class LoginSession(Base):
 
 
 #: What the audit trail records (``AuditEvent.action``).
-AUDIT_ACTIONS = ("login", "login_failed", "logout", "password_change", "export", "delete",
-                 "backup", "restore")
+AUDIT_ACTIONS = ("login", "login_failed", "logout", "password_change", "account", "export",
+                 "delete", "backup", "restore")
 
 
 class AuditEvent(Base):

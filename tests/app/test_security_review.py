@@ -467,3 +467,53 @@ def test_uploaded_file_names_are_never_paths(client: TestClient, tmp_path: Path,
     assert not (tmp_path.parent / "evil.c3d").exists()
     for p in new:
         assert "evil" not in p.name, p  # stored under a random name, inside data_dir
+
+
+# ---------------------------------------------------------------------------- accounts
+
+
+def test_accounts_per_person_are_managed_by_administrators(client: TestClient) -> None:
+    """One account per person (the trail names people, not a shared 'admin'): created,
+    reset and removed by an administrator only, each audited; a nurse cannot."""
+    admin = {"Authorization": f"Bearer {_login(client).json()['token']}"}
+    client.cookies.clear()
+    r = client.post("/api/users", headers=admin,
+                    json={"username": "a.nurse", "password": "short"})
+    assert r.status_code == 422 and "12" in r.json()["detail"]
+    r = client.post("/api/users", headers=admin,
+                    json={"username": "a.nurse", "password": "walking gait lab 3"})
+    assert r.status_code == 201, r.text
+    assert client.post("/api/users", headers=admin, json={
+        "username": "A.Nurse", "password": "walking gait lab 3"}).status_code == 409
+    r = client.post("/api/auth/login", json={"username": "a.nurse",
+                                             "password": "walking gait lab 3"})
+    nurse = {"Authorization": f"Bearer {r.json()['token']}"}
+    client.cookies.clear()
+    for method, url, body in [("GET", "/api/users", None),
+                              ("POST", "/api/users", {"username": "x.y",
+                                                      "password": "walking gait lab 4"}),
+                              ("POST", "/api/users/admin/password",
+                               {"new_password": "walking gait lab 5"}),
+                              ("POST", "/api/users/admin/delete", {"confirm": "admin"})]:
+        r = client.request(method, url, headers=nurse, json=body)
+        assert r.status_code == 403, (url, r.text)
+    listed = {u["username"]: u for u in client.get("/api/users", headers=admin).json()}
+    assert listed["a.nurse"]["open_logins"] == 1 and not listed["a.nurse"]["is_admin"]
+    # a reset ends the nurse's logins
+    r = client.post("/api/users/a.nurse/password", headers=admin,
+                    json={"new_password": "another walk 42"})
+    assert r.status_code == 204
+    assert client.get("/api/auth/me", headers=nurse).status_code == 401
+    # neither oneself nor the last administrator can be removed
+    assert client.post("/api/users/admin/delete", headers=admin,
+                       json={"confirm": "admin"}).status_code == 409
+    assert client.post("/api/users/a.nurse/delete", headers=admin,
+                       json={"confirm": "wrong"}).status_code == 400
+    assert client.post("/api/users/a.nurse/delete", headers=admin,
+                       json={"confirm": "a.nurse"}).status_code == 200
+    assert client.post("/api/auth/login", json={"username": "a.nurse",
+                                                "password": "another walk 42"}
+                       ).status_code == 401
+    trail = [e["detail"] for e in _audit(client, admin, "account")]
+    assert trail == ["removed", "password set by an administrator; 1 login(s) ended",
+                     "created"]

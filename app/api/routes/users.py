@@ -1,0 +1,139 @@
+"""Console accounts, for administrators: one per person, so the audit trail names people.
+
+* ``GET /api/users`` — the accounts (name, administrator or not, since when, open logins).
+* ``POST /api/users`` — ``{"username", "password", "is_admin"}``: a new account; the
+  password follows the policy of ``POST /api/auth/password``.
+* ``POST /api/users/{username}/password`` — ``{"new_password"}``: set someone's password
+  (they forgot it, or it leaked); every login of theirs ends.
+* ``POST /api/users/{username}/delete`` — ``{"confirm": "<username>"}``: remove an account
+  and end its logins. One's own account and the last administrator cannot be removed.
+
+Each change is in the audit trail (action ``account``); the trail keeps the entries of a
+removed account under its name.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any
+
+from fastapi import APIRouter, HTTPException, Request, status
+from pydantic import BaseModel, Field
+from sqlalchemy import func, select
+
+from app.api import security
+from app.api.deps import CurrentUser, DbDep
+from app.api.limits import BoundedRoute
+from app.db import audit
+from app.db.models import LoginSession, User
+
+router = APIRouter(prefix="/users", route_class=BoundedRoute, tags=["users"])
+
+#: What a user name may be: it is shown in the audit trail and typed at the login.
+USERNAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.@-]{0,63}$"
+
+
+class NewUser(BaseModel):
+    username: str = Field(pattern=USERNAME_PATTERN,
+                          description="Letters, digits, '_', '.', '@', '-' (e.g. a.nurse).")
+    password: str = Field(min_length=1, max_length=256)
+    is_admin: bool = False
+
+
+class NewPassword(BaseModel):
+    new_password: str = Field(min_length=1, max_length=256)
+
+
+class Confirm(BaseModel):
+    confirm: str = Field(max_length=64, description="The user name, typed again.")
+
+
+def _admin(user: User) -> None:
+    if not user.is_admin:
+        raise HTTPException(status.HTTP_403_FORBIDDEN,
+                            "only an administrator may manage accounts")
+
+
+def _account(db: Any, username: str) -> User:
+    found = db.scalar(select(User).where(User.username == username))
+    if found is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no account named {username[:64]!r}")
+    return found  # type: ignore[no-any-return]
+
+
+def _policy(password: str, username: str) -> None:
+    problem = security.password_problem(password, username)
+    if problem:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, problem)
+
+
+def _client(request: Request) -> str:
+    return request.client.host if request.client else ""
+
+
+@router.get("")
+def accounts(user: CurrentUser, db: DbDep) -> list[dict[str, Any]]:
+    """Every account with its number of open logins (administrators only)."""
+    _admin(user)
+    open_logins: dict[int, int] = {
+        uid: n for uid, n in db.execute(
+            select(LoginSession.user_id, func.count(LoginSession.id))
+            .where(LoginSession.expires_at > datetime.now(UTC))
+            .group_by(LoginSession.user_id))}
+    return [{"username": u.username, "is_admin": u.is_admin,
+             "created_at": u.created_at.isoformat(), "open_logins": open_logins.get(u.id, 0)}
+            for u in db.scalars(select(User).order_by(User.username))]
+
+
+@router.post("", status_code=201)
+def create_account(body: NewUser, request: Request, user: CurrentUser, db: DbDep
+                   ) -> dict[str, Any]:
+    """A new account (administrators only)."""
+    _admin(user)
+    if db.scalar(select(User.id).where(func.lower(User.username) == body.username.lower())):
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"an account named {body.username!r} exists already")
+    _policy(body.password, body.username)
+    db.add(User(username=body.username, password_hash=security.hash_password(body.password),
+                is_admin=body.is_admin))
+    db.add(audit.event(user.username, "account", f"user {body.username}",
+                       "created" + (" (administrator)" if body.is_admin else ""),
+                       _client(request)))
+    db.commit()
+    return {"username": body.username, "is_admin": body.is_admin}
+
+
+@router.post("/{username}/password", status_code=204)
+def set_password(username: str, body: NewPassword, request: Request, user: CurrentUser,
+                 db: DbDep) -> None:
+    """Set an account's password and end its logins (administrators only; one's own:
+    ``POST /api/auth/password``, which asks for the current one)."""
+    _admin(user)
+    target = _account(db, username)
+    if target.id == user.id:
+        raise HTTPException(status.HTTP_409_CONFLICT, "change your own password with POST "
+                            "/api/auth/password (it asks for the current one)")
+    _policy(body.new_password, target.username)
+    ended = security.change_password(db, target, body.new_password, None)
+    audit.record(db, user.username, "account", f"user {target.username}",
+                 f"password set by an administrator; {ended} login(s) ended", _client(request))
+
+
+@router.post("/{username}/delete")
+def delete_account(username: str, body: Confirm, request: Request, user: CurrentUser,
+                   db: DbDep) -> dict[str, Any]:
+    """Remove an account and end its logins (administrators only)."""
+    _admin(user)
+    target = _account(db, username)
+    if body.confirm != target.username:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                            f"type the user name {target.username!r} to confirm")
+    if target.id == user.id:
+        raise HTTPException(status.HTTP_409_CONFLICT, "you cannot remove your own account")
+    if target.is_admin and (db.scalar(select(func.count(User.id)).where(User.is_admin)) or 0) <= 1:
+        raise HTTPException(status.HTTP_409_CONFLICT, "the last administrator cannot be removed")
+    db.delete(target)
+    db.add(audit.event(user.username, "account", f"user {target.username}", "removed",
+                       _client(request)))
+    db.commit()
+    return {"deleted": "user", "username": target.username}
