@@ -45,6 +45,8 @@ SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS", "TRACE"})
 _INLINE_SCRIPT = re.compile(r"<script(?![^>]*\bsrc\s*=)[^>]*>(.*?)</script>",
                             re.DOTALL | re.IGNORECASE)
 
+_HOST_CHARS = re.compile(r"[A-Za-z0-9.\-\[\]:]{1,255}")
+
 #: Headers every HTTP answer carries (a route's own value wins where it set one).
 BASE_HEADERS = {
     "x-content-type-options": "nosniff",
@@ -191,8 +193,10 @@ class SecurityMiddleware:
         else:
             template = self.console_csp
         host = headers.get("host", "")
-        # connect-src 'self' covers same-origin websockets only in CSP level 3 browsers
-        ws = f"ws://{host} wss://{host}" if _host_port(host, 80) is not None else ""
+        # connect-src 'self' covers same-origin websockets only in CSP level 3 browsers;
+        # a Host with anything but name/address characters adds nothing to the policy
+        ok = _HOST_CHARS.fullmatch(host) and _host_port(host, 80) is not None
+        ws = f"ws://{host} wss://{host}" if ok else ""
         return template.replace("{ws}", ws)
 
     def _with_headers(self, scope: Scope, headers: Headers, send: Send) -> Send:

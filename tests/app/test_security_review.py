@@ -136,6 +136,14 @@ def test_security_headers_on_console_and_api(client: TestClient) -> None:
     assert "frame-ancestors 'self'" in v.headers["content-security-policy"]
 
 
+def test_a_forged_host_cannot_add_to_the_policy(client: TestClient) -> None:
+    r = client.get("/rig.html", headers={"Host": "x; script-src *"})
+    csp = r.headers["content-security-policy"]
+    assert "script-src *" not in csp and "x;" not in csp
+    r = client.get("/rig.html", headers={"Host": "lab.example.org:8443"})
+    assert "wss://lab.example.org:8443" in r.headers["content-security-policy"]
+
+
 def test_hsts_when_served_over_https(tmp_path: Path) -> None:
     with TestClient(create_app(_settings(tmp_path)), base_url="https://testserver") as c:
         assert c.get("/rig.html").headers["strict-transport-security"].startswith("max-age=")
