@@ -560,6 +560,9 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
         raise BackupError(f"{data_dir} is not empty: restore into an empty folder, or give "
                           "--force to replace everything in it (a restore never merges)")
     if existing:
+        if _in_use(data_dir / "gaitrig.sqlite3"):
+            raise BackupError(f"the database in {data_dir} is open in another program (a "
+                              "running gaitrig server?): stop the server, then restore")
         current.append(erasures.read(data_dir))  # the replaced server's own deletions
     if not current and not without_deletion_log:
         raise BackupError(
@@ -614,6 +617,31 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
                          "(restored by you with pg_restore); it was migrated and the "
                          "deletions applied to it")
     return res
+
+
+def _in_use(db: Path) -> bool:
+    """Whether another process has the SQLite database open (in WAL mode, as the server
+    opens it): every connection holds a read lock on the "DMS" byte (128) of its
+    ``-shm`` file, so a write lock on it is refused while one is open."""
+    import fcntl
+    import struct
+
+    shm = db.with_name(db.name + "-shm")
+    if not shm.is_file():
+        return False
+    try:
+        fd = os.open(shm, os.O_RDWR)
+    except OSError:
+        return False
+    try:
+        lock = struct.pack("hhqqi", fcntl.F_WRLCK, os.SEEK_SET, 128, 1, 0)
+        try:
+            got = struct.unpack("hhqqi", fcntl.fcntl(fd, fcntl.F_GETLK, lock))
+        except OSError:
+            return False
+        return bool(got[0] != fcntl.F_UNLCK)
+    finally:
+        os.close(fd)
 
 
 def _check_integrity(db: Path, archive: Path) -> None:

@@ -9,6 +9,8 @@ import hashlib
 import io
 import json
 import sqlite3
+import subprocess
+import sys
 import tarfile
 import zipfile
 from collections.abc import Iterator
@@ -229,6 +231,19 @@ def test_restore_refuses_a_non_empty_folder_and_wrong_archives(
                          "--without-deletion-log", "--force")
     assert code == 0, err
     assert not (full / "notes.txt").exists() and (full / "gaitrig.sqlite3").is_file()
+    # not while a server (another process) has the folder's database open
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sqlite3, sys; c = sqlite3.connect(sys.argv[1]); "
+         "c.execute('pragma journal_mode=WAL'); c.execute('select 1').fetchall(); "
+         "print('open', flush=True); sys.stdin.read()", str(full / "gaitrig.sqlite3")],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "open"
+        code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
+                             "--without-deletion-log", "--force")
+        assert code == 2 and "open in another program" in err and "stop the server" in err
+    finally:
+        holder.communicate("", timeout=10)
     # a backup never overwrites, nor goes into the data folder
     code, _o, err = _cli(capsys, "backup", str(archive), "--data-dir", str(var))
     assert code == 2 and "exists already" in err
