@@ -31,6 +31,13 @@ const gaitrig = (() => {
     btn.disabled = false;
     if (!document.activeElement || document.activeElement === document.body) btn.focus({ preventScroll: true });
   }
+  // A session's day ("2026-11-24") as the user writes dates ("24 Nov 2026", "Nov 24, 2026");
+  // the month spelled out, so 03/04 cannot be read as either March or April.
+  function day(iso) {
+    const d = new Date(`${iso}T00:00:00`);  // local midnight: the same calendar day everywhere
+    return Number.isNaN(d.getTime()) ? String(iso)
+      : d.toLocaleDateString(undefined, { day: "numeric", month: "short", year: "numeric" });
+  }
   function fmt(v, digits, unit) { return v === null || v === undefined ? "—" : v.toFixed(digits) + unit; }
 
   function loginPage() {
@@ -213,7 +220,7 @@ const gaitrig = (() => {
     setInterval(refresh, 1000);
     setInterval(refreshRecordings, 1000);
   }
-  return { api, toLogin, newest, latest, release, loginPage, rigPage };
+  return { api, toLogin, newest, latest, release, day, loginPage, rigPage };
 })();
 
 // The browser refuses a field that does not match its pattern with "Please match the

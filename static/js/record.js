@@ -74,7 +74,7 @@
     if (subjectId === null) { sel.replaceChildren(el("option", { value: "" }, "— add a subject first —")); return; }
     const ss = await api(`/api/sessions?subject_id=${subjectId}`);
     if (!sessionsSeq.current(mine)) return;
-    sel.replaceChildren(...ss.slice().reverse().map((s) => el("option", { value: s.id }, `${s.date}${s.label ? " — " + s.label : ""} (${s.n_recordings} rec.)`)));
+    sel.replaceChildren(...ss.slice().reverse().map((s) => el("option", { value: s.id }, `${gaitrig.day(s.date)}${s.label ? " — " + s.label : ""} (${s.n_recordings} rec.)`)));
     if (!ss.length) sel.append(el("option", { value: "" }, "— add a session —"));
     if (want) sel.value = want;
   }

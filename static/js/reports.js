@@ -136,7 +136,7 @@
       if ($("subject").value !== sid) return;  // another subject was chosen meanwhile
       for (const x of s.sessions || []) {
         const done = (x.recordings || []).filter((r) => r.state === "complete").length;
-        sess.append(el("option", `${x.date} ${x.label || ""} (${done} complete recording(s))`,
+        sess.append(el("option", `${gaitrig.day(x.date)} ${x.label || ""} (${done} complete recording(s))`,
           { value: String(x.id) }));
       }
     } catch (e) { if ($("subject").value !== sid) return; say("subject-msg", e.message, true); }
@@ -214,7 +214,7 @@
     const sel = $("recording"), was = sel.value;
     sel.replaceChildren(el("option", recs.length ? "Choose a recording…" : q ? `No recording matches “${q}”` : "No recording on the server yet", { value: "" }));
     for (const r of recs) {
-      const who = r.subject_code ? `${r.subject_code}, ${r.session_date} ${r.session_label || ""}` : "no subject";
+      const who = r.subject_code ? `${r.subject_code}, ${gaitrig.day(r.session_date)} ${r.session_label || ""}` : "no subject";
       sel.append(el("option", `${r.id} — ${who} — ${r.sensors.length} sensors`, { value: r.id }));
     }
     if (was && recs.some((r) => r.id === was)) sel.value = was;

@@ -239,7 +239,7 @@
     const card = el("div", { class: "session", id: "unfiled" }, el("h3", {}, "Recordings not filed under a session"));
     for (const r of recs) {
       const sel = el("select", { "aria-label": `session for ${r.id}` },
-        ...subject.sessions.slice().reverse().map((x) => el("option", { value: x.id }, `${x.date}${x.label ? " — " + x.label : ""}`)));
+        ...subject.sessions.slice().reverse().map((x) => el("option", { value: x.id }, `${gaitrig.day(x.date)}${x.label ? " — " + x.label : ""}`)));
       card.append(el("div", { class: "part", "data-unfiled": r.id },
         el("strong", {}, r.id), badge(r.state), el("span", { class: "hint" }, r.nodes.join(", ")), sel,
         el("button", { type: "button", class: "secondary small", onclick: async () => {
@@ -299,7 +299,7 @@
     const live = new Map(lives.map((x) => [x.id, x]));
     const box = $("sessions");
     box.replaceChildren(...subject.sessions.slice().reverse().map((s) => el("div", { class: "session", "data-session": s.id },
-      el("h3", {}, `${s.date}${s.label ? " — " + s.label : ""}`,
+      el("h3", {}, `${gaitrig.day(s.date)}${s.label ? " — " + s.label : ""}`,
         s.recordings.some((r) => r.state === "complete")
           ? el("a", { class: "button session-report", href: `/reports.html#subject=${subject.id}&session=${s.id}` }, "Gait report of this session") : null),
       ...(s.recordings.length ? s.recordings.map((r) => recordingRow(r, live.get(r.id))) : [el("p", { class: "hint" }, "No recordings yet.")]))));

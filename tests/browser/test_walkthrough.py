@@ -8,6 +8,7 @@ where the keyboard focus is, and no JavaScript error.
 
 from __future__ import annotations
 
+import re
 import time
 import urllib.error
 from collections.abc import Iterator
@@ -216,7 +217,8 @@ def test_code_field_says_which_characters_are_allowed(page: Any,
 def test_dates_are_the_users_own(browser: Any, live_server: LiveServer, walked: Walked) -> None:
     """A clinician in Auckland read recording starts in UTC (eleven hours off her wall
     clock, labelled "(UTC)") on the Rig page, and early in her morning the Subjects page
-    offered yesterday's date for a new session (the UTC date)."""
+    offered yesterday's date for a new session (the UTC date); session days read
+    "2026-11-24" where she writes "24 Nov 2026"."""
     context = browser.new_context(viewport={"width": 1024, "height": 768},
                                   timezone_id="Pacific/Auckland", locale="en-NZ")
     try:
@@ -241,6 +243,10 @@ def test_dates_are_the_users_own(browser: Any, live_server: LiveServer, walked: 
         page.goto(f"{live_server.base_url}/subjects.html#subject={walked.subject_id}")
         page.wait_for_function("document.querySelector('#session-form [name=date]').value")
         assert page.input_value("#session-form [name=date]") == "2026-01-16"
+        # a session's day as she writes dates ("24 Nov 2026"), not the ISO "2026-11-24"
+        heading = page.locator("[data-session] h3").first.inner_text()
+        assert re.search(r"\b\d{1,2} [A-Z][a-z]{2} \d{4}\b", heading), heading
+        assert not re.search(r"\d{4}-\d{2}-\d{2}", heading), heading
         assert not errors, errors
     finally:
         context.close()
