@@ -684,3 +684,23 @@ def test_timestamps_that_are_not_a_clock_warn_once_and_keep_streaming(
     assert len(be.warnings) == 1 and "do not advance" in be.warnings[0]
     assert len([r for r in caplog.records if "do not advance" in r.getMessage()]) == 1
     np.testing.assert_allclose(np.diff([f.t_local for f in frames]), [1 / 30, 1 / 30])
+
+
+def test_a_full_tracker_queue_is_drained_so_skeletons_come_back(
+        stub: ctypes.CDLL, stub_path: Path) -> None:
+    # Five pops time out (a first frame that takes seconds): three results pile up in the
+    # SDK's queue (it takes three), enqueue then times out, and without popping nothing
+    # would ever leave the queue again.
+    lib = _k4abt.load_library(stub_path)
+    tr = _k4abt.Tracker(lib, _k4abt.calibration_pointer(FakeCalibration()))
+    try:
+        for k in range(1, 9):
+            script(stub, k, [(k, 2000.0)], 1_000_000 + 33_333 * k)
+        stub.stub_delay_pops(5)
+        out = [tr.track(k, 50, 1_000_000 + 33_333 * k) for k in range(1, 9)]
+        assert out[:5] == [None] * 5
+        got = [(f.body_ids, f.device_timestamp_usec) for f in out[5:] if f is not None]
+        assert got == [([k], 1_000_000 + 33_333 * k) for k in (6, 7, 8)]  # their own
+        assert stub.stub_released() == 6  # the three drained results went back too
+    finally:
+        tr.close()

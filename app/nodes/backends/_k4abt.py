@@ -112,6 +112,9 @@ _WAIT_SUCCEEDED, _WAIT_FAILED, _WAIT_TIMEOUT = 0, 1, 2
 #: stale results (of captures whose pop timed out) dropped at most per capture; the SDK
 #: queues only a few frames
 _MAX_STALE = 4
+#: results drained at most when the input queue is full (the SDK "will buffer at least
+#: three body frames worth of data before stopping new capture being queued")
+_MAX_QUEUE = 8
 #: a result this close to the capture's depth timestamp is its own (the SDK copies the
 #: depth timestamp; the margin, under half a frame at 30 fps, only guards against rounding)
 _SAME_CAPTURE_USEC = 10_000
@@ -411,8 +414,15 @@ class Tracker:
         lib, h = self._lib, self._handle
         if h.value is None:
             return None
-        if lib.k4abt_tracker_enqueue_capture(h, ctypes.c_void_p(capture),
-                                             timeout_ms) != _WAIT_SUCCEEDED:
+        cap = ctypes.c_void_p(capture)
+        rc = lib.k4abt_tracker_enqueue_capture(h, cap, 0)
+        if rc == _WAIT_TIMEOUT:
+            # The queue is full: results of captures whose pop timed out (a slow first
+            # frame) fill the SDK's output queue, which only pops drain, so drop them now
+            # (otherwise every later enqueue would time out too and skeletons stop).
+            self._drain()
+            rc = lib.k4abt_tracker_enqueue_capture(h, cap, timeout_ms)
+        if rc != _WAIT_SUCCEEDED:
             return None
         for _ in range(_MAX_STALE + 1):
             frame = ctypes.c_void_p()
@@ -428,6 +438,18 @@ class Tracker:
             finally:
                 lib.k4abt_frame_release(frame)
         return None
+
+    def _drain(self) -> int:
+        """Release every result ready now (at most :data:`_MAX_QUEUE`); how many."""
+        n = 0
+        while n < _MAX_QUEUE:
+            frame = ctypes.c_void_p()
+            if self._lib.k4abt_tracker_pop_result(self._handle, ctypes.byref(frame),
+                                                  0) != _WAIT_SUCCEEDED:
+                break
+            self._lib.k4abt_frame_release(frame)
+            n += 1
+        return n
 
     def close(self) -> None:
         """Shut the tracker down and destroy it (idempotent)."""

@@ -57,6 +57,7 @@ typedef struct _k4abt_skeleton_t { k4abt_joint_t joints[K4ABT_JOINT_COUNT]; } k4
 typedef struct _k4abt_body_t { uint32_t id; k4abt_skeleton_t skeleton; } k4abt_body_t;
 
 #define MAX_BODIES 4
+#define STUB_QUEUE_CAPACITY 3
 #define MAX_SCRIPT 64
 typedef struct {
     uint64_t capture;
@@ -145,6 +146,9 @@ k4a_wait_result_t k4abt_tracker_enqueue_capture(k4abt_tracker_t tracker_handle,
                                                 int32_t timeout_in_ms) {
     (void)timeout_in_ms;
     if (tracker_handle == NULL || !tracker_alive) return K4A_WAIT_RESULT_FAILED;
+    /* the real queue: "the SDK will buffer at least three body frames worth of data
+     * before stopping new capture being queued" (k4abt_tracker_pop_result reference) */
+    if (q_tail - q_head >= STUB_QUEUE_CAPACITY) return K4A_WAIT_RESULT_TIMEOUT;
     for (int i = 0; i < n_script; i++)
         if (script[i].capture == (uint64_t)(uintptr_t)sensor_capture_handle) {
             queue[q_tail++ % MAX_SCRIPT] = &script[i];
