@@ -143,6 +143,11 @@ def test_subject_list_item_is_the_subject(large: Rig) -> None:
     one.pop("sessions")
     assert item == one
     assert item["n_recordings"] == RECS and item["n_sessions"] >= 1
+    # without the disk usage (no folder read): the same but for it
+    brief = large.search(q="P00003", bytes_on_server=False).json()[0]
+    assert brief == {**item, "bytes_on_server": None}
+    assert large.get("/api/subjects", offset=2, limit=1, bytes_on_server="false"
+                     ).json()[0]["bytes_on_server"] is None
 
 
 def test_largest_page_is_refused_with_a_message(large: Rig) -> None:

@@ -185,9 +185,9 @@ def subject_json(s: m.Subject, layout: StorageLayout | None = None,
 
 
 def subject_list_json(s: m.Subject, n_sessions: int, n_recordings: int,
-                      bytes_on_server: int) -> dict[str, Any]:
-    """:func:`subject_json` (with the bytes on the server) from counts the list query
-    gave, without loading the subject's sessions and recordings."""
+                      bytes_on_server: int | None) -> dict[str, Any]:
+    """:func:`subject_json` (with the bytes on the server, None when not asked for) from
+    counts the list query gave, without loading the subject's sessions and recordings."""
     return {"id": s.id, "project_id": s.project_id, "code": s.code, "height_m": s.height_m,
             "leg_length_m": s.leg_length_m, "sex": s.sex, "birth_year": s.birth_year,
             "notes": s.notes, "n_sessions": n_sessions, "n_recordings": n_recordings,

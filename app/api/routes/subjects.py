@@ -127,23 +127,30 @@ class SubjectSearch(BaseModel):
     sort: SubjectSort = "code"
     limit: int | None = Field(default=None, ge=1)
     offset: int = Field(default=0, ge=0, le=MAX_OFFSET)
+    bytes_on_server: bool = Field(default=True, description=(
+        "false: leave out the bytes on the server (null), which read every listed "
+        "subject's recording folders"))
 
 
 @router.get("")
 def list_subjects(request: Request, response: Response, user: CurrentUser, db: DbDep,
                   project_id: int | None = None, sort: SubjectSort = "code",
-                  limit: LimitQ = None, offset: OffsetQ = 0) -> list[dict[str, Any]]:
+                  limit: LimitQ = None, offset: OffsetQ = 0,
+                  bytes_on_server: bool = True) -> list[dict[str, Any]]:
     """Subjects (of one project if ``project_id`` is given) with disk usage, a page at a
     time (``limit`` ≤ 500, default 100; ``offset``; the ``X-Total-Count`` header gives
     the number matching), ``sort`` by ``code`` or ``created`` (``-`` for descending).
-    Searching a code: ``POST /api/subjects/search``.
+    ``bytes_on_server=false`` leaves the disk usage out (null): it reads the page's
+    recording folders, which a list of codes does not need. Searching a code:
+    ``POST /api/subjects/search``.
     """
     if "q" in request.query_params:
         raise HTTPException(status.HTTP_400_BAD_REQUEST,
                             "search subjects with POST /api/subjects/search {\"q\": ...}: a "
                             "code in the URL would be kept in access logs")
     return _subjects_page(request, response, db, SubjectSearch(
-        project_id=project_id, sort=sort, limit=limit, offset=offset))
+        project_id=project_id, sort=sort, limit=limit, offset=offset,
+        bytes_on_server=bytes_on_server))
 
 
 @router.post("/search")
@@ -158,7 +165,8 @@ def _subjects_page(request: Request, response: Response, db: DbDep, f: SubjectSe
                    ) -> list[dict[str, Any]]:
     """Three queries whatever the number of subjects: the count, the page with each
     subject's numbers of sessions and recordings, and the page's recording ids (for the
-    bytes on the server, summed from the page's recording folders only)."""
+    bytes on the server, summed from the page's recording folders only; none without
+    ``bytes_on_server``)."""
     page = page_of(f.limit, f.offset, SUBJECTS_PAGE, SUBJECTS_PAGE_MAX)
     where = []
     if f.project_id is not None:
@@ -173,11 +181,14 @@ def _subjects_page(request: Request, response: Response, db: DbDep, f: SubjectSe
              .join(m.Session, m.Recording.session_id == m.Session.id)
              .where(m.Session.subject_id == m.Subject.id)
              .correlate(m.Subject).scalar_subquery())
-    rows = db.execute(select(m.Subject, n_sess, n_rec).where(*where)
-                      .order_by(*_SUBJECT_ORDER[f.sort])
-                      .limit(page.limit).offset(page.offset)).all()
+    # the page's ids first: the counts are then computed for the page only (SQLite
+    # would compute them for every subject before an ORDER BY it has no index for)
+    ids = (select(m.Subject.id).where(*where).order_by(*_SUBJECT_ORDER[f.sort])
+           .limit(page.limit).offset(page.offset).scalar_subquery())
+    rows = db.execute(select(m.Subject, n_sess, n_rec).where(m.Subject.id.in_(ids))
+                      .order_by(*_SUBJECT_ORDER[f.sort])).all()
     recs: dict[int, list[str]] = {}
-    if rows:
+    if rows and f.bytes_on_server:
         for sid, rec_id in db.execute(
                 select(m.Session.subject_id, m.Recording.id)
                 .join(m.Recording, m.Recording.session_id == m.Session.id)
@@ -185,7 +196,8 @@ def _subjects_page(request: Request, response: Response, db: DbDep, f: SubjectSe
             recs.setdefault(sid, []).append(rec_id)
     layout = layout_of(request)
     return [subject_list_json(s, ns or 0, nr or 0,
-                              sum(layout.recording_bytes(r) for r in recs.get(s.id, ())))
+                              sum(layout.recording_bytes(r) for r in recs.get(s.id, ()))
+                              if f.bytes_on_server else None)
             for s, ns, nr in rows]
 
 
