@@ -50,8 +50,8 @@
     const mine = subjectsSeq.ask();
     const pid = Number($("project").value), q = $("subject-q").value.trim();
     let { items: ss, total } = q
-      ? await listPage("/api/subjects/search", { q, project_id: pid, limit: SUBJECTS_SHOWN })
-      : await listPage(`/api/subjects?project_id=${pid}&sort=-created&limit=${SUBJECTS_SHOWN}`);
+      ? await listPage("/api/subjects/search", { q, project_id: pid, limit: SUBJECTS_SHOWN, bytes_on_server: false })
+      : await listPage(`/api/subjects?project_id=${pid}&sort=-created&limit=${SUBJECTS_SHOWN}&bytes_on_server=false`);
     // the subject asked for (just added, or from the address) is offered even when the
     // search or the page does not show it
     if (want && !ss.some((s) => s.id === Number(want))) {
@@ -114,7 +114,7 @@
       $("nodes-summary").textContent = ns.length
         ? `${ready.length} of ${ns.length} sensors ready to record (${ready.map((n) => n.id).join(", ") || "none"}).`
         : "No sensor has connected yet; start the nodes (see the Rig page).";
-    } catch (e) { $("nodes-summary").textContent = "Cannot reach the server: " + e.message; }
+    } catch (e) { $("nodes-summary").textContent = "The sensor list is not up to date: " + e.message; }
   }
 
   function fmtTime(s) { const m = Math.floor(s / 60); return `${m}:${(s - m * 60).toFixed(1).padStart(4, "0")}`; }

@@ -96,8 +96,9 @@
     const q = $("subject-q").value.trim();
     let total;
     try {
-      ({ items: subjects, total } = q ? await listPage("/api/subjects/search", { q, sort: "code", limit: SHOWN })
-        : await listPage(`/api/subjects?sort=-created&limit=${SHOWN}`));
+      // (codes and counts only: the disk usage would read every listed subject's folders)
+      ({ items: subjects, total } = q ? await listPage("/api/subjects/search", { q, sort: "code", limit: SHOWN, bytes_on_server: false })
+        : await listPage(`/api/subjects?sort=-created&limit=${SHOWN}&bytes_on_server=false`));
     } catch (e) { say("subject-msg", "Cannot load subjects: " + e.message, true); return; }
     if (!subjectsSeq.current(mine)) return;
     const sel = $("subject"), was = sel.value;
