@@ -94,6 +94,19 @@
       return tr;
     }));
     if (!ss.length && !q) body.append(el("tr", {}, el("td", { colspan: "4", class: "hint" }, "No subjects in this project yet.")));
+    if (q && !total) await elsewhere(q, mine);
+  }
+  // A code searched for in another project than the one shown: say where, with a way there.
+  async function elsewhere(q, mine) {
+    let found = [];
+    try { found = (await listPage("/api/subjects/search", { q, limit: 5, bytes_on_server: false })).items; } catch (e) { return; }
+    if (!subjectsSeq.current(mine) || !found.length) return;
+    const names = new Map([...$("project").options].map((o) => [Number(o.value), o.textContent]));
+    $("subjects").append(...found.map((s) => el("tr", { "data-elsewhere": s.code }, el("td", { colspan: "4", class: "hint" },
+      `${s.code} is in project ${names.get(s.project_id) || s.project_id}: `,
+      el("a", { href: `#subject=${s.id}`, onclick: async (ev) => {
+        ev.preventDefault(); $("subject-q").value = ""; offset = 0; await loadProjects(s.project_id); await select(s.id);
+      } }, `open ${s.code}`)))));
   }
   function turnPage(by) { offset = Math.max(0, offset + by); loadSubjects().catch((e) => say("subject-msg", e.message)); }
   let typing = null;
