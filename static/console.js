@@ -7,10 +7,28 @@ const gaitrig = (() => {
   // user's typing). Every page script that meets a 401 (its own fetch, a websocket
   // closed as unauthorised) goes through toLogin().
   let leaving = false;
-  function toLogin() { if (!leaving) { leaving = true; window.location.href = "/index.html"; } }
+  // The login brings the user back to the page (and its #subject=…) she was on: a session
+  // that ran out sent her to the Rig page, to find her subject again.
+  function toLogin() {
+    if (leaving) return;
+    leaving = true;
+    const here = location.pathname + location.search + location.hash;
+    window.location.href = location.pathname === "/index.html" ? "/index.html"
+      : "/index.html?next=" + encodeURIComponent(here);
+  }
+  // Only a page of this console: a ?next= pointing at another site is ignored.
+  function nextPage() {
+    const next = new URLSearchParams(location.search).get("next") || "";
+    return /^\/(?![/\\])[\w./-]*\.html([?#].*)?$/.test(next) && !next.startsWith("/index.html") ? next : "/rig.html";
+  }
+  // (a failed fetch said only "Failed to fetch")
+  const UNREACHABLE = "no answer from the server: check that it is running and that this computer is on the lab's network";
   async function api(path, options = {}) {
-    const r = await fetch(path, { credentials: "same-origin", ...options,
-      headers: { "Content-Type": "application/json", ...(options.headers || {}) } });
+    let r;
+    try {
+      r = await fetch(path, { credentials: "same-origin", ...options,
+        headers: { "Content-Type": "application/json", ...(options.headers || {}) } });
+    } catch (e) { throw new Error(UNREACHABLE); }
     if (r.status === 401) { toLogin(); throw new Error("not logged in"); }
     if (!r.ok) {
       let d = r.statusText; try { d = (await r.json()).detail; } catch (e) {}
@@ -55,8 +73,8 @@ const gaitrig = (() => {
           let d = r.statusText; try { d = (await r.json()).detail || d; } catch (e) {}
           msg.textContent = `Not logged in: ${d}`; return;
         }
-        window.location.href = "/rig.html";
-      } catch (e) { msg.textContent = "The server cannot be reached: " + e.message; }
+        window.location.href = nextPage();
+      } catch (e) { msg.textContent = `Not logged in: ${UNREACHABLE}.`; }
     });
   }
 
@@ -146,7 +164,7 @@ const gaitrig = (() => {
         document.getElementById("summary").textContent =
           `${online} of ${nodes.length} sensors online.` +
           (clockBad ? ` ${clockBad} with a clock uncertainty above ${sys.clock_warn_ms} ms.` : "");
-      } catch (e) { document.getElementById("summary").textContent = "Cannot reach the server: " + e.message; }
+      } catch (e) { document.getElementById("summary").textContent = "The sensor list is not up to date: " + e.message; }
     }
     const recBtn = document.getElementById("record");
     let active = null;

@@ -114,7 +114,7 @@
       $("nodes-summary").textContent = ns.length
         ? `${ready.length} of ${ns.length} sensors ready to record (${ready.map((n) => n.id).join(", ") || "none"}).`
         : "No sensor has connected yet; start the nodes (see the Rig page).";
-    } catch (e) { $("nodes-summary").textContent = "Cannot reach the server: " + e.message; }
+    } catch (e) { $("nodes-summary").textContent = "The sensor list is not up to date: " + e.message; }
   }
 
   function fmtTime(s) { const m = Math.floor(s / 60); return `${m}:${(s - m * 60).toFixed(1).padStart(4, "0")}`; }

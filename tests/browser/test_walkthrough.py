@@ -316,3 +316,38 @@ def test_marker_sheet_download_is_confirmed(page: Any, live_server: LiveServer) 
     assert got.value.suggested_filename == "markers.pdf"
     page.get_by_text("Marker sheet downloaded").wait_for()
     _no_js_error(page)
+
+
+def test_logging_in_again_returns_to_the_page(page: Any, live_server: LiveServer,
+                                              walked: Walked) -> None:
+    """A session that ran out sent the clinician to the login page and, once logged in,
+    to the Rig page: her subject had to be found again. Another site as the way back is
+    not followed."""
+    page.goto(f"{live_server.base_url}/subjects.html#subject={walked.subject_id}")
+    page.wait_for_function(f"document.getElementById('detail-h').textContent.includes('{walked.code}')")
+    page.context.clear_cookies()  # the session is gone
+    page.reload()
+    page.wait_for_url("**/index.html?next=*")
+    page.fill("#username", "admin")
+    page.fill("#password", live_server.password)
+    page.keyboard.press("Enter")
+    page.wait_for_url(f"**/subjects.html#subject={walked.subject_id}")
+    page.wait_for_function(f"document.getElementById('detail-h').textContent.includes('{walked.code}')")
+
+    page.goto(f"{live_server.base_url}/index.html?next=//example.org/rig.html")
+    page.fill("#username", "admin")
+    page.fill("#password", live_server.password)
+    page.keyboard.press("Enter")
+    page.wait_for_url(f"{live_server.base_url}/rig.html")
+    _no_js_error(page)
+
+
+def test_server_out_of_reach_is_said_in_words(page: Any, live_server: LiveServer) -> None:
+    """With the server out of reach the Rig page said "Cannot reach the server: Failed to
+    fetch" — the browser's words, which say nothing about what to check."""
+    page.route("**/api/nodes", lambda route: route.abort("connectionrefused"))
+    page.goto(f"{live_server.base_url}/rig.html")
+    page.wait_for_function("document.getElementById('summary').textContent.includes('server')")
+    said = page.inner_text("#summary")
+    assert "Failed to fetch" not in said and "running" in said, said
+    _no_js_error(page)
