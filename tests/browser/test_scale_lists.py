@@ -108,6 +108,13 @@ def test_find_page_and_sort_subjects(page: Any, clinic: Clinic) -> None:
     page.wait_for_function("document.querySelector('#subjects-count').textContent"
                            ".includes('No subject code contains')")
     assert _codes(page) == []
+    # a code of another project: said where it is, and one activation opens it there
+    other = subject_code(414)  # project 2
+    page.get_by_label("Find by code").fill(other)
+    page.get_by_role("link", name=f"open {other}").press("Enter")
+    page.wait_for_function(f"document.querySelector('#detail-h').textContent === "
+                           f"'Subject {other}'")
+    assert page.input_value("#project") == "2"
     assert page.js_errors == []
 
 
