@@ -15,7 +15,7 @@ from engine.errors import InputError
 def test_k4a_without_pyk4a_says_what_to_install(capsys: pytest.CaptureFixture[str]) -> None:
     from app.nodes.backends.k4a import K4ABackend
 
-    with pytest.raises(InputError, match=r"pip install gaitrig\[k4a\]"):
+    with pytest.raises(InputError, match=r"pip install -e '\.\[k4a\]'"):
         K4ABackend()
     assert main(["node", "--id", "S1", "--backend", "k4a"]) == 2
     assert "pyk4a" in capsys.readouterr().err
