@@ -332,11 +332,14 @@ def list_recordings(response: Response, user: CurrentUser, settings: SettingsDep
     if subject_id is not None:
         filed = filed.where(Subject.id == subject_id)
     live = hub.recordings.recordings
+    filed_rows = db.execute(filed).all()
     rows: list[tuple[float, str]] = [
         (live[r].created if r in live else _epoch_s(c), r)
-        for r, c in db.execute(filed) if r in on_server]
+        for r, c in filed_rows if r in on_server]
     if subject_id is None:  # recordings filed under no session (e.g. from the Rig page)
-        known = set(db.scalars(select(DbRecording.id)))
+        # unfiltered, the rows above are every filed recording already
+        known = ({r for r, _ in filed_rows} if needle is None
+                 else set(db.scalars(select(DbRecording.id))))
         for name in on_server - known:
             if needle is not None and needle.lower() not in name.lower():
                 continue
