@@ -578,8 +578,14 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
             "GAITRIG_DATABASE_URL set to it (it is migrated and the deletions applied to it)")
     res = RestoreResult(data_dir, man, revision_before=man.get("alembic_revision"),
                         with_current_log=bool(current))
-    data_dir.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{data_dir.name}.restoring-", dir=data_dir.parent))
+    created = not data_dir.exists()
+    data_dir.mkdir(parents=True, exist_ok=True)
+    # staged on the data folder's own file system, so that moving it in is a rename: beside
+    # it, or inside it when it is a mount point (the docker set-up's /data volume)
+    near = (data_dir.parent if os.stat(data_dir).st_dev == os.stat(data_dir.parent).st_dev
+            else data_dir)
+    stage = Path(tempfile.mkdtemp(prefix=f".{data_dir.name}.restoring-", dir=near))
+    ok = False
     try:
         with _open(archive) as tar:
             own: list[erasures.Erasure] = []
@@ -603,20 +609,46 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
         _write_log(stage, entries)
         url = f"sqlite:///{stage / 'gaitrig.sqlite3'}" if has_db else str(db_url)
         _finish_database(url, stage, entries, res, actor, client, archive, left_out)
-        if existing:
-            for p in sorted(data_dir.iterdir()):
-                shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
-        data_dir.mkdir(parents=True, exist_ok=True)
-        for p in sorted(stage.iterdir()):
-            os.replace(p, data_dir / p.name)
+        _install(stage, data_dir)
+        ok = True
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+        if created and not ok:
+            shutil.rmtree(data_dir, ignore_errors=True)
     res.notes += [f"{s['path']}: not in the backup ({s['why']})" for s in man["skipped"]]
     if not has_db:
         res.notes.append("the database is the PostgreSQL database of GAITRIG_DATABASE_URL "
                          "(restored by you with pg_restore); it was migrated and the "
                          "deletions applied to it")
     return res
+
+
+def _install(stage: Path, data_dir: Path) -> None:
+    """Replace what ``data_dir`` holds by what ``stage`` holds (both on one file system).
+
+    The old contents are moved aside, not deleted, until the new ones are all in: a
+    failure on the way (a full disk, an interrupt) moves everything back. The database
+    goes in last, so a folder left half-done by a crash holds none.
+    """
+    aside = Path(tempfile.mkdtemp(prefix=f".{data_dir.name}.replaced-", dir=stage.parent))
+    old: list[str] = []
+    new: list[str] = []
+    try:
+        for p in sorted(data_dir.iterdir()):
+            if p not in (stage, aside):
+                os.replace(p, aside / p.name)
+                old.append(p.name)
+        for p in sorted(stage.iterdir(), key=lambda q: (q.name == "gaitrig.sqlite3", q.name)):
+            os.replace(p, data_dir / p.name)
+            new.append(p.name)
+    except BaseException:
+        for n in reversed(new):
+            os.replace(data_dir / n, stage / n)
+        for n in reversed(old):
+            os.replace(aside / n, data_dir / n)
+        shutil.rmtree(aside, ignore_errors=True)
+        raise
+    shutil.rmtree(aside, ignore_errors=True)
 
 
 def _in_use(db: Path) -> bool:

@@ -492,3 +492,54 @@ def test_a_deleted_unfiled_recording_stays_deleted(server: TestClient, tmp_path:
         assert c.get("/api/storage").json()["pending_node_deletions"] == {"S1": [rid]}
     finally:
         c.__exit__(None, None, None)
+
+
+def test_a_failed_swap_with_force_leaves_the_old_folder_as_it_was(
+        server: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """--force deleted the old folder's contents before moving the restored ones in: a
+    failure while moving (another disk, a full disk, a crash) lost both."""
+    var = tmp_path / "var"
+    p = server.post("/api/projects", json={"name": "Study"}).json()
+    _subject(server, var, tmp_path, p["id"], KEEP, "R20260101-100000-aaaa")
+    archive = bk.create_backup(var, tmp_path / "b.tar").path
+    full = tmp_path / "full"
+    (full / "recordings" / "R1").mkdir(parents=True)
+    (full / "recordings" / "R1" / "x.bin").write_bytes(b"only copy")
+    (full / "notes.txt").write_text("mine")
+    real = bk.os.replace
+
+    def flaky(src: Any, dst: Any) -> None:
+        if Path(dst) == full / "gaitrig.sqlite3":  # the restored database into place
+            raise OSError(18, "Invalid cross-device link", str(dst))
+        real(src, dst)
+
+    monkeypatch.setattr(bk.os, "replace", flaky)
+    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
+                         "--without-deletion-log", "--force")
+    monkeypatch.undo()
+    assert code == 2 and "cross-device" in err, err
+    assert sorted(q.name for q in full.iterdir()) == ["notes.txt", "recordings"]
+    assert _files(full) == {"recordings/R1/x.bin": hashlib.sha256(b"only copy").hexdigest()}
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_restore_into_a_mount_point(server: TestClient, tmp_path: Path,
+                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """The docker set-up's data folder (/data) is a volume: its parent is another file
+    system, so a staging folder beside it cannot be renamed into it."""
+    from tests.tmpfs import mounted_tmpfs
+
+    var = tmp_path / "var"
+    p = server.post("/api/projects", json={"name": "Study"}).json()
+    _subject(server, var, tmp_path, p["id"], KEEP, "R20260101-100000-aaaa")
+    archive = bk.create_backup(var, tmp_path / "b.tar").path
+    with mounted_tmpfs(tmp_path / "mnt", "64m") as mnt:
+        (mnt / "old.txt").write_text("old")
+        code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(mnt),
+                             "--without-deletion-log", "--force")
+        assert code == 0, err
+        assert _files(mnt) == _files(var) and (mnt / "gaitrig.sqlite3").is_file()
+        assert not (mnt / "old.txt").exists()
+        assert not [q for q in mnt.iterdir() if q.name.startswith(".")]
+
