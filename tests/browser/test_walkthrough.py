@@ -82,8 +82,8 @@ def _no_js_error(page: Any) -> None:
     assert not page.js_errors, page.js_errors
 
 
-def test_subject_page_leads_to_the_gait_report(page: Any, live_server: LiveServer,
-                                               walked: Walked, artifacts_dir: Path) -> None:
+def _subject_page_leads_to_the_gait_report(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """After recording, the clinician is on the subject's page: the way to the gait report
     was not there (the Reports page had to be found in the menu and the subject chosen
     again from a list of every project's subjects)."""
@@ -108,7 +108,8 @@ def test_subject_page_leads_to_the_gait_report(page: Any, live_server: LiveServe
     _no_js_error(page)
 
 
-def test_pdf_link_without_a_subject_says_what_to_do(page: Any, live_server: LiveServer) -> None:
+def _pdf_link_without_a_subject_says_what_to_do(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """Enter on the greyed "Download PDF" link did nothing at all for a keyboard user."""
     page.goto(f"{live_server.base_url}/reports.html")
     page.wait_for_function("document.querySelectorAll('#subject option').length > 1")
@@ -119,31 +120,35 @@ def test_pdf_link_without_a_subject_says_what_to_do(page: Any, live_server: Live
     _no_js_error(page)
 
 
-@pytest.mark.parametrize("name", ["live", "calibrate"])
-def test_tablet_width_needs_no_sideways_scrolling(page: Any, live_server: LiveServer,
-                                                  artifacts_dir: Path, name: str) -> None:
+def _tablet_width_needs_no_sideways_scrolling(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """On a 768 px tablet the Live page (depth panels beside the 3D view) and the Calibrate
     page (coverage map beside the planning form) ran off the right edge of the screen, and
-    the header's "Log out" broke over two lines."""
+    the header's "Log out" broke over two lines; the planned poses had no units."""
     page.set_viewport_size({"width": 768, "height": 1024})
-    page.goto(f"{live_server.base_url}/{name}.html")
-    page.wait_for_load_state("load")
-    page.wait_for_timeout(1500)  # the first answers arrive and draw
-    screenshot(page, artifacts_dir, f"walkthrough_tablet_{name}")
-    sw, cw = page.evaluate("[document.documentElement.scrollWidth, "
-                           "document.documentElement.clientWidth]")
-    assert sw <= cw, f"{name}: {sw} px wide on a {cw} px screen"
-    one_line = page.evaluate("""() => { const b = document.getElementById('logout');
-        return b.clientHeight < 2 * parseFloat(getComputedStyle(b).lineHeight); }""")
-    assert one_line, "'Log out' wraps onto two lines"
-    if name == "calibrate":  # the planned poses had no units (the current ones had)
-        heads = page.locator("#planned").locator("xpath=..").locator("thead").inner_text().lower()
-        assert "(m)" in heads and "(°)" in heads, heads
+    # the 3D view's own content does not size its frame; left out, it spares a loaded
+    # machine seconds of software WebGL
+    page.route(lambda url: "/viewer" in url and "/api/" not in url,
+               lambda route: route.fulfill(status=200, content_type="text/html",
+                                           body="<!doctype html><title>3D view</title>"))
+    for name in ("live", "calibrate"):
+        page.goto(f"{live_server.base_url}/{name}.html")
+        page.wait_for_load_state("load")
+        page.wait_for_timeout(1500)  # the first answers arrive and draw
+        screenshot(page, artifacts_dir, f"walkthrough_tablet_{name}")
+        sw, cw = page.evaluate("[document.documentElement.scrollWidth, "
+                               "document.documentElement.clientWidth]")
+        assert sw <= cw, f"{name}: {sw} px wide on a {cw} px screen"
+        one_line = page.evaluate("""() => { const b = document.getElementById('logout');
+            return b.clientHeight < 2 * parseFloat(getComputedStyle(b).lineHeight); }""")
+        assert one_line, "'Log out' wraps onto two lines"
+    heads = page.locator("#planned").locator("xpath=..").locator("thead").inner_text().lower()
+    assert "(m)" in heads and "(°)" in heads, heads
     _no_js_error(page)
 
 
-def test_long_subject_code_stays_inside_its_card(page: Any, live_server: LiveServer,
-                                                 walked: Walked, artifacts_dir: Path) -> None:
+def _long_subject_code_stays_inside_its_card(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """A 40-character code ran out of the Subjects table over the subject's details (its
     sessions and size hidden) and pushed the Record page's subject list out of its card."""
     page.set_viewport_size({"width": 1024, "height": 768})
@@ -165,8 +170,8 @@ def test_long_subject_code_stays_inside_its_card(page: Any, live_server: LiveSer
     _no_js_error(page)
 
 
-def test_calibration_wizard_without_a_calibration_says_so(page: Any,
-                                                          live_server: LiveServer) -> None:
+def _calibration_wizard_without_a_calibration_says_so(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """With nothing calibrated the wizard's result showed an empty graph frame, three tables
     of headings over nothing and an empty saved-calibrations table. (The server is shared
     with tests that calibrate: its list is answered empty here.)"""
@@ -182,8 +187,8 @@ def test_calibration_wizard_without_a_calibration_says_so(page: Any,
     _no_js_error(page)
 
 
-def test_record_page_refuses_a_bad_image_interval_in_plain_words(
-        page: Any, live_server: LiveServer, walked: Walked) -> None:
+def _record_page_refuses_a_bad_image_interval_in_plain_words(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """An image interval out of range reached the server, whose refusal read
     "image_every: Input should be less than or equal to 1000"; before any recording the
     sensors' table was headings over nothing."""
@@ -201,8 +206,8 @@ def test_record_page_refuses_a_bad_image_interval_in_plain_words(
     _no_js_error(page)
 
 
-def test_code_field_says_which_characters_are_allowed(page: Any,
-                                                      live_server: LiveServer) -> None:
+def _code_field_says_which_characters_are_allowed(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """A code with a space was refused with the browser's bare "Please match the requested
     format." — which format was said nowhere."""
     page.goto(f"{live_server.base_url}/subjects.html")
@@ -252,8 +257,8 @@ def test_dates_are_the_users_own(browser: Any, live_server: LiveServer, walked: 
         context.close()
 
 
-def test_refused_export_says_why_and_a_good_one_downloads(page: Any, live_server: LiveServer,
-                                                          walked: Walked) -> None:
+def _refused_export_says_why_and_a_good_one_downloads(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """An export the server refused was only a failed entry in the browser's download bar,
     the reason (here: the sensor's part is not on the server) never shown."""
     page.goto(f"{live_server.base_url}/subjects.html#subject={walked.subject_id}")
@@ -274,7 +279,8 @@ def test_refused_export_says_why_and_a_good_one_downloads(page: Any, live_server
     _no_js_error(page)
 
 
-def test_first_tab_skips_the_header(page: Any, live_server: LiveServer) -> None:
+def _first_tab_skips_the_header(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """A keyboard user went through the ten header links on every page before reaching
     the page itself; the first Tab now offers to skip them, visibly."""
     page.goto(f"{live_server.base_url}/record.html")
@@ -292,7 +298,8 @@ def test_first_tab_skips_the_header(page: Any, live_server: LiveServer) -> None:
     _no_js_error(page)
 
 
-def test_planning_buttons_say_what_they_did(page: Any, live_server: LiveServer) -> None:
+def _planning_buttons_say_what_they_did(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """Apply with the values already in the form, and "Reset to the rig" when nothing was
     moved, changed nothing on the screen: was the click taken?"""
     page.goto(f"{live_server.base_url}/calibrate.html")
@@ -307,10 +314,12 @@ def test_planning_buttons_say_what_they_did(page: Any, live_server: LiveServer) 
     _no_js_error(page)
 
 
-def test_marker_sheet_download_is_confirmed(page: Any, live_server: LiveServer) -> None:
+def _marker_sheet_download_is_confirmed(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """The marker sheet's Download PDF gave no word on the page (a download bar the user
     may not notice, and the 100 % print advice above the button)."""
     page.goto(f"{live_server.base_url}/calibration-wizard.html")
+    page.fill("#sheet-ids", "1-2")  # (a small sheet renders faster)
     with page.expect_download() as got:
         page.click("#sheet-form button[type=submit]")
     assert got.value.suggested_filename == "markers.pdf"
@@ -318,8 +327,8 @@ def test_marker_sheet_download_is_confirmed(page: Any, live_server: LiveServer) 
     _no_js_error(page)
 
 
-def test_logging_in_again_returns_to_the_page(page: Any, live_server: LiveServer,
-                                              walked: Walked) -> None:
+def _logging_in_again_returns_to_the_page(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """A session that ran out sent the clinician to the login page and, once logged in,
     to the Rig page: her subject had to be found again. Another site as the way back is
     not followed."""
@@ -342,7 +351,8 @@ def test_logging_in_again_returns_to_the_page(page: Any, live_server: LiveServer
     _no_js_error(page)
 
 
-def test_server_out_of_reach_is_said_in_words(page: Any, live_server: LiveServer) -> None:
+def _server_out_of_reach_is_said_in_words(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """With the server out of reach the Rig page said "Cannot reach the server: Failed to
     fetch" — the browser's words, which say nothing about what to check."""
     page.route("**/api/nodes", lambda route: route.abort("connectionrefused"))
@@ -351,3 +361,48 @@ def test_server_out_of_reach_is_said_in_words(page: Any, live_server: LiveServer
     said = page.inner_text("#summary")
     assert "Failed to fetch" not in said and "running" in said, said
     _no_js_error(page)
+
+
+def _run(page: Any, checks: list[Any], *args: Any) -> None:
+    """Run checks one after another in one logged-in page (a browser and a login per check
+    cost seconds each); each starts at a laptop's size with no route left by the last."""
+    for check in checks:
+        page.unroute_all(behavior="ignoreErrors")
+        page.set_viewport_size({"width": 1024, "height": 768})
+        check(page, *args)
+
+
+def test_from_the_subject_to_the_report_and_exports(page: Any, live_server: LiveServer,
+                                                    walked: Walked, artifacts_dir: Path) -> None:
+    """After the walks: the subject's report, one session's report, the PDF, the exports."""
+    _run(page, [_subject_page_leads_to_the_gait_report,
+                _pdf_link_without_a_subject_says_what_to_do,
+                _refused_export_says_why_and_a_good_one_downloads],
+         live_server, walked, artifacts_dir)
+
+
+def test_pages_fit_tablets_and_long_codes(page: Any, live_server: LiveServer, walked: Walked,
+                                          artifacts_dir: Path) -> None:
+    """Layouts at a tablet's width and with the longest subject code."""
+    _run(page, [_tablet_width_needs_no_sideways_scrolling,
+                _long_subject_code_stays_inside_its_card],
+         live_server, walked, artifacts_dir)
+
+
+def test_empty_states_and_plain_messages(page: Any, live_server: LiveServer, walked: Walked,
+                                         artifacts_dir: Path) -> None:
+    """What a page says before there is anything to show, after a click, and on a mistake."""
+    _run(page, [_calibration_wizard_without_a_calibration_says_so,
+                _record_page_refuses_a_bad_image_interval_in_plain_words,
+                _code_field_says_which_characters_are_allowed,
+                _planning_buttons_say_what_they_did,
+                _marker_sheet_download_is_confirmed,
+                _server_out_of_reach_is_said_in_words],
+         live_server, walked, artifacts_dir)
+
+
+def test_keyboard_and_logging_in_again(page: Any, live_server: LiveServer, walked: Walked,
+                                       artifacts_dir: Path) -> None:
+    """The first Tab of a page, and a session that ran out (last: it logs the page out)."""
+    _run(page, [_first_tab_skips_the_header, _logging_in_again_returns_to_the_page],
+         live_server, walked, artifacts_dir)
