@@ -543,3 +543,66 @@ def test_restore_into_a_mount_point(server: TestClient, tmp_path: Path,
         assert not (mnt / "old.txt").exists()
         assert not [q for q in mnt.iterdir() if q.name.startswith(".")]
 
+
+def _evil(tmp_path: Path, archive: Path, name: str, add: Any) -> Path:
+    """``archive`` with one more member, ``add(tar, name)``, listed in its manifest."""
+    out = tmp_path / "evil.tar"
+    out.unlink(missing_ok=True)
+    with tarfile.open(archive) as src, tarfile.open(out, "w", format=tarfile.PAX_FORMAT) as dst:
+        man = json.loads(src.extractfile(bk.MANIFEST).read())  # type: ignore[union-attr]
+        for info in src.getmembers():
+            if info.name != bk.MANIFEST:
+                dst.addfile(info, src.extractfile(info))
+        size, sha = add(dst, name)
+        man["members"].append({"name": name, "size": size, "sha256": sha})
+        data = json.dumps(man).encode()
+        dst.addfile(_info(bk.MANIFEST, len(data)), io.BytesIO(data))
+    return out
+
+
+def _info(name: str, size: int) -> tarfile.TarInfo:
+    i = tarfile.TarInfo(name)
+    i.size = size
+    return i
+
+
+def test_restore_refuses_members_that_are_not_plain_files_or_leave_the_folder(
+        server: TestClient, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    var = tmp_path / "var"
+    archive = bk.create_backup(var, tmp_path / "b.tar").path
+
+    def link(kind: bytes, target: str) -> Any:
+        def add(tar: tarfile.TarFile, name: str) -> tuple[int, str]:
+            i = tarfile.TarInfo(name)
+            i.type, i.linkname = kind, target
+            tar.addfile(i)
+            return 0, hashlib.sha256(b"").hexdigest()
+        return add
+
+    def plain(tar: tarfile.TarFile, name: str) -> tuple[int, str]:
+        tar.addfile(_info(name, 3), io.BytesIO(b"abc"))
+        return 3, hashlib.sha256(b"abc").hexdigest()
+
+    def sparse(tar: tarfile.TarFile, name: str) -> tuple[int, str]:
+        # a sparse member: a few header bytes that unpack to 256 MiB of zeros (a small
+        # archive that fills the disk while it is unpacked, before any checksum)
+        i = _info(name, 0)
+        i.pax_headers = {"GNU.sparse.map": "0,0", "GNU.sparse.size": str(256 << 20)}
+        tar.addfile(i, io.BytesIO(b""))
+        return 256 << 20, "0" * 64
+
+    for name, add, msg in [
+            ("files/link", link(tarfile.SYMTYPE, "/etc/passwd"), "not a regular file"),
+            ("files/hard", link(tarfile.LNKTYPE, "/etc/passwd"), "not a regular file"),
+            ("files/dev", link(tarfile.CHRTYPE, ""), "not a regular file"),
+            ("files/../../escape.txt", plain, "unsafe path"),
+            ("/tmp/abs.txt", plain, "unsafe path"),
+            ("files/big.bin", sparse, "a sparse file")]:
+        bad = _evil(tmp_path, archive, name, add)
+        dest = tmp_path / "r"
+        code, _o, err = _cli(capsys, "restore", str(bad), "--data-dir", str(dest),
+                             "--without-deletion-log")
+        assert code == 2 and msg in err, (name, err)
+        assert not dest.exists() and not (tmp_path / "escape.txt").exists()
+        assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], name
+
