@@ -14,6 +14,7 @@ import asyncio
 import contextlib
 import logging
 import secrets
+import struct
 import time
 from collections.abc import Callable
 from typing import Any
@@ -54,6 +55,53 @@ CLOSE_BUSY = 1013  # try again later
 #: message up to the transport limit before it is checked, so this bounds what anonymous
 #: clients on the LAN can make the server hold (as the data channel's MAX_HANDSHAKES).
 MAX_PENDING_HELLOS = 8
+#: Largest image a node may send, in pixels: the largest sensor mode (Azure Kinect colour
+#: 4096×3072) with room. A few kB of PNG or JPEG can declare far more, and the decoder
+#: would allocate for the declaration (a decompression bomb), so the header is read first.
+MAX_IMAGE_PIXELS = 4096 * 4096
+_PNG = b"\x89PNG\r\n\x1a\n"
+#: JPEG start-of-frame markers (they carry the image size); C4, C8, CC are not frames.
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+
+
+def image_size(data: bytes) -> tuple[int, int] | None:
+    """``(width, height)`` that a PNG or JPEG declares in its header; None for anything
+    else or a header cut short (the decoder then refuses it itself)."""
+    if data[:8] == _PNG and data[12:16] == b"IHDR" and len(data) >= 24:
+        w, h = struct.unpack(">II", data[16:24])
+        return int(w), int(h)
+    if data[:2] != b"\xff\xd8":
+        return None
+    i = 2
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            return None
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a length
+            i += 2
+            continue
+        if marker in _JPEG_SOF:
+            if i + 9 > len(data):
+                return None
+            h, w = struct.unpack(">HH", data[i + 5:i + 9])
+            return int(w), int(h)
+        i += 2 + struct.unpack(">H", data[i + 2:i + 4])[0]
+    return None
+
+
+def check_image_size(data: bytes, what: str) -> None:
+    """Refuse an image whose header declares more than :data:`MAX_IMAGE_PIXELS`.
+
+    Raises:
+        ProtocolError: it does (the message names the size and the limit).
+    """
+    size = image_size(data)
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        raise ProtocolError(f"{what} declares {size[0]}×{size[1]} pixels, more than the "
+                            f"{MAX_IMAGE_PIXELS:,} a sensor image may have")
 
 
 class Hub:
@@ -244,6 +292,11 @@ class Hub:
         elif header["kind"] in ("manifest", "chunk", "deleted", "channel"):
             self.transfers.on_binary(header, payload)
         elif header["kind"] in self.binary_listeners:
+            if header["kind"] == "calib":  # a colour image, then a depth image
+                n = header.get("color_bytes")
+                if isinstance(n, int) and 0 < n < len(payload):
+                    check_image_size(payload[:n], "a calibration colour image")
+                    check_image_size(payload[n:], "a calibration depth image")
             self.binary_listeners[header["kind"]](s, header, payload)
         elif header["kind"] == "calib":
             log.warning("node %s sent calibration frames nobody asked for; ignored", s.id)
@@ -251,6 +304,7 @@ class Hub:
             stream = header.get("stream")
             if stream not in ("depth", "color", "body_index"):
                 raise ProtocolError(f"image stream {stream!r} is not depth, color or body_index")
+            check_image_size(payload, f"a {stream} image")
             s.images[str(stream)] = LatestImage(t_local, s.to_server(t_local),
                                                 str(header.get("format", "png")), bytes(payload),
                                                 header)

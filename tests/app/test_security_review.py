@@ -366,6 +366,49 @@ def test_anonymous_node_connections_are_bounded(client: TestClient) -> None:
     assert _hello(client, "S1", "review-node-token-1")["type"] == "welcome"
 
 
+def test_image_headers_declaring_huge_sizes_are_refused(client: TestClient) -> None:
+    """A few bytes of PNG or JPEG can declare 60000×60000 pixels; the decoder would
+    allocate gigabytes for it. The hub reads the header first and refuses the image."""
+    import json
+    import struct
+    import zlib
+
+    import cv2
+    import numpy as np
+
+    from app.nodes.protocol import Hello, dump, encode_binary
+    from app.server.hub import image_size
+
+    ok_png = cv2.imencode(".png", np.zeros((424, 512), np.uint16))[1].tobytes()
+    ok_jpg = cv2.imencode(".jpg", np.zeros((1080, 1920, 3), np.uint8))[1].tobytes()
+    assert image_size(ok_png) == (512, 424) and image_size(ok_jpg) == (1920, 1080)
+    ihdr = struct.pack(">IIBBBBB", 60000, 60000, 16, 0, 0, 0, 0)
+    bomb_png = (b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + b"IHDR" + ihdr
+                + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr)))
+    sof = ok_jpg.index(b"\xff\xc0")
+    bomb_jpg = ok_jpg[:sof + 5] + struct.pack(">HH", 60000, 60000) + ok_jpg[sof + 9:]
+    assert image_size(bomb_jpg) == (60000, 60000)
+    with client.websocket_connect("/ws/node") as ws:
+        ws.send_text(dump(Hello(node_id="S1", token="review-node-token-1")))
+        assert json.loads(ws.receive_text())["type"] == "welcome"
+        for stream, data in [("depth", bomb_png), ("color", bomb_jpg)]:
+            ws.send_bytes(encode_binary({"kind": "image", "stream": stream, "t": 1.0,
+                                         "format": "png"}, data))
+            while (m := json.loads(ws.receive_text()))["type"] == "ping":
+                pass
+            assert m["type"] == "error" and "60000×60000" in m["reason"], m
+        session = client.app.state.hub.registry.nodes["S1"]  # type: ignore[attr-defined]
+        assert not session.images  # neither was kept
+        ws.send_bytes(encode_binary({"kind": "image", "stream": "depth", "t": 1.0,
+                                     "format": "png"}, ok_png))
+        ws.send_bytes(encode_binary({"kind": "image", "stream": "color", "t": 1.0,
+                                     "format": "png"}, bomb_png))
+        while (m := json.loads(ws.receive_text()))["type"] == "ping":
+            pass  # the refusal of the second comes after the first was taken
+        assert m["type"] == "error"
+        assert set(session.images) == {"depth"}  # the genuine image was
+
+
 # ------------------------------------------------------------------- production start
 
 
