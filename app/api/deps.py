@@ -12,10 +12,12 @@ cookie); every ``/api`` router except login is mounted with it (see
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Iterator
 from typing import Annotated, Any
 
 from fastapi import Depends, HTTPException, Request, status
+from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 from starlette.requests import HTTPConnection
 
@@ -92,3 +94,25 @@ def get_current_user(request: Request, db: DbDep) -> User:
 
 
 CurrentUser = Annotated[User, Depends(get_current_user)]
+
+#: How often an open console websocket (Live panels, 3D view) re-checks its login.
+SOCKET_LOGIN_CHECK_S = 5.0
+
+
+def _login_valid(conn: HTTPConnection, token: str) -> bool:
+    with conn.app.state.db_sessions() as db:
+        return user_for_token(db, token) is not None
+
+
+async def until_logged_out(conn: HTTPConnection, token: str) -> None:
+    """Return once the login ``token`` has ended (logout, expiry, idle timeout, a password
+    change or reset), checked every :data:`SOCKET_LOGIN_CHECK_S`.
+
+    A websocket is authenticated once, at its handshake; without this, a stream of a
+    subject's images would outlive the logout of the person who opened it. Waiting on a
+    socket does not count as activity for the idle timeout.
+    """
+    while True:
+        await asyncio.sleep(SOCKET_LOGIN_CHECK_S)
+        if not await run_in_threadpool(_login_valid, conn, token):
+            return

@@ -23,7 +23,7 @@ from fastapi.responses import HTMLResponse
 from starlette.requests import HTTPConnection
 from starlette.websockets import WebSocketDisconnect
 
-from app.api.deps import request_token
+from app.api.deps import request_token, until_logged_out
 from app.api.security import user_for_token
 
 log = logging.getLogger(__name__)
@@ -157,7 +157,9 @@ async def viewer_socket(ws: WebSocket) -> None:
                 stalled = True
                 return
 
-    tasks = [asyncio.create_task(to_viewer()), asyncio.create_task(to_browser())]
+    # the login is checked again while the view is open: a logout ends it
+    logged_out = asyncio.create_task(until_logged_out(ws, request_token(ws) or ""))
+    tasks = [asyncio.create_task(to_viewer()), asyncio.create_task(to_browser()), logged_out]
     try:
         await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
     finally:
@@ -178,5 +180,7 @@ async def viewer_socket(ws: WebSocket) -> None:
                         SEND_STALL_S)
             await _close_browser(ws, 1013, f"the 3D view stalled: this browser took no data "
                                            f"for {SEND_STALL_S:g} s; reload the page")
+        elif logged_out.done() and not logged_out.cancelled():
+            await _close_browser(ws, 4401, "the login ended; log in again")
         else:
             await _close_browser(ws)

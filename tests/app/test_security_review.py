@@ -237,6 +237,36 @@ def test_idle_timeout_and_absolute_lifetime(tmp_path: Path) -> None:
         assert r.status_code == 401 and "idle" in r.json()["detail"]
 
 
+def _until_closed(ws: Any) -> dict[str, Any]:
+    """Read a websocket's messages until the server closes it; the close message."""
+    for _ in range(100_000):  # bounded: a stream that never closes fails the test
+        msg = ws.receive()
+        if msg["type"] == "websocket.close":
+            return dict(msg)
+    raise AssertionError("the server never closed the websocket")
+
+
+def test_logout_ends_open_live_and_3d_view_sockets(tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """A websocket is authenticated at its handshake only; the streams of a subject's
+    images and skeletons must not outlive the logout of whoever opened them."""
+    import viser
+
+    from app.api import deps
+
+    monkeypatch.setattr(deps, "SOCKET_LOGIN_CHECK_S", 0.05)
+    s = _settings(tmp_path, viewer_enabled=True, viewer_port=0)
+    with TestClient(create_app(s)) as c:
+        bearer = {"Authorization": f"Bearer {_login(c).json()['token']}"}  # + the cookie
+        with c.websocket_connect("/api/live/ws") as live, c.websocket_connect(
+                "/viewer", subprotocols=[f"viser-v{viser.__version__}"]) as view:
+            assert '"hello"' in live.receive_text()
+            assert view.receive_bytes()  # viser streams the scene
+            assert c.post("/api/auth/logout", headers=bearer).status_code == 204
+            assert _until_closed(live)["code"] == 4401
+            assert _until_closed(view)["code"] == 4401
+
+
 # --------------------------------------------------------------------------- passwords
 
 

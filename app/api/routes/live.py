@@ -28,7 +28,7 @@ from fastapi import APIRouter, FastAPI, Request
 from starlette.routing import WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from app.api.deps import SESSION_COOKIE, CurrentUser
+from app.api.deps import SESSION_COOKIE, CurrentUser, until_logged_out
 from app.api.limits import BoundedRoute
 from app.api.security import user_for_token
 from app.server.streaming import Watcher
@@ -81,7 +81,7 @@ async def live_socket(ws: WebSocket) -> None:
     if token:
         with ws.app.state.db_sessions() as db:
             user = user_for_token(db, token)
-    if user is None:
+    if user is None or token is None:
         await ws.close(code=4401, reason="not logged in")
         return
     services = getattr(ws.app.state, "live", None)
@@ -89,6 +89,13 @@ async def live_socket(ws: WebSocket) -> None:
         await ws.close(code=1013, reason="live services starting; retry")
         return
     await ws.accept()
+
+    async def close_at_logout(token: str) -> None:
+        await until_logged_out(ws, token)
+        with contextlib.suppress(RuntimeError, WebSocketDisconnect):
+            await ws.close(code=4401, reason="the login ended; log in again")
+
+    guard = asyncio.get_running_loop().create_task(close_at_logout(token))
     watcher = Watcher(send=ws.send_bytes)
     await ws.send_text(json.dumps({"type": "hello", "t": time.time(),
                                    "fps": services.streams.fps}))
@@ -113,6 +120,7 @@ async def live_socket(ws: WebSocket) -> None:
     except (WebSocketDisconnect, RuntimeError):
         pass
     finally:
+        guard.cancel()
         services.streams.remove_watcher(watcher)
         sender.cancel()
         with contextlib.suppress(asyncio.CancelledError, Exception):
