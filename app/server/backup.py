@@ -380,7 +380,35 @@ def read_manifest(tar: tarfile.TarFile, archive: Path) -> dict[str, Any]:
     if man["format"] != FORMAT:
         raise BackupError(f"{archive} is a {man['format']} archive; this gaitrig reads "
                           f"{FORMAT}: restore it with a newer gaitrig")
+    bad = _manifest_fault(man)
+    if bad:
+        raise BackupError(f"{archive} has a damaged {MANIFEST} ({bad}): it cannot be checked "
+                          "or restored; use another backup")
     return man
+
+
+def _manifest_fault(man: dict[str, Any]) -> str | None:
+    """What is wrong with the fields the manifest's readers use (None: nothing). The
+    manifest is the one member no checksum covers."""
+    def dicts(v: Any) -> bool:
+        return isinstance(v, list) and all(isinstance(x, dict) for x in v)
+
+    for key, ok in (("created_at", lambda v: isinstance(v, str)),
+                    ("gaitrig_version", lambda v: isinstance(v, str)),
+                    ("database", lambda v: isinstance(v, dict)),
+                    ("counts", lambda v: isinstance(v, dict)),
+                    ("members", dicts), ("skipped", dicts),
+                    ("notes", lambda v: isinstance(v, list)),
+                    ("alembic_revision", lambda v: v is None or isinstance(v, str))):
+        if key not in man or not ok(man[key]):
+            return f"no valid {key!r}"
+    for e in man["members"]:
+        if not (isinstance(e.get("name"), str) and type(e.get("size")) is int
+                and isinstance(e.get("sha256"), str)):
+            return f"'members' entry {str(e)[:80]!r} lacks a name, size or sha256"
+    if any(not {"path", "why"} <= set(s) for s in man["skipped"]):
+        return "a 'skipped' entry lacks its path or why"
+    return None
 
 
 def _safe_rel(name: str) -> PurePosixPath:

@@ -606,3 +606,33 @@ def test_restore_refuses_members_that_are_not_plain_files_or_leave_the_folder(
         assert not dest.exists() and not (tmp_path / "escape.txt").exists()
         assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], name
 
+
+
+def test_a_damaged_manifest_is_refused_in_words(
+        server: TestClient, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The manifest is the one member no checksum covers: fields of the wrong shape
+    raised KeyError/TypeError tracebacks from verify and restore."""
+    var = tmp_path / "var"
+    archive = bk.create_backup(var, tmp_path / "b.tar").path
+    with tarfile.open(archive) as tar:
+        good = json.loads(tar.extractfile(bk.MANIFEST).read())  # type: ignore[union-attr]
+    for k, (field, value) in enumerate([("database", None), ("members", {"a": 1}),
+                                        ("members", [{"name": "x"}]), ("skipped", None),
+                                        ("created_at", None), ("counts", []),
+                                        ("notes", "x"), ("alembic_revision", [])]):
+        man = {**good, field: value}
+        if value is None:
+            del man[field]
+        bad = tmp_path / f"bad{k}.tar"
+        with tarfile.open(archive) as src, tarfile.open(bad, "w") as dst:
+            for info in src.getmembers():
+                data = src.extractfile(info).read()  # type: ignore[union-attr]
+                if info.name == bk.MANIFEST:
+                    data = json.dumps(man).encode()
+                dst.addfile(_info(info.name, len(data)), io.BytesIO(data))
+        code, _o, err = _cli(capsys, "backup", "--verify", str(bad))
+        assert code == 2 and f"damaged {bk.MANIFEST}" in err and field in err, (field, err)
+        code, _o, err = _cli(capsys, "restore", str(bad), "--data-dir",
+                             str(tmp_path / "r"), "--without-deletion-log")
+        assert code == 2 and f"damaged {bk.MANIFEST}" in err, (field, err)
+        assert not (tmp_path / "r").exists()
