@@ -600,7 +600,12 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
         if _in_use(data_dir / "gaitrig.sqlite3"):
             raise BackupError(f"the database in {data_dir} is open in another program (a "
                               "running gaitrig server?): stop the server, then restore")
-        current.append(erasures.read(data_dir))  # the replaced server's own deletions
+        try:  # the replaced server's own deletions
+            current.append(erasures.read(data_dir))
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise BackupError(f"{exc}: the erasure log of the folder to replace is damaged; "
+                              "repair that line (or move the log aside and give a copy of "
+                              "it with --deletion-log once repaired)") from exc
     if not current and not without_deletion_log:
         raise BackupError(
             "give the current erasure log with --deletion-log (the server's data folder or "

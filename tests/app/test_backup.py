@@ -636,3 +636,16 @@ def test_a_damaged_manifest_is_refused_in_words(
                              str(tmp_path / "r"), "--without-deletion-log")
         assert code == 2 and f"damaged {bk.MANIFEST}" in err, (field, err)
         assert not (tmp_path / "r").exists()
+
+
+def test_force_over_a_folder_whose_erasure_log_is_damaged_is_refused_in_words(
+        server: TestClient, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    var = tmp_path / "var"
+    archive = bk.create_backup(var, tmp_path / "b.tar").path
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / erasures.LOG_NAME).write_text('{"id": "x", "sta\n{"id": "y"}\n')
+    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
+                         "--without-deletion-log", "--force")
+    assert code == 2 and "line 1: not an erasure log entry" in err, err
+    assert sorted(p.name for p in full.iterdir()) == [erasures.LOG_NAME]
