@@ -31,9 +31,9 @@
     return { items, total: Number(r.headers.get("X-Total-Count") ?? items.length) };
   }
   const SHOWN = 100;  // a clinic's thousands are found by typing part of the code or id
-  function countText(id, shown, total, q, what) {
+  function countText(id, shown, total, q, what, field) {
     $(id).textContent = total > shown
-      ? `${shown} of ${total} ${what} shown: type in the search field above to find another.`
+      ? `${shown} of ${total} ${what} shown (the newest): type part of ${field} to find another.`
       : (q ? `${total} ${total === 1 ? what.replace(/s$/, "") : what} found.` : "");
   }
   function onSearch(input, run) {
@@ -107,7 +107,7 @@
       sel.append(el("option", `${s.code} — ${s.n_sessions} session(s), ${s.n_recordings} recording(s)`,
         { value: String(s.id) }));
     }
-    countText("subject-count", subjects.length, total, q, "subjects");
+    countText("subject-count", subjects.length, total, q, "subjects", "the code in “Find subject code”");
     // the subject of the address (a link #subject=ID, or the one chosen) stays offered
     const linked = /subject=(\d+)/.exec(location.hash);
     if (linked && !q) await offerSubject(linked[1]);
@@ -211,7 +211,7 @@
     try { ({ items: recs, total } = await listPage(`/api/reports/recordings?limit=${SHOWN}${q ? "&q=" + encodeURIComponent(q) : ""}`)); }
     catch (e) { say("cmp-msg", e.message, true); return; }
     if (!recordingsSeq.current(mine)) return;
-    countText("recording-count", recs.length, total, q, "recordings");
+    countText("recording-count", recs.length, total, q, "recordings", "the id or session label in “Find recording”");
     const sel = $("recording"), was = sel.value;
     sel.replaceChildren(el("option", recs.length ? "Choose a recording…" : q ? `No recording matches “${q}”` : "No recording on the server yet", { value: "" }));
     for (const r of recs) {
