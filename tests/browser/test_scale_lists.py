@@ -135,7 +135,7 @@ def test_find_a_subject_to_record_and_report(page: Any, clinic: Clinic) -> None:
     has_it = ("[...document.querySelectorAll('#subject option')]"
               f".some(o => o.text.startsWith('{want} '))")
     assert not page.evaluate(has_it)
-    assert "type in the search field" in page.inner_text("#subject-count")
+    assert "type part of the code" in page.inner_text("#subject-count")
     page.get_by_label("Find subject code").fill(want[2:])
     # "Choose a subject…" and the one subject whose code holds the text
     page.wait_for_function("document.querySelectorAll('#subject option').length === 2")
