@@ -651,7 +651,9 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
         _write_log(stage, entries)
         url = f"sqlite:///{stage / 'gaitrig.sqlite3'}" if has_db else str(db_url)
         _finish_database(url, stage, entries, res, actor, client, archive, left_out)
+        _sync_tree(stage)  # on the disk before the data folder names it (a power cut)
         _install(stage, data_dir)
+        _sync_tree(data_dir, files=False)
         ok = True
     finally:
         shutil.rmtree(stage, ignore_errors=True)
@@ -663,6 +665,22 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
                          "(restored by you with pg_restore); it was migrated and the "
                          "deletions applied to it")
     return res
+
+
+def _sync_tree(root: Path, files: bool = True) -> None:
+    """fsync every file (unless not ``files``) and folder below ``root``, and ``root``."""
+    def sync(p: Path, flags: int) -> None:
+        fd = os.open(p, flags)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+    for here, _dirs, names in os.walk(root) if files else [(str(root), [], [])]:
+        for n in names:
+            if not os.path.islink(os.path.join(here, n)):
+                sync(Path(here, n), os.O_RDONLY)
+        sync(Path(here), os.O_RDONLY | os.O_DIRECTORY)
 
 
 def _install(stage: Path, data_dir: Path) -> None:

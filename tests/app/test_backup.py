@@ -649,3 +649,39 @@ def test_force_over_a_folder_whose_erasure_log_is_damaged_is_refused_in_words(
                          "--without-deletion-log", "--force")
     assert code == 2 and "line 1: not an erasure log entry" in err, err
     assert sorted(p.name for p in full.iterdir()) == [erasures.LOG_NAME]
+
+
+def test_restored_files_are_synced_before_they_are_moved_into_place(
+        server: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A restore that reports success must survive a power cut right after it: every
+    file and folder it wrote reaches the disk (fsync) before the data folder names it."""
+    var = tmp_path / "var"
+    p = server.post("/api/projects", json={"name": "Study"}).json()
+    _subject(server, var, tmp_path, p["id"], KEEP, "R20260101-100000-aaaa")
+    archive = bk.create_backup(var, tmp_path / "b.tar").path
+    synced: list[str] = []
+    real = bk.os.fsync
+
+    def spy(fd: int) -> None:
+        synced.append(bk.os.readlink(f"/proc/self/fd/{fd}"))
+        real(fd)
+
+    monkeypatch.setattr(bk.os, "fsync", spy)
+    fresh = tmp_path / "fresh"
+    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(fresh),
+                         "--without-deletion-log")
+    monkeypatch.undo()
+    assert code == 0, err
+
+    def rel(path: str) -> str | None:
+        q = Path(path)
+        if q.is_relative_to(fresh):
+            return str(q.relative_to(fresh))
+        stage = [x for x in q.relative_to(tmp_path).parts if x.startswith(".fresh.restoring-")]
+        return str(q.relative_to(tmp_path / stage[0])) if stage else None
+
+    done = {rel(x) for x in synced}
+    wrote = {str(q.relative_to(fresh)) for q in fresh.rglob("*")
+             if q.name not in ("gaitrig.sqlite3-wal", "gaitrig.sqlite3-shm")} | {"."}
+    assert wrote - done == set()
