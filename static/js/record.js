@@ -198,7 +198,7 @@
 
   $("start").addEventListener("click", async () => {
     const sid = $("session").value;
-    if (!sid) { say("rec-msg", "Choose a subject and a session first (or add them on the left)."); return; }
+    if (!sid) { say("rec-msg", "Choose a subject and a session first (or add them under “Who and when”)."); return; }
     const streams = ["depth", "color"].filter((s) => $(s).checked);
     // checked here: the server's refusal named its field ("image_every: Input should be…")
     if (!$("every").checkValidity()) {

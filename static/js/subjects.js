@@ -87,10 +87,10 @@
     $("subjects-next").disabled = offset + ss.length >= total;
     body.replaceChildren(...ss.map((s) => {
       const tr = el("tr", { class: "clickable" + (s.id === subjectId ? " selected" : ""), "data-subject": s.code },
-        el("th", { scope: "row", class: "code-cell" }, el("a", { href: `#subject=${s.id}`, onclick: (ev) => { ev.preventDefault(); select(s.id); } }, s.code)),
+        el("th", { scope: "row", class: "code-cell" }, el("a", { href: `#subject=${s.id}`, onclick: (ev) => { ev.preventDefault(); select(s.id, true); } }, s.code)),
         el("td", { class: "num" }, String(s.n_sessions)), el("td", { class: "num" }, String(s.n_recordings)),
         el("td", { class: "num" }, bytes(s.bytes_on_server)));
-      tr.addEventListener("click", () => select(s.id));
+      tr.addEventListener("click", () => select(s.id, true));
       return tr;
     }));
     if (!ss.length && !q) body.append(el("tr", {}, el("td", { colspan: "4", class: "hint" }, "No subjects in this project yet.")));
@@ -117,8 +117,11 @@
   $("subjects-prev").addEventListener("click", () => turnPage(-PAGE));
   $("subjects-next").addEventListener("click", () => turnPage(PAGE));
 
-  async function select(id) {
+  // reveal: a click in the list. On a tablet the details are under the list, out of
+  // sight: the click seemed to do nothing, so the page goes to them.
+  async function select(id, reveal = false) {
     subjectId = id;
+    revealWanted = revealWanted || reveal;
     history.replaceState(null, "", `#subject=${id}`);
     await loadSubjects();
     await loadDetail(true);
@@ -269,7 +272,7 @@
   // deleted or another one chosen meanwhile, or a newer answer is on its way. The edit
   // form is filled by whichever call draws, if any call asked for it.
   const detailSeq = gaitrig.latest();
-  let fillWanted = false;
+  let fillWanted = false, revealWanted = false;
   let formVersion = null;
   function dropDetail() { detailSeq.acted(); clearTimeout(timer); }
   async function loadDetail(fillForm) {
@@ -288,6 +291,12 @@
     $("detail-h").textContent = `Subject ${subject.code}`;
     $("detail-hint").textContent = `${subject.n_sessions} session(s), ${subject.n_recordings} recording(s), ${bytes(subject.bytes_on_server)} on the server.`;
     $("detail-body").hidden = false;
+    // (whichever call draws the details goes to them, as soon as they show)
+    if (revealWanted && $("detail").getBoundingClientRect().top > window.innerHeight * 0.6) {
+      $("detail").scrollIntoView({ block: "start" });
+      $("detail-h").focus({ preventScroll: true });
+    }
+    revealWanted = false;
     $("record-link").href = `/record.html#subject=${subject.id}`;
     // (the recordings were listed here but the way to their gait report was not)
     $("report-link").href = `/reports.html#subject=${subject.id}`;

@@ -170,6 +170,25 @@ def _long_subject_code_stays_inside_its_card(
     _no_js_error(page)
 
 
+def _subject_click_shows_its_details_on_a_tablet(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
+    """On a tablet the subject's details are under the list: a click on a subject seemed
+    to do nothing (its details appeared out of sight), and the page said to look "on the
+    left"."""
+    page.set_viewport_size({"width": 768, "height": 1024})
+    page.goto(f"{live_server.base_url}/subjects.html#subject={walked.long_id}")
+    page.wait_for_function("document.getElementById('detail-h').textContent.includes('LONGCODE')")
+    page.evaluate("window.scrollTo(0, 0)")
+    page.locator(f"tr[data-subject='{walked.code}'] a").click()
+    page.wait_for_function(f"document.getElementById('detail-h').textContent.includes('{walked.code}')")
+    # the subject's heading comes into sight
+    page.wait_for_function("""() => {
+        const r = document.getElementById('detail-h').getBoundingClientRect();
+        return r.top >= 0 && r.bottom <= window.innerHeight; }""", timeout=5000)
+    assert "on the left" not in page.inner_text("main")
+    _no_js_error(page)
+
+
 def _calibration_wizard_without_a_calibration_says_so(
         page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """With nothing calibrated the wizard's result showed an empty graph frame, three tables
@@ -385,7 +404,8 @@ def test_pages_fit_tablets_and_long_codes(page: Any, live_server: LiveServer, wa
                                           artifacts_dir: Path) -> None:
     """Layouts at a tablet's width and with the longest subject code."""
     _run(page, [_tablet_width_needs_no_sideways_scrolling,
-                _long_subject_code_stays_inside_its_card],
+                _long_subject_code_stays_inside_its_card,
+                _subject_click_shows_its_details_on_a_tablet],
          live_server, walked, artifacts_dir)
 
 
