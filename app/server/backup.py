@@ -303,6 +303,7 @@ def create_backup(data_dir: Path, dest: Path, db_url: str | None = None) -> Back
             os.fsync(fh.fileno())
         os.chmod(partial, 0o600)  # health data: readable by its owner only
         os.replace(partial, dest)
+        _sync_tree(dest.parent, files=False)  # the name too: a cron job prunes after this
     except BaseException:
         partial.unlink(missing_ok=True)
         raise

@@ -685,3 +685,21 @@ def test_restored_files_are_synced_before_they_are_moved_into_place(
     wrote = {str(q.relative_to(fresh)) for q in fresh.rglob("*")
              if q.name not in ("gaitrig.sqlite3-wal", "gaitrig.sqlite3-shm")} | {"."}
     assert wrote - done == set()
+
+
+def test_the_archive_s_name_is_synced_too(server: TestClient, tmp_path: Path,
+                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """The archive was synced, its rename into place not: a power cut after 'done' (and
+    after a cron job pruned the older backups) could leave no archive at all."""
+    synced: list[str] = []
+    real = bk.os.fsync
+
+    def spy(fd: int) -> None:
+        synced.append(bk.os.readlink(f"/proc/self/fd/{fd}"))
+        real(fd)
+
+    monkeypatch.setattr(bk.os, "fsync", spy)
+    dest = tmp_path / "backups"
+    dest.mkdir()
+    bk.create_backup(tmp_path / "var", dest / "b.tar")
+    assert str(dest) in synced
