@@ -653,6 +653,10 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
         url = f"sqlite:///{stage / 'gaitrig.sqlite3'}" if has_db else str(db_url)
         _finish_database(url, stage, entries, res, actor, client, archive, left_out)
         _sync_tree(stage)  # on the disk before the data folder names it (a power cut)
+        if _in_use(data_dir / "gaitrig.sqlite3"):  # again: unpacking took a while
+            raise BackupError(f"the database in {data_dir} was opened by another program "
+                              "(a gaitrig server started?) during the restore: stop it, then "
+                              "restore again; nothing was changed")
         _install(stage, data_dir)
         _sync_tree(data_dir, files=False)
         ok = True

@@ -703,3 +703,39 @@ def test_the_archive_s_name_is_synced_too(server: TestClient, tmp_path: Path,
     dest.mkdir()
     bk.create_backup(tmp_path / "var", dest / "b.tar")
     assert str(dest) in synced
+
+
+def test_a_server_started_during_a_forced_restore_stops_the_swap(
+        server: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The database was checked for other users only before the (long) unpacking: a
+    server started meanwhile had its folder replaced under it."""
+    var = tmp_path / "var"
+    archive = bk.create_backup(var, tmp_path / "b.tar").path
+    full = tmp_path / "full"
+    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
+                         "--without-deletion-log")
+    assert code == 0, err
+    before = sorted(p.name for p in full.iterdir())
+    holders: list[subprocess.Popen[str]] = []
+    real = bk._check_integrity
+
+    def and_a_server_starts(db: Path, archive: Path) -> None:
+        real(db, archive)
+        h = subprocess.Popen(
+            [sys.executable, "-c", "import sqlite3, sys; c = sqlite3.connect(sys.argv[1]); "
+             "c.execute('pragma journal_mode=WAL'); c.execute('select 1').fetchall(); "
+             "print('open', flush=True); sys.stdin.read()", str(full / "gaitrig.sqlite3")],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        holders.append(h)
+        assert h.stdout is not None and h.stdout.readline().strip() == "open"
+
+    monkeypatch.setattr(bk, "_check_integrity", and_a_server_starts)
+    try:
+        code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
+                             "--without-deletion-log", "--force")
+    finally:
+        for h in holders:
+            h.communicate("", timeout=10)
+    assert holders and code == 2 and "opened by another program" in err, err
+    assert sorted(p.name for p in full.iterdir()) == before
