@@ -18,21 +18,33 @@
 
   $("sheet-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
-    $("sheet-error").textContent = ""; $("sheet-error").className = "warn";
+    const btn = ev.target.querySelector("button");
+    // progress and success in the status line, a refusal in the alert under it
+    const say = (text, cls) => {
+      const ok = cls !== "warn";
+      $("sheet-state").textContent = ok ? text : ""; $("sheet-state").className = cls;
+      $("sheet-error").textContent = ok ? "" : text;
+    };
     const q = new URLSearchParams({ ids: $("sheet-ids").value, size: String(Number($("sheet-size").value) / 100),
       paper: $("sheet-paper").value });
-    let r;
-    try { r = await fetch("/api/calibration/markers.pdf?" + q, { credentials: "same-origin" }); }
-    catch (e) { $("sheet-error").textContent = "The server cannot be reached: " + e.message; return; }
-    if (!r.ok) {
-      let d = r.statusText; try { const j = await r.json(); d = typeof j.detail === "string" ? j.detail : "check the size (2–50 cm)"; } catch (e) {}
-      $("sheet-error").textContent = d; return;
-    }
-    const url = URL.createObjectURL(await r.blob());
-    const a = el("a", "", { href: url, download: "markers.pdf" });
-    document.body.append(a); a.click(); a.remove();
-    $("sheet-error").className = "good";
-    $("sheet-error").textContent = "Marker sheet downloaded (markers.pdf): print it at 100 % and check the scale bar.";
+    // the sheet takes seconds to draw: the button said nothing meanwhile (pressed again?)
+    say("Making the marker sheet… (this can take a few seconds)", "");
+    btn.disabled = true;
+    try {
+      let r;
+      try { r = await fetch("/api/calibration/markers.pdf?" + q, { credentials: "same-origin" }); }
+      catch (e) { say("No answer from the server: check that it is running.", "warn"); return; }
+      if (r.status === 401) { gaitrig.toLogin(); return; }
+      if (!r.ok) {
+        let d = r.statusText; try { const j = await r.json(); d = typeof j.detail === "string" ? j.detail : "check the size (2–50 cm)"; } catch (e) {}
+        say(d, "warn"); return;
+      }
+      const url = URL.createObjectURL(await r.blob());
+      const a = el("a", "", { href: url, download: "markers.pdf" });
+      document.body.append(a); a.click(); a.remove();
+      setTimeout(() => URL.revokeObjectURL(url), 10000);
+      say("Marker sheet downloaded (markers.pdf): print it at 100 % and check the scale bar.", "good");
+    } finally { gaitrig.release(btn); }
   });
 
   const SVGNS = "http://www.w3.org/2000/svg";
@@ -85,7 +97,7 @@
     const when = new Date(doc.created_iso).toLocaleString();
     $("res-summary").textContent = `${head} (${when}, ${doc.meta.source || "captured"}): `
       + `${sens.length} sensors, ${doc.edges.length} sensor–marker edges, worst sensor residual ${(worst * 1000).toFixed(2)} mm.`;
-    $("res-details").hidden = false;
+    $("res-details").hidden = false; $("res-empty").hidden = true;
     drawGraph(doc);
     const icp = Object.fromEntries((doc.meta.icp || []).map((r) => [r.sensor, r]));
     const tb = $("sensor-table").querySelector("tbody"); tb.replaceChildren();
@@ -252,8 +264,8 @@
   async function refresh() {
     const n = shownSeq.ask();
     const rows = await history();
-    if (!rows.length && pendingJob === null && shownSeq.current(n))
-      $("res-summary").textContent = "No calibration yet: capture one in step 2 (no sensors? run the simulated one there).";
+    $("res-empty").hidden = !(!rows.length && pendingJob === null && shownSeq.current(n)
+      && $("res-details").hidden);
     if (!rows.length || pendingJob !== null) return;
     const active = await gaitrig.api("/api/calibration/active");
     if (shownSeq.current(n) && pendingJob === null) show(active, false);

@@ -170,6 +170,12 @@
   function buildSubset(set, initial) {
     const box = $(set).querySelector(".checks");
     box.replaceChildren();
+    // (two empty frames before a recording is chosen)
+    if (!sensors.length) {
+      box.append(el("span", "Choose a recording above to list its sensors.", { class: "hint" }));
+      $(set).querySelector(".presets").replaceChildren();
+      return;
+    }
     for (const s of sensors) {
       const id = `${set}-${s.id}`;
       const cb = el("input", null, { type: "checkbox", id, value: s.id });
@@ -436,5 +442,6 @@
     $("subject-form").requestSubmit();
   }
   loadSubjects().then(fromAddress);
+  buildSubset("set-a", []); buildSubset("set-b", []);
   loadRecordings();
 })();

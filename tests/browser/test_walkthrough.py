@@ -170,6 +170,22 @@ def _long_subject_code_stays_inside_its_card(
     _no_js_error(page)
 
 
+def _reports_page_before_a_choice(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
+    """Before a recording was chosen, "One-sided vs two-sided" showed two empty frames
+    (Subset A, Subset B); the fields to find a subject or a recording were left at the
+    browser's small unstyled size beside full-width lists."""
+    page.goto(f"{live_server.base_url}/reports.html")
+    page.wait_for_function("document.querySelectorAll('#subject option').length > 1")
+    for fs in ("#set-a", "#set-b"):
+        assert "Choose a recording" in page.inner_text(fs), page.inner_text(fs)
+    for field, cell_of in (("#subject-q", "#subject"), ("#recording-q", "#recording")):
+        w = page.locator(field).bounding_box()["width"]
+        ref = page.locator(cell_of).bounding_box()["width"]
+        assert w >= 0.9 * ref, (field, w, ref)
+    _no_js_error(page)
+
+
 def _subject_click_shows_its_details_on_a_tablet(
         page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """On a tablet the subject's details are under the list: a click on a subject seemed
@@ -200,7 +216,7 @@ def _calibration_wizard_without_a_calibration_says_so(
     page.goto(f"{live_server.base_url}/calibration-wizard.html")
     page.wait_for_function("document.getElementById('history').innerText"
                            ".includes('No saved calibration yet')")
-    assert "capture one in step 2" in page.inner_text("#res-summary")
+    assert page.get_by_text("run the simulated one there").is_visible()
     assert not page.locator("#graph").is_visible()
     assert not page.locator("#sensor-table").is_visible()
     _no_js_error(page)
@@ -335,12 +351,15 @@ def _planning_buttons_say_what_they_did(
 
 def _marker_sheet_download_is_confirmed(
         page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
-    """The marker sheet's Download PDF gave no word on the page (a download bar the user
-    may not notice, and the 100 % print advice above the button)."""
+    """The marker sheet's Download PDF gave no word on the page, neither during the
+    seconds the sheet takes to draw nor after (a download bar the user may not notice,
+    and the 100 % print advice above the button)."""
     page.goto(f"{live_server.base_url}/calibration-wizard.html")
     page.fill("#sheet-ids", "1-2")  # (a small sheet renders faster)
-    with page.expect_download() as got:
+    with page.expect_download(timeout=120_000) as got:  # seconds on a loaded machine
         page.click("#sheet-form button[type=submit]")
+        # while it is drawn the page says so
+        page.get_by_text("Making the marker sheet").wait_for()
     assert got.value.suggested_filename == "markers.pdf"
     page.get_by_text("Marker sheet downloaded").wait_for()
     _no_js_error(page)
@@ -412,7 +431,8 @@ def test_pages_fit_tablets_and_long_codes(page: Any, live_server: LiveServer, wa
 def test_empty_states_and_plain_messages(page: Any, live_server: LiveServer, walked: Walked,
                                          artifacts_dir: Path) -> None:
     """What a page says before there is anything to show, after a click, and on a mistake."""
-    _run(page, [_calibration_wizard_without_a_calibration_says_so,
+    _run(page, [_reports_page_before_a_choice,
+                _calibration_wizard_without_a_calibration_says_so,
                 _record_page_refuses_a_bad_image_interval_in_plain_words,
                 _code_field_says_which_characters_are_allowed,
                 _planning_buttons_say_what_they_did,
