@@ -61,6 +61,12 @@ class Settings(BaseSettings):
     admin_password: str | None = Field(
         default=None, description="First-run admin password; generated and printed when unset."
     )
+    password_hash_cost: int = Field(
+        default=17, ge=10, le=20,
+        description="scrypt cost of stored console passwords as log2(N) (r = 8, p = 1). 17 is "
+        "OWASP's recommendation (128 MiB and a few hundred ms per login); older hashes are "
+        "re-hashed at the next login. Environment: GAITRIG_PASSWORD_HASH_COST.",
+    )
     session_hours: float = Field(default=12.0, gt=0, description="Lifetime of a console login.")
     session_idle_minutes: float = Field(
         default=30.0, gt=0,

@@ -144,7 +144,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         engine = make_engine(settings.db_url)
         app.state.db_sessions = make_session_factory(engine)
         with app.state.db_sessions() as db:
-            generated = ensure_admin(db, settings.admin_user, settings.admin_password)
+            generated = ensure_admin(db, settings.admin_user, settings.admin_password,
+                                     settings.password_hash_cost)
         if generated:
             print(f"gaitrig: created console account {settings.admin_user!r} with password "
                   f"{generated!r} (change it after logging in)", file=sys.stderr, flush=True)

@@ -18,26 +18,46 @@ from app.db.models import LoginSession, User
 
 log = logging.getLogger("gaitrig.auth")
 
-# scrypt cost: 16 MiB of memory and ~50 ms per hash, OWASP's minimum recommendation.
-_N, _R, _P = 2**14, 8, 1
+#: scrypt's cost as log2(N), with r = 8, p = 1: 17 is OWASP's recommendation (128 MiB and
+#: a few hundred ms per hash); the setting ``password_hash_cost`` chooses it, and stored
+#: hashes carry their own N, so raising it leaves older hashes valid (they are re-hashed
+#: at the next login).
+DEFAULT_HASH_COST = 17
+_R, _P = 8, 1
 
 
-def hash_password(password: str) -> str:
-    """``scrypt$N$r$p$salt$hash`` with a fresh 16-byte salt."""
+def _maxmem(n: int, r: int) -> int:
+    # scrypt needs 128·N·r bytes; hashlib refuses above its 32 MiB default unless told
+    return 128 * n * r + (1 << 20)
+
+
+def hash_password(password: str, cost: int = DEFAULT_HASH_COST) -> str:
+    """``scrypt$N$r$p$salt$hash`` with a fresh 16-byte salt and N = 2**cost."""
+    n = 2 ** int(cost)
     salt = secrets.token_bytes(16)
-    h = hashlib.scrypt(password.encode(), salt=salt, n=_N, r=_R, p=_P, dklen=32)
+    h = hashlib.scrypt(password.encode(), salt=salt, n=n, r=_R, p=_P, dklen=32,
+                       maxmem=_maxmem(n, _R))
     b64 = base64.b64encode
-    return f"scrypt${_N}${_R}${_P}${b64(salt).decode()}${b64(h).decode()}"
+    return f"scrypt${n}${_R}${_P}${b64(salt).decode()}${b64(h).decode()}"
+
+
+def hash_cost(stored: str) -> int | None:
+    """log2(N) of a stored hash (None when it is not one of ours)."""
+    try:
+        kind, n, *_ = stored.split("$")
+        return int(n).bit_length() - 1 if kind == "scrypt" and int(n) > 1 else None
+    except ValueError:
+        return None
 
 
 def verify_password(password: str, stored: str) -> bool:
     """Constant-time check of ``password`` against :func:`hash_password`'s output."""
     try:
         kind, n, r, p, salt, h = stored.split("$")
-        if kind != "scrypt":
+        if kind != "scrypt" or not 1 < int(n) <= 2**20 or not 0 < int(r) <= 16:
             return False
         got = hashlib.scrypt(password.encode(), salt=base64.b64decode(salt), n=int(n), r=int(r),
-                             p=int(p), dklen=32)
+                             p=int(p), dklen=32, maxmem=_maxmem(int(n), int(r)))
     except (ValueError, TypeError):
         return False
     return hmac.compare_digest(got, base64.b64decode(h))
@@ -47,8 +67,9 @@ def _token_hash(token: str) -> str:
     return hashlib.sha256(token.encode()).hexdigest()
 
 
-def ensure_admin(db: Session, username: str, password: str | None) -> str | None:
-    """Create the admin account when there is no user yet.
+def ensure_admin(db: Session, username: str, password: str | None,
+                 cost: int = DEFAULT_HASH_COST) -> str | None:
+    """Create the admin account when there is no user yet (password hashed at ``cost``).
 
     Returns:
         The password when it was generated here (the caller prints it once), else None.
@@ -58,7 +79,8 @@ def ensure_admin(db: Session, username: str, password: str | None) -> str | None
     generated = None
     if not password:
         password = generated = secrets.token_urlsafe(12)
-    db.add(User(username=username, password_hash=hash_password(password), is_admin=True))
+    db.add(User(username=username, password_hash=hash_password(password, cost),
+                is_admin=True))
     db.commit()
     log.info("created admin account %r", username)
     return generated
@@ -88,18 +110,23 @@ def password_problem(password: str, username: str) -> str | None:
 
 
 def login(db: Session, username: str, password: str, hours: float,
-          idle_s: float | None = None) -> tuple[str, datetime] | None:
+          idle_s: float | None = None, cost: int = DEFAULT_HASH_COST
+          ) -> tuple[str, datetime] | None:
     """Check credentials; returns a new ``(token, expiry)`` or None.
+
+    A password stored at a lower cost than ``cost`` is re-hashed at ``cost`` on success.
 
     The expiry is the sooner of ``hours`` from now and, with ``idle_s``, the idle timeout
     (pushed on by every authenticated request, see :func:`user_for_token`).
     """
     user = db.scalar(select(User).where(User.username == username))
     if user is None:
-        hash_password(password)  # same cost whether or not the user exists
+        hash_password(password, cost)  # same cost whether or not the user exists
         return None
     if not verify_password(password, user.password_hash):
         return None
+    if (hash_cost(user.password_hash) or 0) < cost:
+        user.password_hash = hash_password(password, cost)
     token = secrets.token_urlsafe(32)
     now = datetime.now(UTC)
     expires = now + timedelta(seconds=min(hours * 3600, idle_s if idle_s else hours * 3600))
@@ -148,13 +175,14 @@ def logout(db: Session, token: str) -> None:
     db.commit()
 
 
-def change_password(db: Session, user: User, new_password: str, keep_token: str | None) -> int:
-    """Set ``user``'s password and end every other login of theirs.
+def change_password(db: Session, user: User, new_password: str, keep_token: str | None,
+                    cost: int = DEFAULT_HASH_COST) -> int:
+    """Set ``user``'s password (hashed at ``cost``) and end every other login of theirs.
 
     Returns:
         How many other logins were ended.
     """
-    user.password_hash = hash_password(new_password)
+    user.password_hash = hash_password(new_password, cost)
     q = delete(LoginSession).where(LoginSession.user_id == user.id)
     if keep_token:
         q = q.where(LoginSession.token_sha256 != _token_hash(keep_token))

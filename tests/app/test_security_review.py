@@ -598,3 +598,39 @@ def test_accounts_per_person_are_managed_by_administrators(client: TestClient) -
     trail = [e["detail"] for e in _audit(client, admin, "account")]
     assert trail == ["removed", "password set by an administrator; 1 login(s) ended",
                      "created"]
+
+
+def test_passwords_are_stored_at_owasps_scrypt_cost_by_default(monkeypatch: pytest.MonkeyPatch
+                                                               ) -> None:
+    """The shipped cost is OWASP's N = 2**17 (the suite runs at a lower one for speed)."""
+    from app.api.security import hash_cost, hash_password, verify_password
+
+    monkeypatch.delenv("GAITRIG_PASSWORD_HASH_COST", raising=False)
+    assert Settings().password_hash_cost == 17
+    stored = hash_password("a correct horse staple")
+    assert stored.startswith("scrypt$131072$8$1$") and hash_cost(stored) == 17
+    assert verify_password("a correct horse staple", stored)
+    assert not verify_password("a correct horse stapler", stored)
+
+
+def test_a_login_rehashes_a_password_stored_at_a_lower_cost(tmp_path: Path) -> None:
+    """Raising the setting needs no password reset: the next login re-hashes."""
+    from sqlalchemy import select
+
+    from app.api.security import hash_cost
+    from app.db.models import User
+
+    def stored(c: TestClient) -> str:
+        with c.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+            return str(db.scalar(select(User.password_hash)))
+
+    with TestClient(create_app(_settings(tmp_path, password_hash_cost=12))) as c:
+        assert hash_cost(stored(c)) == 12
+    with TestClient(create_app(_settings(tmp_path, password_hash_cost=14))) as c:
+        assert hash_cost(stored(c)) == 12  # unchanged until its owner logs in
+        r = c.post("/api/auth/login", json={"username": "admin", "password": "wrong-pw-0000"})
+        assert r.status_code == 401 and hash_cost(stored(c)) == 12
+        _login(c)
+        assert hash_cost(stored(c)) == 14
+        c.post("/api/auth/logout")
+        _login(c)  # the new hash verifies

@@ -63,7 +63,7 @@ def login(body: LoginIn, request: Request, response: Response, db: DbDep,
                             f"{minutes} min or ask the administrator to reset the password",
                             headers={"Retry-After": str(int(wait) + 1)})
     got = security.login(db, body.username, body.password, settings.session_hours,
-                         settings.session_idle_minutes * 60)
+                         settings.session_idle_minutes * 60, settings.password_hash_cost)
     if got is None:
         paused = throttle.failed(body.username, client)
         audit.record_failed_login(
@@ -127,7 +127,8 @@ def change_password(body: PasswordIn, request: Request, user: CurrentUser, db: D
         problem = "the new password must differ from the current one"
     if problem:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, problem)
-    ended = security.change_password(db, user, body.new_password, request_token(request))
+    ended = security.change_password(db, user, body.new_password, request_token(request),
+                                    settings.password_hash_cost)
     audit.record(db, user.username, "password_change",
                  detail=f"{ended} other login(s) ended", client=client)
 

@@ -22,7 +22,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy import func, select
 
 from app.api import security
-from app.api.deps import CurrentUser, DbDep
+from app.api.deps import CurrentUser, DbDep, SettingsDep
 from app.api.limits import BoundedRoute
 from app.db import audit
 from app.db.models import LoginSession, User
@@ -86,15 +86,16 @@ def accounts(user: CurrentUser, db: DbDep) -> list[dict[str, Any]]:
 
 
 @router.post("", status_code=201)
-def create_account(body: NewUser, request: Request, user: CurrentUser, db: DbDep
-                   ) -> dict[str, Any]:
+def create_account(body: NewUser, request: Request, user: CurrentUser, db: DbDep,
+                   settings: SettingsDep) -> dict[str, Any]:
     """A new account (administrators only)."""
     _admin(user)
     if db.scalar(select(User.id).where(func.lower(User.username) == body.username.lower())):
         raise HTTPException(status.HTTP_409_CONFLICT,
                             f"an account named {body.username!r} exists already")
     _policy(body.password, body.username)
-    db.add(User(username=body.username, password_hash=security.hash_password(body.password),
+    db.add(User(username=body.username, password_hash=security.hash_password(
+                    body.password, settings.password_hash_cost),
                 is_admin=body.is_admin))
     db.add(audit.event(user.username, "account", f"user {body.username}",
                        "created" + (" (administrator)" if body.is_admin else ""),
@@ -105,7 +106,7 @@ def create_account(body: NewUser, request: Request, user: CurrentUser, db: DbDep
 
 @router.post("/{username}/password", status_code=204)
 def set_password(username: str, body: NewPassword, request: Request, user: CurrentUser,
-                 db: DbDep) -> None:
+                 db: DbDep, settings: SettingsDep) -> None:
     """Set an account's password and end its logins (administrators only; one's own:
     ``POST /api/auth/password``, which asks for the current one)."""
     _admin(user)
@@ -114,7 +115,8 @@ def set_password(username: str, body: NewPassword, request: Request, user: Curre
         raise HTTPException(status.HTTP_409_CONFLICT, "change your own password with POST "
                             "/api/auth/password (it asks for the current one)")
     _policy(body.new_password, target.username)
-    ended = security.change_password(db, target, body.new_password, None)
+    ended = security.change_password(db, target, body.new_password, None,
+                                    settings.password_hash_cost)
     audit.record(db, user.username, "account", f"user {target.username}",
                  f"password set by an administrator; {ended} login(s) ended", _client(request))
 
