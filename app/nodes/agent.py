@@ -148,6 +148,15 @@ class NodeRefusedError(RuntimeError):
     """The server refused this node (wrong token, bad id, version); retrying won't help."""
 
 
+class ServerBusyError(RuntimeError):
+    """The server refused this connection for now (close code 1013, 'try again later':
+    too many connections waiting for their hello, the address paused); retried."""
+
+
+#: The close code of a refusal to retry (RFC 6455 'Try Again Later').
+CLOSE_TRY_AGAIN = 1013
+
+
 def encode_image(stream: str, img: np.ndarray, scale: float, fmt: str) -> tuple[bytes, str]:
     """Downscale and compress one image; returns ``(bytes, format)``.
 
@@ -372,6 +381,9 @@ class NodeAgent:
                     await self._session(ws)
             except NodeRefusedError:
                 raise
+            except ServerBusyError as exc:
+                log.warning("the server asks to come back later (%s); retrying in %.1f s",
+                            exc, backoff)
             except (OSError, ConnectionClosed, InvalidHandshake, TimeoutError) as exc:
                 log.info("server unreachable (%s); retrying in %.1f s", exc, backoff)
             except ProtocolError as exc:
@@ -400,6 +412,11 @@ class NodeAgent:
         first = await asyncio.wait_for(ws.recv(), 10)
         msg = parse_server_message(first)
         if isinstance(msg, Refused):
+            # the close code tells a refusal for now from a final one
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(ws.wait_closed(), 5)
+            if ws.close_code == CLOSE_TRY_AGAIN:
+                raise ServerBusyError(msg.reason)
             raise NodeRefusedError(f"server refused node {self.node_id}: {msg.reason}")
         if not isinstance(msg, Welcome):
             raise ProtocolError(f"expected welcome, got {msg.type}")

@@ -282,3 +282,81 @@ def test_a_restarted_node_records_again_into_its_part(tmp_path: Path) -> None:
     again._on_command(RecStart(rec_id="R1", t_start_server=0.0, t_start_local=102.0,
                                resume=True))
     assert "R1" not in again._recs
+
+
+@pytest.mark.parametrize(("reason", "code"), [
+    ("8 connections are already waiting to say hello; try again in a few seconds", 1013),
+    ("too many wrong pairing tokens from 10.0.0.5; connections from it are refused for "
+     "290 s more", 1013)])
+def test_a_refusal_to_come_back_later_is_retried_not_final(tmp_path: Path, reason: str,
+                                                          code: int) -> None:
+    """The server refuses with close code 1013 ('try again later') when too many
+    connections wait for their hello, or while another process at this node's address
+    is paused for guessing the pairing token. The node took every refusal as final and
+    stopped for good (a rig of more than eight nodes reconnecting after a server restart
+    could lose some of them)."""
+    import json
+
+    from websockets.asyncio.server import serve
+
+    from app.nodes.protocol import Refused, Welcome, dump
+
+    seen: list[str] = []
+
+    async def handler(ws: object) -> None:
+        hello = json.loads(await ws.recv())  # type: ignore[attr-defined]
+        seen.append(hello["type"])
+        if len(seen) == 1:
+            await ws.send(dump(Refused(reason=reason)))  # type: ignore[attr-defined]
+            await ws.close(code=code, reason="try again")  # type: ignore[attr-defined]
+            return
+        await ws.send(dump(Welcome(server_time=time.time(),  # type: ignore[attr-defined]
+                                   ping_interval_s=0.1)))
+        await asyncio.sleep(5)
+
+    async def scenario() -> None:
+        async with serve(handler, "127.0.0.1", 0) as srv:
+            port = next(iter(srv.sockets)).getsockname()[1]
+            a = NodeAgent("S1", _Scripted(), f"ws://127.0.0.1:{port}/ws/node", "token",
+                          tmp_path)
+            a.info = SensorInfo()
+            task = asyncio.create_task(a._connect_forever())
+            for _ in range(100):
+                if len(seen) >= 2 or task.done():
+                    break
+                await asyncio.sleep(0.05)
+            a._stop.set()
+            done = task.done()
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+            assert not done or task.exception() is None, "the node gave up"
+            assert seen == ["hello", "hello"]
+
+    asyncio.run(scenario())
+
+
+def test_a_final_refusal_still_ends_the_node(tmp_path: Path) -> None:
+    """A wrong pairing token (close code 4401) is not retried: the node stops and says why."""
+    import json
+
+    from websockets.asyncio.server import serve
+
+    from app.nodes.agent import NodeRefusedError
+    from app.nodes.protocol import Refused, dump
+
+    async def handler(ws: object) -> None:
+        json.loads(await ws.recv())  # type: ignore[attr-defined]
+        await ws.send(dump(Refused(reason="wrong pairing token")))  # type: ignore[attr-defined]
+        await ws.close(code=4401, reason="refused")  # type: ignore[attr-defined]
+
+    async def scenario() -> None:
+        async with serve(handler, "127.0.0.1", 0) as srv:
+            port = next(iter(srv.sockets)).getsockname()[1]
+            a = NodeAgent("S1", _Scripted(), f"ws://127.0.0.1:{port}/ws/node", "token",
+                          tmp_path)
+            a.info = SensorInfo()
+            with pytest.raises(NodeRefusedError, match="wrong pairing token"):
+                await asyncio.wait_for(a._connect_forever(), 10)
+
+    asyncio.run(scenario())
