@@ -177,9 +177,11 @@ class Hub:
         address = ws.client.host if ws.client else "?"
         wait = self._token_failures.retry_after("node", address)
         if wait > 0:
+            # 'try again later': a right node at that address (another process guessed)
+            # retries after the pause instead of stopping for good
             await self._refuse(ws, peer, f"too many wrong pairing tokens from {address}; "
                                f"connections from it are refused for {wait:.0f} s more",
-                               CLOSE_REFUSED)
+                               CLOSE_BUSY)
             return
         if not secrets.compare_digest(hello.token.encode(), self.settings.node_token.encode()):
             self._token_failures.failed("node", address)

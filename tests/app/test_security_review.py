@@ -378,6 +378,21 @@ def test_pairing_token_guessing_is_paused_per_address(client: TestClient) -> Non
     assert _hello(client, "S1", "review-node-token-1")["type"] == "welcome"
 
 
+def test_a_paused_address_is_told_to_come_back_later(client: TestClient) -> None:
+    """A right node at an address paused for another process's guesses (sim nodes on one
+    host, nodes behind one NAT) must retry after the pause: close code 1013, not the
+    final 4401 of a wrong token, on which a node stops for good."""
+    from app.nodes.protocol import Hello, dump
+
+    def close_code(token: str) -> int:
+        with client.websocket_connect("/ws/node") as ws:
+            ws.send_text(dump(Hello(node_id="S1", token=token)))
+            return int(_until_closed(ws)["code"])
+
+    assert [close_code(f"guess-{k:08d}") for k in range(5)] == [4401] * 5
+    assert close_code("review-node-token-1") == 1013
+
+
 def test_anonymous_node_connections_are_bounded(client: TestClient) -> None:
     """Connections that have not said hello yet (each may send one large message before
     it is checked) are capped; the next one is told to come back later."""
