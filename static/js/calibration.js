@@ -101,6 +101,10 @@
     drawGraph(doc);
     const icp = Object.fromEntries((doc.meta.icp || []).map((r) => [r.sensor, r]));
     const tb = $("sensor-table").querySelector("tbody"); tb.replaceChildren();
+    // only a simulated run knows the true poses: for a real rig the two columns were dashes
+    // under a heading that meant nothing there
+    const truth = !!doc.true_errors;
+    for (const th of $("sensor-table").querySelectorAll("th.truth")) th.hidden = !truth;
     for (const s of sens) {
       const T = doc.T_world_sensor[s];
       const e = (doc.true_errors || {})[s];
@@ -113,7 +117,7 @@
         ? ` (fitness ${r.fitness_before.toFixed(2)}→${r.fitness.toFixed(2)}, RMSE ${r.inlier_rmse_before_mm.toFixed(1)}→${r.inlier_rmse_mm.toFixed(1)} mm)` : "");
       const icpCell = el("span", icpTxt, r ? { title: r.reason } : {});
       tb.append(row([s, `${T[0][3].toFixed(3)}, ${T[1][3].toFixed(3)}, ${T[2][3].toFixed(3)}`,
-        mm(doc.sensor_residual_m[s]), icpCell, c, o]));
+        mm(doc.sensor_residual_m[s]), icpCell, ...(truth ? [c, o] : [])]));
     }
     const eb = $("edge-table").querySelector("tbody"); eb.replaceChildren();
     for (const e of doc.edges) {

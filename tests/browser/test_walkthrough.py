@@ -222,6 +222,30 @@ def _calibration_wizard_without_a_calibration_says_so(
     _no_js_error(page)
 
 
+def _real_calibration_has_no_truth_columns(
+        page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
+    """A calibration of a real rig showed two columns of dashes headed "Error vs truth"
+    (only a simulated run knows the true poses). The server's answers are a captured
+    calibration's here (the shared server may hold a simulated one)."""
+    eye = [[1.0, 0, 0, 2.0], [0, 1.0, 0, 1.0], [0, 0, 1.0, 1.0], [0, 0, 0, 1.0]]
+    origin = [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]]
+    active = {"version": 1, "created_iso": "2026-11-24T10:00:00Z", "meta": {"source": "captured"},
+              "T_world_sensor": {"S1": eye}, "T_world_marker": {"1": origin},
+              "sensor_residual_m": {"S1": 0.0008}, "observations": [],
+              "edges": [{"sensor": "S1", "marker": 1, "residual_m": 0.0008, "in_chain": True,
+                         "distance_m": 2.4}]}
+    listed = [{"version": 1, "created": 1795000000, "sensors": ["S1"],
+               "max_sensor_residual_mm": 0.8, "rejected": 0}]
+    page.route("**/api/calibration", lambda route: route.fulfill(json=listed))
+    page.route("**/api/calibration/active", lambda route: route.fulfill(json=active))
+    page.goto(f"{live_server.base_url}/calibration-wizard.html")
+    page.wait_for_function("document.querySelectorAll('#sensor-table tbody tr').length === 1")
+    heads = page.locator("#sensor-table thead").inner_text().lower()
+    assert "truth" not in heads, heads
+    assert page.locator("#sensor-table tbody td").count() == 4  # sensor, position, residual, ICP
+    _no_js_error(page)
+
+
 def _record_page_refuses_a_bad_image_interval_in_plain_words(
         page: Any, live_server: LiveServer, walked: Walked, artifacts_dir: Path) -> None:
     """An image interval out of range reached the server, whose refusal read
@@ -433,6 +457,7 @@ def test_empty_states_and_plain_messages(page: Any, live_server: LiveServer, wal
     """What a page says before there is anything to show, after a click, and on a mistake."""
     _run(page, [_reports_page_before_a_choice,
                 _calibration_wizard_without_a_calibration_says_so,
+                _real_calibration_has_no_truth_columns,
                 _record_page_refuses_a_bad_image_interval_in_plain_words,
                 _code_field_says_which_characters_are_allowed,
                 _planning_buttons_say_what_they_did,
