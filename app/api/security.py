@@ -14,7 +14,7 @@ from datetime import UTC, datetime, timedelta
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
-from app.db.models import LoginSession, User
+from app.db.models import LoginSession, PasswordChangeDue, User
 
 log = logging.getLogger("gaitrig.auth")
 
@@ -79,8 +79,12 @@ def ensure_admin(db: Session, username: str, password: str | None,
     generated = None
     if not password:
         password = generated = secrets.token_urlsafe(12)
-    db.add(User(username=username, password_hash=hash_password(password, cost),
-                is_admin=True))
+    admin = User(username=username, password_hash=hash_password(password, cost),
+                 is_admin=True)
+    db.add(admin)
+    if generated:  # printed in a log: the console asks its owner to change it
+        db.flush()
+        db.add(PasswordChangeDue(user_id=admin.id, reason="generated"))
     db.commit()
     log.info("created admin account %r", username)
     return generated

@@ -47,6 +47,24 @@ class LoginSession(Base):
     user: Mapped[User] = relationship(back_populates="sessions")
 
 
+class PasswordChangeDue(Base):
+    """An account whose password someone else chose: generated at the first start or set
+    by an administrator (a new account, a reset). The console suggests changing it; the
+    owner's own change (``POST /api/auth/password``) removes the row.
+
+    A table of its own rather than a column of ``users``: ``users`` is made by
+    ``create_all``, which adds missing tables to an existing database but never columns.
+    """
+
+    __tablename__ = "password_change_due"
+
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"),
+                                         primary_key=True)
+    #: Who chose the password: ``generated`` or ``administrator``.
+    reason: Mapped[str] = mapped_column(String(16))
+    since: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=_now)
+
+
 #: What the audit trail records (``AuditEvent.action``).
 AUDIT_ACTIONS = ("login", "login_failed", "logout", "password_change", "account", "export",
                  "delete", "backup", "restore")

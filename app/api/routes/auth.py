@@ -20,6 +20,7 @@ from app.api.deps import SESSION_COOKIE, CurrentUser, DbDep, SettingsDep, reques
 from app.api.limits import BoundedRoute
 from app.config import Settings
 from app.db import audit
+from app.db.models import PasswordChangeDue
 
 router = APIRouter(prefix="/auth", route_class=BoundedRoute, tags=["auth"])
 
@@ -43,6 +44,11 @@ class PasswordIn(BaseModel):
 class UserOut(BaseModel):
     username: str
     is_admin: bool
+    #: The password is one someone else chose (generated at the first start, or set by an
+    #: administrator): the console suggests changing it.
+    must_change_password: bool = False
+    #: Who chose it: ``generated`` or ``administrator`` (None once the owner changed it).
+    password_set_by: str | None = None
 
 
 @router.post("/login", response_model=LoginOut)
@@ -127,6 +133,9 @@ def change_password(body: PasswordIn, request: Request, user: CurrentUser, db: D
         problem = "the new password must differ from the current one"
     if problem:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, problem)
+    due = db.get(PasswordChangeDue, user.id)
+    if due is not None:  # the password is now the owner's own (committed with it)
+        db.delete(due)
     ended = security.change_password(db, user, body.new_password, request_token(request),
                                     settings.password_hash_cost)
     audit.record(db, user.username, "password_change",
@@ -134,6 +143,9 @@ def change_password(body: PasswordIn, request: Request, user: CurrentUser, db: D
 
 
 @router.get("/me", response_model=UserOut)
-def me(user: CurrentUser) -> UserOut:
-    """Who is logged in."""
-    return UserOut(username=user.username, is_admin=user.is_admin)
+def me(user: CurrentUser, db: DbDep) -> UserOut:
+    """Who is logged in, and whether their password is still one someone else chose."""
+    due = db.get(PasswordChangeDue, user.id)
+    return UserOut(username=user.username, is_admin=user.is_admin,
+                   must_change_password=due is not None,
+                   password_set_by=None if due is None else due.reason)

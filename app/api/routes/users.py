@@ -1,6 +1,7 @@
 """Console accounts, for administrators: one per person, so the audit trail names people.
 
-* ``GET /api/users`` — the accounts (name, administrator or not, since when, open logins).
+* ``GET /api/users`` — the accounts (name, administrator or not, since when, last login,
+  open logins, whether the password is still one someone else chose).
 * ``POST /api/users`` — ``{"username", "password", "is_admin"}``: a new account; the
   password follows the policy of ``POST /api/auth/password``.
 * ``POST /api/users/{username}/password`` — ``{"new_password"}``: set someone's password
@@ -8,8 +9,10 @@
 * ``POST /api/users/{username}/delete`` — ``{"confirm": "<username>"}``: remove an account
   and end its logins. One's own account and the last administrator cannot be removed.
 
-Each change is in the audit trail (action ``account``); the trail keeps the entries of a
-removed account under its name.
+A password an administrator sets (new account, reset) is a temporary one: the console
+asks its owner to change it (``must_change_password`` in ``GET /api/auth/me``) until they
+do. Each change is in the audit trail (action ``account``); the trail keeps the entries of
+a removed account under its name.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from app.api import security
 from app.api.deps import CurrentUser, DbDep, SettingsDep
 from app.api.limits import BoundedRoute
 from app.db import audit
-from app.db.models import LoginSession, User
+from app.db.models import AuditEvent, LoginSession, PasswordChangeDue, User
 
 router = APIRouter(prefix="/users", route_class=BoundedRoute, tags=["users"])
 
@@ -67,6 +70,22 @@ def _policy(password: str, username: str) -> None:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, problem)
 
 
+def mark_change_due(db: Any, user: User, reason: str) -> None:
+    """Record that ``user``'s password was chosen by someone else (``generated`` or
+    ``administrator``), so the console suggests changing it; not committed."""
+    due = db.get(PasswordChangeDue, user.id)
+    if due is None:
+        db.add(PasswordChangeDue(user_id=user.id, reason=reason))
+    else:
+        due.reason, due.since = reason, datetime.now(UTC)
+
+
+def change_due(db: Any, user: User) -> str | None:
+    """Why ``user`` should change their password (who chose it), or None."""
+    due = db.get(PasswordChangeDue, user.id)
+    return None if due is None else str(due.reason)
+
+
 def _client(request: Request) -> str:
     return request.client.host if request.client else ""
 
@@ -80,9 +99,29 @@ def accounts(user: CurrentUser, db: DbDep) -> list[dict[str, Any]]:
             select(LoginSession.user_id, func.count(LoginSession.id))
             .where(LoginSession.expires_at > datetime.now(UTC))
             .group_by(LoginSession.user_id))}
-    return [{"username": u.username, "is_admin": u.is_admin,
-             "created_at": u.created_at.isoformat(), "open_logins": open_logins.get(u.id, 0)}
-            for u in db.scalars(select(User).order_by(User.username))]
+    due = {d.user_id: d.reason for d in db.scalars(select(PasswordChangeDue))}
+    # the last login from the audit trail, which keeps a removed account's entries under
+    # its name: only a login since this account was created counts
+    last: dict[str, datetime] = {
+        name: _utc(at) for name, at in db.execute(
+            select(AuditEvent.username, func.max(AuditEvent.at))
+            .where(AuditEvent.action == "login").group_by(AuditEvent.username))}
+    out = []
+    for u in db.scalars(select(User).order_by(User.username)):
+        created = _utc(u.created_at)
+        seen = last.get(u.username)
+        out.append({"username": u.username, "is_admin": u.is_admin,
+                    "created_at": created.isoformat(),
+                    "last_login_at": seen.isoformat() if seen and seen >= created else None,
+                    "open_logins": open_logins.get(u.id, 0),
+                    "must_change_password": u.id in due, "password_set_by": due.get(u.id)})
+    return out
+
+
+def _utc(t: datetime) -> datetime:
+    # SQLite gives back naive datetimes of what was stored in UTC; a browser would read a
+    # naive ISO string as its local time
+    return t if t.tzinfo else t.replace(tzinfo=UTC)
 
 
 @router.post("", status_code=201)
@@ -94,9 +133,12 @@ def create_account(body: NewUser, request: Request, user: CurrentUser, db: DbDep
         raise HTTPException(status.HTTP_409_CONFLICT,
                             f"an account named {body.username!r} exists already")
     _policy(body.password, body.username)
-    db.add(User(username=body.username, password_hash=security.hash_password(
-                    body.password, settings.password_hash_cost),
-                is_admin=body.is_admin))
+    new = User(username=body.username, password_hash=security.hash_password(
+                   body.password, settings.password_hash_cost),
+               is_admin=body.is_admin)
+    db.add(new)
+    db.flush()
+    mark_change_due(db, new, "administrator")
     db.add(audit.event(user.username, "account", f"user {body.username}",
                        "created" + (" (administrator)" if body.is_admin else ""),
                        _client(request)))
@@ -115,6 +157,7 @@ def set_password(username: str, body: NewPassword, request: Request, user: Curre
         raise HTTPException(status.HTTP_409_CONFLICT, "change your own password with POST "
                             "/api/auth/password (it asks for the current one)")
     _policy(body.new_password, target.username)
+    mark_change_due(db, target, "administrator")  # committed with the new password
     ended = security.change_password(db, target, body.new_password, None,
                                     settings.password_hash_cost)
     audit.record(db, user.username, "account", f"user {target.username}",
