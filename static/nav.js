@@ -45,7 +45,14 @@
       await fetch("/api/auth/logout", { method: "POST", credentials: "same-origin" }).catch(() => {});
       window.location.href = "/index.html";
     });
-    header.replaceChildren(brand, nav, view3d, logout);
+    // who is logged in, "Change password", "Accounts" for administrators: filled by
+    // js/user-menu.js, loaded here so that every page has it
+    const userMenu = document.createElement("div");
+    userMenu.id = "user-menu";
+    header.replaceChildren(brand, nav, view3d, userMenu, logout);
+    const menuScript = document.createElement("script");
+    menuScript.src = "/js/user-menu.js";
+    document.body.append(menuScript);
     // Keyboard users went through the ten header links on every page before reaching it:
     // the first Tab offers a jump to the page's own content.
     const main = document.querySelector("main");
