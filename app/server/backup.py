@@ -598,6 +598,9 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
         raise BackupError(f"{data_dir} is not empty: restore into an empty folder, or give "
                           "--force to replace everything in it (a restore never merges)")
     if existing:
+        if archive.is_relative_to(data_dir):
+            raise BackupError(f"the archive {archive} lies inside the folder it would replace "
+                              f"({data_dir}), and would be deleted with it: move it out first")
         if _in_use(data_dir / "gaitrig.sqlite3"):
             raise BackupError(f"the database in {data_dir} is open in another program (a "
                               "running gaitrig server?): stop the server, then restore")

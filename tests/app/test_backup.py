@@ -739,3 +739,17 @@ def test_a_server_started_during_a_forced_restore_stops_the_swap(
             h.communicate("", timeout=10)
     assert holders and code == 2 and "opened by another program" in err, err
     assert sorted(p.name for p in full.iterdir()) == before
+
+
+def test_force_refuses_an_archive_inside_the_folder_it_replaces(
+        server: TestClient, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--force replaces everything in the folder: an archive kept there (a copy brought
+    back from the NAS into the data folder) was deleted with it."""
+    var = tmp_path / "var"
+    full = tmp_path / "full"
+    full.mkdir()
+    archive = bk.create_backup(var, full / "b.tar").path
+    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
+                         "--without-deletion-log", "--force")
+    assert code == 2 and "inside the folder" in err, err
+    assert archive.is_file()
