@@ -27,6 +27,7 @@ from app.config import Settings
 from app.nodes.protocol import (
     Hello,
     NodeError,
+    PartInfo,
     PartList,
     Ping,
     Pong,
@@ -207,8 +208,7 @@ class Hub:
                                         restarted)
         log.info("node %s connected from %s (%s)", hello.node_id, peer, hello.backend)
         await ws.send_text(dump(_welcome(self.settings)))
-        for part in hello.parts:
-            self.recordings.on_part(hello.node_id, part, from_hello=True)
+        self._on_listing(hello.node_id, hello.parts)
         pinger = asyncio.create_task(self._ping_loop(ws, session))
         try:
             await self._message_loop(ws, session)
@@ -223,6 +223,15 @@ class Hub:
                 self.registry.disconnect(hello.node_id)
                 self.recordings.on_disconnect(hello.node_id)
                 log.info("node %s disconnected", hello.node_id)
+
+    def _on_listing(self, node_id: str, parts: list[PartInfo]) -> None:
+        """A node's listing of the parts it holds: one save of the recording list for the
+        message (a save rewrites every recording: a second at a clinic's 30 000), not one
+        per part whose state changed."""
+        changed = [self.recordings.on_part(node_id, p, from_hello=True, save=False)
+                   for p in parts]
+        if any(changed):
+            self.recordings.save()
 
     async def _refuse(self, ws: WebSocket, peer: str, reason: str, code: int) -> None:
         log.warning("refused node connection from %s: %s", peer, reason)
@@ -273,8 +282,7 @@ class Hub:
                 s.parts[m.part.rec_id] = m.part
                 self.recordings.on_part(s.id, m.part)
             elif isinstance(m, PartList):  # the rest of the hello's listing
-                for part in m.parts:
-                    self.recordings.on_part(s.id, part, from_hello=True)
+                self._on_listing(s.id, m.parts)
             elif isinstance(m, NodeError):
                 log.warning("node %s reported: %s", s.id, m.reason)
             elif isinstance(m, Hello):

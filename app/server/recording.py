@@ -260,15 +260,24 @@ class RecordingManager:
 
     # ------------------------------------------------------------------ node events
 
-    def on_part(self, node_id: str, info: PartInfo, from_hello: bool = False) -> None:
-        """A node reported the state of one of its parts."""
+    def on_part(self, node_id: str, info: PartInfo, from_hello: bool = False,
+                save: bool = True) -> bool:
+        """A node reported the state of one of its parts.
+
+        Args:
+            save: save the list when the state changed; False for a node's listing of
+                many parts, which the caller saves once (a save rewrites every recording).
+
+        Returns:
+            Whether the part's state changed.
+        """
         rec = self.recordings.get(info.rec_id)
         if rec is None:
-            return
+            return False
         part = rec.parts.setdefault(node_id, Part(node_id))
         prev = part.state
         if prev in ("transferring", "complete") or part.on_server:
-            return  # the server's copy is authoritative now
+            return False  # the server's copy is authoritative now
         part.n_frames, part.bytes = info.n_frames, info.bytes
         part.t_first_local, part.t_last_local = info.t_first, info.t_last
         if part.clock:
@@ -289,7 +298,10 @@ class RecordingManager:
             self._dropped.add((rec.id, node_id))  # restarted during it: record again
         if prev != part.state:
             log.info("recording %s part %s: %s → %s", rec.id, node_id, prev, part.state)
-            self.save()
+            if save:
+                self.save()
+            return True
+        return False
 
     def on_disconnect(self, node_id: str) -> None:
         """A node dropped: its unfinished parts become incomplete."""
