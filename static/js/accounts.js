@@ -68,7 +68,7 @@
       ? el("span", { class: "warn" }, u.password_set_by === "generated" ? "generated at the first start, not yet changed" : "temporary (set by an administrator)")
       : "chosen by its owner";
     return el("tr", { "data-user": u.username },
-      el("th", { scope: "row", class: "code-cell" }, u.username, you ? el("span", { class: "hint" }, " (you)") : null),
+      el("th", { scope: "row", style: "overflow-wrap:anywhere" }, u.username, you ? el("span", { class: "hint" }, " (you)") : null),
       el("td", {}, u.is_admin ? "administrator" : "user"),
       el("td", {}, dateText(u.created_at)),
       el("td", {}, u.last_login_at ? timeText(u.last_login_at) : "never",

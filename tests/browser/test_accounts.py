@@ -21,7 +21,7 @@ from typing import Any
 
 import pytest
 
-from tests.browser.conftest import ROOT, _stop, _wait_http, free_port
+from tests.browser.conftest import ROOT, _stop, _wait_http, free_port, screenshot
 
 pytestmark = pytest.mark.browser
 
@@ -94,14 +94,15 @@ def _change(page: Any, current: str, new: str, repeat: str | None = None) -> Non
     page.click("#pw-submit")
 
 
-def test_first_login_is_asked_to_change_the_generated_password(browser: Any,
-                                                               console: Console) -> None:
+def test_first_login_is_asked_to_change_the_generated_password(
+        browser: Any, console: Console, artifacts_dir: Path) -> None:
     page = _page(browser)
     try:
         _login(page, console, "admin", console.password)
         banner = page.locator("#password-banner")
         banner.wait_for()
         assert "generated" in banner.inner_text()
+        screenshot(page, artifacts_dir, "accounts_first_login_banner")
         _open_dialog(page)
         # wrong current password: said beside that field
         _change(page, "not my password at all", NEW_ADMIN_PASSWORD)
@@ -113,6 +114,7 @@ def test_first_login_is_asked_to_change_the_generated_password(browser: Any,
         page.wait_for_function("document.getElementById('pw-new-msg').textContent"
                                ".includes('at least 12 characters')")
         assert page.inner_text("#pw-current-msg") == ""
+        screenshot(page, artifacts_dir, "accounts_password_refused")
         _change(page, console.password, "admin's own gait lab", None)
         page.wait_for_function("document.getElementById('pw-new-msg').textContent"
                                ".includes('user name')")
@@ -154,7 +156,8 @@ def _remove(page: Any, username: str, typed: str) -> None:
     row.locator("details.danger-zone button[type=submit]").click()
 
 
-def test_administrator_manages_accounts(browser: Any, console: Console) -> None:
+def test_administrator_manages_accounts(browser: Any, console: Console,
+                                        artifacts_dir: Path) -> None:
     admin = _page(browser)
     try:
         _login(admin, console, "admin", console.password)
@@ -206,7 +209,21 @@ def test_administrator_manages_accounts(browser: Any, console: Console) -> None:
         log = admin.inner_text("#account-log")
         assert "admin created the account a.physio." in log
         assert "admin removed the account a.physio." in log
+        screenshot(admin, artifacts_dir, "accounts_page")
         assert admin.get_attribute("#account-log li", "data-action") == "account"
+        # on a tablet the header keeps to the screen with the menu open, "Log out" on one line
+        admin.set_viewport_size({"width": 768, "height": 1024})
+        admin.click(".user-menu summary")
+        admin.wait_for_selector("#accounts-link")
+        fits = admin.evaluate("""() => {
+            const r = document.querySelector('.user-menu-items').getBoundingClientRect();
+            const b = document.getElementById('logout');
+            return [document.documentElement.scrollWidth <= document.documentElement.clientWidth,
+                    r.left >= 0 && r.right <= document.documentElement.clientWidth,
+                    b.clientHeight < 2 * parseFloat(getComputedStyle(b).lineHeight)]; }""")
+        assert fits == [True, True, True], fits
+        admin.keyboard.press("Escape")  # closes the menu, as a menu does
+        assert admin.locator("#accounts-link").is_hidden()
         assert not admin.js_errors
     finally:
         admin.context.close()
