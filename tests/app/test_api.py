@@ -80,7 +80,9 @@ def test_login_logout_and_cookie(client: TestClient) -> None:
     assert bad.status_code == 401
     r = client.post("/api/auth/login", json={"username": "admin", "password": "secret-pw"})
     assert r.status_code == 200 and "gaitrig_session" in r.cookies
-    assert client.get("/api/auth/me").json() == {"username": "admin", "is_admin": True}
+    assert client.get("/api/auth/me").json() == {"username": "admin", "is_admin": True,
+                                                  "must_change_password": False,
+                                                  "password_set_by": None}
     assert client.post("/api/auth/logout").status_code == 204
     client.cookies.clear()
     h = {"Authorization": f"Bearer {r.json()['token']}"}
