@@ -332,14 +332,15 @@ def list_recordings(response: Response, user: CurrentUser, settings: SettingsDep
     if subject_id is not None:
         filed = filed.where(Subject.id == subject_id)
     live = hub.recordings.recordings
-    filed_rows = db.execute(filed).all()
+    # (the connection: no ORM row processing of the narrow rows, every filed recording)
+    filed_rows = db.connection().execute(filed).all()
     rows: list[tuple[float, str]] = [
         (live[r].created if r in live else _epoch_s(c), r)
         for r, c in filed_rows if r in on_server]
     if subject_id is None:  # recordings filed under no session (e.g. from the Rig page)
         # unfiltered, the rows above are every filed recording already
         known = ({r for r, _ in filed_rows} if needle is None
-                 else set(db.scalars(select(DbRecording.id))))
+                 else set(db.connection().execute(select(DbRecording.id)).scalars()))
         for name in on_server - known:
             if needle is not None and needle.lower() not in name.lower():
                 continue
