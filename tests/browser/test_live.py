@@ -125,9 +125,10 @@ def test_live_websocket_requires_login(browser: Any, live_server: LiveServer) ->
             ws.onclose = (e) => res(e.code);
             setTimeout(() => res('timeout'), 8000); })""")
         assert code in (4401, 1006), code  # refused before accept: the browser may see 1006
-        # and the page itself sends an unauthenticated visitor to the login form
+        # and the page itself sends an unauthenticated visitor to the login form (which
+        # brings her back to the Live page once she has logged in)
         p.goto(live_server.base_url + "/live.html")
-        p.wait_for_url("**/index.html", timeout=15000)
+        p.wait_for_url("**/index.html?next=%2Flive.html", timeout=15000)
     finally:
         ctx.close()
 
