@@ -22,7 +22,7 @@ def test_login_and_rig_page(make_rig: object, artifacts_dir: Path, browser: Any)
     try:
         page = context.new_page()
         page.goto(rig.base + "/rig.html")
-        page.wait_for_url("**/index.html")  # not logged in → login page
+        page.wait_for_url("**/index.html?next=*")  # not logged in → login page (and back)
         # the user name field has focus (autofocus; typed keys must not go elsewhere)
         page.wait_for_function("document.activeElement && document.activeElement.id === 'username'")
         page.keyboard.type("admin")
