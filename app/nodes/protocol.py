@@ -41,7 +41,7 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator
 
 from engine.errors import InputError
 
@@ -89,17 +89,36 @@ class SensorInfo(BaseModel):
                     "shown with the node's health.")
 
 
+#: Characters of a part's ``reason`` in a listing: a longer one is cut with an ellipsis (a
+#: reason grows by one clause per reopening or failure, and one part over the listing's
+#: bound would get the node's hello refused for good).
+PART_REASON_CHARS = 500
+
+
 class PartInfo(BaseModel):
-    """A recording part as held by a node (times in the node's local clock)."""
+    """A recording part as held by a node (times in the node's local clock).
+
+    Every field is bounded so one part never outgrows a listing message
+    (:func:`part_batches`): ``rec_id`` is a recording id (1-64 of ``A-Za-z0-9_.-``) and a
+    ``reason`` longer than :data:`PART_REASON_CHARS` is cut to that with an ellipsis.
+    """
 
     model_config = ConfigDict(extra="forbid")
-    rec_id: str
+    rec_id: RecId
     state: PartState
     n_frames: int = 0
     t_first: float | None = None
     t_last: float | None = None
     bytes: int = 0
-    reason: str | None = None
+    reason: Annotated[str, Field(max_length=PART_REASON_CHARS)] | None = None
+
+    @field_validator("reason", mode="before")
+    @classmethod
+    def _cut_reason(cls, v: Any) -> Any:
+        # cut rather than refuse: the reason is for a person, the part must still be listed
+        if isinstance(v, str) and len(v) > PART_REASON_CHARS:
+            return v[:PART_REASON_CHARS - 1] + "…"
+        return v
 
 
 class Hello(_Msg):

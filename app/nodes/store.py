@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from app.nodes.protocol import PartInfo, ProtocolError, decode_binary
 from engine.errors import InputError
@@ -383,7 +384,8 @@ class NodeStore:
                 log.error("recording %s cannot be closed (%s); it is recovered when the "
                           "node starts with free disk space", folder.name, exc)
                 continue
-            fixed.append(self._info(meta))
+            with contextlib.suppress(ValidationError):  # closed; parts() says why unlisted
+                fixed.append(self._info(meta))
         return fixed
 
     def _meta(self, folder: Path) -> dict[str, Any] | None:
@@ -398,12 +400,24 @@ class NodeStore:
         return PartInfo.model_validate({k: meta[k] for k in PartInfo.model_fields if k in meta})
 
     def parts(self) -> list[PartInfo]:
-        """Every part on this node (state from meta.json)."""
+        """Every part on this node (state from meta.json).
+
+        A part whose meta.json does not describe a valid part (an id that is not a recording
+        id, an unknown state: a hand-edited or foreign folder) is left out with a log line:
+        listed, it would get the node's hello refused and the node would never connect.
+        """
         out = []
         for folder in sorted(p for p in self.root.iterdir() if p.is_dir()):
             meta = self._meta(folder)
-            if meta is not None:
+            if meta is None:
+                continue
+            try:
                 out.append(self._info(meta))
+            except ValidationError as exc:
+                log.warning("recording folder %s is not listed to the server: its meta.json "
+                            "is not a valid part (%s)", folder.name,
+                            "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}"
+                                      for e in exc.errors()))
         return out
 
     def meta(self, rec_id: str) -> dict[str, Any]:

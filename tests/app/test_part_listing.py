@@ -123,3 +123,45 @@ def test_a_node_holding_more_parts_than_one_message_lists_them_all(
     assert len(saves) <= len(part_batches(store.parts())), len(saves)
     hub = app.state.hub  # type: ignore[attr-defined]
     assert hub.registry.get("S1").rejected_messages == 0
+
+
+def test_a_part_with_an_overlong_reason_or_a_bad_id_does_not_stop_the_node_connecting(
+        server: tuple[Settings, object], tmp_path: Path,
+        caplog: pytest.LogCaptureFixture) -> None:
+    """One part whose reason grew past a control message (a reason gains a clause per
+    reopening) or whose meta.json names no valid id used to get the hello refused (4400,
+    final): the node never connected. The reason is cut, the bad part left out."""
+    settings, app = server
+    node_dir = tmp_path / "node"
+    store = NodeStore(node_dir / "recordings")
+    for k in range(3):
+        store.create_part(f"R{k:04d}").close("on_node")
+    long_reason = "closed early; not recording again: disk full " * 3000  # ~130 kB
+    store.create_part("R0003").close("incomplete", reason=long_reason)
+    store.create_part("R0004").close("on_node")
+    meta_path = node_dir / "recordings" / "R0004" / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    meta["rec_id"] = "not a valid id/" + "x" * 100_000
+    meta_path.write_text(json.dumps(meta))
+    assert len(long_reason) > settings.max_control_bytes
+    agent = NodeAgent("S1", _Scripted(), f"ws://127.0.0.1:{settings.port}/ws/node", NODE_TOKEN,
+                      node_dir)
+    th = threading.Thread(target=asyncio.run, args=(agent.run(),), daemon=True)
+    th.start()
+    recordings = app.state.hub.recordings.recordings  # type: ignore[attr-defined]
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while recordings["R0003"].parts["S1"].state == "recording":
+            assert th.is_alive(), "the node stopped (its hello was refused)"
+            assert time.monotonic() < deadline, "the node's listing never arrived"
+            time.sleep(0.1)
+    finally:
+        agent.stop()
+        th.join(10)
+    assert [recordings[f"R{k:04d}"].parts["S1"].state for k in range(3)] == ["on_node"] * 3
+    part = recordings["R0003"].parts["S1"]
+    assert part.state == "incomplete"
+    assert part.reason is not None and part.reason.endswith("\u2026")
+    assert long_reason.startswith(part.reason[:-1]) and len(part.reason) <= 500
+    assert recordings["R0004"].parts["S1"].state != "on_node"  # never listed
+    assert "R0004" in caplog.text and "not listed" in caplog.text
