@@ -35,9 +35,9 @@
       ev.preventDefault();
       try {
         await api(`/api/users/${encodeURIComponent(u.username)}/password`, { method: "POST", body: JSON.stringify({ new_password: input.value }) });
-        form.reset();
+        await load().catch(() => {});  // first: the message then describes what is shown
         say("accounts-msg", `New password set for ${u.username}; their logins were ended. Give it to them yourself: the console asks them to choose their own.`, true);
-        await load();
+        $("list-h").focus();  // the form was in the redrawn row
       } catch (e) { say("accounts-msg", `Password of ${u.username} not set: ${e.message}.`); }
     });
     return el("details", { class: "account-action" }, el("summary", {}, "Set a new password…"), form);
@@ -119,8 +119,8 @@
     try {
       const u = await api("/api/users", { method: "POST", body: JSON.stringify(body) });
       ev.target.reset();
+      await load().catch(() => {});
       say("create-msg", `Account ${u.username} created${u.is_admin ? " (administrator)" : ""}. Give them the temporary password yourself; they will be asked to choose their own.`, true);
-      await load();
     } catch (e) { say("create-msg", `Account not created: ${e.message}.`); }
   });
 

@@ -22,6 +22,7 @@ from typing import Any
 import pytest
 
 from tests.browser.conftest import ROOT, _stop, _wait_http, free_port, screenshot
+from tests.browser.test_console_ux import AUDIT_JS, LEAKED
 
 pytestmark = pytest.mark.browser
 
@@ -166,6 +167,11 @@ def test_administrator_manages_accounts(browser: Any, console: Console,
         admin.wait_for_url("**/accounts.html")
         admin.wait_for_selector("#accounts tr[data-user='admin']")
         assert admin.get_attribute("#accounts-link", "aria-current") == "page"
+        # the console's first-visit checks: every field labelled, nothing hidden shown, no
+        # "undefined" or "[object Object]" in the text
+        got = admin.evaluate(AUDIT_JS)
+        assert got["unlabeled"] == [] and got["shownHidden"] == [], got
+        assert not LEAKED.search(got["text"]), got["text"]
         # a new colleague, with a temporary password
         admin.fill("#create-form [name=username]", "a.physio")
         admin.fill("#create-form [name=password]", "temporary gait 12")
@@ -191,6 +197,12 @@ def test_administrator_manages_accounts(browser: Any, console: Console,
             physio.wait_for_selector("#not-admin:not([hidden])")
             assert "Only administrators manage accounts" in physio.inner_text("#not-admin")
             assert physio.locator("#admin-only").is_hidden()
+            # they choose their own password: no more suggestion
+            _open_dialog(physio)
+            _change(physio, "temporary gait 12", "my own gait password 8")
+            physio.wait_for_function("document.getElementById('pw-status').textContent"
+                                     ".includes('Password changed')")
+            assert physio.locator("#password-banner").count() == 0
             assert not physio.js_errors
         finally:
             physio.context.close()
@@ -198,6 +210,15 @@ def test_administrator_manages_accounts(browser: Any, console: Console,
         admin.reload()
         admin.wait_for_selector("#accounts tr[data-user='a.physio']")
         assert "never" not in physio_row.inner_text()  # the last login is shown
+        assert "chosen by its owner" in physio_row.inner_text()
+        # a forgotten password: the administrator sets a new one (a temporary one again)
+        setpw = physio_row.locator("details.account-action:not(.danger-zone)")
+        setpw.locator("summary").click()
+        setpw.locator("input").fill("new temporary walk 5")
+        setpw.locator("button[type=submit]").click()
+        admin.wait_for_function("document.getElementById('accounts-msg').textContent"
+                                ".includes('New password set for a.physio')")
+        assert "temporary" in physio_row.inner_text()
         _remove(admin, "a.physio", "a.phys")
         admin.wait_for_function("document.getElementById('accounts-msg').textContent"
                                 ".includes(\"type the user name 'a.physio'\")")
