@@ -653,6 +653,34 @@ def test_device_clock_follows_drift_and_ignores_late_frames() -> None:
     # without the window the 50 ppm drift would have reached 6 ms by the end
 
 
+def test_device_clock_never_goes_back_after_a_late_first_capture() -> None:
+    """The first capture arriving 300 ms late set the offset; the next, on time, lowered it
+    by 290 ms and its time came out before the first frame's (the server then dropped the
+    overlapping frames). Times now only advance, and still reach the fastest latency."""
+    from app.nodes.backends.k4a import DeviceClock
+
+    clock = DeviceClock()
+    times, truth = [], []
+    for k in range(90):
+        true_t = 200.0 + k / 30
+        latency = 0.010 + (0.300 if k == 0 else 0.0) + (0.150 if k == 40 else 0.0)
+        times.append(clock.t_local(round(k / 30 * 1e6), true_t + latency))
+        truth.append(true_t + 0.010)
+    steps = np.diff(times)
+    assert np.all(steps > 0), np.flatnonzero(steps <= 0)
+    # never slower than (1 - max_slew) of the device's pace
+    assert np.all(steps >= (1 - clock.max_slew) / 30 - 1e-6)
+    err = np.asarray(times) - np.asarray(truth)
+    assert err[0] == pytest.approx(0.300, abs=1e-6)
+    assert np.all(np.diff(err[:30]) <= 2e-6)  # closes in (µs rounding), never overshoots
+    assert np.max(np.abs(err[30:])) < 2e-6  # converged, a late frame later moves nothing
+    # a body frame stamped before its capture's previous one still comes out later
+    t_prev = clock.t_local(round(90 / 30 * 1e6), 203.010)
+    assert clock.t_local(round(91 / 30 * 1e6), 203.043, stamp_usec=0) > t_prev
+    with pytest.raises(ValueError, match="max_slew"):
+        DeviceClock(max_slew=1.0)
+
+
 @pytest.mark.parametrize(("stamps", "why"), [
     ([0] * 5, "do not advance"),  # Femto on Windows without the metadata driver
     ([round(k * 1e6 / 30 / 1000) for k in range(900)], "keep pace"),  # ms, not µs

@@ -105,6 +105,12 @@ class DeviceClock:
     bounds the latency best, a late one (tracker warm-up, a busy USB bus) moves nothing,
     and the window follows the drift of the device's crystal against the host clock.
 
+    The returned times never go backwards (the server drops a frame that overlaps the
+    previous one): the offset applied follows that minimum up at once but down by at most
+    :attr:`max_slew` of the device time that passed, so after a first capture that arrived
+    late (a busy USB bus at start) the times close in on the better offset over a few
+    frames instead of jumping back by the first frame's extra latency.
+
     Device times that are not a clock — not increasing (0, repeated: Orbbec's wrapper on
     Windows without its metadata driver gives none) or, over at least
     :attr:`rate_span_s`, drifting from the host by more than :attr:`rate_tolerance` (a
@@ -115,13 +121,20 @@ class DeviceClock:
         window_s: host-time window of the latency minimum.
         rate_tolerance: largest plausible |device rate / host rate − 1|.
         rate_span_s: host time after which the rate is checked.
+        max_slew: largest decrease of the applied offset per second of device time (below
+            1, so times keep advancing at at least ``1 - max_slew`` of the device's pace).
     """
 
     def __init__(self, window_s: float = 10.0, rate_tolerance: float = 0.02,
-                 rate_span_s: float = 10.0) -> None:
+                 rate_span_s: float = 10.0, max_slew: float = 0.5) -> None:
+        if not 0.0 < max_slew < 1.0:
+            raise ValueError(f"max_slew must be in (0, 1), got {max_slew}")
         self.window_s = window_s
         self.rate_tolerance = rate_tolerance
         self.rate_span_s = rate_span_s
+        self.max_slew = max_slew
+        self._offset: float | None = None  # offset applied (s)
+        self._last_out: float | None = None  # the last time returned
         self._recent: deque[tuple[float, float]] = deque()  # (arrival s, offset s)
         self._start: tuple[float, float] | None = None  # (first arrival, its offset)
         self._last_dev: float | None = None
@@ -144,11 +157,12 @@ class DeviceClock:
                 frame's timestamp).
         """
         if self.fallback:
-            return arrival_s
+            return self._forward(arrival_s)
         dev = device_usec * 1e-6
         if self._last_dev is not None and dev <= self._last_dev:
             return self._give_up(arrival_s, f"device timestamps do not advance ({device_usec}"
                                  f" µs after {round(self._last_dev * 1e6)} µs)")
+        step = 0.0 if self._last_dev is None else dev - self._last_dev
         self._last_dev = dev
         offset = arrival_s - dev
         if self._start is None:
@@ -167,14 +181,25 @@ class DeviceClock:
             if abs(drift) > self.rate_tolerance * elapsed:
                 return self._give_up(arrival_s, "device timestamps do not keep pace with "
                                      f"the host clock ({drift:+.3g} s in {elapsed:.3g} s)")
-        return (dev if stamp_usec is None else stamp_usec * 1e-6) + best
+        if self._offset is None or best >= self._offset:
+            self._offset = best
+        else:  # a faster frame: close in on it without going back in time
+            self._offset = max(best, self._offset - self.max_slew * step)
+        return self._forward((dev if stamp_usec is None else stamp_usec * 1e-6) + self._offset)
+
+    def _forward(self, t: float) -> float:
+        """``t``, or a microsecond after the last time returned if it is not later."""
+        if self._last_out is not None and t <= self._last_out:
+            t = self._last_out + 1e-6
+        self._last_out = t
+        return t
 
     def _give_up(self, arrival_s: float, why: str) -> float:
         self.warning = (f"Frame times come from the node computer's clock at arrival, not "
                         f"from the sensor: {why}. They are less exact (USB and driver "
                         "latency); on Windows with an Orbbec Femto install Orbbec's metadata "
                         "driver (obsensor_metadata_win10.ps1), then restart the node.")
-        return arrival_s
+        return self._forward(arrival_s)
 
 
 def _require_pyk4a() -> Any:
