@@ -45,10 +45,6 @@ class Settings(BaseSettings):
     )
     viewer_host: str = Field(default="127.0.0.1", description="Interface of the viser server.")
     viewer_port: int = Field(default=8081, ge=0, le=65535, description="Port of the viser 3D view.")
-    public_host: str | None = Field(
-        default=None,
-        description="Host name browsers use to reach the server (links to the 3D view)."
-    )
 
     node_token: str = Field(
         default=DEFAULT_NODE_TOKEN, min_length=8,
