@@ -49,7 +49,11 @@
     const clear = () => { for (const f of [cur, nu, rep]) { f.msg.textContent = ""; f.input.removeAttribute("aria-invalid"); } };
     const refuse = (f, text) => { f.msg.textContent = text; f.input.setAttribute("aria-invalid", "true"); f.input.focus(); };
     close.addEventListener("click", () => dialog.close());
-    dialog.addEventListener("close", () => { if (opener) opener.focus(); });
+    // the focus goes back where it was (the menu's own button is hidden by then: its summary)
+    dialog.addEventListener("close", () => {
+      if (opener) opener.focus();
+      if (menu && document.activeElement !== opener) menu.querySelector("summary").focus();
+    });
     form.addEventListener("submit", async (ev) => {
       ev.preventDefault();
       clear();
@@ -81,8 +85,9 @@
       }
     });
   }
-  function openDialog(ev) {
-    opener = ev.currentTarget;
+  function openDialog() {
+    // (the Accounts page's "Change your password…" clicks the menu's button for it)
+    opener = document.activeElement;
     if (menu) menu.open = false;
     dialog.querySelector("#pw-status").textContent = "";
     dialog.showModal();

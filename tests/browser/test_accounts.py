@@ -129,6 +129,9 @@ def test_first_login_is_asked_to_change_the_generated_password(
         assert "other logins" in page.inner_text("#pw-status")
         assert page.locator("#password-banner").count() == 0
         page.click("#pw-close")
+        # the keyboard focus comes back to the menu it was opened from
+        page.wait_for_function("document.activeElement === "
+                               "document.querySelector('.user-menu summary')")
         old, console.password = console.password, NEW_ADMIN_PASSWORD
         # another browser: the old password no longer logs in, the new one does
         other = _page(browser)
