@@ -9,7 +9,9 @@ so a route added later is checked without editing this file.
 from __future__ import annotations
 
 import json
+import os
 import re
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -427,6 +429,57 @@ def test_reference_import_limits_and_rollback(client: TestClient, tmp_path: Path
     assert client.get("/api/exports/R1/references", headers=h).json() == refs
     assert _tree(tmp_path) == files
     assert client.get(f"/api/exports/R1/references/{refs[0]['id']}", headers=h).content == good
+
+
+def test_a_reference_upload_is_never_under_its_final_name_before_its_row(
+        client: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The upload was written under its final name: a backup during the upload took a
+    half-written file, and one that failed after the write (the row's commit) left an
+    orphan. It is written as *.tmp (backups skip those) and renamed once committed."""
+    import sqlalchemy.exc
+    from sqlalchemy.orm import Session
+
+    from app.api.routes import exports
+
+    h = _login(client)
+    _filed_recording(client, h, "R1")
+    folder = tmp_path / "references" / "R1"
+    seen: list[list[str]] = []
+    real_read = exports.read_reference
+
+    def read(path: Path, fmt: str) -> Any:
+        seen.append(sorted(p.name for p in folder.iterdir()))
+        return real_read(path, fmt)
+
+    monkeypatch.setattr(exports, "read_reference", read)
+    r = client.post("/api/exports/R1/references", headers=h,
+                    files={"file": ("walk.csv", _skeleton_csv(), "text/csv")})
+    assert r.status_code == 201, r.text
+    assert len(seen) == 1 and len(seen[0]) == 1 and seen[0][0].endswith(".tmp"), seen
+    stored = sorted(p.name for p in folder.iterdir())
+    assert len(stored) == 1 and not stored[0].endswith(".tmp")
+    d = client.get(f"/api/exports/R1/references/{r.json()['id']}", headers=h)
+    assert d.content == _skeleton_csv()
+    refs = client.get("/api/exports/R1/references", headers=h).json()
+
+    def fail_commit(self: Session) -> None:
+        raise sqlalchemy.exc.OperationalError("COMMIT", {}, Exception("disk I/O error"))
+
+    with monkeypatch.context() as mp:
+        mp.setattr(Session, "commit", fail_commit)
+        r = client.post("/api/exports/R1/references", headers=h,
+                        files={"file": ("walk2.csv", _skeleton_csv(), "text/csv")})
+    assert r.status_code >= 400
+    assert sorted(p.name for p in folder.iterdir()) == stored  # nothing left behind
+    assert client.get("/api/exports/R1/references", headers=h).json() == refs
+    # a temporary file of a server killed mid-upload is removed by a later upload
+    orphan = folder / ".0123456789abcdef.csv.upload.tmp"
+    orphan.write_bytes(b"half")
+    os.utime(orphan, (time.time() - 3 * 86400,) * 2)
+    r = client.post("/api/exports/R1/references", headers=h,
+                    files={"file": ("walk3.csv", _skeleton_csv(), "text/csv")})
+    assert r.status_code == 201, r.text
+    assert not orphan.exists()
 
 
 def test_reference_whose_file_is_gone_is_a_404(client: TestClient, tmp_path: Path) -> None:

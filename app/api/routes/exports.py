@@ -12,10 +12,13 @@ recorded times; C3D/TRC resampled to a uniform rate). CSV columns are
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
+import os
 import re
 import secrets
-from pathlib import PurePath
+import time
+from pathlib import Path, PurePath
 from typing import Annotated, Any, Literal
 from urllib.parse import quote
 
@@ -151,11 +154,16 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
                             f"{name!r}: upload a .c3d, .trc or .csv file")
     folder = layout_of(request).reference_dir(rec.id)
     folder.mkdir(parents=True, exist_ok=True)
+    _sweep_stale_uploads(folder)
     stored = f"{secrets.token_hex(8)}.{ext}"
     path = folder / stored
+    # Written under a temporary name (backups skip *.tmp, _sweep_stale_uploads removes one
+    # left by a killed server) and renamed into place once its row is committed: a backup
+    # never takes a half-written file, a failed upload leaves none.
+    tmp = folder / f".{stored}{_UPLOAD_SUFFIX}"
     size = 0
     try:
-        with open(path, "wb") as f:
+        with open(tmp, "wb") as f:
             while chunk := await file.read(1 << 20):
                 size += len(chunk)
                 if size > MAX_REFERENCE_BYTES:
@@ -163,20 +171,61 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
                                         f"{name!r} is larger than "
                                         f"{MAX_REFERENCE_BYTES // 2**20} MB")
                 f.write(chunk)
+            f.flush()
+            os.fsync(f.fileno())
         try:
-            traj = await asyncio.to_thread(read_reference, path, ext)
+            traj = await asyncio.to_thread(read_reference, tmp, ext)
         except (GaitrigError, ValueError, OSError, RuntimeError) as exc:
             raise HTTPException(status.HTTP_400_BAD_REQUEST,
                                 f"{name!r} is not a readable {ext.upper()} file: {exc}") from exc
+        ref = m.ReferenceImport(recording_id=rec.id, filename=name, format=ext,
+                                stored_name=stored, size=size, rate_hz=float(traj.rate),
+                                n_frames=len(traj), labels_json=json.dumps(traj.labels))
+        db.add(ref)
+        db.commit()
     except BaseException:
-        path.unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
-    ref = m.ReferenceImport(recording_id=rec.id, filename=name, format=ext, stored_name=stored,
-                            size=size, rate_hz=float(traj.rate), n_frames=len(traj),
-                            labels_json=json.dumps(traj.labels))
-    db.add(ref)
-    db.commit()
+    try:
+        os.replace(tmp, path)
+        _fsync_dir(folder)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        db.delete(ref)
+        db.commit()
+        raise HTTPException(status.HTTP_507_INSUFFICIENT_STORAGE,
+                            f"{name!r} could not be stored on the server ({exc.strerror or exc}); "
+                            "free space in the data folder and upload it again") from exc
     return reference_json(ref)
+
+
+#: Suffix of a reference being uploaded (ends in ``.tmp``: backups leave it out).
+_UPLOAD_SUFFIX = ".upload.tmp"
+#: Age after which an upload's temporary file is an orphan (a server killed mid-upload).
+_STALE_UPLOAD_S = 24 * 3600.0
+
+
+def _sweep_stale_uploads(folder: Path) -> None:
+    """Remove temporary upload files of ``folder`` older than a day (no upload lasts so long)."""
+    now = time.time()
+    for p in folder.glob(f".*{_UPLOAD_SUFFIX}"):
+        with contextlib.suppress(OSError):
+            if now - p.stat().st_mtime > _STALE_UPLOAD_S:
+                p.unlink()
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (POSIX; a no-op where folders cannot be opened)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def _ref(db: DbDep, rec_id: str, ref_id: int) -> m.ReferenceImport:
