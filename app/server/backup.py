@@ -166,6 +166,8 @@ def _walk(data_dir: Path, skipped: list[dict[str, str]],
             rel = rel_dir / d
             if (here / d).is_symlink():
                 skipped.append({"path": str(rel), "why": "a symbolic link (not followed)"})
+            elif d.startswith(".") and d.endswith(".tmp") and not _is_part_dir(here / d, rel):
+                continue  # work in progress (an upload being checked), like *.tmp files
             elif _is_part_dir(here / d, rel) and not (
                     (here / d / "manifest.json").is_file()
                     and not (here / d / ".incoming").exists()):

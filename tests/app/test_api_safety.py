@@ -482,6 +482,58 @@ def test_a_reference_upload_is_never_under_its_final_name_before_its_row(
     assert not orphan.exists()
 
 
+def test_a_report_reference_being_checked_is_not_in_a_backup(
+        client: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The report reference was checked in a plain temporary folder inside the recording's
+    (a backup then took the half-checked upload, a killed server left it) and its meta.json
+    written after the file was in place. Now the whole new folder is swapped in."""
+    from app.api.routes import reports
+    from app.server import backup
+
+    h = _login(client)
+    part = tmp_path / "recordings" / "R2" / "S1"
+    part.mkdir(parents=True)
+    (part / "frames.bin").write_bytes(b"")
+    (part / "meta.json").write_text("{}")
+    ref = tmp_path / "recordings" / "R2" / "reference"
+    ref.mkdir()
+    (ref / "reference.csv").write_bytes(b"kept")
+    (ref / "meta.json").write_text(json.dumps({"filename": "old.csv", "ext": ".csv",
+                                               "offset_s": 0.0, "n_steps": 3}))
+    files = _tree(tmp_path)
+    in_backup: list[list[str]] = []
+
+    def steps(path: Path) -> Any:
+        in_backup.append([str(r) for r, _ in backup._walk(tmp_path, [], set())])
+        raise reports.InputError("no steps in this walk")
+
+    monkeypatch.setattr(reports.an, "reference_steps", steps)
+    r = client.post("/api/reports/recordings/R2/reference", headers=h,
+                    files={"file": ("walk.c3d", b"x" * 100, "application/octet-stream")})
+    assert r.status_code == 400, r.text
+    assert in_backup and not [n for n in in_backup[0] if "upload" in n], in_backup
+    assert _tree(tmp_path) == files  # nothing left behind, the old reference kept
+    monkeypatch.setattr(reports.an, "reference_steps", lambda path: [1, 2, 3, 4])
+    r = client.post("/api/reports/recordings/R2/reference?offset_s=1.5", headers=h,
+                    files={"file": ("new.c3d", b"c3d" * 10, "application/octet-stream")})
+    assert r.status_code == 201, r.text
+    assert sorted(p.name for p in (tmp_path / "recordings" / "R2").iterdir()) == [
+        "S1", "reference"]
+    assert (ref / "reference.c3d").read_bytes() == b"c3d" * 10
+    assert not (ref / "reference.csv").exists()
+    got = client.get("/api/reports/recordings/R2/reference", headers=h).json()
+    assert got["attached"] and got["filename"] == "new.c3d" and got["n_steps"] == 4
+    # a killed server's temporary folder is removed by a later upload
+    stale = tmp_path / "recordings" / "R2" / ".reference-upload-x.tmp"
+    stale.mkdir()
+    (stale / "upload.c3d").write_bytes(b"half")
+    os.utime(stale, (time.time() - 3 * 86400,) * 2)
+    r = client.post("/api/reports/recordings/R2/reference", headers=h,
+                    files={"file": ("new.c3d", b"c3d" * 10, "application/octet-stream")})
+    assert r.status_code == 201, r.text
+    assert not stale.exists()
+
+
 def test_reference_whose_file_is_gone_is_a_404(client: TestClient, tmp_path: Path) -> None:
     h = _login(client)
     _filed_recording(client, h, "R1")

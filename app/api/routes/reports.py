@@ -611,7 +611,11 @@ async def put_reference(rec_id: str, request: Request, file: UploadFile, user: C
                         ) -> dict[str, Any]:
     """Attach a reference recording (C3D/TRC/CSV); it must contain a walk with steps."""
     d = _rec_dir(settings, rec_id)
-    with tempfile.TemporaryDirectory(dir=d) as tmp:
+    _sweep_stale_uploads(d)
+    # The new folder (file and meta.json) is made in a temporary folder whose name ends in
+    # .tmp (backups leave it out; removed on any failure, or by a later upload after a
+    # kill) and swapped in by renames: a backup never takes a half-written reference.
+    with tempfile.TemporaryDirectory(dir=d, prefix=_UPLOAD_PREFIX, suffix=".tmp") as tmp:
         path = await _save_upload(request, file, Path(tmp))
         import anyio
 
@@ -619,14 +623,32 @@ async def put_reference(rec_id: str, request: Request, file: UploadFile, user: C
             steps = await anyio.to_thread.run_sync(an.reference_steps, path)
         except GaitrigError as exc:
             raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+        meta = {"filename": (file.filename or "")[-200:], "ext": path.suffix,
+                "offset_s": offset_s, "n_steps": len(steps)}
+        new = Path(tmp) / "reference"
+        new.mkdir()
+        os.replace(path, new / f"reference{path.suffix}")
+        (new / "meta.json").write_text(json.dumps(meta))
         folder = d / "reference"
-        shutil.rmtree(folder, ignore_errors=True)
-        folder.mkdir()
-        os.replace(path, folder / f"reference{path.suffix}")
-    meta = {"filename": (file.filename or "")[-200:], "ext": path.suffix,
-            "offset_s": offset_s, "n_steps": len(steps)}
-    (folder / "meta.json").write_text(json.dumps(meta))
+        if folder.exists():
+            os.replace(folder, Path(tmp) / "replaced")  # deleted with the temporary folder
+        os.replace(new, folder)
     return {"rec_id": rec_id, "attached": True, **meta}
+
+
+#: Name start of a report reference's temporary upload folder (which ends in ``.tmp``).
+_UPLOAD_PREFIX = ".reference-upload-"
+
+
+def _sweep_stale_uploads(rec_dir: Path) -> None:
+    """Remove temporary upload folders of a recording older than a day (a killed server's)."""
+    now = _dt.datetime.now().timestamp()
+    for p in rec_dir.glob(f"{_UPLOAD_PREFIX}*.tmp"):
+        try:
+            if now - p.stat().st_mtime > 86400.0:
+                shutil.rmtree(p, ignore_errors=True)
+        except OSError:
+            continue
 
 
 @router.delete("/recordings/{rec_id}/reference")
