@@ -148,8 +148,10 @@ def _add_bytes(tar: tarfile.TarFile, name: str, data: bytes) -> dict[str, Any]:
 
 
 def _is_part_dir(d: Path, rel: PurePosixPath) -> bool:
-    # recordings/<rec_id>/<node_id>/ holding (or receiving) a node's part
+    # recordings/<rec_id>/<node_id>/ holding (or receiving) a node's part; not the
+    # report reference beside them (its meta.json made it look like a part in transfer)
     return (len(rel.parts) == 3 and rel.parts[0] == "recordings"
+            and rel.parts[2] != erasures.REPORT_REFERENCE_DIR
             and any((d / n).exists() for n in (".incoming", "manifest.json", "meta.json",
                                                "frames.bin")))
 
@@ -516,6 +518,8 @@ class RestoreResult:
         revision_before: the database's alembic revision in the archive.
         revision_after: after the migration (the running gaitrig's head).
         erased_recordings: recordings the erasure logs deleted again (rows and files).
+        erased_references: reference recordings deleted on their own that the erasure
+            logs deleted again.
         erasures_applied: entries of the logs applied.
         notes: what the operator must know (PostgreSQL, parts left out of the backup).
         with_current_log: a current erasure log was given (not --without-deletion-log).
@@ -526,6 +530,7 @@ class RestoreResult:
     revision_before: str | None = None
     revision_after: str | None = None
     erased_recordings: list[str] = field(default_factory=list)
+    erased_references: int = 0
     erasures_applied: int = 0
     notes: list[str] = field(default_factory=list)
     with_current_log: bool = True
@@ -804,7 +809,11 @@ def _finish_database(url: str, stage: Path, entries: list[erasures.Erasure],
             res.revision_after = c.execute(text("SELECT version_num FROM alembic_version")
                                            ).scalar()
         with make_session_factory(engine)() as db:
+            ref_files = erasures.reference_files(db, entries)  # before apply drops the rows
             plan = erasures.apply(db, entries)
+            for rel in ref_files:  # reference imports deleted on their own
+                (stage / rel).unlink(missing_ok=True)
+            res.erased_references = len(ref_files) + _drop_report_references(stage, entries)
             for rec_id, nodes in {**left_out, **_live_entries(stage, entries)}.items():
                 plan[rec_id] = sorted(set(plan.get(rec_id, [])) | set(nodes))
             res.erasures_applied = sum(1 for e in entries if e.state != "void")
@@ -818,6 +827,8 @@ def _finish_database(url: str, stage: Path, entries: list[erasures.Erasure],
                          f"backup of {res.manifest.get('created_at')}, revision "
                          f"{res.revision_before} -> {res.revision_after}; "
                          f"{len(plan)} deleted recordings kept deleted"
+                         + (f", {res.erased_references} deleted references"
+                            if res.erased_references else "")
                          + ("" if res.with_current_log else
                             "; WITHOUT a current erasure log (--without-deletion-log)"),
                          client)
@@ -827,6 +838,21 @@ def _finish_database(url: str, stage: Path, entries: list[erasures.Erasure],
             purge_deleted(engine)
     finally:
         engine.dispose()
+
+
+def _drop_report_references(stage: Path, entries: list[erasures.Erasure]) -> int:
+    """Delete the report references (``recordings/<id>/reference/``, no row) the entries
+    deleted, when their upload time matches (a later upload is kept). Returns how many."""
+    erased = erasures.erased_report_references(entries)
+    if not erased:
+        return 0
+    n = 0
+    for folder in sorted((stage / "recordings").glob(f"*/{erasures.REPORT_REFERENCE_DIR}")):
+        key = erasures.rec_key(folder.parent.name)
+        if folder.is_dir() and (key, erasures.report_reference_uploaded(folder)) in erased:
+            shutil.rmtree(folder)
+            n += 1
+    return n
 
 
 def _live_entries(stage: Path, entries: list[erasures.Erasure]) -> dict[str, list[str]]:

@@ -10,11 +10,16 @@ a deletion only the audit trail names them): a row is named by its table, numeri
 and creation time (ids can be reused by SQLite after the newest row is deleted; the
 creation time, to the microsecond, tells a later row with the same id apart), a
 recording by a keyed SHA-256 of its id (:func:`rec_key`; a restore recognises the
-recordings of the backup by it) with the nodes that held a part. Lines are appended and
-synced, never rewritten::
+recordings of the backup by it) with the nodes that held a part. A reference recording
+deleted on its own is logged too: an imported one (``/api/exports/.../references``) as
+its ``reference_imports`` row, a report's (``recordings/<id>/reference/``, no row) in
+``references`` as the :func:`rec_key` of its recording and its upload time (``""`` for
+one uploaded before uploads were timed). Lines are appended and synced, never
+rewritten::
 
     {"id": "<hex>", "state": "started", "at": "...", "rows": [["subjects", 5, "..."]],
-     "recordings": {"<rec_key of R20261122-101500-ab12>": ["S1", "S2"]}}
+     "recordings": {"<rec_key of R20261122-101500-ab12>": ["S1", "S2"]},
+     "references": [["<rec_key>", "2026-11-22T10:20:00.123456+00:00"]]}
     {"id": "<hex>", "state": "done", "at": "..."}        # the deletion committed
     {"id": "<hex>", "state": "void", "at": "..."}        # it failed: nothing was deleted
 
@@ -29,6 +34,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import threading
 import uuid
 from collections.abc import Iterable
@@ -46,7 +52,14 @@ LOG_NAME = "erasures.jsonl"
 
 #: Tables a deletion can name, with their models.
 _MODELS: dict[str, Any] = {"projects": m.Project, "subjects": m.Subject,
-                           "sessions": m.Session, "recordings": m.Recording}
+                           "sessions": m.Session, "recordings": m.Recording,
+                           "reference_imports": m.ReferenceImport}
+
+#: A report reference's folder in a recording's folder, and its description in it.
+REPORT_REFERENCE_DIR = "reference"
+_REPORT_REFERENCE_META = "meta.json"
+
+_SAFE_NAME = re.compile(r"[A-Za-z0-9_.-]{1,80}")
 
 _LOCK = threading.Lock()  # deletions run in worker threads
 
@@ -88,6 +101,7 @@ class Erasure:
             :func:`rec_key`.
         recordings: :func:`rec_key` of each recording deleted → the nodes that held a
             part.
+        references: ``(rec_key, uploaded)`` of each report reference deleted on its own.
     """
 
     id: str
@@ -95,6 +109,7 @@ class Erasure:
     at: str
     rows: list[tuple[str, int | str, str]] = field(default_factory=list)
     recordings: dict[str, list[str]] = field(default_factory=dict)
+    references: list[tuple[str, str]] = field(default_factory=list)
 
 
 def _append(path: Path, record: dict[str, Any]) -> None:
@@ -114,14 +129,18 @@ def _now() -> str:
 
 
 def begin(data_dir: Path, recs: Iterable[m.Recording], owner: Any,
-          plan: dict[str, list[str]]) -> str:
+          plan: dict[str, list[str]],
+          report_references: Iterable[tuple[str, str]] = ()) -> str:
     """Log a deletion before it commits.
 
     Args:
         data_dir: the server's data folder.
         recs: the recording rows deleted.
-        owner: the session, subject or project deleted with them (or None).
+        owner: the session, subject, project or reference import deleted with them (or
+            None).
         plan: recording id → nodes holding a part (includes unfiled recordings).
+        report_references: ``(recording id, uploaded)`` of each report reference folder
+            deleted (:func:`report_reference_uploaded`).
 
     Returns:
         The entry's id, for :func:`finish`.
@@ -132,9 +151,12 @@ def begin(data_dir: Path, recs: Iterable[m.Recording], owner: Any,
         rows.append([table, int(owner.id), stamp(owner.created_at)])
     rows += [["recordings", rec_key(r.id), stamp(r.created_at)] for r in recs]
     eid = uuid.uuid4().hex
-    _append(log_path(data_dir), {"id": eid, "state": "started", "at": _now(), "rows": rows,
-                                 "recordings": {rec_key(k): sorted(v)
-                                                for k, v in plan.items()}})
+    record: dict[str, Any] = {"id": eid, "state": "started", "at": _now(), "rows": rows,
+                              "recordings": {rec_key(k): sorted(v) for k, v in plan.items()}}
+    refs = [[rec_key(r), str(u)] for r, u in report_references]
+    if refs:
+        record["references"] = refs
+    _append(log_path(data_dir), record)
     return eid
 
 
@@ -164,7 +186,8 @@ def parse(text: str, source: str = "the erasure log") -> list[Erasure]:
                     [(str(t), str(i) if t == "recordings" else int(i), str(c))
                      for t, i, c in rec.get("rows", [])],
                     {str(r): [str(n) for n in ns]
-                     for r, ns in dict(rec.get("recordings", {})).items()})
+                     for r, ns in dict(rec.get("recordings", {})).items()},
+                    [(str(k), str(u)) for k, u in rec.get("references", [])])
             elif state in ("done", "void"):
                 if eid in out:
                     out[eid].state = state
@@ -225,8 +248,10 @@ def settle(db: DbSession, data_dir: Path) -> int:
     n = 0
     todo = [e for e in read(data_dir) if e.state == "started"]
     ids = _rec_ids(db) if todo else {}
+    refs = report_references(data_dir) if any(e.references for e in todo) else {}
     for e in todo:
-        alive = any(_row(db, t, i, c, ids) is not None for t, i, c in e.rows)
+        alive = (any(_row(db, t, i, c, ids) is not None for t, i, c in e.rows)
+                 or any(refs.get(k) == u for k, u in e.references))
         finish(data_dir, e.id, committed=not alive)
         n += 1
     return n
@@ -288,3 +313,46 @@ def _recordings_of(obj: Any) -> list[m.Recording]:
     if isinstance(obj, m.Project):
         return [r for x in obj.subjects for s in x.sessions for r in s.recordings]
     return []
+
+
+def report_reference_uploaded(folder: Path) -> str:
+    """The upload time a report reference folder's meta.json records (``""``: none)."""
+    try:
+        meta = json.loads((folder / _REPORT_REFERENCE_META).read_text())
+    except (OSError, ValueError):
+        return ""
+    return str(meta.get("uploaded", "")) if isinstance(meta, dict) else ""
+
+
+def report_references(data_dir: Path) -> dict[str, str]:
+    """:func:`rec_key` of every recording of a data folder with a report reference →
+    that reference's upload time."""
+    out: dict[str, str] = {}
+    for folder in sorted((Path(data_dir) / "recordings").glob(f"*/{REPORT_REFERENCE_DIR}")):
+        if folder.is_dir() and not folder.is_symlink():
+            out[rec_key(folder.parent.name)] = report_reference_uploaded(folder)
+    return out
+
+
+def erased_report_references(entries: Iterable[Erasure]) -> set[tuple[str, str]]:
+    """``(rec_key, uploaded)`` of every report reference the (not void) entries deleted."""
+    return {(k, u) for e in entries if e.state != "void" for k, u in e.references}
+
+
+def reference_files(db: DbSession, entries: Iterable[Erasure]) -> list[Path]:
+    """The files, relative to the data folder, of the reference imports the (not void)
+    entries deleted and ``db`` still holds: call before :func:`apply` deletes the rows."""
+    ids = _rec_ids(db)
+    out = []
+    for e in entries:
+        if e.state == "void":
+            continue
+        for table, row_id, created in e.rows:
+            if table != "reference_imports":
+                continue
+            ref = _row(db, table, row_id, created, ids)
+            names = (ref.recording_id, ref.stored_name) if ref is not None else ()
+            # names from a restored database: never a path out of the references folder
+            if names and all(_SAFE_NAME.fullmatch(n) and n not in (".", "..") for n in names):
+                out.append(Path("references", *names))
+    return out

@@ -494,6 +494,82 @@ def test_a_deleted_unfiled_recording_stays_deleted(server: TestClient, tmp_path:
         c.__exit__(None, None, None)
 
 
+def test_a_deleted_reference_stays_deleted_after_restoring_an_older_backup(
+        server: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Deleting a reference (an imported one, a report's) was not in the erasure log: a
+    restore of a backup made before brought it back. A later upload is kept."""
+    from app.api.routes import reports
+
+    var = tmp_path / "var"
+    rid = "R20260101-100000-aaaa"
+    p = server.post("/api/projects", json={"name": "Study"}).json()
+    _subject(server, var, tmp_path, p["id"], KEEP, rid)
+    with server.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        ref = m.ReferenceImport(recording_id=rid, filename="vicon.c3d", format="c3d",
+                                stored_name="b2.c3d")
+        db.add(ref)
+        db.commit()
+        ref_id = ref.id
+    (var / "references" / rid / "b2.c3d").write_bytes(b"vicon of " + GONE.encode())
+    monkeypatch.setattr(reports.an, "reference_steps", lambda path: [1.0, 2.0, 3.0])
+
+    def attach(data: bytes) -> None:
+        r = server.post(f"/api/reports/recordings/{rid}/reference",
+                        files={"file": ("walk.c3d", data, "application/octet-stream")})
+        assert r.status_code == 201, r.text
+
+    attach(b"report reference of " + GONE.encode())
+    old = bk.create_backup(var, tmp_path / "old.tar").path
+    # a report reference is backed up (its meta.json made it look like a part in transfer)
+    with tarfile.open(old) as tar:
+        assert f"files/recordings/{rid}/reference/reference.c3d" in tar.getnames()
+    r = server.post(f"/api/exports/{rid}/references/{ref_id}/delete")
+    assert r.status_code == 200, r.text
+    r = server.delete(f"/api/reports/recordings/{rid}/reference")
+    assert r.status_code == 200 and not r.json()["attached"], r.text
+    assert _traces(var, GONE) == []
+    log = (var / "erasures.jsonl").read_text()
+    assert rid not in log and "b2.c3d" not in log and log.count('"done"') == 2
+    assert [len(e.references) for e in erasures.read(var)] == [0, 1]
+
+    a = tmp_path / "a"
+    code, _o, err = _cli(capsys, "restore", str(old), "--data-dir", str(a),
+                         "--deletion-log", str(var))
+    assert code == 0, err
+    assert _traces(a, GONE) == []  # neither file nor row is back
+    assert (a / "references" / rid / "a1.csv").is_file()  # the other reference stays
+    with sqlite3.connect(a / "gaitrig.sqlite3") as db:
+        assert db.execute("select count(*) from reference_imports").fetchone()[0] == 0
+        detail = db.execute("select detail from audit_events where action='restore'"
+                            ).fetchone()[0]
+    assert "2 deleted references" in detail
+
+    # a reference uploaded after the deletion is not the deleted one
+    attach(b"a later upload")
+    newer = bk.create_backup(var, tmp_path / "newer.tar").path
+    n = tmp_path / "n"
+    code, _o, err = _cli(capsys, "restore", str(newer), "--data-dir", str(n),
+                         "--deletion-log", str(var))
+    assert code == 0, err
+    assert (n / "recordings" / rid / "reference" / "reference.c3d").read_bytes() == (
+        b"a later upload")
+
+
+def test_a_reference_deletion_cut_short_by_a_crash_settles_by_what_is_left(
+        server: TestClient, tmp_path: Path) -> None:
+    var = tmp_path / "var"
+    rid = "R20260101-100000-aaaa"
+    folder = var / "recordings" / rid / "reference"
+    folder.mkdir(parents=True)
+    (folder / "meta.json").write_text(json.dumps({"uploaded": "2026-01-01T10:00:00+00:00"}))
+    e1 = erasures.begin(var, [], None, {}, [(rid, "2026-01-01T10:00:00+00:00")])
+    e2 = erasures.begin(var, [], None, {}, [(rid, "2025-12-31T10:00:00+00:00")])
+    with server.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        assert erasures.settle(db, var) == 2
+    assert {e.id: e.state for e in erasures.read(var)} == {e1: "void", e2: "done"}
+
+
 def test_a_failed_swap_with_force_leaves_the_old_folder_as_it_was(
         server: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:

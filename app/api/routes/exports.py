@@ -36,6 +36,7 @@ from app.api.routes._data import (
     reference_json,
 )
 from app.db import data as m
+from app.server import erasures
 from app.server.storage import (
     check_id,
     depth_frames,
@@ -258,10 +259,20 @@ def delete_reference(rec_id: str, ref_id: int, request: Request, user: CurrentUs
                      db: DbDep) -> dict[str, Any]:
     """Detach and delete a reference recording."""
     ref = _ref(db, rec_id, ref_id)
-    (layout_of(request).reference_dir(rec_id) / check_id(ref.stored_name, "file")).unlink(
-        missing_ok=True)
-    db.delete(ref)
-    db.add(audit_event(request, user, "delete", f"recording {rec_id}", f"reference {ref_id}"))
-    db.commit()
+    layout = layout_of(request)
+    path = layout.reference_dir(rec_id) / check_id(ref.stored_name, "file")
+    # logged like every deletion, so that a restore of an older backup deletes it again
+    eid = erasures.begin(layout.data_dir, [], ref, {})
+    try:
+        db.delete(ref)
+        db.add(audit_event(request, user, "delete", f"recording {rec_id}",
+                           f"reference {ref_id}"))
+        db.commit()
+    except BaseException:
+        db.rollback()
+        erasures.finish(layout.data_dir, eid, committed=False)
+        raise
+    erasures.finish(layout.data_dir, eid, committed=True)
+    path.unlink(missing_ok=True)  # after the commit: a failed one keeps row and file
     purge(db)
     return {"deleted": "reference", "id": ref_id}

@@ -26,6 +26,7 @@ import datetime as _dt
 import json
 import os
 import re
+import secrets
 import shutil
 import tempfile
 from dataclasses import dataclass, field
@@ -45,6 +46,7 @@ from app.db.data import Recording as DbRecording
 from app.db.data import ReferenceImport, Subject
 from app.db.data import Session as DbSession
 from app.server import analysis as an
+from app.server import erasures
 from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.report.render import ReportData, render_html, render_pdf
 
@@ -623,8 +625,11 @@ async def put_reference(rec_id: str, request: Request, file: UploadFile, user: C
             steps = await anyio.to_thread.run_sync(an.reference_steps, path)
         except GaitrigError as exc:
             raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+        # its upload time tells it from a later upload when a restore re-applies the
+        # deletion of this one (app.server.erasures)
         meta = {"filename": (file.filename or "")[-200:], "ext": path.suffix,
-                "offset_s": offset_s, "n_steps": len(steps)}
+                "offset_s": offset_s, "n_steps": len(steps),
+                "uploaded": erasures.stamp(_dt.datetime.now(_dt.UTC))}
         new = Path(tmp) / "reference"
         new.mkdir()
         os.replace(path, new / f"reference{path.suffix}")
@@ -653,9 +658,25 @@ def _sweep_stale_uploads(rec_dir: Path) -> None:
 
 @router.delete("/recordings/{rec_id}/reference")
 def delete_reference(rec_id: str, user: CurrentUser, settings: SettingsDep) -> dict[str, Any]:
-    """Detach the reference recording."""
+    """Detach the reference recording (logged in the erasure log, docs/backup.md)."""
     d = _rec_dir(settings, rec_id)
-    shutil.rmtree(d / "reference", ignore_errors=True)
+    folder = d / erasures.REPORT_REFERENCE_DIR
+    if not folder.is_dir():
+        return {"rec_id": rec_id, "attached": False}
+    eid = erasures.begin(settings.data_dir, [], None, {},
+                         [(rec_id, erasures.report_reference_uploaded(folder))])
+    # the rename is the deletion (atomic); the removal of the renamed folder may fail
+    # without bringing the reference back (a later upload sweeps it)
+    gone = d / f"{_UPLOAD_PREFIX}deleted-{secrets.token_hex(4)}.tmp"
+    try:
+        os.replace(folder, gone)
+    except OSError as exc:
+        erasures.finish(settings.data_dir, eid, committed=False)
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                            f"the reference of {rec_id} could not be deleted "
+                            f"({exc.strerror or exc}); try again") from exc
+    erasures.finish(settings.data_dir, eid, committed=True)
+    shutil.rmtree(gone, ignore_errors=True)
     return {"rec_id": rec_id, "attached": False}
 
 
