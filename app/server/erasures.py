@@ -9,8 +9,13 @@ The log holds no pseudonym, no content and not even the deleted recordings' ids 
 a deletion only the audit trail names them): a row is named by its table, numeric id
 and creation time (ids can be reused by SQLite after the newest row is deleted; the
 creation time, to the microsecond, tells a later row with the same id apart), a
-recording by a keyed SHA-256 of its id (:func:`rec_key`; a restore recognises the
-recordings of the backup by it) with the nodes that held a part. A reference recording
+recording by a SHA-256 of its id (:func:`rec_key`; a restore recognises the recordings
+of the backup by it) with the nodes that held a part. The hash has no secret key: it
+keeps the id out of plain sight (a reader or a text search of the log does not meet it)
+but does not hide it from someone who tries candidates — an id is its start second and 4
+hex digits, 65 536 guesses per second of a plausible time — and the row's creation time
+beside it is about that start anyway. What the id would reveal is only that a recording
+started at that second; the subject is named nowhere in the log. A reference recording
 deleted on its own is logged too: an imported one (``/api/exports/.../references``) as
 its ``reference_imports`` row, a report's (``recordings/<id>/reference/``, no row) in
 ``references`` as the :func:`rec_key` of its recording and its upload time (``""`` for
@@ -70,8 +75,13 @@ def log_path(data_dir: Path) -> Path:
 
 
 def rec_key(rec_id: str) -> str:
-    """How the log names a recording: a SHA-256 of its id (the id itself would be a trace
-    of the deleted recording; a restore computes the key of every recording it holds)."""
+    """How the log names a recording: a SHA-256 of its id with a fixed prefix.
+
+    A restore computes the key of every recording it holds to recognise the deleted ones.
+    Not keyed (no secret): it keeps the id out of plain text, it does not stop someone who
+    hashes candidate ids (start second + 4 hex digits) from finding it — which reveals
+    only that a recording started at that second.
+    """
     return hashlib.sha256(b"gaitrig erasure log\0" + rec_id.encode()).hexdigest()
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import re
 import sqlite3
 import subprocess
 import sys
@@ -268,7 +269,7 @@ def test_a_deleted_subject_stays_deleted_after_restoring_an_older_backup(
     # SQLite gives the next subject the deleted one's id: it must not be taken for it
     new = server.post("/api/subjects", json={"project_id": p["id"], "code": "NW0001"}).json()
     assert new["id"] == gone["id"]
-    # the log names no pseudonym and not even the recording's id (only a keyed hash)
+    # the log names no pseudonym and not even the recording's id (only an unkeyed hash)
     log = (var / "erasures.jsonl").read_text()
     assert GONE not in log and "R20260101-110000-gone" not in log
     assert erasures.rec_key("R20260101-110000-gone") in log
@@ -829,3 +830,19 @@ def test_force_refuses_an_archive_inside_the_folder_it_replaces(
                          "--without-deletion-log", "--force")
     assert code == 2 and "inside the folder" in err, err
     assert archive.is_file()
+
+
+def test_the_erasure_log_s_recording_hash_is_described_as_what_it_is() -> None:
+    """The log's recording hash was called "keyed"; it has no key: an id is found from its
+    hash by trying the 65 536 ids of its start second. The docs say so."""
+    rid = "R20260101-110000-b7e2"
+    key = erasures.rec_key(rid)
+    found = [c for c in (f"R20260101-110000-{k:04x}" for k in range(1 << 16))
+             if erasures.rec_key(c) == key]
+    assert found == [rid]
+    root = Path(__file__).resolve().parents[2]
+    for path in (root / "app/server/erasures.py", root / "docs/backup.md",
+                 root / "docs/security.md"):
+        text = " ".join(path.read_text().split()).lower()
+        assert not re.search(r"(?<!un)keyed (sha|hash)", text), path
+        assert "no secret key" in text or "unkeyed" in text, path
