@@ -107,6 +107,20 @@ class DataSync:
         self._verify_checked: dict[str, float] = {}  # node -> last look at its list
         self._verify_sent: dict[tuple[str, str], float] = {}  # (node, rec) -> last told
         self._notes: set[asyncio.Task[bool]] = set()
+        # A pass examines only the recordings that can still change (a clinic keeps
+        # thousands that never completed, for good): those changed since the last pass
+        # (the recording manager's ``changed``, :meth:`retry`, a row filed by
+        # :meth:`write`), those in or just out of a transfer, those with a part a
+        # connected node can still send (retried every ``retry_s``), and those waiting
+        # for a node that has just reconnected. The first pass examines all of them.
+        self._dirty: set[str] = set()
+        self._active: set[str] = set()
+        self._waiting: dict[str, set[str]] = {}  # node -> recordings with a part on it
+        self._was_running: set[str] = set()
+        self._swept = False
+        self._in_step = False
+        #: recordings examined by the last pass (the work it did; see tests and bench)
+        self.examined_last = 0
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -139,6 +153,7 @@ class DataSync:
             InputError: nothing to transfer, still running or already transferring.
         """
         self._last_try[rec_id] = time.time()
+        self._dirty.add(rec_id)
         self.hub.transfers.start(rec_id)
 
     def _maybe_transfer(self, rec: LiveRecording, reconnected: set[str]) -> None:
@@ -189,7 +204,8 @@ class DataSync:
                 p.transfer_progress = None
 
     def step(self) -> None:
-        """One pass: start/retry transfers and write every tracked recording's state."""
+        """One pass: start/retry transfers and write the state of every recording that can
+        still change (see :meth:`__init__`'s note; the first pass writes all)."""
         reconnected, dropped = set(), set()
         for s in self.hub.registry.nodes.values():
             was = self._connected.get(s.id, False)
@@ -206,28 +222,83 @@ class DataSync:
         self.confirm_verified(reconnected)
         # nodes back in (or new to) a running recording record (again)
         self.hub.recordings.rejoin()
-        with self.db_sessions() as db:
-            # parts loaded with their rows: one query, not one per recording (a clinic
-            # keeps every incomplete recording for good)
-            rows = {r.id: r for r in db.scalars(select(m.Recording).where(
-                m.Recording.state != "complete").options(selectinload(m.Recording.parts)))}
-            done = set(db.scalars(select(m.Recording.id).where(
-                m.Recording.state == "complete")))
-            # every stopped recording is transferred, filed under a session or not yet
-            for rec in list(live.values()):
-                if rec.id in done:
-                    continue
-                self._repair(rec)
-                self._maybe_transfer(rec, reconnected)
-                if rec.id in rows:
-                    self.write(db, rows[rec.id], rec)
-            for row in rows.values():
-                if row.id not in live and row.state != "incomplete":
-                    row.state = "incomplete"
-                    row.reason = ("the server lost track of this recording (its "
-                                  "recordings.json is gone); the data may still be on the "
-                                  "nodes")
-            db.commit()
+        todo = self._take_todo(reconnected)
+        self.examined_last = len(todo)
+        self._in_step = True
+        try:
+            with self.db_sessions() as db:
+                rows, done = self._rows_of(db, todo)
+                # every stopped recording is transferred, filed under a session or not yet
+                for rec_id in todo:
+                    rec = live.get(rec_id)
+                    if rec is None or rec_id in done:
+                        self._active.discard(rec_id)
+                        continue
+                    self._repair(rec)
+                    self._maybe_transfer(rec, reconnected)
+                    if rec_id in rows:
+                        self.write(db, rows[rec_id], rec)
+                    self._settle(rec)
+                # rows still said to be on their way (few) whose recording is gone
+                for row in db.scalars(select(m.Recording).where(
+                        m.Recording.state.not_in(("complete", "incomplete")))):
+                    if row.id not in live:
+                        row.state = "incomplete"
+                        row.reason = ("the server lost track of this recording (its "
+                                      "recordings.json is gone); the data may still be on "
+                                      "the nodes")
+                db.commit()
+        finally:
+            self._in_step = False
+
+    def _take_todo(self, reconnected: set[str]) -> set[str]:
+        """The recordings this pass examines (and forget why they were due)."""
+        live = self.hub.recordings.recordings
+        changed = set(self.hub.recordings.changed)  # emptied in place: it is shared
+        self.hub.recordings.changed.clear()
+        running = set(self.hub.transfers.running())
+        todo = self._dirty | changed | self._active | running | self._was_running
+        for n in reconnected:
+            todo |= self._waiting.pop(n, set())
+        self._dirty, self._was_running = set(), running
+        if not self._swept:
+            self._swept = True
+            todo |= set(live)
+        return todo
+
+    def _rows_of(self, db: Any, ids: Collection[str]
+                 ) -> tuple[dict[str, m.Recording], set[str]]:
+        """The not-yet-complete rows (with their parts) and the complete ids among
+        ``ids``, read in chunks (a database bounds the parameters of a query)."""
+        rows: dict[str, m.Recording] = {}
+        done: set[str] = set()
+        todo = sorted(ids)
+        for i in range(0, len(todo), 500):
+            chunk = todo[i:i + 500]
+            rows.update((r.id, r) for r in db.scalars(select(m.Recording).where(
+                m.Recording.id.in_(chunk), m.Recording.state != "complete")
+                .options(selectinload(m.Recording.parts))))
+            done.update(db.scalars(select(m.Recording.id).where(
+                m.Recording.id.in_(chunk), m.Recording.state == "complete")))
+        return rows, done
+
+    def _settle(self, rec: LiveRecording) -> None:
+        """Keep ``rec`` examined every pass while it can change by itself; otherwise
+        leave it until something changes it (or a node it waits for reconnects)."""
+        self._active.discard(rec.id)
+        if rec.t_stop is None or self.hub.transfers.running_parts(rec.id) or any(
+                p.state in ("pending", "recording", "transferring")
+                for p in rec.parts.values()):
+            self._active.add(rec.id)
+            return
+        reg = self.hub.registry
+        for n, p in rec.parts.items():
+            if p.state in ("on_node", "incomplete") and not p.on_server and p.n_frames:
+                s = reg.get(n)
+                if s is not None and s.connected:
+                    self._active.add(rec.id)  # transferred (retried) by a coming pass
+                else:
+                    self._waiting.setdefault(n, set()).add(rec.id)
 
     def confirm_verified(self, reconnected: Collection[str] = ()) -> list[str]:
         """Tell each connected node which of its unconfirmed parts (its ``status``) the
@@ -265,7 +336,11 @@ class DataSync:
         return told
 
     def write(self, db: Any, row: m.Recording, rec: LiveRecording) -> None:
-        """Copy one live recording's state into its row and part rows."""
+        """Copy one live recording's state into its row and part rows (a row written
+        from outside a pass, e.g. one just filed under a session, is examined again by the
+        next pass)."""
+        if not self._in_step:
+            self._dirty.add(rec.id)
         complete = set(self.layout.complete_parts(rec.id)) if rec.t_stop is not None else set()
         states: dict[str, tuple[str, str | None]] = {}
         by_node = {p.node_id: p for p in row.parts}

@@ -115,6 +115,24 @@ def _model(clock: dict[str, float]) -> ClockEstimate:
                          clock.get("uncertainty_s", 0.0), 0, 0.0)
 
 
+class _Tracked(dict[str, Recording]):
+    """The recordings by id; a recording put in (new, loaded, or put back) is noted in
+    ``changed`` like any other change."""
+
+    def __init__(self, changed: set[str]) -> None:
+        super().__init__()
+        self.changed = changed
+
+    def __setitem__(self, key: str, value: Recording) -> None:
+        super().__setitem__(key, value)
+        self.changed.add(key)
+
+    def update(self, *args: Any, **kwargs: Recording) -> None:  # dict's skips __setitem__
+        """Put several in (noted like one)."""
+        for k, v in dict(*args, **kwargs).items():
+            self[k] = v
+
+
 class RecordingManager:
     """Starts/stops recordings on every connected node and tracks their parts.
 
@@ -133,7 +151,10 @@ class RecordingManager:
         self.path = Path(data_dir) / "recordings.json"
         self.start_margin_s = start_margin_s
         self.command_delay_max_s = command_delay_max_s
-        self.recordings: dict[str, Recording] = {}
+        #: ids of the recordings whose state this manager changed since DataSync last
+        #: took the set (it revisits only those, not every recording ever made)
+        self.changed: set[str] = set()
+        self.recordings: dict[str, Recording] = _Tracked(self.changed)
         self.save_error: str | None = None  # why the last save failed, if it did
         self._tasks: set[asyncio.Task[None]] = set()
         self._dropped: set[tuple[str, str]] = set()  # (rec, node) parts cut short by a drop
@@ -244,6 +265,7 @@ class RecordingManager:
         if rec.t_stop is not None:
             raise InputError(f"recording {rec_id} is already stopped")
         rec.t_stop = max(time.time(), rec.t_start)
+        self.changed.add(rec_id)
         for node_id in rec.parts:
             self._send_stop(rec, node_id)
         self.save()
@@ -278,6 +300,7 @@ class RecordingManager:
         prev = part.state
         if prev in ("transferring", "complete") or part.on_server:
             return False  # the server's copy is authoritative now
+        self.changed.add(rec.id)  # frames and bytes too, even when the state stays
         part.n_frames, part.bytes = info.n_frames, info.bytes
         part.t_first_local, part.t_last_local = info.t_first, info.t_last
         if part.clock:
@@ -313,6 +336,7 @@ class RecordingManager:
                                f"{time.strftime('%H:%M:%S', time.gmtime())} UTC during the "
                                "recording")
                 log.warning("recording %s: %s", rec.id, part.reason)
+                self.changed.add(rec.id)
                 if rec.t_stop is None:
                     self._dropped.add((rec.id, node_id))
                 self.save()
@@ -364,6 +388,7 @@ class RecordingManager:
             log.info("recording %s: node %s records (again): %s", rec.id, s.id, part.reason)
             told.append(s.id)
         if told:
+            self.changed.add(rec.id)
             self.save()
         return told
 
