@@ -239,10 +239,13 @@ class DataSync:
                     if rec_id in rows:
                         self.write(db, rows[rec_id], rec)
                     self._settle(rec)
-                # rows still said to be on their way (few) whose recording is gone
-                for row in db.scalars(select(m.Recording).where(
-                        m.Recording.state.not_in(("complete", "incomplete")))):
-                    if row.id not in live:
+                # rows still said to be on their way (ids only: a clinic keeps hundreds
+                # on nodes that are gone) whose recording the server no longer tracks
+                lost = [i for i in db.scalars(select(m.Recording.id).where(
+                    m.Recording.state.not_in(("complete", "incomplete")))) if i not in live]
+                for i in range(0, len(lost), 500):
+                    for row in db.scalars(select(m.Recording).where(
+                            m.Recording.id.in_(lost[i:i + 500]))):
                         row.state = "incomplete"
                         row.reason = ("the server lost track of this recording (its "
                                       "recordings.json is gone); the data may still be on "

@@ -106,3 +106,20 @@ def test_a_change_by_a_node_is_seen_by_the_next_pass(clinic: tuple[DataSync, Any
         sync.hub.recordings.recordings[rec_id] = rec
         sync.step()
         assert sync.examined_last == 1
+
+
+def test_a_row_whose_recording_the_server_lost_is_marked(clinic: tuple[DataSync, Any]) -> None:
+    sync, sessions = clinic
+    sync.step()
+    rec_id = _not_complete(sync, sessions)[0]
+    with sessions() as db:
+        row = db.get(m.Recording, rec_id)
+        assert row is not None
+        row.state = "on_nodes"
+        db.commit()
+    del sync.hub.recordings.recordings[rec_id]  # recordings.json lost it
+    sync.step()
+    with sessions() as db:
+        row = db.get(m.Recording, rec_id)
+        assert row is not None and row.state == "incomplete"
+        assert "lost track" in (row.reason or "")
