@@ -223,10 +223,14 @@ class DataSync:
         # nodes back in (or new to) a running recording record (again)
         self.hub.recordings.rejoin()
         todo = self._take_todo(reconnected)
-        self.examined_last = len(todo)
         self._in_step = True
         try:
             with self.db_sessions() as db:
+                if not self._swept:  # the first pass: every recording not complete
+                    self._swept = True
+                    todo |= set(live).difference(db.scalars(select(m.Recording.id).where(
+                        m.Recording.state == "complete")))
+                self.examined_last = len(todo)
                 rows, done = self._rows_of(db, todo)
                 # every stopped recording is transferred, filed under a session or not yet
                 for rec_id in todo:
@@ -256,7 +260,6 @@ class DataSync:
 
     def _take_todo(self, reconnected: set[str]) -> set[str]:
         """The recordings this pass examines (and forget why they were due)."""
-        live = self.hub.recordings.recordings
         changed = set(self.hub.recordings.changed)  # emptied in place: it is shared
         self.hub.recordings.changed.clear()
         running = set(self.hub.transfers.running())
@@ -264,9 +267,6 @@ class DataSync:
         for n in reconnected:
             todo |= self._waiting.pop(n, set())
         self._dirty, self._was_running = set(), running
-        if not self._swept:
-            self._swept = True
-            todo |= set(live)
         return todo
 
     def _rows_of(self, db: Any, ids: Collection[str]

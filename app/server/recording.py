@@ -159,6 +159,7 @@ class RecordingManager:
         self._tasks: set[asyncio.Task[None]] = set()
         self._dropped: set[tuple[str, str]] = set()  # (rec, node) parts cut short by a drop
         self._load()
+        self.changed.clear()  # DataSync's first pass looks at every loaded one anyway
 
     # ------------------------------------------------------------------ persistence
 

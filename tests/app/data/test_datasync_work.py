@@ -46,7 +46,7 @@ def test_a_pass_examines_what_can_change_not_the_settled(
     sync, sessions = clinic
     live = sync.hub.recordings.recordings
     sync.step()  # the first pass looks at everything once
-    assert sync.examined_last == len(live) > 70
+    assert len(live) > sync.examined_last == len(_not_complete(sync, sessions)) > 0
     sync.step()
     assert sync.examined_last == 0  # all settled: nothing to do
     unsettled = _not_complete(sync, sessions)
