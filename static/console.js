@@ -36,11 +36,25 @@ const gaitrig = (() => {
     }
     return r.status === 204 ? null : r.json();
   }
+  // An element with attributes (``on<event>`` ones become listeners: the CSP allows no
+  // inline handlers) and children (null/undefined ones left out). The pages use this one.
   function el(tag, attrs = {}, ...children) {
     const e = document.createElement(tag);
-    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
-    for (const c of children) e.append(c);
+    for (const [k, v] of Object.entries(attrs)) {
+      if (k.startsWith("on")) e.addEventListener(k.slice(2), v); else e.setAttribute(k, v);
+    }
+    for (const c of children) if (c !== null && c !== undefined) e.append(c);
     return e;
+  }
+  // A page of a list with how many match in all (the X-Total-Count header). With `body`,
+  // a POST: a subject code searched for goes in the body, never in a URL (access logs).
+  async function listPage(path, body) {
+    const opts = body === undefined ? {} : { method: "POST", body: JSON.stringify(body) };
+    const r = await fetch(path, { credentials: "same-origin", ...opts, headers: { "Content-Type": "application/json" } });
+    if (r.status === 401) { toLogin(); throw new Error("not logged in"); }
+    if (!r.ok) { let d = r.statusText; try { d = (await r.json()).detail; } catch (e) { /* not JSON */ } throw new Error(d); }
+    const items = await r.json();
+    return { items, total: Number(r.headers.get("X-Total-Count") ?? items.length) };
   }
   // A focused button disabled while its action runs drops the keyboard focus to the page
   // (Tab then starts over from the top); release() re-enables it and gives the focus back
@@ -238,7 +252,7 @@ const gaitrig = (() => {
     setInterval(refresh, 1000);
     setInterval(refreshRecordings, 1000);
   }
-  return { api, toLogin, newest, latest, release, day, loginPage, rigPage };
+  return { api, el, listPage, toLogin, newest, latest, release, day, loginPage, rigPage };
 })();
 
 // The browser refuses a field that does not match its pattern with "Please match the

@@ -7,14 +7,7 @@
 (() => {
   const api = gaitrig.api;
   const $ = (id) => document.getElementById(id);
-  function el(tag, attrs = {}, ...children) {
-    const e = document.createElement(tag);
-    for (const [k, v] of Object.entries(attrs)) {
-      if (k.startsWith("on")) e.addEventListener(k.slice(2), v); else e.setAttribute(k, v);
-    }
-    for (const c of children) if (c !== null && c !== undefined) e.append(c);
-    return e;
-  }
+  const el = gaitrig.el;
   function say(id, text, good = false) { const m = $(id); m.textContent = text; m.className = "msg " + (good ? "good" : "bad"); }
   // the audit trail's times are UTC without a zone: read as UTC, shown in the user's zone
   const when = (iso) => new Date(/[zZ]|[+-]\d\d:\d\d$/.test(iso) ? iso : iso + "Z");

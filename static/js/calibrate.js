@@ -2,12 +2,7 @@
 // from /api/planning, moves through PUT /api/planning/sensors/{id}, save, placement sheet).
 "use strict";
 (() => {
-  function el(tag, attrs = {}, ...children) {
-    const e = document.createElement(tag);
-    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
-    for (const c of children) e.append(c);
-    return e;
-  }
+  const el = gaitrig.el;
   const $ = (id) => document.getElementById(id);
   let plan = null;
   const f2 = (v) => v.toFixed(2);

@@ -5,12 +5,7 @@
 // page's own thread busy; this script builds the panels and shows the statistics.
 "use strict";
 (() => {
-  function el(tag, attrs = {}, ...children) {
-    const e = document.createElement(tag);
-    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
-    for (const c of children) e.append(c);
-    return e;
-  }
+  const el = gaitrig.el;
   const panels = new Map();   // node id -> {fig, canvas, info}
   const stats = { nodes: {}, connected: false, frames: 0, latency_ms: null, mode: null };
   window.liveStats = stats;   // read by the browser tests and handy in the console

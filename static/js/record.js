@@ -5,12 +5,7 @@
 (() => {
   const api = gaitrig.api;
   const $ = (id) => document.getElementById(id);
-  function el(tag, attrs = {}, ...children) {
-    const e = document.createElement(tag);
-    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
-    for (const c of children) if (c !== null && c !== undefined) e.append(c);
-    return e;
-  }
+  const el = gaitrig.el;
   function say(id, text, good = false) { const m = $(id); m.textContent = text; m.className = "msg " + (good ? "good" : "bad"); }
   const STATE_TEXT = { recording: "recording", on_nodes: "on the sensors, waiting for transfer", transferring: "transferring to the server",
     complete: "complete — every part verified on the server", incomplete: "incomplete", on_node: "on the node", pending: "starting" };
@@ -19,16 +14,7 @@
 
   let recId = null, recStart = null, recStop = null, subjectId = null;
 
-  // A page of a list with how many match in all (the X-Total-Count header). With `body`,
-  // a POST: a subject code searched for goes in the body, never in a URL (access logs).
-  async function listPage(path, body) {
-    const opts = body === undefined ? {} : { method: "POST", body: JSON.stringify(body) };
-    const r = await fetch(path, { credentials: "same-origin", ...opts, headers: { "Content-Type": "application/json" } });
-    if (r.status === 401) { gaitrig.toLogin(); throw new Error("not logged in"); }
-    if (!r.ok) { let d = r.statusText; try { d = (await r.json()).detail; } catch (e) { /* not JSON */ } throw new Error(d); }
-    const items = await r.json();
-    return { items, total: Number(r.headers.get("X-Total-Count") ?? items.length) };
-  }
+  const listPage = gaitrig.listPage;
   const SUBJECTS_SHOWN = 50;  // a clinic's thousands are found by typing part of the code
 
   async function fillProjects(want) {

@@ -6,14 +6,7 @@
 (() => {
   const api = gaitrig.api;
   const $ = (id) => document.getElementById(id);
-  function el(tag, attrs = {}, ...children) {
-    const e = document.createElement(tag);
-    for (const [k, v] of Object.entries(attrs)) {
-      if (k.startsWith("on")) e.addEventListener(k.slice(2), v); else e.setAttribute(k, v);
-    }
-    for (const c of children) if (c !== null && c !== undefined) e.append(c);
-    return e;
-  }
+  const el = gaitrig.el;
   const bytes = (n) => n >= 2 ** 30 ? (n / 2 ** 30).toFixed(2) + " GB" : n >= 2 ** 20 ? (n / 2 ** 20).toFixed(1) + " MB" : (n / 1024).toFixed(0) + " kB";
   const cm = (m) => m === null || m === undefined ? "" : (m * 100).toFixed(1);
   const num = (v) => v === "" || v === null || v === undefined ? null : Number(v);
@@ -32,16 +25,7 @@
       notes: f.notes.value };
   }
 
-  // A page of a list with how many match in all (the X-Total-Count header). With `body`,
-  // a POST: a subject code searched for goes in the body, never in a URL (access logs).
-  async function listPage(path, body) {
-    const opts = body === undefined ? {} : { method: "POST", body: JSON.stringify(body) };
-    const r = await fetch(path, { credentials: "same-origin", ...opts, headers: { "Content-Type": "application/json" } });
-    if (r.status === 401) { gaitrig.toLogin(); throw new Error("not logged in"); }
-    if (!r.ok) { let d = r.statusText; try { d = (await r.json()).detail; } catch (e) { /* not JSON */ } throw new Error(d); }
-    const items = await r.json();
-    return { items, total: Number(r.headers.get("X-Total-Count") ?? items.length) };
-  }
+  const listPage = gaitrig.listPage;
 
   async function loadDisk() {
     try {
