@@ -31,6 +31,7 @@ import time
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -111,6 +112,25 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+@contextmanager
+def serve_without_nodes(data_dir: Path, env: dict[str, str]) -> Iterator[tuple[str, Path]]:
+    """``gaitrig serve --no-viewer`` on a free port over ``data_dir`` with ``env``; yields
+    its base URL and log file (beside ``data_dir``), stopped on exit."""
+    port = free_port()
+    log_path = data_dir.parent / "server.log"
+    with log_path.open("wb") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "app.cli", "serve", "--host", "127.0.0.1", "--port",
+             str(port), "--no-viewer", "--data-dir", str(data_dir), "--log-level", "warning"],
+            cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
+            env={**env, "PYTHONUNBUFFERED": "1"})
+        try:
+            _wait_http(f"http://127.0.0.1:{port}/healthz", proc, 60)
+            yield f"http://127.0.0.1:{port}", log_path
+        finally:
+            _stop(proc)
 
 
 @pytest.fixture(scope="session")

@@ -10,8 +10,6 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -21,7 +19,7 @@ from typing import Any
 
 import pytest
 
-from tests.browser.conftest import ROOT, _stop, _wait_http, free_port, screenshot
+from tests.browser.conftest import screenshot, serve_without_nodes
 from tests.browser.test_console_ux import AUDIT_JS, LEAKED
 
 pytestmark = pytest.mark.browser
@@ -40,27 +38,19 @@ class Console:
 @pytest.fixture(scope="module")
 def console() -> Iterator[Console]:
     tmp = Path(tempfile.mkdtemp(prefix="gaitrig-accounts-"))
-    port = free_port()
-    log_path = tmp / "server.log"
-    log = log_path.open("wb")
     env = {k: v for k, v in os.environ.items() if k != "GAITRIG_ADMIN_PASSWORD"}
-    proc = subprocess.Popen(  # no admin password given: the first start generates one
-        [sys.executable, "-m", "app.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
-         "--no-viewer", "--data-dir", str(tmp / "data"), "--log-level", "warning"],
-        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**env, "PYTHONUNBUFFERED": "1"})
-    try:
-        _wait_http(f"http://127.0.0.1:{port}/healthz", proc, 60)
-        found = None
-        for _ in range(50):
-            found = re.search(r"account 'admin' with password '([^']+)'", log_path.read_text())
-            if found:
-                break
-            time.sleep(0.1)
-        assert found, log_path.read_text()[-2000:]
-        yield Console(f"http://127.0.0.1:{port}", found.group(1))
+    try:  # no admin password given: the first start generates one
+        with serve_without_nodes(tmp / "data", env) as (url, log_path):
+            found = None
+            for _ in range(50):
+                found = re.search(r"account 'admin' with password '([^']+)'",
+                                  log_path.read_text())
+                if found:
+                    break
+                time.sleep(0.1)
+            assert found, log_path.read_text()[-2000:]
+            yield Console(url, found.group(1))
     finally:
-        _stop(proc)
-        log.close()
         shutil.rmtree(tmp, ignore_errors=True)
 
 

@@ -8,8 +8,6 @@ from __future__ import annotations
 import os
 import secrets
 import shutil
-import subprocess
-import sys
 import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -19,7 +17,7 @@ from typing import Any
 import pytest
 
 from bench._clinic import populate, subject_code
-from tests.browser.conftest import ROOT, _stop, _wait_http, free_port, login
+from tests.browser.conftest import login, serve_without_nodes
 
 pytestmark = pytest.mark.browser
 
@@ -38,19 +36,12 @@ class Clinic:
 def clinic() -> Iterator[Clinic]:
     tmp = Path(tempfile.mkdtemp(prefix="gaitrig-scale-"))
     populate(tmp / "data", N_SUBJECTS, recordings_per_subject=2, n_with_files=40)
-    port, password = free_port(), secrets.token_urlsafe(9)
-    log = (tmp / "server.log").open("wb")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
-         "--no-viewer", "--data-dir", str(tmp / "data"), "--log-level", "warning"],
-        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
-        env={**os.environ, "GAITRIG_ADMIN_PASSWORD": password, "PYTHONUNBUFFERED": "1"})
+    password = secrets.token_urlsafe(9)
     try:
-        _wait_http(f"http://127.0.0.1:{port}/healthz", proc, 60)
-        yield Clinic(f"http://127.0.0.1:{port}", password)
+        with serve_without_nodes(tmp / "data", {**os.environ, "GAITRIG_ADMIN_PASSWORD": password}
+                                 ) as (url, _log):
+            yield Clinic(url, password)
     finally:
-        _stop(proc)
-        log.close()
         shutil.rmtree(tmp, ignore_errors=True)
 
 
