@@ -491,15 +491,7 @@ def test_a_report_reference_being_checked_is_not_in_a_backup(
     from app.server import backup
 
     h = _login(client)
-    part = tmp_path / "recordings" / "R2" / "S1"
-    part.mkdir(parents=True)
-    (part / "frames.bin").write_bytes(b"")
-    (part / "meta.json").write_text("{}")
-    ref = tmp_path / "recordings" / "R2" / "reference"
-    ref.mkdir()
-    (ref / "reference.csv").write_bytes(b"kept")
-    (ref / "meta.json").write_text(json.dumps({"filename": "old.csv", "ext": ".csv",
-                                               "offset_s": 0.0, "n_steps": 3}))
+    ref = _planted_report_reference(tmp_path)
     files = _tree(tmp_path)
     in_backup: list[list[str]] = []
 
@@ -569,20 +561,27 @@ def test_reference_with_a_non_ascii_name_downloads(client: TestClient) -> None:
     assert cd.endswith("filename*=UTF-8''" + quote(stored, safe=""))
 
 
+def _planted_report_reference(data_dir: Path) -> Path:
+    """Recording R2 with one part and a report reference (``reference.csv`` = b"kept");
+    returns the reference folder."""
+    part = data_dir / "recordings" / "R2" / "S1"
+    part.mkdir(parents=True)
+    (part / "frames.bin").write_bytes(b"")
+    (part / "meta.json").write_text("{}")
+    ref = data_dir / "recordings" / "R2" / "reference"
+    ref.mkdir()
+    (ref / "reference.csv").write_bytes(b"kept")
+    (ref / "meta.json").write_text(json.dumps({"filename": "old.csv", "ext": ".csv",
+                                               "offset_s": 0.0, "n_steps": 3}))
+    return ref
+
+
 def test_report_reference_limits_and_rollback(client: TestClient, tmp_path: Path,
                                               monkeypatch: pytest.MonkeyPatch) -> None:
     from app.api.routes import reports
 
     h = _login(client)
-    part = tmp_path / "recordings" / "R2" / "S1"
-    part.mkdir(parents=True)
-    (part / "frames.bin").write_bytes(b"")
-    (part / "meta.json").write_text("{}")
-    ref = tmp_path / "recordings" / "R2" / "reference"
-    ref.mkdir()
-    (ref / "reference.csv").write_bytes(b"kept")
-    (ref / "meta.json").write_text(json.dumps({"filename": "old.csv", "ext": ".csv",
-                                               "offset_s": 0.0, "n_steps": 3}))
+    _planted_report_reference(tmp_path)
     files = _tree(tmp_path)
     monkeypatch.setattr(reports, "MAX_UPLOAD_BYTES", 1000)
     for name, data, status in (("big.c3d", b"x" * 5000, 413),
