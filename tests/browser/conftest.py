@@ -176,20 +176,27 @@ def login(page: Any, server: LiveServer) -> None:
     page.wait_for_url("**/rig.html", timeout=15000)
 
 
+def new_page(browser: Any, timeout_ms: float = 20000) -> Any:
+    """A page in a fresh browser context (own cookies), 1400×900, whose JavaScript errors
+    collect in ``page.js_errors`` (tests may assert there were none)."""
+    context = browser.new_context(viewport={"width": 1400, "height": 900})
+    p = context.new_page()
+    p.set_default_timeout(timeout_ms)
+    errors: list[str] = []
+    p.on("pageerror", lambda e: errors.append(str(e)))
+    p.js_errors = errors
+    return p
+
+
 @pytest.fixture
 def page(browser: Any, live_server: LiveServer) -> Iterator[Any]:
     """A fresh browser context (own cookies), logged in, 1400×900, on the Rig page."""
-    context = browser.new_context(viewport={"width": 1400, "height": 900})
-    p = context.new_page()
-    p.set_default_timeout(20000)
-    errors: list[str] = []
-    p.on("pageerror", lambda e: errors.append(str(e)))
-    p.js_errors = errors  # tests may assert the page raised no JavaScript error
+    p = new_page(browser)
     try:
         login(p, live_server)
         yield p
     finally:
-        context.close()
+        p.context.close()
 
 
 def screenshot(page: Any, artifacts_dir: Path, name: str,

@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 
-from tests.browser.conftest import screenshot, serve_without_nodes
+from tests.browser.conftest import new_page, screenshot, serve_without_nodes
 from tests.browser.test_console_ux import AUDIT_JS, LEAKED
 
 pytestmark = pytest.mark.browser
@@ -55,13 +55,7 @@ def console() -> Iterator[Console]:
 
 
 def _page(browser: Any) -> Any:
-    context = browser.new_context(viewport={"width": 1400, "height": 900})
-    p = context.new_page()
-    p.set_default_timeout(15000)
-    errors: list[str] = []
-    p.on("pageerror", lambda e: errors.append(str(e)))
-    p.js_errors = errors
-    return p
+    return new_page(browser, 15000)
 
 
 def _login(page: Any, console: Console, username: str, password: str) -> None:

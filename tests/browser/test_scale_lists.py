@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from bench._clinic import populate, subject_code
-from tests.browser.conftest import login, serve_without_nodes
+from tests.browser.conftest import login, new_page, serve_without_nodes
 
 pytestmark = pytest.mark.browser
 
@@ -47,17 +47,12 @@ def clinic() -> Iterator[Clinic]:
 
 @pytest.fixture
 def page(browser: Any, clinic: Clinic) -> Iterator[Any]:
-    context = browser.new_context(viewport={"width": 1400, "height": 900})
-    p = context.new_page()
-    p.set_default_timeout(15000)
-    errors: list[str] = []
-    p.on("pageerror", lambda e: errors.append(str(e)))
-    p.js_errors = errors
+    p = new_page(browser, 15000)
     try:
         login(p, clinic)  # type: ignore[arg-type]
         yield p
     finally:
-        context.close()
+        p.context.close()
 
 
 def _codes(page: Any) -> list[str]:
