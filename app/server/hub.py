@@ -56,6 +56,13 @@ CLOSE_BUSY = 1013  # try again later
 #: message up to the transport limit before it is checked, so this bounds what anonymous
 #: clients on the LAN can make the server hold (as the data channel's MAX_HANDSHAKES).
 MAX_PENDING_HELLOS = 8
+#: Of those, from one remote address: one peer holding every slot (opening connections and
+#: never saying hello, a slowloris) would otherwise lock every node out; with this, a flood
+#: from one address leaves the other slots to nodes elsewhere on the LAN.
+MAX_PENDING_HELLOS_PER_ADDRESS = 2
+#: Seconds a new connection has to send its hello. A node sends it as soon as the websocket
+#: is open (milliseconds on a LAN), so this only bounds how long a silent peer holds a slot.
+HELLO_TIMEOUT_S = 3.0
 #: Largest image a node may send, in pixels: the largest sensor mode (Azure Kinect colour
 #: 4096×3072) with room. A few kB of PNG or JPEG can declare far more, and the decoder
 #: would allocate for the declaration (a decompression bomb), so the header is read first.
@@ -123,7 +130,13 @@ class Hub:
                                          data_host=settings.host,
                                          data_port=settings.transfer_port)
         self._sockets: dict[str, WebSocket] = {}
+        #: Connection number of each node's current connection: a replaced connection's
+        #: loop sees it changed and handles nothing more (messages it had buffered before
+        #: the replacement would otherwise act on the new connection's state).
+        self._generation: dict[str, int] = {}
+        self._next_generation = 0
         self._pending_hellos = 0
+        self._pending_by_address: dict[str, int] = {}
         #: Wrong pairing tokens per address: a rogue process on the LAN guessing the token
         #: gets a handful of tries per window, as a password guesser does at the login.
         self._token_failures = LoginThrottle(5, 300.0)
@@ -147,18 +160,29 @@ class Hub:
         """Serve one node connection until it closes."""
         await ws.accept()
         peer = f"{ws.client.host}:{ws.client.port}" if ws.client else "?"
+        address = ws.client.host if ws.client else "?"
+        if self._pending_by_address.get(address, 0) >= MAX_PENDING_HELLOS_PER_ADDRESS:
+            await self._refuse(ws, peer, f"{MAX_PENDING_HELLOS_PER_ADDRESS} connections from "
+                               f"{address} are already waiting to say hello; try again in a "
+                               "few seconds", CLOSE_BUSY)
+            return
         if self._pending_hellos >= MAX_PENDING_HELLOS:
             await self._refuse(ws, peer, f"{MAX_PENDING_HELLOS} connections are already "
                                "waiting to say hello; try again in a few seconds", CLOSE_BUSY)
             return
         self._pending_hellos += 1
+        self._pending_by_address[address] = self._pending_by_address.get(address, 0) + 1
         try:
-            first = await asyncio.wait_for(ws.receive(), timeout=10.0)
+            first = await asyncio.wait_for(ws.receive(), timeout=HELLO_TIMEOUT_S)
         except (TimeoutError, WebSocketDisconnect):
-            await self._refuse(ws, peer, "no hello within 10 s", CLOSE_PROTOCOL)
+            await self._refuse(ws, peer, f"no hello within {HELLO_TIMEOUT_S:g} s",
+                               CLOSE_PROTOCOL)
             return
         finally:
             self._pending_hellos -= 1
+            left = self._pending_by_address.pop(address) - 1
+            if left > 0:
+                self._pending_by_address[address] = left
         text = first.get("text")
         if text is None:
             await self._refuse(ws, peer, "first message must be a JSON hello", CLOSE_PROTOCOL)
@@ -175,7 +199,6 @@ class Hub:
             await self._refuse(ws, peer, f"node id {hello.node_id!r} is not allowed; use "
                                "letters, digits, '_', '-' or '.' (e.g. S1)", CLOSE_PROTOCOL)
             return
-        address = ws.client.host if ws.client else "?"
         wait = self._token_failures.retry_after("node", address)
         if wait > 0:
             # 'try again later': a right node at that address (another process guessed)
@@ -191,6 +214,10 @@ class Hub:
                                CLOSE_REFUSED)
             return
         self._token_failures.succeeded("node", address)
+        # numbered before the old connection is closed (which awaits): from here on its
+        # loop handles nothing, whatever it still has buffered
+        self._next_generation += 1
+        generation = self._generation[hello.node_id] = self._next_generation
         old = self._sockets.get(hello.node_id)
         if old is not None:
             log.warning("node %s reconnected from %s; closing its previous connection",
@@ -207,19 +234,25 @@ class Hub:
         session = self.registry.connect(hello.node_id, hello.backend, hello.sensor, send,
                                         restarted)
         log.info("node %s connected from %s (%s)", hello.node_id, peer, hello.backend)
-        await ws.send_text(dump(_welcome(self.settings)))
-        self._on_listing(hello.node_id, hello.parts)
-        pinger = asyncio.create_task(self._ping_loop(ws, session))
+        pinger: asyncio.Task[None] | None = None
         try:
-            await self._message_loop(ws, session)
+            # inside the try: a node gone before its welcome is disconnected, not left
+            # registered as connected
+            await ws.send_text(dump(_welcome(self.settings)))
+            self._on_listing(hello.node_id, hello.parts)
+            pinger = asyncio.create_task(self._ping_loop(ws, session))
+            await self._message_loop(ws, session, generation)
         except WebSocketDisconnect:
             pass
         except Exception:
             log.exception("node %s connection failed", hello.node_id)
         finally:
-            pinger.cancel()
-            if self._sockets.get(hello.node_id) is ws:
-                del self._sockets[hello.node_id]
+            if pinger is not None:
+                pinger.cancel()
+            # only the node's current connection cleans up: a replaced one ending while
+            # the new one is being set up must not mark the node offline
+            if self._generation.get(hello.node_id) == generation:
+                self._sockets.pop(hello.node_id, None)
                 self.registry.disconnect(hello.node_id)
                 self.recordings.on_disconnect(hello.node_id)
                 log.info("node %s disconnected", hello.node_id)
@@ -255,11 +288,18 @@ class Hub:
         log.warning("rejected message from node %s: %s", s.id, reason)
         await ws.send_text(dump(ServerError(reason=reason)))
 
-    async def _message_loop(self, ws: WebSocket, s: NodeSession) -> None:
+    async def _message_loop(self, ws: WebSocket, s: NodeSession, generation: int) -> None:
         while True:
             msg = await ws.receive()
             t4 = time.time()
             if msg["type"] == "websocket.disconnect":
+                return
+            if self._generation.get(s.id) != generation:
+                # replaced by a newer connection of this node: a status, part state or
+                # transfer answer it still had buffered is stale and must not act on the
+                # session (now the new connection's); stop at once
+                log.info("node %s: the replaced connection's remaining messages are "
+                         "ignored", s.id)
                 return
             s.last_seen = t4
             data = msg.get("bytes")
