@@ -1,4 +1,4 @@
-"""Alembic environment of the gaitrig data tables.
+"""Alembic environment of the gaitrig data and account tables.
 
 Called by :func:`app.db.data.upgrade_database` with an open connection (in
 ``config.attributes["connection"]``), or from the command line with the URL of
@@ -12,7 +12,7 @@ import os
 from sqlalchemy import create_engine
 
 from alembic import context
-from app.db import data, models  # noqa: F401  (register every table)
+from app.db import data, models  # (importing them registers every table)
 from app.db.base import Base
 
 config = context.config
@@ -20,9 +20,9 @@ target_metadata = Base.metadata
 
 
 def _include(obj: object, name: str | None, type_: str, *_: object) -> bool:
-    # Only the data tables are versioned here; the account tables belong to the backbone.
+    # The data and account tables are versioned here; the audit trail is made by create_all.
     if type_ == "table":
-        return name in data.DATA_TABLES
+        return name in data.DATA_TABLES or name in models.ACCOUNT_TABLES
     return True
 
 

@@ -2,7 +2,8 @@
 
 Every model in the project derives from :class:`Base`; :func:`make_engine` creates the
 SQLite database (with WAL, so the API and background tasks can read while one writes) and
-the tables that do not exist yet. Schema changes of later releases go through alembic.
+brings its tables up to date: the data and account tables through alembic, the audit
+trail by ``create_all``.
 """
 
 from __future__ import annotations
@@ -44,14 +45,37 @@ def make_engine(location: Path | str) -> Engine:
     else:
         engine = create_engine(url, pool_pre_ping=True)
 
-    import app.db.models  # noqa: F401  (register the tables)
     from app.db.data import DATA_TABLES, upgrade_database
+    from app.db.models import ACCOUNT_TABLES
 
-    # The data tables are versioned by alembic (app.db.data); the rest is created here.
+    # The data and account tables are versioned by alembic (app.db.data, revision 0005);
+    # the audit trail (its append-only triggers come with create_all) is created here.
+    versioned = set(DATA_TABLES) | set(ACCOUNT_TABLES)
     Base.metadata.create_all(engine, tables=[t for n, t in Base.metadata.tables.items()
-                                             if n not in DATA_TABLES])
+                                             if n not in versioned])
     upgrade_database(engine)
     return engine
+
+
+def alembic_head() -> str:
+    """The newest alembic revision of this release (what :func:`make_engine` upgrades to).
+
+    Raises:
+        RuntimeError: the revisions do not form one line (two heads: a revision chained
+            onto an older one than the newest).
+    """
+    from alembic.config import Config
+    from alembic.script import ScriptDirectory
+
+    from app.db.data import ALEMBIC_DIR
+
+    cfg = Config()
+    cfg.set_main_option("script_location", str(ALEMBIC_DIR))
+    heads = ScriptDirectory.from_config(cfg).get_heads()
+    if len(heads) != 1:
+        raise RuntimeError(f"alembic/versions has {len(heads)} heads ({', '.join(heads)}); "
+                           "chain the newest revision onto the one before it")
+    return str(heads[0])
 
 
 def purge_deleted(engine: Engine, attempts: int = 10, wait_s: float = 0.3) -> bool:

@@ -52,8 +52,9 @@ class PasswordChangeDue(Base):
     by an administrator (a new account, a reset). The console suggests changing it; the
     owner's own change (``POST /api/auth/password``) removes the row.
 
-    A table of its own rather than a column of ``users``: ``users`` is made by
-    ``create_all``, which adds missing tables to an existing database but never columns.
+    A table of its own rather than a column of ``users``: ``users`` was made by
+    ``create_all`` (alembic owns it since revision 0005), which adds missing tables to an
+    existing database but never columns.
     """
 
     __tablename__ = "password_change_due"
@@ -64,6 +65,10 @@ class PasswordChangeDue(Base):
     reason: Mapped[str] = mapped_column(String(16))
     since: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=_now)
 
+
+#: The account tables, versioned by alembic (revision 0005 creates them when missing);
+#: ``create_all`` makes only the tables in neither this nor :data:`app.db.data.DATA_TABLES`.
+ACCOUNT_TABLES = ("users", "login_sessions", "password_change_due")
 
 #: What the audit trail records (``AuditEvent.action``).
 AUDIT_ACTIONS = ("login", "login_failed", "logout", "password_change", "account", "export",

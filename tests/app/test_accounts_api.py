@@ -13,6 +13,8 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from app.config import Settings
+from app.db.base import Base, alembic_head, make_engine
+from app.db.models import ACCOUNT_TABLES
 from app.main import create_app
 
 
@@ -111,16 +113,147 @@ def test_temporary_passwords_of_administrators_and_last_login(tmp_path: Path) ->
         assert again["last_login_at"] is None and again["must_change_password"]
 
 
-def test_database_of_an_older_release_gets_the_table(tmp_path: Path) -> None:
-    """``users`` is made by ``create_all``: a database from before this table gets it at
-    the next start (no migration needed), and its accounts are not flagged."""
+def _schema(path: Path) -> dict[str, Any]:
+    """Columns (name, type, nullable, primary key), indexes and foreign keys of the
+    account tables of a SQLite database."""
+    with sa.create_engine(f"sqlite:///{path}").connect() as c:
+        insp = sa.inspect(c)
+        return {t: ([(col["name"], str(col["type"]), col["nullable"], col["primary_key"])
+                     for col in insp.get_columns(t)],
+                    sorted((i["name"], tuple(i["column_names"]), bool(i["unique"]))
+                           for i in insp.get_indexes(t)),
+                    [(f["referred_table"], f["constrained_columns"],
+                      f["options"].get("ondelete")) for f in insp.get_foreign_keys(t)])
+                for t in ACCOUNT_TABLES}
+
+
+def _revision(path: Path) -> str:
+    with sa.create_engine(f"sqlite:///{path}").connect() as c:
+        return str(c.execute(sa.text("select version_num from alembic_version")).scalar())
+
+
+def _upgrade(path: Path, revision: str) -> None:
+    from alembic.config import Config
+
+    from alembic import command
+    from app.db.data import ALEMBIC_DIR
+
+    cfg = Config()
+    cfg.set_main_option("script_location", str(ALEMBIC_DIR))
+    eng = sa.create_engine(f"sqlite:///{path}")
+    with eng.begin() as conn:
+        cfg.attributes["connection"] = conn
+        command.upgrade(cfg, revision)
+    eng.dispose()
+
+
+def test_one_alembic_head_and_it_owns_the_account_tables() -> None:
+    """Revisions written in parallel must chain into one line; 0005 is on it."""
+    from alembic.config import Config
+    from alembic.script import ScriptDirectory
+
+    from app.db.data import ALEMBIC_DIR
+
+    cfg = Config()
+    cfg.set_main_option("script_location", str(ALEMBIC_DIR))
+    script = ScriptDirectory.from_config(cfg)
+    assert len(script.get_heads()) == 1, script.get_heads()
+    assert "0005" in {r.revision for r in script.walk_revisions()}
+    assert alembic_head() == script.get_current_head()
+
+
+def test_fresh_database_gets_the_account_tables_from_alembic(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A new database: the account tables come from revision 0005 (create_all is not
+    asked for them) with the schema the models describe."""
+    asked: list[str] = []
+    real = sa.MetaData.create_all
+
+    def spy(self: sa.MetaData, bind: Any, tables: Any = None, **kw: Any) -> None:
+        asked.extend(t.name for t in (tables if tables is not None else self.sorted_tables))
+        real(self, bind, tables=tables, **kw)
+
+    monkeypatch.setattr(sa.MetaData, "create_all", spy)
+    make_engine(tmp_path / "new.sqlite3").dispose()
+    assert asked and not set(asked) & set(ACCOUNT_TABLES), asked
+    assert _revision(tmp_path / "new.sqlite3") == alembic_head()
+    monkeypatch.setattr(sa.MetaData, "create_all", real)
+    # the same tables as the models' create_all made for earlier releases
+    by_models = sa.create_engine(f"sqlite:///{tmp_path / 'models.sqlite3'}")
+    Base.metadata.create_all(by_models, tables=[Base.metadata.tables[t] for t in ACCOUNT_TABLES])
+    by_models.dispose()
+    assert _schema(tmp_path / "new.sqlite3") == _schema(tmp_path / "models.sqlite3")
+    # and the server works on it: the first start makes the administrator
+    with TestClient(create_app(_settings(tmp_path, "chosen by the operator 1"))) as client:
+        assert _me(client, _bearer(client, "admin", "chosen by the operator 1"))["is_admin"]
+
+
+def test_existing_database_whose_account_tables_create_all_made_is_adopted(
+        tmp_path: Path) -> None:
+    """A database of a release before 0005 (data tables at 0003, the account tables and
+    their rows made by create_all) keeps its accounts, logins and flags."""
+    with TestClient(create_app(_settings(tmp_path, "chosen by the operator 1"))) as client:
+        admin = _bearer(client, "admin", "chosen by the operator 1")
+        r = client.post("/api/users", headers=admin,
+                        json={"username": "a.nurse", "password": "temporary walk 11"})
+        assert r.status_code == 201, r.text
+    db = tmp_path / "gaitrig.sqlite3"
+    before = _schema(db)
+    with sa.create_engine(f"sqlite:///{db}").begin() as c:  # as the older release left it
+        c.execute(sa.text("update alembic_version set version_num = '0003'"))
+    with TestClient(create_app(_settings(tmp_path, "chosen by the operator 1")),
+                    raise_server_exceptions=False) as client:
+        assert _me(client, admin)["username"] == "admin"  # the login survived
+        listed = _accounts(client, admin)
+        assert set(listed) == {"admin", "a.nurse"} and listed["a.nurse"]["must_change_password"]
+        assert _bearer(client, "a.nurse", "temporary walk 11")
+    assert _revision(db) == alembic_head()
+    assert _schema(db) == before
+
+
+def test_database_of_an_older_release_gets_the_missing_table(tmp_path: Path) -> None:
+    """A database from before ``password_change_due`` (at revision 0003, ``users`` made
+    by create_all) gets it from 0005 at the next start, and its accounts are not flagged."""
     with TestClient(create_app(_settings(tmp_path, "chosen by the operator 1"))):
         pass
     db = tmp_path / "gaitrig.sqlite3"
     with sa.create_engine(f"sqlite:///{db}").begin() as c:
         c.execute(sa.text("drop table password_change_due"))
+        c.execute(sa.text("update alembic_version set version_num = '0003'"))
     with TestClient(create_app(_settings(tmp_path, "chosen by the operator 1")),
                     raise_server_exceptions=False) as client:
         admin = _bearer(client, "admin", "chosen by the operator 1")
         assert not _me(client, admin)["must_change_password"]
         assert not _accounts(client, admin)["admin"]["must_change_password"]
+    assert "password_change_due" in sa.inspect(sa.create_engine(f"sqlite:///{db}")
+                                               ).get_table_names()
+    assert _revision(db) == alembic_head()
+
+
+def test_upgrade_from_0003_on_an_empty_database_and_downgrade_keeps_accounts(
+        tmp_path: Path) -> None:
+    """alembic alone (as ``alembic upgrade head`` on the command line) creates the account
+    tables; a downgrade to 0003 keeps them (the older release uses them as they are)."""
+    db = tmp_path / "cli.sqlite3"
+    _upgrade(db, "0003")
+    assert not set(ACCOUNT_TABLES) & set(
+        sa.inspect(sa.create_engine(f"sqlite:///{db}")).get_table_names())
+    _upgrade(db, "head")
+    with sa.create_engine(f"sqlite:///{db}").begin() as c:
+        c.execute(sa.text("insert into users (username, password_hash, is_admin, created_at) "
+                          "values ('kept', 'x', 1, '2026-01-01 00:00:00')"))
+    from alembic.config import Config
+
+    from alembic import command
+    from app.db.data import ALEMBIC_DIR
+
+    cfg = Config()
+    cfg.set_main_option("script_location", str(ALEMBIC_DIR))
+    eng = sa.create_engine(f"sqlite:///{db}")
+    with eng.begin() as conn:
+        cfg.attributes["connection"] = conn
+        command.downgrade(cfg, "0003")
+    with eng.connect() as c:
+        assert c.execute(sa.text("select username from users")).scalar() == "kept"
+    eng.dispose()
+

@@ -14,7 +14,7 @@ from fastapi.testclient import TestClient
 
 from app.api.routes import exports
 from app.config import Settings
-from app.db.base import Base, make_engine
+from app.db.base import Base, alembic_head, make_engine
 from app.main import create_app
 from app.nodes.protocol import encode_skeletons
 from app.nodes.store import NodeStore
@@ -46,7 +46,7 @@ def client(tmp_path: Path) -> Iterator[TestClient]:
 def test_migrations_new_and_existing_database(tmp_path: Path) -> None:
     eng = make_engine(tmp_path / "new.sqlite3")
     with eng.connect() as c:
-        assert c.execute(sa.text("select version_num from alembic_version")).scalar() == "0003"
+        assert c.execute(sa.text("select version_num from alembic_version")).scalar() == alembic_head()
     eng.dispose()
     # a database whose tables were made by create_all (no alembic_version) is adopted
     import app.db.data  # noqa: F401
@@ -58,7 +58,7 @@ def test_migrations_new_and_existing_database(tmp_path: Path) -> None:
     old.dispose()
     eng = make_engine(tmp_path / "old.sqlite3")
     with eng.connect() as c:
-        assert c.execute(sa.text("select version_num from alembic_version")).scalar() == "0003"
+        assert c.execute(sa.text("select version_num from alembic_version")).scalar() == alembic_head()
         assert c.execute(sa.text("select name from projects")).scalar() == "kept"
     eng.dispose()
 
