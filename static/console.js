@@ -71,6 +71,15 @@ const gaitrig = (() => {
       : d.toLocaleDateString(undefined, { day: "numeric", month: "short", year: "numeric" });
   }
   function fmt(v, digits, unit) { return v === null || v === undefined ? "—" : v.toFixed(digits) + unit; }
+  // A count with its noun in the right number: plural(1, "recording") is "1 recording",
+  // plural(2, "copy", "copies") "2 copies" (the console wrote "1 recording(s)").
+  function plural(n, one, many = one + "s") { return `${n} ${n === 1 ? one : many}`; }
+  // A time the API sent (ISO 8601 with an offset) as a Date. The server keeps UTC; a value
+  // without an offset (an older server) is read as UTC too, not as the browser's local
+  // time (which would put it hours off). Shown with toLocale…String: the user's own zone.
+  function when(iso) {
+    return new Date(/(?:[zZ]|[+-]\d\d:?\d\d)$/.test(iso) ? iso : iso + "Z");
+  }
 
   function loginPage() {
     const form = document.getElementById("login-form");
@@ -152,7 +161,7 @@ const gaitrig = (() => {
   // 7 days, or none ever (gaitrig backup, docs/backup.md).
   function backupNotice(sys) {
     if (!("last_backup_at" in sys) || document.getElementById("backup-notice")) return;
-    const at = sys.last_backup_at ? Date.parse(sys.last_backup_at) : NaN;
+    const at = sys.last_backup_at ? when(sys.last_backup_at).getTime() : NaN;
     if (at && Date.now() - at < 7 * 86400e3) return;
     const text = sys.last_backup_at
       ? `No backup of this server since ${new Date(at).toLocaleDateString()}.`
@@ -252,7 +261,8 @@ const gaitrig = (() => {
     setInterval(refresh, 1000);
     setInterval(refreshRecordings, 1000);
   }
-  return { api, el, listPage, toLogin, newest, latest, release, day, loginPage, rigPage };
+  return { api, el, listPage, toLogin, newest, latest, release, day, plural, when, loginPage,
+    rigPage };
 })();
 
 // The browser refuses a field that does not match its pattern with "Please match the

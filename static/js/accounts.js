@@ -9,8 +9,8 @@
   const $ = (id) => document.getElementById(id);
   const el = gaitrig.el;
   function say(id, text, good = false) { const m = $(id); m.textContent = text; m.className = "msg " + (good ? "good" : "bad"); }
-  // the audit trail's times are UTC without a zone: read as UTC, shown in the user's zone
-  const when = (iso) => new Date(/[zZ]|[+-]\d\d:\d\d$/.test(iso) ? iso : iso + "Z");
+  // the API's times carry their offset (an older server's did not: read as UTC)
+  const when = gaitrig.when;
   const dateText = (iso) => when(iso).toLocaleDateString(undefined, { day: "numeric", month: "short", year: "numeric" });
   const timeText = (iso) => when(iso).toLocaleString(undefined, { day: "numeric", month: "short", year: "numeric", hour: "2-digit", minute: "2-digit" });
 
@@ -90,7 +90,7 @@
     if (d === "removed") return `${e.username} removed the account ${name}.`;
     if (d.startsWith("password set")) {
       const ended = /(\d+) login/.exec(d);
-      return `${e.username} set a new password for ${name}` + (ended ? `; ${ended[1]} of their logins ended` : "") + ".";
+      return `${e.username} set a new password for ${name}` + (ended ? `; ${gaitrig.plural(Number(ended[1]), "login")} of theirs ended` : "") + ".";
     }
     return `${e.username}: ${e.action} ${e.target} ${d}`.trim();
   }

@@ -21,6 +21,15 @@
     catch (e) { return r.statusText; }
   }
 
+  // How many other logins the change ended, in words (the server says how many since it
+  // answers 200 with {"other_sessions_ended": n}; an older one answered 204 without it).
+  function endedText(body) {
+    const n = body && Number.isInteger(body.other_sessions_ended) ? body.other_sessions_ended : null;
+    if (n === null) return "Your other logins (other browsers or computers) were ended; this one stays.";
+    if (n === 0) return "You were not logged in anywhere else; this login stays.";
+    return `${gaitrig.plural(n, "other login")} (other browsers or computers) ${n === 1 ? "was" : "were"} ended; this one stays.`;
+  }
+
   // ---- the dialog: each refusal is said beside the field it is about
   function field(id, label, autocomplete, hint) {
     const msg = el("p", { class: "field-msg", id: `${id}-msg`, "aria-live": "polite" });
@@ -64,9 +73,9 @@
       submit.disabled = true;
       try {
         const r = await post("/api/auth/password", { current_password: cur.input.value, new_password: nu.input.value });
-        if (r.status === 204) {
+        if (r.ok) {
           form.reset(); who.value = me.username;
-          status.textContent = "Password changed. Your other logins (other browsers or computers) were ended; this one stays.";
+          status.textContent = "Password changed. " + endedText(r.status === 204 ? null : await r.json().catch(() => null));
           status.className = "msg good";
           const banner = document.getElementById("password-banner");
           if (banner) banner.remove();

@@ -62,7 +62,8 @@ def test_generated_password_is_flagged_until_its_owner_changes_it(
         r = client.post("/api/auth/password", headers=admin,
                         json={"current_password": password,
                               "new_password": "tall green tripods 4"})
-        assert r.status_code == 204, r.text
+        # 200 with how many other logins ended (none: this client has only this one)
+        assert r.status_code == 200 and r.json() == {"other_sessions_ended": 0}, r.text
         me = _me(client, admin)
         assert not me["must_change_password"] and me["password_set_by"] is None
         listed = _accounts(client, admin)["admin"]
@@ -93,7 +94,7 @@ def test_temporary_passwords_of_administrators_and_last_login(tmp_path: Path) ->
         r = client.post("/api/auth/password", headers=nurse,
                         json={"current_password": "temporary walk 11",
                               "new_password": "my own long walk 7"})
-        assert r.status_code == 204, r.text
+        assert r.status_code == 200 and r.json() == {"other_sessions_ended": 0}, r.text
         assert not _accounts(client, admin)["a.nurse"]["must_change_password"]
         # a reset by the administrator is a temporary password again
         r = client.post("/api/users/a.nurse/password", headers=admin,
@@ -257,3 +258,59 @@ def test_upgrade_from_0003_on_an_empty_database_and_downgrade_keeps_accounts(
         assert c.execute(sa.text("select username from users")).scalar() == "kept"
     eng.dispose()
 
+
+def _timestamps(doc: Any, key: str = "") -> list[str]:
+    """Every value under a key named ``at`` or ``*_at`` in a JSON document."""
+    if isinstance(doc, dict):
+        return [v for k, x in doc.items() for v in _timestamps(x, k)]
+    if isinstance(doc, list):
+        return [v for x in doc for v in _timestamps(x, key)]
+    return [doc] if (key == "at" or key.endswith("_at")) and doc is not None else []
+
+
+def test_every_timestamp_carries_its_offset_and_old_naive_values_read_as_utc(
+        tmp_path: Path) -> None:
+    """Rows stored without a zone (SQLite; an older release) come out as ISO 8601 with
+    ``+00:00`` — in the JSON of audit, accounts, projects, subjects, sessions, recordings
+    and references, and in the audit CSV — and mean the UTC time stored."""
+    from datetime import UTC, datetime
+
+    with TestClient(create_app(_settings(tmp_path, "chosen by the operator 1")),
+                    raise_server_exceptions=False) as client:
+        admin = _bearer(client, "admin", "chosen by the operator 1")
+        naive = "2026-01-02 03:04:05.000000"  # how SQLite holds a UTC time
+        with sa.create_engine(f"sqlite:///{tmp_path / 'gaitrig.sqlite3'}").begin() as c:
+            c.execute(sa.text("insert into projects (id, name, description, created_at) "
+                              f"values (77, 'old study', '', '{naive}')"))
+            c.execute(sa.text("insert into subjects (id, project_id, code, sex, notes, "
+                              f"created_at) values (78, 77, 'S-OLD', 'unknown', '', '{naive}')"))
+            c.execute(sa.text("insert into sessions (id, subject_id, date, label, notes, "
+                              f"created_at) values (79, 78, '2026-01-02', '', '', '{naive}')"))
+            c.execute(sa.text("insert into recordings (id, session_id, label, notes, state, "
+                              "streams, created_at) values ('R20260102-030405-ab12', 79, '', "
+                              f"'', 'complete', 'skeleton', '{naive}')"))
+            c.execute(sa.text("insert into audit_events (at, username, action, target, "
+                              f"detail, client) values ('{naive}', 'old', 'export', 'x', '', '')"))
+        docs = {path: client.get(path, headers=admin)
+                for path in ("/api/audit", "/api/users", "/api/projects", "/api/subjects/78",
+                             "/api/sessions/79", "/api/recordings?limit=50", "/api/system")}
+        seen: list[str] = []
+        for path, r in docs.items():
+            assert r.status_code == 200, (path, r.text)
+            got = _timestamps(r.json())
+            assert all(isinstance(t, str) and t.endswith("+00:00") for t in got), (path, got)
+            seen += got
+        for path in ("/api/audit", "/api/projects", "/api/subjects/78"):
+            assert "2026-01-02T03:04:05+00:00" in _timestamps(docs[path].json()), path
+        assert {datetime.fromisoformat(t).tzinfo for t in seen} == {UTC}
+        r = client.get("/api/audit", params={"format": "csv"}, headers=admin)
+        assert r.status_code == 200, r.text
+        rows = r.text.splitlines()
+        assert rows[0].split(",")[:2] == ["id", "at"]
+        ats = [line.split(",")[1] for line in rows[1:]]
+        assert ats and all(a.endswith("+00:00") for a in ats), ats
+        assert "2026-01-02T03:04:05+00:00" in ats
+        # the login's expiry says its zone too
+        r = client.post("/api/auth/login", json={"username": "admin",
+                                                 "password": "chosen by the operator 1"})
+        assert datetime.fromisoformat(r.json()["expires_at"]).utcoffset() is not None

@@ -15,6 +15,7 @@ from sqlalchemy.orm import Session as DbSession
 from sqlalchemy.orm import selectinload
 
 from app.api.routes._exporting import ExportGuard
+from app.api.timestamps import utc_iso
 from app.db import audit
 from app.db import data as m
 from app.db.base import purge_deleted
@@ -144,7 +145,7 @@ def recording_json(r: m.Recording, layout: StorageLayout | None = None) -> dict[
         "id": r.id, "session_id": r.session_id, "label": r.label, "notes": r.notes,
         "state": r.state, "reason": r.reason, "t_start": r.t_start, "t_stop": r.t_stop,
         "duration_s": r.duration_s, "streams": [s for s in r.streams.split(",") if s],
-        "created_at": r.created_at.isoformat(), "parts": [part_json(p) for p in r.parts],
+        "created_at": utc_iso(r.created_at), "parts": [part_json(p) for p in r.parts],
         "references": [reference_json(x) for x in r.references],
     }
     if layout is not None:
@@ -155,7 +156,7 @@ def recording_json(r: m.Recording, layout: StorageLayout | None = None) -> dict[
 def reference_json(x: m.ReferenceImport) -> dict[str, Any]:
     return {"id": x.id, "filename": x.filename, "format": x.format, "size": x.size,
             "rate_hz": x.rate_hz, "n_frames": x.n_frames, "labels": x.labels,
-            "created_at": x.created_at.isoformat()}
+            "created_at": utc_iso(x.created_at)}
 
 
 def session_json(s: m.Session, layout: StorageLayout | None = None,
@@ -210,7 +211,7 @@ def project_json(db: DbSession, p: m.Project, n_subjects: int | None = None) -> 
     n = n_subjects if n_subjects is not None else db.scalar(
         select(func.count()).select_from(m.Subject).where(m.Subject.project_id == p.id))
     return {"id": p.id, "name": p.name, "description": p.description, "n_subjects": n or 0,
-            "created_at": p.created_at.isoformat()}
+            "created_at": utc_iso(p.created_at)}
 
 
 async def delete_rows(db: DbSession, hub: Hub, layout: StorageLayout, exports: ExportGuard,

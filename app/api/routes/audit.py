@@ -26,6 +26,7 @@ from app.api.deps import CurrentUser, DbDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import audit_now
 from app.api.routes._paging import set_total
+from app.api.timestamps import utc_iso
 from app.db.models import AuditEvent
 
 router = APIRouter(prefix="/audit", route_class=BoundedRoute, tags=["audit"])
@@ -37,7 +38,7 @@ CSV_BATCH = 1000
 
 
 def _json(e: AuditEvent) -> dict[str, Any]:
-    return {"id": e.id, "at": e.at.isoformat(), "username": e.username, "action": e.action,
+    return {"id": e.id, "at": utc_iso(e.at), "username": e.username, "action": e.action,
             "target": e.target, "detail": e.detail, "client": e.client}
 
 

@@ -41,6 +41,13 @@ class PasswordIn(BaseModel):
     new_password: str = Field(min_length=1, max_length=256)
 
 
+class PasswordChanged(BaseModel):
+    """What a password change did besides setting the password."""
+
+    #: How many other logins of this user (other browsers, computers) were ended.
+    other_sessions_ended: int
+
+
 class UserOut(BaseModel):
     username: str
     is_admin: bool
@@ -105,14 +112,16 @@ def logout(request: Request, response: Response, user: CurrentUser, db: DbDep) -
                            secure=cookie_secure(request, request.app.state.settings))
 
 
-@router.post("/password", status_code=204)
+@router.post("/password", response_model=PasswordChanged)
 def change_password(body: PasswordIn, request: Request, user: CurrentUser, db: DbDep,
-                    settings: SettingsDep) -> None:
+                    settings: SettingsDep) -> PasswordChanged:
     """Change one's own password (``{"current_password", "new_password"}``).
 
     The new one must have at least 12 characters and not contain the user name. Every
     other login of this user ends (a stolen session does not survive the change); wrong
-    current passwords count as failed logins (throttled, audited).
+    current passwords count as failed logins (throttled, audited). Answers 200 with
+    ``{"other_sessions_ended": n}`` so the console can say how many logins it ended (it
+    was a bodiless 204; a client that only checks for success keeps working).
     """
     throttle: security.LoginThrottle = request.app.state.login_throttle
     client = request.client.host if request.client else "?"
@@ -139,7 +148,8 @@ def change_password(body: PasswordIn, request: Request, user: CurrentUser, db: D
     ended = security.change_password(db, user, body.new_password, request_token(request),
                                     settings.password_hash_cost)
     audit.record(db, user.username, "password_change",
-                 detail=f"{ended} other login(s) ended", client=client)
+                 detail=f"{ended} other login{'' if ended == 1 else 's'} ended", client=client)
+    return PasswordChanged(other_sessions_ended=ended)
 
 
 @router.get("/me", response_model=UserOut)

@@ -8,6 +8,7 @@ from fastapi import APIRouter, Request
 
 from app.api.deps import CurrentUser, DbDep, SettingsDep
 from app.api.limits import BoundedRoute
+from app.api.timestamps import utc_iso_or_none
 from app.config import DEFAULT_NODE_TOKEN
 
 router = APIRouter(prefix="/system", route_class=BoundedRoute, tags=["system"])
@@ -38,5 +39,5 @@ def system(request: Request, user: CurrentUser, settings: SettingsDep, db: DbDep
         from app.server.backup import last_backup
 
         at = last_backup(db)
-        out["last_backup_at"] = at.isoformat(timespec="seconds") if at else None
+        out["last_backup_at"] = utc_iso_or_none(at, "seconds")
     return out

@@ -27,6 +27,7 @@ from sqlalchemy import func, select
 from app.api import security
 from app.api.deps import CurrentUser, DbDep, SettingsDep
 from app.api.limits import BoundedRoute
+from app.api.timestamps import as_utc, utc_iso
 from app.db import audit
 from app.db.models import AuditEvent, LoginSession, PasswordChangeDue, User
 
@@ -103,25 +104,19 @@ def accounts(user: CurrentUser, db: DbDep) -> list[dict[str, Any]]:
     # the last login from the audit trail, which keeps a removed account's entries under
     # its name: only a login since this account was created counts
     last: dict[str, datetime] = {
-        name: _utc(at) for name, at in db.execute(
+        name: as_utc(at) for name, at in db.execute(
             select(AuditEvent.username, func.max(AuditEvent.at))
             .where(AuditEvent.action == "login").group_by(AuditEvent.username))}
     out = []
     for u in db.scalars(select(User).order_by(User.username)):
-        created = _utc(u.created_at)
+        created = as_utc(u.created_at)
         seen = last.get(u.username)
         out.append({"username": u.username, "is_admin": u.is_admin,
-                    "created_at": created.isoformat(),
-                    "last_login_at": seen.isoformat() if seen and seen >= created else None,
+                    "created_at": utc_iso(created),
+                    "last_login_at": utc_iso(seen) if seen and seen >= created else None,
                     "open_logins": open_logins.get(u.id, 0),
                     "must_change_password": u.id in due, "password_set_by": due.get(u.id)})
     return out
-
-
-def _utc(t: datetime) -> datetime:
-    # SQLite gives back naive datetimes of what was stored in UTC; a browser would read a
-    # naive ISO string as its local time
-    return t if t.tzinfo else t.replace(tzinfo=UTC)
 
 
 @router.post("", status_code=201)
@@ -160,8 +155,9 @@ def set_password(username: str, body: NewPassword, request: Request, user: Curre
     mark_change_due(db, target, "administrator")  # committed with the new password
     ended = security.change_password(db, target, body.new_password, None,
                                     settings.password_hash_cost)
+    logins = "1 login" if ended == 1 else f"{ended} logins"
     audit.record(db, user.username, "account", f"user {target.username}",
-                 f"password set by an administrator; {ended} login(s) ended", _client(request))
+                 f"password set by an administrator; {logins} ended", _client(request))
 
 
 @router.post("/{username}/delete")
