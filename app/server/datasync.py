@@ -191,6 +191,7 @@ class DataSync:
                 for n in hit:
                     rec.parts[n].reason = (f"{TRANSFER_FAILED} (node {n} disconnected during "
                                            "the transfer); it resumes when the node is back")
+                self.hub.recordings.touch(rec_id)
                 self.hub.transfers.cancel(rec_id, hit)
 
     def _repair(self, rec: LiveRecording) -> None:
@@ -202,6 +203,7 @@ class DataSync:
                 p.state = "on_node" if not p.reason or p.reason.startswith(TRANSFER_FAILED) \
                     else "incomplete"
                 p.transfer_progress = None
+                self.hub.recordings.touch(rec.id)
 
     def step(self) -> None:
         """One pass: start/retry transfers and write the state of every recording that can

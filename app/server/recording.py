@@ -21,25 +21,29 @@ new frames on the part's first clock model (a restarted node's clock may count f
 another origin), so the transfer and the analysis read one part as before; the part ends
 ``incomplete`` saying how many seconds are missing. A node that connects after the start
 records from then on, its part saying so.
-This module keeps recordings in memory and in ``<data_dir>/recordings.json``; the data
-management database builds on :meth:`RecordingManager.to_dict`.
+This module keeps recordings in memory and in ``<data_dir>/recordings.json`` (a change
+appends one line: :mod:`app.server.recording_file`); the data management database builds
+on :meth:`RecordingManager.to_dict`.
 """
 
 from __future__ import annotations
 
 import asyncio
+import gc
 import json
 import logging
-import os
 import random
 import secrets
 import time
+from collections.abc import Iterable
+from collections.abc import Set as AbstractSet
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 from app.nodes.protocol import PartInfo, RecStart, RecStop, StreamName, dump
 from app.server.clock import ClockEstimate
+from app.server.recording_file import RecordingFile
 from app.server.registry import NodeRegistry, NodeSession
 from engine.errors import InputError
 
@@ -109,23 +113,98 @@ def _plain(rec: Recording) -> dict[str, Any]:
     return d
 
 
+_PART_DEFAULTS = {f.name: f.default for f in fields(Part) if f.name != "clock"}
+
+
+def _recording(r: dict[str, Any]) -> Recording:
+    """A recording as :func:`_plain` wrote it. Built without the dataclasses' keyword
+    handling (a clinic's 30 000 recordings load in a fraction of the time); an unknown or
+    missing required field raises TypeError or KeyError as the constructor would."""
+    parts = {}
+    for k, v in r["parts"].items():
+        if not _PART_KEYS.issuperset(v) or "node_id" not in v:
+            raise TypeError(f"part {k}: unknown or missing fields")
+        p = object.__new__(Part)
+        p.__dict__.update(_PART_DEFAULTS)
+        p.clock = {}
+        p.__dict__.update(v)
+        parts[k] = p
+    if not _REC_KEYS.issuperset(r) or "id" not in r or "t_start" not in r:
+        raise TypeError("unknown or missing fields")
+    rec = object.__new__(Recording)
+    rec.t_stop, rec.streams, rec.image_every = None, [], 1
+    rec.__dict__.update(r)
+    rec.__dict__.setdefault("created", rec.t_start)
+    rec.parts = parts
+    return rec
+
+
+_PART_KEYS = frozenset(_PART_FIELDS)
+_REC_KEYS = frozenset((*_RECORDING_FIELDS, "parts"))
+
+
 def _model(clock: dict[str, float]) -> ClockEstimate:
     """Clock model stored with a part (see :meth:`ClockEstimate.as_dict`)."""
     return ClockEstimate(clock["offset_s"], clock["drift"], clock["t_ref"],
                          clock.get("uncertainty_s", 0.0), 0, 0.0)
 
 
+class _Changes(set[str]):
+    """Ids of the recordings changed since DataSync last took the set; each one put in
+    is also noted in ``unsaved`` (written to ``recordings.json`` by the next save)."""
+
+    def __init__(self, unsaved: set[str]) -> None:
+        super().__init__()
+        self.unsaved = unsaved
+
+    def add(self, element: str) -> None:
+        super().add(element)
+        self.unsaved.add(element)
+
+    def update(self, *others: Iterable[str]) -> None:
+        for o in others:
+            for x in o:
+                self.add(x)
+
+    def __ior__(self, other: AbstractSet[str]) -> Self:  # type: ignore[override,misc]
+        self.update(other)
+        return self
+
+
 class _Tracked(dict[str, Recording]):
     """The recordings by id; a recording put in (new, loaded, or put back) is noted in
-    ``changed`` like any other change."""
+    ``changed`` like any other change, one taken out in ``removed``."""
 
-    def __init__(self, changed: set[str]) -> None:
+    def __init__(self, changed: set[str], removed: set[str]) -> None:
         super().__init__()
         self.changed = changed
+        self.removed = removed
 
     def __setitem__(self, key: str, value: Recording) -> None:
         super().__setitem__(key, value)
         self.changed.add(key)
+        self.removed.discard(key)
+
+    def __delitem__(self, key: str) -> None:
+        super().__delitem__(key)
+        self.removed.add(key)
+
+    def pop(self, key: str, *default: Any) -> Any:  # type: ignore[override]
+        """Take one out (noted as removed)."""
+        if key in self:
+            self.removed.add(key)
+        return super().pop(key, *default)
+
+    def popitem(self) -> tuple[str, Recording]:
+        """Take the last one out (noted as removed)."""
+        k, v = super().popitem()
+        self.removed.add(k)
+        return k, v
+
+    def clear(self) -> None:
+        """Take every one out (noted as removed)."""
+        self.removed.update(self)
+        super().clear()
 
     def update(self, *args: Any, **kwargs: Recording) -> None:  # dict's skips __setitem__
         """Put several in (noted like one)."""
@@ -148,51 +227,87 @@ class RecordingManager:
     def __init__(self, registry: NodeRegistry, data_dir: Path, start_margin_s: float = 0.3,
                  command_delay_max_s: float = 0.0) -> None:
         self.registry = registry
-        self.path = Path(data_dir) / "recordings.json"
+        self.file = RecordingFile(Path(data_dir) / "recordings.json")
+        self.path = self.file.path
         self.start_margin_s = start_margin_s
         self.command_delay_max_s = command_delay_max_s
         #: ids of the recordings whose state this manager changed since DataSync last
         #: took the set (it revisits only those, not every recording ever made)
-        self.changed: set[str] = set()
-        self.recordings: dict[str, Recording] = _Tracked(self.changed)
+        self._unsaved: set[str] = set()  # changed since the last save
+        self._removed: set[str] = set()  # taken out since the last save
+        self.changed: set[str] = _Changes(self._unsaved)
+        self.recordings: dict[str, Recording] = _Tracked(self.changed, self._removed)
         self.save_error: str | None = None  # why the last save failed, if it did
         self._tasks: set[asyncio.Task[None]] = set()
         self._dropped: set[tuple[str, str]] = set()  # (rec, node) parts cut short by a drop
         self._load()
         self.changed.clear()  # DataSync's first pass looks at every loaded one anyway
+        self._unsaved.clear()
 
     # ------------------------------------------------------------------ persistence
 
     def _load(self) -> None:
-        if not self.path.exists():
-            return
+        # Tens of thousands of objects at once: the collector's passes over them (none
+        # is garbage) cost three times the parsing (bench/storage_scale.py).
+        collecting = gc.isenabled()
+        gc.disable()
         try:
-            raw = json.loads(self.path.read_text())
-            for r in raw:
-                parts = {k: Part(**v) for k, v in r.pop("parts").items()}
-                rec = Recording(**r, parts=parts)
-                if rec.t_stop is None:  # the server died during it: nodes that kept
-                    # recording are stopped now (they get rec_stop when they reconnect)
-                    rec.t_stop = max(time.time(), rec.t_start)
-                    for p in rec.parts.values():
-                        if p.state in ("pending", "recording"):
-                            p.state, p.reason = "incomplete", "server restarted during recording"
-                self.recordings[rec.id] = rec
-        except (OSError, json.JSONDecodeError, TypeError, KeyError) as exc:
+            self._load_all()
+        finally:
+            if collecting:
+                gc.enable()
+        if self._unsaved:
+            self.save()
+
+    def _load_all(self) -> None:
+        try:
+            raw = self.file.load()
+        except (OSError, ValueError) as exc:
             log.error("ignoring unreadable %s: %s", self.path, exc)
+            return
+        bad = 0
+        for r in raw:
+            try:
+                rec = _recording(r)
+            except (TypeError, KeyError, AttributeError, ValueError):
+                bad += 1
+                continue
+            if rec.t_stop is None:  # the server died during it: nodes that kept
+                # recording are stopped now (they get rec_stop when they reconnect)
+                rec.t_stop = max(time.time(), rec.t_start)
+                for p in rec.parts.values():
+                    if p.state in ("pending", "recording"):
+                        p.state, p.reason = "incomplete", "server restarted during recording"
+                self._unsaved.add(rec.id)
+            dict.__setitem__(self.recordings, rec.id, rec)  # loaded: nothing to note
+        if bad:
+            log.error("%s: ignored %d unreadable recording(s)", self.path, bad)
+
+    def touch(self, rec_id: str) -> None:
+        """Note a change made to a recording outside this manager (e.g. by a transfer):
+        the data sync looks at it again and the next :meth:`save` writes it."""
+        self.changed.add(rec_id)
 
     def save(self) -> None:
-        """Write all recordings atomically.
+        """Write the recordings changed (or put in, or taken out) since the last save.
+
+        A change is appended to ``recordings.json`` as one line
+        (:mod:`app.server.recording_file`): its cost does not grow with the recordings
+        the server keeps. A change made to a recording object from outside must be
+        noted first (:meth:`touch`).
 
         A failure (the server's disk full) is logged and kept in :attr:`save_error`, not
         raised: it must not fail a start whose commands already went out, nor drop the
-        node connection whose message triggered it. The next save writes everything.
+        node connection whose message triggered it. The next save writes what is left.
         """
+        ids, removed = set(self._unsaved), set(self._removed)
+        lines = {}
+        for k in ids:
+            rec = self.recordings.get(k)
+            if rec is not None:
+                lines[k] = json.dumps(_plain(rec), separators=(",", ":")).encode()
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = self.path.with_suffix(".tmp")
-            tmp.write_text(json.dumps([_plain(r) for r in self.recordings.values()]))
-            os.replace(tmp, self.path)
+            self.file.write(lines, removed)
         except OSError as exc:
             if self.save_error is None:
                 log.error("cannot save %s (%s); recordings are kept in memory and saved "
@@ -200,6 +315,8 @@ class RecordingManager:
             self.save_error = (f"the server could not save its recording list ({exc}); a "
                                "server restart now would lose the latest states")
             return
+        self._unsaved.difference_update(ids)
+        self._removed.difference_update(removed)
         self.save_error = None
 
     # ------------------------------------------------------------------ commands

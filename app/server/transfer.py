@@ -458,6 +458,7 @@ class TransferManager:
             log.info("recording %s: part of %s on the server", rec.id, node_id)
             await self.send_verified(rec.id, node_id)
         finally:
+            self.recordings.touch(rec.id)  # what changed here is written by the save
             self.recordings.save()
 
     def verified_sha(self, rec_id: str, node_id: str) -> str | None:
