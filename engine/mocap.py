@@ -1,14 +1,14 @@
 """From mocap files or skeletons to the per-foot trajectories the gait engine needs.
 
-Marker names are matched automatically for the common conventions (Vicon Plug-in Gait
-``LANK/LHEE/LTOE``, ``L.Ankle``, ``L_FCC``, ``LeftAnkle``, ``AnkleLeft``, ``l_ankle``,
-subject prefixes such as ``Subject:LHEE``; case-insensitive) and can be overridden by
-explicit ``left``/``right`` names. Everything returned is in metres, Z up.
+Marker names are matched automatically for the common conventions
+(:func:`engine.io.markers.find_marker`: Vicon Plug-in Gait ``LANK/LHEE/LTOE``, OpenSim
+``L.Ankle.Lat``, CAST ``L_FAL/L_FCC``, IOR ``L_LM/L_CA``, ``LeftAnkle``, ``AnkleLeft``,
+``l_ankle``, subject prefixes such as ``Subject:LHEE``; case-insensitive) and can be
+overridden by explicit ``left``/``right`` names. Everything returned is in metres, Z up.
 """
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,11 +18,14 @@ from numpy.typing import NDArray
 from engine import nanstats
 from engine.errors import InputError
 from engine.io.markers import (
+    PELVIS_SINGLE,
     MarkerEvent,
     MarkerTrajectories,
     characteristic_length,
     detect_units,
     detect_vertical_axis,
+    find_marker,
+    label_key,
     labelled_vertical_axis,
     to_z_up,
     unit_scale,
@@ -32,40 +35,12 @@ from engine.skeleton import SkeletonSeries
 
 FloatArray = NDArray[np.float64]
 
-#: Body-part name stems (after the side token is removed), most preferred first.
-PART_STEMS: dict[str, tuple[str, ...]] = {
-    "ankle": ("ank", "ankle", "lmal", "malleolus", "latmal", "mal", "ajc", "anklejc"),
-    "heel": ("hee", "heel", "fcc", "cal", "calc", "calcaneus"),
-    "toe": ("toe", "ttoe", "mt2", "fm2", "mth2", "mt1", "fm1", "toetip", "foot", "foo"),
-}
-_PELVIS_SINGLE = ("sacr", "sacrum", "pelvis", "spinebase", "hipcenter", "midhip", "root")
-_PELVIS_PAIRS = (("lpsi", "rpsi"), ("lasi", "rasi"), ("lpsis", "rpsis"), ("lasis", "rasis"))
-_SIDE_TOKENS = {"L": ("l", "left"), "R": ("r", "right")}
-
 #: Short gaps in mocap data (marker drop-outs) are bridged up to this length.
 MAX_GAP_S = 0.2
 
-
-def _key(label: str) -> str:
-    """Bare, lower-case, alphanumeric form of a label (subject prefix removed)."""
-    return re.sub(r"[^a-z0-9]", "", label.split(":")[-1].lower())
-
-
-def _side_part_keys(side: str, stem: str) -> list[str]:
-    ks: list[str] = []
-    for tok in _SIDE_TOKENS[side]:
-        ks += [tok + stem, stem + tok]
-    return ks
-
-
-def find_marker(labels: list[str], side: str, part: str) -> str | None:
-    """Label of the ``part`` (``ankle``/``heel``/``toe``) marker of ``side`` (``L``/``R``)."""
-    keys = [_key(lab) for lab in labels]
-    for stem in PART_STEMS[part]:
-        for k in _side_part_keys(side, stem):
-            if k in keys:
-                return labels[keys.index(k)]
-    return None
+# The marker-name matcher (find_marker, PART_STEMS) lives in engine.io.markers, with the
+# unit and vertical-axis detection that use the same names.
+_key = label_key
 
 
 def resolve_label(labels: list[str], name: str) -> str:
@@ -273,21 +248,24 @@ def feet_from_markers(
 
 
 def _pelvis(labels: list[str], P: FloatArray, t: FloatArray) -> tuple[FloatArray, str] | None:
-    keys = [_key(lab) for lab in labels]
-    for a, b in _PELVIS_PAIRS:
-        if a in keys and b in keys:
-            idx = [keys.index(a), keys.index(b)]
-            # Averaging both pairs when present gives the pelvis centre.
-            for c, d in _PELVIS_PAIRS:
-                if (c, d) != (a, b) and c in keys and d in keys:
-                    idx += [keys.index(c), keys.index(d)]
-            x = fill_gaps(t, nanstats.nanmean(P[:, idx], axis=1))  # NaN: no marker
-            return x, "+".join(labels[i] for i in idx)
-    for s in _PELVIS_SINGLE:
-        if s in keys:
-            i = keys.index(s)
-            return fill_gaps(t, P[:, i]), labels[i]
-    return None
+    """Pelvis centre: the mean of the PSIS and ASIS pairs found (either pair will do),
+    else a one-marker sacrum/pelvis, else the mean of the two hips; None without any."""
+    idx: list[int] = []
+    for part in ("psis", "asis"):
+        pair = [find_marker(labels, side, part) for side in ("L", "R")]
+        if pair[0] is not None and pair[1] is not None:
+            idx += [labels.index(pair[0]), labels.index(pair[1])]
+    if not idx:
+        keys = [_key(lab) for lab in labels]
+        single = next((keys.index(s) for s in PELVIS_SINGLE if s in keys), None)
+        if single is not None:
+            return fill_gaps(t, P[:, single]), labels[single]
+        hips = [find_marker(labels, side, "hip") for side in ("L", "R")]
+        if hips[0] is None or hips[1] is None:
+            return None
+        idx = [labels.index(hips[0]), labels.index(hips[1])]
+    x = fill_gaps(t, nanstats.nanmean(P[:, idx], axis=1))  # NaN: no marker
+    return x, "+".join(labels[i] for i in idx)
 
 
 def feet_from_skeleton(series: SkeletonSeries, up: str | None = "z",

@@ -17,7 +17,7 @@ from engine.errors import InputError
 from engine.io.markers import (
     MarkerEvent,
     MarkerTrajectories,
-    detect_units,
+    file_units,
     normalise_event,
     unit_scale,
 )
@@ -90,10 +90,8 @@ def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
     labels = (labels + [f"point{i + 1}" for i in range(len(labels), n_points)])[:n_points]
     rate = float(c["header"]["points"]["frame_rate"])
     units_v = _param(params, "POINT", "UNITS")
-    units = str(units_v[0]).strip() if units_v else ""
-    if not units:
-        # No POINT:UNITS: guess from the size of the body.
-        units = detect_units(pts[:3].transpose(2, 1, 0), labels)
+    # No POINT:UNITS, or an unknown one: guessed from the size of the body.
+    units = file_units(str(units_v[0]) if units_v else "", pts[:3].transpose(2, 1, 0), labels)
     scale = unit_scale(units)
 
     xyz = pts[:3].transpose(2, 1, 0) * scale  # (T, M, 3)

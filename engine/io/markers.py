@@ -138,44 +138,103 @@ def check_time_unit(times: NDArray[np.float64], name: str) -> None:
                              "must be in seconds (is it in milliseconds or ticks?)")
 
 
+#: Spelled-out unit names (singular, plural, British or US spelling) → symbol.
+_UNIT_WORDS = {"millimeter": "mm", "millimetre": "mm", "centimeter": "cm",
+               "centimetre": "cm", "decimeter": "dm", "decimetre": "dm", "meter": "m",
+               "metre": "m"}
+
+
+def normalise_units(units: str) -> str | None:
+    """The symbol (``"mm"``, ``"cm"``, ``"dm"``, ``"m"``) of a file's unit string, or None.
+
+    Exporters write the unit in any case, padded, in brackets or spelled out
+    (``"MM"``, ``" mm"``, ``"[mm]"``, ``"Millimeter"``, ``"metres"``); None for an empty
+    or unknown string (the caller then guesses the unit from the body size).
+    """
+    u = units.strip().strip("[]()").strip().rstrip(".").lower()
+    u = _UNIT_WORDS.get(u.removesuffix("s") if len(u) > 2 else u, u)
+    return u if u in UNIT_SCALE else None
+
+
 def unit_scale(units: str) -> float:
-    """Metres per ``units`` (``"mm"``, ``"cm"``, ``"m"``), or InputError."""
-    u = units.strip().lower()
-    if u in ("millimeters", "millimetres"):
-        u = "mm"
-    elif u in ("meters", "metres"):
-        u = "m"
-    elif u in ("centimeters", "centimetres"):
-        u = "cm"
-    if u not in UNIT_SCALE:
+    """Metres per ``units`` (``"mm"``, ``"cm"``, ``"m"``, spelled out or in any case),
+    or InputError."""
+    u = normalise_units(units)
+    if u is None:
         raise InputError(f"unknown length unit {units!r}; use one of mm, cm, m")
     return UNIT_SCALE[u]
 
 
-def _first_label(labels: list[str], patterns: tuple[str, ...]) -> int | None:
-    """Index of the first label whose bare name matches one of the regexes."""
-    for pat in patterns:
-        rx = re.compile(pat, re.IGNORECASE)
-        for i, lab in enumerate(labels):
-            bare = lab.split(":")[-1]
-            if rx.fullmatch(bare):
-                return i
+def file_units(units: str, positions: ArrayLike, labels: list[str]) -> str:
+    """The unit of a file's numbers: its header's, normalised (:func:`normalise_units`),
+    or guessed from the body size (:func:`detect_units`) when the header gives none or
+    one that is not a length unit (``--units`` then overrides it)."""
+    return normalise_units(units) or detect_units(positions, labels)
+
+
+#: Body-part name stems (after the side token is removed), most preferred first. Stems
+#: of two letters (IOR ``LM``, ``CA``) only match after a side prefix (``L_LM``).
+PART_STEMS: dict[str, tuple[str, ...]] = {
+    "ankle": ("ank", "ankle", "lmal", "malleolus", "latmal", "mal", "ajc", "anklejc", "fal",
+              "lm"),
+    "heel": ("hee", "heel", "fcc", "cal", "calc", "calcaneus", "ca"),
+    "toe": ("toe", "ttoe", "mt2", "fm2", "mth2", "mt1", "fm1", "toetip", "bigtoe",
+            "footindex", "foot", "foo"),
+    "asis": ("asi", "asis", "ias"),
+    "psis": ("psi", "psis", "ips"),
+    "hip": ("hip", "hjc"),
+}
+#: Words after a part's name that say which point of it is marked, as in ``L.Ankle.Lat``
+#: (OpenSim), ``LAnkleOut``, ``LHeelBack``, ``LToeTip`` (Qualisys): tried after the bare
+#: name. Medial points (``Ankle.Med``) are not taken for the ankle.
+PART_QUALIFIERS = ("lat", "lateral", "out", "outer", "back", "post", "posterior", "tip")
+#: One-marker pelvis/sacrum names (bare, lower-case, alphanumeric).
+PELVIS_SINGLE = ("sacr", "sacrum", "vsacral", "sacral", "pelvis", "spinebase", "hipcenter",
+                 "midhip", "root")
+_HEAD = ("c7", "head", "lfhd", "rfhd", "lbhd", "rbhd")
+_SIDE_TOKENS = {"L": ("l", "left"), "R": ("r", "right")}
+
+
+def label_key(label: str) -> str:
+    """Bare, lower-case, alphanumeric form of a label (``Subject:`` prefix removed)."""
+    return re.sub(r"[^a-z0-9]", "", label.split(":")[-1].lower())
+
+
+def side_part_keys(side: str, stem: str) -> list[str]:
+    """The label keys (:func:`label_key`) naming ``stem`` on ``side``, in order: side
+    token before or after the stem, then with a :data:`PART_QUALIFIERS` word."""
+    ks: list[str] = []
+    for q in ("",) + (PART_QUALIFIERS if len(stem) > 2 else ()):
+        for tok in _SIDE_TOKENS[side]:
+            ks.append(tok + stem + q)
+            if len(stem) > 2:
+                ks.append(stem + q + tok)
+    return ks
+
+
+def find_marker(labels: list[str], side: str, part: str) -> str | None:
+    """Label of the ``part`` (a :data:`PART_STEMS` key: ``ankle``, ``heel``, ``toe``,
+    ``asis``, ``psis``, ``hip``) marker of ``side`` (``L``/``R``), or None."""
+    keys = [label_key(lab) for lab in labels]
+    for stem in PART_STEMS[part]:
+        for k in side_part_keys(side, stem):
+            if k in keys:
+                return labels[keys.index(k)]
     return None
 
 
-_UPPER_PATTERNS = (r"[LR]ASI[S]?", r"[LR]PSI[S]?", r"SACR?", r"Pelvis", r"SpineBase", r"PELVIS",
-                   r"HipCenter", r"C7", r"Head", r"HEAD", r"[LR]FHD", r"[LR]BHD")
-_FOOT_PATTERNS = (r"[LR]HEE[L]?", r"[LR]ANK", r"[LR]TOE", r"[LR]_?FCC", r"[LR]\.?(Heel|Ankle)",
-                  r"(Ankle|Foot)(Left|Right)", r"(Left|Right)(Ankle|Heel|Foot)",
-                  r"[lr]_(ankle|heel)")
+def _keys_of(parts: tuple[str, ...]) -> set[str]:
+    return {k for p in parts for stem in PART_STEMS[p] for side in _SIDE_TOKENS
+            for k in side_part_keys(side, stem)}
 
 
-def _group(labels: list[str], patterns: tuple[str, ...]) -> list[int]:
-    out: list[int] = []
-    for pat in patterns:
-        rx = re.compile(pat, re.IGNORECASE)
-        out += [i for i, lab in enumerate(labels) if rx.fullmatch(lab.split(":")[-1])]
-    return sorted(set(out))
+_FOOT_KEYS = _keys_of(("ankle", "heel", "toe"))
+_UPPER_KEYS = _keys_of(("asis", "psis", "hip")) | set(PELVIS_SINGLE) | set(_HEAD)
+
+
+def _group(labels: list[str], keys: set[str]) -> list[int]:
+    """Indices of the labels whose :func:`label_key` is in ``keys``."""
+    return [i for i, lab in enumerate(labels) if label_key(lab) in keys]
 
 
 def characteristic_length(positions: ArrayLike, labels: list[str]) -> float:
@@ -185,8 +244,8 @@ def characteristic_length(positions: ArrayLike, labels: list[str]) -> float:
     over frames of the largest marker extent along any axis (≈ body height).
     """
     P = np.asarray(positions, dtype=float)
-    up = _group(labels, _UPPER_PATTERNS[:9])
-    feet = _group(labels, _FOOT_PATTERNS)
+    up = _group(labels, _UPPER_KEYS)
+    feet = _group(labels, _FOOT_KEYS)
     # missing markers are expected in mocap data: the ns.* reductions give NaN silently
     if up and feet:
         d = ns.nanmean(P[:, up], axis=1) - ns.nanmean(P[:, feet], axis=1)
@@ -219,8 +278,8 @@ def labelled_vertical_axis(positions: ArrayLike, labels: list[str]) -> str | Non
     """Vertical axis (with sign) along which labelled pelvis/head markers sit furthest
     above labelled foot markers, or None when the set lacks either group."""
     P = np.asarray(positions, dtype=float)
-    up = _group(labels, _UPPER_PATTERNS)
-    feet = _group(labels, _FOOT_PATTERNS)
+    up = _group(labels, _UPPER_KEYS)
+    feet = _group(labels, _FOOT_KEYS)
     if up and feet:
         d = ns.nanmedian(ns.nanmean(P[:, up], axis=1) - ns.nanmean(P[:, feet], axis=1),
                          axis=0)
@@ -251,7 +310,7 @@ def detect_vertical_axis(positions: ArrayLike, labels: list[str]) -> str:
     labelled = labelled_vertical_axis(P, labels)
     if labelled is not None:
         return labelled
-    feet = _group(labels, _FOOT_PATTERNS)
+    feet = _group(labels, _FOOT_KEYS)
     spread = ns.nanmedian(ns.nanstd(P, axis=1), axis=0)
     centroid = ns.nanmean(P, axis=1)
     travel = ns.nanstd(centroid, axis=0)

@@ -15,7 +15,7 @@ from engine.errors import InputError
 from engine.io.markers import (
     MarkerTrajectories,
     check_time_unit,
-    detect_units,
+    file_units,
     unit_scale,
 )
 
@@ -85,8 +85,8 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
     if not np.isfinite(rate) or rate <= 0:
         rate = float(1.0 / np.median(np.diff(times))) if len(times) > 1 else 1.0
     raw = A[:, 2:].reshape(len(A), M, 3)
-    # A header without Units: guess from the size of the body.
-    units = hdr.get("Units", "") or detect_units(raw, labels)
+    # A header without Units (or with one that is no length unit): guess from the body.
+    units = file_units(hdr.get("Units", ""), raw, labels)
     pos = raw * unit_scale(units)
     # Exporters (Vicon, Cortex) write a missing sample as 0,0,0, as C3D files do.
     pos[np.all(pos == 0.0, axis=-1)] = np.nan
