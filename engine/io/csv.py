@@ -18,18 +18,28 @@ from engine.io.markers import check_time_unit
 from engine.skeleton import JOINT_SETS, JointSet, SkeletonSeries, TrackingState
 
 
-def _joint_set_for_columns(names: list[str]) -> JointSet:
+def _joint_set_for_columns(names: list[str]) -> tuple[JointSet, dict[str, str]]:
+    """The smallest joint set naming every joint (case-insensitive), and the map from the
+    file's spelling to the set's."""
     best: JointSet | None = None
     for js in JOINT_SETS.values():
-        if set(names) <= set(js.joints) and (best is None or len(js.joints) < len(best.joints)):
+        known = {j.lower() for j in js.joints}
+        if ({n.lower() for n in names} <= known
+                and (best is None or len(js.joints) < len(best.joints))):
             best = js
     if best is None:
-        unknown = sorted(set(names) - set(JOINT_SETS["kinect_v2"].joints))
+        all_known = {j.lower() for js in JOINT_SETS.values() for j in js.joints}
+        unknown = sorted(n for n in names if n.lower() not in all_known)
         raise InputError(
             "unknown joint names in CSV header: " + ", ".join(unknown[:8])
             + "; use Kinect v2 SDK names such as SpineBase, AnkleLeft, AnkleRight"
         )
-    return best
+    canon = {j.lower(): j for j in best.joints}
+    return best, {n: canon[n.lower()] for n in names}
+
+
+#: Names of the time column (seconds), case-insensitive.
+_TIME_COLUMNS = ("time", "time_s")
 
 
 def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
@@ -56,27 +66,33 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
     if len(header) == 1 and header[0].count(";") >= 3:
         raise InputError(f"{p.name} is separated by semicolons; the skeleton CSV format is "
                          "comma-separated (time,<Joint>_x,<Joint>_y,<Joint>_z, decimal points)")
-    if not header or header[0].lower() != "time":
-        raise InputError(f"{p.name}: the first column must be 'time' (seconds)")
+    time_cols = [i for i, h in enumerate(header) if h.lower() in _TIME_COLUMNS]
+    if not time_cols:
+        raise InputError(f"{p.name}: no 'time' column; the first column must be 'time' "
+                         "(seconds), then <Joint>_x,<Joint>_y,<Joint>_z[,<Joint>_state]")
+    # Columns other than time and <Joint>_x/_y/_z/_state (a frame counter, a body id, a
+    # spreadsheet's unnamed index column) are left out.
+    col: dict[str, int] = {"time": time_cols[0]}
     joints: list[str] = []
-    for h in header[1:]:
+    for i, h in enumerate(header):
         base, _, suffix = h.rpartition("_")
-        if suffix not in ("x", "y", "z", "state") or not base:
-            raise InputError(f"{p.name}: column {h!r} is not <Joint>_x/_y/_z/_state")
+        if i == time_cols[0] or suffix.lower() not in ("x", "y", "z", "state") or not base:
+            continue
+        col[f"{base}_{suffix.lower()}"] = i
         if base not in joints:
             joints.append(base)
-    col = {h: i for i, h in enumerate(header)}
     for j in joints:
         missing = [f"{j}_{a}" for a in "xyz" if f"{j}_{a}" not in col]
         if missing:
             raise InputError(f"{p.name}: joint {j} lacks column(s) {', '.join(missing)}")
-    js = _joint_set_for_columns(joints)
+    js, canon = _joint_set_for_columns(joints)
     if not rows:
         raise InputError(f"{p.name} has no data rows")
     A = np.full((len(rows), len(header)), np.nan)
+    used = sorted(col.values())
     for i, r in enumerate(rows):
-        for k, cell in enumerate(r[: len(header)]):
-            s = cell.strip()
+        for k in used:
+            s = r[k].strip() if k < len(r) else ""
             if s:
                 try:
                     A[i, k] = float(s)
@@ -88,7 +104,7 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
     pos = np.full((T, J, 3), np.nan)
     states = np.zeros((T, J), dtype=np.uint8)
     for j in joints:
-        ji = js.index(j)
+        ji = js.index(canon[j])
         pos[:, ji] = A[:, [col[f"{j}_{a}"] for a in "xyz"]]
         ok = np.all(np.isfinite(pos[:, ji]), axis=1)
         if f"{j}_state" in col:
@@ -99,16 +115,17 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
             states[:, ji] = np.where(ok, st, TrackingState.NOT_TRACKED).astype(np.uint8)
         else:
             states[:, ji] = np.where(ok, TrackingState.TRACKED, TrackingState.NOT_TRACKED)
-    if np.any(~np.isfinite(A[:, 0])):
+    times = A[:, col["time"]]
+    if np.any(~np.isfinite(times)):
         raise InputError(f"{p.name}: every row needs a time")
-    back = np.flatnonzero(np.diff(A[:, 0]) <= 0)
+    back = np.flatnonzero(np.diff(times) <= 0)
     if len(back):
         i = int(back[0]) + 1
-        raise InputError(f"{p.name} row {i + 2}: time {A[i, 0]:g} is not after the "
+        raise InputError(f"{p.name} row {i + 2}: time {times[i]:g} is not after the "
                          "previous row's; times must be strictly increasing (remove "
                          "repeated or out-of-order rows)")
-    check_time_unit(A[:, 0], p.name)
-    return SkeletonSeries(A[:, 0], pos, states, js, {"source": str(p)})
+    check_time_unit(times, p.name)
+    return SkeletonSeries(times, pos, states, js, {"source": str(p)})
 
 
 def write_skeleton_csv(path: str | Path, series: SkeletonSeries, with_states: bool = True) -> None:

@@ -53,7 +53,9 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
         raise InputError(f"{p.name}: no marker names on line 4{hint}")
     rows: list[np.ndarray] = []
     row_lines: list[int] = []
-    for ln, line in enumerate(lines[5:], start=6):
+    # Line 5 is the X1/Y1/Z1 row, but some exporters leave it out and start the data there.
+    first_row = 5 if lines[4].strip()[:1].isalpha() or not lines[4].strip() else 4
+    for ln, line in enumerate(lines[first_row:], start=first_row + 1):
         if not line.strip():
             continue
         cells = [""] * (1 - has_frame) + line.split("\t")
@@ -82,8 +84,14 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
                          "after the previous row's; times must increase (remove repeated or "
                          "out-of-order rows)")
     check_time_unit(times, p.name)
-    if not np.isfinite(rate) or rate <= 0:
-        rate = float(1.0 / np.median(np.diff(times))) if len(times) > 1 else 1.0
+    if len(times) > 1:
+        # The Time column is the data's time axis: a DataRate that disagrees with it (an
+        # export resampled under its original header) gives way.
+        rate_t = float(1.0 / np.median(np.diff(times)))
+        if not np.isfinite(rate) or rate <= 0 or abs(rate / rate_t - 1.0) > 0.01:
+            rate = rate_t
+    elif not np.isfinite(rate) or rate <= 0:
+        rate = 1.0
     raw = A[:, 2:].reshape(len(A), M, 3)
     # A header without Units (or with one that is no length unit): guess from the body.
     units = file_units(hdr.get("Units", ""), raw, labels)

@@ -27,10 +27,11 @@ from scipy.interpolate import CubicSpline
 
 from app.cli import main
 from engine.io.c3d import read_c3d, write_c3d
+from engine.io.csv import write_skeleton_csv
 from engine.io.markers import MarkerTrajectories, up_rotation
 from engine.io.trc import write_trc
 from engine.sim.walker import Walker, WalkerParams
-from engine.skeleton import KINECT_V2
+from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
 
 Doc = dict[str, Any]
 
@@ -548,3 +549,192 @@ def test_marker_naming_conventions(naming: str, real: tuple[MarkerTrajectories, 
     pelvis = ("no_pelvis" if "LASI" not in names and "SACR" not in names
               else "plug_in_gait")
     _same_steps(real_feet_ref[pelvis], doc, 0.01)
+
+
+def test_ankle_preferred_over_heel(real: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """With both, the ankle is the point measured (docs/gait-json.md, "Inputs"); without
+    an ankle the heel is, and --left/--right choose either."""
+    from engine.mocap import load_feet
+
+    m, _ref = real
+    both = _write("c3d", _renamed(m, NAMINGS["cortex_underscore"]), tmp_path / "b.c3d")
+    feet = load_feet(both)
+    assert feet.primary == {"L": "ankle", "R": "ankle"}
+    assert (feet.sources["L_ankle"], feet.sources["L_heel"]) == ("L_Ankle", "L_Heel")
+    no_ankle = {k: v for k, v in NAMINGS["cortex_underscore"].items() if k != "LANK"}
+    heel = _write("c3d", _renamed(m, no_ankle), tmp_path / "h.c3d")
+    assert load_feet(heel).primary == {"L": "heel", "R": "heel"}
+    rc, by_heel, err = _run([str(heel), "--json"], capsys)
+    assert rc == 0 and by_heel is not None, err
+    rc, chosen, err = _run([str(both), "--json", "--left", "l_heel", "--right", "R_HEEL"],
+                           capsys)
+    assert rc == 0 and chosen is not None, err
+    _same_steps(by_heel, chosen, 0.01)
+
+
+@pytest.mark.parametrize("naming", ["opensim_gait2392", "qualisys_cast", "ior_rizzoli",
+                                    "qualisys_animation", "mediapipe_markerless", "kinect"])
+@pytest.mark.parametrize("up", ["y", "-y", "x"])
+def test_naming_conventions_other_axes(naming: str, up: str,
+                                       real: tuple[MarkerTrajectories, Doc],
+                                       real_feet_ref: dict[str, Doc], tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """The names also tell up from down (pelvis/hips above the feet) in other axes."""
+    m, _ = real
+    names = NAMINGS[naming]
+    p = _write("c3d", _file_axes(_renamed(m, names), up), tmp_path / "n.c3d")
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(real_feet_ref["plug_in_gait"], doc, 0.01)
+
+
+# ------------------------------------------------------------------ TRC dialects
+
+def _trc_lines(m: MarkerTrajectories, tmp: Path, units: str = "mm") -> list[str]:
+    p = tmp / "_base.trc"
+    write_trc(p, m, units=units)
+    return p.read_text().split("\n")
+
+
+def _cortex(lines: list[str]) -> list[str]:
+    """Cortex: a Windows path in line 1, names and data rows ending in tabs, CRLF."""
+    out = list(lines)
+    out[0] = "PathFileType\t4\t(X/Y/Z)\tC:\\Cortex\\Data\\walk.trc"
+    return [ln + "\t" if i >= 3 and ln else ln for i, ln in enumerate(out)]
+
+
+def _no_xyz_row(lines: list[str]) -> list[str]:
+    """No X1/Y1/Z1 row and no blank line: the data start on line 5."""
+    return lines[:4] + [ln for ln in lines[5:] if ln]
+
+
+def _wrong_rate(lines: list[str]) -> list[str]:
+    """A DataRate that disagrees with the Time column (a resampled export)."""
+    out = list(lines)
+    vals = out[2].split("\t")
+    vals[0] = vals[1] = str(float(vals[0]) * 2.5)
+    out[2] = "\t".join(vals)
+    return out
+
+
+def _opensim_metres(lines: list[str]) -> list[str]:
+    """OpenSim's own writer: metres, 'm' in the header, trailing tab on header lines."""
+    return [ln + "\t" if i in (1, 2) else ln for i, ln in enumerate(lines)]
+
+
+TRC_DIALECTS: dict[str, tuple[str, Callable[[list[str]], list[str]], str, bytes]] = {
+    # name: (units written, edit of the lines, line ending, prefix bytes)
+    "cortex_crlf": ("mm", _cortex, "\r\n", b""),
+    "bom_crlf_trailing_tabs": ("mm", lambda ls: [ln + "\t\t" for ln in ls], "\r\n",
+                               b"\xef\xbb\xbf"),
+    "opensim_metres": ("m", _opensim_metres, "\n", b""),
+    "units_upper_M": ("m", lambda ls: [ln.replace("\tm\t", "\tM\t") for ln in ls], "\n", b""),
+    "units_word_meters": ("m", lambda ls: [ln.replace("\tm\t", "\tmeters\t") for ln in ls],
+                          "\n", b""),
+    "no_xyz_row": ("mm", _no_xyz_row, "\n", b""),
+    "wrong_data_rate": ("mm", _wrong_rate, "\n", b""),
+    "old_mac_cr": ("mm", lambda ls: ls, "\r", b""),
+}
+
+
+@pytest.mark.parametrize("case", sorted(TRC_DIALECTS))
+def test_trc_dialects(case: str, base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
+                      capsys: pytest.CaptureFixture[str]) -> None:
+    m, ref = base
+    units, edit, eol, prefix = TRC_DIALECTS[case]
+    p = tmp_path / "d.trc"
+    p.write_bytes(prefix + eol.join(edit(_trc_lines(m, tmp_path, units))).encode())
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc, 1.0 / m.rate)
+
+
+def test_trc_first_frame_kept_without_xyz_row(synth: tuple[MarkerTrajectories, Doc],
+                                              tmp_path: Path) -> None:
+    from engine.io.trc import read_trc
+
+    m, _ = synth
+    p = tmp_path / "d.trc"
+    p.write_text("\n".join(_no_xyz_row(_trc_lines(m, tmp_path))))
+    got = read_trc(p)
+    assert len(got) == len(m) and got.times[0] == m.times[0]
+    assert got.rate == m.rate
+
+
+# ------------------------------------------------------------------ skeleton CSV dialects
+
+@pytest.fixture(scope="module")
+def skeleton_csv(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, Doc]:
+    """The walker as a skeleton CSV (our schema, with _state columns) and its answer."""
+    w = Walker(WalkerParams(), [0.0, 0.0, 0.0], [5.0, 0.0, 0.0], start_time=0.5, seed=3)
+    t = np.arange(700) / 100.0
+    J = w.joints(t)
+    s = SkeletonSeries(t, J, np.full(J.shape[:2], TrackingState.TRACKED, dtype=np.uint8),
+                       KINECT_V2)
+    p = tmp_path_factory.mktemp("csv") / "ref.csv"
+    write_skeleton_csv(p, s)
+    return p.read_text(), _doc([str(p)])
+
+
+def _columns(text: str, edit: Callable[[list[list[str]]], list[list[str]]]) -> str:
+    rows = [ln.split(",") for ln in text.strip().split("\n")]
+    return "\n".join(",".join(r) for r in edit(rows)) + "\n"
+
+
+def _insert(rows: list[list[str]], at: int, name: str,
+            value: Callable[[int], str]) -> list[list[str]]:
+    return [[*r[:at], name if i == 0 else value(i), *r[at:]] for i, r in enumerate(rows)]
+
+
+def _move_time(rows: list[list[str]]) -> list[list[str]]:
+    return [[*r[1:7], r[0], *r[7:]] for r in rows]
+
+
+CSV_DIALECTS: dict[str, Callable[[str], str]] = {
+    "pandas_index_column": lambda s: _columns(s, lambda rs: _insert(rs, 0, "",
+                                                                    lambda i: str(i - 1))),
+    "extra_columns": lambda s: _columns(s, lambda rs: _insert(
+        _insert(rs, 1, "frame", str), 5, "body_id", lambda i: "72057594037928806")),
+    "text_column": lambda s: _columns(s, lambda rs: _insert(rs, 3, "subject",
+                                                            lambda i: "P01")),
+    "time_not_first": lambda s: _columns(s, _move_time),
+    "Time_capital_upper_axes": lambda s: _columns(s, lambda rs: [
+        [c.replace("_x", "_X").replace("_y", "_Y").replace("_z", "_Z") if i == 0 else c
+         for c in r] if i == 0 else r for i, r in enumerate(
+            [["Time", *rs[0][1:]], *rs[1:]])]),
+    "time_s_column": lambda s: s.replace("time,", "time_s,", 1),
+    "lower_case_joints": lambda s: s.replace(s.split("\n", 1)[0], s.split("\n", 1)[0].lower()),
+    "bom_crlf": lambda s: "\ufeff" + s.replace("\n", "\r\n"),
+    "no_states_trailing_comma": lambda s: _columns(s, lambda rs: [
+        [c for j, c in enumerate(r) if not rs[0][j].endswith("_state")] + [""] for r in rs]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CSV_DIALECTS))
+def test_csv_dialects(case: str, skeleton_csv: tuple[str, Doc], tmp_path: Path,
+                      capsys: pytest.CaptureFixture[str]) -> None:
+    text, ref = skeleton_csv
+    p = tmp_path / "d.csv"
+    p.write_bytes(CSV_DIALECTS[case](text).encode())
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc, 0.01)
+
+
+@pytest.mark.parametrize(("case", "expect"), [
+    ("unknown_joint", "unknown joint names in CSV header: Ankle_Lft"),
+    ("no_time", "no 'time' column"),
+])
+def test_csv_dialects_refused(case: str, expect: str, skeleton_csv: tuple[str, Doc],
+                              tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    text, _ = skeleton_csv
+    head, rest = text.split("\n", 1)
+    if case == "unknown_joint":
+        head = head.replace("AnkleLeft_", "Ankle_Lft_")
+    else:
+        head = head.replace("time,", "frame,", 1)
+    p = tmp_path / "d.csv"
+    p.write_text(head + "\n" + rest)
+    rc, _, err = _run([str(p), "--json"], capsys)
+    assert rc == 2 and expect in err, err
