@@ -129,13 +129,21 @@ const gaitrig = (() => {
     const status = n.connected ? el("span", { class: "ok" }, "online") : el("span", { class: "off" }, "offline");
     const notes = el("ul", { class: "warnings" });
     for (const w of n.warnings) notes.append(el("li", {}, w));
+    // what the sensor itself warned about after it connected (body tracking stopped, its
+    // clock, frames late): the newest three, with when it last did
+    for (const w of (n.node_warnings || []).slice(0, 3)) {
+      const at = new Date(w.at * 1000);
+      const time = at.toDateString() === new Date().toDateString() ? at.toLocaleTimeString() : at.toLocaleString();
+      notes.append(el("li", { class: "node-warning" }, `The sensor warned at ${time}: ${w.text}` +
+        (w.repeats > 1 ? ` (${w.repeats} times)` : "")));
+    }
     const free = diskCell(n);
     return el("tr", { "data-node": n.id },
       el("th", { scope: "row" }, n.id), el("td", {}, status),
       el("td", { class: "num" }, n.connected ? fmt(n.fps, 1, " fps") : "—"),
       el("td", { class: "num" }, String(n.dropped_frames)),
       el("td", { class: "num" }, clockCell(n, warnMs)),
-      el("td", { class: "num" }, free), el("td", {}, n.warnings.length ? notes : "OK"));
+      el("td", { class: "num" }, free), el("td", {}, notes.children.length ? notes : "OK"));
   }
 
   // Requests that poll a state overlap on a slow server and can be answered out of

@@ -33,6 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="skeletons only; never render images (light CPU load)")
     sim.add_argument("--report-true-clock", action="store_true",
                      help="TEST ONLY: report the simulated true clock offset in status")
+    sim.add_argument("--test-warning", metavar="TEXT",
+                     help="TEST ONLY: raise this sensor warning every 5 s, as a sensor in "
+                          "trouble would (it shows on the Rig page beside the node)")
     rep = parser.add_argument_group("replay backend")
     rep.add_argument("--recording", type=Path, help="recording part folder to play back")
     rep.add_argument("--loop", action="store_true", help="replay in a loop")
@@ -65,7 +68,8 @@ def make_backend(args: argparse.Namespace) -> object:
 
         return SimBackend(args.id, rig_path=args.rig, seed=args.seed,
                           clock_offset_s=args.clock_offset, clock_drift_ppm=args.clock_drift_ppm,
-                          images=not args.no_images, report_truth=args.report_true_clock)
+                          images=not args.no_images, report_truth=args.report_true_clock,
+                          test_warning=args.test_warning)
     if args.backend == "replay":
         from app.nodes.backends.replay import ReplayBackend
 

@@ -47,6 +47,7 @@ from app.nodes.protocol import (
     ManifestRequest,
     NodeError,
     NodeStorage,
+    NodeWarning,
     PartInfo,
     PartList,
     PartVerified,
@@ -99,6 +100,20 @@ _CLOCK_READ_MAX_S = 0.002  # a read of both clocks slower than this is not compa
 RETENTION_CHECK_S = 10.0  # free space checked this often (a purge runs when it is short)
 RETENTION_FULL_S = 300.0  # a purge by age at least this often
 LOW_SPACE_WARN_S = 600.0  # "below the floor and nothing to purge" at most this often
+#: Backend warnings (:meth:`Backend.warn`) go to the server as ``warning`` messages: at
+#: most WARNING_BURST at once, then one per WARNING_INTERVAL_S (a token bucket); repeats of
+#: a text still waiting are coalesced into it, and at most WARNING_BACKLOG distinct texts
+#: wait (the oldest is dropped, and counted).
+WARNING_BURST = 5
+WARNING_INTERVAL_S = 10.0
+WARNING_BACKLOG = 20
+
+
+@dataclass
+class _PendingWarning:
+    text: str
+    t: float  # node clock, last raised
+    repeats: int = 1
 
 
 _cut: set[tuple[str, int]] = set()
@@ -272,6 +287,13 @@ class NodeAgent:
         self.purged_bytes = 0
         self._last_purge: str | None = None
         self._low_space_warned = -float("inf")
+        # Backend warnings for the server (:meth:`_flush_warnings`)
+        self._warnings: deque[_PendingWarning] = deque()
+        self._warning_tokens = float(WARNING_BURST)
+        self._warning_refilled = time.monotonic()
+        self.warnings_dropped = 0
+        self._server_takes_warnings = False
+        backend.warning_sink = self._on_backend_warning
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -372,13 +394,20 @@ class NodeAgent:
         backoff = 0.2
         while not self._stop.is_set():
             try:
+                # newest first (the ones a recording may still wait for), in bounded
+                # messages: a node offline through a long day holds more parts than one
+                # message may carry. Listed before connecting: the server gives a new
+                # connection a few seconds for its hello, and reading every part's
+                # meta.json from a slow disk must not eat into them.
+                batches = await asyncio.to_thread(
+                    lambda: part_batches(self.store.parts()[::-1]))
                 # compression=None: permessage-deflate would squeeze every transfer
                 # chunk and depth frame through zlib (tens of MB/s) for no gain
                 async with connect(self.server_url, max_size=None, open_timeout=5,
                                    ping_interval=5, ping_timeout=10,
                                    compression=None) as ws:
                     backoff = 0.2
-                    await self._session(ws)
+                    await self._session(ws, batches)
             except NodeRefusedError:
                 raise
             except ServerBusyError as exc:
@@ -400,11 +429,10 @@ class NodeAgent:
             # Until the first connection (server still starting) retry quickly.
             backoff = min(backoff * 2.0, 5.0 if self._ever_connected else 1.0)
 
-    async def _session(self, ws: ClientConnection) -> None:
+    async def _session(self, ws: ClientConnection, batches: list[list[PartInfo]]) -> None:
+        """One connection: hello with the first batch of the part listing, the rest after
+        the welcome, then serve until it ends."""
         assert self.info is not None
-        # newest first (the ones a recording may still wait for), in bounded messages: a
-        # node offline through a long day holds more parts than one message may carry
-        batches = part_batches(self.store.parts()[::-1])
         await ws.send(dump(Hello(node_id=self.node_id, token=self.token,
                                  backend=self.backend.name, sensor=self.info,
                                  parts=batches[0] if batches else [],
@@ -420,6 +448,8 @@ class NodeAgent:
             raise NodeRefusedError(f"server refused node {self.node_id}: {msg.reason}")
         if not isinstance(msg, Welcome):
             raise ProtocolError(f"expected welcome, got {msg.type}")
+        # an older server answers a warning with an error: send none to it
+        self._server_takes_warnings = "warning" in (msg.accepts or [])
         for batch in batches[1:]:
             await ws.send(dump(PartList(parts=batch)))
         log.info("connected to %s", self.server_url)
@@ -427,6 +457,7 @@ class NodeAgent:
         self._ws = ws
         while not self._out.empty():  # stale frames from before the reconnect
             self._out.get_nowait()
+        self._flush_warnings()  # those raised while disconnected
         sender = asyncio.create_task(self._sender(ws))
         status = asyncio.create_task(self._status_loop(ws))
         stopper = asyncio.create_task(self._stop.wait())
@@ -1049,6 +1080,46 @@ class NodeAgent:
         self._prepare_manifest(info.rec_id)
         self._storage_changed()
 
+    # ------------------------------------------------------------------ warnings
+
+    def _on_backend_warning(self, text: str) -> None:
+        """The backend's :meth:`Backend.warn` (any thread): queue it for the server."""
+        loop = self._loop
+        if loop is None or loop.is_closed():
+            return  # not running: the log has it
+        with contextlib.suppress(RuntimeError):  # the loop closing meanwhile
+            loop.call_soon_threadsafe(self._queue_warning, text)
+
+    def _queue_warning(self, text: str) -> None:
+        """Queue a warning (event loop): a text already waiting counts one more repeat."""
+        text = " ".join(text.split()) or "The sensor backend raised an empty warning."
+        t = self.now()
+        for w in self._warnings:
+            if w.text == text:
+                w.repeats += 1
+                w.t = t
+                break
+        else:
+            if len(self._warnings) >= WARNING_BACKLOG:
+                self._warnings.popleft()
+                self.warnings_dropped += 1
+            self._warnings.append(_PendingWarning(text, t))
+        self._flush_warnings()
+
+    def _flush_warnings(self) -> None:
+        """Send the waiting warnings the rate limit allows (event loop); they wait while
+        the node is disconnected or its server does not take them."""
+        now = time.monotonic()
+        self._warning_tokens = min(float(WARNING_BURST), self._warning_tokens
+                                   + (now - self._warning_refilled) / WARNING_INTERVAL_S)
+        self._warning_refilled = now
+        if self._ws is None or not self._server_takes_warnings:
+            return
+        while self._warnings and self._warning_tokens >= 1.0:
+            w = self._warnings.popleft()
+            self._warning_tokens -= 1.0
+            self._send_control(dump(NodeWarning(text=w.text, t=w.t, repeats=w.repeats)))
+
     # ------------------------------------------------------------------ status
 
     def fps(self) -> float:
@@ -1077,4 +1148,5 @@ class NodeAgent:
                     del self._finished[rec_id]
                 else:
                     self._send_control(dump(RecState(part=info)))
+            self._flush_warnings()  # those waiting for the rate limit
             await asyncio.sleep(1.0)

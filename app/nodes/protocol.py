@@ -28,8 +28,10 @@ sensor description, parts it holds: as many as :data:`PART_LIST_BYTES` allow, th
 (with a reason, then closes with code 4401/4400). Afterwards the server sends ``ping`` every
 ~0.1 s, ``rec_start``/``rec_stop`` for synchronous recordings, ``subscribe`` for image
 streams at N fps, ``snapshot`` for a one-off image set; the node streams skeleton frames,
-``status`` once per second, ``rec_state`` when a recording part changes, and answers
-malformed input with ``error`` (never by closing).
+``status`` once per second, ``rec_state`` when a recording part changes, ``warning`` when
+its sensor backend runs into a problem (revision 2, only to a server whose welcome accepts
+it: :data:`PROTOCOL_REVISION`), and answers malformed input with ``error`` (never by
+closing).
 """
 
 from __future__ import annotations
@@ -46,6 +48,13 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError,
 from engine.errors import InputError
 
 PROTOCOL_VERSION = 1
+#: Revision of version 1 a node speaks, sent as ``hello.protocol`` (which servers before it
+#: never checked): 2 adds the node's ``warning`` messages. A server answers a node of
+#: revision 2 or later with ``welcome.accepts`` naming the optional messages it takes; an
+#: older node gets the welcome it knows (its parser refuses unknown fields), and a node
+#: sends a ``warning`` only to a server whose welcome accepts it (an older one would
+#: answer each with ``error``).
+PROTOCOL_REVISION = 2
 BINARY_MAGIC = b"GRB" + bytes([PROTOCOL_VERSION])
 _HDR = struct.Struct("<4sI")
 MAX_BINARY_HEADER = 16 * 1024
@@ -125,7 +134,8 @@ class Hello(_Msg):
     type: Literal["hello"] = "hello"
     node_id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
     token: str = Field(max_length=256)
-    protocol: int = PROTOCOL_VERSION
+    protocol: int = Field(default=PROTOCOL_REVISION,
+                          description="Revision of version 1 (PROTOCOL_REVISION).")
     backend: str = "unknown"
     agent_started: float = Field(default=0.0, description="Node-local start of the agent.")
     sensor: SensorInfo = Field(default_factory=lambda: SensorInfo())
@@ -227,16 +237,52 @@ class NodeError(_Msg):
     reason: str = Field(max_length=2000)
 
 
-NodeMessage = Annotated[Hello | PartList | Pong | Status | RecState | NodeError,
+#: Characters of a node warning's text (a longer one is cut with an ellipsis).
+WARNING_CHARS = 500
+
+
+class NodeWarning(_Msg):
+    """A problem the node's sensor backend ran into after the node connected (body
+    tracking stopped, an unreliable device clock, frames dropped), for the Rig page.
+
+    Revision 2 (:data:`PROTOCOL_REVISION`); sent only to a server whose ``welcome``
+    accepts ``warning``. The node coalesces repeats of one text (``repeats``: how many
+    times it was raised since the last message about it) and sends at most a few a minute
+    (:data:`app.nodes.agent.WARNING_BURST`, :data:`app.nodes.agent.WARNING_INTERVAL_S`).
+    """
+
+    type: Literal["warning"] = "warning"
+    text: Annotated[str, Field(min_length=1, max_length=WARNING_CHARS)]
+    t: float = Field(description="Node-local time it was last raised (s).")
+    repeats: int = Field(default=1, ge=1, le=1_000_000)
+
+    @field_validator("text", mode="before")
+    @classmethod
+    def _cut_text(cls, v: Any) -> Any:
+        if isinstance(v, str) and len(v) > WARNING_CHARS:
+            return v[:WARNING_CHARS - 1] + "…"
+        return v
+
+
+NodeMessage = Annotated[Hello | PartList | Pong | Status | RecState | NodeError | NodeWarning,
                         Field(discriminator="type")]
 
 # --------------------------------------------------------------------------- server → node
+
+
+#: Optional node messages a server of this revision takes (``welcome.accepts``).
+ACCEPTED_NODE_MESSAGES = ("warning",)
 
 
 class Welcome(_Msg):
     type: Literal["welcome"] = "welcome"
     server_time: float
     ping_interval_s: float
+    # plain strings: a later server may name messages this node does not know
+    accepts: list[Annotated[str, Field(max_length=32)]] | None = Field(
+        default=None, max_length=32,
+        description="Optional node messages this server takes; sent only to nodes of "
+        "revision 2 or later (an older node's parser refuses the field).")
 
 
 class Refused(_Msg):
@@ -421,7 +467,10 @@ def parse_server_message(text: str | bytes, limit: int = 1024 * 1024) -> Any:
 
 
 def dump(msg: BaseModel) -> str:
-    """Serialise a control message."""
+    """Serialise a control message (an optional field left at None is left out: a peer of
+    an older revision refuses fields it does not know)."""
+    if isinstance(msg, Welcome) and msg.accepts is None:
+        return msg.model_dump_json(exclude={"accepts"})
     return msg.model_dump_json()
 
 

@@ -25,8 +25,10 @@ from starlette.websockets import WebSocketState
 from app.api.security import LoginThrottle
 from app.config import Settings
 from app.nodes.protocol import (
+    ACCEPTED_NODE_MESSAGES,
     Hello,
     NodeError,
+    NodeWarning,
     PartInfo,
     PartList,
     Ping,
@@ -62,7 +64,7 @@ MAX_PENDING_HELLOS = 8
 MAX_PENDING_HELLOS_PER_ADDRESS = 2
 #: Seconds a new connection has to send its hello. A node sends it as soon as the websocket
 #: is open (milliseconds on a LAN), so this only bounds how long a silent peer holds a slot.
-HELLO_TIMEOUT_S = 3.0
+HELLO_TIMEOUT_S = 5.0
 #: Largest image a node may send, in pixels: the largest sensor mode (Azure Kinect colour
 #: 4096×3072) with room. A few kB of PNG or JPEG can declare far more, and the decoder
 #: would allocate for the declaration (a decompression bomb), so the header is read first.
@@ -238,7 +240,7 @@ class Hub:
         try:
             # inside the try: a node gone before its welcome is disconnected, not left
             # registered as connected
-            await ws.send_text(dump(_welcome(self.settings)))
+            await ws.send_text(dump(_welcome(self.settings, hello.protocol)))
             self._on_listing(hello.node_id, hello.parts)
             pinger = asyncio.create_task(self._ping_loop(ws, session))
             await self._message_loop(ws, session, generation)
@@ -325,6 +327,12 @@ class Hub:
                 self._on_listing(s.id, m.parts)
             elif isinstance(m, NodeError):
                 log.warning("node %s reported: %s", s.id, m.reason)
+            elif isinstance(m, NodeWarning):
+                at = s.to_server(m.t)
+                # no clock estimate yet, or one that puts it after its arrival: arrival
+                at = t4 if at is None else min(at, t4)
+                if s.on_warning(m.text, at, m.repeats, t4):
+                    log.warning("node %s warns: %s", s.id, m.text)
             elif isinstance(m, Hello):
                 await self._reject(ws, s, "hello sent twice on one connection")
 
@@ -360,5 +368,8 @@ class Hub:
                                                 header)
 
 
-def _welcome(settings: Settings) -> Welcome:
-    return Welcome(server_time=time.time(), ping_interval_s=settings.clock_ping_interval_s)
+def _welcome(settings: Settings, revision: int) -> Welcome:
+    """The welcome for a node of protocol ``revision`` (an older node's parser refuses
+    fields it does not know: it gets none)."""
+    return Welcome(server_time=time.time(), ping_interval_s=settings.clock_ping_interval_s,
+                   accepts=list(ACCEPTED_NODE_MESSAGES) if revision >= 2 else None)

@@ -21,6 +21,21 @@ from app.server.clock import ClockEstimate, ClockEstimator
 
 SendFn = Callable[[str], Awaitable[None]]
 
+#: Distinct backend warnings kept per node (the newest; a repeat updates its entry).
+NODE_WARNINGS_KEPT = 5
+#: Warning messages taken from one node per minute at most; more are counted, not kept
+#: (a node sends far fewer: :data:`app.nodes.agent.WARNING_BURST`).
+NODE_WARNINGS_PER_MINUTE = 20
+
+
+@dataclass
+class NodeWarningRecord:
+    """A warning a node's backend raised after it connected (``warning`` message)."""
+
+    at: float  # server time it was last raised
+    text: str
+    repeats: int = 1
+
 
 @dataclass
 class LatestSkeleton:
@@ -68,6 +83,34 @@ class NodeSession:
     images: dict[str, LatestImage] = field(default_factory=dict)
     rejected_messages: int = 0
     last_rejection: str | None = None
+    node_warnings: deque[NodeWarningRecord] = field(
+        default_factory=lambda: deque(maxlen=NODE_WARNINGS_KEPT))
+    node_warnings_dropped: int = 0
+    _warning_arrivals: deque[float] = field(
+        default_factory=lambda: deque(maxlen=NODE_WARNINGS_PER_MINUTE))
+
+    def on_warning(self, text: str, at: float, repeats: int, now: float) -> bool:
+        """Keep a backend warning of the node (newest first in the health record).
+
+        A text already kept moves to the front with its repeats added. Beyond
+        :data:`NODE_WARNINGS_PER_MINUTE` messages a minute (a broken or hostile node) the
+        warning is only counted.
+
+        Returns:
+            Whether it was kept.
+        """
+        arrivals = self._warning_arrivals
+        if len(arrivals) == arrivals.maxlen and now - arrivals[0] < 60.0:
+            self.node_warnings_dropped += 1
+            return False
+        arrivals.append(now)
+        for w in list(self.node_warnings):
+            if w.text == text:
+                self.node_warnings.remove(w)
+                repeats += w.repeats
+                break
+        self.node_warnings.append(NodeWarningRecord(at, text, repeats))
+        return True
 
     def fps(self, now: float) -> float:
         """Skeleton frames per second received over the last ~3 s (0 when silent)."""
@@ -124,6 +167,9 @@ class NodeRegistry:
             self.nodes[node_id] = s
         elif restarted:
             s.clock.reset()
+            # the warnings were the previous agent process's
+            s.node_warnings.clear()
+            s.node_warnings_dropped = 0
         s.backend, s.sensor, s.send = backend, sensor, send
         s.connected, s.connected_at = True, time.time()
         s.last_seen = time.time()
@@ -210,5 +256,10 @@ class NodeRegistry:
             "rejected_messages": s.rejected_messages,
             "last_rejection": s.last_rejection,
             "warnings": warnings,
+            # what the node's sensor backend warned about since it connected, newest first
+            # (time in server seconds; repeats of one text coalesced)
+            "node_warnings": [{"at": w.at, "text": w.text, "repeats": w.repeats}
+                              for w in reversed(s.node_warnings)],
+            "node_warnings_dropped": s.node_warnings_dropped,
             "diag": dict(s.status.diag) if s.status else {},
         }

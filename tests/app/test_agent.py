@@ -360,3 +360,99 @@ def test_a_final_refusal_still_ends_the_node(tmp_path: Path) -> None:
                 await asyncio.wait_for(a._connect_forever(), 10)
 
     asyncio.run(scenario())
+
+
+def test_backend_warnings_are_coalesced_bounded_and_rate_limited(agent: NodeAgent) -> None:
+    from app.nodes.agent import WARNING_BACKLOG, WARNING_BURST
+    from app.nodes.protocol import parse_node_message
+
+    def sent() -> list[tuple[str, int]]:
+        out = [parse_node_message(m) for m in agent._control]
+        agent._control.clear()
+        return [(m.text, m.repeats) for m in out if m.type == "warning"]
+
+    agent._queue_warning("before the connection")  # waits: no server yet
+    agent._ws = object()  # type: ignore[assignment]  # connected ...
+    agent._flush_warnings()
+    assert sent() == [] and len(agent._warnings) == 1  # ... to a server that takes none
+    agent._server_takes_warnings = True
+    for k in range(40):
+        agent._queue_warning(f"problem {k}")
+    first = sent()
+    assert first == [("before the connection", 1)] + [
+        (f"problem {k}", 1) for k in range(WARNING_BURST - 1)]
+    assert len(agent._warnings) == WARNING_BACKLOG  # the oldest waiting ones dropped
+    assert agent.warnings_dropped == 40 - (WARNING_BURST - 1) - WARNING_BACKLOG
+    newest = f"problem {39}"
+    for _ in range(3):
+        agent._queue_warning(f"  {newest}\n")  # the same text (spaces aside): coalesced
+    assert len(agent._warnings) == WARNING_BACKLOG and sent() == []
+    agent._warning_refilled -= 1000.0  # long after: the bucket is full again
+    agent._flush_warnings()
+    again = sent()
+    assert len(again) == WARNING_BURST and again[0] == ("problem 20", 1)
+    while agent._warnings:
+        agent._warning_refilled -= 1000.0
+        agent._flush_warnings()
+        again += sent()
+    assert again[-1] == (newest, 4)
+    agent._queue_warning("x" * 5000)  # cut to the protocol's bound, still sent
+    agent._warning_refilled -= 1000.0
+    agent._flush_warnings()
+    ((text, _),) = sent()
+    assert len(text) == 500 and text.endswith("…")
+
+
+@pytest.mark.parametrize("accepts", [None, ["warning", "something-later"]])
+def test_warnings_go_only_to_a_server_that_takes_them(tmp_path: Path,
+                                                      accepts: list[str] | None) -> None:
+    """A server before protocol revision 2 welcomes without ``accepts`` (and would answer a
+    warning with an error): the node sends it none. One that accepts them gets the
+    backend's warning, raised from another thread after the welcome."""
+    import json
+
+    from websockets.asyncio.server import serve
+
+    from app.nodes.protocol import Welcome, dump
+
+    hellos: list[dict[str, object]] = []
+    types: list[str] = []
+    warnings: list[dict[str, object]] = []
+
+    async def handler(ws: object) -> None:
+        hellos.append(json.loads(await ws.recv()))  # type: ignore[attr-defined]
+        await ws.send(dump(Welcome(server_time=time.time(),  # type: ignore[attr-defined]
+                                   ping_interval_s=0.1, accepts=accepts)))
+        async for raw in ws:  # type: ignore[attr-defined]
+            if isinstance(raw, str):
+                m = json.loads(raw)
+                types.append(m["type"])
+                if m["type"] == "warning":
+                    warnings.append(m)
+
+    async def scenario() -> None:
+        async with serve(handler, "127.0.0.1", 0) as srv:
+            port = next(iter(srv.sockets)).getsockname()[1]
+            backend = _Scripted()
+            a = NodeAgent("S1", backend, f"ws://127.0.0.1:{port}/ws/node", "token", tmp_path)
+            a.info = SensorInfo()
+            a._loop = asyncio.get_running_loop()
+            task = asyncio.create_task(a._connect_forever())
+            while a._ws is None:
+                await asyncio.sleep(0.02)
+            threading.Thread(target=backend.warn, args=("Body tracking stopped: test",)
+                             ).start()
+            for _ in range(150):  # two status rounds at least
+                if warnings or types.count("status") >= 2:
+                    break
+                await asyncio.sleep(0.02)
+            a._stop.set()
+            await asyncio.wait_for(task, 10)
+
+    asyncio.run(scenario())
+    assert hellos[0]["protocol"] == 2
+    if accepts is None:
+        assert warnings == [] and types.count("status") >= 2
+    else:
+        assert [w["text"] for w in warnings] == ["Body tracking stopped: test"]
+        assert isinstance(warnings[0]["t"], float)

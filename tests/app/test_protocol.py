@@ -104,3 +104,39 @@ def test_data_channel_offer_round_trip_and_bounds() -> None:
     header, payload = decode_binary(encode_binary({"kind": "channel", "req_id": 4,
                                                    "error": "S1: blocked"}))
     assert header["error"] == "S1: blocked" and payload == b""
+
+
+def test_warning_message_and_revision_2_welcome() -> None:
+    """Revision 2 of version 1: nodes send ``warning``; the server's welcome names what it
+    accepts only to nodes of revision 2 (a revision-1 node's parser refuses unknown
+    fields, as this one does: ``extra="forbid"``)."""
+    from app.nodes.protocol import PROTOCOL_REVISION, NodeWarning, Welcome
+
+    assert Hello(node_id="S1", token="t").protocol == PROTOCOL_REVISION == 2
+    w = NodeWarning(text="Body tracking stopped: no GPU", t=12.5, repeats=3)
+    assert parse_node_message(dump(w)) == w
+    cut = parse_node_message(dump(NodeWarning(text="x" * 2000, t=1.0)))
+    assert len(cut.text) == 500 and cut.text.endswith("…")
+    for bad, fragment in [({"text": ""}, "text"), ({"repeats": 0}, "repeats"),
+                          ({"t": "soon"}, "t"), ({"level": "error"}, "level")]:
+        with pytest.raises(ProtocolError, match=fragment):
+            parse_node_message(json.dumps({**json.loads(dump(w)), **bad}))
+    plain = json.loads(dump(Welcome(server_time=1.0, ping_interval_s=0.1)))
+    assert set(plain) == {"v", "type", "server_time", "ping_interval_s"}  # as revision 1
+    later = Welcome(server_time=1.0, ping_interval_s=0.1, accepts=["warning", "later-kind"])
+    assert parse_server_message(dump(later)).accepts == ["warning", "later-kind"]
+    # a revision-1 node's welcome, as it was: the plain one passes, one with accepts not
+    from typing import Literal
+
+    from pydantic import BaseModel, ConfigDict, ValidationError
+
+    class WelcomeRevision1(BaseModel):
+        model_config = ConfigDict(extra="forbid")
+        v: Literal[1] = 1
+        type: Literal["welcome"] = "welcome"
+        server_time: float
+        ping_interval_s: float
+
+    WelcomeRevision1.model_validate(plain)
+    with pytest.raises(ValidationError, match="accepts"):
+        WelcomeRevision1.model_validate(json.loads(dump(later)))

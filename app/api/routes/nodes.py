@@ -24,6 +24,14 @@ from app.server.registry import NodeSession
 router = APIRouter(prefix="/nodes", route_class=BoundedRoute, tags=["nodes"])
 
 
+class NodeWarningOut(BaseModel):
+    """A warning of a node's sensor backend (``warning`` message, docs/backbone.md)."""
+
+    at: float = Field(description="Server time it was last raised (s since the epoch).")
+    text: str
+    repeats: int = Field(description="How many times it was raised.")
+
+
 class NodeHealth(BaseModel):
     """Health of one node (times in server seconds since the epoch)."""
 
@@ -53,6 +61,12 @@ class NodeHealth(BaseModel):
     rejected_messages: int
     last_rejection: str | None
     warnings: list[str]
+    node_warnings: list[NodeWarningOut] = Field(
+        default_factory=list,
+        description="What the node's sensor backend warned about after it connected, newest "
+        "first (at most 5 distinct texts; a repeat updates its entry).")
+    node_warnings_dropped: int = Field(
+        default=0, description="Warnings the node sent beyond the server's rate limit.")
     diag: dict[str, float] = Field(default_factory=dict)
 
 

@@ -16,6 +16,7 @@ RGB; skeleton positions are metres in the sensor's (OpenCV) frame.
 
 from __future__ import annotations
 
+import logging
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -25,6 +26,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.nodes.protocol import SensorInfo
+
+log = logging.getLogger("gaitrig.node")
 
 ImageFn = Callable[[Sequence[str]], dict[str, NDArray[np.uint8] | NDArray[np.uint16]]]
 #: ``preview(streams, scale)``: the images already downscaled by ``scale`` (< 1).
@@ -77,6 +80,8 @@ class Backend(ABC):
     """A depth sensor as seen by the node agent (see the module docstring)."""
 
     name: str = "base"
+    #: Set by the node agent: carries a warning on to the server (any thread may call it).
+    warning_sink: Callable[[str], None] | None = None
 
     @abstractmethod
     def open(self) -> SensorInfo:
@@ -92,6 +97,20 @@ class Backend(ABC):
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Stop the device (called from another thread; ``frames`` must end)."""
+
+    def warn(self, text: str) -> None:
+        """Report a problem found after :meth:`open` (body tracking stopped, an unreliable
+        clock, frames dropped): the node's log, and the server's Rig page beside this node
+        (the agent sends it as a ``warning`` message, coalesced and rate-limited).
+        Problems found by :meth:`open` go in ``SensorInfo.warnings`` instead. Any thread.
+
+        Args:
+            text: plain words for the person at the Rig page, saying what to do.
+        """
+        log.warning("%s", text)
+        sink = self.warning_sink
+        if sink is not None:
+            sink(text)
 
     def diagnostics(self, t_host: float) -> dict[str, float]:
         """Test-only truths (e.g. the simulator's true clock offset); empty for hardware."""

@@ -356,8 +356,8 @@ class K4ABackend(Backend):
     def _t_local(self, depth_usec: int, arrival_s: float, stamp_usec: int | None) -> float:
         t = self._clock.t_local(depth_usec, arrival_s, stamp_usec)
         if self._clock.warning is not None and self._clock.warning not in self.warnings:
-            log.warning("%s", self._clock.warning)
             self.warnings.append(self._clock.warning)
+            self.warn(self._clock.warning)  # the log, and the server's Rig page
         return t
 
     def _skeleton(self, cap: Any) -> tuple[NDArray[np.float32], NDArray[np.uint8],
@@ -372,8 +372,8 @@ class K4ABackend(Backend):
         try:
             handle = _k4abt.capture_handle(cap)
         except _k4abt.K4ABTUnavailable as exc:  # a pyk4a without capture capsules
-            log.warning("body tracking stopped: %s", exc)
             self.warnings.append(f"Body tracking stopped: {exc}")
+            self.warn(self.warnings[-1])  # the log, and the server's Rig page
             self._tracker.close()
             self._tracker = None
             return empty

@@ -39,6 +39,12 @@ log = logging.getLogger("gaitrig.node")
 
 WORLD_CYCLE_S = 600.0
 CHUNK_S = 10.0
+#: A frame this late against its capture instant means the computer cannot keep up: the
+#: simulator says so (:meth:`Backend.warn`), at most every :data:`LATE_WARN_EVERY_S`.
+LATE_WARN_S = 0.5
+LATE_WARN_EVERY_S = 60.0
+#: ``test_warning`` (``gaitrig node --test-warning``) is raised this often.
+TEST_WARNING_EVERY_S = 5.0
 
 
 def world_time(t_host: float) -> float:
@@ -58,13 +64,16 @@ class SimBackend(Backend):
         clock_drift_ppm: override its drift (ppm).
         images: render images on demand (False: skeletons only, for light test runs).
         report_truth: expose the true clock offset through :meth:`diagnostics` (tests).
+        test_warning: TEST ONLY: raise this backend warning (:meth:`Backend.warn`) every
+            :data:`TEST_WARNING_EVERY_S` seconds, as a sensor in trouble would.
     """
 
     name = "sim"
 
     def __init__(self, sensor_id: str, rig_path: Path | str | None = None, seed: int = 0,
                  clock_offset_s: float | None = None, clock_drift_ppm: float | None = None,
-                 images: bool = True, report_truth: bool = False) -> None:
+                 images: bool = True, report_truth: bool = False,
+                 test_warning: str | None = None) -> None:
         from engine.sim.rig import default_avenue_rig, load_rig
 
         self.rig = load_rig(rig_path) if rig_path is not None else default_avenue_rig(seed)
@@ -82,6 +91,7 @@ class SimBackend(Backend):
                                t_ref=time.time())
         self.render_images = images
         self.report_truth = report_truth
+        self.test_warning = test_warning
         self._step_file = os.environ.get("GAITRIG_TEST_CLOCK_STEP_FILE") or None
         self._step: tuple[float, float] | None = None  # (host time, seconds) of the step
         self._closed = threading.Event()
@@ -165,6 +175,8 @@ class SimBackend(Backend):
         period = 1.0 / self.sensor.fps_nominal
         # The next chunk is simulated in a helper thread while this one plays, so frames
         # keep their pace.
+        next_test_warning = time.time() + 1.0
+        late_warned = time.time()  # not in the first minute: starting up is slow anyway
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim") as pool:
             fut = pool.submit(self._chunk, time.time() + 0.3)
             while not self._closed.is_set():
@@ -176,9 +188,18 @@ class SimBackend(Backend):
                 fut = pool.submit(self._chunk, hosts_end)
                 tracked = series.meta["body_tracked"]
                 for k, t_host in enumerate(hosts):
-                    delay = t_host - time.time()
+                    now = time.time()
+                    delay = t_host - now
                     if delay > 0 and self._closed.wait(delay):
                         return
+                    if -delay > LATE_WARN_S and now - late_warned >= LATE_WARN_EVERY_S:
+                        late_warned = now
+                        self.warn(f"The simulated sensor {self.sensor.id} runs {-delay:.1f} s "
+                                  "behind real time: this computer cannot keep up, frames "
+                                  "come late. Run fewer simulated nodes or stop other work.")
+                    if self.test_warning and now >= next_test_warning:
+                        next_test_warning = now + TEST_WARNING_EVERY_S
+                        self.warn(self.test_warning)
                     if tracked[k]:
                         pos = series.positions[k : k + 1].astype(np.float32)
                         st = series.states[k : k + 1]
