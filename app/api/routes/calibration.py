@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import re
 import tempfile
 from collections.abc import AsyncIterator
@@ -106,6 +107,19 @@ class PoseCheck(BaseModel):
     T_world_sensor: dict[str, list[list[float]]] = Field(max_length=64)
 
 
+@functools.lru_cache(maxsize=16)
+def _marker_sheet_pdf(ids: tuple[int, ...], size_m: float, dictionary: str,
+                      paper: str) -> bytes:
+    """The sheet's PDF, drawn once per set of parameters: the wizard's download, a second
+    print and the next lab member ask for the same sheet (a few kB each, vectors)."""
+    from engine.calibration.markers import write_marker_sheet
+
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "markers.pdf"
+        write_marker_sheet(list(ids), size_m, out, dictionary=dictionary, paper=paper)
+        return out.read_bytes()
+
+
 @router.get("/markers.pdf")
 def marker_sheet(
     user: CurrentUser,
@@ -115,16 +129,12 @@ def marker_sheet(
     paper: str = Query("a4", pattern="^(a4|letter|a3)$"),
 ) -> Response:
     """The printable marker sheet as a PDF at true size."""
-    from engine.calibration.markers import write_marker_sheet
     from engine.errors import InputError
 
     id_list = marker_ids(ids)
     if len(id_list) > MAX_SHEET_IDS:
         raise InputError(f"at most {MAX_SHEET_IDS} markers per sheet, got {len(id_list)}")
-    with tempfile.TemporaryDirectory() as d:
-        out = Path(d) / "markers.pdf"
-        write_marker_sheet(id_list, size, out, dictionary=dictionary, paper=paper)
-        data = out.read_bytes()
+    data = _marker_sheet_pdf(tuple(id_list), size, dictionary, paper)
     return Response(data, media_type="application/pdf", headers={
         "Content-Disposition": f'attachment; filename="markers-{size * 100:.0f}cm.pdf"'})
 
