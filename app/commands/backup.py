@@ -61,6 +61,26 @@ def record(db_url: str, action: str, target: str, detail: str) -> str | None:
     return None
 
 
+def fail(command: str, exc: Exception, path: Path) -> int:
+    """Print the one-line error of ``gaitrig backup``/``restore`` on stderr.
+
+    Args:
+        command: ``backup`` or ``restore``.
+        exc: a :class:`app.server.backup.BackupError` (its text says what to do) or an
+            ``OSError`` (named by its file, ``path`` when it names none).
+        path: what the command was working on.
+
+    Returns:
+        The exit code of an error, 2.
+    """
+    if isinstance(exc, OSError):
+        text = f"{exc.filename or path}: {exc.strerror or exc}"
+    else:
+        text = str(exc)
+    print(f"gaitrig {command}: error: {text}", file=sys.stderr)
+    return 2
+
+
 def run(args: argparse.Namespace) -> int:
     """Back up, or verify an archive. Returns the exit code."""
     from app.config import Settings
@@ -69,9 +89,8 @@ def run(args: argparse.Namespace) -> int:
     if args.verify:
         try:
             v = verify_backup(args.dest)
-        except BackupError as exc:
-            print(f"gaitrig backup: error: {exc}", file=sys.stderr)
-            return 2
+        except (BackupError, OSError) as exc:
+            return fail("backup", exc, args.dest)
         man = v.manifest
         print(f"gaitrig backup: {args.dest}: made {man['created_at']} by gaitrig "
               f"{man['gaitrig_version']}, database revision {man['alembic_revision']}, "
@@ -91,13 +110,8 @@ def run(args: argparse.Namespace) -> int:
     settings = Settings(**over)
     try:
         res = create_backup(settings.data_dir, args.dest, settings.db_url)
-    except BackupError as exc:
-        print(f"gaitrig backup: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"gaitrig backup: error: {exc.filename or args.dest}: "
-              f"{exc.strerror or exc}", file=sys.stderr)
-        return 2
+    except (BackupError, OSError) as exc:
+        return fail("backup", exc, args.dest)
     man = res.manifest
     c = man["counts"]
     print(f"gaitrig backup: {res.path}: {c.get('subjects', '?')} subjects, "

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import socket
-import sys
 from pathlib import Path
 
 HELP = "restore a backup into an empty data folder (deletions made since are applied again)"
@@ -39,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Restore. Returns the exit code."""
-    from app.commands.backup import actor
+    from app.commands.backup import actor, fail
     from app.config import Settings
     from app.server.backup import BackupError, restore_backup
 
@@ -48,13 +47,8 @@ def run(args: argparse.Namespace) -> int:
                              without_deletion_log=args.without_deletion_log,
                              force=args.force, db_url=Settings().database_url,
                              actor=actor(), client=socket.gethostname())
-    except BackupError as exc:
-        print(f"gaitrig restore: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"gaitrig restore: error: {exc.filename or args.data_dir}: "
-              f"{exc.strerror or exc}", file=sys.stderr)
-        return 2
+    except (BackupError, OSError) as exc:
+        return fail("restore", exc, args.data_dir)
     man = res.manifest
     print(f"gaitrig restore: {res.data_dir}: backup of {man['created_at']} (gaitrig "
           f"{man['gaitrig_version']}), database revision {res.revision_before} -> "
@@ -62,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
     if args.without_deletion_log and not args.deletion_log:
         print("  WARNING: restored without the current erasure log: subjects deleted after "
               "this backup are back unless you delete them again")
-    print(f"  {len(res.erased_recordings)} deleted recording(s) kept deleted "
+    print(f"  {len(res.erased_recordings)} deleted recording(s) kept deleted, "
+          f"{res.erased_references} deleted reference(s) deleted again "
           f"({res.erasures_applied} deletion(s) of the erasure logs applied)")
     for n in res.notes:
         print(f"  NOTE: {n}")

@@ -536,6 +536,30 @@ class RestoreResult:
     with_current_log: bool = True
 
 
+#: What a server's data folder holds besides its database (a PostgreSQL server's holds no
+#: ``gaitrig.sqlite3``): recordings, references, calibrations, the live recording list.
+_DATA_FOLDER_ENTRIES = ("recordings", "references", "calibrations", "recordings.json",
+                        "deletions.json")
+
+
+def _no_log_message(folder: Path) -> str:
+    """What to do about a ``--deletion-log`` folder holding no erasure log."""
+    what_else = ("give the folder that holds its erasure log (the data folder the server "
+                 f"ran with, GAITRIG_DATA_DIR), the {erasures.LOG_NAME} itself, or a newer "
+                 "backup")
+    if any((folder / n).exists() for n in _DATA_FOLDER_ENTRIES):
+        # a server's data folder, of a server whose database is PostgreSQL (no SQLite
+        # file): its log is written here on the first deletion, so none means none yet
+        return (f"{folder} looks like the data folder of a server using PostgreSQL (no "
+                f"gaitrig.sqlite3 in it) and holds no {erasures.LOG_NAME}: that server then "
+                "never deleted anything (the log is written there on the first deletion), "
+                "so restore with --without-deletion-log instead; if it did delete, the log "
+                f"is elsewhere: {what_else}")
+    return (f"{folder} holds no {erasures.LOG_NAME} and is not a server's data folder: "
+            f"{what_else}. A server using PostgreSQL that never deleted anything has no log: "
+            "then restore with --without-deletion-log instead")
+
+
 def read_erasure_log(path: Path) -> list[erasures.Erasure]:
     """The erasure log in ``path``: a log file (``erasures.jsonl``), a data folder, or a
     (newer) backup archive, which carries the log as it was when it was made.
@@ -549,8 +573,7 @@ def read_erasure_log(path: Path) -> list[erasures.Erasure]:
             if (path / "gaitrig.sqlite3").is_file() and not erasures.log_path(path).exists():
                 return []  # a server's data folder where nothing was deleted yet
             if not erasures.log_path(path).is_file():
-                raise BackupError(f"{path} holds no {erasures.LOG_NAME}: give the data "
-                                  "folder of the server, its erasure log, or a newer backup")
+                raise BackupError(_no_log_message(path))
             return erasures.read(path)
         if path.is_file() and tarfile.is_tarfile(path):
             with _open(path) as tar:

@@ -112,6 +112,23 @@ def _cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]
     return code, out.out, out.err
 
 
+@pytest.fixture
+def archive(server: TestClient, tmp_path: Path) -> Path:
+    """A backup of the running server (``tmp_path/var``, no subjects) at ``tmp_path/b.tar``."""
+    return bk.create_backup(tmp_path / "var", tmp_path / "b.tar").path
+
+
+def _refused(capsys: pytest.CaptureFixture[str], archive: Path, dest: Path,
+             *flags: str) -> str:
+    """Run ``gaitrig restore ARCHIVE --data-dir DEST --without-deletion-log [flags]``,
+    check that it is refused (exit code 2) and return what it printed on stderr."""
+    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(dest),
+                         "--without-deletion-log", *flags)
+    assert code == 2, err
+    assert err.startswith("gaitrig restore: error: ") and err.count("\n") == 1, err
+    return err
+
+
 def _subjects(c: TestClient) -> list[tuple[str, list[str]]]:
     out = []
     for s in c.get("/api/subjects").json():
@@ -535,9 +552,11 @@ def test_a_deleted_reference_stays_deleted_after_restoring_an_older_backup(
     assert [len(e.references) for e in erasures.read(var)] == [0, 1]
 
     a = tmp_path / "a"
-    code, _o, err = _cli(capsys, "restore", str(old), "--data-dir", str(a),
-                         "--deletion-log", str(var))
+    code, out, err = _cli(capsys, "restore", str(old), "--data-dir", str(a),
+                          "--deletion-log", str(var))
     assert code == 0, err
+    # said beside the recordings, as in the audit entry
+    assert "0 deleted recording(s) kept deleted, 2 deleted reference(s) deleted again" in out
     assert _traces(a, GONE) == []  # neither file nor row is back
     assert (a / "references" / rid / "a1.csv").is_file()  # the other reference stays
     with sqlite3.connect(a / "gaitrig.sqlite3") as db:
@@ -644,9 +663,7 @@ def _info(name: str, size: int) -> tarfile.TarInfo:
 
 
 def test_restore_refuses_members_that_are_not_plain_files_or_leave_the_folder(
-        server: TestClient, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    var = tmp_path / "var"
-    archive = bk.create_backup(var, tmp_path / "b.tar").path
+        archive: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
 
     def link(kind: bytes, target: str) -> Any:
         def add(tar: tarfile.TarFile, name: str) -> tuple[int, str]:
@@ -677,20 +694,16 @@ def test_restore_refuses_members_that_are_not_plain_files_or_leave_the_folder(
             ("files/big.bin", sparse, "a sparse file")]:
         bad = _evil(tmp_path, archive, name, add)
         dest = tmp_path / "r"
-        code, _o, err = _cli(capsys, "restore", str(bad), "--data-dir", str(dest),
-                             "--without-deletion-log")
-        assert code == 2 and msg in err, (name, err)
+        assert msg in _refused(capsys, bad, dest), name
         assert not dest.exists() and not (tmp_path / "escape.txt").exists()
         assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], name
 
 
 
 def test_a_damaged_manifest_is_refused_in_words(
-        server: TestClient, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        archive: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The manifest is the one member no checksum covers: fields of the wrong shape
     raised KeyError/TypeError tracebacks from verify and restore."""
-    var = tmp_path / "var"
-    archive = bk.create_backup(var, tmp_path / "b.tar").path
     with tarfile.open(archive) as tar:
         good = json.loads(tar.extractfile(bk.MANIFEST).read())  # type: ignore[union-attr]
     for k, (field, value) in enumerate([("database", None), ("members", {"a": 1}),
@@ -709,22 +722,17 @@ def test_a_damaged_manifest_is_refused_in_words(
                 dst.addfile(_info(info.name, len(data)), io.BytesIO(data))
         code, _o, err = _cli(capsys, "backup", "--verify", str(bad))
         assert code == 2 and f"damaged {bk.MANIFEST}" in err and field in err, (field, err)
-        code, _o, err = _cli(capsys, "restore", str(bad), "--data-dir",
-                             str(tmp_path / "r"), "--without-deletion-log")
-        assert code == 2 and f"damaged {bk.MANIFEST}" in err, (field, err)
+        assert f"damaged {bk.MANIFEST}" in _refused(capsys, bad, tmp_path / "r"), field
         assert not (tmp_path / "r").exists()
 
 
 def test_force_over_a_folder_whose_erasure_log_is_damaged_is_refused_in_words(
-        server: TestClient, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    var = tmp_path / "var"
-    archive = bk.create_backup(var, tmp_path / "b.tar").path
+        archive: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     full = tmp_path / "full"
     full.mkdir()
     (full / erasures.LOG_NAME).write_text('{"id": "x", "sta\n{"id": "y"}\n')
-    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
-                         "--without-deletion-log", "--force")
-    assert code == 2 and "line 1: not an erasure log entry" in err, err
+    err = _refused(capsys, archive, full, "--force")
+    assert "line 1: not an erasure log entry" in err
     assert sorted(p.name for p in full.iterdir()) == [erasures.LOG_NAME]
 
 
@@ -783,12 +791,10 @@ def test_the_archive_s_name_is_synced_too(server: TestClient, tmp_path: Path,
 
 
 def test_a_server_started_during_a_forced_restore_stops_the_swap(
-        server: TestClient, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        archive: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
     """The database was checked for other users only before the (long) unpacking: a
     server started meanwhile had its folder replaced under it."""
-    var = tmp_path / "var"
-    archive = bk.create_backup(var, tmp_path / "b.tar").path
     full = tmp_path / "full"
     code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
                          "--without-deletion-log")
@@ -809,12 +815,11 @@ def test_a_server_started_during_a_forced_restore_stops_the_swap(
 
     monkeypatch.setattr(bk, "_check_integrity", and_a_server_starts)
     try:
-        code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
-                             "--without-deletion-log", "--force")
+        err = _refused(capsys, archive, full, "--force")
     finally:
         for h in holders:
             h.communicate("", timeout=10)
-    assert holders and code == 2 and "opened by another program" in err, err
+    assert holders and "opened by another program" in err
     assert sorted(p.name for p in full.iterdir()) == before
 
 
@@ -826,9 +831,7 @@ def test_force_refuses_an_archive_inside_the_folder_it_replaces(
     full = tmp_path / "full"
     full.mkdir()
     archive = bk.create_backup(var, full / "b.tar").path
-    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir", str(full),
-                         "--without-deletion-log", "--force")
-    assert code == 2 and "inside the folder" in err, err
+    assert "inside the folder" in _refused(capsys, archive, full, "--force")
     assert archive.is_file()
 
 
@@ -846,3 +849,44 @@ def test_the_erasure_log_s_recording_hash_is_described_as_what_it_is() -> None:
         text = " ".join(path.read_text().split()).lower()
         assert not re.search(r"(?<!un)keyed (sha|hash)", text), path
         assert "no secret key" in text or "unkeyed" in text, path
+
+
+def test_a_postgresql_data_folder_without_a_log_says_what_to_do(
+        archive: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--deletion-log took a SQLite data folder without a log as 'nothing deleted' but a
+    PostgreSQL server's (no gaitrig.sqlite3) only as 'holds no erasures.jsonl'."""
+    pg = tmp_path / "pg-var"
+    (pg / "recordings").mkdir(parents=True)
+    (pg / "calibrations").mkdir()
+    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir",
+                         str(tmp_path / "r"), "--deletion-log", str(pg))
+    assert code == 2 and err.count("\n") == 1, err
+    assert "looks like the data folder of a server using PostgreSQL" in err
+    assert "--without-deletion-log" in err and "GAITRIG_DATA_DIR" in err
+    assert not (tmp_path / "r").exists()
+    other = tmp_path / "somewhere"
+    other.mkdir()
+    code, _o, err = _cli(capsys, "restore", str(archive), "--data-dir",
+                         str(tmp_path / "r"), "--deletion-log", str(other))
+    assert code == 2 and "is not a server's data folder" in err, err
+    assert "PostgreSQL" in err and "--without-deletion-log" in err
+    # the folder of a PostgreSQL server that did delete: its log is read
+    erasures.begin(pg, [], None, {}, [("R20260101-100000-aaaa", "")])
+    code, out, err = _cli(capsys, "restore", str(archive), "--data-dir",
+                          str(tmp_path / "r"), "--deletion-log", str(pg))
+    assert code == 0 and "(1 deletion(s) of the erasure logs applied)" in out, err
+
+
+def test_backup_and_restore_print_an_os_error_with_its_file(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from app.commands.backup import fail
+
+    for command in ("backup", "restore"):
+        exc = OSError(28, "No space left on device", str(tmp_path / "x.tar"))
+        assert fail(command, exc, tmp_path) == 2
+        assert capsys.readouterr().err == (
+            f"gaitrig {command}: error: {tmp_path / 'x.tar'}: No space left on device\n")
+        assert fail(command, bk.BackupError("say what to do"), tmp_path) == 2
+        assert capsys.readouterr().err == f"gaitrig {command}: error: say what to do\n"
+    assert fail("backup", OSError("no file named"), tmp_path / "b") == 2
+    assert capsys.readouterr().err == f"gaitrig backup: error: {tmp_path / 'b'}: no file named\n"
