@@ -81,6 +81,38 @@ const gaitrig = (() => {
     return new Date(/(?:[zZ]|[+-]\d\d:?\d\d)$/.test(iso) ? iso : iso + "Z");
   }
 
+  // Polling that stops while the page is hidden (a background tab, a minimised window):
+  // a console left open in a few tabs asked the server several times a second for pages
+  // nobody looked at. poll(fn, ms) calls fn every ms while document.hidden is false and
+  // once at once when the page is shown again (what it showed is stale by then); stop()
+  // ends it. Overlapping calls are the caller's affair, as with setInterval (the pages
+  // drop stale answers with newest()/latest()).
+  function poll(fn, ms) {
+    let timer = null, stopped = false;
+    const halt = () => { if (timer !== null) { clearInterval(timer); timer = null; } };
+    const start = () => { if (timer === null && !stopped) timer = setInterval(fn, ms); };
+    const seen = () => {
+      if (document.hidden) { halt(); return; }
+      if (timer === null && !stopped) { fn(); start(); }
+    };
+    document.addEventListener("visibilitychange", seen);
+    if (!document.hidden) start();
+    return { stop() { stopped = true; halt(); document.removeEventListener("visibilitychange", seen); } };
+  }
+  // The step of a polling chain (setTimeout(next, ms) in a loop): a promise that settles
+  // ms later, or, when the page is hidden then, as soon as it is shown again.
+  function wait(ms) {
+    return new Promise((resolve) => setTimeout(() => {
+      if (!document.hidden) { resolve(); return; }
+      const back = () => {
+        if (document.hidden) return;
+        document.removeEventListener("visibilitychange", back);
+        resolve();
+      };
+      document.addEventListener("visibilitychange", back);
+    }, ms));
+  }
+
   function loginPage() {
     const form = document.getElementById("login-form");
     form.addEventListener("submit", async (ev) => {
@@ -266,11 +298,11 @@ const gaitrig = (() => {
     }
     await refresh();
     await refreshRecordings();
-    setInterval(refresh, 1000);
-    setInterval(refreshRecordings, 1000);
+    poll(refresh, 1000);
+    poll(refreshRecordings, 1000);
   }
-  return { api, el, listPage, toLogin, newest, latest, release, day, plural, when, loginPage,
-    rigPage };
+  return { api, el, listPage, toLogin, newest, latest, release, day, plural, when, poll, wait,
+    loginPage, rigPage };
 })();
 
 // The browser refuses a field that does not match its pattern with "Please match the

@@ -110,7 +110,7 @@
     guarded(() => Promise.all([loadPoses(), fetchPlan()]));
     // the 3D view's drag handles change the plan too: follow them (a failed poll says so,
     // a good one leaves the message of the user's last action in place)
-    setInterval(() => fetchPlan().catch((e) => { $("plan-error").textContent = e.message; }), 1500);
+    gaitrig.poll(() => fetchPlan().catch((e) => { $("plan-error").textContent = e.message; }), 1500);
   }
   init();
 })();

@@ -23,7 +23,8 @@
   }
   async function poll() {
     try { render(await gaitrig.api("/api/calibration/live-check")); } catch (e) { /* page shows its own errors */ }
-    setTimeout(poll, 10000);
+    await gaitrig.wait(10000);  // (the next one not while the page is hidden)
+    poll();
   }
   poll();
 })();
@@ -64,7 +65,7 @@
       for (;;) {
         const j = await gaitrig.api(`/api/calibration/captures/${j0.id}`);
         if (j.state !== "capturing" && j.state !== "computing") break;
-        await new Promise((r) => setTimeout(r, 700));
+        await gaitrig.wait(700);
       }
       await last();
     } catch (e) {

@@ -130,7 +130,7 @@
     for (const o of rej) ul.append(el("li", `${o.sensor} · marker ${o.marker}: ${o.reason}`));
   }
 
-  const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+  const sleep = gaitrig.wait;  // (a watch of the job pauses while the page is hidden)
   // The job runs on the server whatever happens to one poll: a poll that finds the server
   // busy or unreachable (no answer, 5xx) is retried a few times before giving up, so a
   // blip does not end the watch of a capture that carries on.

@@ -79,7 +79,7 @@
   // One chain of polls, the next asked 300 ms after the last answer: a fixed interval
   // piled requests up on a loaded server (each slower than 300 ms), answered out of order.
   function startPolling() {
-    if (!polling) { polling = true; const mine = ++generation; setTimeout(() => poll(mine), 300); }
+    if (!polling) { polling = true; const mine = ++generation; gaitrig.wait(300).then(() => poll(mine)); }
     setRunning(true);
   }
   function stopPolling() { polling = false; generation++; setRunning(false); }
@@ -95,7 +95,8 @@
     } catch (e) {
       if (mine !== generation) return;  // else a failed poll is asked again
     }
-    setTimeout(() => poll(mine), 300);
+    await gaitrig.wait(300);  // (not while the page is hidden; at once when it is shown)
+    poll(mine);
   }
 
   // ------------------------------------------------------------------ render
@@ -260,6 +261,6 @@
     const asked = generation, n = shown.ask();
     try { const s = await api("/api/kscc/session"); if (asked === generation && shown.fresh(n)) { if (s.running) { render(s); startPolling(); } else render(null); } }
     catch (e) { if (asked === generation) render(null); }
-    setInterval(() => { loadSources().catch(() => {}); loadAreas().catch(() => {}); }, 5000);
+    gaitrig.poll(() => { loadSources().catch(() => {}); loadAreas().catch(() => {}); }, 5000);
   })();
 })();

@@ -115,7 +115,7 @@
     else { frame.replaceWith(el("p", { class: "note" }, "The 3D view is disabled on this server (started with --no-viewer).")); open.remove(); }
     await nodes();
     connect();
-    setInterval(nodes, 5000);
+    gaitrig.poll(nodes, 5000);  // (not while the tab is hidden)
   }
   init();
 })();

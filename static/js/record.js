@@ -177,9 +177,10 @@
         say("rec-msg", `Recording ${r.id} is copied to the server: every sensor's part verified.`, true);
       }
       // a save error stays on screen until the server saved again
-      if (r.state !== "complete") setTimeout(() => poll(mine), running ? 500 : 700);
-      else if (live && live.save_error) setTimeout(() => poll(mine), 2000);
-    } catch (e) { if (chain.current(mine)) { say("rec-msg", e.message); setTimeout(() => poll(mine), 2000); } }
+      // (gaitrig.wait: the next poll not while the page is hidden, at once when shown)
+      if (r.state !== "complete") gaitrig.wait(running ? 500 : 700).then(() => poll(mine));
+      else if (live && live.save_error) gaitrig.wait(2000).then(() => poll(mine));
+    } catch (e) { if (chain.current(mine)) { say("rec-msg", e.message); gaitrig.wait(2000).then(() => poll(mine)); } }
   }
 
   $("start").addEventListener("click", async () => {
@@ -233,6 +234,6 @@
         catch (e) { say("rec-msg", `Recording ${live.id} is running (started elsewhere, not filed under a session).`); }
       }
     } catch (e) { /* the list is optional */ }
-    refreshNodes(); setInterval(refreshNodes, 2000); setInterval(tick, 100);
+    refreshNodes(); gaitrig.poll(refreshNodes, 2000); setInterval(tick, 100);
   })();
 })();

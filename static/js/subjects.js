@@ -314,7 +314,8 @@
     if (!detailSeq.current(gen)) return;
     const busy = subject.sessions.some((s) => s.recordings.some((r) => ["recording", "on_nodes", "transferring"].includes(r.state)));
     clearTimeout(timer);
-    if (busy) timer = setTimeout(() => loadDetail(false), 1000);
+    // (gaitrig.wait: not while the page is hidden; at once when it is shown again)
+    if (busy) timer = setTimeout(() => gaitrig.wait(0).then(() => loadDetail(false)), 1000);
   }
 
   $("project").addEventListener("change", async (ev) => { projectId = Number(ev.target.value); subjectId = null; offset = 0; dropDetail(); $("detail-body").hidden = true; await loadSubjects(); });
