@@ -7,11 +7,13 @@ administrator's password, which the shared demo server's other tests log in with
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
 import tempfile
 import time
+import urllib.request
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,6 +68,16 @@ def _login(page: Any, console: Console, username: str, password: str) -> None:
     page.wait_for_url("**/rig.html")
 
 
+def _api_login(console: Console, username: str, password: str) -> None:
+    """A login from elsewhere (no browser): a session the server keeps."""
+    req = urllib.request.Request(console.base_url + "/api/auth/login", method="POST",
+                                 data=json.dumps({"username": username,
+                                                  "password": password}).encode(),
+                                 headers={"Content-Type": "application/json"})
+    with urllib.request.urlopen(req, timeout=15) as r:
+        assert r.status == 200
+
+
 def _open_dialog(page: Any) -> None:
     page.click(".user-menu summary")
     page.click("#password-open")
@@ -107,10 +119,16 @@ def test_first_login_is_asked_to_change_the_generated_password(
         _change(page, console.password, NEW_ADMIN_PASSWORD, NEW_ADMIN_PASSWORD + "x")
         page.wait_for_function("document.getElementById('pw-repeat-msg').textContent"
                                ".includes('differ')")
+        # two other logins of the administrator (other computers): the change ends them
+        # and says so in words
+        for _ in range(2):
+            _api_login(console, "admin", console.password)
         _change(page, console.password, NEW_ADMIN_PASSWORD)
         page.wait_for_function("document.getElementById('pw-status').textContent"
                                ".includes('Password changed')")
-        assert "other logins" in page.inner_text("#pw-status")
+        assert page.inner_text("#pw-status") == (
+            "Password changed. 2 other logins (other browsers or computers) were ended; "
+            "this one stays.")
         assert page.locator("#password-banner").count() == 0
         page.click("#pw-close")
         # the keyboard focus comes back to the menu it was opened from
