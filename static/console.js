@@ -148,7 +148,7 @@ const gaitrig = (() => {
     const free = n.disk_free_bytes === null ? "—" : gb(n.disk_free_bytes) + " free";
     const s = n.storage;
     if (!s || !s.held_parts) return free;
-    const parts = `${s.held_parts} recording part${s.held_parts === 1 ? "" : "s"} (${gb(s.held_bytes)})`;
+    const parts = `${plural(s.held_parts, "recording part")} (${gb(s.held_bytes)})`;
     const state = s.unverified_parts
       ? el("span", { class: "warn" }, `${s.unverified_parts} not yet on the server`)
       : "all verified on the server";
@@ -277,7 +277,7 @@ const gaitrig = (() => {
           const parts = el("ul", { class: "parts" });
           for (const p of r.parts) {
             parts.append(el("li", { class: p.state === "incomplete" ? "warn" : "" },
-              `${p.node_id}: ${STATES[p.state] || p.state}, ${p.n_frames} frames` +
+              `${p.node_id}: ${STATES[p.state] || p.state}, ${plural(p.n_frames, "frame")}` +
               (p.state === "transferring" && p.transfer_progress !== null ? ` (${Math.round(p.transfer_progress * 100)} %)` : "") +
               (p.on_server && p.state === "incomplete" ? " (copy on the server)" : "") +
               (p.reason ? ` — ${p.reason}` : "")));

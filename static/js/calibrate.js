@@ -13,9 +13,16 @@
       pitch: Math.asin(Math.max(-1, Math.min(1, f[2]))) * 180 / Math.PI };
   }
 
+  // One line across the table while it loads, when there is nothing to show, or when it
+  // failed (an empty table under its headings looked like a page still loading, forever).
+  const posesLine = (text) => $("poses").replaceChildren(el("tr", {}, el("td", { colspan: "7", class: "hint", role: "status" }, text)));
   async function loadPoses() {
-    const nodes = await gaitrig.api("/api/nodes");
-    const sensors = await Promise.all(nodes.map((n) => gaitrig.api(`/api/nodes/${encodeURIComponent(n.id)}/sensor`)));
+    let nodes, sensors;
+    try {
+      nodes = await gaitrig.api("/api/nodes");
+      sensors = await Promise.all(nodes.map((n) => gaitrig.api(`/api/nodes/${encodeURIComponent(n.id)}/sensor`)));
+    } catch (e) { posesLine("The sensor poses could not be loaded: " + e.message); throw e; }
+    if (!nodes.length) { posesLine("No sensor has connected yet: start the nodes (see the Rig page)."); return; }
     // the whole table at once: row by row, a slow server showed a table missing sensors
     $("poses").replaceChildren(...nodes.map((n, i) => {
       const s = sensors[i];

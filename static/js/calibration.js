@@ -3,12 +3,7 @@
 "use strict";
 (() => {
   const $ = (id) => document.getElementById(id);
-  function el(tag, text, attrs = {}) {
-    const e = document.createElement(tag);
-    if (text !== undefined && text !== null) e.textContent = text;
-    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
-    return e;
-  }
+  const el = gaitrig.el;
   function row(cells) {
     const tr = el("tr");
     for (const c of cells) { const td = el("td"); td.append(c); tr.append(td); }
@@ -40,7 +35,7 @@
         say(d, "warn"); return;
       }
       const url = URL.createObjectURL(await r.blob());
-      const a = el("a", "", { href: url, download: "markers.pdf" });
+      const a = el("a", { href: url, download: "markers.pdf" });
       document.body.append(a); a.click(); a.remove();
       setTimeout(() => URL.revokeObjectURL(url), 10000);
       say("Marker sheet downloaded (markers.pdf): print it at 100 % and check the scale bar.", "good");
@@ -96,7 +91,7 @@
     // the local time, as in the saved-versions table (was the raw "2026-11-24T17:14:50Z")
     const when = new Date(doc.created_iso).toLocaleString();
     $("res-summary").textContent = `${head} (${when}, ${doc.meta.source || "captured"}): `
-      + `${sens.length} sensors, ${doc.edges.length} sensor–marker edges, worst sensor residual ${(worst * 1000).toFixed(2)} mm.`;
+      + `${gaitrig.plural(sens.length, "sensor")}, ${gaitrig.plural(doc.edges.length, "sensor–marker edge")}, worst sensor residual ${(worst * 1000).toFixed(2)} mm.`;
     $("res-details").hidden = false; $("res-empty").hidden = true;
     drawGraph(doc);
     const icp = Object.fromEntries((doc.meta.icp || []).map((r) => [r.sensor, r]));
@@ -110,24 +105,24 @@
       const e = (doc.true_errors || {})[s];
       const c = e ? `${(e.chained_pos_m * 1000).toFixed(1)} / ${e.chained_rot_deg.toFixed(2)}` : "—";
       const fp = e ? (e.final_pos_m ?? e.optimised_pos_m) : null, fr = e ? (e.final_rot_deg ?? e.optimised_rot_deg) : null;
-      const o = el("span", e ? `${(fp * 1000).toFixed(1)} / ${fr.toFixed(2)}` : "—");
+      const o = el("span", {}, e ? `${(fp * 1000).toFixed(1)} / ${fr.toFixed(2)}` : "—");
       if (e) o.className = fp <= 0.01 && fr <= 0.5 ? "good" : "warn";
       const r = icp[s];
       const icpTxt = !r ? "—" : (r.accepted ? "kept" : "not kept") + (r.fitness !== undefined
         ? ` (fitness ${r.fitness_before.toFixed(2)}→${r.fitness.toFixed(2)}, RMSE ${r.inlier_rmse_before_mm.toFixed(1)}→${r.inlier_rmse_mm.toFixed(1)} mm)` : "");
-      const icpCell = el("span", icpTxt, r ? { title: r.reason } : {});
+      const icpCell = el("span", r ? { title: r.reason } : {}, icpTxt);
       tb.append(row([s, `${T[0][3].toFixed(3)}, ${T[1][3].toFixed(3)}, ${T[2][3].toFixed(3)}`,
         mm(doc.sensor_residual_m[s]), icpCell, ...(truth ? [c, o] : [])]));
     }
     const eb = $("edge-table").querySelector("tbody"); eb.replaceChildren();
     for (const e of doc.edges) {
-      const r = el("span", mm(e.residual_m)); r.className = e.residual_m < 0.003 ? "good" : "warn";
+      const r = el("span", {}, mm(e.residual_m)); r.className = e.residual_m < 0.003 ? "good" : "warn";
       eb.append(row([e.sensor, String(e.marker), e.distance_m === null ? "—" : e.distance_m.toFixed(2), r, e.in_chain ? "yes" : "no"]));
     }
     const ul = $("rejected"); ul.replaceChildren();
     const rej = doc.observations.filter((o) => !o.accepted);
-    if (!rej.length) ul.append(el("li", "None."));
-    for (const o of rej) ul.append(el("li", `${o.sensor} · marker ${o.marker}: ${o.reason}`));
+    if (!rej.length) ul.append(el("li", {}, "None."));
+    for (const o of rej) ul.append(el("li", {}, `${o.sensor} · marker ${o.marker}: ${o.reason}`));
   }
 
   const sleep = gaitrig.wait;  // (a watch of the job pauses while the page is hidden)
@@ -154,7 +149,7 @@
     const t = $("cap-progress"); t.hidden = false;
     const tb = t.querySelector("tbody"); tb.replaceChildren();
     for (const [n, p] of Object.entries(j.nodes)) {
-      const bar = el("progress", null, { max: String(j.frames), value: String(p.received), "aria-label": `${n} frames` });
+      const bar = el("progress", { max: String(j.frames), value: String(p.received), "aria-label": `${n} frames` });
       const cell = el("span"); cell.append(bar, ` ${p.received} / ${j.frames}`);
       tb.append(row([n, cell, p.error || ""]));
     }
@@ -209,7 +204,7 @@
     const t = $("check-table"); t.hidden = false;
     const tb = t.querySelector("tbody"); tb.replaceChildren();
     for (const c of j.checks || []) {
-      const st = el("span", c.status); st.className = c.status === "ok" ? "good" : "warn";
+      const st = el("span", {}, c.status); st.className = c.status === "ok" ? "good" : "warn";
       tb.append(row([c.sensor, st, c.moved_mm === null ? "—" : c.moved_mm.toFixed(1),
         c.rotated_deg === null ? "—" : c.rotated_deg.toFixed(2), (c.markers || []).join(" "), c.reason || ""]));
     }
@@ -241,11 +236,11 @@
     // (headings over nothing looked like a list still loading)
     if (!rows.length) {
       const tr = el("tr");
-      tr.append(el("td", "No saved calibration yet: capture one in step 2 and accept it.", { colspan: "6" }));
+      tr.append(el("td", { colspan: "6" }, "No saved calibration yet: capture one in step 2 and accept it."));
       tb.append(tr);
     }
     rows.forEach((c, i) => {
-      const btn = el("button", i === 0 ? "active" : "Restore", { type: "button" });
+      const btn = el("button", { type: "button" }, i === 0 ? "active" : "Restore");
       if (i === 0) btn.disabled = true;
       // (the active version's disabled button was announced as "Restore calibration …")
       btn.setAttribute("aria-label", i === 0 ? `Calibration version ${c.version} is active`

@@ -3,9 +3,9 @@
 "use strict";
 (() => {
   const $ = (id) => document.getElementById(id);
-  const el = (tag, text, cls) => { const e = document.createElement(tag); if (text !== undefined) e.textContent = text; if (cls) e.className = cls; return e; };
+  const el = gaitrig.el;
   const deg = (v) => (v === null || v === undefined ? "—" : v.toFixed(1) + "°");
-  const row = (...cells) => { const tr = el("tr"); cells.forEach((c, i) => { const td = el(i ? "td" : "th", c); if (!i) td.scope = "row"; tr.append(td); }); return tr; };
+  const row = (...cells) => { const tr = el("tr"); cells.forEach((c, i) => { const td = el(i ? "td" : "th", {}, c); if (!i) td.scope = "row"; tr.append(td); }); return tr; };
 
   async function call(path, options) {
     // multipart bodies must not get the JSON content type, so no gaitrig.api() here
@@ -28,8 +28,8 @@
       : "");
     const filt = d.filter === "madgwick" ? `Madgwick, β = ${d.beta}` : "gaitrig filter";
     $("note").textContent += ` Filter: ${filt}.`;
-    $("warnings").replaceChildren(...(d.warnings || []).map((w) => el("li", w)));
-    if (!(d.warnings || []).length) $("warnings").replaceChildren(el("li", "No problems found in the files.", "ok"));
+    $("warnings").replaceChildren(...(d.warnings || []).map((w) => el("li", {}, w)));
+    if (!(d.warnings || []).length) $("warnings").replaceChildren(el("li", { class: "ok" }, "No problems found in the files."));
     $("csv").href = d.csv_url;
     $("sensor-rows").replaceChildren(...d.sensors.map((s) => row(s.name, s.format, String(s.samples),
       s.frequency_hz.toFixed(1) + " Hz", s.duration_s.toFixed(1) + " s", s.magnetometer ? "yes" : "no")));
@@ -109,7 +109,7 @@
   // recordings already on the server: each sensor's skeleton can be the depth source
   call("/api/imu/recordings").then((recs) => {
     for (const r of recs) for (const n of r.sensors) {
-      const o = el("option", `${r.id} — sensor ${n}`); o.value = `${r.id}|${n}`; $("recording").append(o);
+      const o = el("option", {}, `${r.id} — sensor ${n}`); o.value = `${r.id}|${n}`; $("recording").append(o);
     }
   }).catch(() => {});
 })();

@@ -5,7 +5,7 @@
 (() => {
   const api = gaitrig.api;
   const $ = (id) => document.getElementById(id);
-  const el = (tag, text, cls) => { const e = document.createElement(tag); if (text !== undefined) e.textContent = text; if (cls) e.className = cls; return e; };
+  const el = gaitrig.el;
   const cm = (m) => (m === null || m === undefined ? "—" : (m * 100).toFixed(0) + " cm");
   const COLORS = { a: "#0b5cad", b: "#cf222e" };
   const STATES = { waiting: "Waiting", collecting: "Collecting still frames", moved: "Moved — restarted", done: "Done" };
@@ -37,8 +37,8 @@
     sourcesShown = key;
     for (const [id, pick] of [["node-a", 0], ["node-b", 1], ["share-node", 0]]) {
       const sel = $(id), prev = sel.value;
-      sel.replaceChildren(...nodes.map((n) => { const o = el("option", `${n.node_id}${n.connected ? "" : " (offline)"} — ${n.model}`); o.value = n.node_id; return o; }));
-      if (!nodes.length) sel.append(el("option", "no sensor connected"));
+      sel.replaceChildren(...nodes.map((n) => { const o = el("option", {}, `${n.node_id}${n.connected ? "" : " (offline)"} — ${n.model}`); o.value = n.node_id; return o; }));
+      if (!nodes.length) sel.append(el("option", {}, "no sensor connected"));
       sel.value = prev || (nodes[Math.min(pick, nodes.length - 1)] || {}).node_id || "";
     }
   }
@@ -130,7 +130,7 @@
       const sel = $("joint");
       if (sel.options.length !== c.joints.length + 1) {
         const keep = sel.value;
-        sel.replaceChildren(el("option", "Mean of all joints"), ...c.joints.map((j, i) => { const o = el("option", j); o.value = String(i); return o; }));
+        sel.replaceChildren(el("option", {}, "Mean of all joints"), ...c.joints.map((j, i) => { const o = el("option", {}, j); o.value = String(i); return o; }));
         sel.options[0].value = "-1"; sel.value = keep;
       }
     }
@@ -203,8 +203,8 @@
   async function loadShares() {
     const shares = await api("/api/kscc/shares");
     $("shares").replaceChildren(...shares.map((s) => {
-      const li = el("li", `${s.node_id} is shared with other sites. `);
-      const b = el("button", "Stop sharing", "secondary"); b.type = "button";
+      const li = el("li", {}, `${s.node_id} is shared with other sites. `);
+      const b = el("button", { class: "secondary" }, "Stop sharing"); b.type = "button";
       b.addEventListener("click", async () => {
         try { await api(`/api/kscc/shares/${encodeURIComponent(s.node_id)}`, { method: "DELETE" }); $("error").textContent = ""; }
         catch (e) { $("error").textContent = `Stop sharing ${s.node_id} failed: ${e.message}`; $("error").scrollIntoView(); }
@@ -212,7 +212,7 @@
       });
       li.append(b); return li;
     }));
-    if (!shares.length) $("shares").append(el("li", "No sensor is shared."));
+    if (!shares.length) $("shares").append(el("li", {}, "No sensor is shared."));
   }
   $("suggest").addEventListener("click", () => {
     const b = new Uint8Array(12); crypto.getRandomValues(b);
@@ -226,7 +226,7 @@
 
   // -------------------------------------------------------------- active area
   const trapCells = (t) => t ? [cm(t.near_m), cm(t.far_m), cm(t.near_width_m), cm(t.far_width_m)] : ["—", "—", "—", "—"];
-  function row(cells) { const tr = el("tr"); cells.forEach((c, i) => { const td = el(i ? "td" : "th", c); if (!i) td.scope = "row"; tr.append(td); }); return tr; }
+  function row(cells) { const tr = el("tr"); cells.forEach((c, i) => { const td = el(i ? "td" : "th", {}, c); if (!i) td.scope = "row"; tr.append(td); }); return tr; }
   async function loadAreas() {
     const rows = await api("/api/kscc/active-area");
     $("areas").replaceChildren(...rows.map((r) => {

@@ -3,12 +3,8 @@
 "use strict";
 (() => {
   const $ = (id) => document.getElementById(id);
-  const el = (tag, text, attrs = {}) => {
-    const e = document.createElement(tag);
-    if (text !== undefined && text !== null) e.textContent = text;
-    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
-    return e;
-  };
+  const el = gaitrig.el;
+  const plural = gaitrig.plural;
 
   // fetch without the JSON content type (multipart uploads, HTML, PDF blobs)
   async function call(path, options = {}) {
@@ -66,7 +62,7 @@
       const cd = r.headers.get("Content-Disposition") || "";
       const m = /filename="([^"]+)"/.exec(cd);
       const blob = await r.blob();
-      const a = el("a", null, { href: URL.createObjectURL(blob), download: m ? m[1] : fallbackName });
+      const a = el("a", { href: URL.createObjectURL(blob), download: m ? m[1] : fallbackName });
       document.body.append(a); a.click(); a.remove();
       setTimeout(() => URL.revokeObjectURL(a.href), 10000);
       say(msgId, `PDF downloaded (${m ? m[1] : fallbackName}).`);
@@ -102,10 +98,9 @@
     } catch (e) { say("subject-msg", "Cannot load subjects: " + e.message, true); return; }
     if (!subjectsSeq.current(mine)) return;
     const sel = $("subject"), was = sel.value;
-    sel.replaceChildren(el("option", subjects.length ? "Choose a subject…" : q ? `No subject code contains “${q}”` : "No subjects yet", { value: "" }));
+    sel.replaceChildren(el("option", { value: "" }, subjects.length ? "Choose a subject…" : q ? `No subject code contains “${q}”` : "No subjects yet"));
     for (const s of subjects) {
-      sel.append(el("option", `${s.code} — ${s.n_sessions} session(s), ${s.n_recordings} recording(s)`,
-        { value: String(s.id) }));
+      sel.append(el("option", { value: String(s.id) }, `${s.code} — ${plural(s.n_sessions, "session")}, ${plural(s.n_recordings, "recording")}`));
     }
     countText("subject-count", subjects.length, total, q, "subjects", "the code in “Find subject code”");
     // the subject of the address (a link #subject=ID, or the one chosen) stays offered
@@ -122,14 +117,14 @@
     let s;
     try { s = await json(`/api/subjects/${encodeURIComponent(sid)}`); } catch (e) { return false; }
     subjects.push(s);
-    $("subject").append(el("option", `${s.code} — ${s.n_sessions} session(s), ${s.n_recordings} recording(s)`, { value: String(s.id) }));
+    $("subject").append(el("option", { value: String(s.id) }, `${s.code} — ${plural(s.n_sessions, "session")}, ${plural(s.n_recordings, "recording")}`));
     return true;
   }
 
   async function subjectChanged() {
     const sid = $("subject").value;
     const sess = $("session");
-    sess.replaceChildren(el("option", "All sessions", { value: "" }));
+    sess.replaceChildren(el("option", { value: "" }, "All sessions"));
     setLink($("pdf"), null);
     if (!sid) return;
     try {
@@ -137,8 +132,7 @@
       if ($("subject").value !== sid) return;  // another subject was chosen meanwhile
       for (const x of s.sessions || []) {
         const done = (x.recordings || []).filter((r) => r.state === "complete").length;
-        sess.append(el("option", `${gaitrig.day(x.date)} ${x.label || ""} (${done} complete recording(s))`,
-          { value: String(x.id) }));
+        sess.append(el("option", { value: String(x.id) }, `${gaitrig.day(x.date)} ${x.label || ""} (${plural(done, "complete recording")})`));
       }
     } catch (e) { if ($("subject").value !== sid) return; say("subject-msg", e.message, true); }
     setLink($("pdf"), subjectQuery("pdf"));
@@ -172,16 +166,16 @@
     box.replaceChildren();
     // (two empty frames before a recording is chosen)
     if (!sensors.length) {
-      box.append(el("span", "Choose a recording above to list its sensors.", { class: "hint" }));
+      box.append(el("span", { class: "hint" }, "Choose a recording above to list its sensors."));
       $(set).querySelector(".presets").replaceChildren();
       return;
     }
     for (const s of sensors) {
       const id = `${set}-${s.id}`;
-      const cb = el("input", null, { type: "checkbox", id, value: s.id });
+      const cb = el("input", { type: "checkbox", id, value: s.id });
       cb.checked = initial.includes(s.id);
       cb.addEventListener("change", updateRecLinks);
-      const lab = el("label", null, { for: id });
+      const lab = el("label", { for: id });
       lab.append(cb, ` ${s.id}${s.side ? " (side " + s.side + ")" : ""}`);
       box.append(lab);
     }
@@ -193,7 +187,7 @@
       if (ids.length) groups.push([`Side ${side} only`, ids]);
     }
     for (const [label, ids] of groups) {
-      const b = el("button", label, { type: "button", class: "secondary" });
+      const b = el("button", { type: "button", class: "secondary" }, label);
       b.addEventListener("click", () => pick(set, ids));
       presets.append(b);
     }
@@ -219,10 +213,10 @@
     if (!recordingsSeq.current(mine)) return;
     countText("recording-count", recs.length, total, q, "recordings", "the id or session label in “Find recording”");
     const sel = $("recording"), was = sel.value;
-    sel.replaceChildren(el("option", recs.length ? "Choose a recording…" : q ? `No recording matches “${q}”` : "No recording on the server yet", { value: "" }));
+    sel.replaceChildren(el("option", { value: "" }, recs.length ? "Choose a recording…" : q ? `No recording matches “${q}”` : "No recording on the server yet"));
     for (const r of recs) {
       const who = r.subject_code ? `${r.subject_code}, ${gaitrig.day(r.session_date)} ${r.session_label || ""}` : "no subject";
-      sel.append(el("option", `${r.id} — ${who} — ${r.sensors.length} sensors`, { value: r.id }));
+      sel.append(el("option", { value: r.id }, `${r.id} — ${who} — ${plural(r.sensors.length, "sensor")}`));
     }
     if (was && recs.some((r) => r.id === was)) sel.value = was;
     else if (was) recordingChanged();  // the chosen recording left the list
@@ -295,7 +289,7 @@
       body.replaceChildren();
       for (const [label, va, vb, d] of cmpRows(r.a, r.b)) {
         const tr = el("tr");
-        tr.append(el("th", label, { scope: "row" }), el("td", va), el("td", vb), el("td", d === null ? "" : d));
+        tr.append(el("th", { scope: "row" }, label), el("td", {}, va), el("td", {}, vb), el("td", {}, d === null ? "" : d));
         body.append(tr);
       }
       $("cmp-a-h").textContent = `A: ${a.join(", ")}`;
@@ -374,7 +368,7 @@
       try {
         const r = await call(`/api/reports/upload?${q}`, { method: "POST", body: fd });
         const blob = await r.blob();
-        const a = el("a", null, { href: URL.createObjectURL(blob), download: `gait-report-${code}.pdf` });
+        const a = el("a", { href: URL.createObjectURL(blob), download: `gait-report-${code}.pdf` });
         document.body.append(a); a.click(); a.remove();
         say("file-msg", "PDF downloaded.");
       } catch (e) { say("file-msg", e.message, true); }

@@ -119,7 +119,7 @@
     const line = el("div", { class: "part", "data-node": p.node_id },
       el("strong", {}, p.node_id), badge(p.state),
       el("progress", { max: "1", value: String(p.progress), "aria-label": `transfer of ${p.node_id}` }),
-      el("span", { class: "num" }, `${Math.round(p.progress * 100)} % of ${bytes(p.bytes_total)}, ${p.n_frames} frames`));
+      el("span", { class: "num" }, `${Math.round(p.progress * 100)} % of ${bytes(p.bytes_total)}, ${gaitrig.plural(p.n_frames, "frame")}`));
     let reason = p.reason || (lp && lp.reason) || "";
     if (p.state !== "incomplete") reason = reason.split("; transfer failed")[0].replace(/^transfer failed.*/, "");
     if (reason) line.append(el("span", { class: p.state === "incomplete" ? "reason" : "note", "data-kind": "reason" }, reason));
@@ -173,7 +173,7 @@
     const box = el("div", { class: "actions" });
     for (const x of r.references)
       box.append(el("a", { class: "button", href: `/api/exports/${r.id}/references/${x.id}` },
-        `reference ${x.filename} (${x.format.toUpperCase()}, ${x.rate_hz.toFixed(0)} Hz, ${x.labels.length} labels)`));
+        `reference ${x.filename} (${x.format.toUpperCase()}, ${x.rate_hz.toFixed(0)} Hz, ${gaitrig.plural(x.labels.length, "label")})`));
     const input = el("input", { type: "file", accept: ".c3d,.trc,.csv", id: `ref-${r.id}` });
     const msg = el("span", { class: "msg", role: "status" });
     const up = el("button", { type: "button", class: "secondary small", onclick: async () => {
@@ -273,7 +273,7 @@
     subject = got;
     fillForm = fillWanted; fillWanted = false;
     $("detail-h").textContent = `Subject ${subject.code}`;
-    $("detail-hint").textContent = `${subject.n_sessions} session(s), ${subject.n_recordings} recording(s), ${bytes(subject.bytes_on_server)} on the server.`;
+    $("detail-hint").textContent = `${gaitrig.plural(subject.n_sessions, "session")}, ${gaitrig.plural(subject.n_recordings, "recording")}, ${bytes(subject.bytes_on_server)} on the server.`;
     $("detail-body").hidden = false;
     // (whichever call draws the details goes to them, as soon as they show)
     if (revealWanted && $("detail").getBoundingClientRect().top > window.innerHeight * 0.6) {
@@ -350,7 +350,7 @@
     try { const r = await api(`/api/subjects/${subjectId}/delete`, { method: "POST", body: JSON.stringify({ confirm: ev.target.elements.confirm.value }) });
       ev.target.reset(); subjectId = null; dropDetail(); $("detail-body").hidden = true; $("detail-h").textContent = "Select a subject";
       const left = Object.entries(r.node_copies || {}).filter(([, v]) => v !== "deleted").map(([n, v]) => `${n}: ${v}`);
-      say("delete-msg", `Subject deleted with ${r.recordings_deleted} recording(s)${r.recordings_deleted ? (left.length ? "; copies still on nodes — " + left.join("; ") : ", on the nodes too") : ""}.`, true); await loadProjects(); await loadDisk(); }
+      say("delete-msg", `Subject deleted with ${gaitrig.plural(r.recordings_deleted, "recording")}${r.recordings_deleted ? (left.length ? "; copies still on nodes — " + left.join("; ") : ", on the nodes too") : ""}.`, true); await loadProjects(); await loadDisk(); }
     catch (e) { say("delete-msg", e.message); }
   });
 

@@ -1,5 +1,6 @@
-"""Pages that stop asking the server while their tab is hidden (and ask at once when it
-is shown again).
+"""Console leftovers a person notices: pages that stop asking the server while their tab
+is hidden (and ask at once when it is shown again), the Calibrate page's poses table
+while it loads, counts written in the right number ("1 session", never "1 session(s)").
 
 The tab is hidden the way a browser hides it for a page script: ``document.hidden`` and
 ``document.visibilityState`` report it and ``visibilitychange`` fires (headless Chromium
@@ -8,6 +9,8 @@ has no window to minimise). Requests are counted by wrapping ``window.fetch``.
 
 from __future__ import annotations
 
+import time
+import uuid
 from typing import Any
 
 import pytest
@@ -99,3 +102,42 @@ def test_live_page_stops_polling_while_hidden(page: Any, live_server: LiveServer
     page.evaluate(SET_HIDDEN_JS, False)
     page.wait_for_function("window.__asked.some((u) => u.includes('/api/nodes'))")
 
+
+def test_calibrate_page_says_the_poses_are_loading(page: Any, live_server: LiveServer) -> None:
+    """While the sensor list is on its way the poses table says so (it was an empty table
+    under its headings); then it lists every sensor."""
+    held: list[Any] = []
+    page.route("**/api/nodes", lambda route: held.append(route))
+    page.goto(live_server.base_url + "/calibrate.html", wait_until="domcontentloaded")
+    line = page.locator("#poses td[role=status]")
+    line.wait_for()
+    assert line.inner_text() == "Loading the sensor poses…"
+    deadline = time.time() + 20
+    while not held and time.time() < deadline:
+        page.wait_for_timeout(100)
+    for route in held:
+        route.continue_()
+    page.unroute("**/api/nodes")
+    page.wait_for_function(f"document.querySelectorAll('#poses tr th').length === "
+                           f"{live_server.n_nodes}")
+    assert page.locator("#poses td[role=status]").count() == 0
+
+
+def test_counts_are_written_in_the_right_number(page: Any, live_server: LiveServer) -> None:
+    """A subject with one session and no recording reads "1 session, 0 recordings" on the
+    Reports and Subjects pages."""
+    code = "PL" + uuid.uuid4().hex[:6].upper()
+    project = live_server.api("/api/projects", {"name": f"plurals {code}"})
+    subject = live_server.api("/api/subjects", {"project_id": project["id"], "code": code})
+    live_server.api("/api/sessions", {"subject_id": subject["id"], "label": "baseline"})
+    page.goto(live_server.base_url + f"/reports.html#subject={subject['id']}")
+    page.fill("#subject-q", code)
+    option = page.locator(f"#subject option[value='{subject['id']}']")
+    option.wait_for(state="attached")
+    assert option.inner_text() == f"{code} — 1 session, 0 recordings"
+    page.goto(live_server.base_url + f"/subjects.html#subject={subject['id']}")
+    page.wait_for_function("document.getElementById('detail-hint').textContent"
+                           ".includes('on the server')")
+    hint = page.inner_text("#detail-hint")
+    assert hint.startswith("1 session, 0 recordings, ") and "(s)" not in hint
+    assert page.js_errors == []
