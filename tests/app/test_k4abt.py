@@ -385,12 +385,15 @@ def test_a_pyk4a_without_capture_capsules_stops_tracking_not_the_stream(
     cap._capture_handle = object()  # what an incompatible pyk4a would hand over
     be = backend(monkeypatch, [cap, FakeCapture(2, 33_333)], stub_path)
     be.open()
+    sent: list[str] = []
+    be.warning_sink = sent.append  # what the node agent sends on to the server
     gen = be.frames()
     a, b = next(gen), next(gen)
     gen.close()
     assert a.body_ids == [] and b.body_ids == []
     assert b.images(["depth"])["depth"].shape == (4, 5)
     assert any("pyk4a" in w for w in be.warnings)
+    assert sent == be.warnings and sent[0].startswith("Body tracking stopped")
 
 
 # --------------------------------------------------------------------------- node options
@@ -705,11 +708,14 @@ def test_timestamps_that_are_not_a_clock_warn_once_and_keep_streaming(
     be = backend(monkeypatch, caps, stub_path)
     be.body_tracking = False
     be.open()
+    sent: list[str] = []
+    be.warning_sink = sent.append  # what the node agent sends on to the server
     with caplog.at_level(logging.WARNING, "gaitrig.node"):
         gen = be.frames()
         frames = [next(gen) for _ in range(3)]
         gen.close()
     assert len(be.warnings) == 1 and "do not advance" in be.warnings[0]
+    assert sent == be.warnings  # raised after the node connected: to the Rig page too
     assert len([r for r in caplog.records if "do not advance" in r.getMessage()]) == 1
     np.testing.assert_allclose(np.diff([f.t_local for f in frames]), [1 / 30, 1 / 30])
 
