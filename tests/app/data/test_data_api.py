@@ -46,7 +46,8 @@ def client(tmp_path: Path) -> Iterator[TestClient]:
 def test_migrations_new_and_existing_database(tmp_path: Path) -> None:
     eng = make_engine(tmp_path / "new.sqlite3")
     with eng.connect() as c:
-        assert c.execute(sa.text("select version_num from alembic_version")).scalar() == alembic_head()
+        version = c.execute(sa.text("select version_num from alembic_version")).scalar()
+        assert version == alembic_head()
     eng.dispose()
     # a database whose tables were made by create_all (no alembic_version) is adopted
     import app.db.data  # noqa: F401
@@ -58,7 +59,8 @@ def test_migrations_new_and_existing_database(tmp_path: Path) -> None:
     old.dispose()
     eng = make_engine(tmp_path / "old.sqlite3")
     with eng.connect() as c:
-        assert c.execute(sa.text("select version_num from alembic_version")).scalar() == alembic_head()
+        version = c.execute(sa.text("select version_num from alembic_version")).scalar()
+        assert version == alembic_head()
         assert c.execute(sa.text("select name from projects")).scalar() == "kept"
     eng.dispose()
 

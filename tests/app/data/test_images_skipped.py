@@ -94,7 +94,8 @@ def test_a_database_of_revision_0001_gets_the_column_with_its_rows_kept(
     old.dispose()
     eng = make_engine(path)
     with eng.connect() as c:
-        assert c.execute(sa.text("select version_num from alembic_version")).scalar() == alembic_head()
+        version = c.execute(sa.text("select version_num from alembic_version")).scalar()
+        assert version == alembic_head()
         row = c.execute(sa.text("select node_id, n_frames, images_skipped "
                                 "from recording_parts")).one()
         assert tuple(row) == ("S1", 300, None)
