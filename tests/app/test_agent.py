@@ -456,3 +456,37 @@ def test_warnings_go_only_to_a_server_that_takes_them(tmp_path: Path,
     else:
         assert [w["text"] for w in warnings] == ["Body tracking stopped: test"]
         assert isinstance(warnings[0]["t"], float)
+
+
+def test_a_replay_that_falls_behind_warns_through_the_agents_path(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The replay backend falling behind its recorded pace (an overloaded computer) says so
+    once a minute through Backend.warn: the log and, via the agent, the Rig page."""
+    import types
+
+    from app.nodes.backends import replay
+    from app.nodes.protocol import encode_skeletons
+
+    store = NodeStore(tmp_path / "recordings")
+    w = store.create_part("R1")
+    for k in range(5):
+        w.append(k * DT, "skeleton", encode_skeletons(k, k * DT, np.zeros((1, 25, 3)),
+                                                      np.full((1, 25), 2)))
+    w.close("on_node")
+    now = [1000.0]
+    monkeypatch.setattr(replay, "time", types.SimpleNamespace(time=lambda: now[0]))
+    be = replay.ReplayBackend(tmp_path / "recordings" / "R1")
+    be.open()
+    agent = NodeAgent("S1", be, "ws://127.0.0.1:1/ws/node", "token", tmp_path / "node")
+    assert be.warning_sink == agent._on_backend_warning  # the agent's path to the server
+    queued: list[str] = []
+    be.warning_sink = queued.append
+    now[0] += 120.0  # past the first minute, in which starting up may be slow
+    frames = be.frames()
+    next(frames)
+    assert queued == []
+    now[0] += 2.0  # the computer stalled for two seconds
+    next(frames)
+    next(frames)
+    assert len(queued) == 1 and "runs 2.0 s behind its recorded pace" in queued[0]
+    frames.close()

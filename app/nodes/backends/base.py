@@ -29,6 +29,12 @@ from app.nodes.protocol import SensorInfo
 
 log = logging.getLogger("gaitrig.node")
 
+#: A frame this late against its capture (or recorded) instant means the computer cannot
+#: keep up: the simulator and the replay say so (:meth:`Backend.warn`), at most every
+#: :data:`LATE_WARN_EVERY_S`, and not in their first minute (starting up is slow anyway).
+LATE_WARN_S = 0.5
+LATE_WARN_EVERY_S = 60.0
+
 ImageFn = Callable[[Sequence[str]], dict[str, NDArray[np.uint8] | NDArray[np.uint16]]]
 #: ``preview(streams, scale)``: the images already downscaled by ``scale`` (< 1).
 PreviewFn = Callable[[Sequence[str], float], dict[str, NDArray[np.uint8] | NDArray[np.uint16]]]

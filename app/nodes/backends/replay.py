@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from app.nodes.backends.base import Backend, Frame
+from app.nodes.backends.base import LATE_WARN_EVERY_S, LATE_WARN_S, Backend, Frame
 from app.nodes.protocol import SensorInfo, decode_skeletons
 from app.nodes.store import NodeStore
 from engine.errors import InputError
@@ -45,6 +45,7 @@ class ReplayBackend(Backend):
         self.rec_id = part_dir.name
         self.loop, self.speed = loop, speed
         self._closed = threading.Event()
+        self._late_warned = time.time()  # not in the first minute: starting is slow anyway
 
     def open(self) -> SensorInfo:
         meta = self.store.meta(self.rec_id)
@@ -78,9 +79,15 @@ class ReplayBackend(Backend):
                 if t0_rec is None:
                     t0_rec = t
                 t_play = t0 + (t - t0_rec) / self.speed
-                delay = t_play - time.time()
+                now = time.time()
+                delay = t_play - now
                 if delay > 0 and self._closed.wait(delay):
                     return
+                if -delay > LATE_WARN_S and now - self._late_warned >= LATE_WARN_EVERY_S:
+                    self._late_warned = now
+                    self.warn(f"The replay of {self.rec_id} runs {-delay:.1f} s behind its "
+                              "recorded pace: this computer cannot keep up, frames come "
+                              "late. Stop other work on this computer.")
                 yield Frame(t_play, pos.copy(), st.copy(), ids, _Images(images.get(t, {})))
             if not self.loop or not pending:
                 return

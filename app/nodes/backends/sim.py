@@ -30,7 +30,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.nodes.backends.base import Backend, Frame, downscale_image
+from app.nodes.backends.base import (
+    LATE_WARN_EVERY_S,
+    LATE_WARN_S,
+    Backend,
+    Frame,
+    downscale_image,
+)
 from app.nodes.clock import NodeClock
 from app.nodes.protocol import SensorInfo
 from engine.errors import InputError
@@ -39,10 +45,6 @@ log = logging.getLogger("gaitrig.node")
 
 WORLD_CYCLE_S = 600.0
 CHUNK_S = 10.0
-#: A frame this late against its capture instant means the computer cannot keep up: the
-#: simulator says so (:meth:`Backend.warn`), at most every :data:`LATE_WARN_EVERY_S`.
-LATE_WARN_S = 0.5
-LATE_WARN_EVERY_S = 60.0
 #: ``test_warning`` (``gaitrig node --test-warning``) is raised this often.
 TEST_WARNING_EVERY_S = 5.0
 
