@@ -310,6 +310,7 @@ SAME: dict[str, Builder] = {
     "c3d_int_no_units_parameter": _int_c3d("mm", write_units=False),
     "c3d_int_dec_processor": _int_c3d("mm", dec=True),
     "c3d_analogs": _patched(_with_analogs),
+    "c3d_no_event_group": _plain("c3d", lambda m: replace(m, events=[])),
     "c3d_dead_markers_nan": _plain("c3d", _dead(("LKNE", "RTOE", "LPSI", "SACR"), False)),
     "c3d_dead_markers_zero": _plain("c3d", _dead(("LKNE", "RTOE", "LPSI", "SACR"), True)),
     "c3d_dead_heels": _plain("c3d", _dead(("LHEE", "RHEE"), True)),
@@ -388,7 +389,7 @@ def test_units_that_are_no_length_are_guessed(real: tuple[MarkerTrajectories, Do
 
 # ------------------------------------------------------------------ frame rates
 
-RATES = (50.0, 60.0, 120.0, 150.0, 200.0, 250.0)
+RATES = (50.0, 60.0, 119.88, 120.0, 150.0, 200.0, 250.0)
 
 
 @pytest.mark.parametrize("rate", RATES)
