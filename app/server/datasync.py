@@ -46,6 +46,12 @@ log = logging.getLogger("gaitrig.datasync")
 
 TRANSFER_FAILED = "transfer failed"
 VERIFY_REPEAT_S = 600.0  # a node's part is told "verified" again at most this often
+#: Recordings of the start-up sweep (every one not complete) a pass examines besides its
+#: own: a clinic has a couple of thousand, which in one pass held the event loop for
+#: seconds; a few dozen take milliseconds (bench/storage_scale.py). Passes follow each
+#: other every SWEEP_INTERVAL_S until the sweep is done.
+SWEEP_CHUNK = 25
+SWEEP_INTERVAL_S = 0.05
 
 
 def part_state(p: Part, complete_on_disk: bool) -> tuple[str, str | None]:
@@ -112,12 +118,14 @@ class DataSync:
         # (the recording manager's ``changed``, :meth:`retry`, a row filed by
         # :meth:`write`), those in or just out of a transfer, those with a part a
         # connected node can still send (retried every ``retry_s``), and those waiting
-        # for a node that has just reconnected. The first pass examines all of them.
+        # for a node that has just reconnected. Every recording not complete is examined
+        # once after the start (the sweep), SWEEP_CHUNK per pass beside the others, its
+        # list read in a worker thread.
         self._dirty: set[str] = set()
         self._active: set[str] = set()
         self._waiting: dict[str, set[str]] = {}  # node -> recordings with a part on it
         self._was_running: set[str] = set()
-        self._swept = False
+        self._sweep: list[str] | None = None  # still to examine (None: not read yet)
         self._in_step = False
         #: recordings examined by the last pass (the work it did; see tests and bench)
         self.examined_last = 0
@@ -128,12 +136,17 @@ class DataSync:
         """Run :meth:`step` every ``interval_s`` in the running event loop."""
 
         async def loop() -> None:
+            if self._sweep is None:
+                try:  # its query reads every complete id: not in the event loop
+                    self._sweep = await asyncio.to_thread(self._sweep_ids)
+                except Exception:  # the first pass reads it again
+                    log.exception("data sync: the recordings to look at could not be read")
             while True:
                 try:
                     self.step()
                 except Exception:  # a bad row must not stop the sync of the others
                     log.exception("data sync step failed")
-                await asyncio.sleep(interval_s)
+                await asyncio.sleep(SWEEP_INTERVAL_S if self._sweep else interval_s)
 
         self._task = asyncio.create_task(loop())
 
@@ -207,7 +220,7 @@ class DataSync:
 
     def step(self) -> None:
         """One pass: start/retry transfers and write the state of every recording that can
-        still change (see :meth:`__init__`'s note; the first pass writes all)."""
+        still change (see :meth:`__init__`'s note), and the next part of the start-up sweep."""
         reconnected, dropped = set(), set()
         for s in self.hub.registry.nodes.values():
             was = self._connected.get(s.id, False)
@@ -227,11 +240,12 @@ class DataSync:
         todo = self._take_todo(reconnected)
         self._in_step = True
         try:
+            if self._sweep is None:  # called without start(): read it here
+                self._sweep = self._sweep_ids()
+            if self._sweep:
+                todo.update(self._sweep[:SWEEP_CHUNK])
+                del self._sweep[:SWEEP_CHUNK]
             with self.db_sessions() as db:
-                if not self._swept:  # the first pass: every recording not complete
-                    self._swept = True
-                    todo |= set(live).difference(db.scalars(select(m.Recording.id).where(
-                        m.Recording.state == "complete")))
                 self.examined_last = len(todo)
                 rows, done = self._rows_of(db, todo)
                 # every stopped recording is transferred, filed under a session or not yet
@@ -259,6 +273,24 @@ class DataSync:
                 db.commit()
         finally:
             self._in_step = False
+
+    @property
+    def sweeping(self) -> int | None:
+        """Recordings the start-up sweep has still to examine (see :meth:`__init__`);
+        None before it was read."""
+        return len(self._sweep) if self._sweep is not None else None
+
+    def _sweep_ids(self) -> list[str]:
+        """Every recording the server knows that has no complete row: what the passes
+        after the start look at once (newest first). Reads ids only, without the ORM."""
+        t = m.Recording.__table__
+        with self.db_sessions() as db:
+            done = set(db.execute(select(t.c.id).where(t.c.state == "complete")).scalars())
+            ids = sorted(self.hub.recordings.recordings.keys() - done, reverse=True)
+            # the ORM builds its loaders and compiles a pass's queries on their first use
+            # (half a second): here, in the worker thread, not in the loop's first pass
+            self._rows_of(db, ids[:1])
+        return ids
 
     def _take_todo(self, reconnected: set[str]) -> set[str]:
         """The recordings this pass examines (and forget why they were due)."""

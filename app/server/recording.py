@@ -49,6 +49,9 @@ from engine.errors import InputError
 
 log = logging.getLogger("gaitrig.recording")
 
+#: Recordings loaded from which the manager moves them (and everything made before) out
+#: of the garbage collector's passes (:func:`gc.freeze`).
+FREEZE_AFTER = 1000
 REJOIN_AFTER_S = 1.0  # a node connected this long has reported its parts (hello)
 
 
@@ -256,6 +259,11 @@ class RecordingManager:
         finally:
             if collecting:
                 gc.enable()
+        if len(self.recordings) >= FREEZE_AFTER:
+            # They live as long as the server: kept out of the collector's full passes,
+            # which otherwise walk them all (a quarter of a second of the event loop, at
+            # any moment, in a clinic). Memory is still freed by reference counting.
+            gc.freeze()
         if self._unsaved:
             self.save()
 

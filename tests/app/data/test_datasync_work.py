@@ -41,12 +41,21 @@ def _not_complete(sync: DataSync, sessions: Any) -> list[str]:
             m.Recording.state != "complete")))
 
 
+def _sweep(sync: DataSync) -> int:
+    """Run the passes of the start-up sweep; the recordings they examined."""
+    n = 0
+    while sync.sweeping != 0:
+        sync.step()
+        n += sync.examined_last
+    return n
+
+
 def test_a_pass_examines_what_can_change_not_the_settled(
         clinic: tuple[DataSync, Any], monkeypatch: pytest.MonkeyPatch) -> None:
     sync, sessions = clinic
     live = sync.hub.recordings.recordings
-    sync.step()  # the first pass looks at everything once
-    assert len(live) > sync.examined_last == len(_not_complete(sync, sessions)) > 0
+    # the first passes look at everything not complete once
+    assert len(live) > _sweep(sync) == len(_not_complete(sync, sessions)) > 0
     sync.step()
     assert sync.examined_last == 0  # all settled: nothing to do
     unsettled = _not_complete(sync, sessions)
@@ -81,7 +90,7 @@ def test_a_pass_examines_what_can_change_not_the_settled(
 
 def test_a_change_by_a_node_is_seen_by_the_next_pass(clinic: tuple[DataSync, Any]) -> None:
     sync, sessions = clinic
-    sync.step()
+    _sweep(sync)
     sync.step()
     assert sync.examined_last == 0
     done = [r for r in sync.hub.recordings.recordings.values()
@@ -110,7 +119,7 @@ def test_a_change_by_a_node_is_seen_by_the_next_pass(clinic: tuple[DataSync, Any
 
 def test_a_row_whose_recording_the_server_lost_is_marked(clinic: tuple[DataSync, Any]) -> None:
     sync, sessions = clinic
-    sync.step()
+    _sweep(sync)
     rec_id = _not_complete(sync, sessions)[0]
     with sessions() as db:
         row = db.get(m.Recording, rec_id)
@@ -123,3 +132,50 @@ def test_a_row_whose_recording_the_server_lost_is_marked(clinic: tuple[DataSync,
         row = db.get(m.Recording, rec_id)
         assert row is not None and row.state == "incomplete"
         assert "lost track" in (row.reason or "")
+
+
+def test_the_start_up_sweep_is_spread_over_passes(clinic: tuple[DataSync, Any],
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every recording not complete is looked at once after the start, a few per pass
+    (one pass over a clinic's thousands held the event loop for seconds)."""
+    import app.server.datasync as ds
+
+    sync, sessions = clinic
+    monkeypatch.setattr(ds, "SWEEP_CHUNK", 5)
+    want = len(_not_complete(sync, sessions))
+    assert sync.sweeping is None  # not read before the first pass (or start())
+    seen = []
+    while sync.sweeping != 0:
+        sync.step()
+        assert sync.examined_last <= 5
+        seen.append(sync.examined_last)
+    assert sum(seen) == want and len(seen) == -(-want // 5)
+    sync.step()
+    assert sync.examined_last == 0
+
+
+def test_start_reads_the_sweep_in_a_worker_thread(clinic: tuple[DataSync, Any]) -> None:
+    import asyncio
+    import threading
+
+    sync, _ = clinic
+    where: list[str] = []
+    read = sync._sweep_ids
+
+    def spy() -> list[str]:
+        where.append(threading.current_thread().name)
+        return read()
+
+    sync._sweep_ids = spy  # type: ignore[method-assign]
+
+    async def run() -> None:
+        sync.start(interval_s=0.01)
+        for _ in range(500):
+            await asyncio.sleep(0.01)
+            if sync.sweeping == 0:
+                break
+        await sync.stop()
+
+    asyncio.run(run())
+    assert where and where[0] != threading.main_thread().name
+    assert sync.sweeping == 0
