@@ -35,6 +35,7 @@ from app.nodes.protocol import (
     dump,
     encode_skeletons,
 )
+from app.server import hub as hub_module
 from app.server.hub import (
     CLOSE_BUSY,
     CLOSE_REPLACED,
@@ -175,15 +176,16 @@ def test_a_node_gone_before_its_welcome_is_not_left_connected(tmp_path: Path) ->
 
 
 @pytest.fixture
-def server(tmp_path: Path) -> Iterator[Settings]:
-    """A real server on a loopback port (all of 127.0.0.0/8 reaches it)."""
+def server(tmp_path: Path) -> Iterator[tuple[Settings, Hub]]:
+    """A real server on a loopback port (all of 127.0.0.0/8 reaches it), and its hub."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = int(s.getsockname()[1])
     settings = Settings(data_dir=tmp_path / "server", viewer_enabled=False,
                         node_token=NODE_TOKEN, admin_password="secret-pw", port=port)
     (tmp_path / "server").mkdir()
-    srv = uvicorn.Server(uvicorn.Config(create_app(settings), host="127.0.0.1", port=port,
+    app = create_app(settings)
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port,
                                         log_level="warning"))
     th = threading.Thread(target=srv.run, daemon=True)
     th.start()
@@ -192,7 +194,7 @@ def server(tmp_path: Path) -> Iterator[Settings]:
         assert time.monotonic() < deadline, "server did not start"
         time.sleep(0.05)
     try:
-        yield settings
+        yield settings, app.state.hub
     finally:
         srv.should_exit = True
         th.join(10)
@@ -208,6 +210,15 @@ async def _silent(url: str, host: str, n: int) -> AsyncIterator[list[ClientConne
         yield conns
 
 
+async def _counted(hub: Hub, n: int) -> None:
+    """Wait until the hub counts ``n`` connections waiting for their hello (a client's
+    connection is open a moment before the server's side counts it)."""
+    deadline = time.monotonic() + WAIT_S
+    while hub._pending_hellos < n:
+        assert time.monotonic() < deadline, hub._pending_hellos
+        await asyncio.sleep(0.02)
+
+
 async def _refusal(url: str, host: str) -> tuple[dict[str, Any], int | None]:
     async with connect(url, local_addr=(host, 0), open_timeout=5) as ws:
         msg = json.loads(await asyncio.wait_for(ws.recv(), 5))
@@ -217,15 +228,19 @@ async def _refusal(url: str, host: str) -> tuple[dict[str, Any], int | None]:
 
 
 def test_one_address_flooding_hellos_does_not_lock_other_nodes_out(
-        server: Settings, tmp_path: Path) -> None:
+        server: tuple[Settings, Hub], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A peer at 127.0.0.2 opens connections and never says hello: it gets
     MAX_PENDING_HELLOS_PER_ADDRESS slots, a further one is told to come back later
     (1013), and a real node at 127.0.0.1 still connects while the flood holds its slots.
     The global cap still holds across addresses."""
-    url = f"ws://127.0.0.1:{server.port}/ws/node"
+    settings, hub = server
+    url = f"ws://127.0.0.1:{settings.port}/ws/node"
+    # the flood must outlast a loaded test machine's slow steps: not a timing test
+    monkeypatch.setattr(hub_module, "HELLO_TIMEOUT_S", 300.0)
 
     async def scenario() -> None:
         async with _silent(url, "127.0.0.2", MAX_PENDING_HELLOS_PER_ADDRESS):
+            await _counted(hub, MAX_PENDING_HELLOS_PER_ADDRESS)
             msg, code = await _refusal(url, "127.0.0.2")
             assert msg["type"] == "refused" and code == CLOSE_BUSY
             assert "127.0.0.2" in msg["reason"] and "try again" in msg["reason"]
@@ -237,6 +252,8 @@ def test_one_address_flooding_hellos_does_not_lock_other_nodes_out(
                     assert not run.done(), run
                     assert time.monotonic() < deadline, "the node never got in"
                     await asyncio.sleep(0.05)
+                # ... while the flood still held its slots
+                assert hub._pending_by_address == {"127.0.0.2": MAX_PENDING_HELLOS_PER_ADDRESS}
             finally:
                 agent.stop()
                 await asyncio.wait_for(run, 10)
@@ -246,14 +263,16 @@ def test_one_address_flooding_hellos_does_not_lock_other_nodes_out(
         async with contextlib.AsyncExitStack() as stack:
             for k in range(MAX_PENDING_HELLOS // per):
                 await stack.enter_async_context(_silent(url, hosts[k], per))
+            await _counted(hub, MAX_PENDING_HELLOS)
             msg, code = await _refusal(url, hosts[-1])
             assert code == CLOSE_BUSY and f"{MAX_PENDING_HELLOS} connections" in msg["reason"]
 
     asyncio.run(scenario())
 
 
-def test_a_silent_connection_is_closed_after_the_hello_timeout(server: Settings) -> None:
-    url = f"ws://127.0.0.1:{server.port}/ws/node"
+def test_a_silent_connection_is_closed_after_the_hello_timeout(
+        server: tuple[Settings, Hub]) -> None:
+    url = f"ws://127.0.0.1:{server[0].port}/ws/node"
 
     async def scenario() -> None:
         async with connect(url, open_timeout=5, ping_interval=None) as ws:
