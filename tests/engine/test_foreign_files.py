@@ -813,3 +813,67 @@ def test_heel_strikes_at_other_rates(rate: float, real: tuple[MarkerTrajectories
     assert len(pairs) == len(truth)
     for det, ann in pairs:
         assert abs(det.time_s - ann.time_s) <= 0.02 + 1.0 / rate, (det, ann)
+
+
+# ------------------------------------------------------------------ whole labs
+
+def _lab(m: MarkerTrajectories, naming: str, up: str, heading_deg: float,
+         offset: tuple[float, float, float], rate: float) -> MarkerTrajectories:
+    v = _renamed(m, NAMINGS[naming])
+    v = _map(v, _rz(heading_deg), offset)
+    if rate != m.rate:
+        v = _resample(v, rate)
+    return _file_axes(v, up)
+
+
+LABS: dict[str, tuple[str, str, float, tuple[float, float, float], float, str, str]] = {
+    # name: (naming, up, heading, offset (m, Z up), rate, format, units)
+    "pose2sim_markerless_trc": ("openpose_markerless", "y", 90.0, (-1.5, 3.0, 0.0), 60.0,
+                                "trc", "m"),
+    "opensim_gait2392_trc": ("opensim_gait2392", "y", -90.0, (0.3, -0.4, 0.0), 60.0, "trc",
+                             "mm"),
+    "qualisys_cast_c3d": ("qualisys_cast", "z", 180.0, (250.0, -40.0, 0.0), 150.0, "c3d",
+                          "mm"),
+    "mediapipe_feet_x_up_c3d": ("mediapipe_markerless", "x", 30.0, (0.0, 0.0, -1.2), 50.0,
+                                "c3d", "m"),
+    "ior_mirrored_trc": ("ior_rizzoli", "-y", 45.0, (12.0, 8.0, 0.0), 200.0, "trc", "cm"),
+}
+
+
+@pytest.mark.parametrize("lab", sorted(LABS))
+def test_whole_lab_conventions(lab: str, real: tuple[MarkerTrajectories, Doc],
+                               real_feet_ref: dict[str, Doc], tmp_path: Path,
+                               capsys: pytest.CaptureFixture[str]) -> None:
+    """Several differences at once, as another lab's file has them: names, vertical axis,
+    heading, origin, rate, format and unit (the IOR one also mirrored)."""
+    m, _ = real
+    naming, up, heading, offset, rate, kind, units = LABS[lab]
+    v = _lab(m, naming, up, heading, offset, rate)
+    if lab.startswith("ior_mirrored"):
+        v = _map(v, _mirror(0))
+    p = _write(kind, v, tmp_path / f"lab.{kind}", units)
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(real_feet_ref["plug_in_gait"], doc, max(1.0 / rate, 0.01))
+
+
+def test_kinect_csv_camera_frame(skeleton_csv: tuple[str, Doc], tmp_path: Path,
+                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """A skeleton CSV at Kinect's 30 Hz in a camera-like frame (Y up, walking along the
+    depth axis, offset): the same steps as the 100 Hz world-frame file. The first event
+    (the standing foot's placement, timed at the sample where the standing ends) is held
+    to two frames, as in test_frame_rates_walker (measured: 43 ms = 1.3 frames)."""
+    _, ref = skeleton_csv
+    rate = 30.0
+    w = Walker(WalkerParams(), [0.0, 0.0, 0.0], [5.0, 0.0, 0.0], start_time=0.5, seed=3)
+    t = np.arange(round(7.0 * rate)) / rate
+    J = w.joints(t)
+    J = _map(MarkerTrajectories(t, J, list(KINECT_V2.joints), rate), _rz(90.0),
+             (0.0, 8.0, 0.0)).positions @ up_rotation("y")
+    s = SkeletonSeries(t, J, np.full(J.shape[:2], TrackingState.TRACKED, dtype=np.uint8),
+                       KINECT_V2)
+    p = tmp_path / "k.csv"
+    write_skeleton_csv(p, s)
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc, 1.0 / rate, first_event_s=2.0 / rate)
