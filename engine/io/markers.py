@@ -192,7 +192,7 @@ PART_QUALIFIERS = ("lat", "lateral", "out", "outer", "back", "post", "posterior"
 PELVIS_SINGLE = ("sacr", "sacrum", "vsacral", "sacral", "pelvis", "spinebase", "hipcenter",
                  "midhip", "root")
 _HEAD = ("c7", "head", "lfhd", "rfhd", "lbhd", "rbhd")
-_SIDE_TOKENS = {"L": ("l", "left"), "R": ("r", "right")}
+_SIDE_TOKENS = {"L": ("l", "left", "lt"), "R": ("r", "right", "rt")}
 
 
 def label_key(label: str) -> str:

@@ -498,6 +498,8 @@ NAMINGS: dict[str, dict[str, str]] = {
                     "LHEE": "LeftHeel", "LTOE": "LeftToe", "LKNE": "LeftKnee"},
     "word_suffix": {"LASI": "ASIS_Left", "LPSI": "PSIS_Left", "LANK": "Ankle_Left",
                     "LHEE": "Heel_Left", "LTOE": "Toe_Left", "LKNE": "Knee_Left"},
+    "lt_rt_prefix": {"LASI": "LT_ASIS", "LPSI": "LT_PSIS", "LANK": "LT_ANKLE",
+                     "LHEE": "LT_HEEL", "LTOE": "LT_TOE", "LKNE": "LT_KNEE"},
     "letter_suffix": {"LASI": "ASIS_L", "LPSI": "PSIS_L", "LANK": "Ankle_L", "LHEE": "Heel_L",
                       "LTOE": "Toe_L", "LKNE": "Knee_L"},
     "openpose_markerless": {"LASI": "LHip", "SACR": "MidHip", "LANK": "LAnkle",
