@@ -89,6 +89,8 @@ def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
         k += 1
     labels = (labels + [f"point{i + 1}" for i in range(len(labels), n_points)])[:n_points]
     rate = float(c["header"]["points"]["frame_rate"])
+    if not (np.isfinite(rate) and rate > 0):  # (ezc3d takes POINT:RATE over the header's)
+        raise InputError(f"{p.name} gives no frame rate (POINT:RATE and the header's are 0)")
     units_v = _param(params, "POINT", "UNITS")
     # No POINT:UNITS, or an unknown one: guessed from the size of the body.
     units = file_units(str(units_v[0]) if units_v else "", pts[:3].transpose(2, 1, 0), labels)

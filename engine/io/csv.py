@@ -40,6 +40,10 @@ def _joint_set_for_columns(names: list[str]) -> tuple[JointSet, dict[str, str]]:
 
 #: Names of the time column (seconds), case-insensitive.
 _TIME_COLUMNS = ("time", "time_s")
+#: First cells of mocap systems' own CSV exports (lower case) → what they are.
+_OTHER_CSV = {"trajectories": "a Vicon Nexus CSV", "devices": "a Vicon Nexus CSV",
+              "model outputs": "a Vicon Nexus CSV", "joints": "a Vicon Nexus CSV",
+              "format version": "an OptiTrack Motive CSV"}
 
 
 def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
@@ -67,6 +71,10 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
         raise InputError(f"{p.name} is separated by semicolons; the skeleton CSV format is "
                          "comma-separated (time,<Joint>_x,<Joint>_y,<Joint>_z, decimal points)")
     time_cols = [i for i, h in enumerate(header) if h.lower() in _TIME_COLUMNS]
+    first = header[0].lower() if header else ""
+    if not time_cols and first in _OTHER_CSV:
+        raise InputError(f"{p.name} is {_OTHER_CSV[first]} export, not a skeleton CSV: "
+                         "give the trial exported as C3D (or TRC) instead")
     if not time_cols:
         raise InputError(f"{p.name}: no 'time' column; the first column must be 'time' "
                          "(seconds), then <Joint>_x,<Joint>_y,<Joint>_z[,<Joint>_state]")

@@ -128,13 +128,15 @@ def _write(kind: str, m: MarkerTrajectories, path: Path, units: str = "mm") -> P
 
 
 def _write_c3d_int(path: Path, m: MarkerTrajectories, units: str = "mm",
-                   write_units: bool = True, dec: bool = False) -> None:
+                   write_units: bool = True, dec: bool = False,
+                   header_rate: float | None = None) -> None:
     """A C3D in integer storage (positive ``POINT:SCALE``), as older Vicon/Motion
     Analysis systems write it; missing samples are 0,0,0 with residual -1.
 
     Written by hand (ezc3d writes float storage only): header, one parameter section
     (POINT: USED, FRAMES, SCALE, RATE, DATA_START, [UNITS,] LABELS) and int16 frames.
     ``dec``: a DEC (VAX) processor file, whose floats are DEC F-floats.
+    ``header_rate``: the header's frame rate, if not ``POINT:RATE``'s.
     """
 
     def f32(v: float) -> bytes:
@@ -174,7 +176,8 @@ def _write_c3d_int(path: Path, m: MarkerTrajectories, units: str = "mm",
     sec = (struct.pack("<BBBB", 1, 0x50, n_blocks, 85 if dec else 84)
            + b"".join(recs)).ljust(512 * n_blocks, b"\x00")
     header = (struct.pack("<BBhhhhh", 2, 0x50, M, 0, first, first + T - 1, 10) + f32(scale)
-              + struct.pack("<hh", data_start, 0) + f32(m.rate)).ljust(512, b"\x00")
+              + struct.pack("<hh", data_start, 0)
+              + f32(m.rate if header_rate is None else header_rate)).ljust(512, b"\x00")
     frames = bytearray()
     for t in range(T):
         for k in range(M):
@@ -259,10 +262,11 @@ def _patched(edit: Callable[[Any], None] | None, units: str = "mm",
     return b
 
 
-def _int_c3d(units: str, write_units: bool = True, dec: bool = False) -> Builder:
+def _int_c3d(units: str, write_units: bool = True, dec: bool = False,
+             header_rate: float | None = None) -> Builder:
     def b(m: MarkerTrajectories, tmp: Path) -> tuple[Path, list[str]]:
         p = tmp / "v.c3d"
-        _write_c3d_int(p, m, units, write_units, dec)
+        _write_c3d_int(p, m, units, write_units, dec, header_rate)
         return p, []
     return b
 
@@ -309,6 +313,7 @@ SAME: dict[str, Builder] = {
     "c3d_int_cm": _int_c3d("cm"),
     "c3d_int_no_units_parameter": _int_c3d("mm", write_units=False),
     "c3d_int_dec_processor": _int_c3d("mm", dec=True),
+    "c3d_header_rate_zero": _int_c3d("mm", header_rate=0.0),
     "c3d_analogs": _patched(_with_analogs),
     "c3d_no_event_group": _plain("c3d", lambda m: replace(m, events=[])),
     "c3d_dead_markers_nan": _plain("c3d", _dead(("LKNE", "RTOE", "LPSI", "SACR"), False)),
@@ -385,6 +390,21 @@ def test_units_that_are_no_length_are_guessed(real: tuple[MarkerTrajectories, Do
         rc, doc, err = _run([str(p), "--json", *extra], capsys)
         assert rc == 0 and doc is not None, err
         _same_steps(ref, doc, 0.01)
+
+
+def test_c3d_without_a_frame_rate_is_named(synth: tuple[MarkerTrajectories, Doc],
+                                           tmp_path: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    m, _ = synth
+    p = tmp_path / "r.c3d"
+    _write_c3d_int(p, replace(m, rate=1.0, times=np.arange(len(m), dtype=float)),
+                   header_rate=0.0)
+    data = bytearray(p.read_bytes())
+    i = data.index(b"RATE", 512) + 4 + 2 + 2  # name, offset, type and dimensions
+    data[i:i + 4] = struct.pack("<f", 0.0)
+    p.write_bytes(bytes(data))
+    rc, _, err = _run([str(p), "--json"], capsys)
+    assert rc == 2 and "r.c3d gives no frame rate" in err, err
 
 
 # ------------------------------------------------------------------ frame rates
@@ -747,20 +767,34 @@ def test_csv_dialects(case: str, skeleton_csv: tuple[str, Doc], tmp_path: Path,
     _same_steps(ref, doc, 0.01)
 
 
+#: The start of a Vicon Nexus and of an OptiTrack Motive CSV export.
+_NEXUS_CSV = ("Trajectories\n100\n,,Sub01:LASI,,,Sub01:RASI,,\n"
+              "Frame,Sub Frame,X,Y,Z,X,Y,Z\n,,mm,mm,mm,mm,mm,mm\n1,0,1,2,3,4,5,6\n")
+_MOTIVE_CSV = ("Format Version,1.23,Take Name,walk,Capture Frame Rate,120.000000,"
+               "Length Units,Millimeters\n\n,,Marker,Marker\n,,Sub01:LANK,Sub01:LANK\n"
+               "Frame,Time (Seconds),X,Y\n0,0.000000,1.0,2.0\n")
+
+
 @pytest.mark.parametrize(("case", "expect"), [
     ("unknown_joint", "unknown joint names in CSV header: Ankle_Lft"),
     ("no_time", "no 'time' column"),
+    ("vicon_nexus", "d.csv is a Vicon Nexus CSV export, not a skeleton CSV: give the trial "
+                    "exported as C3D"),
+    ("motive", "d.csv is an OptiTrack Motive CSV export"),
 ])
 def test_csv_dialects_refused(case: str, expect: str, skeleton_csv: tuple[str, Doc],
                               tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """What is no skeleton CSV is named, with what to give instead."""
     text, _ = skeleton_csv
     head, rest = text.split("\n", 1)
     if case == "unknown_joint":
         head = head.replace("AnkleLeft_", "Ankle_Lft_")
-    else:
+    elif case == "no_time":
         head = head.replace("time,", "frame,", 1)
+    else:
+        head, rest = "", _NEXUS_CSV if case == "vicon_nexus" else _MOTIVE_CSV
     p = tmp_path / "d.csv"
-    p.write_text(head + "\n" + rest)
+    p.write_text((head + "\n" if head else "") + rest)
     rc, _, err = _run([str(p), "--json"], capsys)
     assert rc == 2 and expect in err, err
 
