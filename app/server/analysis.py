@@ -73,6 +73,9 @@ def _write_json(path: Path, obj: Any) -> None:
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     tmp.write_text(json.dumps(obj))
     os.replace(tmp, path)
+    from app.server.storage import note_changed  # (storage imports this module)
+
+    note_changed(path)  # the recording's bytes on the server changed
 
 
 def _fingerprint(rec_dir: Path) -> str:

@@ -18,6 +18,7 @@ share one time axis.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import io
 import json
@@ -98,7 +99,13 @@ class StorageLayout:
         return sorted(p.name for p in d.iterdir() if p.is_dir() and TransferSink.is_complete(p))
 
     def recording_bytes(self, rec_id: str) -> int:
-        """Bytes used by a recording (parts, unfinished transfers and references)."""
+        """Bytes used by a recording (parts, finished transfers and references), as the
+        data folder's :class:`UsageIndex` knows them (measured again when they changed)."""
+        return usage_index(self.data_dir).recording_bytes(rec_id)
+
+    def measure_bytes(self, rec_id: str) -> int:
+        """Bytes used by a recording now, read from every file (parts, unfinished
+        transfers and references)."""
         return dir_bytes(self.recording_dir(rec_id)) + dir_bytes(self.reference_dir(rec_id))
 
     def delete_recording(self, rec_id: str) -> None:
@@ -106,6 +113,7 @@ class StorageLayout:
         for d in (self.recording_dir(rec_id), self.reference_dir(rec_id)):
             if d.exists():
                 shutil.rmtree(d)
+        usage_index(self.data_dir).changed(rec_id)
 
     @property
     def tombstone_file(self) -> Path:
@@ -152,6 +160,156 @@ class StorageLayout:
         self.data_dir.mkdir(parents=True, exist_ok=True)
         u = shutil.disk_usage(self.data_dir)
         return {"total": u.total, "used": u.used, "free": u.free}
+
+
+Stamp = tuple[int, int]  # mtime_ns of a recording's folder and of its references' folder
+
+
+def _mtime_ns(path: Path) -> int:
+    try:
+        return os.stat(path).st_mtime_ns
+    except OSError:
+        return 0
+
+
+def _folders(root: Path) -> dict[str, int]:
+    """The folders in ``root`` with their mtime_ns (one listing, no walk)."""
+    out: dict[str, int] = {}
+    try:
+        with os.scandir(root) as it:
+            for e in it:
+                if e.is_dir(follow_symlinks=False):
+                    with contextlib.suppress(OSError):
+                        out[e.name] = e.stat(follow_symlinks=False).st_mtime_ns
+    except OSError:
+        pass
+    return out
+
+
+class UsageIndex:
+    """The bytes each recording uses on the server, kept between requests instead of read
+    from every file each time (``GET /api/storage`` read every recording folder: seconds
+    at clinic size).
+
+    A recording's bytes are measured when first asked for (or by :meth:`rescan`) and kept
+    with the modification times of its folder and of its references' folder, which every
+    file put in or taken out at their top changes (a reference uploaded or deleted, the
+    report's reference, ``sensors.json``, the whole recording deleted). What changes
+    deeper is reported: a part whose transfer ended (:mod:`app.server.transfer`), an
+    analysis written (:mod:`app.server.analysis`), a deletion (:meth:`StorageLayout.
+    delete_recording`), a settled recording found damaged (:mod:`app.server.datasync`)
+    call :meth:`changed`. A transfer under way is counted when it ends. A full
+    :meth:`rescan` runs in the background at start-up and on request
+    (``GET /api/storage?rescan=true``), for what changed by hand.
+
+    Args:
+        data_dir: the server's data folder.
+    """
+
+    def __init__(self, data_dir: Path) -> None:
+        self.layout = StorageLayout(Path(data_dir))
+        self._known: dict[str, tuple[Stamp, int]] = {}
+        self._lock = threading.Lock()
+        self._changed_in_scan: set[str] | None = None  # reported while a rescan runs
+        self._scan_lock = threading.Lock()
+        #: when the last full rescan ended (time.time()), None before the first
+        self.scanned_at: float | None = None
+
+    def _stamp(self, rec_id: str) -> Stamp:
+        return (_mtime_ns(self.layout.recording_dir(rec_id)),
+                _mtime_ns(self.layout.reference_dir(rec_id)))
+
+    def _measure(self, rec_id: str, stamp: Stamp) -> int:
+        # the stamp was read before the files: a change while they are read is seen by
+        # the next look (its stamp differs)
+        n = self.layout.measure_bytes(rec_id)
+        with self._lock:
+            self._known[rec_id] = (stamp, n)
+        return n
+
+    def recording_bytes(self, rec_id: str) -> int:
+        """Bytes of one recording (measured again only when its stamp changed)."""
+        stamp = self._stamp(rec_id)
+        if stamp == (0, 0):
+            return 0
+        hit = self._known.get(rec_id)
+        if hit is not None and hit[0] == stamp:
+            return hit[1]
+        return self._measure(rec_id, stamp)
+
+    def many(self, rec_ids: Iterable[str]) -> dict[str, int]:
+        """Bytes of each of ``rec_ids``: two folder listings, then only the recordings
+        whose stamp changed are read."""
+        recs, refs = _folders(self.layout.recordings), _folders(self.layout.references)
+        out: dict[str, int] = {}
+        for rec_id in rec_ids:
+            stamp = (recs.get(rec_id, 0), refs.get(rec_id, 0))
+            if stamp == (0, 0):
+                out[rec_id] = 0
+                continue
+            hit = self._known.get(rec_id)
+            out[rec_id] = hit[1] if hit is not None and hit[0] == stamp else \
+                self._measure(rec_id, stamp)
+        return out
+
+    def changed(self, rec_id: str) -> None:
+        """Something below a recording's folder changed: measure it again when asked."""
+        with self._lock:
+            self._known.pop(rec_id, None)
+            if self._changed_in_scan is not None:
+                self._changed_in_scan.add(rec_id)
+
+    def rescan(self) -> int:
+        """Measure every recording on the server again (blocking: run it in a worker
+        thread; one at a time). Returns the recordings measured."""
+        with self._scan_lock:
+            return self._rescan()
+
+    def _rescan(self) -> int:
+        with self._lock:
+            self._changed_in_scan = set()
+        recs, refs = _folders(self.layout.recordings), _folders(self.layout.references)
+        fresh: dict[str, tuple[Stamp, int]] = {}
+        for rec_id in sorted(set(recs) | set(refs)):
+            try:
+                check_id(rec_id)
+            except InputError:
+                continue  # not a recording's folder
+            stamp = (recs.get(rec_id, 0), refs.get(rec_id, 0))
+            fresh[rec_id] = (stamp, self.layout.measure_bytes(rec_id))
+        with self._lock:
+            for rec_id in self._changed_in_scan or ():  # maybe measured before it changed
+                fresh.pop(rec_id, None)
+            self._known, self._changed_in_scan = fresh, None
+        self.scanned_at = time.time()
+        return len(fresh)
+
+
+_INDEXES: dict[Path, UsageIndex] = {}
+_INDEXES_LOCK = threading.Lock()
+
+
+def usage_index(data_dir: Path) -> UsageIndex:
+    """The :class:`UsageIndex` of a data folder (one per folder and process)."""
+    key = Path(data_dir).absolute()
+    with _INDEXES_LOCK:
+        idx = _INDEXES.get(key)
+        if idx is None:
+            idx = _INDEXES[key] = UsageIndex(key)
+        return idx
+
+
+def note_changed(path: Path) -> None:
+    """A file at ``path``, below ``<data_dir>/recordings/<rec_id>/``, was written or
+    removed: the data folder's :class:`UsageIndex` (if one is in use) measures that
+    recording again when asked."""
+    p = Path(path).absolute()
+    for rec_dir in (p, *p.parents):
+        if rec_dir.parent.name == "recordings":
+            idx = _INDEXES.get(rec_dir.parent.parent)
+            if idx is not None:
+                idx.changed(rec_dir.name)
+            return
 
 
 def dir_bytes(path: Path) -> int:

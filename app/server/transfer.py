@@ -55,6 +55,7 @@ from app.nodes.protocol import (
 )
 from app.server.recording import Recording, RecordingManager
 from app.server.registry import NodeRegistry, NodeSession
+from app.server.storage import note_changed
 from app.transfer import (
     Manifest,
     TransferError,
@@ -459,6 +460,7 @@ class TransferManager:
             await self.send_verified(rec.id, node_id)
         finally:
             self.recordings.touch(rec.id)  # what changed here is written by the save
+            note_changed(self.part_dir(rec.id, node_id))  # its bytes on the server
             self.recordings.save()
 
     def verified_sha(self, rec_id: str, node_id: str) -> str | None:
