@@ -786,32 +786,33 @@ class GaitAnalysis:
         moved by 1.5 mm against 100 Hz. The time average does not depend on the rate.
         """
         d = np.linalg.norm(x[:, :2] - med[:2], axis=1)  # NaN where missing
-        total = np.zeros(3)
-        dur = 0.0
-        for i in range(max(0, int(np.argmax(sel)) - 1), min(len(t) - 1, int(
-                len(sel) - np.argmax(sel[::-1])))):
-            a, b = i, i + 1
-            if not (np.isfinite(d[a]) and np.isfinite(d[b])) or not (sel[a] or sel[b]):
-                continue
-            dt = float(t[b] - t[a])
-            if sel[a] and sel[b]:
-                f0, f1 = 0.0, 1.0
-            else:
-                s, o = (a, b) if sel[a] else (b, a)
-                if d[o] > STANCE_OUTLIER_M:
-                    f = float(np.clip((STANCE_OUTLIER_M - d[s]) / (d[o] - d[s]), 0.0, 1.0))
-                elif abs(t[o] - tc) > STANCE_MAX_HALF_S:
-                    lim = tc + np.sign(t[o] - tc) * STANCE_MAX_HALF_S
-                    f = float(np.clip(abs(lim - t[s]) / dt, 0.0, 1.0))
-                else:
-                    continue
-                f0, f1 = (0.0, f) if s == a else (1.0 - f, 1.0)
-            pa, pb = x[a] + f0 * (x[b] - x[a]), x[a] + f1 * (x[b] - x[a])
-            total += 0.5 * (pa + pb) * (f1 - f0) * dt
-            dur += (f1 - f0) * dt
-        if dur <= 0.0:
+        on = np.flatnonzero(sel)
+        i = np.arange(max(0, int(on[0]) - 1), min(len(t) - 1, int(on[-1]) + 1))
+        a, b = i, i + 1  # every interval touching the stance
+        dt = t[b] - t[a]
+        ok = np.isfinite(d[a]) & np.isfinite(d[b]) & (sel[a] | sel[b])
+        # an interval with one end out of the stance counts up to where the foot leaves
+        # the radius (linear interpolation), or up to the STANCE_MAX_HALF_S limit
+        s_a = sel[a]
+        ds, do = np.where(s_a, d[a], d[b]), np.where(s_a, d[b], d[a])
+        ts, to = np.where(s_a, t[a], t[b]), np.where(s_a, t[b], t[a])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f_far = np.clip((STANCE_OUTLIER_M - ds) / (do - ds), 0.0, 1.0)
+            lim = tc + np.sign(to - tc) * STANCE_MAX_HALF_S
+            f_late = np.clip(np.abs(lim - ts) / dt, 0.0, 1.0)
+        f = np.where(do > STANCE_OUTLIER_M, f_far,
+                     np.where(np.abs(to - tc) > STANCE_MAX_HALF_S, f_late, 0.0))
+        both = sel[a] & sel[b]
+        f0 = np.where(both | s_a, 0.0, 1.0 - f)
+        f1 = np.where(both | ~s_a, 1.0, f)
+        f0, f1, a, b, dt = f0[ok], f1[ok], a[ok], b[ok], dt[ok]
+        pa = x[a] + f0[:, None] * (x[b] - x[a])
+        pb = x[a] + f1[:, None] * (x[b] - x[a])
+        w = (f1 - f0) * dt
+        dur = float(w.sum())
+        if not dur > 0.0:
             return np.asarray(x[sel].mean(axis=0))
-        return total / dur
+        return np.asarray((0.5 * (pa + pb) * w[:, None]).sum(axis=0) / dur)
 
     @staticmethod
     def _refine_strike(t: FloatArray, heel: FloatArray, t_zeni: float) -> float:
