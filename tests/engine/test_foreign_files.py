@@ -598,8 +598,9 @@ def test_marker_naming_conventions(naming: str, real: tuple[MarkerTrajectories, 
 
 def test_ankle_preferred_over_heel(real: tuple[MarkerTrajectories, Doc], tmp_path: Path,
                                    capsys: pytest.CaptureFixture[str]) -> None:
-    """With both, the ankle is the point measured (docs/gait-json.md, "Inputs"); without
-    an ankle the heel is, and --left/--right choose either."""
+    """With both, the crossing method measures the ankle and the heel-strike method the
+    heel (docs/gait-json.md, "Inputs"); without an ankle the heel is measured, and
+    --left/--right choose either."""
     from engine.mocap import load_feet
 
     m, _ref = real
@@ -616,6 +617,11 @@ def test_ankle_preferred_over_heel(real: tuple[MarkerTrajectories, Doc], tmp_pat
                            capsys)
     assert rc == 0 and chosen is not None, err
     _same_steps(by_heel, chosen, 0.01)
+    # the heel-strike method measures the heel when both are there
+    runs = [_run([str(both), "--json", "--method", "heelstrike", *extra], capsys)
+            for extra in ([], ["--left", "L_Heel", "--right", "R_Heel"])]
+    assert all(rc == 0 for rc, _, _ in runs), runs
+    _same_steps(runs[1][1], runs[0][1], 0.01)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("naming", ["opensim_gait2392", "qualisys_cast", "ior_rizzoli",
