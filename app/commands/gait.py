@@ -25,10 +25,12 @@ class _Up(argparse.Action):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
                  values: Any, option_string: str | None = None) -> None:
-        if values is not None and values not in AXES:
+        # "Y", "+y" are y (the file headers and other tools write axes so)
+        axis = None if values is None else str(values).strip().lower().removeprefix("+")
+        if axis is not None and axis not in AXES:
             parser.error(f"argument --up: invalid choice: {values!r} (choose from "
                          f"{', '.join(AXES)})")
-        setattr(namespace, self.dest, _AXIS_PENDING if values is None else values)
+        setattr(namespace, self.dest, _AXIS_PENDING if axis is None else axis)
 
 
 class _NegativeAxis(argparse.Action):
@@ -56,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for axis in ("x", "y", "z"):
         parser.add_argument(f"-{axis}", dest="up", nargs=0, action=_NegativeAxis,
                             help=argparse.SUPPRESS)
-    parser.add_argument("--units", choices=["mm", "cm", "m"],
+    parser.add_argument("--units", choices=["mm", "cm", "m"], type=str.lower,
                         help="length unit of the file's numbers (default: from the file)")
     parser.add_argument("--method", choices=["crossing", "heelstrike"], default="crossing",
                         help="crossing: foot placements where the ankles pass each other "

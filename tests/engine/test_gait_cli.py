@@ -112,6 +112,18 @@ def test_a_negative_axis_is_read_as_the_value_of_up(argv: list[str]) -> None:
     assert args.up == "-y" and args.file == "walk.trc"
 
 
+@pytest.mark.parametrize(("argv", "up", "units"), [
+    (["--up", "Y", "--units", "MM"], "y", "mm"), (["--up=-Z"], "-z", None),
+    (["--up", "+x", "--units", "Cm"], "x", "cm"),
+])
+def test_axis_and_unit_in_any_case(argv: list[str], up: str, units: str | None) -> None:
+    """``--up Y``/``+x``/``--units MM``, as file headers and other tools spell them."""
+    from app.cli import build_parser
+
+    args = build_parser().parse_args(["gait", "walk.trc", *argv])
+    assert (args.up, args.units) == (up, units)
+
+
 @pytest.mark.parametrize(("argv", "said"), [
     (["-y"], "write --up -y"),                 # an axis without --up
     (["--up", "y", "-x"], "write --up -x"),    # a second axis after a complete --up
