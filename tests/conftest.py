@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -65,30 +66,99 @@ def _throttle_pages(browser: Any, rate: float) -> None:
     browser.new_context = throttled_context
 
 
-@pytest.fixture
-def browser() -> Iterator[Any]:
-    """Headless Debian Chromium for one test.
+def _bypass_csp_by_default(browser: Any) -> None:
+    """Make the contexts of ``browser`` bypass the page's Content-Security-Policy unless a
+    test asks otherwise (``new_context(bypass_csp=False)``).
 
-    Every browser test uses this fixture: Playwright's sync API cannot start a second
-    instance while one runs, and while one runs it keeps an asyncio loop running in the
-    main thread (so ``asyncio.run`` in later tests would fail) — hence one per test,
-    closed after it. Skips with a reason when Chromium or Playwright is missing; never
-    downloads a browser.
+    Playwright's ``wait_for_function`` evaluates its predicate with ``eval`` inside the
+    page, which the console's policy (no ``'unsafe-eval'``) refuses. The policy itself is
+    checked by ``tests/browser/test_csp.py``, whose context does not bypass it.
     """
+    new_context = browser.new_context
+
+    def context(*args: Any, **kwargs: Any) -> Any:
+        kwargs.setdefault("bypass_csp", True)
+        return new_context(*args, **kwargs)
+
+    browser.new_context = context
+
+
+class _Chromium:
+    """One headless Chromium (and its Playwright driver) for the whole session."""
+
+    def __init__(self) -> None:
+        from playwright.sync_api import sync_playwright
+
+        self._pw_cm = sync_playwright()
+        pw = self._pw_cm.__enter__()
+        try:
+            self.browser = pw.chromium.launch(executable_path=str(CHROMIUM),
+                                              args=CHROMIUM_ARGS, headless=True)
+        except BaseException:
+            self._pw_cm.__exit__(None, None, None)
+            raise
+        # Playwright's sync API marks its asyncio loop as running in this thread after
+        # every call (so that its dispatcher can resume it); between browser tests the
+        # mark is taken off (see ``browser``), else ``asyncio.run`` in a later test fails.
+        self.loop = self._pw_cm._loop
+        throttle = float(os.environ.get("GAITRIG_TEST_CPU_THROTTLE") or 1)
+        if throttle > 1:
+            _throttle_pages(self.browser, throttle)
+        _bypass_csp_by_default(self.browser)
+
+    def enter(self) -> None:
+        """Mark Playwright's loop as running again before a test drives the browser."""
+        asyncio._set_running_loop(self.loop)
+
+    def leave(self) -> None:
+        """Close what the test left open (contexts hold cookies and pages) and unmark the
+        loop, so the next test starts as with a fresh browser."""
+        try:
+            for ctx in list(self.browser.contexts):
+                ctx.close()
+        finally:
+            asyncio._set_running_loop(None)
+
+    def close(self) -> None:
+        self.enter()
+        try:
+            self.browser.close()
+        finally:
+            self._pw_cm.__exit__(None, None, None)
+            asyncio._set_running_loop(None)
+
+
+@pytest.fixture(scope="session")
+def _chromium() -> Iterator[_Chromium]:
+    """The session's Chromium, started by the first test that needs a browser."""
     if not CHROMIUM.exists():
         pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium package to run "
                     "browser tests")
     try:
-        from playwright.sync_api import sync_playwright
+        import playwright.sync_api  # noqa: F401
     except ImportError:
         pytest.skip("the playwright Python package is not installed")
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS,
-                               headless=True)
-        throttle = float(os.environ.get("GAITRIG_TEST_CPU_THROTTLE") or 1)
-        if throttle > 1:
-            _throttle_pages(b, throttle)
-        try:
-            yield b
-        finally:
-            b.close()
+    chromium = _Chromium()
+    asyncio._set_running_loop(None)
+    try:
+        yield chromium
+    finally:
+        chromium.close()
+
+
+@pytest.fixture
+def browser(_chromium: _Chromium) -> Iterator[Any]:
+    """Headless Debian Chromium for one test.
+
+    One Chromium is started per session (starting the Playwright driver and Chromium
+    costs seconds per test on a loaded machine); each test gets it with no context open,
+    and every context it opened is closed after it, so tests share no cookies, storage
+    or pages. Contexts bypass the Content-Security-Policy unless created with
+    ``bypass_csp=False``. Skips with a reason when Chromium or Playwright is missing;
+    never downloads a browser.
+    """
+    _chromium.enter()
+    try:
+        yield _chromium.browser
+    finally:
+        _chromium.leave()
