@@ -93,10 +93,10 @@ def inline_script_hashes(static_dir: Path) -> list[str]:
 
 def console_csp(script_hashes: Iterable[str]) -> str:
     """The console's CSP template (``{ws}``: this server's websocket origins)."""
-    # 'unsafe-eval': the browser tests' driver (Playwright's wait_for_function) evaluates
-    # its predicates with eval inside the page; the console's own code never evaluates a
-    # string. What the policy is for — no injected <script> or on*= handler runs — holds.
-    scripts = " ".join(["'self'", "'unsafe-eval'", *script_hashes])
+    # No 'unsafe-eval': the console's code never evaluates a string. The browser tests'
+    # driver does (Playwright's wait_for_function), so their contexts bypass the policy,
+    # except tests/browser/test_csp.py, which opens every page under it.
+    scripts = " ".join(["'self'", *script_hashes])
     return (f"default-src 'self'; script-src {scripts}; style-src 'self' 'unsafe-inline'; "
             "img-src 'self' data: blob:; font-src 'self' data:; connect-src 'self' {ws}; "
             "worker-src 'self'; frame-src 'self'; object-src 'none'; base-uri 'self'; "

@@ -116,6 +116,7 @@ def test_security_headers_on_console_and_api(client: TestClient) -> None:
     csp = page.headers["content-security-policy"]
     assert "frame-ancestors 'self'" in csp and "object-src 'none'" in csp
     assert "'unsafe-inline'" not in csp.split("script-src")[1].split(";")[0]
+    assert "'unsafe-eval'" not in csp.split("script-src")[1].split(";")[0]
     # the page's inline bootstrap script is allowed by its hash, and only it
     assert "'sha256-" in csp
     for h, v in {"x-content-type-options": "nosniff", "x-frame-options": "SAMEORIGIN",
