@@ -330,6 +330,9 @@ SAME: dict[str, Builder] = {
     "negative_half": _plain("trc", _negative),
     "negative_half_y_up": _plain("c3d", lambda m: _file_axes(_negative(m), "y")),
     "floor_below_origin": _plain("c3d", lambda m: _map(m, offset=(0.0, 0.0, -0.9))),
+    "origin_on_ceiling": _plain("trc", lambda m: _map(m, offset=(0.0, 0.0, -3.0))),
+    "origin_on_ceiling_z_down": _plain("c3d", lambda m: _file_axes(
+        _map(m, offset=(1.0, -2.0, -3.0)), "-z")),
     "floor_far_below_y_up": _plain("trc", lambda m: _file_axes(_map(m, offset=(0, 0, -30.0)),
                                                                "y")),
 }
