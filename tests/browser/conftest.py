@@ -2,13 +2,16 @@
 
 Fixtures:
 
-* ``live_server`` (session): ``gaitrig demo`` on free ports with six simulated sensor nodes
+* ``live_server`` (package): ``gaitrig demo`` on free ports with six simulated sensor nodes
   in a temporary data folder, waited on until every node is online. Gives the console URL,
   the 3D-view URL, the admin password and a logged-in :meth:`LiveServer.api` helper.
-  Stopped (nodes, then server) at the end of the session; the demo's children die with it.
-* ``browser`` (session): headless Debian Chromium (``/usr/bin/chromium``; never a
-  downloaded browser) with a fresh profile. Skips every browser test with a reason when
-  Chromium or Playwright is missing.
+  Stopped (nodes, then server) after the last test of ``tests/browser`` — its seven
+  streaming processes would otherwise take CPU from the rest of the suite.
+* ``browser`` (``tests/conftest.py``): the session's headless Debian Chromium
+  (``/usr/bin/chromium``; never a downloaded browser), with no context open at the start
+  of a test and its contexts closed after it. Contexts bypass the Content-Security-Policy
+  (Playwright's ``wait_for_function`` uses ``eval``) except in ``test_csp.py``. Skips
+  every browser test with a reason when Chromium or Playwright is missing.
 * ``page`` (function): a new browser context already logged in through the login form
   (so every test also exercises the login), on the Rig page.
 
@@ -133,7 +136,7 @@ def serve_without_nodes(data_dir: Path, env: dict[str, str]) -> Iterator[tuple[s
             _stop(proc)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def live_server() -> Iterator[LiveServer]:
     """``gaitrig demo`` with ``GAITRIG_TEST_NODES`` (default 6) sim nodes, all online."""
     from app.commands.demo import demo_password
@@ -178,8 +181,10 @@ def login(page: Any, server: LiveServer) -> None:
 
 def new_page(browser: Any, timeout_ms: float = 20000) -> Any:
     """A page in a fresh browser context (own cookies), 1400×900, whose JavaScript errors
-    collect in ``page.js_errors`` (tests may assert there were none)."""
-    context = browser.new_context(viewport={"width": 1400, "height": 900})
+    collect in ``page.js_errors`` (tests may assert there were none). The context bypasses
+    the console's Content-Security-Policy, which refuses the ``eval`` of Playwright's
+    ``wait_for_function`` (``test_csp.py`` checks the pages under the policy)."""
+    context = browser.new_context(viewport={"width": 1400, "height": 900}, bypass_csp=True)
     p = context.new_page()
     p.set_default_timeout(timeout_ms)
     errors: list[str] = []
