@@ -159,10 +159,13 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
     stored = f"{secrets.token_hex(8)}.{ext}"
     path = folder / stored
     # Written under a temporary name (backups skip *.tmp, _sweep_stale_uploads removes one
-    # left by a killed server) and renamed into place once its row is committed: a backup
-    # never takes a half-written file, a failed upload leaves none.
+    # left by a killed server), checked, renamed into place and only then its row
+    # committed: a backup never takes a half-written file, nor a row without its file (a
+    # file without its row, if the server dies in between, is an orphan the start-up
+    # clean-up removes a day later: app.server.cleanup); a failed upload leaves none.
     tmp = folder / f".{stored}{_UPLOAD_SUFFIX}"
     size = 0
+    placed = False
     try:
         with open(tmp, "wb") as f:
             while chunk := await file.read(1 << 20):
@@ -179,6 +182,15 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
         except (GaitrigError, ValueError, OSError, RuntimeError) as exc:
             raise HTTPException(status.HTTP_400_BAD_REQUEST,
                                 f"{name!r} is not a readable {ext.upper()} file: {exc}") from exc
+        try:
+            os.replace(tmp, path)
+            _fsync_dir(folder)
+        except OSError as exc:
+            raise HTTPException(status.HTTP_507_INSUFFICIENT_STORAGE,
+                                f"{name!r} could not be stored on the server "
+                                f"({exc.strerror or exc}); free space in the data folder and "
+                                "upload it again") from exc
+        placed = True
         ref = m.ReferenceImport(recording_id=rec.id, filename=name, format=ext,
                                 stored_name=stored, size=size, rate_hz=float(traj.rate),
                                 n_frames=len(traj), labels_json=json.dumps(traj.labels))
@@ -186,17 +198,9 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
         db.commit()
     except BaseException:
         tmp.unlink(missing_ok=True)
+        if placed:  # its row did not commit: the file goes too
+            path.unlink(missing_ok=True)
         raise
-    try:
-        os.replace(tmp, path)
-        _fsync_dir(folder)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        db.delete(ref)
-        db.commit()
-        raise HTTPException(status.HTTP_507_INSUFFICIENT_STORAGE,
-                            f"{name!r} could not be stored on the server ({exc.strerror or exc}); "
-                            "free space in the data folder and upload it again") from exc
     return reference_json(ref)
 
 

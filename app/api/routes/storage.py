@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from datetime import UTC, datetime
@@ -33,9 +34,12 @@ from app.api.routes._data import (
     resume_deletions,
 )
 from app.db import data as m
+from app.server.cleanup import clean_stale
 from app.server.datasync import DataSync
 from app.server.storage import StorageLayout, usage_index
 from engine.errors import InputError
+
+log = logging.getLogger("gaitrig.storage")
 
 
 @asynccontextmanager
@@ -46,14 +50,29 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     ds = DataSync(app.state.hub, app.state.db_sessions, layout)
     app.state.datasync = ds
     ds.start()
-    # the bytes of every recording, measured in the background (GET /api/storage)
-    scan = asyncio.create_task(asyncio.to_thread(usage_index(layout.data_dir).rescan))
+    # leftovers of uploads cut short go, then the bytes of every recording are measured
+    # (GET /api/storage): in the background
+    scan = asyncio.create_task(asyncio.to_thread(_start_up_files, app, layout))
     try:
         yield
     finally:
         await ds.stop()
         with contextlib.suppress(Exception):
             await scan
+
+
+def _start_up_files(app: FastAPI, layout: StorageLayout) -> None:
+    """The start-up clean-up (:func:`app.server.cleanup.clean_stale`) and measurement of
+    the data folder (:meth:`app.server.storage.UsageIndex.rescan`); in a worker thread."""
+    try:
+        with app.state.db_sessions() as db:
+            refs = {(str(a), str(b)) for a, b in db.execute(select(
+                m.ReferenceImport.__table__.c.recording_id,
+                m.ReferenceImport.__table__.c.stored_name))}
+        clean_stale(layout.data_dir, refs)
+    except Exception:  # the server runs without it: logged
+        log.exception("start-up clean-up of the data folder failed")
+    usage_index(layout.data_dir).rescan()
 
 
 router = APIRouter(prefix="/storage", route_class=BoundedRoute, tags=["data"], lifespan=_lifespan)
