@@ -137,6 +137,14 @@ class Settings(BaseSettings):
         "moved > 1 cm / 0.5°. 0 disables the periodic check.",
     )
 
+    storage_check_interval_s: float = Field(
+        default=3600.0, ge=0,
+        description="Check that every settled recording's copy on the server is whole (its "
+        "part folders hold every file of their manifest with its size) once in this many "
+        "seconds, a few recordings per data-sync pass; a missing or damaged one is shown "
+        "as 'Server copy missing — restore from backup' and audited. 0 disables the check.",
+    )
+
     node_keep_verified_days: float = Field(
         default=7.0, ge=0,
         description="Node retention: a node keeps its copy of a recording part this many "

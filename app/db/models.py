@@ -72,7 +72,7 @@ ACCOUNT_TABLES = ("users", "login_sessions", "password_change_due")
 
 #: What the audit trail records (``AuditEvent.action``).
 AUDIT_ACTIONS = ("login", "login_failed", "logout", "password_change", "account", "export",
-                 "delete", "backup", "restore")
+                 "delete", "backup", "restore", "storage_check")
 
 
 class AuditEvent(Base):

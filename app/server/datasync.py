@@ -27,24 +27,31 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
+import math
 import time
 from collections.abc import Collection
+from pathlib import Path
 from typing import Any
 
-from sqlalchemy import select
+from sqlalchemy import or_, select
 from sqlalchemy.orm import selectinload, sessionmaker
 
+from app.db import audit
 from app.db import data as m
 from app.server.hub import Hub
 from app.server.recording import Part
 from app.server.recording import Recording as LiveRecording
-from app.server.storage import StorageLayout, part_meta, recording_poses
+from app.server.storage import StorageLayout, note_changed, part_meta, recording_poses
 from engine.errors import GaitrigError, InputError
 
 log = logging.getLogger("gaitrig.datasync")
 
 TRANSFER_FAILED = "transfer failed"
+#: What a recording (and its part) says when its verified copy on the server is gone or
+#: damaged (found by the periodic check of settled recordings, :meth:`DataSync.check`).
+SERVER_COPY_MISSING = "Server copy missing — restore from backup"
 VERIFY_REPEAT_S = 600.0  # a node's part is told "verified" again at most this often
 #: Recordings of the start-up sweep (every one not complete) a pass examines besides its
 #: own: a clinic has a couple of thousand, which in one pass held the event loop for
@@ -71,7 +78,8 @@ def part_state(p: Part, complete_on_disk: bool) -> tuple[str, str | None]:
     if p.state == "on_node" and p.n_frames == 0:
         return "incomplete", f"node {p.node_id} recorded no frame"
     if p.state == "complete" and not complete_on_disk:
-        return "incomplete", "the server's copy is missing or unfinished; transfer again"
+        return "incomplete", (f"{SERVER_COPY_MISSING} (or transfer it again if its sensor "
+                              "still holds it)")
     return p.state, p.reason
 
 
@@ -99,11 +107,21 @@ class DataSync:
         db_sessions: session factory of the database.
         layout: the server's storage layout.
         retry_s: retry a failed transfer of a connected node this often.
+        check_interval_s: check every settled recording's copy on the server once in this
+            time, a few per pass (:meth:`check`); 0: never.
     """
 
     def __init__(self, hub: Hub, db_sessions: sessionmaker[Any], layout: StorageLayout,
-                 retry_s: float = 10.0) -> None:
+                 retry_s: float = 10.0, check_interval_s: float = 3600.0) -> None:
         self.hub = hub
+        self.check_interval_s = check_interval_s
+        self._check_queue: list[str] = []  # settled recordings this round still checks
+        self._check_quota = 1  # of them per pass
+        self._check_round_at: float | None = None  # when the round began (monotonic)
+        self._interval_s = 0.5
+        #: recordings the periodic check looked at, and found damaged (tests and logs)
+        self.checked = 0
+        self.found_damaged: list[str] = []
         self.db_sessions = db_sessions
         self.layout = layout
         self.retry_s = retry_s
@@ -135,6 +153,8 @@ class DataSync:
     def start(self, interval_s: float = 0.5) -> None:
         """Run :meth:`step` every ``interval_s`` in the running event loop."""
 
+        self._interval_s = interval_s
+
         async def loop() -> None:
             if self._sweep is None:
                 try:  # its query reads every complete id: not in the event loop
@@ -146,6 +166,12 @@ class DataSync:
                     self.step()
                 except Exception:  # a bad row must not stop the sync of the others
                     log.exception("data sync step failed")
+                if self._check_due():
+                    try:  # the ids of every settled recording: not in the event loop
+                        self.begin_check(await asyncio.to_thread(self._settled_ids))
+                    except Exception:
+                        log.exception("data sync: the settled recordings could not be read")
+                        self._check_round_at = time.monotonic()  # tried again next round
                 await asyncio.sleep(SWEEP_INTERVAL_S if self._sweep else interval_s)
 
         self._task = asyncio.create_task(loop())
@@ -270,9 +296,99 @@ class DataSync:
                         row.reason = ("the server lost track of this recording (its "
                                       "recordings.json is gone); the data may still be on "
                                       "the nodes")
+                self._check_some(db)
                 db.commit()
         finally:
             self._in_step = False
+
+    # ------------------------------------------------------------------ settled copies
+
+    def _check_due(self) -> bool:
+        """Whether a new round of the periodic check begins now (after the start-up
+        sweep, then every ``check_interval_s``)."""
+        if self.check_interval_s <= 0 or self._sweep or self._sweep is None \
+                or self._check_queue:
+            return False
+        return (self._check_round_at is None
+                or time.monotonic() - self._check_round_at >= self.check_interval_s)
+
+    def _settled_ids(self) -> list[str]:
+        """Every recording whose copy should be whole on the server: complete, or found
+        damaged before (so it is seen when the copy is restored)."""
+        t = m.Recording.__table__
+        with self.db_sessions() as db:
+            return list(db.execute(select(t.c.id).where(or_(
+                t.c.state == "complete",
+                t.c.reason.startswith(SERVER_COPY_MISSING, autoescape=True)))).scalars())
+
+    def begin_check(self, rec_ids: list[str]) -> None:
+        """Start a round of the periodic check over ``rec_ids``, spread over the passes of
+        ``check_interval_s`` (a clinic's 30 000 recordings: about four a pass)."""
+        self._check_round_at = time.monotonic()
+        self._check_queue = list(rec_ids)
+        passes = max(1.0, self.check_interval_s / max(self._interval_s, 1e-3))
+        self._check_quota = max(1, math.ceil(len(rec_ids) / passes))
+
+    def check(self, rec_ids: Collection[str]) -> list[str]:
+        """Check the copies of settled recordings now (see :meth:`_check_row`); returns
+        those found damaged or missing."""
+        before = len(self.found_damaged)
+        with self.db_sessions() as db:
+            self._check_rows(db, list(rec_ids))
+            db.commit()
+        return self.found_damaged[before:]
+
+    def _check_some(self, db: Any) -> None:
+        if not self._check_queue:
+            return
+        ids = self._check_queue[:self._check_quota]
+        del self._check_queue[:self._check_quota]
+        self._check_rows(db, ids)
+
+    def _check_rows(self, db: Any, ids: list[str]) -> None:
+        for row in db.scalars(select(m.Recording).where(m.Recording.id.in_(ids))
+                              .options(selectinload(m.Recording.parts))):
+            if row.id in self._active or self.hub.transfers.running_parts(row.id):
+                continue  # changing now: not settled
+            self.checked += 1
+            self._check_row(db, row)
+
+    def _check_row(self, db: Any, row: m.Recording) -> None:
+        """A settled recording's parts on the server: each complete part's folder must
+        hold every file of its manifest with its size. A damaged or missing one makes
+        the part and the recording ``incomplete`` with :data:`SERVER_COPY_MISSING` and
+        is audited; a copy found whole again (restored) makes them complete again.
+        Nothing else changes."""
+        faults: dict[str, str] = {}
+        for p in row.parts:
+            if p.state == "complete" or (p.reason or "").startswith(SERVER_COPY_MISSING):
+                fault = server_copy_fault(self.layout.part_dir(row.id, p.node_id))
+                if fault is not None:
+                    faults[p.node_id] = fault
+        was_missing = (row.reason or "").startswith(SERVER_COPY_MISSING)
+        if faults and row.state == "complete":
+            for p in row.parts:
+                if p.node_id in faults:
+                    p.state, p.reason = "incomplete", f"{SERVER_COPY_MISSING} ({faults[p.node_id]})"
+            row.state = "incomplete"
+            row.reason = f"{SERVER_COPY_MISSING}: " + "; ".join(
+                f"{n}: {why}" for n, why in sorted(faults.items()))
+            self.found_damaged.append(row.id)
+            log.error("recording %s: %s", row.id, row.reason)
+            db.add(audit.event("(server)", "storage_check", f"recording {row.id}",
+                               row.reason))
+        elif not faults and was_missing:
+            for p in row.parts:
+                if (p.reason or "").startswith(SERVER_COPY_MISSING):
+                    p.state, p.reason = "complete", None
+            if all(p.state == "complete" for p in row.parts):
+                row.state, row.reason = "complete", None
+                log.info("recording %s: its copy on the server is whole again", row.id)
+                db.add(audit.event("(server)", "storage_check", f"recording {row.id}",
+                                   "server copy whole again"))
+        else:
+            return
+        note_changed(self.layout.recording_dir(row.id))  # its bytes, measured again
 
     @property
     def sweeping(self) -> int | None:
@@ -414,6 +530,31 @@ class DataSync:
         if (row.state, row.reason, row.t_start, row.t_stop) != (state, reason, rec.t_start,
                                                                 rec.t_stop):
             row.state, row.reason, row.t_start, row.t_stop = state, reason, rec.t_start, rec.t_stop
+
+
+def server_copy_fault(part_dir: Path) -> str | None:
+    """What is wrong with a part's verified copy on the server, in words for the console
+    (None: every file of its manifest is there with its size). Reads the manifest and
+    one ``stat`` per file, not the files."""
+    if not part_dir.is_dir():
+        return "its folder is gone"
+    try:
+        man = json.loads((part_dir / "manifest.json").read_bytes())
+        files = [(str(f["name"]), int(f["size"])) for f in man["files"]]
+    except FileNotFoundError:
+        return "its manifest.json is gone"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "its manifest.json is unreadable"
+    if (part_dir / ".incoming").exists():
+        return "it is half transferred again"
+    for name, size in files:
+        try:
+            have = (part_dir / name).stat().st_size
+        except OSError:
+            return f"{name} is gone"
+        if have != size:
+            return f"{name} has {have} bytes instead of {size}"
+    return None
 
 
 def _images_skipped(layout: StorageLayout, rec_id: str, node_id: str) -> int | None:

@@ -47,7 +47,8 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     layout = StorageLayout(app.state.settings.data_dir)
     with app.state.db_sessions() as db:  # a deletion the last run did not finish
         resume_deletions(db, app.state.hub, layout)
-    ds = DataSync(app.state.hub, app.state.db_sessions, layout)
+    ds = DataSync(app.state.hub, app.state.db_sessions, layout,
+                  check_interval_s=app.state.settings.storage_check_interval_s)
     app.state.datasync = ds
     ds.start()
     # leftovers of uploads cut short go, then the bytes of every recording are measured
