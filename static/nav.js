@@ -12,6 +12,8 @@
     ["reports", "Reports", "/reports.html"],
     ["imu", "IMU", "/imu.html"],
     ["kscc", "KSCC", "/kscc.html"],
+    // the clinician's guide; served without a login too (it holds no data)
+    ["help", "Help", "/help.html"],
   ];
   function build() {
     const header = document.getElementById("nav");

@@ -17,7 +17,9 @@
       p.append(`Sensor ${w.sensor} has moved ${fmt(w.moved_mm / 10, 1)} cm / ${fmt(w.rotated_deg, 1)}° since the calibration of ${when}. Recalibrate before recording. `);
       const a = document.createElement("a");
       a.href = "/calibration-wizard.html"; a.textContent = "Open the calibration wizard";
-      p.append(a);
+      const help = document.createElement("a");
+      help.href = "/help.html#bumped-tripod"; help.textContent = "What does this mean?";
+      p.append(a, " · ", help);
       banner.append(p);
     }
   }

@@ -169,6 +169,7 @@
       if (j.state === "failed") {
         $("cap-state").textContent = "Calibration failed.";
         $("cap-error").textContent = j.message + (j.unreachable ? ` (unreachable: ${j.unreachable.join(", ")})` : "");
+        $("cap-error").append(" ", el("a", { href: "/help.html#ts-calibration-fails" }, "What does this mean?"));
       } else if (j.state === "done") {
         $("cap-state").textContent = "Done: check the graph and the residuals, then accept or reject.";
         shownSeq.acted(); show(j.result, true);

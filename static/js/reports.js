@@ -47,6 +47,9 @@
 
   function showReport(html) {
     $("report").innerHTML = html; // server-rendered, escaped by the template engine
+    // the data-quality notes (too few steps, one-sided, clock, calibration) are explained in the guide
+    const notes = $("report").querySelector("ul.notes");
+    if (notes) notes.after(el("p", { class: "hint" }, el("a", { href: "/help.html#report-quality" }, "What does this mean?")));
     $("report-section").hidden = false;
     $("report").focus();
   }
