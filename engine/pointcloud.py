@@ -10,7 +10,11 @@ inside the engine (``depth_scale`` converts raw integer depth, e.g. 1000 for mil
 
 from __future__ import annotations
 
+import functools
 import json
+import re
+import struct
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -262,3 +266,434 @@ def voxel_downsample(
         [np.bincount(inv, c[:, k], minlength=m) for k in range(3)], axis=1
     ).astype(np.float64) / counts[:, None]
     return out, np.clip(np.round(cs), 0, 255).astype(np.uint8)
+
+
+# --------------------------------------------------------------------- file loaders
+
+
+@dataclass
+class PointCloudFile:
+    """A point cloud read from a file, in the file's frame and units (metres expected).
+
+    Attributes:
+        points: ``(N, 3)`` float64 coordinates; non-finite rows removed.
+        colors: ``(N, 3)`` uint8 RGB, or ``None`` when the file has no colour.
+        normals: ``(N, 3)`` float64 unit normals, or ``None``.
+        meta: provenance: ``format`` (``ply``/``pcd``), ``encoding``
+            (``ascii``/``binary``/``binary_compressed``), ``coordinate_type``
+            (``float32``/``float64``), ``dropped`` (non-finite rows removed).
+        warnings: problems found while reading (precision lost far from the origin ...).
+    """
+
+    points: FloatArray
+    colors: NDArray[np.uint8] | None
+    normals: FloatArray | None
+    meta: dict[str, object]
+    warnings: list[str]
+
+
+#: largest point-cloud file read (the whole file is read into memory)
+MAX_CLOUD_BYTES = 1024 * 2**20
+#: beyond this distance from the origin float32 coordinates lose millimetres (2⁻¹³ m
+#: steps from 1024 m: 0.12 mm, 0.49 mm at 4-8 km)
+_FLOAT32_SAFE_M = 1000.0
+
+
+def load_point_cloud(path: str | Path) -> PointCloudFile:
+    """Read a PLY or PCD point cloud with its colours and normals when present.
+
+    PLY: ascii, binary little/big endian, float or double coordinates (read by Open3D).
+    PCD v0.7: ``DATA ascii``, ``binary`` and ``binary_compressed`` with ``F 4``/``F 8``
+    coordinates, packed ``rgb``/``rgba`` and ``normal_x…z`` (read here: Open3D 0.18-0.20
+    misreads binary PCDs with 8-byte fields). Non-finite points (organised clouds' empty
+    pixels) are dropped and counted. Coordinates stay float64: a cloud 5 km from the
+    origin keeps its precision when the file stores doubles; float32 coordinates that far
+    out are flagged in ``warnings`` (their steps are 0.5 mm).
+
+    Raises:
+        InputError: missing, empty, oversized, damaged or unsupported file (the message
+            says which formats are read).
+    """
+    p = Path(path)
+    suf = p.suffix.lower()
+    if suf not in (".ply", ".pcd"):
+        raise InputError(f"{p.name}: unsupported point-cloud type {suf or '(none)'!r}; "
+                         "use .ply (ascii or binary) or .pcd (ascii, binary, "
+                         "binary_compressed)")
+    try:
+        size = p.stat().st_size
+    except OSError as e:
+        raise InputError(f"cannot read {p}: {e}") from None
+    if size == 0:
+        raise InputError(f"{p.name}: the file is empty")
+    if size > MAX_CLOUD_BYTES:
+        raise InputError(f"{p.name}: {size / 2**20:.0f} MB is more than the "
+                         f"{MAX_CLOUD_BYTES // 2**20} MB a point cloud may have; downsample "
+                         "or crop it first")
+    pts, cols, nrm, meta = _read_pcd(p) if suf == ".pcd" else _read_ply(p)
+    warnings: list[str] = []
+    ok = np.all(np.isfinite(pts), axis=1)
+    meta["dropped"] = int((~ok).sum())
+    if not ok.all():
+        pts = pts[ok]
+        cols = None if cols is None else cols[ok]
+        nrm = None if nrm is None else nrm[ok]
+        warnings.append(f"{meta['dropped']} point(s) without finite coordinates (empty "
+                        "pixels of an organised cloud) were dropped")
+    if len(pts) == 0:
+        raise InputError(f"{p.name}: the file holds no point with finite coordinates")
+    far = float(np.max(np.abs(pts)))
+    if meta.get("coordinate_type") == "float32" and far > _FLOAT32_SAFE_M:
+        step = float(np.spacing(np.float32(far)))
+        warnings.append(f"coordinates reach {far:.0f} m but are stored as 32-bit floats: "
+                        f"steps of {step * 1000:.2g} mm; store doubles or coordinates "
+                        "relative to a local origin")
+    meta["format"] = suf[1:]
+    return PointCloudFile(np.ascontiguousarray(pts, dtype=np.float64), cols,
+                          None if nrm is None else np.asarray(nrm, dtype=np.float64),
+                          meta, warnings)
+
+
+def _read_ply(p: Path) -> tuple[FloatArray, NDArray[np.uint8] | None, FloatArray | None,
+                                dict[str, object]]:
+    """PLY through Open3D, with the header read for its encoding and coordinate type."""
+    import open3d as o3d
+
+    with p.open("rb") as fh:
+        head = fh.read(4096)
+    if not head.startswith(b"ply"):
+        raise InputError(f"{p.name}: not a PLY file (no 'ply' magic line); export it again")
+    text = head.split(b"end_header")[0].decode("ascii", "replace")
+    m = re.search(r"^format\s+(\S+)", text, re.MULTILINE)
+    coord = re.search(r"^property\s+(\w+)\s+x\s*$", text, re.MULTILINE)
+    meta: dict[str, object] = {
+        "encoding": "ascii" if m and m.group(1) == "ascii" else "binary",
+        "coordinate_type": "float64" if coord and coord.group(1) in ("double", "float64")
+        else "float32"}
+    cloud = o3d.io.read_point_cloud(p, format="ply")
+    pts = np.asarray(cloud.points, dtype=np.float64)
+    if len(pts) == 0:
+        raise InputError(f"{p.name}: no vertices could be read (damaged, truncated, or no "
+                         "x/y/z vertex properties); export it again")
+    cols = (np.clip(np.round(np.asarray(cloud.colors) * 255.0), 0, 255).astype(np.uint8)
+            if cloud.has_colors() else None)
+    nrm = np.asarray(cloud.normals, dtype=np.float64) if cloud.has_normals() else None
+    return pts, cols, nrm, meta
+
+
+_PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("U", 1): "u1", ("U", 2): "u2",
+              ("U", 4): "u4", ("U", 8): "u8", ("I", 1): "i1", ("I", 2): "i2",
+              ("I", 4): "i4", ("I", 8): "i8"}
+
+
+def _read_pcd(p: Path) -> tuple[FloatArray, NDArray[np.uint8] | None, FloatArray | None,
+                                dict[str, object]]:
+    """A PCD v0.5-0.7 file: header, then ascii rows, packed binary rows, or LZF-compressed
+    field-major binary."""
+    raw = p.read_bytes()
+    header: dict[str, list[str]] = {}
+    pos = 0
+    while pos < len(raw):
+        end = raw.find(b"\n", pos)
+        end = len(raw) if end < 0 else end
+        line = raw[pos:end].decode("ascii", "replace").strip()
+        pos = end + 1
+        if not line or line.startswith("#"):
+            continue
+        key, *vals = line.split()
+        header[key.upper()] = vals
+        if key.upper() == "DATA":
+            break
+    need = ("FIELDS", "SIZE", "TYPE", "DATA")
+    missing = [k for k in need if k not in header]
+    if missing:
+        raise InputError(f"{p.name}: not a PCD file (header lacks {', '.join(missing)}); "
+                         "export it again")
+    names = header["FIELDS"]
+    counts = [int(c) for c in header.get("COUNT", ["1"] * len(names))]
+    try:
+        dts = [_PCD_TYPES[(t.upper(), int(s))] for t, s in
+               zip(header["TYPE"], header["SIZE"], strict=True)]
+        n = int(header["POINTS"][0]) if "POINTS" in header else (
+            int(header["WIDTH"][0]) * int(header.get("HEIGHT", ["1"])[0]))
+    except (KeyError, ValueError, IndexError) as e:
+        raise InputError(f"{p.name}: PCD header has unsupported or inconsistent "
+                         f"FIELDS/SIZE/TYPE/COUNT ({e}); export it again") from None
+    if len(counts) != len(names) or not {"x", "y", "z"} <= set(names):
+        raise InputError(f"{p.name}: PCD fields {names} lack x, y, z; a point cloud needs "
+                         "them")
+    data = header["DATA"][0].lower() if header["DATA"] else ""
+    if data == "ascii":  # decimal text: keep what it says, not its float32 rounding
+        dts = ["f8" if dt.startswith("f") else dt for dt in dts]
+    dtype = np.dtype([(f"{nm}_{i}" if i else nm, "<" + dt)
+                      for nm, dt, c in zip(names, dts, counts, strict=True)
+                      for i in range(c)])
+    try:
+        if data == "ascii":
+            text = raw[pos:].decode("ascii", "replace").split()
+            if len(text) < n * len(dtype.names or ()):
+                raise ValueError(f"{len(text)} values for {n} points")
+            flat = np.array([float(x) for x in text[:n * len(dtype.names or ())]])
+            table = flat.reshape(n, -1)
+            rec = np.zeros(n, dtype=dtype)
+            for k, nm in enumerate(dtype.names or ()):
+                if dtype[nm].kind == "f":
+                    rec[nm] = table[:, k]
+                else:  # packed rgb written as an integer (or a float-typed integer)
+                    rec[nm] = table[:, k].astype(np.int64).astype(dtype[nm])
+        elif data == "binary":
+            rec = np.frombuffer(raw, dtype=dtype, count=n, offset=pos)
+        elif data == "binary_compressed":
+            csize, usize = struct.unpack_from("<II", raw, pos)
+            body = _lzf_decompress(np.frombuffer(raw, np.uint8, csize, pos + 8), usize)
+            rec = np.zeros(n, dtype=dtype)
+            off = 0
+            for nm in dtype.names or ():  # field-major: all x, then all y ...
+                sz = dtype[nm].itemsize * n
+                rec[nm] = np.frombuffer(body[off:off + sz].tobytes(), dtype[nm], n)
+                off += sz
+        else:
+            raise InputError(f"{p.name}: PCD DATA {data!r} is not ascii, binary or "
+                             "binary_compressed")
+    except InputError:
+        raise
+    except (ValueError, struct.error) as e:
+        raise InputError(f"{p.name}: PCD data is truncated or damaged ({e}); export it "
+                         "again") from None
+    coord = "float64" if header["SIZE"][names.index("x")] == "8" else "float32"
+    pts = np.stack([rec[a].astype(np.float64) for a in "xyz"], axis=1)
+    nrm = (np.stack([rec[f"normal_{a}"].astype(np.float64) for a in "xyz"], axis=1)
+           if all(f"normal_{a}" in names for a in "xyz") else None)
+    cols = None
+    colour = next((k for k in ("rgb", "rgba") if k in names), None)
+    if colour is not None:
+        packed = rec[colour]
+        bits = (packed.view(np.uint32) if packed.dtype.itemsize == 4
+                else packed.astype(np.uint32))  # F 4 rgb is the same bits read as a float
+        cols = np.stack([(bits >> 16) & 255, (bits >> 8) & 255, bits & 255],
+                        axis=1).astype(np.uint8)
+    elif all(c in names for c in ("r", "g", "b")):
+        cols = np.stack([rec[c] for c in "rgb"], axis=1).astype(np.uint8)
+    return pts, cols, nrm, {"encoding": data, "coordinate_type": coord}
+
+
+def _lzf_decompress(src: NDArray[np.uint8], size: int) -> NDArray[np.uint8]:
+    """LibLZF decompression (PCD ``binary_compressed``), compiled with numba.
+
+    Raises:
+        ValueError: a damaged stream (a reference before the start, sizes that differ).
+    """
+    out = np.empty(size, np.uint8)
+    n = _lzf_kernel()(src, out)
+    if n != size:
+        raise ValueError(f"LZF stream decompressed to {n} bytes, header says {size}")
+    return out
+
+
+def _lzf_kernel_py(src: NDArray[np.uint8], out: NDArray[np.uint8]) -> int:
+    i = 0
+    o = 0
+    n_in = src.shape[0]
+    n_out = out.shape[0]
+    while i < n_in:
+        ctrl = int(src[i])
+        i += 1
+        if ctrl < 32:  # a literal run of ctrl + 1 bytes
+            ln = ctrl + 1
+            if i + ln > n_in or o + ln > n_out:
+                return -1
+            out[o:o + ln] = src[i:i + ln]
+            i += ln
+            o += ln
+        else:  # a back reference: length (ctrl >> 5) + 2, offset from 13 bits
+            ln = ctrl >> 5
+            if ln == 7:
+                if i >= n_in:
+                    return -1
+                ln += int(src[i])
+                i += 1
+            if i >= n_in:
+                return -1
+            ref = o - ((ctrl & 31) << 8) - int(src[i]) - 1
+            i += 1
+            ln += 2
+            if ref < 0 or o + ln > n_out:
+                return -1
+            for k in range(ln):  # byte by byte: the reference may overlap the output
+                out[o + k] = out[ref + k]
+            o += ln
+    return o
+
+
+@functools.cache
+def _lzf_kernel() -> Callable[[NDArray[np.uint8], NDArray[np.uint8]], int]:
+    """The LZF loop compiled on first use (a few MB of compressed cloud would take
+    seconds in pure Python; compiling at import would slow every importer)."""
+    from numba import njit
+
+    return njit(nogil=True)(_lzf_kernel_py)  # type: ignore[no-any-return]
+
+
+def load_intrinsics(path: str | Path) -> CameraIntrinsics:
+    """Read camera intrinsics from the layouts other tools write.
+
+    * Open3D ``PinholeCameraIntrinsic`` JSON: ``width``, ``height``, column-major
+      ``intrinsic_matrix``;
+    * a flat JSON with ``fx``, ``fy``, ``cx``/``ppx``, ``cy``/``ppy``, ``width``, ``height``
+      (and ``coeffs``/``dist``): RealSense and many scripts' dumps;
+    * ROS ``camera_info`` YAML (``image_width``, ``image_height``, ``camera_matrix.data``,
+      ``distortion_coefficients.data``; or the message's ``width``, ``height``, ``K``/``k``,
+      ``D``/``d``) and OpenCV calibration YAML/XML (``camera_matrix``, ``image_width``,
+      ``distortion_coefficients``, as ``calibrateCamera`` samples write).
+
+    Raises:
+        InputError: unreadable file, or no layout above recognised (the message names the
+            keys found and those expected).
+    """
+    p = Path(path)
+    suf = p.suffix.lower()
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"cannot read intrinsics from {p}: {e}") from None
+    if suf == ".json":
+        try:
+            data = json.loads(text)
+        except ValueError as e:
+            raise InputError(f"{p.name}: not valid JSON ({e})") from None
+        if not isinstance(data, dict):
+            raise InputError(f"{p.name}: expected a JSON object with the intrinsics")
+        if "intrinsic_matrix" in data:
+            return load_intrinsics_json(p)
+        return _intrinsics_from_keys(p, {k.lower(): v for k, v in data.items()})
+    if suf in (".yaml", ".yml", ".xml"):
+        return _intrinsics_from_filestorage(p, text)
+    raise InputError(f"{p.name}: unsupported intrinsics file {suf or '(none)'!r}; use an "
+                     "Open3D .json, a ROS camera_info .yaml or an OpenCV .yml/.xml")
+
+
+def _intrinsics_from_keys(p: Path, d: dict[str, object]) -> CameraIntrinsics:
+    """Intrinsics from a flat mapping (lower-case keys) of fx/fy/cx/cy or a K matrix."""
+
+    def first(*names: str) -> object:
+        return next((d[n] for n in names if n in d and d[n] is not None), None)
+
+    w, h = first("width", "image_width"), first("height", "image_height")
+    K = first("k", "camera_matrix")
+    fx, fy = first("fx"), first("fy")
+    cx, cy = first("cx", "ppx"), first("cy", "ppy")
+    dist = first("d", "dist", "coeffs", "distortion_coefficients")
+    try:
+        if K is not None:
+            Km = np.asarray(K, dtype=float).reshape(3, 3)
+        elif None not in (fx, fy, cx, cy):
+            Km = np.array([[float(fx), 0.0, float(cx)],  # type: ignore[arg-type]
+                           [0.0, float(fy), float(cy)], [0.0, 0.0, 1.0]])  # type: ignore[arg-type]
+        else:
+            raise KeyError("fx, fy, cx, cy or a camera matrix")
+        if w is None or h is None:
+            raise KeyError("width and height")
+        dv = None if dist is None else np.asarray(dist, dtype=float).ravel()
+        return CameraIntrinsics.from_matrix(Km, int(w), int(h),  # type: ignore[call-overload]
+                                            None if dv is None or not dv.size else dv)
+    except KeyError as e:
+        raise InputError(f"{p.name}: intrinsics need {e.args[0]}; found keys "
+                         f"{sorted(d)}") from None
+    except (TypeError, ValueError) as e:
+        raise InputError(f"{p.name}: intrinsics values are not numbers of the right shape "
+                         f"({e})") from None
+
+
+def _intrinsics_from_filestorage(p: Path, text: str) -> CameraIntrinsics:
+    """ROS camera_info / OpenCV calibration YAML (or XML) through ``cv2.FileStorage``
+    (ROS files lack the ``%YAML:1.0`` line OpenCV needs: it is added)."""
+    import cv2
+
+    if p.suffix.lower() != ".xml" and not text.lstrip().startswith("%YAML"):
+        text = "%YAML:1.0\n---\n" + text
+    try:
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+        root = fs.root()
+        if not root.isMap():
+            raise InputError(f"{p.name}: expected a mapping of intrinsics keys")
+        keys = list(root.keys())
+        d: dict[str, object] = {}
+        for k in keys:
+            node = root.getNode(k)
+            if node.isMap() and not node.getNode("data").empty():  # rows/cols/data
+                data = node.getNode("data")
+                d[k.lower()] = [data.at(i).real() for i in range(data.size())]
+            elif node.isMap() and not node.getNode("dt").empty():  # an opencv-matrix
+                m = node.mat()
+                d[k.lower()] = None if m is None else m.ravel().tolist()
+            elif node.isSeq():
+                d[k.lower()] = [node.at(i).real() for i in range(node.size())]
+            elif node.isReal() or node.isInt():
+                d[k.lower()] = node.real()
+    except cv2.error as e:
+        raise InputError(f"{p.name}: not readable YAML/XML intrinsics ({str(e).strip()[:120]})"
+                         ) from None
+    return _intrinsics_from_keys(p, d)
+
+
+#: depth beyond which a uint16 image read in millimetres is not a depth camera's (m)
+_MAX_PLAUSIBLE_DEPTH_M = 12.0
+
+
+def load_depth_image(path: str | Path, depth_scale: float | None = None
+                     ) -> tuple[FloatArray, float]:
+    """Read a depth image as metres.
+
+    * 16-bit PNG/TIFF: raw units divided by ``depth_scale`` (default 1000: millimetres,
+      Kinect/PrimeSense/most RealSense; 4000 for a RealSense L515's 0.25 mm units);
+    * 32-bit float TIFF: metres (``depth_scale`` 1), or millimetres with ``depth_scale``
+      1000;
+    * OpenEXR, 8-bit or colour images are refused with what to export instead.
+
+    A depth scale cannot be read from an image; a wrong one is caught only when the
+    median depth becomes implausible (beyond 12 m, or below 5 cm): the error names the
+    likely scale. Invalid pixels (0, NaN) are 0 in the result.
+
+    Returns:
+        ``(depth (H, W) float64 metres, the depth scale used)``.
+
+    Raises:
+        InputError: unreadable or unsupported image, or an implausible scale.
+    """
+    import cv2
+
+    p = Path(path)
+    if depth_scale is not None and not depth_scale > 0:
+        raise InputError("depth_scale must be positive (1000 for millimetres, 4000 for a "
+                         "RealSense L515, 1 for metres)")
+    if not p.is_file():
+        raise InputError(f"cannot read {p}: no such file")
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        if p.suffix.lower() == ".exr":
+            raise InputError(f"{p.name}: OpenEXR is not readable by this OpenCV build; save "
+                             "the depth as a 32-bit float TIFF (metres) or a 16-bit PNG "
+                             "(millimetres)")
+        raise InputError(f"{p.name}: not a readable image; a depth image is a 16-bit PNG "
+                         "or a 16-bit/32-bit float TIFF")
+    if img.ndim != 2:
+        raise InputError(f"{p.name}: {img.shape[2]} channels — a colour image, not depth; "
+                         "a depth image has one 16-bit or float channel")
+    if img.dtype == np.uint8:
+        raise InputError(f"{p.name}: 8-bit image — a depth visualisation, not depth; export "
+                         "16-bit PNG (millimetres) or 32-bit float TIFF (metres)")
+    floating = np.issubdtype(img.dtype, np.floating)
+    scale = float(depth_scale) if depth_scale is not None else (1.0 if floating else 1000.0)
+    depth = img.astype(np.float64) / scale
+    depth[~np.isfinite(depth) | (depth < 0)] = 0.0
+    valid = depth[depth > 0]
+    if len(valid):
+        med = float(np.median(valid))
+        raw = med * scale
+        if not 0.05 <= med <= _MAX_PLAUSIBLE_DEPTH_M:
+            hint = next((f"; the depth is probably in units of 1/{s:g} m, pass "
+                         f"depth_scale={s:g}" for s in (1.0, 1000.0, 4000.0, 10000.0)
+                         if 0.3 <= raw / s <= 8.0), "")
+            raise InputError(f"{p.name}: median depth {med:.3g} m at depth_scale {scale:g} "
+                             f"is not a depth camera's{hint}")
+    return depth, scale

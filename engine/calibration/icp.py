@@ -127,21 +127,31 @@ def icp_align(
     """
     if voxel is not None and voxel <= 0:
         raise InputError("ICP voxel size must be positive (metres)")
-    s, t = to_o3d(source), to_o3d(target)
+    src_np = np.asarray(source, dtype=np.float64).reshape(-1, 3)
+    dst_np = np.asarray(target, dtype=np.float64).reshape(-1, 3)
+    # Open3D's normals and ICP lose the clouds 1 km from the origin (fitness 0 on the real
+    # feature clouds shifted 1-20 km: survey or georeferenced frames): work relative to
+    # the target's centroid, T = S T' S⁻¹ with S the shift
+    c = dst_np.mean(axis=0) if len(dst_np) else np.zeros(3)
+    S = np.eye(4)
+    S[:3, 3] = c
+    S_inv = np.eye(4)
+    S_inv[:3, 3] = -c
+    s, t = to_o3d(src_np - c), to_o3d(dst_np - c)
     if voxel is not None:
         s, t = s.voxel_down_sample(voxel), t.voxel_down_sample(voxel)
     if len(s.points) < 10 or len(t.points) < 10:
         raise InputError("ICP needs at least 10 points in each cloud after downsampling")
     md = max_dist if max_dist is not None else (2.5 * voxel if voxel is not None else 0.05)
     t.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=1.5 * md, max_nn=30))
-    T0 = np.eye(4) if T_init is None else np.asarray(T_init, dtype=float)
+    T0 = S_inv @ (np.eye(4) if T_init is None else np.asarray(T_init, dtype=float)) @ S
     reg = o3d.pipelines.registration
     before = reg.evaluate_registration(s, t, md, T0)
     if min_eig_ratio is not None:
         r0 = information_eig_ratio(transform_points(T0, np.asarray(s.points)),
                                    np.asarray(t.points), np.asarray(t.normals), md)
         if r0 < min_eig_ratio:
-            return IcpResult(T0, float(before.fitness), float(before.inlier_rmse),
+            return IcpResult(S @ T0 @ S_inv, float(before.fitness), float(before.inlier_rmse),
                              float(before.fitness), float(before.inlier_rmse), r0)
     est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=md))
     out = reg.registration_icp(s, t, md, T0, est,
@@ -149,8 +159,8 @@ def icp_align(
     T = np.asarray(out.transformation, dtype=float)
     src_w = transform_points(T, np.asarray(s.points))
     ratio = information_eig_ratio(src_w, np.asarray(t.points), np.asarray(t.normals), md)
-    return IcpResult(T, float(out.fitness), float(out.inlier_rmse), float(before.fitness),
-                     float(before.inlier_rmse), ratio)
+    return IcpResult(S @ T @ S_inv, float(out.fitness), float(out.inlier_rmse),
+                     float(before.fitness), float(before.inlier_rmse), ratio)
 
 
 def refine_with_icp(
