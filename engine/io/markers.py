@@ -293,32 +293,98 @@ def detect_vertical_axis(positions: ArrayLike, labels: list[str]) -> str:
     """Guess the vertical axis of a marker set, with sign (``"z"``, ``"-y"`` ...).
 
     With labelled pelvis/head and foot markers the vertical axis is the one along which
-    the upper body sits furthest from the feet (sign included). Otherwise it is the axis
-    with the largest per-frame marker spread (a standing or walking body is taller than
-    wide) and the least travel of the marker centroid (people walk on a floor); its sign
-    is then the one towards which labelled foot markers' heights are skewed (long
-    stances on the floor, short swings above it), else positive.
+    the upper body sits furthest from the feet (sign included). Otherwise, with left and
+    right foot markers of the same kind (:func:`floor_axis`), it is the axis along
+    which the feet are at one level whenever they stand still (the floor); without
+    those, the axis with the largest per-frame marker spread (a standing or walking
+    body is taller than wide) and the least travel of the marker centroid (people walk
+    on a floor). Its sign is then the one towards which labelled foot markers' heights
+    are skewed (long stances on the floor, short swings above it), else positive.
 
     Args:
-        positions: ``(T, M, 3)`` in any length unit.
+        positions: ``(T, M, 3)`` in any length unit, time first.
         labels: ``M`` marker labels.
 
     Returns:
         One of ``x, y, z, -x, -y, -z``.
+
+    Raises:
+        InputError: too few markers, or the feet do not tell the vertical from the
+            lateral axis (the message says to give ``--up``).
     """
     P = np.asarray(positions, dtype=float)
     labelled = labelled_vertical_axis(P, labels)
     if labelled is not None:
         return labelled
     feet = _group(labels, _FOOT_KEYS)
-    spread = ns.nanmedian(ns.nanstd(P, axis=1), axis=0)
-    centroid = ns.nanmean(P, axis=1)
-    travel = ns.nanstd(centroid, axis=0)
-    if not np.all(np.isfinite(spread)):
-        raise InputError("cannot detect the vertical axis: too few markers; give it with --up")
-    score = spread / (travel + spread.max() * 0.1 + 1e-12)
-    a = int(np.argmax(score))
+    a_floor = floor_axis(P, labels)
+    if a_floor is not None:
+        a = a_floor
+    else:
+        spread = ns.nanmedian(ns.nanstd(P, axis=1), axis=0)
+        centroid = ns.nanmean(P, axis=1)
+        travel = ns.nanstd(centroid, axis=0)
+        if not np.all(np.isfinite(spread)):
+            raise InputError("cannot detect the vertical axis: too few markers; give it "
+                             "with --up")
+        score = spread / (travel + spread.max() * 0.1 + 1e-12)
+        a = int(np.argmax(score))
     return ("-" if feet and _height_skew(P[:, feet, a]) < 0 else "") + AXES[a]
+
+
+#: A foot marker stands still while its speed is below this fraction of its 95th
+#: percentile speed (the swing's): ≈ 0.2 m/s at ordinary walking speeds.
+STILL_SPEED_FRACTION = 0.05
+#: The floor axis must spread the still feet at most 1/this of the next axis.
+FLOOR_AXIS_MARGIN = 1.5
+
+
+def floor_axis(positions: ArrayLike, labels: list[str]) -> int | None:
+    """Index of the vertical axis (0, 1, 2) as told by the feet, or None.
+
+    Whenever a foot stands still it is on the floor: along the vertical axis the left
+    and right foot markers of one kind (ankle, heel, toe) are then all at one level,
+    while along the lateral axis they are a step width apart and along the walking
+    direction spread over the walkway. So the vertical is the axis with the least spread
+    of the still samples, pooled per kind over both feet. Unlike body shape or travel
+    this holds for feet-only files and whatever the heading (a walk along an axis once
+    made the lateral axis pass for the vertical one).
+
+    Returns:
+        None without a left/right pair of one kind or with too few still samples.
+
+    Raises:
+        InputError: the spreads along two axes are too close to tell (give ``--up``).
+    """
+    P = np.asarray(positions, dtype=float)
+    spreads = []
+    for part in ("ankle", "heel", "toe"):
+        pair = [find_marker(labels, side, part) for side in ("L", "R")]
+        if pair[0] is None or pair[1] is None:
+            continue
+        X = P[:, [labels.index(pair[0]), labels.index(pair[1])]]  # (T, 2, 3)
+        if len(X) < 5:
+            continue
+        v = np.linalg.norm(np.gradient(X, axis=0), axis=-1)  # per sample: rate-free
+        fast = np.array([np.percentile(c[np.isfinite(c)], 95) if np.isfinite(c).any()
+                         else np.nan for c in v.T])
+        with np.errstate(invalid="ignore"):
+            still = v < STILL_SPEED_FRACTION * fast  # NaN compares False
+        if still.sum() < max(5, 0.1 * np.isfinite(v).sum()):
+            continue
+        spreads.append([float(np.std(X[..., k][still])) for k in range(3)])
+    if not spreads:
+        return None
+    score = np.mean(spreads, axis=0)
+    if not np.all(np.isfinite(score)):
+        return None
+    order = np.argsort(score)
+    if score[order[1]] < FLOOR_AXIS_MARGIN * score[order[0]]:
+        a, b = sorted((AXES[order[0]], AXES[order[1]]))
+        raise InputError(f"cannot tell the vertical axis from the foot markers ({a} or "
+                         f"{b}: the feet stand at one level along both); give it with "
+                         f"--up, e.g. --up {a}")
+    return int(order[0])
 
 
 def _height_skew(h: NDArray[np.float64]) -> float:

@@ -922,3 +922,56 @@ def test_kinect_csv_camera_frame(skeleton_csv: tuple[str, Doc], tmp_path: Path,
     rc, doc, err = _run([str(p), "--json"], capsys)
     assert rc == 0 and doc is not None, err
     _same_steps(ref, doc, 1.0 / rate, first_event_s=2.0 / rate)
+
+
+# ------------------------------------------------------------------ feet-only files
+
+_FEET = ("LANK", "RANK", "LHEE", "RHEE", "LTOE", "RTOE")
+
+
+def _feet_only(m: MarkerTrajectories) -> MarkerTrajectories:
+    idx = [m.labels.index(lab) for lab in _FEET]
+    return replace(m, positions=m.positions[:, idx], labels=list(_FEET))
+
+
+@pytest.fixture(scope="module")
+def feet_only_ref(real: tuple[MarkerTrajectories, Doc],
+                  tmp_path_factory: pytest.TempPathFactory) -> dict[str, Doc]:
+    """The real trial's foot markers alone, Z up given, per method."""
+    p = tmp_path_factory.mktemp("feet") / "ref.trc"
+    write_trc(p, _feet_only(real[0]))
+    return {meth: _doc([str(p), "--up", "z", "--method", meth])
+            for meth in ("crossing", "heelstrike")}
+
+
+@pytest.mark.parametrize("heading", [0.0, 90.0, 180.0, 270.0, 30.0])
+@pytest.mark.parametrize("up", ["z", "y", "-y", "x", "-z"])
+def test_feet_only_any_heading(heading: float, up: str, real: tuple[MarkerTrajectories, Doc],
+                               feet_only_ref: dict[str, Doc], tmp_path: Path,
+                               capsys: pytest.CaptureFixture[str]) -> None:
+    """Ankle, heel and toe markers only, walking along an axis of the file: the lateral
+    axis was taken for the vertical one (the feet's spread and travel decided; widths
+    came out 0.5 cm): now the axis along which the still feet are at one level."""
+    m, _ = real
+    p = _write("trc", _file_axes(_map(_feet_only(m), _rz(heading), (3.0, -1.0, 0.0)), up),
+               tmp_path / "f.trc")
+    for meth in ("crossing", "heelstrike"):
+        rc, doc, err = _run([str(p), "--json", "--method", meth], capsys)
+        assert rc == 0 and doc is not None, err
+        _same_steps(feet_only_ref[meth], doc, 0.01)
+
+
+def test_feet_that_cannot_tell_up_ask_for_it(real: tuple[MarkerTrajectories, Doc],
+                                             tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """Feet whose still positions spread alike along two axes (here: the heights copied
+    into the lateral axis) do not tell the vertical one: --up is asked for, and works."""
+    m, _ = real
+    v = _feet_only(m)
+    P = v.positions.copy()
+    P[..., 0] = P[..., 2]  # the walk is along Y
+    p = _write("trc", replace(v, positions=P), tmp_path / "f.trc")
+    rc, _, err = _run([str(p), "--json"], capsys)
+    assert rc == 2 and "cannot tell the vertical axis" in err and "--up" in err, err
+    rc, doc, err = _run([str(p), "--json", "--up", "z"], capsys)
+    assert rc == 0 and doc is not None, err
