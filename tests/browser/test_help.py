@@ -16,7 +16,9 @@
 from __future__ import annotations
 
 import html
+import json
 import re
+import time
 import urllib.request
 from html.parser import HTMLParser
 from pathlib import Path
@@ -24,6 +26,7 @@ from typing import Any
 
 import pytest
 
+from engine.report.render import ReportData, TrialData, render_html
 from tests.browser.conftest import ROOT, LiveServer, login, new_page, screenshot
 
 STATIC = ROOT / "static"
@@ -229,5 +232,75 @@ def test_help_is_in_every_pages_nav_and_every_page_the_guide_links_opens(
         page.locator("header#nav nav a[href='/help.html']").click()
         page.wait_for_url("**/help.html")
         assert _h1(page) == "Clinician's guide"
+    finally:
+        page.context.close()
+
+
+def _json(route: Any, body: Any, headers: dict[str, str] | None = None) -> None:
+    route.fulfill(status=200, content_type="application/json", body=json.dumps(body),
+                  headers=headers or {})
+
+
+@pytest.mark.browser
+def test_warnings_link_to_their_explanation(browser: Any, live_server: LiveServer) -> None:
+    """The bumped-tripod banner, a failed calibration and a report's data-quality notes
+    carry a "What does this mean?" link that opens the guide at the explanation (the
+    server's answers stood in for: a moved sensor, an unconnected graph, a short walk)."""
+    page = new_page(browser)
+    try:
+        login(page, live_server)
+        # a moved sensor, as GET /api/calibration/live-check reports it
+        page.route("**/api/calibration/live-check", lambda route: _json(route, {
+            "checked": True, "warnings": [{"sensor": "S2", "moved_mm": 21.0, "rotated_deg": 0.8,
+                                          "calibration_created": time.time() - 3600,
+                                          "calibration_version": 3}]}))
+        page.goto(live_server.base_url + "/rig.html")
+        banner = page.locator("#calib-warning")
+        banner.wait_for(state="visible")
+        assert "Sensor S2 has moved 2.1 cm" in banner.inner_text()
+        assert page.locator("main a[href='/help.html#rig-page']").count() == 1
+        banner.get_by_role("link", name="What does this mean?").click()
+        page.wait_for_url("**/help.html#bumped-tripod")
+        page.get_by_role("heading", name="Bumped-tripod warnings").wait_for()
+        page.unroute("**/api/calibration/live-check")
+
+        # a calibration that fails: the graph does not reach marker 1
+        page.route("**/api/calibration/capture", lambda route: _json(route, {"id": 991}))
+        page.route("**/api/calibration/captures/991", lambda route: _json(route, {
+            "id": 991, "state": "failed", "frames": 30, "nodes": {},
+            "message": "sensor(s) S5 have no chain of shared markers to marker 1: S5 sees "
+                       "no usable marker. Place a marker where an unreachable sensor and a "
+                       "reachable one both see it.", "unreachable": ["S5"]}))
+        page.goto(live_server.base_url + "/calibration-wizard.html")
+        assert page.locator("a[href='/help.html#residuals']").count() == 1
+        page.click("#cap-form button[type=submit]")
+        err = page.locator("#cap-error")
+        err.get_by_role("link", name="What does this mean?").wait_for()
+        assert "no chain of shared markers" in err.inner_text()
+        assert err.locator("a").get_attribute("href") == "/help.html#ts-calibration-fails"
+
+        # a report of a short walk: the notes the report engine writes, then the link
+        steps = [{"side": s, "length_m": 0.7, "width_m": 0.1, "duration_s": 0.55,
+                  "time_s": 0.55 * i} for i, s in enumerate("LRL")]
+        report = render_html(ReportData("P001", [TrialData("walk 1", {
+            "steps": steps, "strides": [], "summary": {}, "events": []})]), standalone=False)
+        subject = {"id": 1, "code": "P001", "n_sessions": 0, "n_recordings": 1,
+                   "project_id": 1, "sessions": []}
+        page.route(re.compile(r".*/api/subjects\?.*"),
+                   lambda route: _json(route, [subject], {"X-Total-Count": "1"}))
+        page.route("**/api/subjects/1", lambda route: _json(route, subject))
+        page.route("**/api/reports/subjects/1?*", lambda route: route.fulfill(
+            status=200, content_type="text/html", body=report))
+        page.goto(live_server.base_url + "/reports.html")
+        page.locator("#subject option[value='1']").wait_for(state="attached")
+        page.select_option("#subject", "1")
+        page.click("#show")
+        notes = page.locator("#report ul.notes")
+        notes.wait_for()
+        assert "right steps were analysed" in notes.inner_text()
+        page.locator("#report").get_by_role("link", name="What does this mean?").click()
+        page.wait_for_url("**/help.html#report-quality")
+        page.get_by_role("heading", name="The data-quality section").wait_for()
+        assert page.js_errors == []
     finally:
         page.context.close()
