@@ -17,6 +17,8 @@ from engine.io.markers import (
     MarkerTrajectories,
     detect_units,
     detect_vertical_axis,
+    find_marker,
+    normalise_units,
     to_z_up,
     up_rotation,
 )
@@ -163,6 +165,33 @@ def test_unit_and_vertical_axis_detection() -> None:
     np.testing.assert_allclose(to_z_up([0.0, 1.0, 0.0], "y"), [0, 0, 1.0])
     with pytest.raises(InputError):
         up_rotation("w")
+
+
+@pytest.mark.parametrize(("written", "unit"), [
+    ("mm", "mm"), ("MM", "mm"), (" mm ", "mm"), ("[mm]", "mm"), ("Millimeter", "mm"),
+    ("millimetres", "mm"), ("M", "m"), ("meters", "m"), ("Metre", "m"), ("CM", "cm"),
+    ("centimeters", "cm"), ("", None), ("mm/s", None), ("ms", None), ("inch", None),
+])
+def test_unit_spellings(written: str, unit: str | None) -> None:
+    assert normalise_units(written) == unit
+
+
+@pytest.mark.parametrize(("labels", "side", "part", "found"), [
+    (["LANK", "LHEE"], "L", "ankle", "LANK"),
+    (["L.Ankle.Med", "L.Ankle.Lat"], "L", "ankle", "L.Ankle.Lat"),   # medial not taken
+    (["LKneeOut", "LAnkleOut"], "L", "ankle", "LAnkleOut"),
+    (["R_FCC", "R_FAL"], "R", "heel", "R_FCC"),
+    (["Pat:r_ca", "Pat:r_lm"], "R", "ankle", "Pat:r_lm"),
+    (["CA", "LM"], "L", "ankle", None),                             # two letters: side first
+    (["LANKLE_WIDTH", "Ankle", "L_Ankle_Angle"], "L", "ankle", None),  # not markers
+    (["ANKLE_RIGHT", "ANKLE_LEFT"], "L", "ankle", "ANKLE_LEFT"),
+    (["RT_HEEL", "LT_HEEL"], "L", "heel", "LT_HEEL"),
+    (["left_foot_index", "left_heel"], "L", "toe", "left_foot_index"),
+    (["WaistLFront", "L_IAS"], "L", "asis", "L_IAS"),
+])
+def test_marker_name_conventions(labels: list[str], side: str, part: str,
+                                 found: str | None) -> None:
+    assert find_marker(labels, side, part) == found
 
 
 def test_y_up_trc_in_mm_without_units_gives_same_gait(tmp_path: Path) -> None:
