@@ -89,7 +89,10 @@ class RecordingFile:
             if not self.path.exists():
                 return []
             data = self.path.read_bytes()
-            if data.startswith(HEADER):
+            fast = self._parse_whole(data) if data.startswith(HEADER) else None
+            if fast is not None:
+                recs, complete = fast, True
+            elif data.startswith(HEADER):
                 recs, complete = self._parse_lines(data)
             else:  # a list written whole by an older server (or a test)
                 raw = json.loads(data)
@@ -111,6 +114,27 @@ class RecordingFile:
                     log.error("cannot rewrite %s: %s", self.path, exc)
             by_id = {str(r["id"]): r for r in recs}
             return list(by_id.values())
+
+    def _parse_whole(self, data: bytes) -> list[dict[str, Any]] | None:
+        """The recordings of a whole file in this format, parsed at once (a third faster
+        than line by line); None when it is not whole (then read line by line)."""
+        if not data.endswith(b"\n" + CLOSE):
+            return None
+        try:
+            raw = json.loads(data)
+        except ValueError:
+            return None
+        lines = data[len(HEADER):-len(CLOSE) - 1].split(b"\n") if len(raw) > 1 else []
+        if not isinstance(raw, list) or len(lines) != len(raw) - 1:
+            return None
+        recs = raw[1:]
+        for ln, r in zip(lines, recs, strict=True):
+            if not isinstance(r, dict) or "id" not in r or not ln.startswith(b","):
+                self._lines = {}
+                return None
+            self._lines[str(r["id"])] = ln[1:]
+        self._n_lines = len(recs)
+        return recs
 
     def _parse_lines(self, data: bytes) -> tuple[list[dict[str, Any]], bool]:
         """The recordings of a file in this format, and whether it ended as written."""
