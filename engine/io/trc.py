@@ -86,10 +86,19 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
     check_time_unit(times, p.name)
     if len(times) > 1:
         # The Time column is the data's time axis: a DataRate that disagrees with it (an
-        # export resampled under its original header) gives way.
-        rate_t = float(1.0 / np.median(np.diff(times)))
+        # export resampled under its original header) gives way. Its mean step, not the
+        # median: times written with 3 decimals step 6 or 7 ms at 150 Hz.
+        rate_t = float((len(times) - 1) / (times[-1] - times[0]))
         if not np.isfinite(rate) or rate <= 0 or abs(rate / rate_t - 1.0) > 0.01:
             rate = rate_t
+        # Times printed with few decimals (3 at 150 Hz: steps of 6 and 7 ms) jitter the
+        # velocities that time the events: a column that is the uniform grid of the
+        # rate up to its rounding (≤ 1 ms, a quarter frame) is that grid.
+        i = np.arange(len(times))
+        t0 = float(np.mean(times - i / rate))
+        dev = float(np.max(np.abs(times - (t0 + i / rate))))
+        if 1e-9 < dev <= min(1e-3, 0.25 / rate):
+            times = t0 + i / rate
     elif not np.isfinite(rate) or rate <= 0:
         rate = 1.0
     raw = A[:, 2:].reshape(len(A), M, 3)

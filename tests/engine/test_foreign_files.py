@@ -975,3 +975,32 @@ def test_feet_that_cannot_tell_up_ask_for_it(real: tuple[MarkerTrajectories, Doc
     assert rc == 2 and "cannot tell the vertical axis" in err and "--up" in err, err
     rc, doc, err = _run([str(p), "--json", "--up", "z"], capsys)
     assert rc == 0 and doc is not None, err
+
+
+@pytest.mark.parametrize("rate", [60.0, 150.0])
+def test_trc_times_with_three_decimals(rate: float, real: tuple[MarkerTrajectories, Doc],
+                                       tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """Exporters that print the Time column with 3 decimals (steps of 6 and 7 ms at
+    150 Hz): the rate stays the header's (was 142.9 Hz from the median step), the steps
+    and the heel strikes the same."""
+    from engine.io.trc import read_trc
+
+    m, ref = real
+    v = _resample(m, rate)
+    lines = _trc_lines(v, tmp_path)
+    for i in range(6, len(lines)):
+        c = lines[i].split("\t")
+        if len(c) > 2:
+            c[1] = f"{float(c[1]):.3f}"
+            lines[i] = "\t".join(c)
+    p = tmp_path / "t3.trc"
+    p.write_text("\n".join(lines))
+    assert read_trc(p).rate == pytest.approx(rate)
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    _same_steps(ref, doc, 1.0 / rate)
+    exact = _write("trc", v, tmp_path / "exact.trc")
+    runs = [_run([str(f), "--json", "--method", "heelstrike"], capsys) for f in (exact, p)]
+    assert all(rc == 0 for rc, _, _ in runs), runs
+    _same_steps(runs[0][1], runs[1][1], 1.0 / rate)  # type: ignore[arg-type]
