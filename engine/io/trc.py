@@ -94,11 +94,11 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
         # Times printed with few decimals (3 at 150 Hz: steps of 6 and 7 ms) jitter the
         # velocities that time the events: a column that is the uniform grid of the
         # rate up to its rounding (≤ 1 ms, a quarter frame) is that grid.
-        i = np.arange(len(times))
-        t0 = float(np.mean(times - i / rate))
-        dev = float(np.max(np.abs(times - (t0 + i / rate))))
+        grid = np.arange(len(times)) / rate
+        t0 = float(np.mean(times - grid))
+        dev = float(np.max(np.abs(times - (t0 + grid))))
         if 1e-9 < dev <= min(1e-3, 0.25 / rate):
-            times = t0 + i / rate
+            times = t0 + grid
     elif not np.isfinite(rate) or rate <= 0:
         rate = 1.0
     raw = A[:, 2:].reshape(len(A), M, 3)
