@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.errors import InputError
-from engine.io.markers import check_time_unit
+from engine.io.markers import check_time_unit, rounded_grid
 from engine.skeleton import JOINT_SETS, JointSet, SkeletonSeries, TrackingState
 
 
@@ -133,6 +133,7 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
                          "previous row's; times must be strictly increasing (remove "
                          "repeated or out-of-order rows)")
     check_time_unit(times, p.name)
+    times = rounded_grid(times)
     return SkeletonSeries(times, pos, states, js, {"source": str(p)})
 
 

@@ -16,6 +16,7 @@ from engine.io.markers import (
     MarkerTrajectories,
     check_time_unit,
     file_units,
+    rounded_grid,
     unit_scale,
 )
 
@@ -91,14 +92,7 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
         rate_t = float((len(times) - 1) / (times[-1] - times[0]))
         if not np.isfinite(rate) or rate <= 0 or abs(rate / rate_t - 1.0) > 0.01:
             rate = rate_t
-        # Times printed with few decimals (3 at 150 Hz: steps of 6 and 7 ms) jitter the
-        # velocities that time the events: a column that is the uniform grid of the
-        # rate up to its rounding (≤ 1 ms, a quarter frame) is that grid.
-        grid = np.arange(len(times)) / rate
-        t0 = float(np.mean(times - grid))
-        dev = float(np.max(np.abs(times - (t0 + grid))))
-        if 1e-9 < dev <= min(1e-3, 0.25 / rate):
-            times = t0 + grid
+        times = rounded_grid(times, rate)
     elif not np.isfinite(rate) or rate <= 0:
         rate = 1.0
     raw = A[:, 2:].reshape(len(A), M, 3)

@@ -1004,3 +1004,27 @@ def test_trc_times_with_three_decimals(rate: float, real: tuple[MarkerTrajectori
     runs = [_run([str(f), "--json", "--method", "heelstrike"], capsys) for f in (exact, p)]
     assert all(rc == 0 for rc, _, _ in runs), runs
     _same_steps(runs[0][1], runs[1][1], 1.0 / rate)  # type: ignore[arg-type]
+
+
+def test_csv_times_with_three_decimals(tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """A 150 Hz skeleton CSV whose time column has 3 decimals: read as the uniform grid,
+    so heel strikes and foot offs come out as from the exact times."""
+    from engine.io.csv import read_skeleton_csv
+
+    w = Walker(WalkerParams(), [0.0, 0.0, 0.0], [5.0, 0.0, 0.0], start_time=0.5, seed=3)
+    t = np.arange(1050) / 150.0
+    J = w.joints(t)
+    s = SkeletonSeries(t, J, np.full(J.shape[:2], TrackingState.TRACKED, dtype=np.uint8),
+                       KINECT_V2)
+    exact = tmp_path / "exact.csv"
+    write_skeleton_csv(exact, s)
+    rows = exact.read_text().split("\n")
+    rounded = tmp_path / "rounded.csv"
+    rounded.write_text("\n".join([rows[0]] + [
+        f"{float(r.split(',', 1)[0]):.3f},{r.split(',', 1)[1]}" for r in rows[1:] if r]))
+    np.testing.assert_allclose(read_skeleton_csv(rounded).times, t, atol=1e-5)
+    runs = [_run([str(f), "--json", "--method", "heelstrike"], capsys)
+            for f in (exact, rounded)]
+    assert all(rc == 0 for rc, _, _ in runs), runs
+    _same_steps(runs[0][1], runs[1][1], 1.0 / 150.0)  # type: ignore[arg-type]
