@@ -396,7 +396,11 @@ def floor_axis(positions: ArrayLike, labels: list[str]) -> int | None:
             still = v < STILL_SPEED_FRACTION * fast  # NaN compares False
         if still.sum() < max(5, 0.1 * np.isfinite(v).sum()):
             continue
-        spreads.append([float(np.std(X[..., k][still])) for k in range(3)])
+        S = X[still]  # (n, 3); a central difference can be finite beside a NaN sample
+        S = S[np.isfinite(S).all(axis=1)]
+        if len(S) < 5:
+            continue
+        spreads.append([float(np.std(S[:, k])) for k in range(3)])
     if not spreads:
         return None
     score = np.mean(spreads, axis=0)

@@ -18,6 +18,7 @@ from engine.io.markers import (
     detect_units,
     detect_vertical_axis,
     find_marker,
+    floor_axis,
     normalise_units,
     to_z_up,
     up_rotation,
@@ -192,6 +193,22 @@ def test_unit_spellings(written: str, unit: str | None) -> None:
 def test_marker_name_conventions(labels: list[str], side: str, part: str,
                                  found: str | None) -> None:
     assert find_marker(labels, side, part) == found
+
+
+@pytest.mark.parametrize("heading", [0.0, 90.0, 45.0])
+def test_floor_axis_of_feet_only(heading: float) -> None:
+    """The vertical of feet-only markers, walking along an axis or not, with drop-outs
+    (NaN samples beside finite central differences)."""
+    m = walk_markers(synth_walk(heading_deg=heading))
+    feet = [i for i, lab in enumerate(m.labels) if lab[1:] in ("ANK", "HEE", "TOE")]
+    labels = [m.labels[i] for i in feet]
+    P = m.positions[:, feet].copy()
+    P[40:43, 0] = np.nan
+    P[90, 3] = np.nan
+    for up in ("x", "y", "z"):
+        assert floor_axis(P @ up_rotation(up), labels) == "xyz".index(up)
+        assert detect_vertical_axis(-(P @ up_rotation(up)), labels) == f"-{up}"
+    assert floor_axis(P, ["A", "B", "C", "D", "E", "F"]) is None  # no sides: no pairs
 
 
 def test_y_up_trc_in_mm_without_units_gives_same_gait(tmp_path: Path) -> None:
