@@ -73,8 +73,42 @@
       .then((sys) => { if (sys && sys.viewer_url) { view3d.href = sys.viewer_url; view3d.hidden = false; } })
       .catch(() => {});
   }
+  // Reflow (WCAG 1.4.10): a data table wider than the window (a phone, a 400 % zoom) made
+  // the whole page scroll sideways. Each table of <main> goes in a box that scrolls
+  // instead; while it does, the box takes the keyboard focus (arrow keys scroll it) and is
+  // a region named after its table, so a screen reader says what the stop is.
+  function tableName(table) {
+    const by = table.getAttribute("aria-labelledby");
+    const named = (by && document.getElementById(by.split(" ")[0])) || table.querySelector("caption");
+    const text = table.getAttribute("aria-label") || (named && named.textContent)
+      || ((table.closest("section") || document).querySelector("h2, h3") || {}).textContent || "";
+    return `${text.trim() || "Table"} (table, scrolls sideways)`;
+  }
+  function scrollBoxes() {
+    for (const table of document.querySelectorAll("main table")) {
+      if (table.closest(".table-scroll, .report-view")) continue;
+      const box = document.createElement("div");
+      box.className = "table-scroll";
+      table.before(box);
+      box.append(table);
+      const sync = () => {
+        if (box.scrollWidth > box.clientWidth + 1) {
+          box.tabIndex = 0;
+          box.setAttribute("role", "region");
+          box.setAttribute("aria-label", tableName(table));
+        } else if (box.hasAttribute("tabindex")) {
+          for (const a of ["tabindex", "role", "aria-label"]) box.removeAttribute(a);
+        }
+      };
+      const watch = new ResizeObserver(sync);  // the window, and rows drawn into the table
+      watch.observe(box);
+      watch.observe(table);
+    }
+  }
   // Build at once when the header is already parsed (the script follows it), so page
   // scripts that run next find the header's elements.
   if (document.getElementById("nav") || document.readyState !== "loading") build();
   else document.addEventListener("DOMContentLoaded", build);
+  if (document.readyState === "loading") document.addEventListener("DOMContentLoaded", scrollBoxes);
+  else scrollBoxes();
 })();

@@ -1,0 +1,411 @@
+"""Accessibility of the console, checked by a machine and by a person's keyboard.
+
+* axe-core (the ``axe-playwright-python`` package bundles ``axe.min.js``; nothing is
+  downloaded) runs on every page of ``static/*.html`` in its loaded, populated state (a
+  subject with a session and a complete recording, its report shown, a simulated IMU
+  session, a calibration result) and on the states that matter most: a login error shown,
+  the subject's delete confirmation open, the change-password dialog open. No violation of
+  impact "serious" or "critical" may remain.
+* A person with only a keyboard logs in, goes to Record, finds a subject by typing, starts
+  and stops a recording and opens its report; the test asserts the accessible name of the
+  focused element at each step, as a screen reader would say it. The dialog keeps the
+  focus inside and Escape returns it to the button that opened it.
+* Reflow (WCAG 1.4.10): at 320 CSS px wide no page scrolls sideways (data tables and plots
+  scroll inside their own box).
+
+One server for the module (``gaitrig serve`` without the demo) with six simulated sensor
+nodes (no images), so that a recording can be made. Screenshots (and axe's findings as
+JSON): ``test-artifacts/browser/a11y_*``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.browser.conftest import ROOT, new_page, screenshot, serve_without_nodes
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+NODES = ("S1", "S2", "S3", "S4", "S5", "S6")  # the whole avenue: a walk has steps anywhere
+CODE = "A11Y01"  # the subject that has a session and a complete recording
+KEY_CODE = "KBD07"  # the subject the keyboard user records
+BLOCKING = ("serious", "critical")
+WARNING = "Body tracking fell behind the camera (test warning): skeletons may be missing."
+
+
+@dataclass
+class Lab:
+    """The module's server: its URL, the admin password and the populated subject."""
+
+    url: str
+    password: str
+    subject_id: int
+    session_id: int
+    rec_id: str
+    token: str = ""
+
+    def api(self, path: str, data: Any = None, method: str | None = None) -> Any:
+        """Call the REST API as the administrator; returns the decoded JSON."""
+        if not self.token and path != "/api/auth/login":
+            self.token = self.api("/api/auth/login", {"username": "admin",
+                                                      "password": self.password})["token"]
+        headers = {"Content-Type": "application/json"}
+        if self.token:
+            headers["Authorization"] = f"Bearer {self.token}"
+        body = json.dumps(data).encode() if data is not None else None
+        req = urllib.request.Request(self.url + path, data=body, headers=headers, method=method)
+        with urllib.request.urlopen(req, timeout=120) as r:
+            raw = r.read()
+            if r.headers.get_content_type() != "application/json":
+                return raw
+            return json.loads(raw) if raw else None
+
+
+def _record_walk(lab: Lab, session_id: int) -> str:
+    """Record a few seconds of the simulated walker and wait until it is on the server."""
+    rec = lab.api(f"/api/sessions/{session_id}/recordings",
+                  {"label": "walk", "streams": [], "image_every": 3})
+    time.sleep(7.0)  # a few steps of the simulated walker
+    lab.api(f"/api/recordings/{rec['id']}/stop", {}, method="POST")
+    deadline = time.time() + 90
+    while lab.api(f"/api/storage/recordings/{rec['id']}")["state"] != "complete":
+        if time.time() > deadline:
+            raise TimeoutError(f"recording {rec['id']} was not copied to the server in 90 s")
+        time.sleep(0.3)
+    return str(rec["id"])
+
+
+def _stop_node(node: subprocess.Popen[bytes]) -> None:
+    node.send_signal(signal.SIGTERM)
+    try:
+        node.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        node.kill()
+        node.wait()
+
+
+@pytest.fixture(scope="module")
+def lab() -> Iterator[Lab]:
+    """A server with six simulated sensor nodes and subject :data:`CODE` holding one
+    session with one complete walk whose report can be computed."""
+    tmp = Path(tempfile.mkdtemp(prefix="gaitrig-a11y-"))
+    password = secrets.token_urlsafe(12)
+    env = {**os.environ, "GAITRIG_ADMIN_PASSWORD": password,
+           "GAITRIG_NODE_TOKEN": secrets.token_urlsafe(16), "PYTHONUNBUFFERED": "1"}
+    nodes: list[subprocess.Popen[bytes]] = []
+    try:
+        with serve_without_nodes(tmp / "data", env) as (url, _log), \
+                (tmp / "nodes.log").open("wb") as log:
+            for node_id in NODES:
+                nodes.append(subprocess.Popen(
+                    [sys.executable, "-m", "app.cli", "node", "--id", node_id, "--server",
+                     url.replace("http://", "ws://"), "--data-dir", str(tmp / node_id),
+                     "--no-images", "--log-level", "warning",
+                     # the Rig page's warning text (orange) is on screen, as in a lab
+                     *(["--test-warning", WARNING] if node_id == NODES[-1] else [])],
+                    cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT))
+            lab = Lab(url, password, 0, 0, "")
+            deadline = time.time() + 90
+            while sum(n["connected"] and n["clock_offset_ms"] is not None
+                      for n in lab.api("/api/nodes")) < len(NODES):
+                if time.time() > deadline:
+                    raise TimeoutError(f"nodes not ready in 90 s: {lab.api('/api/nodes')}")
+                time.sleep(0.3)
+            project = lab.api("/api/projects", {"name": "Accessibility"})
+            subject = lab.api("/api/subjects", {"project_id": project["id"], "code": CODE})
+            session = lab.api("/api/sessions", {"subject_id": subject["id"],
+                                                "label": "baseline"})
+            keyed = lab.api("/api/subjects", {"project_id": project["id"], "code": KEY_CODE})
+            lab.api("/api/sessions", {"subject_id": keyed["id"], "label": "keyboard"})
+            lab.subject_id, lab.session_id = subject["id"], session["id"]
+            why = ""
+            for _ in range(3):  # the simulated walker may be turning: walk until it has steps
+                lab.rec_id = _record_walk(lab, session["id"])
+                try:
+                    lab.api(f"/api/reports/subjects/{subject['id']}?format=html")
+                    break
+                except urllib.error.HTTPError as e:
+                    if e.code not in (400, 422):
+                        raise
+                    why = e.read().decode(errors="replace")
+            else:
+                raise RuntimeError(f"three simulated walks gave no gait result: {why}")
+            try:
+                yield lab
+            finally:
+                for node in nodes:
+                    _stop_node(node)
+    finally:
+        for node in nodes:
+            if node.poll() is None:
+                node.kill()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _login(page: Any, lab: Lab) -> None:
+    page.goto(lab.url + "/index.html")
+    page.fill("#username", "admin")
+    page.fill("#password", lab.password)
+    page.click("button[type=submit]")
+    page.wait_for_url("**/rig.html", timeout=20000)
+
+
+@pytest.fixture
+def page(browser: Any, lab: Lab) -> Iterator[Any]:
+    """A logged-in page (1400×900) of the module's server."""
+    p = new_page(browser, 30000)
+    try:
+        _login(p, lab)
+        yield p
+    finally:
+        p.context.close()
+
+
+# ---------------------------------------------------------------- axe on every page
+
+def axe_violations(page: Any, impacts: tuple[str, ...] = BLOCKING) -> list[dict[str, Any]]:
+    """axe-core's violations on the page as it is now, those of the given impacts."""
+    from axe_playwright_python.sync_playwright import Axe
+
+    results = Axe().run(page)
+    return [v for v in results.response["violations"] if v.get("impact") in impacts]
+
+
+def describe(violations: list[dict[str, Any]]) -> str:
+    """One line per violated rule: id, impact, help and the first few targets."""
+    lines = []
+    for v in violations:
+        targets = [" ".join(map(str, n["target"])) for n in v["nodes"][:6]]
+        lines.append(f"{v['id']} ({v['impact']}): {v['help']} — {len(v['nodes'])} nodes: "
+                     + "; ".join(targets))
+    return "\n".join(lines)
+
+
+def _shown(page: Any, selector: str) -> None:
+    page.wait_for_selector(selector, state="visible", timeout=120_000)
+
+
+def _text(page: Any, selector: str, pattern: str) -> None:
+    page.wait_for_function(
+        "([s, p]) => { const e = document.querySelector(s); "
+        "return e && new RegExp(p).test(e.textContent); }", arg=[selector, pattern],
+        timeout=120_000)
+
+
+def _rig(page: Any, lab: Lab) -> None:
+    page.goto(lab.url + "/rig.html")
+    _shown(page, f"#nodes tr[data-node={NODES[-1]}] li.node-warning")
+    _shown(page, f"#recordings tr[data-recording='{lab.rec_id}']")
+
+
+def _live(page: Any, lab: Lab) -> None:
+    page.goto(lab.url + "/live.html")
+    page.wait_for_function(f"document.querySelectorAll('#panels .panel').length >= {len(NODES)}")
+
+
+def _calibrate(page: Any, lab: Lab) -> None:
+    page.goto(lab.url + "/calibrate.html")
+    _shown(page, f"#poses tr[data-node={NODES[-1]}]")
+    _shown(page, "#planned tr")
+
+
+def _wizard(page: Any, lab: Lab) -> None:
+    page.goto(lab.url + "/calibration-wizard.html")
+    page.click("summary:text('No sensors?')")
+    page.click("#sim-form button[type=submit]")
+    _shown(page, "#res-details")
+    _shown(page, "#sensor-table tbody tr")
+
+
+def _check(page: Any, lab: Lab) -> None:
+    page.goto(lab.url + "/calibration-wizard.html")
+    page.click("#check-btn")
+    page.wait_for_function("document.getElementById('check-state').textContent && "
+                           "!document.getElementById('check-btn').disabled", timeout=120_000)
+
+
+def _record(page: Any, lab: Lab) -> None:
+    page.goto(f"{lab.url}/record.html#subject={lab.subject_id}")
+    page.wait_for_function(f"document.getElementById('session').value === '{lab.session_id}'")
+    _text(page, "#nodes-summary", f"{len(NODES)} of {len(NODES)} sensors ready")
+
+
+def _subjects(page: Any, lab: Lab) -> None:
+    page.goto(f"{lab.url}/subjects.html#subject={lab.subject_id}")
+    _shown(page, f"#sessions [data-recording='{lab.rec_id}'][data-state=complete]")
+
+
+def _delete_confirm(page: Any, lab: Lab) -> None:
+    _subjects(page, lab)
+    page.click("details.danger-zone > summary")
+    _shown(page, "#delete-form [name=confirm]")
+    page.fill("#delete-form [name=confirm]", "wrong")
+    page.click("#delete-form button[type=submit]")
+    _text(page, "#delete-msg", ".")
+
+
+def _reports(page: Any, lab: Lab) -> None:
+    page.goto(f"{lab.url}/reports.html#subject={lab.subject_id}")
+    _shown(page, "#report-section")
+    _shown(page, "#report table")
+
+
+def _imu(page: Any, lab: Lab) -> None:
+    page.goto(lab.url + "/imu.html")
+    page.click("#simulate")
+    _shown(page, "#result")
+    _shown(page, "#angles-card")
+
+
+def _kscc(page: Any, lab: Lab) -> None:
+    page.goto(lab.url + "/kscc.html")
+    page.wait_for_function(f"document.querySelectorAll('#node-a option').length >= {len(NODES)}")
+    _shown(page, "#areas tr")
+
+
+def _accounts(page: Any, lab: Lab) -> None:
+    page.goto(lab.url + "/accounts.html")
+    _shown(page, "#accounts tr")
+
+
+def _password_dialog(page: Any, lab: Lab) -> None:
+    page.goto(lab.url + "/rig.html")
+    page.click(".user-menu summary")
+    page.click("#password-open")
+    _shown(page, "#password-dialog")
+    page.click("#pw-submit")  # empty: the refusal is said beside the field
+    _text(page, "#pw-current-msg", ".")
+
+
+def _help(page: Any, lab: Lab) -> None:
+    page.goto(lab.url + "/help.html")
+    _shown(page, "main h1")
+
+
+#: page (or state) name → how to bring the logged-in page into it
+STATES: dict[str, Callable[[Any, Lab], None]] = {
+    "rig": _rig, "live": _live, "calibrate": _calibrate, "calibration-wizard": _wizard,
+    "calibration-check": _check,
+    "record": _record, "subjects": _subjects, "subjects-delete-confirm": _delete_confirm,
+    "reports": _reports, "imu": _imu, "kscc": _kscc, "accounts": _accounts,
+    "password-dialog": _password_dialog, "help": _help,
+}
+
+
+def test_every_console_page_is_checked() -> None:
+    """A page added to ``static/`` without an accessibility check fails here."""
+    pages = {p.stem for p in (ROOT / "static").glob("*.html")}
+    checked = set(STATES) | {"index"}
+    assert pages <= checked, f"pages without an axe check: {sorted(pages - checked)}"
+
+
+def _axe_problems(page: Any, name: str, artifacts_dir: Path) -> list[str]:
+    """Screenshot the page, keep all of axe's findings beside it (``a11y_<name>.json``:
+    the moderate and minor ones are listed there for a person to judge) and describe the
+    serious and critical ones."""
+    screenshot(page, artifacts_dir, f"a11y_{name}")
+    found = axe_violations(page, ("minor", "moderate", "serious", "critical"))
+    (artifacts_dir / "browser" / f"a11y_{name}.json").write_text(json.dumps(
+        [{"id": v["id"], "impact": v["impact"], "help": v["help"],
+          "targets": [n["target"] for n in v["nodes"]]} for v in found], indent=1))
+    blocking = [v for v in found if v["impact"] in BLOCKING]
+    return [f"axe on {name}:\n{describe(blocking)}"] if blocking else []
+
+
+def _focus_problems(page: Any, name: str) -> list[str]:
+    """Every element that takes the keyboard focus shows a ring while it has it (an
+    outline of at least 2 px or a box shadow: axe does not check this)."""
+    bare = page.evaluate("""() => {
+        const sel = 'a[href], button, input, select, textarea, summary, iframe, [tabindex]';
+        const out = [];
+        for (const e of document.querySelectorAll(sel)) {
+            if (e.disabled || e.tabIndex < 0 || !e.getClientRects().length
+                || e.closest('[inert], dialog:not([open])')) continue;
+            e.focus({ preventScroll: true });
+            if (document.activeElement !== e) continue;
+            const cs = getComputedStyle(e);
+            const ring = (cs.outlineStyle !== 'none' && parseFloat(cs.outlineWidth) >= 2)
+                || cs.boxShadow !== 'none';
+            if (!ring) out.push(e.outerHTML.slice(0, 90));
+        }
+        document.activeElement.blur();
+        return out; }""")
+    return [f"{name}: no visible focus ring on {len(bare)} elements: " + " | ".join(bare[:6])
+            ] if bare else []
+
+
+#: WCAG 1.4.10: 320 CSS px is a 1280 px wide window zoomed to 400 %
+REFLOW_WIDTH = 320
+
+
+def _reflow_problems(page: Any, name: str, artifacts_dir: Path) -> list[str]:
+    """At :data:`REFLOW_WIDTH` px the page itself must not scroll sideways (a table or a
+    plot may, inside its own box); names the elements that stick out when it does."""
+    page.set_viewport_size({"width": REFLOW_WIDTH, "height": 700})
+    page.wait_for_timeout(300)  # layout and the pages' resize handlers
+    screenshot(page, artifacts_dir, f"a11y_{name}_{REFLOW_WIDTH}px")
+    scroll, inner = page.evaluate(
+        "[document.documentElement.scrollWidth, window.innerWidth]")
+    if scroll <= inner + 1:
+        return []
+    wide = page.evaluate("""(w) => [...document.querySelectorAll('body *')]
+        .filter((e) => { const r = e.getBoundingClientRect();
+            const up = e.parentElement.getBoundingClientRect();  // the outermost culprits
+            return r.width > 0 && r.right > w + 1 && up.right <= w + 1; })
+        .slice(0, 8).map((e) => e.tagName.toLowerCase() + (e.id ? '#' + e.id : '') +
+            (e.className && typeof e.className === 'string' ? '.' + e.className.split(' ')[0] : '')
+            + ' right=' + Math.round(e.getBoundingClientRect().right))""", inner)
+    return [f"{name} scrolls sideways at {inner} px: scrollWidth {scroll}; sticking out: "
+            + ", ".join(wide)]
+
+
+def test_login_page_and_its_error_pass_axe_and_reflow(browser: Any, lab: Lab,
+                                                       artifacts_dir: Path) -> None:
+    page = new_page(browser, 30000)
+    page.goto(lab.url + "/index.html")
+    problems = _axe_problems(page, "login", artifacts_dir) + _focus_problems(page, "login")
+    page.fill("#username", "admin")
+    page.fill("#password", "not the password")
+    page.click("button[type=submit]")
+    _text(page, "#login-error", "Wrong user name or password")
+    problems += _axe_problems(page, "login-error", artifacts_dir)
+    problems += _reflow_problems(page, "login-error", artifacts_dir)
+    assert not problems, "\n".join(problems)
+    # the check itself can fail: a button without a name and grey-on-grey text are found
+    page.evaluate("""() => { const m = document.querySelector('main');
+        m.insertAdjacentHTML('beforeend', '<button id=nameless></button>' +
+          '<p id=faint style="color:#999;background:#bbb">faint</p>' +
+          '<div id=too-wide style="width:600px">wide</div>' +
+          '<button id=ringless style="outline:none;box-shadow:none">no ring</button>'); }""")
+    found = {v["id"]: v for v in axe_violations(page)}
+    assert {"button-name", "color-contrast"} <= set(found), describe(list(found.values()))
+    assert "ringless" in " ".join(_focus_problems(page, "login-canary"))
+    assert _reflow_problems(page, "login-canary", artifacts_dir)
+
+
+@pytest.mark.parametrize("name", sorted(STATES))
+def test_console_page_passes_axe_and_reflows(page: Any, lab: Lab, artifacts_dir: Path,
+                                             name: str) -> None:
+    """axe at a desktop's 1400 px, then the same state at 320 px (no sideways scroll)."""
+    STATES[name](page, lab)
+    problems = _axe_problems(page, name, artifacts_dir)
+    problems += _focus_problems(page, name)
+    problems += _reflow_problems(page, name, artifacts_dir)
+    assert not problems, "\n".join(problems)
+    assert not page.js_errors, page.js_errors
