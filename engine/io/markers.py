@@ -200,10 +200,10 @@ def file_units(units: str, positions: ArrayLike, labels: list[str]) -> str:
 #: of two letters (IOR ``LM``, ``CA``) only match after a side prefix (``L_LM``).
 PART_STEMS: dict[str, tuple[str, ...]] = {
     "ankle": ("ank", "ankle", "lmal", "malleolus", "latmal", "mal", "ajc", "anklejc", "fal",
-              "lm"),
-    "heel": ("hee", "heel", "fcc", "cal", "calc", "calcaneus", "ca"),
+              "lma", "lm"),
+    "heel": ("hee", "heel", "fcc", "cal", "calc", "calcaneus", "dhe", "phe", "lhe", "ca"),
     "toe": ("toe", "ttoe", "mt2", "fm2", "mth2", "mt1", "fm1", "toetip", "bigtoe",
-            "footindex", "foot", "foo"),
+            "footindex", "2nd", "foot", "foo"),
     "asis": ("asi", "asis", "ias"),
     "psis": ("psi", "psis", "ips"),
     "hip": ("hip", "hjc"),

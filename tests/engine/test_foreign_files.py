@@ -517,6 +517,8 @@ NAMINGS: dict[str, dict[str, str]] = {
                           "LHEE": "L_Heel", "LTOE": "L_Toe", "LKNE": "L_Knee"},
     "qualisys_cast": {"LASI": "L_IAS", "LPSI": "L_IPS", "LANK": "L_FAL", "LHEE": "L_FCC",
                       "LTOE": "L_FM2", "LKNE": "L_FLE"},
+    "qualisys_malleolus_heels": {"LASI": "LASIS", "LPSI": "LPSIS", "LANK": "LLMA",
+                                 "LHEE": "LDHE", "LTOE": "L2ND", "LKNE": "LLFC"},
     "qualisys_animation": {"LASI": "WaistLFront", "LPSI": "WaistLBack", "LANK": "LAnkleOut",
                            "LHEE": "LHeelBack", "LTOE": "LToeTip", "LKNE": "LKneeOut"},
     "ior_rizzoli": {"LASI": "L_ASIS", "LPSI": "L_PSIS", "LANK": "L_LM", "LHEE": "L_CA",
