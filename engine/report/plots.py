@@ -190,3 +190,46 @@ def plot_bland_altman(measured: np.ndarray, reference: np.ndarray, title: str,
     ax.grid(alpha=0.3)
     fig.tight_layout()
     return figure_png(fig)
+
+
+@_fallback_fonts
+def plot_trends(panels: Sequence[dict[str, Any]], x_labels: Sequence[str],
+                dates: Sequence[Any] | None = None) -> bytes:
+    """Parameters against session date: mean ± SD per session, normative band shaded.
+
+    Args:
+        panels: one per parameter, ``{"title", "unit", "mean": (S,), "sd": (S,),
+            "band": (low, high) or None}`` in display units (NaN where a session has no
+            value or no SD).
+        x_labels: the sessions' names, first to last.
+        dates: the sessions' dates (``datetime.date``) to space them in time; None (or
+            any missing) puts them at equal steps.
+    """
+    n = max(len(panels), 1)
+    cols = min(n, 3)
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(7.5, 2.1 * rows + 0.4), squeeze=False)
+    if dates is not None and all(d is not None for d in dates) and len(set(dates)) == len(dates):
+        x: Any = list(dates)
+    else:
+        x = list(range(len(x_labels)))
+    for ax, panel in zip(axes.ravel(), panels, strict=False):
+        mean = np.asarray(panel["mean"], dtype=float)
+        sd = np.asarray(panel["sd"], dtype=float)
+        band = panel.get("band")
+        if band is not None:
+            ax.axhspan(band[0], band[1], color="#2ca02c", alpha=0.15, lw=0,
+                       label="normative band")
+        ax.errorbar(x, mean, yerr=np.where(np.isfinite(sd), sd, 0.0), fmt="o-", ms=4,
+                    lw=1.0, capsize=3, color="#333")
+        ax.set_title(f"{panel['title']} ({panel['unit']})", fontsize=8.5)
+        ax.set_xticks(x)
+        ax.set_xticklabels(x_labels, fontsize=6.5, rotation=30, ha="right")
+        ax.tick_params(axis="y", labelsize=7)
+        ax.grid(alpha=0.3)
+        if band is not None:
+            ax.legend(fontsize=6, loc="best", frameon=False)
+    for ax in axes.ravel()[len(panels):]:
+        ax.set_visible(False)
+    fig.tight_layout()
+    return figure_png(fig)

@@ -14,7 +14,7 @@ import datetime as _dt
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from jinja2 import Environment, FileSystemLoader, select_autoescape
@@ -23,6 +23,9 @@ from engine import __version__
 from engine.errors import InputError, InsufficientDataError
 from engine.report import plots
 from engine.report.normative import DEFAULT_NORMATIVE_RANGES, NormativeRange, normative_lookup
+
+if TYPE_CHECKING:
+    from engine.report.progress import MdcValue, Progress, SessionTrials
 
 TEMPLATE_DIR = Path(__file__).with_name("templates")
 #: Trials per foot-placement figure (one panel each): six fit on an A4 page.
@@ -136,6 +139,11 @@ class ReportData:
     agreement_basis: str = ""  # which recordings and reference the agreement rests on
     normative: tuple[NormativeRange, ...] | list[NormativeRange] = DEFAULT_NORMATIVE_RANGES
     clinician_notes: str = ""
+    #: the subject's sessions, when the report spans several: two or more add the
+    #: section "Change over sessions" (:mod:`engine.report.progress`)
+    sessions: list[SessionTrials] = field(default_factory=list)
+    #: published MDC95 values for that section (none by default)
+    mdc: tuple[MdcValue, ...] | list[MdcValue] = ()
 
 
 @dataclass
@@ -412,9 +420,38 @@ def build_context(data: ReportData) -> dict[str, Any]:
         "trial_steps": [(t.name, len(t.result.get("steps", []) or [])) for t in data.trials],
         "trial_paces": trial_paces(data.trials),
         "session_pace": pace(data.trials),
+        **_progress_context(data),
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "version": __version__,
     }
+
+
+def _progress_context(data: ReportData) -> dict[str, Any]:
+    """The "Change over sessions" section: the progress and its trend figure (nothing for
+    a report of one session)."""
+    if len(data.sessions) < 2:
+        return {"progress": None, "progress_figure": None}
+    from engine.report.progress import session_progress
+
+    prog: Progress = session_progress(data.sessions, data.normative, data.mdc)
+    panels = []
+    for p in prog.parameters:
+        vals = prog.values[p.key]
+        band = prog.normative.get(p.key)
+        panels.append({
+            "title": p.label, "unit": p.unit,
+            "mean": [v.mean * p.scale if v else math.nan for v in vals],
+            "sd": [v.sd * p.scale if v else math.nan for v in vals],
+            "band": (band.low * p.scale, band.high * p.scale) if band else None})
+    dates: list[_dt.date | None] = []
+    for s in prog.sessions:
+        try:
+            dates.append(_dt.date.fromisoformat(s.date))
+        except ValueError:
+            dates.append(None)
+    png = plots.plot_trends(panels, [s.name for s in prog.sessions], dates)
+    steps = [sum(len(t.result.get("steps", []) or []) for t in s.trials) for s in prog.sessions]
+    return {"progress": prog, "progress_figure": _png_uri(png), "progress_steps": steps}
 
 
 def _env() -> Environment:

@@ -13,7 +13,8 @@ Routes (all under ``/api/reports``, login required):
 * ``GET/POST/DELETE /recordings/{rec_id}/reference`` — a reference recording (C3D, TRC
   or skeleton CSV) for the agreement section;
 * ``GET  /subjects/{subject_id}`` — report of a subject from all its complete recordings,
-  or of one session (``session_id``);
+  of some of its sessions (``sessions=3,5``: with two or more, the report adds the
+  section "Change over sessions"), or of one session (``session_id``);
 * ``POST /upload`` — report of an uploaded C3D/TRC/CSV file (research engineers); the
   subject code printed on it is a form field (never in the URL).
 
@@ -48,6 +49,7 @@ from app.db.data import Session as DbSession
 from app.server import analysis as an
 from app.server import erasures
 from engine.errors import GaitrigError, InputError, InsufficientDataError
+from engine.report.progress import SessionTrials
 from engine.report.render import ReportData, render_html, render_pdf
 
 router = APIRouter(prefix="/reports", route_class=BoundedRoute, tags=["reports"])
@@ -486,6 +488,9 @@ class SubjectReportSource:
     file_stamp: str  # date in the PDF's file name
     recordings: list[tuple[str, str]]  # (rec_id, state) in session order
     references: dict[str, tuple[Path, float]] = field(default_factory=dict)
+    #: (session id, label, ISO date, its rec_ids) in time order, when the report spans
+    #: several sessions (for "Change over sessions"); empty for one session
+    sessions: list[tuple[int, str, str, list[str]]] = field(default_factory=list)
 
 
 class NothingToReportError(InsufficientDataError):
@@ -493,25 +498,35 @@ class NothingToReportError(InsufficientDataError):
 
 
 def subject_report_source(db: Any, data_dir: Path, subject: Any,
-                          session: Any | None = None) -> SubjectReportSource:
-    """Read what the report of ``subject`` (of all its sessions, or of ``session``)
-    needs from the database."""
-    sessions = [session] if session is not None else list(subject.sessions)
-    recs = [(r.id, r.state) for se in sessions for r in se.recordings]
+                          session: Any | None = None,
+                          sessions: list[Any] | None = None) -> SubjectReportSource:
+    """Read what the report of ``subject`` (of all its sessions, of ``sessions``, or of
+    ``session``) needs from the database."""
+    if session is not None:
+        chosen = [session]
+    else:
+        # time order: the first session is the baseline of "Change over sessions"
+        chosen = sorted(sessions if sessions is not None else list(subject.sessions),
+                        key=lambda s: (s.date is None, s.date or _dt.date.min, s.id))
+    recs = [(r.id, r.state) for se in chosen for r in se.recordings]
+    subset = session is None and sessions is not None
     return SubjectReportSource(
         subject_id=subject.id, code=subject.code,
         where=(f"session {session.label or session.date}" if session is not None
                else f"subject {subject.code}"),
-        info=_subject_info(subject, [s.date for s in sessions]),
+        info=_subject_info(subject, [s.date for s in chosen]),
         session_label=(session.label if session is not None
-                       else f"all sessions ({len(sessions)})"),
+                       else f"{'sessions' if subset else 'all sessions'} ({len(chosen)})"),
         session_date=(str(session.date) if session is not None else ", ".join(
-            sorted({str(s.date) for s in sessions if s.date}))),
+            sorted({str(s.date) for s in chosen if s.date}))),
         file_stamp=(str(session.date) if session is not None
                     else _dt.date.today().isoformat()),
         recordings=recs,
         references=_reference_paths(db, data_dir, {
-            rec_id: an.recording_dir(data_dir, rec_id) for rec_id, _ in recs}))
+            rec_id: an.recording_dir(data_dir, rec_id) for rec_id, _ in recs}),
+        sessions=([] if session is not None else
+                  [(s.id, s.label or "", str(s.date) if s.date else "",
+                    [r.id for r in s.recordings]) for s in chosen]))
 
 
 def build_subject_report(src: SubjectReportSource, data_dir: Path, live: dict[str, Any],
@@ -549,32 +564,87 @@ def build_subject_report(src: SubjectReportSource, data_dir: Path, live: dict[st
         subject_info=src.info, session_label=src.session_label,
         session_date=src.session_date, references=refs)
     data.quality.notes += ref_notes
+    data.sessions = _session_trials(src, analyses, data)
     for s_ in skipped:
         data.quality.notes.append(f"Recording {s_} was not used: it is not complete on the "
                                   "server.")
     return data
 
 
+def _session_trials(src: SubjectReportSource, analyses: list[dict[str, Any]],
+                    data: ReportData) -> list[SessionTrials]:
+    """The report's trials grouped by session (sessions without a usable trial left out).
+
+    ``build_report`` makes one trial per successful analysis, in their order.
+    """
+    good = [a for a in analyses if a.get("ok")]
+    by_rec = {str(a.get("rec_id")): t for a, t in zip(good, data.trials, strict=True)}
+    out = []
+    for sid, label, date, rec_ids in src.sessions:
+        trials = [by_rec[r] for r in rec_ids if r in by_rec]
+        if trials:
+            out.append(SessionTrials(label, date, trials, sid))
+    return out
+
+
+def _sessions_param(value: str | None) -> list[int] | None:
+    """``"3,5"`` → ``[3, 5]``; None when not given."""
+    if value is None:
+        return None
+    parts = [p.strip() for p in value.split(",") if p.strip()]
+    if not parts:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            "sessions: give at least one session id (e.g. sessions=3,5), or "
+                            "leave it out for all sessions")
+    try:
+        ids = [int(p) for p in parts]
+    except ValueError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"sessions: {value[:100]!r} must be session ids separated by "
+                            "commas, e.g. sessions=3,5") from exc
+    return list(dict.fromkeys(ids))
+
+
 @router.get("/subjects/{subject_id}", response_model=None)
 def subject_report(subject_id: int, request: Request, user: CurrentUser,
                    settings: SettingsDep, hub: HubDep, db: DbDep, format: Fmt = "html",
                    session_id: int | None = None,
+                   sessions: str | None = Query(None, max_length=2000, description=(
+                       "ids of some of the subject's sessions, comma-separated; two or "
+                       "more add the section 'Change over sessions'")),
                    sensors: str | None = Query(None, max_length=2000),
                    method: MethodQ = "crossing",
                    estimator: EstimatorQ = "weighted") -> Response:
-    """Report of a subject from all complete recordings (or those of one session);
-    audited."""
+    """Report of a subject from all complete recordings, those of some sessions
+    (``sessions``) or of one session (``session_id``); audited.
+
+    A report over two or more sessions has the section "Change over sessions".
+    """
     subject = get_row(db, Subject, subject_id)
     if subject is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no subject with id {subject_id}")
     sess = None
+    picked: list[Any] | None = None
+    wanted = _sessions_param(sessions)
+    if wanted is not None and session_id is not None:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            "give either session_id (one session) or sessions (several), "
+                            "not both")
+    if wanted is not None:
+        own = {s.id: s for s in subject.sessions}
+        missing = [i for i in wanted if i not in own]
+        if missing:
+            raise HTTPException(status.HTTP_404_NOT_FOUND,
+                                f"subject {subject.code} has no session with id "
+                                f"{', '.join(map(str, missing))}")
+        picked = [own[i] for i in wanted]
     if session_id is not None:
         sess = next((s for s in subject.sessions if s.id == session_id), None)
         if sess is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND,
                                 f"subject {subject.code} has no session with id {session_id}")
     sub = _sensors_param(sensors)
-    src = subject_report_source(db, settings.data_dir, subject, sess)
+    src = subject_report_source(db, settings.data_dir, subject, sess, picked)
     try:
         data = build_subject_report(src, settings.data_dir, _live_poses(hub), sub, method,
                                     estimator)
@@ -591,6 +661,7 @@ def subject_report(subject_id: int, request: Request, user: CurrentUser,
     out = _respond(data, format, f"gait-report-{subject.code}-{src.file_stamp}")
     audit_now(db, request, user, "export", f"subject {subject_id}",
               (f"session {session_id}" if sess is not None
+               else f"sessions {', '.join(str(s.id) for s in picked)}" if picked is not None
                else f"all sessions ({len(subject.sessions)})")
               + f"; report {format} ({method}, {_subset(sub)})")
     return out
