@@ -199,9 +199,10 @@ def file_units(units: str, positions: ArrayLike, labels: list[str]) -> str:
 #: Body-part name stems (after the side token is removed), most preferred first. Stems
 #: of two letters (IOR ``LM``, ``CA``) only match after a side prefix (``L_LM``).
 PART_STEMS: dict[str, tuple[str, ...]] = {
-    "ankle": ("ank", "ankle", "lmal", "malleolus", "latmal", "mal", "ajc", "anklejc", "fal",
-              "lma", "lm"),
-    "heel": ("hee", "heel", "fcc", "cal", "calc", "calcaneus", "dhe", "phe", "lhe", "ca"),
+    "ankle": ("ank", "ankle", "lmal", "malleolus", "latmal", "latmalleolus",
+              "lateralmalleolus", "mal", "ajc", "anklejc", "fal", "lma", "lm"),
+    "heel": ("hee", "heel", "fcc", "cal", "calc", "calcaneus", "pca", "dhe", "phe", "lhe",
+             "ca"),
     "toe": ("toe", "ttoe", "mt2", "fm2", "mth2", "mt1", "fm1", "toetip", "bigtoe",
             "footindex", "2nd", "foot", "foo"),
     "asis": ("asi", "asis", "ias"),

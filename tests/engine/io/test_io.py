@@ -189,6 +189,9 @@ def test_unit_spellings(written: str, unit: str | None) -> None:
     (["RT_HEEL", "LT_HEEL"], "L", "heel", "LT_HEEL"),
     (["left_foot_index", "left_heel"], "L", "toe", "left_foot_index"),
     (["WaistLFront", "L_IAS"], "L", "asis", "L_IAS"),
+    (["RMMA", "RLMA", "RPCA"], "R", "ankle", "RLMA"),               # Oxford Foot Model
+    (["RMMA", "RLMA", "RPCA"], "R", "heel", "RPCA"),
+    (["L.Med.Malleolus", "L.Lat.Malleolus"], "L", "ankle", "L.Lat.Malleolus"),
 ])
 def test_marker_name_conventions(labels: list[str], side: str, part: str,
                                  found: str | None) -> None:
