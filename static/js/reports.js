@@ -86,7 +86,18 @@
     const q = new URLSearchParams({ format, method: $("method").value,
       estimator: $("estimator").value });
     if ($("session").value) q.set("session_id", $("session").value);
+    else {
+      // the ticked sessions, when not all of them (none ticked: no report to ask for)
+      const boxes = sessionBoxes(), ticked = boxes.filter((c) => c.checked).map((c) => c.value);
+      if (boxes.length && !ticked.length) return null;
+      if (ticked.length < boxes.length) q.set("sessions", ticked.join(","));
+    }
     return `/api/reports/subjects/${encodeURIComponent(sid)}?${q}`;
+  }
+  function sessionBoxes() { return [...$("sessions-pick").querySelectorAll("input[type=checkbox]")]; }
+  // the session checkboxes are offered for "All sessions" of a subject with two or more
+  function showSessionPick() {
+    $("sessions-pick").hidden = Boolean($("session").value) || sessionBoxes().length < 2;
   }
 
   const subjectsSeq = gaitrig.latest();
@@ -128,6 +139,9 @@
     const sid = $("subject").value;
     const sess = $("session");
     sess.replaceChildren(el("option", { value: "" }, "All sessions"));
+    const pickBox = $("sessions-pick").querySelector(".checks");
+    pickBox.replaceChildren();
+    showSessionPick();
     setLink($("pdf"), null);
     if (!sid) return;
     try {
@@ -136,7 +150,14 @@
       for (const x of s.sessions || []) {
         const done = (x.recordings || []).filter((r) => r.state === "complete").length;
         sess.append(el("option", { value: String(x.id) }, `${gaitrig.day(x.date)} ${x.label || ""} (${plural(done, "complete recording")})`));
+        const cb = el("input", { type: "checkbox", id: `pick-session-${x.id}`, value: String(x.id) });
+        cb.checked = true;
+        cb.addEventListener("change", () => setLink($("pdf"), subjectQuery("pdf")));
+        const lab = el("label", { for: cb.id });
+        lab.append(cb, ` ${gaitrig.day(x.date)} ${x.label || ""}`);
+        pickBox.append(lab);
       }
+      showSessionPick();
     } catch (e) { if ($("subject").value !== sid) return; say("subject-msg", e.message, true); }
     setLink($("pdf"), subjectQuery("pdf"));
   }
@@ -144,7 +165,10 @@
   async function showSubject(ev) {
     ev.preventDefault();
     const url = subjectQuery("html");
-    if (!url) { say("subject-msg", "Choose a subject first.", true); return; }
+    if (!url) {
+      say("subject-msg", $("subject").value ? "Tick at least one session to include." : "Choose a subject first.", true);
+      return;
+    }
     say("subject-msg", "Analysing the recordings… (a first analysis takes a few seconds)");
     $("show").disabled = true;
     try {
@@ -423,6 +447,7 @@
   }
   $("subject").addEventListener("change", keepChoice);
   $("session").addEventListener("change", keepChoice);
+  $("session").addEventListener("change", showSessionPick);
   async function fromAddress() {
     const q = new URLSearchParams(location.hash.slice(1));
     const sid = q.get("subject");
