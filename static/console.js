@@ -315,3 +315,14 @@ document.addEventListener("invalid", (ev) => {
 document.addEventListener("input", (ev) => {
   if (ev.target.setCustomValidity) ev.target.setCustomValidity("");
 }, true);
+
+// Escape closes an open confirmation (the Subjects page's "Delete this subject", an unfiled
+// recording's "Delete…") and gives the focus back to the summary that opened it, as a
+// dialog does.
+document.addEventListener("keydown", (ev) => {
+  if (ev.key !== "Escape" || !(ev.target instanceof Element)) return;
+  const zone = ev.target.closest("details.danger-zone[open]");
+  if (!zone) return;
+  zone.open = false;
+  zone.querySelector("summary").focus();
+});

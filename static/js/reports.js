@@ -51,7 +51,10 @@
     const notes = $("report").querySelector("ul.notes");
     if (notes) notes.after(el("p", { class: "hint" }, el("a", { href: "/help.html#report-quality" }, "What does this mean?")));
     $("report-section").hidden = false;
-    $("report").focus();
+    // the focus on the report's title: a screen reader says which report this is
+    // (the report's box alone has no name)
+    const title = $("report").querySelector("h1");
+    if (title) { title.tabIndex = -1; title.focus(); } else $("report").focus();
   }
 
   function hideReport() { $("report-section").hidden = true; $("report").replaceChildren(); }

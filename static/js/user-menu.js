@@ -63,6 +63,15 @@
       if (opener) opener.focus();
       if (menu && document.activeElement !== opener) menu.querySelector("summary").focus();
     });
+    // Tab stays in the dialog: past its last field it goes round to the first (Chromium's
+    // modal dialog let it leave the page, from where the next Tab began at the top).
+    dialog.addEventListener("keydown", (ev) => {
+      if (ev.key !== "Tab") return;
+      const stops = [...dialog.querySelectorAll("input:not([hidden]), button")].filter((e) => !e.disabled);
+      const first = stops[0], last = stops[stops.length - 1];
+      if (ev.shiftKey && document.activeElement === first) { ev.preventDefault(); last.focus(); }
+      else if (!ev.shiftKey && document.activeElement === last) { ev.preventDefault(); first.focus(); }
+    });
     form.addEventListener("submit", async (ev) => {
       ev.preventDefault();
       clear();

@@ -409,3 +409,137 @@ def test_console_page_passes_axe_and_reflows(page: Any, lab: Lab, artifacts_dir:
     problems += _reflow_problems(page, name, artifacts_dir)
     assert not problems, "\n".join(problems)
     assert not page.js_errors, page.js_errors
+
+
+# ---------------------------------------------------------------- a person's keyboard
+
+class Focus:
+    """What a screen reader says about the focused element: its role and accessible name
+    as Chromium's accessibility tree computes them (CDP), not as the test guesses them."""
+
+    def __init__(self, page: Any) -> None:
+        self.page = page
+        self.cdp = page.context.new_cdp_session(page)
+
+    def now(self) -> tuple[str, str]:
+        """(role, name) of ``document.activeElement``."""
+        obj = self.cdp.send("Runtime.evaluate", {"expression": "document.activeElement"})
+        node = self.cdp.send("Accessibility.getPartialAXTree", {
+            "objectId": obj["result"]["objectId"], "fetchRelatives": False})["nodes"][0]
+        return (str(node.get("role", {}).get("value", "")),
+                str(node.get("name", {}).get("value", "")))
+
+    def press(self, key: str) -> tuple[str, str]:
+        """Press ``key`` and say where the focus went."""
+        self.page.keyboard.press(key)
+        return self.now()
+
+    def tab_to(self, name: str, limit: int = 60, key: str = "Tab") -> list[str]:
+        """Press Tab until the element named ``name`` has the focus; returns the names
+        passed on the way (fails after ``limit`` presses)."""
+        passed: list[str] = []
+        for _ in range(limit):
+            _role, got = self.press(key)
+            if got == name:
+                return passed
+            passed.append(got)
+        raise AssertionError(f"{name!r} not reached in {limit} presses of {key}: {passed}")
+
+
+def test_keyboard_only_login_record_and_report(browser: Any, lab: Lab,
+                                               artifacts_dir: Path) -> None:
+    """Log in, go to Record, find a subject by typing, start and stop a recording and
+    open its report with Tab, Shift+Tab, Enter, Space and typing only."""
+    page = new_page(browser, 30000)
+    focus = Focus(page)
+    page.goto(lab.url + "/index.html")
+    assert focus.now() == ("textbox", "User name")  # the field has the focus at once
+    page.keyboard.type("admin")
+    assert focus.press("Tab") == ("textbox", "Password")
+    page.keyboard.type(lab.password)
+    assert focus.press("Tab") == ("button", "Log in")
+    page.keyboard.press("Enter")
+    page.wait_for_url("**/rig.html")
+    page.wait_for_selector(".user-menu summary")
+
+    # the first Tab offers to skip the header; the sections follow in the order shown
+    assert focus.press("Tab") == ("link", "Skip to the page")
+    assert focus.tab_to("Record") == ["Rig", "Live", "Calibrate"]
+    page.keyboard.press("Enter")
+    page.wait_for_url("**/record.html")
+    page.wait_for_function("document.querySelectorAll('#subject option[value]').length > 0")
+
+    assert focus.press("Tab") == ("link", "Skip to the page")
+    page.keyboard.press("Enter")  # to the page's own content
+    assert page.evaluate("document.activeElement.tagName") == "MAIN"
+    assert focus.press("Tab") == ("combobox", "Project")
+    assert focus.press("Tab") == ("searchbox", "Find subject code")
+    page.keyboard.type(KEY_CODE[:3].lower())
+    page.keyboard.press("Enter")  # the list is searched now and the focus goes to it
+    page.wait_for_function("document.activeElement.id === 'subject'")
+    assert focus.now() == ("combobox", "Subject")
+    assert page.evaluate("document.getElementById('subject').selectedOptions[0].text") \
+        == KEY_CODE
+    # (the session list follows the subject: its one session, "keyboard", is chosen)
+    page.wait_for_function("/keyboard/.test(document.getElementById('session')"
+                           ".selectedOptions[0]?.text || '')")
+    assert focus.tab_to("Start recording") == [
+        "…or a new subject code", "Add", "Session", "…or a new session today, label", "Add",
+        "Subjects & recordings", "Trial label", "Depth images", "Colour images",
+        "Images of every N-th frame"]
+    page.keyboard.press("Enter")
+    _text(page, "#rec-msg", "started")
+    page.wait_for_function("document.activeElement.id === 'stop'")
+    assert focus.now() == ("button", "Stop")  # Start is disabled: the focus is on Stop
+    time.sleep(8.0)  # the simulated walker takes a few steps
+    page.keyboard.press("Space")
+    _text(page, "#rec-msg", "stopped")
+    # the disabled Stop gave the focus to the message, which a screen reader reads
+    page.wait_for_function("document.activeElement.id === 'rec-msg'")
+    assert focus.now()[0] == "status"
+    _shown(page, "#state-badge[data-state=complete]")
+    assert focus.press("Tab") == ("link", "Open this recording in Subjects & recordings")
+    screenshot(page, artifacts_dir, "a11y_keyboard_record")
+    page.keyboard.press("Enter")
+    page.wait_for_url("**/subjects.html#subject=*")
+    _shown(page, "#sessions .recording[data-state=complete]")
+    focus.tab_to("Gait report of this session", limit=120)
+    page.keyboard.press("Enter")
+    page.wait_for_url("**/reports.html#subject=*")
+    _shown(page, "#report h1")
+    page.wait_for_function("document.activeElement.closest('#report')")
+    assert focus.now() == ("heading", "Gait report")  # the report's title, then its subject
+    assert KEY_CODE in page.inner_text("#report table.meta")
+    screenshot(page, artifacts_dir, "a11y_keyboard_report")
+    assert not page.js_errors, page.js_errors
+
+
+def test_dialogs_keep_the_focus_and_escape_gives_it_back(page: Any, lab: Lab) -> None:
+    """The change-password dialog: Tab and Shift+Tab go round inside it, Escape closes it
+    and the focus is back on the menu it was opened from; the delete confirmation of the
+    Subjects page closes with Escape onto its own summary."""
+    focus = Focus(page)
+    page.wait_for_selector(".user-menu summary")
+    assert focus.press("Tab") == ("link", "Skip to the page")
+    focus.tab_to("Account: admin")
+    page.keyboard.press("Enter")  # opens the menu
+    assert focus.press("Tab") == ("button", "Change password")
+    page.keyboard.press("Enter")
+    _shown(page, "#password-dialog[open]")
+    assert focus.now() == ("textbox", "Current password")
+    inside = [focus.press("Tab")[1] for _ in range(5)]
+    assert inside == ["New password", "New password again", "Change password", "Close",
+                      "Current password"]
+    assert focus.press("Shift+Tab") == ("button", "Close")
+    page.keyboard.press("Escape")
+    page.wait_for_selector("#password-dialog:not([open])", state="attached")
+    assert focus.now()[1] == "Account: admin"
+
+    page.goto(f"{lab.url}/subjects.html#subject={lab.subject_id}")
+    _shown(page, f"#sessions [data-recording='{lab.rec_id}']")
+    focus.tab_to("Delete this subject", limit=150)
+    page.keyboard.press("Enter")
+    assert focus.press("Tab") == ("textbox", "Type the subject code to confirm")
+    page.keyboard.press("Escape")
+    assert page.evaluate("document.querySelector('details.danger-zone').open") is False
+    assert focus.now()[1] == "Delete this subject"
