@@ -236,8 +236,8 @@ def feet_from_markers(
         if missing:
             raise InputError(
                 f"no usable {' and no '.join(missing)} marker (looked for names like "
-                "LANK/RANK, LHEE/RHEE, L.Ankle, L_FAL, L_FCC, LeftHeel, AnkleLeft, "
-                "left_ankle: docs/gait-json.md lists them); available labels: "
+                "LANK/RANK, LHEE/RHEE, L.Ankle, L_FAL, L_FCC, AnkleLeft: "
+                "docs/gait-json.md lists them); available labels: "
                 + ", ".join(labels) + "; name the foot markers with --left/--right"
             )
     pelvis = _pelvis(scope, P[:, [labels.index(x) for x in scope]], t)
