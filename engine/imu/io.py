@@ -23,6 +23,7 @@ import re
 from array import array
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from engine.errors import InputError
+from engine.geometry import quat_conj, quat_mul, quat_rotate
 
 FloatArray = NDArray[np.float64]
 
@@ -37,7 +39,8 @@ G = 9.80665
 #: unit name -> factor to SI (rad/s, m/s², µT); matched case-insensitively, spaces ignored
 GYR_UNITS = {"rad/s": 1.0, "rad/sec": 1.0, "rads": 1.0, "rads-1": 1.0, "deg/s": np.pi / 180.0,
              "deg/sec": np.pi / 180.0, "degs-1": np.pi / 180.0, "°/s": np.pi / 180.0,
-             "dps": np.pi / 180.0}
+             "dps": np.pi / 180.0, "d/s": np.pi / 180.0, "degree/s": np.pi / 180.0,
+             "degrees/s": np.pi / 180.0, "deg.s-1": np.pi / 180.0, "mrad/s": 1e-3}
 ACC_UNITS = {"m/s2": 1.0, "m/s^2": 1.0, "m/s²": 1.0, "m/s/s": 1.0, "ms-2": 1.0,
              "m*s-2": 1.0, "m/(s^2)": 1.0, "m/s**2": 1.0, "g": G, "mg": G / 1000.0}
 #: units written into column names (``gyr_x_dps``, ``acc_x_ms2``) -> unit
@@ -276,13 +279,19 @@ def _text_lines(path: Path) -> Iterator[str]:
             yield line.rstrip("\r\n")
 
 
-def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str],
-                                   dict[int, tuple[int, str]]]:
+def _read_csv(path: Path, dates: set[int] | None = None
+              ) -> tuple[list[str], FloatArray, list[str], dict[int, tuple[int, str]]]:
     """Parse a numeric CSV with one header row.
 
     Accepts comma, semicolon or tab separators (chosen from the header), a decimal comma
     (with ``;`` or tab separators), comment lines (``#``, ``//``, ``%``), blank lines, a BOM,
     CRLF, empty/NaN cells and one units row under the header.
+
+    Args:
+        path: the file.
+        dates: filled with the columns with a time-like name whose cells are ISO 8601
+            date-times (``2024-03-05 10:15:30.123``, ``…T…Z``, ``…+01:00``): those are
+            read as POSIX seconds (a naive time as UTC; only differences matter).
 
     Returns:
         header, ``(N, C)`` data, the units row (``[]`` when there is none) and the
@@ -317,6 +326,8 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str],
     text: dict[int, tuple[int, str]] = {}
     fmt_row = False
     rows = 0
+    timelike = {k for k, h in enumerate(header) if _time_like(h)}
+    found_dates: set[int] = set()
     for i, r in enumerate(csv.reader(lines, delimiter=delim), start=2):
         if len(r) > n and not any(c.strip() for c in r[n:]):
             r = r[:n]
@@ -341,10 +352,14 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str],
                 units = [_unbracket(c) for c in r]  # a units row under the header
                 continue
             # a text cell (Shimmer's formatted date column): NaN here; an error only if
-            # the column is one the reader uses (see _text_error)
+            # the column is one the reader uses (see _text_error); an ISO date-time in a
+            # time column: POSIX seconds
             for k, c in enumerate(r):
                 if _is_number(c):
                     values.append(float(c.replace(",", ".")))
+                elif k in timelike and k not in text and (sec := _iso_seconds(c)) is not None:
+                    values.append(sec)
+                    found_dates.add(k)
                 else:
                     values.append(np.nan)
                     if c.strip().lower() not in _NAN_CELLS:
@@ -352,8 +367,36 @@ def _read_csv(path: Path) -> tuple[list[str], FloatArray, list[str],
         rows += 1
     if rows == 0:
         raise InputError(f"{path.name}: CSV needs a header row and data rows")
+    for k in found_dates - set(text):
+        if dates is not None:
+            dates.add(k)
     # a view on the array's buffer (writable, kept alive by the view): no second copy
     return header, np.frombuffer(values, dtype=float).reshape(rows, n), units, text
+
+
+def _iso_seconds(cell: str) -> float | None:
+    """POSIX seconds of an ISO 8601 date-time cell, or None when it is not one."""
+    c = cell.strip().strip('"')
+    if len(c) < 10 or not c[:4].isdigit() or c[4] != "-":
+        return None
+    if c.endswith(("Z", "z")):
+        c = c[:-1] + "+00:00"
+    if "," in c[10:]:
+        c = c[:10] + c[10:].replace(",", ".")  # 10:15:30,123 (ISO allows a decimal comma)
+    try:
+        t = datetime.fromisoformat(c)
+    except ValueError:
+        return None
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=UTC)
+    return t.timestamp()
+
+
+def _time_like(h: str) -> bool:
+    """Whether a header cell names a time column (an ISO date-time there is read)."""
+    key = _parse_column(h, "").key
+    return any(key == a or (key.startswith(a) and key[len(a):] in TIME_UNITS)
+               for a in _TIME_ALIASES)
 
 
 def _text_error(path: Path, text: dict[int, tuple[int, str]], used: set[int]) -> None:
@@ -553,15 +596,16 @@ def load_broad(path: str | Path) -> ImuRecording:
 
 _GROUP_ALIASES = {
     "gyr": ("gyr", "gyro", "gyros", "gyroscope", "angvel", "angularvelocity", "angularrate",
-            "rotationrate", "omega", "w"),
-    "acc": ("acc", "accel", "accelerometer", "acceleration", "a"),
-    "mag": ("mag", "magn", "magnetometer", "magneticfield", "compass", "m"),
+            "rotationrate", "omega", "w", "g"),  # Arduino sketches: ax, ay, az, gx, gy, gz
+    "acc": ("acc", "accel", "accelerometer", "acceleration", "a", "gf"),  # gFx: g-force
+    "mag": ("mag", "magn", "magnetometer", "magneticfield", "compass", "m", "b"),
 }
 #: names that say "time" (+ a unit: ``time_s``); Shimmer's ``Timestamp_Unix_CAL``, Xsens'
 #: ``SampleTimeFine`` (a wrapping uint32 clock: µs on Movella DOT, 100 µs ticks on MTi)
 _TIME_ALIASES = ("time", "timestamp", "sampletime", "elapsedtime", "timestampunix",
                  "unixtimestamp", "timestampsync", "timestampsyncunix", "systemtimestamp",
-                 "sampletimefine")
+                 "sampletimefine", "millis", "micros", "secondselapsed", "datetime", "date",
+                 "loggingtime", "utc")
 #: a bare ``t`` is time only when it increases: some exports call the temperature ``T``
 _WEAK_TIME_ALIASES = ("t",)
 _COUNTER_ALIASES = ("packetnumber", "packetcounter", "packet", "sample", "samplenumber",
@@ -696,7 +740,8 @@ def _increasing(v: FloatArray) -> bool:
 
 def _find_columns(header: list[str], units_row: list[str], data: FloatArray, name: str,
                   sensor: str | None = None,
-                  text: dict[int, tuple[int, str]] | None = None) -> _Layout:
+                  text: dict[int, tuple[int, str]] | None = None,
+                  dates: set[int] | None = None) -> _Layout:
     """Which columns hold the chosen sensor's X/Y/Z groups, its time and sample counter.
 
     Columns may carry a sensor prefix (``Shimmer_8C4F_Gyro_X_CAL``, ``S2_acc_x``); a file
@@ -736,10 +781,13 @@ def _find_columns(header: list[str], units_row: list[str], data: FloatArray, nam
     # time: the sensor's own column, else a shared (unprefixed) one; a strong name first,
     # a bare 't' only when it increases; never a temperature
     t_idx, t_unit = None, ""
-    for strong in (True, False):
+    # ISO date-time columns last: a numeric clock beside them is the finer one
+    for strong, as_date in ((True, False), (False, False), (True, True)):
         for p in dict.fromkeys((chosen, "")):
             for i, c in enumerate(cols):
                 if t_idx is not None or c.prefix != p or c.raw or _is_temperature(c):
+                    continue
+                if (i in (dates or ())) != as_date:
                     continue
                 aliases = _TIME_ALIASES if strong else _WEAK_TIME_ALIASES
                 base = next((a for a in aliases if c.key == a or (
@@ -807,6 +855,8 @@ def load_csv(
     time_unit: str | None = None,
     frequency: float | None = None,
     sensor: str | None = None,
+    quat_order: str | None = None,
+    quat_frame: str | None = None,
 ) -> ImuRecording:
     """Read a generic IMU CSV: time (or a sample counter), gyroscope, accelerometer and
     optionally magnetometer X/Y/Z columns, as other labs name them.
@@ -837,6 +887,12 @@ def load_csv(
         sensor: which sensor to read from a file with several (columns prefixed per
             sensor: ``Shimmer_8C4F_Gyro_X_CAL``, ``S2_Acc_X``): the prefix
             (``Shimmer_8C4F``) or its last part (``8C4F``); ``None`` for a one-sensor file.
+        quat_order: order of reference quaternion columns numbered ``q1..q4``:
+            ``"wxyz"`` (scalar first) or ``"xyzw"`` (scalar last); ``None`` = told from
+            gravity (see :func:`_reference_quaternions`). Named components (``qw, qx …``,
+            ``Quat_W``) and ``q0..q3`` (scalar q0) need none.
+        quat_frame: earth frame of the reference quaternions, ``"ENU"`` or ``"NED"``
+            (converted to ENU, the filters' frame); ``None`` = told from gravity.
 
     Raises:
         MultipleSensorsError: several sensors in the file and ``sensor`` names none of
@@ -845,12 +901,16 @@ def load_csv(
             by the data, bad timing.
     """
     p = Path(path)
-    header, data, units_row, text = _read_csv(p)
+    dates: set[int] = set()
+    header, data, units_row, text = _read_csv(p, dates)
     if len(data) < 2:
         raise InputError(f"{p.name}: need at least two samples, got {len(data)}")
-    lay = _find_columns(header, units_row, data, p.name, sensor, text)
+    lay = _find_columns(header, units_row, data, p.name, sensor, text, dates)
     groups, t_idx, t_unit, c_idx, col_units = (lay.groups, lay.t_idx, lay.t_unit, lay.c_idx,
                                                lay.units)
+    if t_idx is not None and t_idx in dates:  # ISO date-times, read as POSIX seconds
+        t_unit, time_unit = "s", None
+        col_units.pop(t_idx, None)
     _text_error(p, text, {i for idx in groups.values() for i in idx}
                 | {i for i in (t_idx, c_idx) if i is not None})
     declared = {"gyr": gyr_unit, "acc": acc_unit, "mag": mag_unit}
@@ -923,10 +983,148 @@ def load_csv(
     if ignored:
         warnings.append(f"ignored column(s): {', '.join(ignored)}")
     gyr, acc, mag = out["gyr"], out["acc"], out.get("mag")
+    q_idx, named = _quat_columns(header, lay.sensor)
+    quat = None
+    if q_idx:
+        used |= set(q_idx)
+        warnings[:] = [w for w in warnings if not w.startswith("ignored column(s)")]
+        ignored = [h for i, h in enumerate(header) if i not in used]
+        if ignored:
+            warnings.append(f"ignored column(s): {', '.join(ignored)}")
+        quat = _reference_quaternions(p.name, data[:, q_idx], named, gyr, acc, quat_order,
+                                      quat_frame, meta, warnings)
     time, keep = _drop_repeated_rows(time, np.column_stack([a for a in (gyr, acc, mag)
                                                            if a is not None]), warnings)
-    return _finalise(time, gyr[keep], acc[keep], None if mag is None else mag[keep], p.stem,
-                     meta, warnings, frequency=frequency)
+    rec = _finalise(time, gyr[keep], acc[keep], None if mag is None else mag[keep], p.stem,
+                    meta, warnings, frequency=frequency)
+    if quat is not None:
+        rec.quat_ref = quat[keep]
+    return rec
+
+
+_QUAT_RE = re.compile(r"^(?P<pre>.*?)(quaternion|quat|q)(?P<c>[wxyz]|q[0-4]|[0-4])$")
+
+
+def _quat_columns(header: list[str], sensor: str) -> tuple[list[int], bool]:
+    """Columns of a reference orientation quaternion of ``sensor`` (its prefix; "" for
+    unprefixed): ``([w, x, y, z] indices, True)`` for named components and ``q0..q3``
+    (Xsens' ``Quat_q0``: the scalar is q0), ``(indices in number order, False)`` for
+    ``q1..q4`` (whose scalar may be q1 or q4), ``([], False)`` when there are none."""
+    want = re.sub(r"[^a-z0-9]", "", sensor.lower())
+    comps: dict[str, int] = {}
+    for i, h in enumerate(header):
+        key = "".join(re.findall(r"[a-z0-9]+", _split_header(h)[0].lower()))
+        m = _QUAT_RE.match(key)
+        if m and m.group("pre") in (want, ""):
+            comps.setdefault(m.group("c").lstrip("q") or m.group("c"), i)
+    if all(c in comps for c in "wxyz"):
+        return [comps[c] for c in "wxyz"], True
+    if all(d in comps for d in "0123"):  # q0 is the scalar wherever numbering starts at 0
+        return [comps[d] for d in "0123"], True
+    if all(d in comps for d in "1234"):  # q1..q4: scalar first or last, both are used
+        return [comps[d] for d in "1234"], False
+    return [], False
+
+
+#: ENU <- NED: x_enu = y_ned (east), y_enu = x_ned (north), z_enu = -z_ned; a half turn
+#: about (1, 1, 0)/√2
+_Q_ENU_NED = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])
+
+
+def _reference_quaternions(
+    name: str, raw: FloatArray, named: bool, gyr: FloatArray, acc: FloatArray,
+    order: str | None, frame: str | None, meta: dict[str, Any], warnings: list[str],
+) -> FloatArray | None:
+    """A file's reference orientation as w-first sensor-to-ENU quaternions (what the
+    filters estimate and :func:`engine.imu.metrics.orientation_errors` compares).
+
+    What a file does not say is told from gravity: the accelerometer of a sensor at rest
+    measures the earth's up direction, which a correct reading of the quaternion must
+    rotate into the sensor frame. Candidates: scalar first or last (numbered columns
+    only), an ENU (up = +Z) or NED (up = -Z) earth frame, sensor-to-earth or the inverse.
+    The one whose up agrees with the accelerometer (median angle over near-rest samples
+    under 15°, the next candidate at least twice as far off) is taken and said. ENU and
+    another Z-up frame (NWU) differ in heading only and cannot be told apart: Z-up files
+    are read as ENU.
+
+    Returns ``None`` (with a warning saying what to declare) when no candidate, or more
+    than one, agrees with gravity: the reference is optional, the recording still loads.
+
+    Raises:
+        InputError: unknown ``order``/``frame``.
+    """
+    orders = ["wxyz"] if named else ["wxyz", "xyzw"]
+    if order is not None:
+        o = order.strip().lower()
+        if o not in ("wxyz", "xyzw"):
+            raise InputError(f"unknown quat_order {order!r}; use 'wxyz' (scalar first) or "
+                             "'xyzw' (scalar last)")
+        orders = ["wxyz"] if named else [o]
+    frames = ["ENU", "NED"]
+    if frame is not None:
+        f = frame.strip().upper()
+        if f not in ("ENU", "NED"):
+            raise InputError(f"unknown quat_frame {frame!r}; use 'ENU' (Z up) or 'NED' "
+                             "(Z down)")
+        frames = [f]
+    an = np.linalg.norm(acc, axis=1)
+    ok = np.all(np.isfinite(raw), axis=1) & np.isfinite(an) & (an > 0)
+    # near-gravity samples anywhere in the recording, not only at rest: the rests are
+    # often one pose, where two readings can agree by chance (w-first ENU and x-first NED
+    # within 1° on a BROAD trial's 26 s rest)
+    quiet = ok & (np.abs(an - G) < 0.1 * G)
+    use = quiet if quiet.sum() >= 20 else ok
+    scored: list[tuple[float, str, str, bool]] = []
+    a_dir = acc[use] / an[use, None]
+    for o in orders:
+        q = raw[use] if o == "wxyz" else raw[use][:, [3, 0, 1, 2]]
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        for f in frames:
+            up = np.array([0.0, 0.0, 1.0 if f == "ENU" else -1.0])
+            for inverse in (False, True):
+                qs = quat_conj(q) if inverse else q  # sensor-to-earth
+                up_s = quat_rotate(quat_conj(qs), up)
+                ang = np.degrees(np.arccos(np.clip(np.sum(up_s * a_dir, axis=1), -1, 1)))
+                scored.append((float(np.median(ang)) if len(ang) else 180.0, o, f, inverse))
+    # order and frame first (each with its better direction), then the direction: a
+    # sensor turning about the vertical only looks the same both ways, and is then read
+    # as sensor-to-earth (the usual convention), with a warning
+    groups = sorted({(o, f): min(a for a, o2, f2, _ in scored if (o2, f2) == (o, f))
+                     for _, o, f, _ in scored}.items(), key=lambda kv: kv[1])
+    told = len(groups) > 1
+    (o, f), best_deg = groups[0]
+    if told and (best_deg > 15.0 or groups[1][1] < 2.0 * best_deg + 1.0):
+        listing = "; ".join(f"{o2} {f2}: {a:.0f}°" for (o2, f2), a in groups[:3])
+        warnings.append(
+            "reference quaternion columns ignored: cannot tell how they are meant (their up "
+            f"direction against the accelerometer's: {listing}); declare quat_order "
+            "('wxyz' or 'xyzw') and quat_frame ('ENU' or 'NED') to use them")
+        return None
+    fwd = next(a for a, o2, f2, inv in scored if (o2, f2, inv) == (o, f, False))
+    back = next(a for a, o2, f2, inv in scored if (o2, f2, inv) == (o, f, True))
+    inverse = back < 0.5 * fwd - 1.0
+    if not inverse and fwd > 0.5 * back - 1.0:
+        warnings.append("the reference quaternions' direction cannot be told from gravity "
+                        "(the sensor turned about the vertical only); read as "
+                        "sensor-to-earth")
+    best = (min(fwd, back), o, f, inverse)
+    q = raw if o == "wxyz" or named else raw[:, [3, 0, 1, 2]]
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    if inverse:
+        q = quat_conj(q)
+    if f == "NED":
+        q = quat_mul(_Q_ENU_NED, q)
+    q = np.where(q[:, :1] < 0, -q, q)  # one hemisphere, as a reference is usually kept
+    meta["quat_ref"] = {"order": o, "frame": f, "inverse": inverse,
+                        "from": "detected" if told else "declared",
+                        "gravity_deg": round(best[0], 2)}
+    if told:
+        warnings.append(
+            f"reference quaternions read as {'scalar-first' if o == 'wxyz' else 'scalar-last'}"
+            f", {'earth-to-sensor' if inverse else 'sensor-to-earth'}, {f} frame (their up "
+            f"agrees with the accelerometer within {best[0]:.1f}°); declare quat_order and "
+            "quat_frame if that is wrong")
+    return np.asarray(q, dtype=float)
 
 
 def _known(table: dict[str, float], unit: str) -> bool:
@@ -1038,3 +1236,69 @@ def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
             rec.meta["format"] = "x-imu-csv"
         return rec
     raise InputError(f"{p.name}: unsupported IMU file type {suf!r}; use .csv, .mat or .hdf5")
+
+
+#: dropped-sample gaps up to this long are interpolated by :func:`fill_gaps`; longer
+#: ones are left as NaN samples (the filters then hold the orientation)
+MAX_FILLED_GAP_S = 0.5
+
+
+def fill_gaps(rec: ImuRecording, max_gap_s: float = MAX_FILLED_GAP_S) -> ImuRecording:
+    """The recording on a uniform time grid at its nominal rate, dropped samples filled.
+
+    The orientation filters assume one sample every ``1 / frequency`` s: samples lost in
+    transmission (Bluetooth IMUs, phone loggers) make them skip the rotation of the gap —
+    on the BROAD fast-rotation trial, 1 % of the samples dropped in bursts of 5 raise the
+    orientation error from 2.1° to 12°. Gaps up to ``max_gap_s`` are filled by linear
+    interpolation of the rates, accelerations and field (the error is then 2.1° again);
+    samples of longer gaps are NaN (skipped by the filters). Grid points within half a
+    step of a recorded sample take that sample's values where the clock is regular, so a
+    recording without gaps is returned unchanged (the same object). The reference
+    quaternion and the movement mask take the nearest recorded sample's value, NaN/False
+    in filled gaps.
+
+    Returns:
+        The filled recording, with a warning saying how many samples were filled.
+    """
+    t = rec.time
+    fs = float(rec.frequency)
+    dts = np.diff(t)
+    if not len(dts) or np.max(dts) <= 1.5 / fs:
+        return rec
+    n = round((t[-1] - t[0]) * fs) + 1
+    grid = t[0] + np.arange(n) / fs
+    k = np.clip(np.searchsorted(t, grid), 1, len(t) - 1)
+    near = np.where(np.abs(t[k - 1] - grid) <= np.abs(t[k] - grid), k - 1, k)
+    gap = t[k] - t[k - 1]  # the recorded interval each grid point falls in
+    hole = np.abs(t[near] - grid) > 0.5 / fs
+    long_hole = hole & (gap > max_gap_s)
+
+    def channels(a: FloatArray | None) -> FloatArray | None:
+        if a is None:
+            return None
+        out = np.empty((n, 3))
+        for c in range(3):
+            ok = np.isfinite(a[:, c])
+            out[:, c] = np.interp(grid, t[ok], a[ok, c]) if ok.sum() >= 2 else np.nan
+        out[~hole] = a[near[~hole]]  # recorded samples as they are (NaN stays NaN)
+        out[long_hole] = np.nan
+        return out
+
+    gyr, acc, mag = channels(rec.gyr), channels(rec.acc), channels(rec.mag)
+    assert gyr is not None and acc is not None
+    quat = None
+    if rec.quat_ref is not None:
+        quat = rec.quat_ref[near].copy()
+        quat[hole] = np.nan
+    movement = None
+    if rec.movement is not None:
+        movement = rec.movement[near] & ~hole
+    n_fill = int((hole & ~long_hole).sum())
+    warnings = [w for w in rec.warnings if "gap(s) in the time stamps" not in w]
+    warnings.append(f"{n_fill} dropped sample(s) filled by interpolation"
+                    + (f", {int(long_hole.sum())} in gaps longer than {max_gap_s:g} s left "
+                       "empty" if long_hole.any() else "")
+                    + f" (uniform {fs:.4g} Hz grid for the filters)")
+    meta = {**rec.meta, "filled_samples": n_fill}
+    return ImuRecording(time=grid, gyr=gyr, acc=acc, mag=mag, frequency=fs, name=rec.name,
+                        quat_ref=quat, movement=movement, meta=meta, warnings=warnings)

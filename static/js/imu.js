@@ -89,7 +89,7 @@
     fd.append("beta", $("beta").value);
     fd.append("n_jumps", $("n_jumps").value);
     fd.append("synchronise", $("synchronise").checked ? "true" : "false");
-    for (const u of ["gyr_unit", "acc_unit", "mag_unit", "time_unit"]) if ($(u).value) fd.append(u, $(u).value);
+    for (const u of ["gyr_unit", "acc_unit", "mag_unit", "time_unit", "quat_order", "quat_frame"]) if ($(u).value) fd.append(u, $(u).value);
     busy(true);
     try { show(await call("/api/imu/sessions", { method: "POST", body: fd })); }
     catch (e) { $("error").textContent = e.message; }

@@ -11,6 +11,10 @@ what was assumed comes back in the warnings). ``file_sensors`` picks the sensor 
 from a CSV holding several (two Shimmers, an Xsens export of several DOTs): one per file
 (empty for a one-sensor file) or one for all; without it such a file is refused with the
 list of its sensors. Upload the file twice, with two choices, to use two of its sensors.
+``quat_order`` (``wxyz``/``xyzw``) and ``quat_frame`` (``ENU``/``NED``) say how a CSV's
+reference quaternion columns are meant when gravity cannot tell (they are then compared
+with the filter's orientation). Dropped samples are filled on the nominal rate's grid
+(``engine.imu.io.fill_gaps``).
 
 Instead of a skeleton file, ``recording`` and ``recording_node`` take one sensor's
 skeleton from a recording already transferred to the server (placed in the world by the
@@ -45,7 +49,7 @@ from app.server.imu_analysis import (
 )
 from engine.errors import InputError
 from engine.imu.fusion import PAPER_SENSORS
-from engine.imu.io import ImuRecording, MultipleSensorsError, load_imu
+from engine.imu.io import ImuRecording, MultipleSensorsError, fill_gaps, load_imu
 from engine.io.csv import read_skeleton_csv
 from engine.skeleton import SkeletonSeries
 
@@ -155,6 +159,8 @@ async def upload_session(
     recording: Annotated[str | None, Form(max_length=64)] = None,
     recording_node: Annotated[str | None, Form(max_length=64)] = None,
     file_sensors: Annotated[list[str], Form()] = [],  # noqa: B006 - FastAPI form default
+    quat_order: Annotated[Literal["wxyz", "xyzw"] | None, Form()] = None,
+    quat_frame: Annotated[Literal["ENU", "NED"] | None, Form()] = None,
 ) -> dict[str, Any]:
     """Process uploaded IMU files (and optionally a depth skeleton); see the module doc."""
     files = [f for f in files if f.filename]
@@ -173,6 +179,10 @@ async def upload_session(
         kwargs["mag_unit"] = mag_unit
     if frequency:
         kwargs["frequency"] = frequency
+    if quat_order:
+        kwargs["quat_order"] = quat_order
+    if quat_frame:
+        kwargs["quat_frame"] = quat_frame
     filt: FilterName = filter
     with tempfile.TemporaryDirectory(prefix="gaitrig-imu-") as tmp:
         folder = Path(tmp)
@@ -286,9 +296,10 @@ async def recordings(user: CurrentUser, settings: SettingsDep) -> list[dict[str,
 
 
 def _load(path: Path, kwargs: dict[str, Any]) -> ImuRecording:
+    # dropped samples filled: the filters assume a constant rate (engine.imu.io.fill_gaps)
     if path.suffix in (".csv", ".txt", ".tsv"):
-        return load_imu(path, **kwargs)
-    return load_imu(path)
+        return fill_gaps(load_imu(path, **kwargs))
+    return fill_gaps(load_imu(path))
 
 
 class SimulateIn(BaseModel):

@@ -321,9 +321,15 @@ def test_a_text_time_column_is_passed_over(recs: tuple[ImuRecording, ImuRecordin
     p.write_text("\n".join(text) + "\n")
     rec = load_imu(p)
     assert np.allclose(rec.time, a.time)
-    assert any("'Timestamp' holds text" in w for w in rec.warnings)
+    # the numeric clock is preferred to ISO date-times (finer)
+    assert any(w.startswith("ignored column(s): Timestamp") for w in rec.warnings)
     only = [ln.split(",", 1)[0] + "," + ln.split(",", 2)[2] for ln in text]  # no time_s
     p.write_text("\n".join(only) + "\n")
+    # without the numeric clock the ISO date-times are the time (POSIX seconds)
+    rec = load_imu(p)
+    assert np.allclose(rec.time - rec.time[0], a.time, atol=1e-6)
+    garbled = [only[0]] + [f"14.11.2023 22:13{ln[16:]}" for ln in only[1:]]
+    p.write_text("\n".join(garbled) + "\n")
     with pytest.raises(InputError, match=r"no time column \(column 'Timestamp' holds text"):
         load_imu(p)
 
