@@ -100,3 +100,36 @@ def load_normative_ranges(path: str | Path) -> list[NormativeRange]:
 def save_normative_ranges(ranges: list[NormativeRange], path: str | Path) -> None:
     """Write ranges as JSON (the format :func:`load_normative_ranges` reads)."""
     Path(path).write_text(json.dumps([asdict(r) for r in ranges], indent=2), encoding="utf-8")
+
+
+@dataclass(frozen=True)
+class MdcValue:
+    """A published minimal detectable change (95 %) of one parameter.
+
+    Attributes:
+        parameter: key of an ``engine.report.progress.PROGRESS_PARAMETERS`` entry.
+        mdc: MDC95 in SI units (1.96 · √2 · SEM of the test–retest study).
+        population: who was measured (a patient group's MDC is not a healthy adult's).
+        source: citation with authors, year and journal.
+    """
+
+    parameter: str
+    mdc: float
+    population: str
+    source: str
+
+
+_STEFFEN = ("Steffen T, Seney M. Test-retest reliability and minimal detectable change on "
+            "balance and ambulation tests, the 36-item short-form health survey, and the "
+            "unified Parkinson disease rating scale in people with parkinsonism. Phys Ther "
+            "2008;88(6):733-746")
+
+#: Published MDC95 values used by default in "Change over sessions": only those checked
+#: against their paper. Steffen & Seney retested 37 community-dwelling adults with
+#: parkinsonism (mean age 71 y) one week apart: comfortable gait speed MDC95 0.18 m/s.
+#: No cadence, step, stride or width MDC is given by default (none was verified).
+DEFAULT_MDC_VALUES: tuple[MdcValue, ...] = (
+    MdcValue("walking_speed_m_s", 0.18,
+             "adults with parkinsonism, mean age 71 y, comfortable speed, retest after 1 week",
+             _STEFFEN),
+)

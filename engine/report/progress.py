@@ -13,10 +13,12 @@ measurement noise, judged two ways:
     over weeks; it answers "is this more than the spread of today's walks?".
 (b) beyond a published minimal detectable change, MDC95 = 1.96 · √2 · SEM
     (:func:`mdc95_from_sem`), where a test–retest source for the parameter is given
-    (:class:`MdcValue`); "no published MDC" otherwise. The defaults
-    (:data:`DEFAULT_MDC_VALUES`) hold no number: we found none we could check against
-    its paper (authors, year, journal, population and figure), and a lab loads its own
-    with :func:`load_mdc_values` (JSON, SI units).
+    (:class:`~engine.report.normative.MdcValue`); "no published MDC" otherwise. The
+    defaults (:data:`~engine.report.normative.DEFAULT_MDC_VALUES`) hold only what we
+    could check against its paper (authors, year, journal, population and figure):
+    comfortable walking speed, 0.18 m/s, measured in people with parkinsonism; the
+    report prints that population beside the figure. A lab loads its own with
+    :func:`load_mdc_values` (JSON, SI units).
 
 A change is described by its direction only — faster/slower, longer/shorter,
 wider/narrower — never as an improvement: whether faster is better depends on the
@@ -39,7 +41,13 @@ import numpy as np
 from scipy import stats
 
 from engine.errors import InputError
-from engine.report.normative import DEFAULT_NORMATIVE_RANGES, NormativeRange, normative_lookup
+from engine.report.normative import (
+    DEFAULT_MDC_VALUES,
+    DEFAULT_NORMATIVE_RANGES,
+    MdcValue,
+    NormativeRange,
+    normative_lookup,
+)
 from engine.report.render import TableRow, TrialData, spatiotemporal_table
 
 #: Significance level of the trial-to-trial test (a).
@@ -105,28 +113,6 @@ PROGRESS_PARAMETERS: tuple[ProgressParameter, ...] = (
                       "% points", 1.0, 1, "more asymmetric", "less asymmetric",
                       asymmetry=True, relative=False),
 )
-
-
-@dataclass(frozen=True)
-class MdcValue:
-    """A published minimal detectable change (95 %) of one parameter.
-
-    Attributes:
-        parameter: key of a :data:`PROGRESS_PARAMETERS` entry.
-        mdc: MDC95 in SI units (1.96 · √2 · SEM of the test–retest study).
-        population: who was measured (a patient group's MDC is not a healthy adult's).
-        source: citation with authors, year and journal.
-    """
-
-    parameter: str
-    mdc: float
-    population: str
-    source: str
-
-
-#: Published MDC95 values used by default: none (see the module docstring); a lab passes
-#: its own (:func:`load_mdc_values`) through ``ReportData.mdc``.
-DEFAULT_MDC_VALUES: tuple[MdcValue, ...] = ()
 
 
 def mdc95_from_sem(sem: float) -> float:

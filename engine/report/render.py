@@ -22,10 +22,16 @@ from jinja2 import Environment, FileSystemLoader, select_autoescape
 from engine import __version__
 from engine.errors import InputError, InsufficientDataError
 from engine.report import plots
-from engine.report.normative import DEFAULT_NORMATIVE_RANGES, NormativeRange, normative_lookup
+from engine.report.normative import (
+    DEFAULT_MDC_VALUES,
+    DEFAULT_NORMATIVE_RANGES,
+    MdcValue,
+    NormativeRange,
+    normative_lookup,
+)
 
 if TYPE_CHECKING:
-    from engine.report.progress import MdcValue, Progress, SessionTrials
+    from engine.report.progress import Progress, SessionTrials
 
 TEMPLATE_DIR = Path(__file__).with_name("templates")
 #: Trials per foot-placement figure (one panel each): six fit on an A4 page.
@@ -142,8 +148,8 @@ class ReportData:
     #: the subject's sessions, when the report spans several: two or more add the
     #: section "Change over sessions" (:mod:`engine.report.progress`)
     sessions: list[SessionTrials] = field(default_factory=list)
-    #: published MDC95 values for that section (none by default)
-    mdc: tuple[MdcValue, ...] | list[MdcValue] = ()
+    #: published MDC95 values for that section
+    mdc: tuple[MdcValue, ...] | list[MdcValue] = DEFAULT_MDC_VALUES
 
 
 @dataclass

@@ -128,8 +128,13 @@ def test_faster_session_is_flagged_in_the_right_direction(
     assert prev is not None and prev.direction == "faster" and prev.beyond_trial_noise
     same = prog.change("walking_speed_m_s", to=1)
     assert same is not None and abs(same.pct) < 3.0
-    # no MDC configured: (b) says so and never claims a verdict
-    assert speed.mdc_verdict() == NO_PUBLISHED_MDC and speed.beyond_mdc is None
+    # (b) walking speed against the default published MDC95 (0.18 m/s, Steffen & Seney
+    # 2008); +15 % of 1.25 m/s = 0.19 m/s is at that edge, so only the figure is checked
+    assert speed.mdc is not None and speed.mdc.mdc == pytest.approx(0.18)
+    assert "MDC95 0.18 m/s" in speed.mdc_verdict() and "parkinsonism" in speed.mdc.population
+    assert same.beyond_mdc is False and same.mdc_verdict() == "below MDC95 0.18 m/s"
+    # no published MDC for cadence: (b) says so and claims no verdict
+    assert cad.mdc_verdict() == NO_PUBLISHED_MDC and cad.beyond_mdc is None
     assert "improve" not in speed.describe()
 
 
@@ -184,6 +189,7 @@ def test_report_section_html_and_pdf(three_sessions: list[SessionTrials], tmp_pa
     assert "pooling hides change" in html
     assert "2026-11-26 week 8" in html and "faster by" in html
     assert "beyond trial-to-trial variability" in html and "no published MDC" in html
+    assert "Steffen T, Seney M" in html and "MDC95 0.18 m/s" in html
     assert "improve" not in html.lower()
     # one session: the report as before
     one = render_html(ReportData("P-7", three_sessions[0].trials,
