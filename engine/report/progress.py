@@ -292,8 +292,9 @@ class Change:
         if self.welch is None:
             return TOO_FEW_TRIALS
         p = "p < 0.001" if self.welch.p < 0.001 else f"p = {self.welch.p:.3f}"
-        word = "beyond" if self.welch.p < ALPHA else "within"
-        return f"{word} trial-to-trial variability ({p})"
+        if self.welch.p < ALPHA:
+            return f"beyond trial-to-trial variability ({p})"
+        return f"within trial-to-trial variability ({p})"
 
     def mdc_verdict(self) -> str:
         """Verdict (b) in words, with the MDC95."""
