@@ -543,3 +543,21 @@ def test_dialogs_keep_the_focus_and_escape_gives_it_back(page: Any, lab: Lab) ->
     page.keyboard.press("Escape")
     assert page.evaluate("document.querySelector('details.danger-zone').open") is False
     assert focus.now()[1] == "Delete this subject"
+
+
+@pytest.mark.parametrize("width", [REFLOW_WIDTH, 768])
+def test_header_with_its_menu_open_fits_a_phone_and_a_tablet(page: Any, lab: Lab,
+                                                             artifacts_dir: Path,
+                                                             width: int) -> None:
+    page.set_viewport_size({"width": width, "height": 800})
+    page.click(".user-menu summary")
+    _shown(page, "#accounts-link")
+    screenshot(page, artifacts_dir, f"a11y_menu_{width}px")
+    fits = page.evaluate("""() => {
+        const r = document.querySelector('.user-menu-items').getBoundingClientRect();
+        const b = document.getElementById('logout');
+        const w = document.documentElement.clientWidth;
+        return {page: document.documentElement.scrollWidth <= w + 1,
+                menu: r.left >= 0 && r.right <= w + 1,
+                logout: b.clientHeight < 2 * parseFloat(getComputedStyle(b).lineHeight)}; }""")
+    assert fits == {"page": True, "menu": True, "logout": True}, fits
