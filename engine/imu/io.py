@@ -917,10 +917,14 @@ def load_csv(
     need = ["gyr", "acc"] + (["mag"] if mag_unit not in (None, "none") else [])
     missing = [g for g in need if g not in groups]
     if missing:
+        bare = {h.strip().lower() for h in header} >= {"x", "y", "z"}
         raise InputError(
             f"{p.name}: missing column(s): no {' or '.join(_GROUP_NAMES[g] for g in missing)} "
             "X/Y/Z; "
-            "name them e.g. time, gyr_x, gyr_y, gyr_z, acc_x, acc_y, acc_z[, mag_x, mag_y, "
+            + ("the file holds one sensor's x, y, z (phone apps such as Sensor Logger write "
+               "one file per sensor): merge them into one CSV with " if bare else "name them "
+               "e.g. ")
+            + "time, gyr_x, gyr_y, gyr_z, acc_x, acc_y, acc_z[, mag_x, mag_y, "
             f"mag_z] (found {header})")
     if mag_unit == "none":
         groups.pop("mag", None)
@@ -1210,7 +1214,8 @@ def _drop_repeated_rows(time: FloatArray, values: FloatArray,
 def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
     """Read any supported IMU file, choosing the reader from extension and content.
 
-    ``**kwargs`` go to :func:`load_csv` (units, frequency) for text files.
+    ``**kwargs`` go to :func:`load_csv` (units, frequency) for text files; an APDM
+    ``.h5`` takes ``sensor`` (and ``quat_order``/``quat_frame``), see :func:`load_apdm`.
 
     Raises:
         InputError: unsupported file or any reader error.
@@ -1218,6 +1223,9 @@ def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
     p = Path(path)
     suf = p.suffix.lower()
     if suf in (".hdf5", ".h5"):
+        if _is_apdm(p):
+            return load_apdm(p, sensor=kwargs.get("sensor"),
+                             quat_frame=kwargs.get("quat_frame"))
         return load_broad(p)
     if suf == ".mat":
         import scipy.io
@@ -1302,3 +1310,101 @@ def fill_gaps(rec: ImuRecording, max_gap_s: float = MAX_FILLED_GAP_S) -> ImuReco
     meta = {**rec.meta, "filled_samples": n_fill}
     return ImuRecording(time=grid, gyr=gyr, acc=acc, mag=mag, frequency=fs, name=rec.name,
                         quat_ref=quat, movement=movement, meta=meta, warnings=warnings)
+
+
+def _is_apdm(p: Path) -> bool:
+    """Whether an HDF5 file has APDM's (Opal, Mobility Lab, Moveo) ``Sensors`` layout."""
+    import h5py
+
+    try:
+        with h5py.File(p, "r") as f:
+            return "Sensors" in f and "imu_gyr" not in f
+    except Exception:  # not HDF5 at all: load_broad gives the error
+        return False
+
+
+def load_apdm(path: str | Path, sensor: str | None = None,
+              quat_frame: str | None = None) -> ImuRecording:
+    """Read one sensor of an APDM HDF5 recording (file format 5: Opal, Mobility Lab,
+    Moveo Explorer).
+
+    Layout: ``Sensors/<id>/Accelerometer`` (m/s²), ``Gyroscope`` (rad/s), ``Magnetometer``
+    (µT, optional), ``Time`` (µs since 1970), ``Sensors/<id>/Configuration`` attributes
+    ``Label 0`` (e.g. ``Lumbar``) and ``Sample Rate``; ``Processed/<id>/Orientation``
+    (quaternions, scalar first), when present, becomes the reference (its earth frame and
+    direction told from gravity as for CSV columns, or ``quat_frame`` declared).
+
+    Args:
+        path: the ``.h5`` file.
+        sensor: the sensor id or its label, for a file with several sensors.
+        quat_frame: ``"ENU"`` or ``"NED"`` for the processed orientation.
+
+    Raises:
+        MultipleSensorsError: several sensors and ``sensor`` names none of them (the
+            message lists ids and labels).
+        InputError: damaged file or missing datasets.
+    """
+    import h5py
+
+    p = Path(path)
+    try:
+        with h5py.File(p, "r") as f:
+            sensors = f["Sensors"]
+            ids = list(sensors.keys())
+            labels = {}
+            for i in ids:
+                cfg = sensors[i].get("Configuration")
+                lab = cfg.attrs.get("Label 0", b"") if cfg is not None else b""
+                labels[i] = lab.decode() if isinstance(lab, bytes) else str(lab)
+            listing = ", ".join(f"{i} ({labels[i]})" if labels[i] else i for i in ids)
+            if sensor:
+                want = sensor.strip().lower()
+                hits = [i for i in ids if i.lower() == want or labels[i].lower() == want]
+                if len(hits) != 1:
+                    raise MultipleSensorsError(f"{p.name}: no sensor {sensor!r} in the file; "
+                                               f"it holds {listing}", ids)
+                sid = hits[0]
+            elif len(ids) == 1:
+                sid = ids[0]
+            else:
+                raise MultipleSensorsError(
+                    f"{p.name}: the file holds {len(ids)} sensors ({listing}); choose the "
+                    "one to read with sensor (its id or label)", ids)
+            g = sensors[sid]
+            missing = [k for k in ("Accelerometer", "Gyroscope", "Time") if k not in g]
+            if missing:
+                raise InputError(f"{p.name}: sensor {sid} lacks {', '.join(missing)}; not "
+                                 "an APDM recording (file format 5)?")
+            acc = _as_float(p, "Accelerometer", g["Accelerometer"][()])
+            gyr = _as_float(p, "Gyroscope", g["Gyroscope"][()])
+            mag = (_as_float(p, "Magnetometer", g["Magnetometer"][()])
+                   if "Magnetometer" in g else None)
+            t_us = np.asarray(g["Time"][()], dtype=np.int64)
+            cfg = g.get("Configuration")
+            rate = cfg.attrs.get("Sample Rate") if cfg is not None else None
+            quat = None
+            proc = f.get("Processed")
+            if proc is not None and sid in proc and "Orientation" in proc[sid]:
+                quat = _as_float(p, "Orientation", proc[sid]["Orientation"][()])
+    except InputError:
+        raise
+    except FileNotFoundError as e:
+        raise InputError(f"cannot read {p}: {e}") from None
+    except Exception as e:  # a damaged file can trip any part of h5py
+        raise _damaged(p, e) from None
+    # µs integers relative to the start: float64 epoch µs would keep them too, but the
+    # difference is exact
+    time = (t_us - t_us[0]).astype(float) * 1e-6 if len(t_us) else t_us.astype(float)
+    meta: dict[str, Any] = {"format": "apdm-h5", "source": str(p), "sensor": sid,
+                            "label": labels[sid], "sensors": ids, "gyr_unit": "rad/s",
+                            "acc_unit": "m/s2", "mag_unit": "uT" if mag is not None else "",
+                            "start_unix_s": float(t_us[0]) * 1e-6 if len(t_us) else None}
+    warnings: list[str] = []
+    q_ref = None
+    if quat is not None and quat.shape == (len(time), 4):
+        q_ref = _reference_quaternions(p.name, quat, True, gyr, acc, None, quat_frame, meta,
+                                       warnings)
+    rec = _finalise(time, gyr, acc, mag, labels[sid] or sid, meta, warnings,
+                    frequency=float(rate) if rate else None)
+    rec.quat_ref = q_ref
+    return rec

@@ -1,10 +1,10 @@
 """IMU page API: upload IMU files (and a depth skeleton), sync, fusion, plots, CSV.
 
 ``POST /api/imu/sessions`` (multipart) → a processed session: ``files`` (x-IMU CSV,
-Madgwick ``.mat``, BROAD ``.hdf5``/``.mat``, generic CSV with declared units), ``sensors``
-(one name per file, e.g. ``chest``, ``thigh_l``; default the file name), optional
-``skeleton`` (skeleton CSV, ``engine.io.csv``), ``filter`` (``ours`` | ``madgwick``),
-``beta``, ``synchronise``, ``n_jumps`` and, for CSV, ``gyr_unit``, ``acc_unit``,
+Madgwick ``.mat``, BROAD ``.hdf5``/``.mat``, APDM ``.h5``, generic CSV with declared
+units), ``sensors`` (one name per file, e.g. ``chest``, ``thigh_l``; default the file
+name), optional ``skeleton`` (skeleton CSV, ``engine.io.csv``), ``filter`` (``ours`` |
+``madgwick``), ``beta``, ``synchronise``, ``n_jumps`` and, for CSV, ``gyr_unit``, ``acc_unit``,
 ``mag_unit``, ``time_unit`` (``s``/``ms``/``us``/``ns``), ``frequency``: each overrides the
 unit in the file's header or the one detected from the data (``engine.imu.io.load_csv``;
 what was assumed comes back in the warnings). ``file_sensors`` picks the sensor to read
@@ -86,7 +86,8 @@ async def _save(upload: UploadFile, folder: Path, stem: str) -> Path:
     if suffix not in _ALLOWED_SUFFIXES:
         raise HTTPException(status.HTTP_400_BAD_REQUEST,
                             f"{name or 'a file'}: unsupported type {suffix or '(none)'}; upload "
-                            ".csv (x-IMU or generic), .mat (Madgwick or BROAD) or .hdf5 (BROAD)")
+                            ".csv (x-IMU or generic), .mat (Madgwick or BROAD) or .hdf5/.h5 "
+                            "(BROAD or APDM)")
     path = folder / f"{stem}{suffix}"  # never the client's name: no path traversal
     size = 0
     with path.open("wb") as fh:
@@ -299,6 +300,9 @@ def _load(path: Path, kwargs: dict[str, Any]) -> ImuRecording:
     # dropped samples filled: the filters assume a constant rate (engine.imu.io.fill_gaps)
     if path.suffix in (".csv", ".txt", ".tsv"):
         return fill_gaps(load_imu(path, **kwargs))
+    if path.suffix in (".h5", ".hdf5"):  # APDM: one sensor of several, its reference frame
+        return fill_gaps(load_imu(path, **{k: v for k, v in kwargs.items()
+                                           if k in ("sensor", "quat_frame")}))
     return fill_gaps(load_imu(path))
 
 

@@ -69,3 +69,24 @@ def test_dropped_samples_are_filled_on_upload(client: TestClient,  # noqa: F811
     own = errors(base, base.quat_ref, None)
     assert body["reference_errors"]["lab"]["total_deg"] == pytest.approx(
         own["total_deg"], abs=0.1)
+
+
+def test_apdm_file_with_two_sensors(client: TestClient, base: ImuRecording,  # noqa: F811
+                                    tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from tests.engine.imu.test_foreign_imu import write_apdm
+
+    p = write_apdm(tmp_path / "opal.h5", {"XI-010284": ("Lumbar", base),
+                                          "XI-010301": ("Foot", replace(base, quat_ref=None))})
+    content = p.read_bytes()
+    r = client.post("/api/imu/sessions", files=[("files", ("opal.h5", content, "x/h5"))],
+                    data={"synchronise": "false"})
+    assert r.status_code == 400
+    assert "XI-010284 (Lumbar), XI-010301 (Foot)" in r.json()["detail"]
+    r = client.post("/api/imu/sessions", files=[("files", ("opal.h5", content, "x/h5"))],
+                    data={"synchronise": "false", "file_sensors": "XI-010284"})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["sensors"][0]["name"] == "opal_XI-010284"
+    assert "opal_XI-010284" in (body["reference_errors"] or {})

@@ -451,3 +451,61 @@ def test_long_file_memory_is_bounded(base: ImuRecording, tmp_path: Path) -> None
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     assert peak < 6 * numbers + 8 * 2**20, (peak, numbers)
+
+
+# ------------------------------------------------------------------------- APDM
+
+
+def write_apdm(path: Path, sensors: dict[str, tuple[str, ImuRecording]]) -> Path:
+    """An APDM file format 5 HDF5 (Opal / Mobility Lab): id -> (label, recording)."""
+    import h5py
+
+    with h5py.File(path, "w") as f:
+        f.attrs["FileFormatVersion"] = 5
+        for sid, (label, r) in sensors.items():
+            g = f.create_group(f"Sensors/{sid}")
+            g["Accelerometer"] = r.acc.astype(np.float32)
+            g["Gyroscope"] = r.gyr.astype(np.float32)
+            if r.mag is not None:
+                g["Magnetometer"] = r.mag.astype(np.float32)
+            g["Time"] = (1_709_633_730_000_000 + np.round(r.time * 1e6)).astype(np.uint64)
+            cfg = g.create_group("Configuration")
+            cfg.attrs["Label 0"] = label.encode()
+            cfg.attrs["Sample Rate"] = np.uint16(round(r.frequency))
+            if r.quat_ref is not None:
+                f[f"Processed/{sid}/Orientation"] = r.quat_ref.astype(np.float32)
+    return path
+
+
+def test_apdm_h5(base: ImuRecording, truth: dict[str, Any], tmp_path: Path) -> None:
+    """Two Opals in one file: refused with their ids and labels until one is chosen (by
+    id or label); float32 storage, its own processed orientation as the reference."""
+    other = replace(base, quat_ref=None, mag=None)
+    p = write_apdm(tmp_path / "opal.h5", {"XI-010284": ("Lumbar", base),
+                                          "XI-010301": ("Right Foot", other)})
+    with pytest.raises(InputError, match=r"XI-010284 \(Lumbar\), XI-010301 \(Right Foot\)"):
+        load_imu(p)
+    rec = load_imu(p, sensor="lumbar")
+    assert rec.meta["format"] == "apdm-h5" and rec.meta["sensor"] == "XI-010284"
+    assert rec.name == "Lumbar" and len(rec) == len(base)
+    assert np.allclose(rec.time, base.time - base.time[0], atol=1e-6)
+    assert np.allclose(rec.gyr, base.gyr, rtol=1e-6, atol=1e-6)  # float32 in the file
+    e = errors(rec, base.quat_ref, base.movement)  # type: ignore[arg-type]
+    assert e["total_deg"] == pytest.approx(truth["9d"]["total_deg"], abs=0.05)
+    assert rec.quat_ref is not None
+    own = errors(rec, rec.quat_ref, base.movement)
+    assert own["total_deg"] == pytest.approx(truth["9d"]["total_deg"], abs=0.05)
+    foot = load_imu(p, sensor="XI-010301")
+    assert foot.mag is None and foot.quat_ref is None
+    with pytest.raises(InputError, match="no sensor 'hand'"):
+        load_imu(p, sensor="hand")
+
+
+def test_one_file_per_sensor_is_named(tmp_path: Path) -> None:
+    """Phone loggers (Sensor Logger) write Gyroscope.csv, Accelerometer.csv … with bare
+    x, y, z: the error says to merge them."""
+    p = tmp_path / "Gyroscope.csv"
+    p.write_text("time,seconds_elapsed,z,y,x\n1700000000000000000,0.0,0.1,0.2,0.3\n"
+                 "1700000000010000000,0.01,0.1,0.2,0.3\n")
+    with pytest.raises(InputError, match=r"one file per sensor.*merge them"):
+        load_imu(p)
