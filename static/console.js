@@ -215,6 +215,12 @@ const gaitrig = (() => {
     document.getElementById("token-warning").hidden = !sys.node_token_is_default;
     backupNotice(sys);
     const nodeSeq = newest();
+    // #summary is a live region: the same text written again every second was read out
+    // again by screen readers; only a change is written
+    const say = (text) => {
+      const s = document.getElementById("summary");
+      if (s.textContent !== text) s.textContent = text;
+    };
     async function refresh() {
       const n = nodeSeq.ask();
       try {
@@ -224,10 +230,9 @@ const gaitrig = (() => {
         body.replaceChildren(...nodes.map((n) => row(n, sys.clock_warn_ms)));
         const online = nodes.filter((n) => n.connected).length;
         const clockBad = nodes.filter((n) => n.connected && n.clock_warning).length;
-        document.getElementById("summary").textContent =
-          `${online} of ${nodes.length} sensors online.` +
-          (clockBad ? ` ${clockBad} with a clock uncertainty above ${sys.clock_warn_ms} ms.` : "");
-      } catch (e) { document.getElementById("summary").textContent = "The sensor list is not up to date: " + e.message; }
+        say(`${online} of ${nodes.length} sensors online.` +
+          (clockBad ? ` ${clockBad} with a clock uncertainty above ${sys.clock_warn_ms} ms.` : ""));
+      } catch (e) { say("The sensor list is not up to date: " + e.message); }
     }
     const recBtn = document.getElementById("record");
     let active = null;

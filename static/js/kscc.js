@@ -102,10 +102,13 @@
   // ------------------------------------------------------------------ render
   function renderSide(box, s) {
     const q = (c) => box.querySelector(c);
-    if (!s) { q(".message").textContent = "Not started."; q(".countdown").textContent = ""; q("progress").value = 0;
+    // .message and .countdown are live regions, redrawn many times a second: only a
+    // change is written (the same words written again are read out again)
+    const put = (c, text) => { if (q(c).textContent !== text) q(c).textContent = text; };
+    if (!s) { put(".message", "Not started."); put(".countdown", ""); q("progress").value = 0;
       q(".state").textContent = ""; q(".count").textContent = ""; q(".cal").textContent = ""; q(".src").textContent = ""; return; }
     q(".src").textContent = "— " + s.source + (s.kind === "remote" ? ` (link: ${s.link})` : "");
-    q(".countdown").textContent = s.countdown_s > 0 ? Math.ceil(s.countdown_s) + " s" : "";
+    put(".countdown", s.countdown_s > 0 ? Math.ceil(s.countdown_s) + " s" : "");
     const p = s.progress;
     const state = s.calibrated ? "done" : p ? p.state : "waiting";
     q(".state").textContent = STATES[state] || state;
@@ -113,7 +116,7 @@
     q("progress").max = p ? p.n_required : 120;
     q("progress").value = s.calibrated ? q("progress").max : p ? p.n_collected : 0;
     q(".count").textContent = p ? `${s.calibrated ? p.n_required : p.n_collected}/${p.n_required}` : "";
-    q(".message").textContent = s.message;
+    put(".message", s.message);
     const c = s.calibration;
     q(".cal").textContent = c ? `Initial angle to the sensor ${c.initial_angle_deg === null ? "—" : c.initial_angle_deg.toFixed(1) + "°"}; centre ${c.centre_m.map((v) => v.toFixed(2)).join(", ")} m; ${s.frames} frames (${s.joint_set}).` : "";
   }

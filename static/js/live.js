@@ -69,8 +69,13 @@
     const lats = ids.map((k) => stats.nodes[k].latency_ms).filter((v) => v !== null);
     const el = document.getElementById("live-summary");
     stats.latency_ms = lats.length ? median(lats) : null;
-    if (!stats.connected) { el.textContent = "Live stream disconnected; reconnecting…"; return; }
-    if (!ids.length) { el.textContent = "Connected; waiting for the first depth images…"; return; }
+    // a screen reader hears the stream's state when it changes, not every new latency
+    const state = !stats.connected ? "Live stream disconnected; reconnecting…"
+      : !ids.length ? "Connected; waiting for the first depth images…"
+      : `${gaitrig.plural(ids.length, "sensor")} streaming.`;
+    const live = document.getElementById("live-state");
+    if (live && live.textContent !== state) live.textContent = state;
+    if (!stats.connected || !ids.length) { el.textContent = state; return; }
     const worst = lats.length ? Math.max(...lats) : null;
     el.textContent = `${ids.length} sensor${ids.length > 1 ? "s" : ""} streaming; capture-to-screen latency ` +
       (lats.length ? `median ${median(lats).toFixed(0)} ms, worst sensor ${worst.toFixed(0)} ms` : "measuring…") +

@@ -6,6 +6,8 @@
   const api = gaitrig.api;
   const $ = (id) => document.getElementById(id);
   const el = gaitrig.el;
+  // a live region rewritten with the same text is read out again: only changes are written
+  function sayOnce(node, text) { if (node.textContent !== text) node.textContent = text; }
   function say(id, text, good = false) { const m = $(id); m.textContent = text; m.className = "msg " + (good ? "good" : "bad"); }
   const STATE_TEXT = { recording: "recording", on_nodes: "on the sensors, waiting for transfer", transferring: "transferring to the server",
     complete: "complete — every part verified on the server", incomplete: "incomplete", on_node: "on the node", pending: "starting" };
@@ -97,10 +99,10 @@
     try {
       const ns = await api("/api/nodes");
       const ready = ns.filter((n) => n.connected && n.clock_offset_ms !== null);
-      $("nodes-summary").textContent = ns.length
+      sayOnce($("nodes-summary"), ns.length
         ? `${ready.length} of ${ns.length} sensors ready to record (${ready.map((n) => n.id).join(", ") || "none"}).`
-        : "No sensor has connected yet; start the nodes (see the Rig page).";
-    } catch (e) { $("nodes-summary").textContent = "The sensor list is not up to date: " + e.message; }
+        : "No sensor has connected yet; start the nodes (see the Rig page).");
+    } catch (e) { sayOnce($("nodes-summary"), "The sensor list is not up to date: " + e.message); }
   }
 
   function fmtTime(s) { const m = Math.floor(s / 60); return `${m}:${(s - m * 60).toFixed(1).padStart(4, "0")}`; }
@@ -159,8 +161,10 @@
         api(`/api/recordings/${recId}`).catch(() => null)]);
       if (!chain.current(mine)) return;
       recStart = r.t_start; recStop = r.t_stop;
-      $("rec-state").replaceChildren(el("span", { class: "badge st-" + r.state, id: "state-badge", "data-state": r.state }, STATE_TEXT[r.state] || r.state),
-        r.reason ? el("span", { class: "reason" }, " " + r.reason) : "");
+      const badge = $("state-badge");  // (redrawn only when it changed: a live region)
+      if (!badge || badge.dataset.state !== r.state || badge.dataset.reason !== (r.reason || ""))
+        $("rec-state").replaceChildren(el("span", { class: "badge st-" + r.state, id: "state-badge", "data-state": r.state, "data-reason": r.reason || "" }, STATE_TEXT[r.state] || r.state),
+          r.reason ? el("span", { class: "reason" }, " " + r.reason) : "");
       const lparts = new Map((live ? live.parts : []).map((p) => [p.node_id, p]));
       $("parts").replaceChildren(...r.parts.map((p) => partRow(p, lparts.get(p.node_id))));
       $("parts-table").hidden = false;  // (headings over nothing before the first recording)

@@ -561,3 +561,28 @@ def test_header_with_its_menu_open_fits_a_phone_and_a_tablet(page: Any, lab: Lab
                 menu: r.left >= 0 && r.right <= w + 1,
                 logout: b.clientHeight < 2 * parseFloat(getComputedStyle(b).lineHeight)}; }""")
     assert fits == {"page": True, "menu": True, "logout": True}, fits
+
+
+@pytest.mark.parametrize("name", ["rig", "record", "live"])
+def test_live_regions_speak_only_of_changes(page: Any, lab: Lab, name: str) -> None:
+    """The pages that poll: a live region (``role=status``/``alert``, ``aria-live``) is
+    not rewritten with the words it already holds (screen readers read them out again,
+    every second) and does not change more than twice in 6 s when nothing happens."""
+    STATES[name](page, lab)
+    page.evaluate("""() => {
+        window.liveNoise = {};
+        const sel = '[aria-live]:not([aria-live=off]), [role=status], [role=alert]';
+        for (const r of document.querySelectorAll(sel)) {
+            const key = r.id || r.className || r.tagName;
+            let last = r.textContent;
+            new MutationObserver(() => {
+                const now = r.textContent, n = window.liveNoise[key] || {same: 0, changed: 0};
+                if (now === last) n.same += 1; else n.changed += 1;
+                window.liveNoise[key] = n;
+                last = now;
+            }).observe(r, {childList: true, subtree: true, characterData: true});
+        } }""")
+    page.wait_for_timeout(6000)
+    noise = page.evaluate("window.liveNoise")
+    loud = {k: v for k, v in noise.items() if v["same"] or v["changed"] > 2}
+    assert not loud, f"live regions of {name} that speak without news: {loud}"
