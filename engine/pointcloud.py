@@ -468,8 +468,12 @@ def _read_pcd(p: Path) -> tuple[FloatArray, NDArray[np.uint8] | None, FloatArray
     colour = next((k for k in ("rgb", "rgba") if k in names), None)
     if colour is not None:
         packed = rec[colour]
-        bits = (packed.view(np.uint32) if packed.dtype.itemsize == 4
-                else packed.astype(np.uint32))  # F 4 rgb is the same bits read as a float
+        if header["TYPE"][names.index(colour)].upper() == "F":
+            # PCL's default: the packed bytes stored as a float32 (ascii: its value, a
+            # tiny or denormal number; read as f8 above) — the bits are the colour
+            bits = np.ascontiguousarray(packed.astype(np.float32)).view(np.uint32)
+        else:
+            bits = packed.astype(np.uint32)
         cols = np.stack([(bits >> 16) & 255, (bits >> 8) & 255, bits & 255],
                         axis=1).astype(np.uint8)
     elif all(c in names for c in ("r", "g", "b")):

@@ -90,11 +90,12 @@ def write_ply(path: Path, pts: np.ndarray, colors: np.ndarray | None = None,
 
 def write_pcd(path: Path, pts: np.ndarray, colors: np.ndarray | None = None,
               normals: np.ndarray | None = None, *, data: str = "ascii",
-              double: bool = False, nan_rows: int = 0) -> Path:
+              double: bool = False, nan_rows: int = 0, float_rgb: bool = False) -> Path:
+    """``float_rgb``: the packed colour typed ``F 4`` (PCL's default), else ``U 4``."""
     f = "f8" if double else "f4"
     fields = [(a, f) for a in "xyz"]
     fields += [(f"normal_{a}", f) for a in "xyz"] if normals is not None else []
-    fields += [("rgb", "u4")] if colors is not None else []
+    fields += [("rgb", "f4" if float_rgb else "u4")] if colors is not None else []
     n = len(pts) + nan_rows
     P = np.vstack([pts, np.full((nan_rows, 3), np.nan)])  # an organised cloud's holes
     cols = [P[:, k] for k in range(3)]
@@ -103,7 +104,8 @@ def write_pcd(path: Path, pts: np.ndarray, colors: np.ndarray | None = None,
         cols += [N[:, k] for k in range(3)]
     if colors is not None:
         C = np.vstack([colors, np.zeros((nan_rows, 3), np.uint8)]).astype(np.uint32)
-        cols.append((C[:, 0] << 16) | (C[:, 1] << 8) | C[:, 2])
+        packed = (C[:, 0] << 16) | (C[:, 1] << 8) | C[:, 2]
+        cols.append(packed.view(np.float32) if float_rgb else packed)
     head = ["# .PCD v0.7 - Point Cloud Data file format", "VERSION 0.7",
             "FIELDS " + " ".join(n_ for n_, _ in fields),
             "SIZE " + " ".join(t[1] for _, t in fields),
@@ -144,6 +146,8 @@ CLOUDS = {
     "pcd_binary_double": dict(ext="pcd", data="binary", double=True),
     "pcd_compressed_float": dict(ext="pcd", data="binary_compressed", double=False),
     "pcd_compressed_double": dict(ext="pcd", data="binary_compressed", double=True),
+    "pcd_ascii_float_rgb": dict(ext="pcd", data="ascii", double=False, float_rgb=True),
+    "pcd_binary_float_rgb": dict(ext="pcd", data="binary", double=True, float_rgb=True),
 }
 
 
@@ -201,6 +205,9 @@ def test_real_pcd_files_read_as_open3d_does(shared_data: Path) -> None:
         got = load_point_cloud(shared_data / rel)
         assert np.array_equal(got.points, np.asarray(ref.points))
         assert got.normals is not None and np.allclose(got.normals, np.asarray(ref.normals))
+        if ref.has_colors():  # the feature clouds' rgb is PCL's float-typed packed colour
+            assert got.colors is not None
+            assert np.abs(got.colors - np.asarray(ref.colors) * 255).max() <= 0.5
 
 
 def test_bad_cloud_files_are_named(tmp_path: Path) -> None:
