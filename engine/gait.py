@@ -49,6 +49,16 @@ MAX_STRAIGHT_TURN_RATE = 60.0
 #: A pass shorter than this (s) or travelling less than MIN_PASS_M is dropped.
 MIN_PASS_S = 0.8
 MIN_PASS_M = 0.5
+#: Below this sampling rate (Hz) the events are Zeni's extrema (sub-frame, parabolic)
+#: without the velocity refinements (heel landing, toe's fastest rise). A velocity peak or
+#: threshold crossing of a foot lifting off or landing — a change within ≈ 50–100 ms — is
+#: resolved by a handful of samples at 100 Hz but by two or three at 30 Hz, and a Kinect
+#: skeleton is also low-passed at 6 Hz: on the walker's true joints the toe-rise time
+#: moved 18 → 53 → 79 ms late from 100 Hz to 30 Hz to 30 Hz filtered, and on fused 30 Hz
+#: skeletons its SD was 29–38 ms against 9–18 ms for Zeni's minimum, whose timing did not
+#: depend on the rate (within 2 ms; bench/gait_events.py). 50 Hz keeps every rate of a
+#: marker system (≥ 60 Hz) refined.
+MIN_REFINE_RATE_HZ = 50.0
 #: Consecutive foot placements closer than this fraction of the median step time, or
 #: than MIN_STEP_S, are a glitch (a step is ≥ 0.25 s even at a running cadence of
 #: 240 steps/min; step-time CV in gait is ≈ 3-10 %, so 40 % of the median is never a step).
@@ -298,6 +308,88 @@ def _peaks(t: FloatArray, y: FloatArray, rate: float, height: float, prominence:
     return out
 
 
+@dataclass(frozen=True)
+class GaitCycle:
+    """One gait cycle of a foot: from its strike to its next strike, with its foot off.
+
+    Attributes:
+        side: the foot, ``"L"`` or ``"R"``.
+        time_s: its foot strike that starts the cycle (s, the input's time axis).
+        duration_s: to the same foot's next strike (stride time, s).
+        stance_s: strike to foot off (s); swing is ``duration_s - stance_s``.
+        double_support_s: both feet on the floor within the cycle (s): from the strike to
+            the other foot's off, plus from the other foot's strike to this foot's off;
+            None when the other foot's events are not both found in between.
+    """
+
+    side: str
+    time_s: float
+    duration_s: float
+    stance_s: float
+    double_support_s: float | None
+
+    @property
+    def stance_pct(self) -> float:
+        """Stance in % of the cycle."""
+        return 100.0 * self.stance_s / self.duration_s
+
+    @property
+    def swing_pct(self) -> float:
+        """Swing in % of the cycle."""
+        return 100.0 - self.stance_pct
+
+    @property
+    def double_support_pct(self) -> float | None:
+        """Double support in % of the cycle (None when not computable)."""
+        if self.double_support_s is None:
+            return None
+        return 100.0 * self.double_support_s / self.duration_s
+
+
+#: A strike-to-strike interval longer than this (s) spans missed events, not one cycle.
+MAX_CYCLE_S = 2.5
+
+
+def gait_cycles(events: list[Any]) -> list[GaitCycle]:
+    """Gait cycles from foot strikes and foot offs (``side``, ``kind``, ``time_s``).
+
+    A cycle runs from a foot's strike to its next strike (at most :data:`MAX_CYCLE_S`)
+    with exactly one foot off of that foot in between; other cycles (a missed or extra
+    event) are left out. Works on :class:`GaitEvent` and on any event objects of the same
+    shape (e.g. :class:`engine.io.markers.MarkerEvent`, a simulation's true events).
+
+    Args:
+        events: gait events, in any order; kinds other than ``"foot_strike"`` and
+            ``"foot_off"`` are ignored.
+
+    Returns:
+        The cycles of both feet, sorted by their starting strike.
+    """
+    fs = {s: sorted(e.time_s for e in events if e.kind == "foot_strike" and e.side == s)
+          for s in "LR"}
+    fo = {s: sorted(e.time_s for e in events if e.kind == "foot_off" and e.side == s)
+          for s in "LR"}
+    out: list[GaitCycle] = []
+    for s in "LR":
+        o = "R" if s == "L" else "L"
+        for a, b in itertools.pairwise(fs[s]):
+            cyc = b - a
+            if cyc <= 0 or cyc > MAX_CYCLE_S:
+                continue
+            offs = [x for x in fo[s] if a < x < b]
+            if len(offs) != 1:
+                continue
+            # Double support: from own strike to the other foot's off, and from the
+            # other foot's strike to own off.
+            o_off = [x for x in fo[o] if a < x < offs[0]]
+            o_fs = [x for x in fs[o] if a < x < offs[0]]
+            ds = ((o_off[0] - a) + (offs[0] - o_fs[0])
+                  if len(o_off) == 1 and len(o_fs) == 1 and o_off[0] < o_fs[0] else None)
+            out.append(GaitCycle(s, float(a), float(cyc), float(offs[0] - a),
+                                 None if ds is None else float(ds)))
+    return sorted(out, key=lambda c: c.time_s)
+
+
 class GaitAnalysis:
     """Gait events, steps, strides and summary from per-foot trajectories.
 
@@ -321,6 +413,11 @@ class GaitAnalysis:
             for the rest of the stance (:data:`STANCE_MAX_HALF_S`), instead of its
             position at the crossing instant (0: the paper's rule); the crossing time is then
             refined to where the swinging foot passes that position.
+        refine_events: heel-strike method: move Zeni's events to the heel's landing and
+            the toe's fastest rise. ``"auto"`` (default) does so at rates of at least
+            :data:`MIN_REFINE_RATE_HZ`, the landing only for a heel point (an ankle stops
+            descending at foot flat, not at contact); ``True`` always (for any point and
+            rate), ``False`` never (Zeni's extrema, sub-frame interpolated).
         direction: a fixed walking direction ``(x, y)`` on the floor (e.g. a walkway's
             axis in the lab frame) along which lengths and widths are measured in every
             pass; None (default) finds it per pass from the footprints. A fixed axis
@@ -345,7 +442,8 @@ class GaitAnalysis:
     def __init__(self, method: Method = "crossing",
                  exclude_first: bool | Literal["auto", "L", "R"] = "auto",
                  min_event_period_s: float = 0.4, placement_window_s: float = 0.3,
-                 direction: tuple[float, float] | None = None) -> None:
+                 direction: tuple[float, float] | None = None,
+                 refine_events: bool | Literal["auto"] = "auto") -> None:
         if method not in ("crossing", "heelstrike"):
             raise InputError(f"method must be 'crossing' or 'heelstrike', got {method!r}")
         if exclude_first not in (True, False, "auto", "L", "R"):
@@ -353,6 +451,9 @@ class GaitAnalysis:
         self.method: Method = method
         self.exclude_first = exclude_first
         self.min_event_period_s = float(min_event_period_s)
+        if refine_events not in (True, False, "auto"):
+            raise InputError("refine_events must be True, False or 'auto'")
+        self.refine_events = refine_events
         if not 0.0 <= placement_window_s <= 0.3:
             raise InputError("placement_window_s must be within [0, 0.3] s")
         self.placement_window_s = float(placement_window_s)
@@ -675,9 +776,18 @@ class GaitAnalysis:
         d, _ = self._frame(wp)
         pe = _PassEvents()
         strikes: list[tuple[str, float]] = []
+        # The velocity refinements need a rate that resolves a foot's landing and lift-off
+        # (see MIN_REFINE_RATE_HZ); below it Zeni's extrema, interpolated, are the events.
+        auto = self.refine_events == "auto"
+        refine = feet.rate >= MIN_REFINE_RATE_HZ if auto else bool(self.refine_events)
         for side in ("L", "R"):
             heel = feet.point_for(side, ("explicit", "heel", "ankle"))
             toe = feet.point_for(side, ("toe", "explicit", "heel", "ankle"))
+            # An ankle stops descending at foot flat (≈ 8 % of the cycle after contact,
+            # Perry & Burnfield), not at heel contact: the landing refinement is for a
+            # heel point (or one named by the user) only.
+            heel_like = (not auto or "explicit" in feet.points[side]
+                         or "heel" in feet.points[side])
             rel_h = (heel - centre) @ d
             rel_t = (toe - centre) @ d
             rel_h[~m] = np.nan
@@ -691,9 +801,10 @@ class GaitAnalysis:
                 prom = max(0.01, 0.1 * rng)
                 for tt in _peaks(t, y, feet.rate, height, prom, self.min_event_period_s):
                     if store == "fs":
-                        strikes.append((side, self._refine_strike(t, heel, tt)))
+                        strikes.append((side, self._refine_strike(t, heel, tt)
+                                        if refine and heel_like else tt))
                     else:
-                        pe.offs.append((side, self._refine_off(t, toe, tt)))
+                        pe.offs.append((side, self._refine_off(t, toe, tt) if refine else tt))
         strikes.sort(key=lambda x: x[1])
         for side, tt in strikes:
             other = "R" if side == "L" else "L"
@@ -973,28 +1084,10 @@ class GaitAnalysis:
         none = {"stance_pct": None, "swing_pct": None, "double_support_pct": None}
         if self.method != "heelstrike":
             return none
-        ev = self.events_
-        fs = {s: [e.time_s for e in ev if e.kind == "foot_strike" and e.side == s]
-              for s in "LR"}
-        fo = {s: [e.time_s for e in ev if e.kind == "foot_off" and e.side == s] for s in "LR"}
-        stance: dict[str, list[float]] = {"L": [], "R": []}
-        dsup: list[float] = []
-        for s in "LR":
-            o = "R" if s == "L" else "L"
-            for a, b in zip(fs[s][:-1], fs[s][1:], strict=True):
-                cyc = b - a
-                if cyc <= 0 or cyc > 2.5:
-                    continue
-                offs = [x for x in fo[s] if a < x < b]
-                if len(offs) != 1:
-                    continue
-                stance[s].append(100.0 * (offs[0] - a) / cyc)
-                # Double support: from own strike to the other foot's off, and from the
-                # other foot's strike to own off.
-                o_off = [x for x in fo[o] if a < x < offs[0]]
-                o_fs = [x for x in fs[o] if a < x < offs[0]]
-                if len(o_off) == 1 and len(o_fs) == 1 and o_off[0] < o_fs[0]:
-                    dsup.append(100.0 * ((o_off[0] - a) + (offs[0] - o_fs[0])) / cyc)
+        cycles = gait_cycles(self.events_)
+        stance: dict[str, list[float]] = {
+            s: [c.stance_pct for c in cycles if c.side == s] for s in "LR"}
+        dsup = [d for c in cycles if (d := c.double_support_pct) is not None]
         allst = stance["L"] + stance["R"]
         if not allst:
             return none
