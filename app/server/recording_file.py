@@ -42,8 +42,8 @@ CLOSE = b"]\n"
 SLACK_LINES = 1000
 
 
-def _fsync_dir(folder: Path) -> None:
-    """Make a rename in ``folder`` durable (a no-op where folders cannot be opened)."""
+def fsync_dir(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (POSIX; a no-op where folders cannot be opened)."""
     try:
         fd = os.open(folder, os.O_RDONLY)
     except OSError:
@@ -211,6 +211,6 @@ class RecordingFile:
         except OSError:
             self._end = None  # the next write rewrites again
             raise
-        _fsync_dir(self.path.parent)
+        fsync_dir(self.path.parent)
         self._end = len(HEADER) + len(body)
         self._n_lines = len(self._lines)

@@ -37,6 +37,7 @@ from app.api.routes._data import (
 )
 from app.db import data as m
 from app.server import erasures
+from app.server.recording_file import fsync_dir
 from app.server.storage import (
     check_id,
     depth_frames,
@@ -184,7 +185,7 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
                                 f"{name!r} is not a readable {ext.upper()} file: {exc}") from exc
         try:
             os.replace(tmp, path)
-            _fsync_dir(folder)
+            fsync_dir(folder)
         except OSError as exc:
             raise HTTPException(status.HTTP_507_INSUFFICIENT_STORAGE,
                                 f"{name!r} could not be stored on the server "
@@ -217,20 +218,6 @@ def _sweep_stale_uploads(folder: Path) -> None:
         with contextlib.suppress(OSError):
             if now - p.stat().st_mtime > _STALE_UPLOAD_S:
                 p.unlink()
-
-
-def _fsync_dir(folder: Path) -> None:
-    """Make a rename in ``folder`` durable (POSIX; a no-op where folders cannot be opened)."""
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def _ref(db: DbDep, rec_id: str, ref_id: int) -> m.ReferenceImport:
