@@ -175,16 +175,16 @@ def test_a_node_gone_before_its_welcome_is_not_left_connected(tmp_path: Path) ->
 # --------------------------------------------------------------------------- real server
 
 
-@pytest.fixture
-def server(tmp_path: Path) -> Iterator[tuple[Settings, Hub]]:
-    """A real server on a loopback port (all of 127.0.0.0/8 reaches it), and its hub."""
+def free_port() -> int:
+    """A loopback port nothing listens on at the moment."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        port = int(s.getsockname()[1])
-    settings = Settings(data_dir=tmp_path / "server", viewer_enabled=False,
-                        node_token=NODE_TOKEN, admin_password="secret-pw", port=port)
-    (tmp_path / "server").mkdir()
-    app = create_app(settings)
+        return int(s.getsockname()[1])
+
+
+@contextlib.contextmanager
+def serving(app: Any, port: int) -> Iterator[None]:
+    """``app`` served by uvicorn on ``127.0.0.1:port`` in a thread, until the block ends."""
     srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port,
                                         log_level="warning"))
     th = threading.Thread(target=srv.run, daemon=True)
@@ -194,10 +194,22 @@ def server(tmp_path: Path) -> Iterator[tuple[Settings, Hub]]:
         assert time.monotonic() < deadline, "server did not start"
         time.sleep(0.05)
     try:
-        yield settings, app.state.hub
+        yield
     finally:
         srv.should_exit = True
         th.join(10)
+
+
+@pytest.fixture
+def server(tmp_path: Path) -> Iterator[tuple[Settings, Hub]]:
+    """A real server on a loopback port (all of 127.0.0.0/8 reaches it), and its hub."""
+    port = free_port()
+    settings = Settings(data_dir=tmp_path / "server", viewer_enabled=False,
+                        node_token=NODE_TOKEN, admin_password="secret-pw", port=port)
+    (tmp_path / "server").mkdir()
+    app = create_app(settings)
+    with serving(app, port):
+        yield settings, app.state.hub
 
 
 @contextlib.asynccontextmanager

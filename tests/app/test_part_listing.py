@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import asyncio
 import json
-import socket
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import uvicorn
 
 from app.config import Settings
 from app.main import create_app
@@ -28,6 +26,7 @@ from app.nodes.protocol import (
 )
 from app.nodes.store import NodeStore
 from tests.app.test_agent import _Scripted  # a sensor that sends nothing
+from tests.app.test_hub_connections import free_port, serving
 
 N_PARTS = 260  # more than the 200 a hello used to carry
 NODE_TOKEN = "test-node-token"
@@ -67,25 +66,12 @@ def server(tmp_path: Path) -> Iterator[tuple[Settings, object]]:
              "parts": {"S1": {"node_id": "S1", "state": "recording"}}}
             for k in range(N_PARTS)]
     (data / "recordings.json").write_text(json.dumps(recs))
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = int(s.getsockname()[1])
+    port = free_port()
     settings = Settings(data_dir=data, viewer_enabled=False, node_token=NODE_TOKEN,
                         admin_password="secret-pw", port=port)
     app = create_app(settings)
-    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port,
-                                        log_level="warning"))
-    th = threading.Thread(target=srv.run, daemon=True)
-    th.start()
-    deadline = time.monotonic() + WAIT_S
-    while not srv.started:
-        assert time.monotonic() < deadline, "server did not start"
-        time.sleep(0.05)
-    try:
+    with serving(app, port):
         yield settings, app
-    finally:
-        srv.should_exit = True
-        th.join(10)
 
 
 def test_a_node_holding_more_parts_than_one_message_lists_them_all(
