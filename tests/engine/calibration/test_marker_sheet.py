@@ -54,13 +54,19 @@ def test_png_page_of_eight_markers_is_detected_at_true_size(tmp_path: Path) -> N
     """Eight 5 cm markers on one A4 page: all found, each 5 cm wide at 300 dpi."""
     files = write_marker_sheet("1-8", 0.05, tmp_path / "m.png", dpi=300)
     assert len(files) == 1
-    img = cv2.imread(str(files[0]), cv2.IMREAD_GRAYSCALE)
+    # (the detector's corners: ±0.8 mm at 5 cm)
+    _assert_eight_markers_of_5_cm(files[0], dpi=300, tol_m=0.001)
+
+
+def _assert_eight_markers_of_5_cm(png: Path, dpi: int, tol_m: float) -> None:
+    """The page image ``png`` (at ``dpi``) shows markers 1-8, each edge 5 cm ± ``tol_m``."""
+    img = cv2.imread(str(png), cv2.IMREAD_GRAYSCALE)
     ds = detect_markers(img)
     assert ds.ids == list(range(1, 9))
     for m in ds.markers:
         c = m.corners_px
-        edge_m = np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean() / 300 * 0.0254
-        assert abs(edge_m - 0.05) < 0.001  # (the detector's corners: ±0.8 mm at 5 cm)
+        edge_m = np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean() / dpi * 0.0254
+        assert abs(edge_m - 0.05) < tol_m, (m.id, edge_m)
 
 
 def _streams(pdf: bytes) -> list[bytes]:
@@ -94,10 +100,4 @@ def test_pdf_rasterised_by_another_renderer_is_detected(tmp_path: Path) -> None:
                    check=True, timeout=60)
     pages = sorted(tmp_path.glob("p*.png"))
     assert len(pages) == 1
-    img = cv2.imread(str(pages[0]), cv2.IMREAD_GRAYSCALE)
-    ds = detect_markers(img)
-    assert ds.ids == list(range(1, 9))
-    for m in ds.markers:
-        c = m.corners_px
-        edge_m = np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean() / 200 * 0.0254
-        assert abs(edge_m - 0.05) < 0.0012
+    _assert_eight_markers_of_5_cm(pages[0], dpi=200, tol_m=0.0012)
