@@ -23,10 +23,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from engine.calibration.corners3d import CornerParams, Observation, SensorFrames, observe_sensor
+from engine.calibration.corners3d import (
+    CornerParams,
+    Observation,
+    SensorFrames,
+    observe_sensor,
+    robust_mean_image,
+)
 from engine.calibration.graph import build_edges, chain_poses, check_connectivity
 from engine.calibration.icp import IcpReport, refine_with_icp
-from engine.calibration.markers import DEFAULT_DICTIONARY
+from engine.calibration.markers import DEFAULT_DICTIONARY, dictionary_name
 from engine.calibration.posegraph import optimise_poses
 from engine.errors import CalibrationError, InputError
 from engine.pointcloud import depth_to_points
@@ -216,11 +222,32 @@ def calibrate_frames(
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="calib") as ex:
         done = list(ex.map(per_sensor, frames))
     obs = [o for sensor_obs, _ in done for o in sensor_obs]
+    if not obs:
+        _no_markers_anywhere(frames, dictionary)
     res = calibrate(obs, marker_sizes, ids, origin_marker, floor_sigma_m, dictionary)
     if icp:
         apply_icp(res, {f.sensor_id: c for f, (_, c) in zip(frames, done, strict=True)
                         if c is not None})
     return res
+
+
+def _no_markers_anywhere(frames: Sequence[SensorFrames], dictionary: str) -> None:
+    """CalibrationError naming the dictionary the printed markers are from, when no sensor
+    saw one of ``dictionary`` but another dictionary finds markers in a sensor's image;
+    returns otherwise (the usual error follows)."""
+    from engine.calibration.detect import find_dictionary
+
+    for f in frames:
+        if not len(f.colors):
+            continue
+        found = find_dictionary(robust_mean_image(f.colors), exclude=dictionary)
+        if found is not None:
+            raise CalibrationError(
+                f"no sensor sees a {dictionary_name(dictionary)} marker, but {f.sensor_id} "
+                f"sees {found[1]} {found[0]} marker(s): the markers were printed from "
+                f"another dictionary; set the dictionary to {found[0]} (or print "
+                f"{dictionary_name(dictionary)} markers) and capture again",
+                unreachable=[g.sensor_id for g in frames])
 
 
 #: Voxel (m) of the ICP refinement's clouds.

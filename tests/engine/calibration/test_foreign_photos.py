@@ -300,3 +300,17 @@ def test_no_markers_at_all_and_find_dictionary(ref: Ref) -> None:
     assert find_dictionary(blank) is None
     found = find_dictionary(ref.photos["chocclusion_original"])
     assert found == (DICT, len(OCCLUDED_IDS))
+
+
+def test_calibration_with_the_wrong_dictionary_names_the_printed_one() -> None:
+    """The simulated room's 4×4 markers calibrated as 6×6: no sensor sees a marker, and
+    the error says which dictionary they were printed from (not 'no chain to marker 1')."""
+    from engine.calibration.pipeline import calibrate_frames
+    from engine.calibration.simcapture import render_sensor_frames
+    from engine.errors import CalibrationError
+    from engine.sim.rig import default_avenue_rig
+
+    rig = default_avenue_rig(0)
+    frames = [render_sensor_frames(rig.sensor("S1"), rig, 2, None)]
+    with pytest.raises(CalibrationError, match="set the dictionary to DICT_4X4_50"):
+        calibrate_frames(frames, 0.2, dictionary="6x6_250", icp=False)
