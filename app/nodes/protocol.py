@@ -104,6 +104,13 @@ class SensorInfo(BaseModel):
 PART_REASON_CHARS = 500
 
 
+def _cut(v: Any, chars: int) -> Any:
+    """``v`` cut to ``chars`` characters ending in "…" if it is a longer string, else as is."""
+    if isinstance(v, str) and len(v) > chars:
+        return v[:chars - 1] + "…"
+    return v
+
+
 class PartInfo(BaseModel):
     """A recording part as held by a node (times in the node's local clock).
 
@@ -125,9 +132,7 @@ class PartInfo(BaseModel):
     @classmethod
     def _cut_reason(cls, v: Any) -> Any:
         # cut rather than refuse: the reason is for a person, the part must still be listed
-        if isinstance(v, str) and len(v) > PART_REASON_CHARS:
-            return v[:PART_REASON_CHARS - 1] + "…"
-        return v
+        return _cut(v, PART_REASON_CHARS)
 
 
 class Hello(_Msg):
@@ -259,9 +264,7 @@ class NodeWarning(_Msg):
     @field_validator("text", mode="before")
     @classmethod
     def _cut_text(cls, v: Any) -> Any:
-        if isinstance(v, str) and len(v) > WARNING_CHARS:
-            return v[:WARNING_CHARS - 1] + "…"
-        return v
+        return _cut(v, WARNING_CHARS)
 
 
 NodeMessage = Annotated[Hello | PartList | Pong | Status | RecState | NodeError | NodeWarning,
