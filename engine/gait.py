@@ -49,16 +49,6 @@ MAX_STRAIGHT_TURN_RATE = 60.0
 #: A pass shorter than this (s) or travelling less than MIN_PASS_M is dropped.
 MIN_PASS_S = 0.8
 MIN_PASS_M = 0.5
-#: Below this sampling rate (Hz) the events are Zeni's extrema (sub-frame, parabolic)
-#: without the velocity refinements (heel landing, toe's fastest rise). A velocity peak or
-#: threshold crossing of a foot lifting off or landing — a change within ≈ 50–100 ms — is
-#: resolved by a handful of samples at 100 Hz but by two or three at 30 Hz, and a Kinect
-#: skeleton is also low-passed at 6 Hz: on the walker's true joints the toe-rise time
-#: moved 18 → 53 → 79 ms late from 100 Hz to 30 Hz to 30 Hz filtered, and on fused 30 Hz
-#: skeletons its SD was 29–38 ms against 9–18 ms for Zeni's minimum, whose timing did not
-#: depend on the rate (within 2 ms; bench/gait_events.py). 50 Hz keeps every rate of a
-#: marker system (≥ 60 Hz) refined.
-MIN_REFINE_RATE_HZ = 50.0
 #: Consecutive foot placements closer than this fraction of the median step time, or
 #: than MIN_STEP_S, are a glitch (a step is ≥ 0.25 s even at a running cadence of
 #: 240 steps/min; step-time CV in gait is ≈ 3-10 %, so 40 % of the median is never a step).
@@ -414,10 +404,11 @@ class GaitAnalysis:
             position at the crossing instant (0: the paper's rule); the crossing time is then
             refined to where the swinging foot passes that position.
         refine_events: heel-strike method: move Zeni's events to the heel's landing and
-            the toe's fastest rise. ``"auto"`` (default) does so at rates of at least
-            :data:`MIN_REFINE_RATE_HZ`, the landing only for a heel point (an ankle stops
-            descending at foot flat, not at contact); ``True`` always (for any point and
-            rate), ``False`` never (Zeni's extrema, sub-frame interpolated).
+            the toe's fastest rise. ``"auto"`` (default) does so for a foot with a heel
+            point (markers, or a point named by the user), at any rate; a foot measured at
+            its ankle (a depth camera's skeleton) keeps Zeni's extrema (see
+            :meth:`_zeni_events`). ``True`` always, ``False`` never (Zeni's extrema,
+            sub-frame interpolated).
         direction: a fixed walking direction ``(x, y)`` on the floor (e.g. a walkway's
             axis in the lab frame) along which lengths and widths are measured in every
             pass; None (default) finds it per pass from the footprints. A fixed axis
@@ -776,18 +767,21 @@ class GaitAnalysis:
         d, _ = self._frame(wp)
         pe = _PassEvents()
         strikes: list[tuple[str, float]] = []
-        # The velocity refinements need a rate that resolves a foot's landing and lift-off
-        # (see MIN_REFINE_RATE_HZ); below it Zeni's extrema, interpolated, are the events.
-        auto = self.refine_events == "auto"
-        refine = feet.rate >= MIN_REFINE_RATE_HZ if auto else bool(self.refine_events)
         for side in ("L", "R"):
             heel = feet.point_for(side, ("explicit", "heel", "ankle"))
             toe = feet.point_for(side, ("toe", "explicit", "heel", "ankle"))
-            # An ankle stops descending at foot flat (≈ 8 % of the cycle after contact,
-            # Perry & Burnfield), not at heel contact: the landing refinement is for a
-            # heel point (or one named by the user) only.
-            heel_like = (not auto or "explicit" in feet.points[side]
-                         or "heel" in feet.points[side])
+            # The refinements look for the contact transients of a heel and a toe marker.
+            # A depth camera's skeleton has neither: its ankle stops descending at foot
+            # flat (≈ 8 % of the cycle after contact; Perry & Burnfield), not at heel
+            # contact, its foot joint is a model's mid-forefoot estimate, and the fused
+            # skeleton is low-passed at 6 Hz, which smears those transients over tens of
+            # ms. On fused 30 Hz skeletons the toe-rise foot off had an SD of 17–19 ms
+            # (Zeni's minimum: 6–8 ms) and step times an RPC of 70–89 ms (14–16 ms), see
+            # bench/gait_events.py; the real Vicon trial resampled to 30 Hz keeps its
+            # markers' refined events within 10 ms (Zeni alone: 11–43 ms early).
+            own = feet.points[side]
+            refine = (("explicit" in own or "heel" in own) if self.refine_events == "auto"
+                      else bool(self.refine_events))
             rel_h = (heel - centre) @ d
             rel_t = (toe - centre) @ d
             rel_h[~m] = np.nan
@@ -802,7 +796,7 @@ class GaitAnalysis:
                 for tt in _peaks(t, y, feet.rate, height, prom, self.min_event_period_s):
                     if store == "fs":
                         strikes.append((side, self._refine_strike(t, heel, tt)
-                                        if refine and heel_like else tt))
+                                        if refine else tt))
                     else:
                         pe.offs.append((side, self._refine_off(t, toe, tt) if refine else tt))
         strikes.sort(key=lambda x: x[1])
