@@ -551,7 +551,7 @@ class GaitAnalysis:
                 f"{longest_m:.1f} m ({longest_s:.1f} s): record a longer walk, or, if the "
                 "subject walked farther, place or add sensors to cover more of the walkway"
             )
-        self.summary_ = self._summary()
+        self.summary_ = self._summary(float(rate))
         return self
 
     def _frame(self, wp: WalkPass) -> tuple[FloatArray, FloatArray]:
@@ -1038,7 +1038,7 @@ class GaitAnalysis:
         return steps, strides
 
     # ------------------------------------------------------------------ summary
-    def _summary(self) -> dict[str, Any]:
+    def _summary(self, rate: float) -> dict[str, Any]:
         st, sd = self.steps_, self.strides_
 
         def stats(vals: list[tuple[str, float]]) -> dict[str, float | None]:
@@ -1059,6 +1059,8 @@ class GaitAnalysis:
         tot_t = sum(s.duration_s for s in st)
         out: dict[str, Any] = {
             "method": self.method,
+            # the analysed series' rate: what event timing can resolve (report notes)
+            "frame_rate_hz": rate,
             "n_passes": len(self.passes_),
             "n_steps": len(st),
             "n_strides": len(sd),
@@ -1138,7 +1140,7 @@ class GaitAnalysis:
             cols = ("mean", "sd", "cv_pct", "left_mean", "right_mean", "asymmetry_pct")
             out: list[dict[str, Any]] = []
             for key, val in self.summary_.items():
-                if key in ("method", "n_passes", "n_steps", "n_strides"):
+                if key in ("method", "frame_rate_hz", "n_passes", "n_steps", "n_strides"):
                     continue
                 stats = val if isinstance(val, dict) else {"mean": val}
                 out.append({"parameter": key, **{c: stats.get(c) for c in cols}})
