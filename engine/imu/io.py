@@ -1259,9 +1259,11 @@ def fill_gaps(rec: ImuRecording, max_gap_s: float = MAX_FILLED_GAP_S) -> ImuReco
     on the BROAD fast-rotation trial, 1 % of the samples dropped in bursts of 5 raise the
     orientation error from 2.1° to 12°. Gaps up to ``max_gap_s`` are filled by linear
     interpolation of the rates, accelerations and field (the error is then 2.1° again);
-    samples of longer gaps are NaN (skipped by the filters). Grid points within half a
-    step of a recorded sample take that sample's values where the clock is regular, so a
-    recording without gaps is returned unchanged (the same object). The reference
+    samples of longer gaps are NaN (skipped by the filters). A gap is a step of at least
+    1.75 median steps (time-stamp jitter up to ±35 % is none); the grid's rate counts the
+    missing periods. Grid points within half a step of a recorded sample take that
+    sample's values, and a recording without gaps is returned unchanged (the same
+    object). The reference
     quaternion and the movement mask take the nearest recorded sample's value, NaN/False
     in filled gaps.
 
@@ -1269,10 +1271,18 @@ def fill_gaps(rec: ImuRecording, max_gap_s: float = MAX_FILLED_GAP_S) -> ImuReco
         The filled recording, with a warning saying how many samples were filled.
     """
     t = rec.time
-    fs = float(rec.frequency)
     dts = np.diff(t)
-    if not len(dts) or np.max(dts) <= 1.5 / fs:
+    if len(dts) < 2:
         return rec
+    # a gap is a step of 1.75 median steps or more: time-stamp jitter up to ±35 % is not
+    # one. The grid's rate counts each gap's missing periods: (samples - 1 + missing) /
+    # duration, unbiased by gaps and jitter (recording.frequency is not, with jitter)
+    med = float(np.median(dts))
+    gaps = dts >= 1.75 * med
+    if not gaps.any():
+        return rec
+    missing = float(np.sum(np.round(dts[gaps] / med) - 1.0))
+    fs = (len(dts) + missing) / float(t[-1] - t[0])
     n = round((t[-1] - t[0]) * fs) + 1
     grid = t[0] + np.arange(n) / fs
     k = np.clip(np.searchsorted(t, grid), 1, len(t) - 1)
@@ -1280,6 +1290,8 @@ def fill_gaps(rec: ImuRecording, max_gap_s: float = MAX_FILLED_GAP_S) -> ImuReco
     gap = t[k] - t[k - 1]  # the recorded interval each grid point falls in
     hole = np.abs(t[near] - grid) > 0.5 / fs
     long_hole = hole & (gap > max_gap_s)
+    if not hole.any():  # late samples (jitter), none missing: nothing to fill
+        return rec
 
     def channels(a: FloatArray | None) -> FloatArray | None:
         if a is None:
