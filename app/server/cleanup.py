@@ -29,11 +29,15 @@ import time
 from collections.abc import Collection
 from pathlib import Path
 
+from app.wording import count
+
 log = logging.getLogger("gaitrig.storage")
 
 #: Age (s) after which a temporary file is a leftover.
 STALE_S = 24 * 3600.0
 _REPORT_UPLOAD = ".reference-upload-"
+#: Pause after each recording's folder (see :data:`app.server.storage.RESCAN_PAUSE_S`).
+PAUSE_S = 0.001
 
 
 def _age_s(path: Path, now: float) -> float:
@@ -99,6 +103,7 @@ def clean_stale(data_dir: Path, references: Collection[tuple[str, str]] | None =
     for rec in _entries(Path(data_dir) / "recordings"):
         if not rec.is_dir(follow_symlinks=False):
             continue
+        time.sleep(PAUSE_S)  # it runs beside the event loop: its requests come first
         for folder in (Path(rec.path), Path(rec.path) / "analysis"):
             for e in _entries(folder):
                 p = Path(e.path)
@@ -107,6 +112,6 @@ def clean_stale(data_dir: Path, references: Collection[tuple[str, str]] | None =
                 if e.name.startswith(f"{_REPORT_UPLOAD}deleted-") or _age_s(p, now) > STALE_S:
                     _remove(p, removed)
     if removed:
-        log.info("removed %d leftover(s) of uploads and writes cut short: %s", len(removed),
+        log.info("removed %s of uploads and writes cut short: %s", count(len(removed), "leftover"),
                  ", ".join(str(p.relative_to(data_dir)) for p in removed[:20]))
     return removed

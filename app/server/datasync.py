@@ -52,12 +52,15 @@ TRANSFER_FAILED = "transfer failed"
 #: What a recording (and its part) says when its verified copy on the server is gone or
 #: damaged (found by the periodic check of settled recordings, :meth:`DataSync.check`).
 SERVER_COPY_MISSING = "Server copy missing — restore from backup"
+#: Recording states before complete/incomplete (named, not "not in": the state index is
+#: then used instead of a scan of every row, twice a second)
+_ON_THEIR_WAY = tuple(s for s in m.RECORDING_STATES if s not in ("complete", "incomplete"))
 VERIFY_REPEAT_S = 600.0  # a node's part is told "verified" again at most this often
 #: Recordings of the start-up sweep (every one not complete) a pass examines besides its
 #: own: a clinic has a couple of thousand, which in one pass held the event loop for
 #: seconds; a few dozen take milliseconds (bench/storage_scale.py). Passes follow each
 #: other every SWEEP_INTERVAL_S until the sweep is done.
-SWEEP_CHUNK = 25
+SWEEP_CHUNK = 10
 SWEEP_INTERVAL_S = 0.05
 
 
@@ -288,7 +291,7 @@ class DataSync:
                 # rows still said to be on their way (ids only: a clinic keeps hundreds
                 # on nodes that are gone) whose recording the server no longer tracks
                 lost = [i for i in db.scalars(select(m.Recording.id).where(
-                    m.Recording.state.not_in(("complete", "incomplete")))) if i not in live]
+                    m.Recording.state.in_(_ON_THEIR_WAY))) if i not in live]
                 for i in range(0, len(lost), 500):
                     for row in db.scalars(select(m.Recording).where(
                             m.Recording.id.in_(lost[i:i + 500]))):

@@ -45,6 +45,7 @@ from app.nodes.protocol import PartInfo, RecStart, RecStop, StreamName, dump
 from app.server.clock import ClockEstimate
 from app.server.recording_file import RecordingFile
 from app.server.registry import NodeRegistry, NodeSession
+from app.wording import count
 from engine.errors import InputError
 
 log = logging.getLogger("gaitrig.recording")
@@ -182,11 +183,15 @@ class _Tracked(dict[str, Recording]):
         super().__init__()
         self.changed = changed
         self.removed = removed
+        #: ids put in without a stop time (where :meth:`RecordingManager.active` looks)
+        self.running: set[str] = set()
 
     def __setitem__(self, key: str, value: Recording) -> None:
         super().__setitem__(key, value)
         self.changed.add(key)
         self.removed.discard(key)
+        if value.t_stop is None:
+            self.running.add(key)
 
     def __delitem__(self, key: str) -> None:
         super().__delitem__(key)
@@ -239,7 +244,9 @@ class RecordingManager:
         self._unsaved: set[str] = set()  # changed since the last save
         self._removed: set[str] = set()  # taken out since the last save
         self.changed: set[str] = _Changes(self._unsaved)
-        self.recordings: dict[str, Recording] = _Tracked(self.changed, self._removed)
+        tracked = _Tracked(self.changed, self._removed)
+        self.recordings: dict[str, Recording] = tracked
+        self._maybe_running = tracked.running
         self.save_error: str | None = None  # why the last save failed, if it did
         self._tasks: set[asyncio.Task[None]] = set()
         self._dropped: set[tuple[str, str]] = set()  # (rec, node) parts cut short by a drop
@@ -289,7 +296,7 @@ class RecordingManager:
                 self._unsaved.add(rec.id)
             dict.__setitem__(self.recordings, rec.id, rec)  # loaded: nothing to note
         if bad:
-            log.error("%s: ignored %d unreadable recording(s)", self.path, bad)
+            log.error("%s: ignored %s", self.path, count(bad, "unreadable recording"))
 
     def touch(self, rec_id: str) -> None:
         """Note a change made to a recording outside this manager (e.g. by a transfer):
@@ -330,10 +337,13 @@ class RecordingManager:
     # ------------------------------------------------------------------ commands
 
     def active(self) -> Recording | None:
-        """The recording in progress, if any."""
-        for r in self.recordings.values():
-            if r.t_stop is None:
+        """The recording in progress, if any (looked for among those put in without a
+        stop time: every pass of the data sync asks, and a clinic keeps 30 000)."""
+        for rec_id in list(self._maybe_running):
+            r = self.recordings.get(rec_id)
+            if r is not None and r.t_stop is None:
                 return r
+            self._maybe_running.discard(rec_id)
         return None
 
     def _send_later(self, s: NodeSession, text: str) -> None:

@@ -41,6 +41,7 @@ from app.nodes.protocol import ProtocolError, decode_skeletons
 from app.nodes.store import NodeStore
 from app.server.clock import ClockEstimate
 from app.transfer import TransferSink
+from app.wording import named
 from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.gait import GaitAnalysis
 from engine.integration import SensorStream, integrate_skeletons, resample_stream
@@ -277,6 +278,7 @@ class UsageIndex:
                 continue  # not a recording's folder
             stamp = (recs.get(rec_id, 0), refs.get(rec_id, 0))
             fresh[rec_id] = (stamp, self.layout.measure_bytes(rec_id))
+            time.sleep(RESCAN_PAUSE_S)  # the event loop's requests come first
         with self._lock:
             for rec_id in self._changed_in_scan or ():  # maybe measured before it changed
                 fresh.pop(rec_id, None)
@@ -284,6 +286,11 @@ class UsageIndex:
         self.scanned_at = time.time()
         return len(fresh)
 
+
+#: Pause of a background rescan after each recording: a thread reading files without a
+#: break takes the interpreter from the event loop for milliseconds at every switch,
+#: which made the server's answers ten times slower while it ran.
+RESCAN_PAUSE_S = 0.002
 
 _INDEXES: dict[Path, UsageIndex] = {}
 _INDEXES_LOCK = threading.Lock()
@@ -514,7 +521,7 @@ def sensor_streams(layout: StorageLayout, rec_id: str,
         raise InputError(f"no part of recording {rec_id} is on the server yet")
     missing = [n for n in nodes if poses.get(n) is None]
     if missing:
-        raise InputError(f"sensor(s) {', '.join(missing)} have no calibrated pose; calibrate "
+        raise InputError(f"{named('sensor', missing, 'has', 'have')} no calibrated pose; calibrate "
                          "the rig (Calibrate page) or export the sensors one by one")
     out = []
     for n in nodes:
