@@ -16,6 +16,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from app.wording import count
+
 HELP = "back up the server's database and data folder into one archive (or --verify one)"
 
 
@@ -98,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
         for p in v.problems:
             print(f"  DAMAGED: {p}", file=sys.stderr)
         if v.problems:
-            print(f"gaitrig backup: {args.dest} is damaged ({len(v.problems)} problem(s)); "
+            print(f"gaitrig backup: {args.dest} is damaged ({count(len(v.problems), 'problem')}); "
                   "do not rely on it", file=sys.stderr)
             return 1
         print("gaitrig backup: every checksum matches and the database passes "

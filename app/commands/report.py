@@ -11,6 +11,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from app.wording import count
+
 HELP = "gait report (HTML or PDF) of one or more C3D/TRC/CSV walking trials"
 
 
@@ -68,5 +70,5 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     n = sum(len(a["gait"]["steps"]) for a in analyses)
-    print(f"gaitrig report: {out} ({len(analyses)} trial(s), {n} steps)")
+    print(f"gaitrig report: {out} ({count(len(analyses), 'trial')}, {count(n, 'step')})")
     return 0

@@ -13,6 +13,8 @@ import argparse
 import socket
 from pathlib import Path
 
+from app.wording import count
+
 HELP = "restore a backup into an empty data folder (deletions made since are applied again)"
 
 
@@ -56,9 +58,9 @@ def run(args: argparse.Namespace) -> int:
     if args.without_deletion_log and not args.deletion_log:
         print("  WARNING: restored without the current erasure log: subjects deleted after "
               "this backup are back unless you delete them again")
-    print(f"  {len(res.erased_recordings)} deleted recording(s) kept deleted, "
-          f"{res.erased_references} deleted reference(s) deleted again "
-          f"({res.erasures_applied} deletion(s) of the erasure logs applied)")
+    print(f"  {count(len(res.erased_recordings), 'deleted recording')} kept deleted, "
+          f"{count(res.erased_references, 'deleted reference')} deleted again "
+          f"({count(res.erasures_applied, 'deletion')} of the erasure logs applied)")
     for n in res.notes:
         print(f"  NOTE: {n}")
     print(f"  start the server with --data-dir {res.data_dir} (or GAITRIG_DATA_DIR)")

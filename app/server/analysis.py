@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from app.wording import count
 from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.gait import GaitAnalysis
 from engine.integration import SensorStream, integrate_skeletons
@@ -165,7 +166,7 @@ def read_part(part_dir: Path) -> SkeletonSeries:
         times.append(t)
     if len(times) < 2:
         raise InsufficientDataError(f"sensor {part_dir.name}: the recording part holds "
-                                    f"{len(times)} skeleton frame(s)")
+                                    f"{count(len(times), 'skeleton frame')}")
     J = n_joints or 25
     # The stream carries no joint names: the joint count tells the set (as in
     # app.server.storage.read_part_skeleton); a k4a node's 32 joints are Azure Kinect's.

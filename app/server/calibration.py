@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from app.nodes.protocol import CalibrationCapture, decode_calib_frame, dump
+from app.wording import named
 from engine.calibration.corners3d import SensorFrames
 from engine.calibration.pipeline import CalibrationResult
 from engine.calibration.store import (
@@ -345,7 +346,7 @@ class CaptureManager:
                              "capture again")
         off = [n for n in want if n not in online]
         if off:
-            raise InputError(f"node(s) {', '.join(off)} are not connected")
+            raise InputError(f"{named('node', off, 'is', 'are')} not connected")
         if kind == "check":
             folder = calibration_dir(self.data_dir)
             if not list_versions(folder):
@@ -397,7 +398,7 @@ class CaptureManager:
         off = [n for n in want if (s := sessions.get(n)) is None or not s.connected
                or s.send is None]
         if off:
-            return f"sensor(s) {', '.join(off)} of the calibration not connected", want
+            return f"{named('sensor', off)} of the calibration not connected", want
         running = self.busy()
         if running is not None:
             return f"capture {running.id} in progress", want

@@ -67,6 +67,7 @@ from app.transfer import (
     set_timeout,
 )
 from app.transfer._channel import HELLO_LEN
+from app.wording import count
 from engine.errors import InputError
 
 log = logging.getLogger("gaitrig.transfer")
@@ -340,7 +341,7 @@ class TransferManager:
                 if sock is not None]
             if not socks:
                 return False
-            log.info("recording %s: %d data channel(s) from %s open", rec_id, len(socks),
+            log.info("recording %s: %s from %s open", rec_id, count(len(socks), "data channel"),
                      s.id)
             async def run(k: int, sock: socket.socket, socks: list[socket.socket] = socks
                           ) -> None:

@@ -43,6 +43,7 @@ from app.transfer._errors import (
 )
 from app.transfer._manifest import Manifest, safe_relative_path
 from app.transfer._sink import TransferSink
+from app.wording import count
 
 log = logging.getLogger("gaitrig.transfer")
 
@@ -226,8 +227,9 @@ def pull_channel(sink: TransferSink, sock: socket.socket, *, retries: int = 3,
     if missing:
         last = corrupt[-1] if corrupt else None
         raise IncompleteTransferError(
-            f"{len(missing)} chunk(s) could not be fetched intact after {retries + 1} "
-            f"rounds (first: {missing[0][0]!r} #{missing[0][1]}), last error: {last}")
+            f"{count(len(missing), 'chunk')} could not be fetched intact after "
+            f"{count(retries + 1, 'round')} (first: {missing[0][0]!r} #{missing[0][1]}), "
+            f"last error: {last}")
 
 
 def end_channel(sock: socket.socket) -> None:

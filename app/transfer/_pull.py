@@ -8,6 +8,7 @@ from pathlib import Path
 
 from app.transfer._errors import CorruptChunkError, IncompleteTransferError, StorageFullError
 from app.transfer._sink import TransferSink
+from app.wording import count
 
 FetchChunk = Callable[[str, int], Awaitable[bytes]]
 #: Streams ``(chunk index, bytes)`` of one file for the requested indices, in order.
@@ -123,7 +124,7 @@ async def pull(
             if not todo:
                 await asyncio.to_thread(sink.seal_file, name)
         if todo:
-            failures.append(f"{name}: {len(todo)} chunk(s), last error: {last}")
+            failures.append(f"{name}: {count(len(todo), 'chunk')}, last error: {last}")
 
     async def worker() -> None:
         while True:
@@ -141,6 +142,7 @@ async def pull(
             w.cancel()
     if failures:
         raise IncompleteTransferError(
-            f"{len(failures)} file(s) could not be fetched intact: " + "; ".join(failures[:3])
+            f"{count(len(failures), 'file')} could not be fetched intact: "
+            + "; ".join(failures[:3])
         )
     return await asyncio.to_thread(sink.finalize)

@@ -296,7 +296,7 @@ def test_a_deleted_subject_stays_deleted_after_restoring_an_older_backup(
     code, out, err = _cli(capsys, "restore", str(old), "--data-dir", str(a),
                           "--deletion-log", str(var / "erasures.jsonl"))
     assert code == 0, err
-    assert "1 deleted recording(s) kept deleted" in out
+    assert "1 deleted recording kept deleted" in out
     assert _traces(a, GONE) == []  # not in the database file, not in any file name
     assert not (a / "recordings" / "R20260101-110000-gone").exists()
     assert not (a / "references" / "R20260101-110000-gone").exists()
@@ -500,7 +500,7 @@ def test_a_deleted_unfiled_recording_stays_deleted(server: TestClient, tmp_path:
     code, out, err = _cli(capsys, "restore", str(old), "--data-dir", str(a),
                           "--deletion-log", str(var))
     assert code == 0, err
-    assert "1 deleted recording(s) kept deleted" in out
+    assert "1 deleted recording kept deleted" in out
     assert not (a / "recordings" / rid).exists()
     assert json.loads((a / "deletions.json").read_text()) == {rid: ["S1"]}
     c = _client(a)  # the server finishes it: the live entry goes, the node is asked
@@ -556,7 +556,7 @@ def test_a_deleted_reference_stays_deleted_after_restoring_an_older_backup(
                           "--deletion-log", str(var))
     assert code == 0, err
     # said beside the recordings, as in the audit entry
-    assert "0 deleted recording(s) kept deleted, 2 deleted reference(s) deleted again" in out
+    assert "0 deleted recordings kept deleted, 2 deleted references deleted again" in out
     assert _traces(a, GONE) == []  # neither file nor row is back
     assert (a / "references" / rid / "a1.csv").is_file()  # the other reference stays
     with sqlite3.connect(a / "gaitrig.sqlite3") as db:
@@ -874,7 +874,7 @@ def test_a_postgresql_data_folder_without_a_log_says_what_to_do(
     erasures.begin(pg, [], None, {}, [("R20260101-100000-aaaa", "")])
     code, out, err = _cli(capsys, "restore", str(archive), "--data-dir",
                           str(tmp_path / "r"), "--deletion-log", str(pg))
-    assert code == 0 and "(1 deletion(s) of the erasure logs applied)" in out, err
+    assert code == 0 and "(1 deletion of the erasure logs applied)" in out, err
 
 
 def test_backup_and_restore_print_an_os_error_with_its_file(

@@ -21,6 +21,7 @@ from app.api.routes._data import (
 )
 from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, like_pattern, page_of, set_total
 from app.db import data as m
+from app.wording import count
 
 router = APIRouter(prefix="/projects", route_class=BoundedRoute, tags=["data"])
 
@@ -104,6 +105,6 @@ async def delete_project(pid: int, body: Confirm, request: Request, user: Curren
     recs = [r for s in p.subjects for x in s.sessions for r in x.recordings]
     plan = await delete_rows(db, hub, layout_of(request), exports, recs, p, audit_event(
         request, user, "delete", f"project {pid}",
-        f"{len(p.subjects)} subject(s), {len(recs)} recording(s)"))
+        f"{count(len(p.subjects), 'subject')}, {count(len(recs), 'recording')}"))
     return {"deleted": "project", "id": pid, "recordings_deleted": len(plan),
             "node_copies": await node_copies(hub, plan)}

@@ -33,6 +33,7 @@ from app.api.routes._data import (
     session_json,
 )
 from app.db import data as m
+from app.wording import count
 from engine.errors import InputError
 
 router = APIRouter(prefix="/sessions", route_class=BoundedRoute, tags=["data"])
@@ -118,7 +119,7 @@ async def delete_session(sid: int, body: Confirm, request: Request, user: Curren
     plan = await delete_rows(db, hub, layout_of(request), exports, list(s.recordings), s,
                              audit_event(request, user, "delete", f"session {sid}",
                                          f"subject {s.subject_id}; "
-                                         f"{len(s.recordings)} recording(s)"))
+                                         f"{count(len(s.recordings), 'recording')}"))
     return {"deleted": "session", "id": sid, "recordings_deleted": len(plan),
             "node_copies": await node_copies(hub, plan)}
 

@@ -57,6 +57,7 @@ from app.server.storage import (
     stream_zip,
     subject_export,
 )
+from app.wording import count
 from engine.errors import GaitrigError
 from engine.report.render import render_pdf
 
@@ -312,7 +313,7 @@ def _export_response(sid: int, request: Request, user: Any, db: DbDep, hub: HubD
     entries = subject_export(layout, info, rec_ids, live,
                              _report_entries(db, s, layout.data_dir, live))
     audit_now(db, request, user, "export", f"subject {sid}",
-              f"zip of {len(rec_ids)} recording(s) with reports")
+              f"zip of {count(len(rec_ids), 'recording')} with reports")
     code = re.sub(r"[^A-Za-z0-9_.-]", "_", s.code)  # the pattern's, even for an old row
     name = f"gaitrig-subject-{code}-{dt.date.today().isoformat()}.zip"
     return _ReleasingStream(stream_zip(entries), release, media_type="application/zip",
@@ -356,6 +357,7 @@ async def delete_subject(sid: int, body: Confirm, request: Request, user: Curren
     # the trail names the subject by its id only: it must not keep a deleted pseudonym
     plan = await delete_rows(db, hub, layout_of(request), exports, recs, s, audit_event(
         request, user, "delete", f"subject {sid}",
-        f"project {s.project_id}; {len(s.sessions)} session(s), {len(recs)} recording(s)"))
+        f"project {s.project_id}; {count(len(s.sessions), 'session')}, "
+        f"{count(len(recs), 'recording')}"))
     return {"deleted": "subject", "id": sid, "recordings_deleted": len(plan),
             "node_copies": await node_copies(hub, plan)}

@@ -31,7 +31,7 @@ def test_cli_report_html(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
     assert "P09" in html and "<html" in html.lower() and "Step length" in html
     # synth_walk: 0.70 m steps, 0.12 m wide; two identical trials are pooled.
     assert "70.0" in html and "12.0" in html
-    assert "2 trial(s)" in capsys.readouterr().out
+    assert "(2 trials, " in capsys.readouterr().out
 
 
 def test_cli_report_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -15,6 +15,7 @@ import pytest
 
 from app.server.calibration import CaptureJob, CaptureManager, calibration_dir
 from engine.calibration.store import save_version
+from engine.errors import InputError
 from tests.app.calibration.sim_truth import (
     BUMP_DEG,
     BUMP_M,
@@ -39,7 +40,7 @@ def test_periodic_check_reports_a_bumped_tripod_without_a_request(tmp_path: Path
         assert d["checked"] is False and d["warnings"] == []
 
         save_version(truth_calibration(["S1", "S2"]), calibration_dir(tmp_path / "server"))
-        wait_for(lambda: _periodic(r, "skipped", "S1, S2 of the calibration not connected"),
+        wait_for(lambda: _periodic(r, "skipped", "sensors S1, S2 of the calibration not connected"),
                  120, "the periodic check to wait for the calibrated sensors")
 
         # S2's tripod was bumped after the calibration: its simulated camera really moved
@@ -97,13 +98,24 @@ def _hub(nodes: dict[str, Any], recordings: dict[str, Any] | None = None,
         transfers=SimpleNamespace(running_parts=lambda rec_id: set(running or ())))
 
 
+def test_a_capture_names_the_nodes_not_connected_in_the_right_number(tmp_path: Path
+                                                                      ) -> None:
+    nodes = {"S1": _session(), "S2": _session(False), "S3": _session(False)}
+    mgr = CaptureManager(_hub(nodes), tmp_path)
+    with pytest.raises(InputError, match=r"^node S2 is not connected$"):
+        asyncio.run(mgr.start("calibrate", 5, {1: 0.2}, nodes=["S1", "S2"]))
+    with pytest.raises(InputError, match=r"^nodes S2, S3 are not connected$"):
+        asyncio.run(mgr.start("calibrate", 5, {1: 0.2}, nodes=["S3", "S2"]))
+    assert mgr.jobs == {}  # refused before any job started
+
+
 def test_periodic_blocker_reasons(tmp_path: Path) -> None:
     nodes = {"S1": _session(), "S2": _session(False)}
     mgr = CaptureManager(_hub(nodes), tmp_path)
     assert mgr.periodic_blocker() == ("no calibration yet", [])
     save_version(truth_calibration(["S1", "S2"]), calibration_dir(tmp_path))
     reason, want = mgr.periodic_blocker()
-    assert reason is not None and "S2 of the calibration not connected" in reason
+    assert reason is not None and reason.startswith("sensor S2 of the calibration not connected")
     assert want == ["S1", "S2"]
     nodes["S2"] = _session()
     assert mgr.periodic_blocker() == (None, ["S1", "S2"])

@@ -226,7 +226,7 @@ def test_fused_export_keeps_the_recordings_own_poses(client: TestClient, tmp_pat
     _make_part(tmp_path / "node-side", server=tmp_path)
     _recording_row(client)
     r = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "fused"})
-    assert r.status_code == 400 and "no calibrated pose" in r.json()["detail"]
+    assert r.status_code == 400 and "sensor S1 has no calibrated pose" in r.json()["detail"]
     first = _calibrate(tmp_path, 0.3)
     before = client.get("/api/exports/R1/skeleton", params={"format": "csv", "source": "fused"})
     assert before.status_code == 200, before.text
