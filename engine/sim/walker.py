@@ -828,7 +828,15 @@ class Walker:
         return out
 
     def events(self, t0: float, t1: float) -> list[GaitEvent]:
-        """Foot strikes and foot offs in ``[t0, t1]``, in time order."""
+        """True foot strikes and foot offs in ``[t0, t1]`` (s, true clock), in time order.
+
+        The ground truth of gait-event detection: a ``"foot_strike"`` is the instant the
+        foot's heel contact point reaches the floor (the standing start's feet have
+        none), a ``"foot_off"`` the instant its forefoot (the metatarsal heads it rolls
+        over) leaves it; ``tests/engine/sim/test_walker_events.py`` checks both against
+        the foot's kinematics. Each foot off comes 20 % of a step after the other foot's
+        strike (double support 2 × 10 % of the stride, stance 60 %).
+        """
         self._ensure(t1)
         s = self._s
         ev = []
