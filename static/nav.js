@@ -47,11 +47,36 @@
       await fetch("/api/auth/logout", { method: "POST", credentials: "same-origin" }).catch(() => {});
       window.location.href = "/index.html";
     });
+    // Hidden (its place kept: the header does not jump) until js/user-menu.js knows who is
+    // logged in: a page open without a login (Help) offers "Log in" instead.
+    logout.style.visibility = "hidden";
     // who is logged in, "Change password", "Accounts" for administrators: filled by
     // js/user-menu.js, loaded here so that every page has it
     const userMenu = document.createElement("div");
     userMenu.id = "user-menu";
     header.replaceChildren(brand, nav, view3d, userMenu, logout);
+    // js/user-menu.js asks the server who is logged in (GET /api/auth/me, the one request
+    // that may answer 401 here) and says it with this event: {user: the user} when logged
+    // in, {loggedOut: true} when nobody is, {user: null} when the server did not say.
+    userMenu.addEventListener("gaitrig:user", (ev) => {
+      const { user, loggedOut } = ev.detail;
+      if (loggedOut) {
+        const login = document.createElement("a");
+        login.id = "login-link";
+        login.href = "/index.html?next=" + encodeURIComponent(location.pathname + location.search + location.hash);
+        login.textContent = "Log in";
+        logout.replaceWith(login);
+        return;
+      }
+      logout.style.visibility = "";
+      // the 3D view's address is behind the login: asked only once there is one
+      if (user) {
+        fetch("/api/system", { credentials: "same-origin" })
+          .then((r) => (r.ok ? r.json() : null))
+          .then((sys) => { if (sys && sys.viewer_url) { view3d.href = sys.viewer_url; view3d.hidden = false; } })
+          .catch(() => {});
+      }
+    }, { once: true });
     const menuScript = document.createElement("script");
     menuScript.src = "/js/user-menu.js";
     document.body.append(menuScript);
@@ -68,10 +93,6 @@
       skip.addEventListener("click", (ev) => { ev.preventDefault(); main.focus(); });
       header.before(skip);
     }
-    fetch("/api/system", { credentials: "same-origin" })
-      .then((r) => (r.ok ? r.json() : null))
-      .then((sys) => { if (sys && sys.viewer_url) { view3d.href = sys.viewer_url; view3d.hidden = false; } })
-      .catch(() => {});
   }
   // Reflow (WCAG 1.4.10): a data table wider than the window (a phone, a 400 % zoom) made
   // the whole page scroll sideways. Each table of <main> goes in a box that scrolls

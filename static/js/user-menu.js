@@ -113,8 +113,14 @@
   }
 
   let menu = null;
+  // nav.js shows "Log out" or "Log in" by what this finds (401: nobody is logged in, as on
+  // the Help page opened from the login page; no answer: unknown, "Log out" stays)
+  const say = (detail) => slot.dispatchEvent(new CustomEvent("gaitrig:user", { detail }));
   fetch("/api/auth/me", { credentials: "same-origin" })
-    .then((r) => (r.ok ? r.json() : null))
+    .then((r) => {
+      if (r.status === 401) { say({ user: null, loggedOut: true }); return null; }
+      return r.ok ? r.json() : null;
+    })
     .then((me) => {
       if (!me) return;
       buildDialog(me);
@@ -133,6 +139,7 @@
       menu.addEventListener("keydown", (ev) => { if (ev.key === "Escape" && menu.open) { menu.open = false; menu.querySelector("summary").focus(); } });
       document.addEventListener("click", (ev) => { if (menu.open && !menu.contains(ev.target)) menu.open = false; });
       slot.replaceChildren(menu);
+      say({ user: me, loggedOut: false });
       if (me.must_change_password) {
         const why = me.password_set_by === "generated"
           ? "You logged in with the password generated at the first start (it is in the server's log)."
@@ -145,5 +152,7 @@
         (header || slot).after(banner);
       }
     })
-    .catch(() => {});
+    .catch(() => {})
+    // whatever happened, nav.js hears once (a later event is ignored there)
+    .finally(() => say({ user: null, loggedOut: false }));
 })();
