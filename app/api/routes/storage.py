@@ -17,7 +17,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, FastAPI, HTTPException, Query, Request, status
 from pydantic import BaseModel, Field
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from app.api.deps import CurrentUser, DbDep, ExportsDep, HubDep
 from app.api.limits import BoundedRoute
@@ -107,20 +107,19 @@ def usage(request: Request, user: CurrentUser, db: DbDep, hub: HubDep,
         idx.rescan()
     subjects: list[dict[str, Any]] = []
     if subjects_too:
-        # ids only, without the ORM: a clinic's 5 000 subjects and 30 000 recordings
+        # one row per subject with its recording ids joined in SQL, without the ORM: a
+        # row per recording (30 000 in a clinic) took ten times as long
         s, se, r = m.Subject.__table__, m.Session.__table__, m.Recording.__table__
-        rows = db.execute(select(s.c.id, s.c.project_id, s.c.code, r.c.id)
+        rows = db.execute(select(s.c.id, s.c.project_id, s.c.code,
+                                 func.aggregate_strings(r.c.id, ","))
                           .select_from(s.outerjoin(se, se.c.subject_id == s.c.id)
                                        .outerjoin(r, r.c.session_id == se.c.id))
-                          .order_by(s.c.project_id, s.c.code, s.c.id)).all()
-        sizes = idx.many(x[3] for x in rows if x[3] is not None)
-        for x in rows:
-            if not subjects or subjects[-1]["id"] != x[0]:
-                subjects.append({"id": x[0], "project_id": x[1], "code": x[2], "bytes": 0,
-                                 "n_recordings": 0})
-            if x[3] is not None:
-                subjects[-1]["bytes"] += sizes[x[3]]
-                subjects[-1]["n_recordings"] += 1
+                          .group_by(s.c.id).order_by(s.c.project_id, s.c.code, s.c.id)).all()
+        recs = {x[0]: x[3].split(",") if x[3] else [] for x in rows}  # (ids have no comma)
+        sizes = idx.many(i for ids in recs.values() for i in ids)
+        subjects = [{"id": x[0], "project_id": x[1], "code": x[2],
+                     "bytes": sum(sizes[i] for i in recs[x[0]]),
+                     "n_recordings": len(recs[x[0]])} for x in rows]
     return {"disk": layout.disk(), "data_dir": str(layout.data_dir), "subjects": subjects,
             "pending_node_deletions": hub.transfers.pending_deletions(),
             "usage_scanned_at": None if idx.scanned_at is None else

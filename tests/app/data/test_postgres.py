@@ -121,3 +121,23 @@ def test_audit_trail_and_deletion_on_postgresql(pg_client: TestClient, tmp_path:
     from tests.app.data import test_subject_data
 
     test_subject_data.test_audit_trail_of_logins_exports_and_deletions(pg_client, tmp_path)
+
+
+def test_storage_usage_on_postgresql(pg_client: TestClient) -> None:
+    """GET /api/storage joins each subject's recording ids in SQL (string aggregation,
+    grouped by the subject's key): PostgreSQL must accept it as SQLite does."""
+    from app.db import data as m
+
+    c = pg_client
+    pid = c.post("/api/projects", json={"name": "pg"}).json()["id"]
+    a = c.post("/api/subjects", json={"project_id": pid, "code": "A1"}).json()["id"]
+    c.post("/api/subjects", json={"project_id": pid, "code": "B2"})
+    se = c.post("/api/sessions", json={"subject_id": a}).json()["id"]
+    with c.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        db.add_all([m.Recording(id="R1", session_id=se, state="complete"),
+                    m.Recording(id="R2", session_id=se, state="complete")])
+        db.commit()
+    r = c.get("/api/storage")
+    assert r.status_code == 200, r.text
+    assert [(x["code"], x["n_recordings"], x["bytes"]) for x in r.json()["subjects"]] == [
+        ("A1", 2, 0), ("B2", 0, 0)]
