@@ -130,10 +130,7 @@ def _finalise(
         raise InputError(
             f"{name}: time is not strictly increasing at sample {i + 1} "
             f"({time[i]:.6g} s -> {time[i + 1]:.6g} s); sort the file or remove duplicates")
-    # the mean of the regular steps: a clock rounded to a few µs (epoch times with few
-    # digits) makes single steps jitter, gaps would bias a plain mean
-    fs = float(frequency) if frequency else float(
-        1.0 / np.mean(dts[dts < 1.5 * np.median(dts)]))
+    fs = float(frequency) if frequency else _nominal_rate(time)
     if np.max(dts) > 1.5 * np.median(dts) + 1e-12:
         n_gap = int(np.sum(dts > 1.5 * np.median(dts)))
         warnings.append(f"{n_gap} gap(s) in the time stamps (largest {np.max(dts):.3g} s); "
@@ -153,6 +150,22 @@ def _finalise(
     return ImuRecording(time=time, gyr=gyr, acc=acc, mag=None if mag is None else
                         np.asarray(mag, dtype=float), frequency=fs, name=name, meta=meta,
                         warnings=warnings)
+
+
+def _nominal_rate(time: FloatArray) -> float:
+    """Sampling rate, Hz: (samples - 1 + missing samples) / duration.
+
+    A gap is a step of at least 1.75 median steps; each counts its missing periods. A
+    plain mean step is biased by gaps, the mean of the steps under 1.5 median steps by
+    jitter (±30 % jittered steps: 287.9 Hz for 285.7 Hz, an integration error of 0.8 %);
+    this is neither, and equals the mean step of a regular or rounded clock (integer ms
+    stamps at 285.7 Hz).
+    """
+    dts = np.diff(time)
+    med = float(np.median(dts))
+    gaps = dts >= 1.75 * med
+    missing = float(np.sum(np.round(dts[gaps] / med) - 1.0))
+    return float((len(dts) + missing) / (time[-1] - time[0]))
 
 
 def _check_rounded_time(name: str, time: FloatArray, unit: str = "s") -> None:
@@ -1277,12 +1290,9 @@ def fill_gaps(rec: ImuRecording, max_gap_s: float = MAX_FILLED_GAP_S) -> ImuReco
     # a gap is a step of 1.75 median steps or more: time-stamp jitter up to ±35 % is not
     # one. The grid's rate counts each gap's missing periods: (samples - 1 + missing) /
     # duration, unbiased by gaps and jitter (recording.frequency is not, with jitter)
-    med = float(np.median(dts))
-    gaps = dts >= 1.75 * med
-    if not gaps.any():
+    if not np.any(dts >= 1.75 * float(np.median(dts))):
         return rec
-    missing = float(np.sum(np.round(dts[gaps] / med) - 1.0))
-    fs = (len(dts) + missing) / float(t[-1] - t[0])
+    fs = _nominal_rate(t)
     n = round((t[-1] - t[0]) * fs) + 1
     grid = t[0] + np.arange(n) / fs
     k = np.clip(np.searchsorted(t, grid), 1, len(t) - 1)

@@ -410,9 +410,9 @@ def test_jittered_time_stamps_and_nan_rows(
     base: ImuRecording, truth: dict[str, Any], tmp_path: Path
 ) -> None:
     """Samples taken at ±30 % jittered instants (a phone's sensor events) and 20 NaN
-    rows: read, warned about, and the error moves by less than 0.3° (measured 0.17° for
-    the jitter: the filters integrate with the nominal step; 0.23° for the NaN rows,
-    whose samples are skipped)."""
+    rows: read, warned about, and the error moves by less than 0.3° (the jitter alone:
+    0.01°, the nominal rate being counted in periods — the mean of the steps under 1.5
+    median steps gave 287.9 Hz for 285.7 Hz, and 0.17°; the NaN rows are skipped)."""
     rng = np.random.default_rng(1)
     dt = 1.0 / base.frequency
     tj = np.clip(base.time + rng.uniform(-0.3, 0.3, len(base)) * dt, 0, base.time[-1])
@@ -431,7 +431,7 @@ def test_jittered_time_stamps_and_nan_rows(
     got = load_imu(write_csv(tmp_path / "jit.csv", cols))
     assert any("gyroscope sample(s) are NaN" in w for w in got.warnings)
     assert fill_gaps(got) is got  # late samples, none missing: nothing to fill
-    assert got.frequency == pytest.approx(base.frequency, rel=0.01)
+    assert got.frequency == pytest.approx(base.frequency, rel=1e-4)
     e = errors(got, ref, mov)
     assert abs(e["total_deg"] - truth["9d"]["total_deg"]) < 0.3, e
 
