@@ -171,7 +171,9 @@ class _Acc:
             out["events"][kind]["vs_same_method_100hz"] = {
                 "n": len(e), "bias_ms": round(float(e.mean()), 1) if len(e) else None,
                 "sd_ms": round(float(e.std(ddof=1)), 1) if len(e) > 1 else None,
-                "p95_abs_ms": round(float(np.percentile(np.abs(e), 95)), 1) if len(e) else None}
+                "p95_abs_ms": round(float(np.percentile(np.abs(e), 95)), 1) if len(e) else None,
+                "within_1_frame_pct": (round(100.0 * float(np.mean(np.abs(e) <= 1e3 * FRAME_S)),
+                                             1) if len(e) else None)}
         rows = {name: self.pairs[name] for name, *_ in PARAMS}
         rows["cadence_steps_min"] = self.cadence
         for name, (a, b) in rows.items():
