@@ -94,17 +94,23 @@
       header.before(skip);
     }
   }
+  // The table's own name, else the heading it comes under; a second table under the same
+  // heading is numbered (two regions of one name cannot be told apart).
+  const tableNames = new Map();
+  function tableName(table) {
+    const by = table.getAttribute("aria-labelledby");
+    const named = (by && document.getElementById(by.split(" ")[0])) || table.querySelector("caption");
+    const above = [...document.querySelectorAll("main h1, main h2, main h3")]
+      .filter((h) => h.compareDocumentPosition(table) & Node.DOCUMENT_POSITION_FOLLOWING).pop();
+    const text = (table.getAttribute("aria-label") || (named || above || {}).textContent || "Table").trim();
+    const n = (tableNames.get(text) || 0) + 1;
+    tableNames.set(text, n);
+    return `${text}${n > 1 ? ", table " + n : ""} (table, scrolls sideways)`;
+  }
   // Reflow (WCAG 1.4.10): a data table wider than the window (a phone, a 400 % zoom) made
   // the whole page scroll sideways. Each table of <main> goes in a box that scrolls
   // instead; while it does, the box takes the keyboard focus (arrow keys scroll it) and is
   // a region named after its table, so a screen reader says what the stop is.
-  function tableName(table) {
-    const by = table.getAttribute("aria-labelledby");
-    const named = (by && document.getElementById(by.split(" ")[0])) || table.querySelector("caption");
-    const text = table.getAttribute("aria-label") || (named && named.textContent)
-      || ((table.closest("section") || document).querySelector("h2, h3") || {}).textContent || "";
-    return `${text.trim() || "Table"} (table, scrolls sideways)`;
-  }
   function scrollBoxes() {
     for (const table of document.querySelectorAll("main table")) {
       if (table.closest(".table-scroll, .report-view")) continue;
@@ -112,11 +118,12 @@
       box.className = "table-scroll";
       table.before(box);
       box.append(table);
+      const name = tableName(table);
       const sync = () => {
         if (box.scrollWidth > box.clientWidth + 1) {
           box.tabIndex = 0;
           box.setAttribute("role", "region");
-          box.setAttribute("aria-label", tableName(table));
+          box.setAttribute("aria-label", name);
         } else if (box.hasAttribute("tabindex")) {
           for (const a of ["tabindex", "role", "aria-label"]) box.removeAttribute(a);
         }

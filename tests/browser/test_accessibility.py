@@ -323,7 +323,8 @@ def _axe_problems(page: Any, name: str, artifacts_dir: Path) -> list[str]:
     found = axe_violations(page, ("minor", "moderate", "serious", "critical"))
     (artifacts_dir / "browser" / f"a11y_{name}.json").write_text(json.dumps(
         [{"id": v["id"], "impact": v["impact"], "help": v["help"],
-          "targets": [n["target"] for n in v["nodes"]]} for v in found], indent=1))
+          "targets": [n["target"] for n in v["nodes"]],
+          "html": [n.get("html", "")[:200] for n in v["nodes"]]} for v in found], indent=1))
     blocking = [v for v in found if v["impact"] in BLOCKING]
     return [f"axe on {name}:\n{describe(blocking)}"] if blocking else []
 
@@ -362,8 +363,15 @@ def _reflow_problems(page: Any, name: str, artifacts_dir: Path) -> list[str]:
     screenshot(page, artifacts_dir, f"a11y_{name}_{REFLOW_WIDTH}px")
     scroll, inner = page.evaluate(
         "[document.documentElement.scrollWidth, window.innerWidth]")
+    # a table box that scrolls can be reached and scrolled with the keyboard, and is named
+    unreachable = page.evaluate("""() => [...document.querySelectorAll('.table-scroll')]
+        .filter((b) => b.scrollWidth > b.clientWidth + 1 && !(b.tabIndex === 0
+            && b.getAttribute('role') === 'region' && b.getAttribute('aria-label')))
+        .map((b) => b.outerHTML.slice(0, 80))""")
+    out = [f"{name}: table boxes that scroll but take no focus: {unreachable}"
+           ] if unreachable else []
     if scroll <= inner + 1:
-        return []
+        return out
     wide = page.evaluate("""(w) => [...document.querySelectorAll('body *')]
         .filter((e) => { const r = e.getBoundingClientRect();
             const up = e.parentElement.getBoundingClientRect();  // the outermost culprits
@@ -371,7 +379,7 @@ def _reflow_problems(page: Any, name: str, artifacts_dir: Path) -> list[str]:
         .slice(0, 8).map((e) => e.tagName.toLowerCase() + (e.id ? '#' + e.id : '') +
             (e.className && typeof e.className === 'string' ? '.' + e.className.split(' ')[0] : '')
             + ' right=' + Math.round(e.getBoundingClientRect().right))""", inner)
-    return [f"{name} scrolls sideways at {inner} px: scrollWidth {scroll}; sticking out: "
+    return [*out, f"{name} scrolls sideways at {inner} px: scrollWidth {scroll}; sticking out: "
             + ", ".join(wide)]
 
 
@@ -402,11 +410,15 @@ def test_login_page_and_its_error_pass_axe_and_reflow(browser: Any, lab: Lab,
 @pytest.mark.parametrize("name", sorted(STATES))
 def test_console_page_passes_axe_and_reflows(page: Any, lab: Lab, artifacts_dir: Path,
                                              name: str) -> None:
-    """axe at a desktop's 1400 px, then the same state at 320 px (no sideways scroll)."""
+    """axe and focus rings at a desktop's 1400 px, then the same state at 320 px: no
+    sideways scroll, axe and focus rings again."""
     STATES[name](page, lab)
     problems = _axe_problems(page, name, artifacts_dir)
     problems += _focus_problems(page, name)
     problems += _reflow_problems(page, name, artifacts_dir)
+    # narrow, the tables' scroll boxes take the focus: named regions, rings, axe again
+    problems += _axe_problems(page, f"{name}_{REFLOW_WIDTH}px", artifacts_dir)
+    problems += _focus_problems(page, f"{name}_{REFLOW_WIDTH}px")
     assert not problems, "\n".join(problems)
     assert not page.js_errors, page.js_errors
 
