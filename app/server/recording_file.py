@@ -188,12 +188,16 @@ class RecordingFile:
                     raise
                 return
             body = b"".join(b"," + v + b"\n" for v in new.values())
-            with open(self.path, "r+b") as fh:
-                fh.seek(self._end)
-                fh.write(body + CLOSE)
-                fh.truncate()  # what a failed write may have left after it
-                fh.flush()
-                os.fsync(fh.fileno())
+            try:
+                with open(self.path, "r+b") as fh:
+                    fh.seek(self._end)
+                    fh.write(body + CLOSE)
+                    fh.truncate()  # what a failed write may have left after it
+                    fh.flush()
+                    os.fsync(fh.fileno())
+            except OSError:
+                self._end = None  # (the file may be gone): the next write rewrites it
+                raise
             self._end += len(body)
             self._n_lines += len(new)
             self._lines.update(new)

@@ -149,3 +149,18 @@ def test_an_unreadable_recording_is_left_out_not_the_file(tmp_path: Path) -> Non
     (tmp_path / "recordings.json").write_bytes(rf.HEADER + b"," + bad + b"\n," + good
                                                + b"\n" + rf.CLOSE)
     assert list(_reload(tmp_path)) == [_rec(1).id]
+
+
+def test_a_file_removed_under_the_server_is_written_again(tmp_path: Path) -> None:
+    rm = _manager(tmp_path, 3)
+    rm.path.unlink()
+    rec = rm.recordings[_rec(1).id]
+    rec.parts["S1"].n_frames = 9
+    rm.touch(rec.id)
+    rm.save()  # the append fails: said, kept for the next save
+    assert rm.save_error is not None
+    rm.touch(rec.id)
+    rm.save()
+    assert rm.save_error is None
+    again = _reload(tmp_path)
+    assert len(again) == 3 and again[rec.id].parts["S1"].n_frames == 9
