@@ -405,9 +405,10 @@ class GaitAnalysis:
             refined to where the swinging foot passes that position.
         refine_events: heel-strike method: move Zeni's events to the heel's landing and
             the toe's fastest rise. ``"auto"`` (default) does so for a foot with a heel
-            point (markers, or a point named by the user), at any rate; a foot measured at
-            its ankle (a depth camera's skeleton) keeps Zeni's extrema (see
-            :meth:`_zeni_events`). ``True`` always, ``False`` never (Zeni's extrema,
+            point (markers, or a point named by the user), at any rate, and refines foot
+            off alone from a toe marker without a heel; a foot measured by a depth
+            camera's skeleton (:attr:`FeetTrajectories.from_skeleton`) keeps Zeni's
+            extrema (see :meth:`_zeni_events`). ``True`` always, ``False`` never (Zeni's extrema,
             sub-frame interpolated).
         direction: a fixed walking direction ``(x, y)`` on the floor (e.g. a walkway's
             axis in the lab frame) along which lengths and widths are measured in every
@@ -779,9 +780,15 @@ class GaitAnalysis:
             # (Zeni's minimum: 6–8 ms) and step times an RPC of 70–89 ms (14–16 ms), see
             # bench/gait_events.py; the real Vicon trial resampled to 30 Hz keeps its
             # markers' refined events within 10 ms (Zeni alone: 11–43 ms early).
+            # A toe MARKER's rise times foot off well at any rate (the real trial's
+            # ankle+toe markers: −4…+11 ms refined, −31…−11 ms Zeni alone), so "auto"
+            # refines foot off from a toe marker even without a heel marker.
             own = feet.points[side]
-            refine = (("explicit" in own or "heel" in own) if self.refine_events == "auto"
-                      else bool(self.refine_events))
+            if self.refine_events == "auto":
+                refine = "explicit" in own or "heel" in own
+                refine_off = refine or ("toe" in own and not feet.from_skeleton)
+            else:
+                refine = refine_off = bool(self.refine_events)
             rel_h = (heel - centre) @ d
             rel_t = (toe - centre) @ d
             rel_h[~m] = np.nan
@@ -798,7 +805,8 @@ class GaitAnalysis:
                         strikes.append((side, self._refine_strike(t, heel, tt)
                                         if refine else tt))
                     else:
-                        pe.offs.append((side, self._refine_off(t, toe, tt) if refine else tt))
+                        pe.offs.append((side, self._refine_off(t, toe, tt) if refine_off
+                                         else tt))
         strikes.sort(key=lambda x: x[1])
         for side, tt in strikes:
             other = "R" if side == "L" else "L"

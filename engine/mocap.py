@@ -68,6 +68,8 @@ class FeetTrajectories:
         pelvis: ``(T, 3)`` pelvis/sacrum centre, or None.
         sources: role → label(s) the data came from, for reports.
         events: annotated events carried over from the file.
+        from_skeleton: the points are a body-tracking skeleton's joints (a model's
+            estimate, e.g. its "foot" joint), not markers on the foot.
     """
 
     times: FloatArray
@@ -77,6 +79,7 @@ class FeetTrajectories:
     pelvis: FloatArray | None = None
     sources: dict[str, str] = field(default_factory=dict)
     events: list[MarkerEvent] = field(default_factory=list)
+    from_skeleton: bool = False
 
     def __repr__(self) -> str:
         # A notebook shows the object: what it holds, not seven arrays of numbers.
@@ -300,7 +303,7 @@ def feet_from_skeleton(series: SkeletonSeries, up: str | None = "z",
     pelvis = fill_gaps(t, P[:, js.role_index("pelvis")])
     has_pelvis = np.isfinite(pelvis).all(axis=1).sum() >= 2
     return FeetTrajectories(t, rate, pts, {"L": "ankle", "R": "ankle"},
-                            pelvis if has_pelvis else None, sources)
+                            pelvis if has_pelvis else None, sources, from_skeleton=True)
 
 
 def load_feet(path: str | Path, left: str | None = None, right: str | None = None,
