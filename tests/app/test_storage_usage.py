@@ -23,7 +23,7 @@ from bench._clinic import Clinic, populate
 def clinic(tmp_path: Path) -> Iterator[tuple[TestClient, Clinic, Path]]:
     clinic = populate(tmp_path, 6, 2, n_with_files=12)
     s = Settings(data_dir=tmp_path, viewer_enabled=False, node_token="test-node-token",
-                 admin_password="secret-pw")
+                 admin_password="secret-pw", storage_check_interval_s=0)  # (no manifests)
     with TestClient(create_app(s)) as c:
         r = c.post("/api/auth/login", json={"username": "admin", "password": "secret-pw"})
         c.headers["Authorization"] = f"Bearer {r.json()['token']}"
