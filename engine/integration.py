@@ -55,6 +55,7 @@ from engine import nanstats
 from engine.errors import InputError, InsufficientDataError
 from engine.geometry import transform_points
 from engine.skeleton import JointSet, SkeletonSeries, TrackingState
+from engine.wording import named
 
 FloatArray = NDArray[np.float64]
 Estimator = Literal["mean", "weighted"]
@@ -435,7 +436,7 @@ def integrate_skeletons(
     if sensors is not None:
         unknown = sorted(set(sensors) - {s.sensor_id for s in streams})
         if unknown:
-            raise InputError(f"unknown sensor id(s) {', '.join(unknown)}; streams are "
+            raise InputError(f"{named('unknown sensor id', unknown)}; streams are "
                              + ", ".join(s.sensor_id for s in streams))
         streams = [s for s in streams if s.sensor_id in set(sensors)]
         if not streams:

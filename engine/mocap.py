@@ -32,6 +32,7 @@ from engine.io.markers import (
     up_rotation,
 )
 from engine.skeleton import SkeletonSeries
+from engine.wording import count
 
 FloatArray = NDArray[np.float64]
 
@@ -167,7 +168,7 @@ def feet_from_markers(
         raise InputError("give both --left and --right marker names, or neither")
     if len(markers) < 2:
         # said before the marker search, which would call the markers unusable
-        raise InputError(f"the file holds {len(markers)} frame(s); gait needs a recording "
+        raise InputError(f"the file holds {count(len(markers), 'frame')}; gait needs a recording "
                          "of at least two steps of walking")
     P = markers.positions
     if units is not None:
@@ -234,8 +235,9 @@ def feet_from_markers(
                 primary[side] = have[0]
         if missing and empty:
             raise InputError(f"no usable {' and no '.join(missing)} marker: "
-                             f"{', '.join(empty)} hold(s) no data (missing in every frame "
-                             "but at most one); name other foot markers with --left/--right")
+                             f"{', '.join(empty)} {'holds' if len(empty) == 1 else 'hold'} "
+                             "no data (missing in every frame but at most one); name other "
+                             "foot markers with --left/--right")
         if missing:
             raise InputError(
                 f"no usable {' and no '.join(missing)} marker (looked for names like "

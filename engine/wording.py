@@ -1,4 +1,5 @@
-"""Counts and lists written in the right number in messages for people.
+"""Counts and lists written in the right number in messages for people (engine errors,
+server and CLI messages).
 
 "1 sensor", "2 sensors", "sensor S3 has", "sensors S3, S5 have": never "sensor(s)", which
 a clinician reading a message has to decode.

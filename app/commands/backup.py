@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from app.wording import count
+from engine.wording import count
 
 HELP = "back up the server's database and data folder into one archive (or --verify one)"
 

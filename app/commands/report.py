@@ -11,7 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from app.wording import count
+from engine.wording import count
 
 HELP = "gait report (HTML or PDF) of one or more C3D/TRC/CSV walking trials"
 

@@ -13,7 +13,7 @@ import argparse
 import socket
 from pathlib import Path
 
-from app.wording import count
+from engine.wording import count
 
 HELP = "restore a backup into an empty data folder (deletions made since are applied again)"
 

@@ -45,13 +45,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.wording import count
 from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.gait import GaitAnalysis
 from engine.integration import SensorStream, integrate_skeletons
 from engine.mocap import FeetTrajectories, feet_from_skeleton
 from engine.report.render import AgreementRow, QualityInfo, ReportData, TrialData
 from engine.skeleton import JOINT_SETS, SkeletonSeries, TrackingState
+from engine.wording import count
 
 _log = logging.getLogger(__name__)
 

@@ -29,7 +29,6 @@ from typing import Any
 import numpy as np
 
 from app.nodes.protocol import CalibrationCapture, decode_calib_frame, dump
-from app.wording import named
 from engine.calibration.corners3d import SensorFrames
 from engine.calibration.pipeline import CalibrationResult
 from engine.calibration.store import (
@@ -40,6 +39,7 @@ from engine.calibration.store import (
     save_version,
 )
 from engine.errors import CalibrationError, GaitrigError, InputError
+from engine.wording import named
 
 log = logging.getLogger("gaitrig.calibration")
 

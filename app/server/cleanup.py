@@ -29,7 +29,7 @@ import time
 from collections.abc import Collection
 from pathlib import Path
 
-from app.wording import count
+from engine.wording import count
 
 log = logging.getLogger("gaitrig.storage")
 

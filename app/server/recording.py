@@ -45,8 +45,8 @@ from app.nodes.protocol import PartInfo, RecStart, RecStop, StreamName, dump
 from app.server.clock import ClockEstimate
 from app.server.recording_file import RecordingFile
 from app.server.registry import NodeRegistry, NodeSession
-from app.wording import count
 from engine.errors import InputError
+from engine.wording import count
 
 log = logging.getLogger("gaitrig.recording")
 

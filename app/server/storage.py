@@ -41,7 +41,6 @@ from app.nodes.protocol import ProtocolError, decode_skeletons
 from app.nodes.store import NodeStore
 from app.server.clock import ClockEstimate
 from app.transfer import TransferSink
-from app.wording import named
 from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.gait import GaitAnalysis
 from engine.integration import SensorStream, integrate_skeletons, resample_stream
@@ -50,6 +49,7 @@ from engine.io.csv import read_skeleton_csv, write_skeleton_csv
 from engine.io.markers import MarkerEvent, MarkerTrajectories
 from engine.io.trc import read_trc, write_trc
 from engine.skeleton import JOINT_SETS, SkeletonSeries, TrackingState
+from engine.wording import named
 
 _SAFE = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_.-")
 MAX_EXPORT_FRAMES = 3000  # depth frames per PNG/NPZ export (≈ 100 s at 30 Hz)

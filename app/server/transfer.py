@@ -67,8 +67,8 @@ from app.transfer import (
     set_timeout,
 )
 from app.transfer._channel import HELLO_LEN
-from app.wording import count
 from engine.errors import InputError
+from engine.wording import count
 
 log = logging.getLogger("gaitrig.transfer")
 

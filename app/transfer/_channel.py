@@ -43,7 +43,7 @@ from app.transfer._errors import (
 )
 from app.transfer._manifest import Manifest, safe_relative_path
 from app.transfer._sink import TransferSink
-from app.wording import count
+from engine.wording import count
 
 log = logging.getLogger("gaitrig.transfer")
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from app.transfer._errors import CorruptChunkError, IncompleteTransferError, StorageFullError
 from app.transfer._sink import TransferSink
-from app.wording import count
+from engine.wording import count
 
 FetchChunk = Callable[[str, int], Awaitable[bytes]]
 #: Streams ``(chunk index, bytes)`` of one file for the requested indices, in order.

@@ -23,6 +23,7 @@ from engine.calibration.corners3d import Observation
 from engine.calibration.markers import marker_model_corners
 from engine.errors import CalibrationError
 from engine.geometry import invert_transform, procrustes, transform_points
+from engine.wording import named
 
 FloatArray = NDArray[np.float64]
 
@@ -138,12 +139,12 @@ def check_connectivity(sensor_ids: Sequence[str], edges: Sequence[Edge], origin:
             f"The markers measure {measured * 100:.0f} cm in the depth images "
             f"({len(wrong)} of {len(checked)} views) but {' / '.join(f'{g:g}' for g in given)}"
             " cm was entered: enter the black square's edge length (without the white "
-            f"border) and capture again. Details: sensor(s) {', '.join(bad)} have no chain "
+            f"border) and capture again. Details: {named('sensor', bad, 'has', 'have')} no chain "
             f"of shared markers to marker {origin}: " + "; ".join(lines) + ".",
             unreachable=bad,
         )
     raise CalibrationError(
-        f"sensor(s) {', '.join(bad)} have no chain of shared markers to marker {origin}: "
+        f"{named('sensor', bad, 'has', 'have')} no chain of shared markers to marker {origin}: "
         + "; ".join(lines)
         + ". Place a marker where an unreachable sensor and a reachable one both see it.",
         unreachable=bad,

@@ -36,6 +36,7 @@ from engine.calibration.markers import DEFAULT_DICTIONARY, dictionary_name
 from engine.calibration.posegraph import optimise_poses
 from engine.errors import CalibrationError, InputError
 from engine.pointcloud import depth_to_points
+from engine.wording import count
 
 FloatArray = NDArray[np.float64]
 
@@ -244,7 +245,7 @@ def _no_markers_anywhere(frames: Sequence[SensorFrames], dictionary: str) -> Non
         if found is not None:
             raise CalibrationError(
                 f"no sensor sees a {dictionary_name(dictionary)} marker, but {f.sensor_id} "
-                f"sees {found[1]} {found[0]} marker(s): the markers were printed from "
+                f"sees {count(found[1], found[0] + ' marker')}: the markers were printed from "
                 f"another dictionary; set the dictionary to {found[0]} (or print "
                 f"{dictionary_name(dictionary)} markers) and capture again",
                 unreachable=[g.sensor_id for g in frames])

@@ -16,6 +16,7 @@ import numpy as np
 from engine.errors import InputError
 from engine.io.markers import check_time_unit, rounded_grid
 from engine.skeleton import JOINT_SETS, JointSet, SkeletonSeries, TrackingState
+from engine.wording import named
 
 
 def _joint_set_for_columns(names: list[str]) -> tuple[JointSet, dict[str, str]]:
@@ -92,7 +93,7 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
     for j in joints:
         missing = [f"{j}_{a}" for a in "xyz" if f"{j}_{a}" not in col]
         if missing:
-            raise InputError(f"{p.name}: joint {j} lacks column(s) {', '.join(missing)}")
+            raise InputError(f"{p.name}: joint {j} lacks {named('column', missing)}")
     js, canon = _joint_set_for_columns(joints)
     if not rows:
         raise InputError(f"{p.name} has no data rows")

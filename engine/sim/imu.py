@@ -35,6 +35,7 @@ from engine.geometry import (
     quat_to_rotvec,
 )
 from engine.imu.io import ImuRecording
+from engine.wording import named
 
 FloatArray = NDArray[np.float64]
 G = 9.80665
@@ -202,7 +203,7 @@ def simulate_walker_imus(
     frames = walker.bone_frames(np.asarray(times, dtype=float))
     missing = [b for b in smap.values() if b not in frames]
     if missing:
-        raise InputError(f"walker has no bone(s) {missing}; it has {sorted(frames)}")
+        raise InputError(f"walker has no {named('bone', missing)}; it has {sorted(frames)}")
     mounts = mounts or {}
     return {
         name: simulate_imu(times, frames[bone], mounts.get(name), noise=noise,

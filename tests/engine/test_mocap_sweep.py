@@ -759,8 +759,8 @@ def test_wrong_overrides_are_refused(kind: str, extra: list[str], expect: str,
 
 
 @pytest.mark.parametrize(("case", "expect"), [
-    ("both_empty", "LANK, LHEE, RANK, RHEE hold(s) no data"),
-    ("right_empty", "no usable right ankle or heel marker: RANK, RHEE hold(s) no data"),
+    ("both_empty", "LANK, LHEE, RANK, RHEE hold no data"),
+    ("right_empty", "no usable right ankle or heel marker: RANK, RHEE hold no data"),
     ("spaces", "no marker names on line 4 (TRC columns are separated by tabs)"),
     ("decimal_comma", "is not a number (use a decimal point)"),
 ])

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from app.wording import count, named
+from engine.wording import count, named
 
 
 def test_count_says_one_noun_or_several() -> None:

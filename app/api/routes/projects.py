@@ -21,7 +21,7 @@ from app.api.routes._data import (
 )
 from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, like_pattern, page_of, set_total
 from app.db import data as m
-from app.wording import count
+from engine.wording import count
 
 router = APIRouter(prefix="/projects", route_class=BoundedRoute, tags=["data"])
 

@@ -33,8 +33,8 @@ from app.api.routes._data import (
     session_json,
 )
 from app.db import data as m
-from app.wording import count
 from engine.errors import InputError
+from engine.wording import count
 
 router = APIRouter(prefix="/sessions", route_class=BoundedRoute, tags=["data"])
 

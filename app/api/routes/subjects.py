@@ -57,9 +57,9 @@ from app.server.storage import (
     stream_zip,
     subject_export,
 )
-from app.wording import count
 from engine.errors import GaitrigError
 from engine.report.render import render_pdf
+from engine.wording import count
 
 log = logging.getLogger(__name__)
 
