@@ -36,6 +36,7 @@ from engine.errors import InputError, InsufficientDataError
 from engine.io.markers import MarkerEvent, MarkerTrajectories
 from engine.mocap import FeetTrajectories, feet_from_markers, feet_from_skeleton, load_feet
 from engine.skeleton import SkeletonSeries
+from engine.wording import count
 
 FloatArray = NDArray[np.float64]
 Method = Literal["crossing", "heelstrike"]
@@ -547,7 +548,8 @@ class GaitAnalysis:
                                  p.t_end - p.t_start))
             longest_m, longest_s = max(seen)
             raise InsufficientDataError(
-                f"only {len(steps)} step(s) found in {len(self.passes_)} pass(es); at least "
+                f"only {count(len(steps), 'step')} found in "
+                f"{count(len(self.passes_), 'pass', 'passes')}; at least "
                 f"two steps are needed. The longest stretch of straight walking seen was "
                 f"{longest_m:.1f} m ({longest_s:.1f} s): record a longer walk, or, if the "
                 "subject walked farther, place or add sensors to cover more of the walkway"
