@@ -55,8 +55,8 @@
     const userMenu = document.createElement("div");
     userMenu.id = "user-menu";
     header.replaceChildren(brand, nav, view3d, userMenu, logout);
-    // js/user-menu.js asks the server who is logged in (GET /api/auth/me, the one request
-    // that may answer 401 here) and says it with this event: {user: the user} when logged
+    // js/user-menu.js asks the server who is logged in (GET /api/auth/session, 200 for
+    // nobody too) and says it with this event: {user: the user} when logged
     // in, {loggedOut: true} when nobody is, {user: null} when the server did not say.
     userMenu.addEventListener("gaitrig:user", (ev) => {
       const { user, loggedOut } = ev.detail;

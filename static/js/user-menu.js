@@ -2,7 +2,7 @@
 // logged in, "Change password" (a dialog: current, new, repeat), "Accounts" for
 // administrators only, and the suggestion to change a password someone else chose (the
 // one generated at the first start, or a temporary one an administrator set). Loaded by
-// nav.js, so no page lists it. Data: GET /api/auth/me, POST /api/auth/password.
+// nav.js, so no page lists it. Data: GET /api/auth/session, POST /api/auth/password.
 "use strict";
 (() => {
   const slot = document.getElementById("user-menu");
@@ -113,15 +113,16 @@
   }
 
   let menu = null;
-  // nav.js shows "Log out" or "Log in" by what this finds (401: nobody is logged in, as on
+  // nav.js shows "Log out" or "Log in" by what this finds (logged_in false: nobody, as on
   // the Help page opened from the login page; no answer: unknown, "Log out" stays)
   const say = (detail) => slot.dispatchEvent(new CustomEvent("gaitrig:user", { detail }));
-  fetch("/api/auth/me", { credentials: "same-origin" })
-    .then((r) => {
-      if (r.status === 401) { say({ user: null, loggedOut: true }); return null; }
-      return r.ok ? r.json() : null;
-    })
-    .then((me) => {
+  // GET /api/auth/session answers 200 for nobody too, so a logged-out page logs no
+  // failed request in the browser's console
+  fetch("/api/auth/session", { credentials: "same-origin" })
+    .then((r) => (r.ok ? r.json() : null))
+    .then((s) => {
+      if (s && !s.logged_in) { say({ user: null, loggedOut: true }); return; }
+      const me = s && s.user;
       if (!me) return;
       buildDialog(me);
       const change = el("button", { type: "button", class: "secondary", id: "password-open" }, "Change password");

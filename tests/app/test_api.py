@@ -58,12 +58,15 @@ def test_every_api_route_needs_login(client: TestClient) -> None:
         assert r.status_code == 401, path
         assert "log" in r.json()["detail"]
     assert client.post("/api/recordings", json={}).status_code == 401
-    # every route under /api, present and future, except logging in. The OpenAPI schema
+    # every route under /api, present and future, except logging in and asking whether
+    # anyone is logged in (which tells nobody anything but "no"). The OpenAPI schema
     # lists routes of nested routers too (app.routes does not flatten them).
+    assert client.get("/api/auth/session").json() == {"logged_in": False, "user": None}
     paths = client.get("/openapi.json").json()["paths"]
     checked = 0
     for route_path, methods in paths.items():
-        if not route_path.startswith("/api/") or route_path == "/api/auth/login":
+        if not route_path.startswith("/api/") or route_path in ("/api/auth/login",
+                                                                "/api/auth/session"):
             continue
         path = route_path.replace("{", "").replace("}", "")  # any value for path parameters
         for method in methods:
@@ -80,13 +83,15 @@ def test_login_logout_and_cookie(client: TestClient) -> None:
     assert bad.status_code == 401
     r = client.post("/api/auth/login", json={"username": "admin", "password": "secret-pw"})
     assert r.status_code == 200 and "gaitrig_session" in r.cookies
-    assert client.get("/api/auth/me").json() == {"username": "admin", "is_admin": True,
-                                                  "must_change_password": False,
-                                                  "password_set_by": None}
+    me = {"username": "admin", "is_admin": True, "must_change_password": False,
+          "password_set_by": None}
+    assert client.get("/api/auth/me").json() == me
+    assert client.get("/api/auth/session").json() == {"logged_in": True, "user": me}
     assert client.post("/api/auth/logout").status_code == 204
     client.cookies.clear()
     h = {"Authorization": f"Bearer {r.json()['token']}"}
     assert client.get("/api/auth/me", headers=h).status_code == 401
+    assert client.get("/api/auth/session", headers=h).json()["logged_in"] is False
 
 
 def test_repeated_wrong_passwords_pause_that_user_on_that_address(client: TestClient) -> None:

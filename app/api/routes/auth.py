@@ -11,12 +11,20 @@ no session fixation); a logout ends the token on the server.
 from __future__ import annotations
 
 from datetime import datetime
+from typing import Any
 
 from fastapi import APIRouter, HTTPException, Request, Response, status
 from pydantic import BaseModel, Field
 
 from app.api import security
-from app.api.deps import SESSION_COOKIE, CurrentUser, DbDep, SettingsDep, request_token
+from app.api.deps import (
+    SESSION_COOKIE,
+    CurrentUser,
+    DbDep,
+    SettingsDep,
+    get_current_user,
+    request_token,
+)
 from app.api.limits import BoundedRoute
 from app.config import Settings
 from app.db import audit
@@ -152,10 +160,33 @@ def change_password(body: PasswordIn, request: Request, user: CurrentUser, db: D
     return PasswordChanged(other_sessions_ended=ended)
 
 
-@router.get("/me", response_model=UserOut)
-def me(user: CurrentUser, db: DbDep) -> UserOut:
-    """Who is logged in, and whether their password is still one someone else chose."""
+def _user_out(user: Any, db: Any) -> UserOut:
     due = db.get(PasswordChangeDue, user.id)
     return UserOut(username=user.username, is_admin=user.is_admin,
                    must_change_password=due is not None,
                    password_set_by=None if due is None else due.reason)
+
+
+@router.get("/me", response_model=UserOut)
+def me(user: CurrentUser, db: DbDep) -> UserOut:
+    """Who is logged in, and whether their password is still one someone else chose."""
+    return _user_out(user, db)
+
+
+class SessionOut(BaseModel):
+    logged_in: bool
+    user: UserOut | None = None
+
+
+@router.get("/session", response_model=SessionOut)
+def session(request: Request, db: DbDep) -> SessionOut:
+    """Whether anyone is logged in, answered 200 either way.
+
+    Pages open without a login (the Help page) ask this to offer "Log in" or the user
+    menu; ``/me`` answers 401 to nobody, which a browser logs as a failed request.
+    """
+    try:
+        user = get_current_user(request, db)
+    except HTTPException:
+        return SessionOut(logged_in=False)
+    return SessionOut(logged_in=True, user=_user_out(user, db))
