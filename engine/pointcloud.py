@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from engine.errors import InputError
 from engine.geometry import transform_points
+from engine.wording import count
 
 FloatArray = NDArray[np.float64]
 
@@ -333,13 +334,14 @@ def load_point_cloud(path: str | Path) -> PointCloudFile:
     pts, cols, nrm, meta = _read_pcd(p) if suf == ".pcd" else _read_ply(p)
     warnings: list[str] = []
     ok = np.all(np.isfinite(pts), axis=1)
-    meta["dropped"] = int((~ok).sum())
+    dropped = int((~ok).sum())
+    meta["dropped"] = dropped
     if not ok.all():
         pts = pts[ok]
         cols = None if cols is None else cols[ok]
         nrm = None if nrm is None else nrm[ok]
-        warnings.append(f"{meta['dropped']} point(s) without finite coordinates (empty "
-                        "pixels of an organised cloud) were dropped")
+        warnings.append(f"{count(dropped, 'point')} without finite coordinates (empty pixels "
+                        f"of an organised cloud) {'was' if dropped == 1 else 'were'} dropped")
     if len(pts) == 0:
         raise InputError(f"{p.name}: the file holds no point with finite coordinates")
     far = float(np.max(np.abs(pts)))

@@ -52,6 +52,7 @@ from engine.errors import InputError, InsufficientDataError
 from engine.geometry import quat_conj, quat_mul, quat_normalize, quat_rotate, quat_slerp
 from engine.imu.metrics import ncc, rmse
 from engine.skeleton import JointSet, SkeletonSeries, TrackingState
+from engine.wording import named
 
 FloatArray = NDArray[np.float64]
 
@@ -178,8 +179,9 @@ def plank_calibration(
               for n, u in ups.items()}
     bad = [n for n, s in spread.items() if s > max_spread_deg]
     if bad:
-        raise InputError(f"sensor(s) {bad} were not aligned with the others at the plank time "
-                         f"{plank_time:.2f} s (tilt differs by > {max_spread_deg}°)")
+        raise InputError(f"{named('sensor', bad, 'was', 'were')} not aligned with the others "
+                         f"at the plank time {plank_time:.2f} s (tilt differs by > "
+                         f"{max_spread_deg}°)")
     return PlankCalibration({n: quat_mul(qp, quat_conj(q)) for n, q in q_at.items()},
                             float(plank_time), spread)
 

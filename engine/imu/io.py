@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from engine.errors import InputError
 from engine.geometry import quat_conj, quat_mul, quat_rotate
+from engine.wording import count
 
 FloatArray = NDArray[np.float64]
 
@@ -55,6 +56,10 @@ TIME_UNITS = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "msec": 1e-3, "msecs": 1e-3, "us
 #: magnetometer units scaled to the local field (Shimmer, Xsens): read as ``"norm"``
 _ARBITRARY_MAG_UNITS = {"local_flux", "localflux", "a.u.", "a.u", "au", "arb.unit",
                         "arbitrary"}
+#: the warnings :func:`fill_gaps` and the quaternion columns replace are found by these
+#: words, which stay the same whatever the count ("1 gap"/"2 gaps", "column"/"columns")
+_GAPS_WARNING = " in the time stamps (largest "
+_IGNORED_WARNING = "ignored column"
 #: largest CSV read (the whole file is parsed in memory); split bigger recordings
 MAX_CSV_BYTES = 256 * 2**20
 #: plausibility bounds for magnitude-based unit checks
@@ -133,15 +138,18 @@ def _finalise(
     fs = float(frequency) if frequency else _nominal_rate(time)
     if np.max(dts) > 1.5 * np.median(dts) + 1e-12:
         n_gap = int(np.sum(dts > 1.5 * np.median(dts)))
-        warnings.append(f"{n_gap} gap(s) in the time stamps (largest {np.max(dts):.3g} s); "
+        warnings.append(f"{count(n_gap, 'gap')}{_GAPS_WARNING}{np.max(dts):.3g} s); "
                         "the filters assume a constant rate")
     for arr, what in ((gyr, "gyroscope"), (acc, "accelerometer"), (mag, "magnetometer")):
         if arr is None:
             continue
         bad = ~np.all(np.isfinite(arr), axis=1)
         if bad.any():
-            warnings.append(f"{int(bad.sum())} {what} sample(s) are NaN/inf "
-                            f"(first at {time[int(np.argmax(bad))]:.4g} s); they are skipped")
+            one = int(bad.sum()) == 1
+            warnings.append(f"{count(int(bad.sum()), what + ' sample')} "
+                            f"{'is' if one else 'are'} NaN/inf (first at "
+                            f"{time[int(np.argmax(bad))]:.4g} s); "
+                            f"{'it is' if one else 'they are'} skipped")
     for arr, what in ((gyr, "gyroscope"), (acc, "accelerometer"), (mag, "magnetometer")):
         if arr is not None:
             _check_channels(np.asarray(arr, dtype=float), what, warnings)
@@ -332,7 +340,7 @@ def _read_csv(path: Path, dates: set[int] | None = None
         header.pop()  # a trailing separator
     n = len(header)
     if n < 2:
-        raise InputError(f"{path.name}: the header has {n} column(s); expected a separated "
+        raise InputError(f"{path.name}: the header has {count(n, 'column')}; expected a separated "
                          "header such as time,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z")
     # fast path: every remaining cell a plain number (most exports) is parsed by numpy's
     # C reader, ~4x faster than a Python float() per cell (bench/imu_import.py); any
@@ -522,7 +530,7 @@ def load_xio_csv(path: str | Path, frequency: float | None = None) -> ImuRecordi
         raise InputError(f"{p.name}: no 'Time (s)' column; pass the sampling frequency")
     ignored = [header[i] for i in range(len(header)) if i not in used]
     if ignored:
-        warnings.append(f"ignored column(s): {', '.join(ignored)}")
+        warnings.append(_ignored_warning(ignored))
     meta = {"format": "x-imu-csv", "source": str(p), "gyr_unit": units.get("gyr"),
             "acc_unit": units.get("acc"), "mag_unit": units.get("mag", "")}
     return _finalise(time, cols["gyr"], cols["acc"], cols.get("mag"), p.stem, meta, warnings,
@@ -947,7 +955,7 @@ def load_csv(
     if missing:
         bare = {h.strip().lower() for h in header} >= {"x", "y", "z"}
         raise InputError(
-            f"{p.name}: missing column(s): no {' or '.join(_GROUP_NAMES[g] for g in missing)} "
+            f"{p.name}: missing columns: no {' or '.join(_GROUP_NAMES[g] for g in missing)} "
             "X/Y/Z; "
             + ("the file holds one sensor's x, y, z (phone apps such as Sensor Logger write "
                "one file per sensor): merge them into one CSV with " if bare else "name them "
@@ -1013,16 +1021,16 @@ def load_csv(
     used |= {i for i in (t_idx, c_idx) if i is not None}
     ignored = [h for i, h in enumerate(header) if i not in used]
     if ignored:
-        warnings.append(f"ignored column(s): {', '.join(ignored)}")
+        warnings.append(_ignored_warning(ignored))
     gyr, acc, mag = out["gyr"], out["acc"], out.get("mag")
     q_idx, named = _quat_columns(header, lay.sensor)
     quat = None
     if q_idx:
         used |= set(q_idx)
-        warnings[:] = [w for w in warnings if not w.startswith("ignored column(s)")]
+        warnings[:] = [w for w in warnings if not w.startswith(_IGNORED_WARNING)]
         ignored = [h for i, h in enumerate(header) if i not in used]
         if ignored:
-            warnings.append(f"ignored column(s): {', '.join(ignored)}")
+            warnings.append(_ignored_warning(ignored))
         quat = _reference_quaternions(p.name, data[:, q_idx], named, gyr, acc, quat_order,
                                       quat_frame, meta, warnings)
     time, keep = _drop_repeated_rows(time, np.column_stack([a for a in (gyr, acc, mag)
@@ -1226,6 +1234,11 @@ def _csv_time(p: Path, data: FloatArray, t_idx: int | None, t_unit: str, c_idx: 
     return raw * scale
 
 
+def _ignored_warning(ignored: list[str]) -> str:
+    """The warning naming the columns a reader left unused ("ignored columns: a, b")."""
+    return f"{_IGNORED_WARNING}{'' if len(ignored) == 1 else 's'}: {', '.join(ignored)}"
+
+
 def _drop_repeated_rows(time: FloatArray, values: FloatArray,
                         warnings: list[str]) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Drop rows that repeat the previous row exactly (same time, same values): loggers
@@ -1235,7 +1248,8 @@ def _drop_repeated_rows(time: FloatArray, values: FloatArray,
                  & np.all((values[1:] == values[:-1]) | (np.isnan(values[1:])
                                                          & np.isnan(values[:-1])), axis=1)]
     if same.any():
-        warnings.append(f"dropped {int(same.sum())} repeated row(s) (same time and values)")
+        warnings.append(f"dropped {count(int(same.sum()), 'repeated row')} (same time and "
+                        "values)")
     return time[~same], ~same
 
 
@@ -1339,8 +1353,8 @@ def fill_gaps(rec: ImuRecording, max_gap_s: float = MAX_FILLED_GAP_S) -> ImuReco
     if rec.movement is not None:
         movement = rec.movement[near] & ~hole
     n_fill = int((hole & ~long_hole).sum())
-    warnings = [w for w in rec.warnings if "gap(s) in the time stamps" not in w]
-    warnings.append(f"{n_fill} dropped sample(s) filled by interpolation"
+    warnings = [w for w in rec.warnings if _GAPS_WARNING not in w]
+    warnings.append(f"{count(n_fill, 'dropped sample')} filled by interpolation"
                     + (f", {int(long_hole.sum())} in gaps longer than {max_gap_s:g} s left "
                        "empty" if long_hole.any() else "")
                     + f" (uniform {fs:.4g} Hz grid for the filters)")

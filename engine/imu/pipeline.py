@@ -30,6 +30,7 @@ from engine.imu.fusion import (
 from engine.imu.io import ImuRecording
 from engine.imu.sync import SyncResult, shift_recording, synchronize
 from engine.skeleton import SkeletonSeries
+from engine.wording import named
 
 FloatArray = NDArray[np.float64]
 #: ``(recording, nine_d) -> (quaternions ENU (T, 4), rest flags (T,))``
@@ -143,7 +144,7 @@ def process_imu_session(
     """
     unknown = [n for n in recordings if n not in PAPER_SENSORS]
     if unknown:
-        raise InputError(f"unknown sensor name(s) {unknown}; name each recording's sensor "
+        raise InputError(f"unknown {named('sensor name', unknown)}; name each recording's sensor "
                          f"as one of {', '.join(PAPER_SENSORS)}")
     if "chest" not in recordings:
         raise InputError("the chest sensor is required to fuse with a depth skeleton; name "

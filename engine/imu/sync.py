@@ -29,6 +29,7 @@ from engine import nanstats
 from engine.errors import InputError, InsufficientDataError
 from engine.imu.io import ImuRecording
 from engine.skeleton import SkeletonSeries
+from engine.wording import count
 
 FloatArray = NDArray[np.float64]
 G = 9.80665
@@ -114,8 +115,8 @@ def detect_spikes(
     peaks, props = find_peaks(y, height=min_height, distance=dist)
     if len(peaks) < n_jumps:
         raise InsufficientDataError(
-            f"found {len(peaks)} landing spike(s), need {n_jumps}; check that the recording "
-            "contains the jump series and covers it completely")
+            f"found {count(len(peaks), 'landing spike')}, need {n_jumps}; check that the "
+            "recording contains the jump series and covers it completely")
     span = 2.5 * n_jumps if max_span is None else max_span
     heights = props["peak_heights"]
     tp = t[peaks]
@@ -339,8 +340,8 @@ def synchronize(
                             f"{np.max(np.abs(residuals[name])) * 1e3:.0f} ms after alignment; "
                             "check the clock drift or the detected spikes")
     if skeleton is not None and missing.any():
-        warnings.append(f"depth skeleton: {int(missing.sum())} jump landing(s) outside the "
-                        "depth recording (times predicted from the IMUs)")
+        warnings.append(f"depth skeleton: {count(int(missing.sum()), 'jump landing')} outside "
+                        "the depth recording (times predicted from the IMUs)")
     return SyncResult(ref, offsets, spikes, residuals, warnings)
 
 

@@ -355,7 +355,8 @@ def test_nan_and_empty_cells_are_kept_and_said(base: ImuRecording, tmp_path: Pat
     p.write_text(p.read_text().replace(",,,", ",NaN,,", 1))
     rec = load_imu(p)
     assert np.isnan(rec.gyr[30]).all() and np.isnan(rec.acc[40, 0])
-    assert any("gyroscope sample(s) are NaN" in w for w in rec.warnings)
+    assert any(w.startswith("1 gyroscope sample is NaN/inf") and w.endswith("it is skipped")
+               for w in rec.warnings)
     ok = np.ones(len(base), bool)
     ok[[30, 40]] = False
     assert np.allclose(rec.gyr[ok], base.gyr[ok])
@@ -368,7 +369,7 @@ def test_repeated_rows_dropped_conflicting_duplicates_refused(base: ImuRecording
 
     rec = load_imu(_write(tmp_path / "dup.csv", base, Layout(), edit=dup))
     _same(base, rec)
-    assert any("dropped 3 repeated row" in w for w in rec.warnings)
+    assert any("dropped 3 repeated rows (same time" in w for w in rec.warnings)
 
     def conflict(d: np.ndarray) -> None:
         d[51, 0] = d[50, 0]
@@ -388,7 +389,8 @@ def test_gaps_saturation_dead_channel(base: ImuRecording, tmp_path: Path) -> Non
         return np.delete(d, np.s_[100:150], axis=0)
 
     rec = load_imu(_write(tmp_path / "gap.csv", base, Layout(), edit=gap))
-    assert any("1 gap(s)" in w for w in rec.warnings)
+    assert any(w.startswith("1 gap in the time stamps") for w in rec.warnings)
+    assert not any("1 gap(s)" in w for w in rec.warnings)
     assert rec.frequency == pytest.approx(base.frequency, rel=1e-4)
 
     lim = 0.5 * float(np.max(np.abs(base.gyr[:, 2])))
@@ -403,6 +405,57 @@ def test_gaps_saturation_dead_channel(base: ImuRecording, tmp_path: Path) -> Non
     assert "gyroscope Z saturates" in said and "accelerometer Y is constant" in said
     rec = load_imu(_write(tmp_path / "ok.csv", base, Layout()))
     assert not any("saturates" in w or "constant" in w for w in rec.warnings)
+
+
+@pytest.mark.parametrize("holes", [[(100, 101)], [(100, 120), (400, 410)]])
+def test_filled_gaps_replace_the_gap_warning(tmp_path: Path,
+                                             holes: list[tuple[int, int]]) -> None:
+    """:func:`fill_gaps` drops the "gaps in the time stamps" warning it repairs, in the
+    singular and the plural, and keeps the others (the assumed units)."""
+    rec0 = _synthetic()
+    keep = np.ones(len(rec0), bool)
+    for a, b in holes:
+        keep[a:b] = False
+
+    def gap(d: np.ndarray, _h: list[str]) -> np.ndarray:
+        return d[keep]
+
+    rec = load_imu(_write(tmp_path / "gap.csv", rec0, Layout(), edit=gap))
+    n = len(holes)
+    said = [w for w in rec.warnings if w.startswith(f"{n} gap{'' if n == 1 else 's'} in the "
+                                                    "time stamps (largest ")]
+    assert len(said) == 1, rec.warnings
+    others = [w for w in rec.warnings if w not in said]
+    filled = imu_io.fill_gaps(rec)
+    assert len(filled) == len(rec0)
+    assert filled.warnings == [*others, filled.warnings[-1]]
+    n_drop = int((~keep).sum())
+    assert filled.warnings[-1].startswith(
+        f"{n_drop} dropped sample{'' if n_drop == 1 else 's'} filled by interpolation (")
+
+
+@pytest.mark.parametrize("extra", [{}, {"temperature": 25.0}, {"temperature": 25.0,
+                                                                "battery": 3.7}])
+def test_quaternion_columns_are_not_said_ignored(tmp_path: Path,
+                                                 extra: dict[str, float]) -> None:
+    """Reference quaternion columns are read, so the "ignored column" warning written
+    before they were found is replaced by one naming only what is left (or none)."""
+    rec0 = _synthetic()
+    assert rec0.quat_ref is not None
+    q = rec0.quat_ref
+
+    def quat(d: np.ndarray, h: list[str]) -> np.ndarray:
+        h.extend(["quat_w", "quat_x", "quat_y", "quat_z"])
+        return np.column_stack([d, q])
+
+    rec = load_imu(_write(tmp_path / "q.csv", rec0, Layout(extra=extra), edit=quat))
+    assert rec.quat_ref is not None
+    said = [w for w in rec.warnings if w.startswith("ignored")]
+    if not extra:
+        assert said == []
+    else:
+        noun = "column" if len(extra) == 1 else "columns"
+        assert said == [f"ignored {noun}: {', '.join(extra)}"]
 
 
 def test_broken_files(base: ImuRecording, tmp_path: Path, monkeypatch: pytest.MonkeyPatch

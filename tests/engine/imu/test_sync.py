@@ -101,8 +101,10 @@ def test_missing_jumps_and_bad_reference() -> None:
     with pytest.raises(InputError):
         synchronize({})
     t = np.linspace(0, 10, 1000)
-    with pytest.raises(InsufficientDataError):
+    with pytest.raises(InsufficientDataError, match="found 2 landing spikes, need 5"):
         detect_spikes(t, np.sin(t), n_jumps=5)
+    with pytest.raises(InsufficientDataError, match="found 1 landing spike, need 5"):
+        detect_spikes(t, np.sin(t / 3), n_jumps=5)
 
 
 def _protocol_recordings(seed: int) -> tuple[dict, dict, object]:
@@ -186,4 +188,4 @@ def test_depth_skeleton_missing_the_first_jumps() -> None:
         assert res.offsets[s] == pytest.approx(off, abs=0.01), s
     assert np.all(np.isfinite(res.spike_times["skeleton"]))
     assert np.isfinite(res.max_residual())
-    assert any("2 jump landing(s) outside" in w for w in res.warnings)
+    assert any("depth skeleton: 2 jump landings outside" in w for w in res.warnings)
