@@ -285,7 +285,7 @@ def test_warnings_link_to_their_explanation(browser: Any, live_server: LiveServe
         page.route("**/api/calibration/capture", lambda route: _json(route, {"id": 991}))
         page.route("**/api/calibration/captures/991", lambda route: _json(route, {
             "id": 991, "state": "failed", "frames": 30, "nodes": {},
-            "message": "sensor(s) S5 have no chain of shared markers to marker 1: S5 sees "
+            "message": "sensor S5 has no chain of shared markers to marker 1: S5 sees "
                        "no usable marker. Place a marker where an unreachable sensor and a "
                        "reachable one both see it.", "unreachable": ["S5"]}))
         page.goto(live_server.base_url + "/calibration-wizard.html")
