@@ -26,7 +26,12 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from engine.calibration.detect import MarkerDetection, detect_markers, make_detector
+from engine.calibration.detect import (
+    DetectionSet,
+    MarkerDetection,
+    detect_markers,
+    make_detector,
+)
 from engine.calibration.markers import DEFAULT_DICTIONARY
 from engine.errors import InputError
 from engine.geometry import invert_transform, transform_points
@@ -221,11 +226,40 @@ def _inside_quad(uv: FloatArray, quad: FloatArray) -> NDArray[np.bool_]:
     return np.all(s >= 0, axis=1) | np.all(s <= 0, axis=1)
 
 
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+
+
+def detect_with_lens(image: ArrayLike, intrinsics: CameraIntrinsics,
+                     dictionary: str = DEFAULT_DICTIONARY,
+                     detector: cv2.aruco.ArucoDetector | None = None) -> DetectionSet:
+    """Markers in ``image`` as the calibration finds them: with the camera's lens.
+
+    A lens with distortion bends the markers' edges, which the detector's quads and the
+    pattern fit take straight: the markers are then found in the undistorted image and
+    their corners mapped back to the image's own pixels
+    (:func:`engine.calibration.detect.detect_markers` with ``K`` and ``dist``), which
+    :func:`corner_rays` undistorts. Without distortion: the plain detection.
+    """
+    if intrinsics.dist and np.any(intrinsics.dist_array != 0):
+        return detect_markers(image, dictionary, detector=detector, K=intrinsics.K,
+                              dist=intrinsics.dist_array)
+    return detect_markers(image, dictionary, detector=detector)
+
+
+def corner_rays(px: ArrayLike, intrinsics: CameraIntrinsics) -> FloatArray:
+    """Rays ``(N, 3)`` with z = 1 (camera frame) through image pixels ``(N, 2)`` of a
+    camera with the lens of ``intrinsics`` (its distortion removed)."""
+    return _undistorted_rays(np.asarray(px, dtype=np.float64).reshape(-1, 2), intrinsics)
+
+
 def _undistorted_rays(px: FloatArray, intr: CameraIntrinsics) -> FloatArray:
     """Rays (N, 3) with z = 1 through pixels (N, 2) of a (possibly distorted) camera."""
     if intr.dist and np.any(np.asarray(intr.dist) != 0):
+        # iterated to convergence: OpenCV's default 5 iterations leave 0.1 px at the
+        # border of a strong barrel lens (k1 = -0.3), 1 mm on a marker corner at 5 m
         n = cv2.undistortPoints(px.reshape(-1, 1, 2).astype(np.float64), intr.K,
-                                intr.dist_array).reshape(-1, 2)
+                                intr.dist_array, None, None, None,
+                                _UNDISTORT_CRITERIA).reshape(-1, 2)
     else:
         n = np.stack([(px[:, 0] - intr.cx) / intr.fx, (px[:, 1] - intr.cy) / intr.fy], axis=1)
     return np.column_stack([n, np.ones(len(n))])
@@ -296,9 +330,12 @@ class FrameCornerEstimator:
             z = d[rows, cols].astype(np.float64) / self.depth_scale
             vs, us = np.nonzero(np.isfinite(z) & (z > 0.05))
             zz = z[vs, us]
-            x = (us + cols.start - self.di.cx) / self.di.fx * zz
-            y = (vs + rows.start - self.di.cy) / self.di.fy * zz
-            pts_c = np.stack([x, y, zz], axis=1) @ T[:3, :3].T + T[:3, 3]
+            # a depth camera with a lens model (Azure Kinect: its factory Brown–Conrady
+            # coefficients) unprojects along undistorted rays, not the pinhole's
+            rays = _undistorted_rays(np.column_stack([us + cols.start, vs + rows.start])
+                                     .astype(np.float64), self.di)
+            pts_d = rays * zz[:, None]
+            pts_c = pts_d @ T[:3, :3].T + T[:3, 3]
             pts_c = pts_c[pts_c[:, 2] > 0.05]
             out[det.id] = self._marker(det, pts_c, self._project_color(pts_c))
         return out
@@ -481,6 +518,8 @@ def observe_sensor(
     first: dict[int, MarkerDetection] = {}
     dup_ids: set[int] = set()
     for img in frames.colors:
+        # per frame only which ids are seen (the corners come from the median image), so
+        # without the lens: undistorting every frame would double the detection time
         ds = detect_markers(img, dictionary, detector=detector, refine=False)
         dup_ids.update(ds.duplicates)
         ids = {m.id for m in ds.markers if marker_ids is None or m.id in marker_ids}
@@ -489,7 +528,7 @@ def observe_sensor(
             if m.id in ids:
                 seen[m.id] = seen.get(m.id, 0) + 1
                 first.setdefault(m.id, m)
-    median = detect_markers(robust_mean_image(frames.colors), dictionary, detector=detector)
+    median = detect_with_lens(robust_mean_image(frames.colors), ci, dictionary, detector)
     best = {m.id: m for m in median.markers}
     dets = {mid: best.get(mid, first[mid]) for mid in seen}
     per: dict[int, list[FrameCorners | str]] = {mid: [] for mid in seen}

@@ -7,7 +7,8 @@ poses, residual tables, every observation with its acceptance and reason, and th
 edges for display. ``calibrate_frames`` then refines the optimised poses by ICP of the
 sensors' (temporal-median) depth clouds (:func:`engine.calibration.icp.refine_with_icp`),
 keeping a refinement only where it improves the overlap and is not degenerate; every
-sensor's ICP outcome is in ``meta["icp"]``. Saving, loading and the bumped-tripod check are in
+sensor's ICP outcome is in ``meta["icp"]``, every sensor's camera model (with its lens
+distortion) in ``meta["cameras"]``. Saving, loading and the bumped-tripod check are in
 :mod:`engine.calibration.store`.
 """
 
@@ -226,10 +227,28 @@ def calibrate_frames(
     if not obs:
         _no_markers_anywhere(frames, dictionary)
     res = calibrate(obs, marker_sizes, ids, origin_marker, floor_sigma_m, dictionary)
+    res.meta["cameras"] = {f.sensor_id: camera_model_dict(f) for f in frames}
     if icp:
         apply_icp(res, {f.sensor_id: c for f, (_, c) in zip(frames, done, strict=True)
                         if c is not None})
     return res
+
+
+def camera_model_dict(frames: SensorFrames) -> dict[str, Any]:
+    """JSON-ready camera model a sensor's observations were computed with (kept with the
+    calibration in ``meta["cameras"]``): each image's size, 3×3 K and OpenCV distortion
+    (``[]``: none, a pinhole)."""
+    from engine.calibration.corners3d import _intr
+
+    out: dict[str, Any] = {}
+    for key, obj, imgs in (("color", frames.color_intrinsics, frames.colors),
+                           ("depth", frames.depth_intrinsics, frames.depths)):
+        if imgs is None or len(imgs) == 0:
+            continue
+        intr = _intr(obj, np.asarray(imgs[0]).shape)
+        out[key] = {"size": [intr.width, intr.height], "K": intr.K.tolist(),
+                    "dist": [float(x) for x in intr.dist]}
+    return out
 
 
 def _no_markers_anywhere(frames: Sequence[SensorFrames], dictionary: str) -> None:

@@ -15,6 +15,7 @@ from engine.calibration.corners3d import DEFAULT_FRAMES, SensorFrames
 from engine.calibration.pipeline import CalibrationResult
 from engine.errors import InputError
 from engine.geometry import pose_error
+from engine.pointcloud import CameraIntrinsics
 from engine.sim.render import BodyMesh, SensorRenderer
 from engine.sim.rig import Rig, SimSensor
 
@@ -28,7 +29,8 @@ COLOR_NOISE_DN = 2.0
 def render_sensor_frames(sensor: SimSensor, rig: Rig, frames: int, rng: np.random.Generator | None,
                          color_size: tuple[int, int] = CAPTURE_COLOR_SIZE,
                          bodies: Callable[[int], list[BodyMesh]] | list[BodyMesh] | None = None,
-                         renderer: SensorRenderer | None = None) -> SensorFrames:
+                         renderer: SensorRenderer | None = None,
+                         color_dist: Any = None) -> SensorFrames:
     """Render ``frames`` colour + depth frames of one simulated sensor.
 
     Args:
@@ -42,10 +44,13 @@ def render_sensor_frames(sensor: SimSensor, rig: Rig, frames: int, rng: np.rando
             function frame index → meshes, or None (an empty room).
         renderer: A renderer of this sensor at ``color_size`` to reuse (it ray-casts the
             room once, which is the slow part).
+        color_dist: OpenCV distortion of the colour lens to render (None: a pinhole;
+            ignored with ``renderer``, which has its own). The frames' colour intrinsics
+            carry it, as a node reporting its lens sends it.
     """
     if frames < 1:
         raise InputError(f"frames must be at least 1, got {frames}")
-    r = renderer or SensorRenderer(sensor, rig, color_size=color_size)
+    r = renderer or SensorRenderer(sensor, rig, color_size=color_size, color_dist=color_dist)
     colors, depths = [], []
     for k in range(frames):
         meshes = bodies(k) if callable(bodies) else (bodies or [])
@@ -56,8 +61,11 @@ def render_sensor_frames(sensor: SimSensor, rig: Rig, frames: int, rng: np.rando
             c = np.clip(c + rng.normal(0.0, COLOR_NOISE_DN, c.shape), 0, 255).astype(np.uint8)
         colors.append(c)
         depths.append(f.depth)
+    assert r.K_color is not None and r.color_size is not None
+    w, h = r.color_size
+    color_intr = CameraIntrinsics.from_matrix(r.K_color, w, h, r.color_dist)
     return SensorFrames(sensor_id=sensor.id, colors=colors, depths=depths,
-                        depth_intrinsics=r.K_depth, color_intrinsics=r.K_color,
+                        depth_intrinsics=r.K_depth, color_intrinsics=color_intr,
                         T_depth_color=sensor.model.T_depth_color, depth_scale=1000.0)
 
 

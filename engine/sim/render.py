@@ -68,12 +68,22 @@ def _tensor(a: NDArray[Any]) -> Any:
     return o3d.core.Tensor.from_numpy(np.ascontiguousarray(a))  # type: ignore[no-untyped-call]
 
 
-def _pixel_rays(K: FloatArray, width: int, height: int, du: float = 0.0, dv: float = 0.0
-                ) -> FloatArray:
+def _pixel_rays(K: FloatArray, width: int, height: int, du: float = 0.0, dv: float = 0.0,
+                dist: FloatArray | None = None) -> FloatArray:
     """Unit ray directions ``(H, W, 3)`` in the camera frame through pixel centres
-    (integer coordinates, OpenCV convention) shifted by ``(du, dv)`` pixels."""
+    (integer coordinates, OpenCV convention) shifted by ``(du, dv)`` pixels; with OpenCV
+    distortion ``dist`` the rays of the distorted image's pixels (a real lens)."""
     u, v = np.meshgrid(np.arange(width, dtype=float) + du, np.arange(height, dtype=float) + dv)
-    d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], axis=-1)
+    if dist is not None and np.any(dist):
+        # iterated to 1e-10 (OpenCV's default 5 iterations leave ~0.01 px at the border
+        # of a strong lens): the rendered image must follow the model exactly
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+        px = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+        n = cv2.undistortPoints(px, K, dist, None, None, None, crit).reshape(height, width, 2)
+        d = np.concatenate([n, np.ones((height, width, 1))], axis=-1)
+    else:
+        d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)],
+                     axis=-1)
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
@@ -192,12 +202,23 @@ class SensorRenderer:
             live previews: ``(round(W·s), round(H·s))`` pixels with intrinsics ``K·s``
             (the geometry of an ``INTER_NEAREST`` downscale, which the live point cloud
             assumes), at a fraction of the cost. 1 (default): the sensor's images.
+        color_dist: OpenCV distortion (k1, k2, p1, p2[, k3...]) of the colour lens, or
+            None (default) for an ideal pinhole. Off by default: the simulated rig
+            stands for sensors whose colour images are delivered rectified, and every
+            recorded expectation (calibration accuracy, benches) is for that; tests of
+            the lens path turn it on.
     """
 
     def __init__(self, sensor: SimSensor, rig: Rig,
                  color_size: tuple[int, int] | None = (640, 360), supersample: int = 2,
-                 image_scale: float = 1.0) -> None:
+                 image_scale: float = 1.0, color_dist: Any = None) -> None:
         self.sensor = sensor
+        cd = None if color_dist is None else np.asarray(color_dist, dtype=float).ravel()
+        if cd is not None and (cd.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(cd))):
+            raise InputError("color_dist must be 4, 5, 8, 12 or 14 finite OpenCV distortion "
+                             f"coefficients, got {cd.size}")
+        #: the colour lens's distortion (None: a pinhole)
+        self.color_dist: FloatArray | None = cd if cd is not None and np.any(cd) else None
         self.model = sensor.model
         self.room = _Room(rig)
         m = self.model
@@ -223,7 +244,7 @@ class SensorRenderer:
                 raise InputError(f"color_size must be at least 16×16, got {color_size}")
             self.K_color = m.color_intrinsics(w, h)
             T_wc = sensor.T_world_color
-            self._rays_c = self._world_rays(T_wc, self.K_color, w, h)
+            self._rays_c = self._world_rays(T_wc, self.K_color, w, h, dist=self.color_dist)
             ans = scene.cast_rays(_tensor(self._rays_c))
             self._bg_c_t = ans["t_hit"].numpy().astype(float)
             # the static background is anti-aliased by supersampling (cast once), so
@@ -232,14 +253,15 @@ class SensorRenderer:
             offs = (np.arange(supersample) + 0.5) / supersample - 0.5
             for dv in offs:
                 for du in offs:
-                    rays = self._world_rays(T_wc, self.K_color, w, h, du, dv)
+                    rays = self._world_rays(T_wc, self.K_color, w, h, du, dv,
+                                            self.color_dist)
                     acc += self._shade_static(rays, scene.cast_rays(_tensor(rays)))
             self._bg_color = np.round(acc / supersample**2).astype(np.uint8)
 
     @staticmethod
     def _world_rays(T_wc: FloatArray, K: FloatArray, w: int, h: int, du: float = 0.0,
-                    dv: float = 0.0) -> NDArray[np.float32]:
-        d = _pixel_rays(K, w, h, du, dv) @ T_wc[:3, :3].T
+                    dv: float = 0.0, dist: FloatArray | None = None) -> NDArray[np.float32]:
+        d = _pixel_rays(K, w, h, du, dv, dist) @ T_wc[:3, :3].T
         o = np.broadcast_to(T_wc[:3, 3], d.shape)
         return np.concatenate([o, d], axis=-1).astype(np.float32)
 
@@ -258,14 +280,19 @@ class SensorRenderer:
 
     @staticmethod
     def _bbox_pixels(T_cw: FloatArray, K: FloatArray, w: int, h: int,
-                     verts: FloatArray) -> tuple[slice, slice] | None:
+                     verts: FloatArray, dist: FloatArray | None = None
+                     ) -> tuple[slice, slice] | None:
         """Image window covering the projection of ``verts`` (None if not in view)."""
         q = transform_points(T_cw, verts)
         q = q[q[:, 2] > 0.05]
         if len(q) == 0:
             return None
-        u = K[0, 0] * q[:, 0] / q[:, 2] + K[0, 2]
-        v = K[1, 1] * q[:, 1] / q[:, 2] + K[1, 2]
+        if dist is not None:
+            uv, _ = cv2.projectPoints(q.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, dist)
+            u, v = np.asarray(uv, dtype=float).reshape(-1, 2).T
+        else:
+            u = K[0, 0] * q[:, 0] / q[:, 2] + K[0, 2]
+            v = K[1, 1] * q[:, 1] / q[:, 2] + K[1, 2]
         u0, u1 = int(max(np.floor(u.min()) - 1, 0)), int(min(np.ceil(u.max()) + 2, w))
         v0, v1 = int(max(np.floor(v.min()) - 1, 0)), int(min(np.ceil(v.max()) + 2, h))
         if u0 >= u1 or v0 >= v1:
@@ -333,7 +360,8 @@ class SensorRenderer:
         if not all_v:
             return img
         T_cw = invert_transform(self.sensor.T_world_color)
-        win = self._bbox_pixels(T_cw, self.K_color, w, h, np.concatenate(all_v))
+        win = self._bbox_pixels(T_cw, self.K_color, w, h, np.concatenate(all_v),
+                                self.color_dist)
         if win is None:
             return img
         ans = self._cast_bodies(bodies, self._rays_c, win)
