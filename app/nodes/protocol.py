@@ -86,6 +86,10 @@ class SensorInfo(BaseModel):
     color_size: tuple[int, int] = (1920, 1080)
     depth_K: list[list[float]] | None = None  # noqa: N815 - matrix name
     color_K: list[list[float]] | None = None  # noqa: N815
+    # OpenCV-order lens distortion (k1, k2, p1, p2[, k3[, k4, k5, k6]]) of the images sent
+    # at ``color_K``/``depth_K``; None (older nodes, ideal lenses) = no distortion
+    color_dist: list[float] | None = Field(default=None, max_length=14)
+    depth_dist: list[float] | None = Field(default=None, max_length=14)
     fov_deg: tuple[float, float] = (70.6, 60.0)
     rate_hz: float = 30.0
     joint_set: str = "kinect_v2"
@@ -572,14 +576,17 @@ def encode_calib_frame(
     req_id: int, index: int, frames: int, t_local: float, color: NDArray[Any],
     depth: NDArray[Any], color_K: ArrayLike, depth_K: ArrayLike,
     T_depth_color: ArrayLike, depth_scale: float = 1000.0,
+    color_dist: ArrayLike | None = None, depth_dist: ArrayLike | None = None,
 ) -> bytes:
     """Binary ``calib`` message: one colour + depth frame of a calibration capture.
 
     The colour image is sent as 8-bit grey PNG (marker detection works on grey; a third
     of the bytes), the depth as 16-bit PNG; both lossless so sub-pixel corners and depth
     noise arrive as captured. The header carries the camera model: 3×3 intrinsics of each
-    image at its sent size, ``T_depth_color`` (colour → depth camera) and ``depth_scale``
-    (raw units per metre).
+    image at its sent size, ``T_depth_color`` (colour → depth camera), ``depth_scale``
+    (raw units per metre) and, when the lens has one, each image's OpenCV distortion
+    (``color_dist``/``depth_dist``: k1, k2, p1, p2[, k3[, k4, k5, k6]]; absent = none, as
+    older nodes send).
     """
     import cv2
 
@@ -597,7 +604,34 @@ def encode_calib_frame(
               "depth_K": np.asarray(depth_K, float).tolist(),
               "T_depth_color": np.asarray(T_depth_color, float).tolist(),
               "depth_scale": float(depth_scale)}
+    for key, dist in (("color_dist", color_dist), ("depth_dist", depth_dist)):
+        if dist is not None and np.any(np.asarray(dist, float) != 0):
+            header[key] = np.asarray(dist, float).ravel().tolist()
     return encode_binary(header, cb + db)
+
+
+#: lengths of an OpenCV distortion vector
+_DIST_LENGTHS = (4, 5, 8, 12, 14)
+
+
+def calib_distortion(header: dict[str, Any], key: str) -> tuple[float, ...]:
+    """The OpenCV distortion ``key`` (``color_dist``/``depth_dist``) of a ``calib``
+    header; ``()`` (no distortion) when absent, as older nodes send.
+
+    Raises:
+        ProtocolError: not a list of 4, 5, 8, 12 or 14 finite numbers.
+    """
+    v = header.get(key)
+    if v is None:
+        return ()
+    try:
+        d = np.asarray(v, dtype=float).ravel()
+    except (TypeError, ValueError) as exc:
+        raise ProtocolError(f"calib header {key} is not a list of numbers") from exc
+    if d.size not in _DIST_LENGTHS or not np.all(np.isfinite(d)):
+        raise ProtocolError(f"calib header {key} must be 4, 5, 8, 12 or 14 finite OpenCV "
+                            f"distortion coefficients, got {d.size}")
+    return tuple(float(x) for x in d)
 
 
 def calib_error(req_id: int, reason: str) -> bytes:
@@ -623,6 +657,8 @@ def decode_calib_frame(header: dict[str, Any], payload: bytes
             raise ValueError("T_depth_color is not 4×4")
         if not float(header["depth_scale"]) > 0:
             raise ValueError("depth_scale must be positive")
+        calib_distortion(header, "color_dist")
+        calib_distortion(header, "depth_dist")
     except (KeyError, TypeError, ValueError) as exc:
         raise ProtocolError(f"calib header lacks a valid field: {exc}") from exc
     if not 0 < n < len(payload):

@@ -28,7 +28,12 @@ from typing import Any
 
 import numpy as np
 
-from app.nodes.protocol import CalibrationCapture, decode_calib_frame, dump
+from app.nodes.protocol import (
+    CalibrationCapture,
+    calib_distortion,
+    decode_calib_frame,
+    dump,
+)
 from engine.calibration.corners3d import SensorFrames
 from engine.calibration.pipeline import CalibrationResult
 from engine.calibration.store import (
@@ -39,6 +44,7 @@ from engine.calibration.store import (
     save_version,
 )
 from engine.errors import CalibrationError, GaitrigError, InputError
+from engine.pointcloud import CameraIntrinsics
 from engine.wording import named
 
 log = logging.getLogger("gaitrig.calibration")
@@ -564,8 +570,14 @@ class CaptureManager:
             colors.append(c)
             depths.append(d)
         h0 = items[0][0]
-        return SensorFrames(node, colors, depths, np.asarray(h0["depth_K"], float),
-                            np.asarray(h0["color_K"], float),
+        # a node that sends no distortion (older nodes, ideal lenses) gets none (zeros)
+        dh, dw = depths[0].shape[:2]
+        ch, cw = colors[0].shape[:2]
+        di = CameraIntrinsics.from_matrix(h0["depth_K"], dw, dh,
+                                          calib_distortion(h0, "depth_dist") or None)
+        ci = CameraIntrinsics.from_matrix(h0["color_K"], cw, ch,
+                                          calib_distortion(h0, "color_dist") or None)
+        return SensorFrames(node, colors, depths, di, ci,
                             np.asarray(h0["T_depth_color"], float), float(h0["depth_scale"]))
 
     def _compute(self, job: CaptureJob) -> None:

@@ -202,6 +202,33 @@ class DeviceClock:
         return self._forward(arrival_s)
 
 
+#: The Azure Kinect SDK's ``k4a_calibration_intrinsic_parameters_t.param`` order: cx, cy,
+#: fx, fy, k1..k6, codx, cody, p2, p1, metric_radius (p2 BEFORE p1; codx/cody are 0 for
+#: the Brown–Conrady model the devices use)
+K4A_PARAM_ORDER = ("cx", "cy", "fx", "fy", "k1", "k2", "k3", "k4", "k5", "k6", "codx", "cody",
+                   "p2", "p1", "metric_radius")
+
+
+def distortion_from_k4a_params(params: Sequence[float]) -> list[float]:
+    """OpenCV's rational distortion ``[k1, k2, p1, p2, k3, k4, k5, k6]`` from the SDK's
+    raw intrinsic parameters (:data:`K4A_PARAM_ORDER`; what ``pyk4a``'s
+    ``Calibration.get_distortion_coefficients`` computes, with p1/p2 swapped back)."""
+    p = dict(zip(K4A_PARAM_ORDER, (float(x) for x in params), strict=False))
+    if len(params) < 14:
+        raise InputError(f"Azure Kinect intrinsics need 14 parameters, got {len(params)}")
+    return [p["k1"], p["k2"], p["p1"], p["p2"], p["k3"], p["k4"], p["k5"], p["k6"]]
+
+
+def opencv_distortion(coeffs: Any) -> list[float] | None:
+    """A device's OpenCV distortion coefficients as a list for the sensor report, or None
+    when they are all zero (an ideal lens) or not 4, 5, 8, 12 or 14 finite numbers (then
+    calibration uses the pinhole, as before nodes reported distortion)."""
+    d = np.asarray(coeffs, dtype=float).ravel()
+    if d.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(d)) or not np.any(d):
+        return None
+    return [float(x) for x in d]
+
+
 def _require_pyk4a() -> Any:
     try:
         import pyk4a
@@ -319,9 +346,16 @@ class K4ABackend(Backend):
         # the colour image we send is ``transformed_color``: resampled into the DEPTH
         # camera's geometry, so it has the depth camera's size and intrinsics (and the
         # identity as colour → depth transform), not the 1280×720 colour camera's
+        # the depth camera's factory Brown–Conrady lens (it is wide: pixels near the border
+        # are tens of pixels off the pinhole). pyk4a gives OpenCV's order k1, k2, p1, p2,
+        # k3..k6 (the SDK's k4a_calibration_intrinsic_parameters_t stores k1..k6, codx,
+        # cody, p2, p1: see :func:`opencv_distortion`); the colour image in depth geometry
+        # has the same lens
+        dist_d = opencv_distortion(cal.get_distortion_coefficients(pyk4a.CalibrationType.DEPTH))
         model = "Azure Kinect (pyk4a" + (", k4abt)" if self._tracker else ", no skeletons)")
         return SensorInfo(model=model, depth_size=(640, 576),
                           color_size=(640, 576), depth_K=K_d, color_K=K_d,
+                          depth_dist=dist_d, color_dist=dist_d,
                           fov_deg=(75.0, 65.0), rate_hz=30.0, joint_set="azure_kinect",
                           warnings=list(self.warnings))
 
