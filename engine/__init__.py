@@ -14,7 +14,12 @@ engine`` stays cheap. Where things live:
   :mod:`engine.io` (``read_c3d``, ``read_trc``, ``read_skeleton_csv`` and the writers);
 * gait: :class:`~engine.gait.GaitAnalysis` (``fit`` → ``steps_``, ``strides_``,
   ``events_``, ``passes_``, ``summary_``; ``to_records`` for tables, ``to_dict`` for the
-  JSON document of ``docs/gait-json.md``);
+  JSON document of ``docs/gait-json.md``); :func:`~engine.gait.gait_cycles` splits events
+  into gait cycles (:class:`~engine.gait.GaitCycle`);
+* other files: :func:`~engine.pointcloud.load_point_cloud`,
+  :func:`~engine.pointcloud.load_depth_image`, :func:`~engine.pointcloud.load_intrinsics`
+  (point clouds, depth images, camera intrinsics of other labs and tools),
+  :func:`~engine.imu.io.load_imu` (IMU recordings);
 * several sensors → one skeleton: :func:`~engine.integration.integrate_skeletons`;
 * agreement with a reference (seed 000's statistics): :mod:`engine.agreement`;
 * skeletons and joint sets: :mod:`engine.skeleton` (``SkeletonSeries.to_columns`` gives
@@ -56,6 +61,9 @@ _EXPORTS: dict[str, str] = {
     "Agreement": "engine.agreement", "agreement_levels": "engine.agreement",
     "match_steps": "engine.agreement", "match_events": "engine.agreement",
     "bland_altman_png": "engine.agreement",
+    "GaitCycle": "engine.gait", "gait_cycles": "engine.gait",
+    "load_point_cloud": "engine.pointcloud", "load_depth_image": "engine.pointcloud",
+    "load_intrinsics": "engine.pointcloud", "load_imu": "engine.imu.io",
     "KsccCalibrator": "engine.kscc", "compare_motions": "engine.compare",
     "GaitrigError": "engine.errors", "InputError": "engine.errors",
     "InsufficientDataError": "engine.errors", "CalibrationError": "engine.errors",
@@ -66,6 +74,7 @@ __all__ = [
     "CalibrationError",
     "FeetTrajectories",
     "GaitAnalysis",
+    "GaitCycle",
     "GaitEvent",
     "GaitrigError",
     "InputError",
@@ -86,9 +95,14 @@ __all__ = [
     "compare_motions",
     "feet_from_markers",
     "feet_from_skeleton",
+    "gait_cycles",
     "integrate_skeletons",
     "joint_set_for",
+    "load_depth_image",
     "load_feet",
+    "load_imu",
+    "load_intrinsics",
+    "load_point_cloud",
     "match_events",
     "match_steps",
     "read_c3d",
@@ -115,7 +129,16 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ lo
         InputError,
         InsufficientDataError,
     )
-    from engine.gait import GaitAnalysis, GaitEvent, Step, Stride, WalkPass
+    from engine.gait import (
+        GaitAnalysis,
+        GaitCycle,
+        GaitEvent,
+        Step,
+        Stride,
+        WalkPass,
+        gait_cycles,
+    )
+    from engine.imu.io import load_imu
     from engine.integration import SensorStream, integrate_skeletons
     from engine.io.c3d import read_c3d, write_c3d, write_skeleton_c3d
     from engine.io.csv import read_skeleton_csv, write_skeleton_csv
@@ -123,6 +146,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ lo
     from engine.io.trc import read_trc, write_trc
     from engine.kscc import KsccCalibrator
     from engine.mocap import FeetTrajectories, feet_from_markers, feet_from_skeleton, load_feet
+    from engine.pointcloud import load_depth_image, load_intrinsics, load_point_cloud
     from engine.skeleton import JointSet, SkeletonSeries, TrackingState, joint_set_for
 
 

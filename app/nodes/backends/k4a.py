@@ -351,7 +351,9 @@ class K4ABackend(Backend):
         # k3..k6 (the SDK's k4a_calibration_intrinsic_parameters_t stores k1..k6, codx,
         # cody, p2, p1: see :func:`opencv_distortion`); the colour image in depth geometry
         # has the same lens
-        dist_d = opencv_distortion(cal.get_distortion_coefficients(pyk4a.CalibrationType.DEPTH))
+        get_dist = getattr(cal, "get_distortion_coefficients", None)  # pyk4a ≥ 1.2
+        dist_d = (opencv_distortion(get_dist(pyk4a.CalibrationType.DEPTH))
+                  if callable(get_dist) else None)
         model = "Azure Kinect (pyk4a" + (", k4abt)" if self._tracker else ", no skeletons)")
         return SensorInfo(model=model, depth_size=(640, 576),
                           color_size=(640, 576), depth_K=K_d, color_K=K_d,
