@@ -874,11 +874,10 @@ class NodeAgent:
         try:
             own = getattr(self.backend, "calibration_frames", None)
             frames = own(msg.frames) if callable(own) else self._live_calib_frames(msg.frames)
-            info = self.info
-            # distortion coefficients do not depend on the image size: the sensor's report
-            # holds for the backend's own calibration frames too
-            c_dist = info.color_dist if info is not None else None
-            d_dist = info.depth_dist if info is not None else None
+            # distortion coefficients do not depend on the image size: the backend's lens
+            # holds for its own calibration frames too
+            c_dist = getattr(self.backend, "color_dist", None)
+            d_dist = getattr(self.backend, "depth_dist", None)
             for k, (t, c, d, cK, dK, T_dc, scale) in enumerate(frames):
                 send(encode_calib_frame(msg.req_id, k, msg.frames, t + self._step_corr, c, d,
                                         cK, dK, T_dc, scale, c_dist, d_dist))

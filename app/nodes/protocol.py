@@ -86,10 +86,6 @@ class SensorInfo(BaseModel):
     color_size: tuple[int, int] = (1920, 1080)
     depth_K: list[list[float]] | None = None  # noqa: N815 - matrix name
     color_K: list[list[float]] | None = None  # noqa: N815
-    # OpenCV-order lens distortion (k1, k2, p1, p2[, k3[, k4, k5, k6]]) of the images sent
-    # at ``color_K``/``depth_K``; None (older nodes, ideal lenses) = no distortion
-    color_dist: list[float] | None = Field(default=None, max_length=14)
-    depth_dist: list[float] | None = Field(default=None, max_length=14)
     fov_deg: tuple[float, float] = (70.6, 60.0)
     rate_hz: float = 30.0
     joint_set: str = "kinect_v2"

@@ -88,6 +88,13 @@ class Backend(ABC):
     name: str = "base"
     #: Set by the node agent: carries a warning on to the server (any thread may call it).
     warning_sink: Callable[[str], None] | None = None
+    #: OpenCV lens distortion (k1, k2, p1, p2[, k3[, k4, k5, k6]]) of the colour/depth
+    #: images the backend gives (at ``SensorInfo.color_K``/``depth_K``), known after
+    #: :meth:`open`; None = none (an ideal or rectified lens). Sent with each calibration
+    #: frame, not in the ``hello``: a server older than the node refuses unknown sensor
+    #: fields but ignores unknown ``calib`` header keys.
+    color_dist: list[float] | None = None
+    depth_dist: list[float] | None = None
 
     @abstractmethod
     def open(self) -> SensorInfo:

@@ -354,10 +354,10 @@ class K4ABackend(Backend):
         get_dist = getattr(cal, "get_distortion_coefficients", None)  # pyk4a ≥ 1.2
         dist_d = (opencv_distortion(get_dist(pyk4a.CalibrationType.DEPTH))
                   if callable(get_dist) else None)
+        self.depth_dist = self.color_dist = dist_d
         model = "Azure Kinect (pyk4a" + (", k4abt)" if self._tracker else ", no skeletons)")
         return SensorInfo(model=model, depth_size=(640, 576),
                           color_size=(640, 576), depth_K=K_d, color_K=K_d,
-                          depth_dist=dist_d, color_dist=dist_d,
                           fov_deg=(75.0, 65.0), rate_hz=30.0, joint_set="azure_kinect",
                           warnings=list(self.warnings))
 
