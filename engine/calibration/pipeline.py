@@ -297,7 +297,14 @@ def static_cloud(frames: SensorFrames, max_frames: int = 9, stride: int = 2) -> 
     img = np.zeros(full.shape, dtype=np.float64)
     img[::stride, ::stride] = med
     intr = _intr(frames.depth_intrinsics, full.shape)
-    pts, _ = depth_to_points(img, intr, frames.depth_scale, max_depth=8.0, stride=stride)
+    pts, idx_flat = depth_to_points(img, intr, frames.depth_scale, max_depth=8.0,
+                                    stride=stride)
+    if intr.dist and np.any(intr.dist_array != 0):
+        # a depth lens (Azure Kinect): the pinhole points' depths along undistorted rays
+        from engine.calibration.corners3d import corner_rays
+
+        v, u = np.divmod(idx_flat, full.shape[1])
+        pts = corner_rays(np.column_stack([u, v]), intr) * pts[:, 2:3]
     return pts
 
 

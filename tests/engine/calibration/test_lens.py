@@ -123,3 +123,25 @@ def test_charuco_photo_lens_moves_corners_as_undistort_points_says(shared_data: 
     assert np.abs(r_lens - want).max() * K[0, 0] < 1e-6
     moved_px = np.abs(r_lens - r_pin).max() * K[0, 0]
     assert 0.4 < moved_px < 2.0, moved_px
+
+
+def test_icp_cloud_uses_the_depth_lens() -> None:
+    """The ICP refinement's static cloud of a depth camera with a lens: each pixel's depth
+    along its undistorted ray (the pinhole would put a flat wall's corners 9 mm off here)."""
+    from engine.calibration.corners3d import SensorFrames
+    from engine.calibration.pipeline import static_cloud
+
+    K = np.array([[250.0, 0, 63.5], [0, 250.0, 47.5], [0, 0, 1]])
+    dist = [0.2, -0.1, 0.0, 0.0, 0.0]
+    depth = np.full((96, 128), 2000, np.uint16)
+    colour = np.zeros((96, 128, 3), np.uint8)
+    lens = SensorFrames("S1", [colour], [depth], CameraIntrinsics.from_matrix(K, 128, 96, dist),
+                        K)
+    pts = static_cloud(lens)
+    pin = static_cloud(SensorFrames("S1", [colour], [depth], K, K))
+    assert len(pts) == len(pin) > 0 and np.allclose(pts[:, 2], 2.0)
+    px = np.column_stack([pin[:, 0] / 2.0 * 250 + 63.5, pin[:, 1] / 2.0 * 250 + 47.5])
+    want = cv2.undistortPoints(px.reshape(-1, 1, 2), K, np.array(dist), None, None, None,
+                               _CRIT).reshape(-1, 2) * 2.0
+    assert np.allclose(pts[:, :2], want, atol=1e-9)
+    assert np.abs(pts[:, :2] - pin[:, :2]).max() > 0.005  # metres at the image corners
