@@ -95,6 +95,16 @@ class SimBackend(Backend):
         self.report_truth = report_truth
         self.test_warning = test_warning
         self._step_file = os.environ.get("GAITRIG_TEST_CLOCK_STEP_FILE") or None
+        # TEST HOOK (GAITRIG_TEST_SIM_COLOR_DIST=k1,k2,p1,p2[,k3...]): the calibration
+        # frames are rendered through this colour lens, which the node then reports like a
+        # real sensor's (Backend.color_dist); the simulated rig has none by default
+        lens = os.environ.get("GAITRIG_TEST_SIM_COLOR_DIST")
+        if lens:
+            try:
+                self.color_dist = [float(x) for x in lens.split(",")]
+            except ValueError as exc:
+                raise InputError("GAITRIG_TEST_SIM_COLOR_DIST must be comma-separated "
+                                 f"numbers, got {lens!r}") from exc
         self._step: tuple[float, float] | None = None  # (host time, seconds) of the step
         self._closed = threading.Event()
         self._walker: Any = None
@@ -313,7 +323,8 @@ class SimBackend(Backend):
                              "opened): it has no colour or depth images to calibrate with")
         with self._calib_lock:
             if self._calib_renderer is None:
-                self._calib_renderer = SensorRenderer(self.sensor, self.rig, CAPTURE_COLOR_SIZE)
+                self._calib_renderer = SensorRenderer(self.sensor, self.rig, CAPTURE_COLOR_SIZE,
+                                                      color_dist=self.color_dist)
             r = self._calib_renderer
         for _ in range(n):
             t_host = time.time()
