@@ -34,6 +34,9 @@ PASSWORD = "safety-pw-123"
 #: refusing an anonymous request fails the test; so does an entry no route matches.
 ALLOWED_WITHOUT_LOGIN: dict[tuple[str, str], str] = {
     ("POST", "/api/auth/login"): "how one logs in",
+    ("GET", "/api/auth/session"): "whether the caller is logged in: {logged_in: false} and "
+                                  "nothing else without a login (pages open without one, "
+                                  "like Help, ask it)",
     ("GET", "/healthz"): "liveness probe for compose/monitoring: answers {'status': 'ok'} only",
     ("GET", "/"): "redirect to the console page, which itself asks /api (login required)",
     ("GET", "/openapi.json"): "API description (no data), used by /docs",
