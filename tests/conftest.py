@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -68,7 +69,8 @@ def _throttle_pages(browser: Any, rate: float) -> None:
 
 def _bypass_csp_by_default(browser: Any) -> None:
     """Make the contexts of ``browser`` bypass the page's Content-Security-Policy unless a
-    test asks otherwise (``new_context(bypass_csp=False)``).
+    test asks otherwise (``new_context(bypass_csp=False)``), and drop their route
+    handlers when they are closed (the browser outlives the test).
 
     Playwright's ``wait_for_function`` evaluates its predicate with ``eval`` inside the
     page, which the console's policy (no ``'unsafe-eval'``) refuses. The policy itself is
@@ -78,7 +80,21 @@ def _bypass_csp_by_default(browser: Any) -> None:
 
     def context(*args: Any, **kwargs: Any) -> Any:
         kwargs.setdefault("bypass_csp", True)
-        return new_context(*args, **kwargs)
+        ctx = new_context(*args, **kwargs)
+        close = ctx.close
+
+        def close_quietly(*a: Any, **k: Any) -> Any:
+            # A route handler still running when its context closes fails in the shared
+            # Playwright connection and surfaces in the next test's first call; let the
+            # handlers go first, ignoring what they were doing.
+            with contextlib.suppress(Exception):
+                for pg in ctx.pages:
+                    pg.unroute_all(behavior="ignoreErrors")
+                ctx.unroute_all(behavior="ignoreErrors")
+            return close(*a, **k)
+
+        ctx.close = close_quietly
+        return ctx
 
     browser.new_context = context
 
