@@ -9,6 +9,7 @@ import json
 import socket
 import threading
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -338,8 +339,10 @@ def test_node_on_wss_declines_the_unencrypted_channel(tmp_path: Path) -> None:
     from app.nodes.agent import NodeAgent
     from app.nodes.protocol import DataChannel, decode_binary
 
-    agent = NodeAgent("S1", None, "wss://server.example:8000/ws/node",  # type: ignore[arg-type]
-                      "token-12345", tmp_path)
+    # the channel offer needs no sensor: a bare object stands in for the backend (the
+    # agent only hands it its warning sink)
+    agent = NodeAgent("S1", SimpleNamespace(),  # type: ignore[arg-type]
+                      "wss://server.example:8000/ws/node", "token-12345", tmp_path)
     sent: list[bytes] = []
 
     class _WS:
