@@ -11,8 +11,25 @@ The model is built so that its ground truth is exact by construction:
 2. **Feet.** In stance the foot rolls over the heel (initial contact with the foot
    pitched ≈ 20° toes-up, foot flat at ≈ 8 % of the stride), stays flat, then rolls over
    the metatarsal heads (heel rise from ≈ 35 % of the stride, ≈ 50° plantar pitch at toe
-   off) — the heel, ankle and forefoot rockers of Perry. In swing the foot follows a
-   minimum-jerk path with a clearance lift.
+   off) — the heel, ankle and forefoot rockers of Perry. In swing the foot follows by
+   default (``WalkerParams.swing`` ``"minjerk"``) a minimum-jerk path from rest to rest
+   with a 4–10 cm sine lift. With ``swing="literature"`` (an option: it lowers the
+   validation study's realism band from 6/8 to 4/8 rows, ``docs/simulation.md``) the foot
+   leaves the floor at rest (the push-off pivot ends at rest) and **lands moving**: the
+   heel's horizontal speed at contact is ``landing_speed_frac`` × walking speed (0.5:
+   Lockhart et al. 2003, Ergonomics 46:1136, and Winter 1992, Phys Ther 72:45, report a
+   non-zero horizontal heel contact velocity that grows with walking speed; their figures
+   were not recoverable from the sources at hand, so 0.5 is this model's choice, ≈ 0.6
+   m/s at 1.25 m/s), its vertical speed a small 0.1 m/s downward (``_LAND_VZ``; likewise
+   not from a recovered figure). The forward speed is a quintic, so its profile is skewed
+   towards the landing, and peaks at the minimum toe clearance (they coincide in healthy
+   gait: peak swing-foot velocity ≈ 0.014 s after it, on intact limbs too: PMC4361493);
+   the toe tip clears by ``min_toe_clearance_m`` = 1.29 cm (Winter 1992, 11 subjects, SD
+   ≈ 0.4 cm) with the foot 3° toes-down (tibia vertical, ankle near neutral at mid swing:
+   Perry), after an early-swing ankle peak at 25 % of swing (knee flexion peak ≈ 73 % of
+   the stride). The foot's pitch reaches the heel-strike pitch at 90 % of swing. The toes
+   are rigid with the forefoot, so the toe tip dips below the floor for the first ≈ 10 %
+   of swing, where a real foot's toes are still bent on it.
 3. **Pelvis.** Its horizontal path is a C² spline through the midpoint of the two feet at
    every heel strike, plus lateral sway towards the stance foot (±2 cm), pelvic rotation
    (±4°), obliquity (±4°) and anterior tilt (Perry; Winter, *Biomechanics and Motor
@@ -69,6 +86,14 @@ class WalkerParams:
         step_length_cv: Step-to-step coefficient of variation of step length.
         step_time_cv: Step-to-step coefficient of variation of step time.
         step_width_sd_m: Step-to-step SD of step width (m).
+        swing: ``"minjerk"`` (default): a minimum-jerk path from rest at toe off to rest
+            at heel strike; ``"literature"``: the foot lands moving, its speed peaking at
+            minimum toe clearance (see the module docstring; an option, not the default,
+            because it lowers the validation study's realism band count, see
+            ``docs/simulation.md``).
+        landing_speed_frac: Horizontal heel speed at heel contact as a fraction of the
+            walking speed (``"literature"`` swing only).
+        min_toe_clearance_m: Toe tip height at mid swing (``"literature"`` swing only).
     """
 
     height_m: float = 1.75
@@ -80,18 +105,25 @@ class WalkerParams:
     step_length_cv: float = 0.03
     step_time_cv: float = 0.025
     step_width_sd_m: float = 0.02
+    swing: Literal["literature", "minjerk"] = "minjerk"
+    landing_speed_frac: float = 0.5
+    min_toe_clearance_m: float = 0.0129
 
     def __post_init__(self) -> None:
         checks = [
             ("height_m", 1.0, 2.3), ("speed_m_s", 0.2, 2.5), ("step_length_m", 0.15, 1.2),
             ("step_width_m", 0.0, 0.4), ("asymmetry", -0.5, 0.5), ("arm_swing_deg", 0.0, 90.0),
             ("step_length_cv", 0.0, 0.3), ("step_time_cv", 0.0, 0.3),
-            ("step_width_sd_m", 0.0, 0.1),
+            ("step_width_sd_m", 0.0, 0.1), ("landing_speed_frac", 0.0, 1.0),
+            ("min_toe_clearance_m", 0.0, 0.1),
         ]
         for name, lo, hi in checks:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and lo <= v <= hi):
                 raise InputError(f"WalkerParams.{name} must be within [{lo}, {hi}], got {v!r}")
+        if self.swing not in ("literature", "minjerk"):
+            raise InputError(f"WalkerParams.swing must be 'literature' or 'minjerk', "
+                             f"got {self.swing!r}")
         if self.step_length_m > 0.6 * self.height_m:
             raise InputError(f"WalkerParams.step_length_m {self.step_length_m} m is too long "
                              f"for a {self.height_m} m tall subject (max 0.6 × height)")
@@ -282,6 +314,10 @@ _HR_T = 0.50  # heel rise starts 0.5 T (25 % of stride) before toe off (≈ 35 %
 _DS_T = 0.20  # double support = 10 % of the stride
 _HS_PITCH = math.radians(20.0)
 _TO_PITCH = math.radians(50.0)
+_SW_PEAK_U = 0.25  # ankle highest at the knee flexion peak, ≈ 73 % of the stride (Perry)
+_SW_PEAK_DZ = 0.02  # ankle rise above its toe-off height by then (m)
+_LAND_VZ = 0.1  # downward heel speed at contact (m/s)
+_MTC_PITCH_DEG = -3.0  # foot pitch at minimum toe clearance (deg, + toes up)
 
 
 def _rz(a: FloatArray) -> FloatArray:
@@ -599,18 +635,77 @@ class Walker:
             R1 = _rz(psi_n[i_sw]) @ _ry(np.full(len(i_sw), -_HS_PITCH))
             p1 = np.c_[heel_n[i_sw], np.zeros(len(i_sw))] - _mv(R1, heel_loc)
             sv = np.clip((t[i_sw] - t_to[i_sw]) / (t_next[i_sw] - t_to[i_sw]), 0.0, 1.0)
-            m = _minjerk(sv)
-            pos = p0 + (p1 - p0) * m[:, None]
-            # clearance: the ankle rises early in swing (knee flexion peak ≈ 70 % of stride)
-            dist = np.linalg.norm(p1[:, :2] - p0[:, :2], axis=1)
-            lift = (0.04 + 0.06 * np.clip(dist / self.params.step_length_m / 2.0, 0, 1)) * \
-                np.sin(np.pi * sv) * (1.4 - 0.8 * sv)
-            pos[:, 2] += lift
             pitch_sw = -_TO_PITCH + (_TO_PITCH + _HS_PITCH) * _minjerk(np.clip(sv * 1.3, 0, 1))
+            if self.params.swing == "minjerk":
+                m = _minjerk(sv)
+                pos = p0 + (p1 - p0) * m[:, None]
+                # clearance: the ankle rises early in swing (knee flexion peak ≈ 70 % of stride)
+                dist = np.linalg.norm(p1[:, :2] - p0[:, :2], axis=1)
+                lift = (0.04 + 0.06 * np.clip(dist / self.params.step_length_m / 2.0, 0, 1)) \
+                    * np.sin(np.pi * sv) * (1.4 - 0.8 * sv)
+                pos[:, 2] += lift
+            else:
+                m, pos, pitch_sw = self._swing_path(p0, p1, sv, t_next[i_sw] - t_to[i_sw])
             dpsi = np.remainder(psi_n[i_sw] - psi[i_sw] + np.pi, 2 * np.pi) - np.pi
             ankle[i_sw] = pos
             R[i_sw] = _rz(psi[i_sw] + dpsi * m) @ _ry(-pitch_sw)
         return ankle, R
+
+    def _swing_path(self, p0: FloatArray, p1: FloatArray, u: FloatArray, t_sw: FloatArray
+                    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The ``"literature"`` swing: ankle path (N,3), horizontal progress (N,) and foot
+        pitch (N,, + toes up) at normalised swing times ``u`` from toe-off pose ``p0`` to
+        heel-strike pose ``p1`` over swing durations ``t_sw`` (s).
+
+        Horizontal: a quintic from rest at toe off (the push-off pivot ends at rest) to the
+        landing speed at heel contact (``landing_speed_frac`` × walking speed, no
+        acceleration), so the speed profile is skewed late. Vertical: a piecewise cubic
+        through the early-swing peak (knee flexion peak, ``_SW_PEAK_U``), the minimum toe
+        clearance at the instant of peak forward speed, and the landing with a small
+        downward heel speed ``_LAND_VZ``. The foot pitch is a few degrees toes-down at
+        minimum clearance (tibia vertical, ankle near neutral at mid swing: Perry) and
+        reaches the heel-strike pitch before contact.
+        """
+        b, prm = self.body, self.params
+        d = p1[:, :2] - p0[:, :2]
+        dist = np.maximum(np.linalg.norm(d, axis=1), 1e-6)
+        # landing speed normalised by the mean swing speed; short steps (turns, closing
+        # steps) land proportionally slower; <= 1.5 keeps the progress monotonic
+        full = np.clip(dist / (2.0 * prm.step_length_m), 0.0, 1.0)
+        v1 = np.clip(prm.landing_speed_frac * prm.speed_m_s * full * t_sw / dist, 0.0, 1.5)
+        h = _minjerk(u) + v1 * u**3 * (-4.0 + 7.0 * u - 3.0 * u * u)
+        # instant of peak speed (h'' = 0): (120 - 60 v1) u² + (84 v1 - 180) u + 60 - 24 v1
+        qa, qb, qc = 120.0 - 60.0 * v1, 84.0 * v1 - 180.0, 60.0 - 24.0 * v1
+        um = np.clip((-qb - np.sqrt(np.maximum(qb * qb - 4 * qa * qc, 0.0))) / (2 * qa),
+                     _SW_PEAK_U + 0.1, 0.9)
+        # pitch: back from the push-off plantar pitch by the early-swing peak, a few degrees
+        # toes-down at minimum clearance, the heel-strike pitch before contact
+        pm = math.radians(_MTC_PITCH_DEG)
+        x1 = np.clip(u / um, 0.0, 1.0)
+        x2 = np.clip((u - um) / np.maximum(0.9 - um, 1e-6), 0.0, 1.0)
+        # (1 − (1 − x)⁴(1 + 4x): starts and ends at rest, so the foot's angular velocity
+        # is continuous at toe off and FootLeft/Right have no kink there)
+        ease = 1.0 - (1.0 - x1) ** 4 * (1.0 + 4.0 * x1)
+        pitch = np.where(u < um, -_TO_PITCH + (_TO_PITCH + pm) * ease,
+                         pm + (_HS_PITCH - pm) * _minjerk(x2))
+        toe_fwd = b.foot_length - b.heel_back
+        z_mtc = prm.min_toe_clearance_m + b.ankle_h * math.cos(pm) - toe_fwd * math.sin(pm)
+        z0, z1 = p0[:, 2], p1[:, 2]
+        zs = [z0, z0 + _SW_PEAK_DZ * full, np.full_like(z0, z_mtc) * full + z1 * (1 - full),
+              z1]
+        us = [np.zeros_like(u), np.full_like(u, _SW_PEAK_U), um, np.ones_like(u)]
+        vs = [np.zeros_like(u), np.zeros_like(u), np.zeros_like(u), -_LAND_VZ * t_sw]
+        z = np.zeros_like(u)
+        for j in range(3):
+            sel = (u >= us[j]) & (u <= us[j + 1]) if j == 2 else (u >= us[j]) & (u < us[j + 1])
+            w = us[j + 1][sel] - us[j][sel]
+            x = (u[sel] - us[j][sel]) / w
+            h00, h10 = 2 * x**3 - 3 * x**2 + 1, x**3 - 2 * x**2 + x
+            h01, h11 = -2 * x**3 + 3 * x**2, x**3 - x**2
+            z[sel] = (h00 * zs[j][sel] + h10 * w * vs[j][sel] + h01 * zs[j + 1][sel]
+                      + h11 * w * vs[j + 1][sel])
+        pos = np.c_[p0[:, :2] + d * h[:, None], z]
+        return h, pos, pitch
 
     # ------------------------------------------------------------------ full pose
 

@@ -1,3 +1,4 @@
+import dataclasses
 import itertools
 
 import numpy as np
@@ -11,9 +12,11 @@ PARAMS = WalkerParams(height_m=1.68, speed_m_s=1.2, step_length_m=0.68, step_wid
                       asymmetry=0.05)
 
 
-@pytest.fixture(scope="module")
-def walker():
-    return Walker(PARAMS, [-2.5, 0.0, 0.0], [8.5, 0.0, 0.0], start_time=1.0, seed=4)
+@pytest.fixture(scope="module", params=["minjerk", "literature"])
+def walker(request):
+    """The default swing and the literature option keep every guarantee below."""
+    params = dataclasses.replace(PARAMS, swing=request.param)
+    return Walker(params, [-2.5, 0.0, 0.0], [8.5, 0.0, 0.0], start_time=1.0, seed=4)
 
 
 def test_foot_placements_recover_parameters(walker):
@@ -120,5 +123,9 @@ def test_body_mesh_and_random_params():
 def test_bad_params_are_rejected():
     with pytest.raises(InputError, match="speed_m_s"):
         WalkerParams(speed_m_s=9.0)
+    with pytest.raises(InputError, match="swing"):
+        WalkerParams(swing="ballistic")  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="landing_speed_frac"):
+        WalkerParams(landing_speed_frac=2.0)
     with pytest.raises(InputError, match="two steps"):
         Walker(WalkerParams(), [0, 0, 0], [0.5, 0, 0])
