@@ -170,6 +170,23 @@ def live_server() -> Iterator[LiveServer]:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def record_walk(server: Any, session_id: int, timeout_s: float = 90.0) -> str:
+    """Record a few seconds of the simulated walker under ``session_id`` through
+    ``server.api`` (a :class:`LiveServer` or a test's own lab) and wait until the
+    recording is complete on the server; its id."""
+    rec = server.api(f"/api/sessions/{session_id}/recordings",
+                     {"label": "walk", "streams": [], "image_every": 3})
+    time.sleep(7.0)  # a few steps of the simulated walker
+    server.api(f"/api/recordings/{rec['id']}/stop", {}, method="POST")
+    deadline = time.time() + timeout_s
+    while server.api(f"/api/storage/recordings/{rec['id']}")["state"] != "complete":
+        if time.time() > deadline:
+            raise TimeoutError(f"recording {rec['id']} was not copied to the server in "
+                               f"{timeout_s:g} s")
+        time.sleep(0.3)
+    return str(rec["id"])
+
+
 def login(page: Any, server: LiveServer) -> None:
     """Log in through the console's login form and land on the Rig page."""
     page.goto(server.base_url + "/index.html")

@@ -38,7 +38,7 @@ from typing import Any
 
 import pytest
 
-from tests.browser.conftest import ROOT, new_page, screenshot, serve_without_nodes
+from tests.browser.conftest import ROOT, new_page, record_walk, screenshot, serve_without_nodes
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -77,26 +77,12 @@ class Lab:
             return json.loads(raw) if raw else None
 
 
-def _record_walk(lab: Lab, session_id: int) -> str:
-    """Record a few seconds of the simulated walker and wait until it is on the server."""
-    rec = lab.api(f"/api/sessions/{session_id}/recordings",
-                  {"label": "walk", "streams": [], "image_every": 3})
-    time.sleep(7.0)  # a few steps of the simulated walker
-    lab.api(f"/api/recordings/{rec['id']}/stop", {}, method="POST")
-    deadline = time.time() + 90
-    while lab.api(f"/api/storage/recordings/{rec['id']}")["state"] != "complete":
-        if time.time() > deadline:
-            raise TimeoutError(f"recording {rec['id']} was not copied to the server in 90 s")
-        time.sleep(0.3)
-    return str(rec["id"])
-
-
 def _walk_until_steps(lab: Lab, subject_id: int, session_id: int) -> str:
     """Record walks into the session until the subject's report has steps (the simulated
     walker may be turning or out of view); returns the last recording's id."""
     why = ""
     for _ in range(3):
-        rec_id = _record_walk(lab, session_id)
+        rec_id = record_walk(lab, session_id)
         try:
             lab.api(f"/api/reports/subjects/{subject_id}?format=html")
             return rec_id

@@ -9,7 +9,6 @@ where the keyboard focus is, and no JavaScript error.
 from __future__ import annotations
 
 import re
-import time
 import urllib.error
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -18,7 +17,7 @@ from typing import Any
 
 import pytest
 
-from tests.browser.conftest import LiveServer, login, screenshot
+from tests.browser.conftest import LiveServer, login, record_walk, screenshot
 
 pytestmark = pytest.mark.browser
 
@@ -46,7 +45,7 @@ def walked(live_server: LiveServer) -> Iterator[Walked]:
     session = srv.api("/api/sessions", {"subject_id": subject["id"], "label": "first visit"})
     long = srv.api("/api/subjects", {"project_id": project["id"], "code": LONG_CODE})
     for _ in range(3):  # the simulated walker may be turning: walk again until it has steps
-        _record_walk(srv, session["id"])
+        record_walk(srv, session["id"], timeout_s=60)
         try:
             srv.api(f"/api/reports/subjects/{subject['id']}?format=html", timeout=120)
             break
@@ -64,18 +63,6 @@ def _wait_report(page: Any) -> None:
                            "document.getElementById('subject-msg').classList.contains('error')",
                            timeout=120_000)
     assert page.locator("#report").is_visible(), page.inner_text("#subject-msg")
-
-
-def _record_walk(srv: LiveServer, session_id: int) -> None:
-    rec = srv.api(f"/api/sessions/{session_id}/recordings",
-                  {"label": "walk", "streams": [], "image_every": 3})
-    time.sleep(7.0)  # a few steps of the simulated walker
-    srv.api(f"/api/recordings/{rec['id']}/stop", {}, method="POST")
-    deadline = time.time() + 60
-    while srv.api(f"/api/storage/recordings/{rec['id']}")["state"] != "complete":
-        if time.time() > deadline:
-            raise TimeoutError(f"recording {rec['id']} was not copied to the server in 60 s")
-        time.sleep(0.3)
 
 
 def _no_js_error(page: Any) -> None:

@@ -9,24 +9,13 @@ from __future__ import annotations
 import json
 import time
 import urllib.error
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
 
 from engine.geometry import pose_error
 from engine.sim.rig import default_avenue_rig
 from tests.integration.conftest import Rig
-
-
-@pytest.fixture
-def rig(tmp_path: Path) -> Any:
-    r = Rig(tmp_path)
-    try:
-        yield r
-    finally:
-        r.close()
 
 
 def _status(r: Rig, path: str, data: dict[str, Any] | None = None) -> tuple[int, Any]:

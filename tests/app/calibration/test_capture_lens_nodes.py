@@ -7,7 +7,6 @@ camera model."""
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,15 +17,6 @@ from engine.sim.rig import default_avenue_rig
 from tests.integration.conftest import Rig
 
 LENS = "-0.08,0.02,0.0005,-0.0003,0"
-
-
-@pytest.fixture
-def rig(tmp_path: Path) -> Any:
-    r = Rig(tmp_path)
-    try:
-        yield r
-    finally:
-        r.close()
 
 
 def test_node_lens_and_a_node_without_one(rig: Rig) -> None:
