@@ -107,11 +107,12 @@ def _wait_http(url: str, proc: subprocess.Popen[bytes], timeout: float) -> None:
     raise TimeoutError(f"{url} did not answer within {timeout:.0f} s")
 
 
-def _stop(proc: subprocess.Popen[bytes]) -> None:
+def stop_process(proc: subprocess.Popen[bytes], timeout_s: float = 20.0) -> None:
+    """SIGTERM (a demo stops its nodes, then the server), killed after ``timeout_s``."""
     if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)  # the demo stops its nodes, then the server
+        proc.send_signal(signal.SIGTERM)
         try:
-            proc.wait(timeout=20)
+            proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
@@ -133,7 +134,7 @@ def serve_without_nodes(data_dir: Path, env: dict[str, str]) -> Iterator[tuple[s
             _wait_http(f"http://127.0.0.1:{port}/healthz", proc, 60)
             yield f"http://127.0.0.1:{port}", log_path
         finally:
-            _stop(proc)
+            stop_process(proc)
 
 
 @pytest.fixture(scope="package")
@@ -165,7 +166,7 @@ def live_server() -> Iterator[LiveServer]:
             time.sleep(0.3)
         yield server
     finally:
-        _stop(proc)
+        stop_process(proc)
         log.close()
         shutil.rmtree(tmp, ignore_errors=True)
 

@@ -24,7 +24,6 @@ import json
 import os
 import secrets
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -38,7 +37,14 @@ from typing import Any
 
 import pytest
 
-from tests.browser.conftest import ROOT, new_page, record_walk, screenshot, serve_without_nodes
+from tests.browser.conftest import (
+    ROOT,
+    new_page,
+    record_walk,
+    screenshot,
+    serve_without_nodes,
+    stop_process,
+)
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -93,15 +99,6 @@ def _walk_until_steps(lab: Lab, subject_id: int, session_id: int) -> str:
     raise RuntimeError(f"three simulated walks gave no gait result: {why}")
 
 
-def _stop_node(node: subprocess.Popen[bytes]) -> None:
-    node.send_signal(signal.SIGTERM)
-    try:
-        node.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        node.kill()
-        node.wait()
-
-
 @pytest.fixture(scope="module")
 def lab() -> Iterator[Lab]:
     """A server with six simulated sensor nodes; subjects :data:`CODE` and
@@ -146,7 +143,7 @@ def lab() -> Iterator[Lab]:
                 yield lab
             finally:
                 for node in nodes:
-                    _stop_node(node)
+                    stop_process(node, 10.0)
     finally:
         for node in nodes:
             if node.poll() is None:

@@ -31,11 +31,11 @@ from tests.browser.conftest import (
     ROOT,
     START_TIMEOUT_S,
     LiveServer,
-    _stop,
     _wait_http,
     free_port,
     login,
     screenshot,
+    stop_process,
 )
 
 pytestmark = pytest.mark.browser
@@ -67,7 +67,7 @@ def bumped_server() -> Iterator[LiveServer]:
         server.login()
         yield server
     finally:
-        _stop(proc)
+        stop_process(proc)
         log.close()
         shutil.rmtree(tmp, ignore_errors=True)
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -16,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from tests.browser.conftest import ROOT, new_page, screenshot, serve_without_nodes
+from tests.browser.conftest import ROOT, new_page, screenshot, serve_without_nodes, stop_process
 
 pytestmark = pytest.mark.browser
 
@@ -43,12 +42,7 @@ def rig() -> Iterator[str]:
             try:
                 yield url
             finally:
-                node.send_signal(signal.SIGTERM)
-                try:
-                    node.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    node.kill()
-                    node.wait()
+                stop_process(node, 10.0)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
