@@ -1,0 +1,237 @@
+"""How fast the server and node processes start and stop (what every demo, deployment and
+integration/browser test pays per process).
+
+Figures (medians of ``--repeat`` runs, seconds):
+
+* ``python_s``: a bare interpreter (``python -c pass``), the floor every figure includes.
+* ``import_app_main_s``: ``import app.main``; ``app_routers_s``: the same plus
+  ``create_app()`` (every API router imported: the server's whole start-up import graph);
+  ``import_node_agent_s``: ``import app.nodes.agent`` and the sim backend's module.
+  ``heavy_server`` / ``heavy_node``: which heavy libraries those imports loaded (none of
+  them is needed to answer the first request or to connect a node).
+* ``server_start_fresh_s`` / ``server_start_clinic_s``: ``gaitrig serve`` until
+  ``/healthz`` answers 200, on a new data folder (migrations, the admin's password hashed)
+  and on a clinic's (``bench/_clinic.py``, ``--subjects``; its recordings list loaded);
+  ``*_login_s``: until the admin's login answers.
+* ``server_stop_term_s`` / ``server_stop_int_s``: SIGTERM (``gaitrig demo``, systemd) or
+  SIGINT (Ctrl-C, the integration tests) to the exit of a server with a sim node connected;
+  ``node_stop_s``: SIGTERM to the exit of a sim node rendering images. ``*_cpu_s``: CPU
+  the process spent between the signal and its exit.
+
+``loadavg``: the machine's load (every figure grows with it). Prints ONE JSON line.
+Run: ``PYTHONPATH=. .venv/bin/python bench/process_start.py`` (about a minute;
+``--subjects 0`` skips the clinic).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import secrets
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from bench._clinic import populate
+from bench._procs import free_port, stop
+
+ROOT = Path(__file__).resolve().parents[1]
+PY = [sys.executable, "-m", "app.cli"]
+HEAVY = ("scipy.signal", "scipy.stats", "scipy.ndimage", "scipy.optimize", "scipy.interpolate",
+         "scipy.spatial", "open3d", "matplotlib", "weasyprint", "numba", "cv2", "viser")
+SERVER_IMPORTS = """
+import sys, tempfile
+import app.main
+from app.config import Settings
+if ROUTERS:
+    app.main.create_app(Settings(data_dir=tempfile.mkdtemp(), viewer_enabled=False))
+"""
+NODE_IMPORTS = "import app.nodes.agent, app.nodes.backends.sim\n"
+REPORT = "print(','.join(m for m in HEAVY if m in sys.modules))\n"
+
+
+def _py(code: str) -> tuple[float, str]:
+    """(wall seconds, stdout) of a fresh interpreter running ``code``."""
+    t = time.perf_counter()
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True, text=True,
+                         capture_output=True, env={**os.environ, "PYTHONPATH": str(ROOT)}).stdout
+    return time.perf_counter() - t, out.strip()
+
+
+def _median(f: Callable[[], float], repeat: int) -> float:
+    return round(statistics.median(f() for _ in range(repeat)), 3)
+
+
+def bench_imports(repeat: int) -> dict[str, Any]:
+    """Import times of the server's and the node's modules, each in a new interpreter."""
+    pre = f"import sys\nHEAVY = {HEAVY!r}\n"
+    server = pre + "ROUTERS = False\n" + SERVER_IMPORTS
+    routers = pre + "ROUTERS = True\n" + SERVER_IMPORTS
+    node = pre + NODE_IMPORTS
+    return {
+        "python_s": _median(lambda: _py("pass")[0], repeat),
+        "import_app_main_s": _median(lambda: _py(server)[0], repeat),
+        "app_routers_s": _median(lambda: _py(routers)[0], repeat),
+        "import_node_agent_s": _median(lambda: _py(node)[0], repeat),
+        "heavy_server": _py(routers + REPORT)[1],
+        "heavy_node": _py(node + REPORT)[1],
+    }
+
+
+def _cpu_s(pid: int) -> float:
+    tick = os.sysconf("SC_CLK_TCK")
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / tick
+
+
+def _get(url: str, token: str | None = None, data: dict[str, Any] | None = None) -> Any:
+    headers = {"Content-Type": "application/json"}
+    if token:
+        headers["Authorization"] = f"Bearer {token}"
+    body = json.dumps(data).encode() if data is not None else None
+    with urllib.request.urlopen(urllib.request.Request(url, data=body, headers=headers),
+                                timeout=30) as r:
+        return json.loads(r.read())
+
+
+def _until(f: Callable[[], Any], proc: subprocess.Popen[bytes], what: str,
+           timeout_s: float = 120.0) -> Any:
+    deadline = time.time() + timeout_s
+    while True:
+        try:
+            return f()
+        except (OSError, urllib.error.URLError):
+            if proc.poll() is not None or time.time() > deadline:
+                raise SystemExit(f"{what} did not happen (exit code {proc.poll()})") from None
+            time.sleep(0.01)
+
+
+class Server:
+    """``gaitrig serve --no-viewer`` on ``data_dir`` (the admin's password set)."""
+
+    def __init__(self, data_dir: Path, log: Path, viewer: bool = False) -> None:
+        self.port, self.password = free_port(), secrets.token_urlsafe(12)
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.env = {**os.environ, "GAITRIG_ADMIN_PASSWORD": self.password,
+                    "PYTHONUNBUFFERED": "1", "GAITRIG_STORAGE_CHECK_INTERVAL_S": "0",
+                    "GAITRIG_NODE_MIN_FREE_GB": "0", "GAITRIG_NODE_MIN_FREE_PERCENT": "0"}
+        viewer_args = ["--viewer-port", str(free_port())] if viewer else ["--no-viewer"]
+        self.t0 = time.perf_counter()
+        self.proc = subprocess.Popen(
+            [*PY, "serve", "--host", "127.0.0.1", "--port", str(self.port), *viewer_args,
+             "--data-dir", str(data_dir), "--log-level", "warning"], cwd=ROOT, env=self.env,
+            stdout=log.open("ab"), stderr=subprocess.STDOUT)
+
+    def started(self) -> tuple[float, float]:
+        """(seconds to the first ``/healthz`` 200, seconds to the admin's login)."""
+        _until(lambda: _get(self.base + "/healthz"), self.proc, "the server's start")
+        up = time.perf_counter() - self.t0
+        self.token = _until(lambda: _get(self.base + "/api/auth/login", data={
+            "username": "admin", "password": self.password})["token"], self.proc, "login")
+        return up, time.perf_counter() - self.t0
+
+
+def signal_exit(proc: subprocess.Popen[bytes], sig: int) -> tuple[float, float]:
+    """(seconds, CPU seconds) from ``sig`` to the process's exit."""
+    cpu0 = _cpu_s(proc.pid)
+    t = time.perf_counter()
+    proc.send_signal(sig)
+    _, _, usage = os.wait4(proc.pid, 0)
+    proc.returncode = 0  # reaped here; Popen must not wait for it again
+    return time.perf_counter() - t, usage.ru_utime + usage.ru_stime - cpu0
+
+
+def bench_start(tmp: Path, subjects: int, repeat: int) -> dict[str, Any]:
+    """Server start on a fresh data folder (each run a new one) and on a clinic's."""
+    out: dict[str, Any] = {}
+    log = tmp / "server.log"
+    up, login = [], []
+    for k in range(repeat):
+        s = Server(tmp / f"fresh{k}", log)
+        try:
+            a, b = s.started()
+            up.append(a)
+            login.append(b)
+        finally:
+            stop([s.proc])
+    out["server_start_fresh_s"] = round(statistics.median(up), 3)
+    out["server_start_fresh_login_s"] = round(statistics.median(login), 3)
+    if subjects:
+        t = time.perf_counter()
+        clinic = populate(tmp / "clinic", subjects, 6, n_with_files=2000)
+        out["clinic_recordings"] = len(clinic.recording_ids)
+        out["clinic_build_s"] = round(time.perf_counter() - t, 1)
+        up, login = [], []
+        for _ in range(repeat):
+            s = Server(tmp / "clinic", log)
+            try:
+                a, b = s.started()
+                up.append(a)
+                login.append(b)
+            finally:
+                stop([s.proc])
+        out["server_start_clinic_s"] = round(statistics.median(up), 3)
+        out["server_start_clinic_login_s"] = round(statistics.median(login), 3)
+    return out
+
+
+def bench_stop(tmp: Path, repeat: int) -> dict[str, Any]:
+    """Signal to exit: a server (viewer on) with a sim node connected, and that node."""
+    figures: dict[str, list[float]] = {}
+    log = tmp / "stop.log"
+    for k in range(repeat):
+        for sig, name in ((signal.SIGTERM, "server_stop_term"), (signal.SIGINT, "server_stop_int")):
+            s = Server(tmp / f"stop{k}{name}", log, viewer=True)
+            node = subprocess.Popen(
+                [*PY, "node", "--id", "S1", "--server", f"ws://127.0.0.1:{s.port}",
+                 "--data-dir", str(tmp / f"node{k}{name}"), "--log-level", "warning"],
+                cwd=ROOT, env=s.env, stdout=log.open("ab"), stderr=subprocess.STDOUT)
+            try:
+                s.started()
+
+                def online(s: Server = s) -> None:
+                    nodes = _get(s.base + "/api/nodes", s.token)
+                    if not (nodes and nodes[0]["connected"]):
+                        raise OSError("not yet")
+
+                _until(online, node, "the node's connection")
+                time.sleep(2.0)  # a few frames rendered, sent and drawn
+                if name == "server_stop_term":  # the node first, as the demo's order is
+                    dt, cpu = signal_exit(node, signal.SIGTERM)
+                    figures.setdefault("node_stop_s", []).append(dt)
+                    figures.setdefault("node_stop_cpu_s", []).append(cpu)
+                dt, cpu = signal_exit(s.proc, sig)
+                figures.setdefault(name + "_s", []).append(dt)
+                figures.setdefault(name + "_cpu_s", []).append(cpu)
+            finally:
+                stop([node, s.proc])
+    return {k: round(statistics.median(v), 3) for k, v in figures.items()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--subjects", type=int, default=5000,
+                    help="the clinic's subjects (0: no clinic start)")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per figure")
+    args = ap.parse_args()
+    out: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory(prefix="gaitrig-process-start-") as d:
+        tmp = Path(d)
+        out.update(bench_imports(args.repeat))
+        out.update(bench_start(tmp, args.subjects, args.repeat))
+        out.update(bench_stop(tmp, args.repeat))
+    out["loadavg"] = round(os.getloadavg()[0], 2)
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
