@@ -192,6 +192,18 @@ def plot_bland_altman(measured: np.ndarray, reference: np.ndarray, title: str,
     return figure_png(fig)
 
 
+#: Session names written under a trend plot at most (more overprint each other).
+MAX_TREND_LABELS = 6
+
+
+def trend_label_indices(n: int, most: int = MAX_TREND_LABELS) -> list[int]:
+    """Indices of the sessions whose names label a trend plot's axis: all of ``n`` up to
+    ``most``, else ``most`` evenly spaced ones including the first and the last."""
+    if n <= most:
+        return list(range(n))
+    return sorted(set(np.rint(np.linspace(0, n - 1, most)).astype(int).tolist()))
+
+
 @_fallback_fonts
 def plot_trends(panels: Sequence[dict[str, Any]], x_labels: Sequence[str],
                 dates: Sequence[Any] | None = None) -> bytes:
@@ -201,7 +213,8 @@ def plot_trends(panels: Sequence[dict[str, Any]], x_labels: Sequence[str],
         panels: one per parameter, ``{"title", "unit", "mean": (S,), "sd": (S,),
             "band": (low, high) or None}`` in display units (NaN where a session has no
             value or no SD).
-        x_labels: the sessions' names, first to last.
+        x_labels: the sessions' names, first to last (only
+            :func:`trend_label_indices` of them are written under the axis).
         dates: the sessions' dates (``datetime.date``) to space them in time; None (or
             any missing) puts them at equal steps.
     """
@@ -213,6 +226,7 @@ def plot_trends(panels: Sequence[dict[str, Any]], x_labels: Sequence[str],
         x: Any = list(dates)
     else:
         x = list(range(len(x_labels)))
+    shown = trend_label_indices(len(x_labels))
     for ax, panel in zip(axes.ravel(), panels, strict=False):
         mean = np.asarray(panel["mean"], dtype=float)
         sd = np.asarray(panel["sd"], dtype=float)
@@ -223,8 +237,12 @@ def plot_trends(panels: Sequence[dict[str, Any]], x_labels: Sequence[str],
         ax.errorbar(x, mean, yerr=np.where(np.isfinite(sd), sd, 0.0), fmt="o-", ms=4,
                     lw=1.0, capsize=3, color="#333")
         ax.set_title(f"{panel['title']} ({panel['unit']})", fontsize=8.5)
-        ax.set_xticks(x)
-        ax.set_xticklabels(x_labels, fontsize=6.5, rotation=30, ha="right")
+        # Every session is a point; past MAX_TREND_LABELS the names would overprint,
+        # so only evenly spaced ones (always the first and the last) are written.
+        ax.set_xticks([x[k] for k in shown])
+        ax.set_xticklabels([x_labels[k] for k in shown], fontsize=6.5,
+                           rotation=30 if len(shown) <= 4 else 60, ha="right",
+                           rotation_mode="anchor" if len(shown) > 4 else "default")
         ax.tick_params(axis="y", labelsize=7)
         ax.grid(alpha=0.3)
         if band is not None:
@@ -233,3 +251,104 @@ def plot_trends(panels: Sequence[dict[str, Any]], x_labels: Sequence[str],
         ax.set_visible(False)
     fig.tight_layout()
     return figure_png(fig)
+
+
+# ---------------------------------------------------------------- text alternatives
+# What each figure shows, in words computed from the data it is drawn from: the report's
+# <img alt> in the HTML and the /Alt of the figure in the tagged PDF (a screen reader
+# reads it in place of the picture). A generic "plot of step length" tells nothing.
+
+
+def _range_text(vals: Sequence[float] | np.ndarray, unit: str, decimals: int) -> str:
+    v = np.asarray(vals, dtype=float)
+    v = v[np.isfinite(v)]
+    if len(v) == 0:
+        return "no values"
+    lo, hi = float(v.min()), float(v.max())
+    if f"{lo:.{decimals}f}" == f"{hi:.{decimals}f}":
+        return f"{lo:.{decimals}f} {unit}"
+    return f"{lo:.{decimals}f} to {hi:.{decimals}f} {unit}"
+
+
+def foot_placements_alt(trials: Sequence[tuple[str, Sequence[dict[str, Any]]]]) -> str:
+    """Text alternative of :func:`plot_foot_placements` for the same ``trials``: per trial
+    its left and right placements and the distance they span along the walkway."""
+    parts = []
+    for name, placements in trials:
+        n = {s: sum(1 for p in placements if p.get("side") == s) for s in ("L", "R")}
+        xs = [float(p["position"][0]) for p in placements]
+        along = max(xs) - min(xs) if xs else 0.0
+        parts.append(f"{name}: {n['L']} left and {n['R']} right placements along "
+                     f"{along:.1f} m")
+    head = "Foot placements seen from above"
+    if len(parts) > 1:
+        head += f", {len(parts)} trials, one panel each"
+    return f"{head}. " + "; ".join(parts) + "."
+
+
+def ankle_heights_alt(name: str, times: np.ndarray, heights: dict[str, np.ndarray],
+                      events: Sequence[dict[str, Any]] = ()) -> str:
+    """Text alternative of :func:`plot_ankle_heights`: duration, each ankle's height range
+    and the events marked."""
+    t = np.asarray(times, dtype=float)
+    t = t[np.isfinite(t)]
+    dur = float(t.max() - t.min()) if len(t) else 0.0
+    sides = [f"{SIDE_NAMES.get(s, s)} ankle {_range_text(np.asarray(h) * 100.0, 'cm', 0)}"
+             for s, h in heights.items()]
+    marked = [ev for ev in events if ev.get("kind") in EVENT_NAMES]
+    text = (f"Ankle height over time in trial {name}, {dur:.1f} s: "
+            + ", ".join(sides) + " above the floor")
+    if marked:
+        kinds = {ev["kind"] for ev in marked}
+        what = " and ".join(EVENT_NAMES[k].split(" (")[0] + "s" for k in sorted(kinds))
+        text += f"; {len(marked)} {what} marked"
+    return text + "."
+
+
+def steps_alt(steps: Sequence[dict[str, Any]]) -> str:
+    """Text alternative of :func:`plot_steps`: per side the steps and the range of step
+    length, width and time."""
+    parts = []
+    for side in ("L", "R"):
+        mine = [s for s in steps if s.get("side") == side]
+        if not mine:
+            continue
+
+        def vals(key: str, scale: float, of: list[dict[str, Any]] = mine) -> list[float]:
+            return [s[key] * scale for s in of if s.get(key) is not None]
+
+        parts.append(f"{len(mine)} {SIDE_NAMES[side]} steps, length "
+                     f"{_range_text(vals('length_m', 100.0), 'cm', 0)}, width "
+                     f"{_range_text(vals('width_m', 100.0), 'cm', 0)}, time "
+                     f"{_range_text(vals('duration_s', 1.0), 's', 2)}")
+    return ("Step length, width and time of every step, left and right: "
+            + ("; ".join(parts) if parts else "no steps") + ".")
+
+
+def bland_altman_alt(caption: str, n: int, bias: float, rpc: float, unit: str) -> str:
+    """Text alternative of a Bland–Altman figure from its agreement figures."""
+    return (f"{caption}: differences of {n} paired values against their means; bias "
+            f"{bias:+.2f} {unit}, 95 % limits of agreement bias ± {rpc:.2f} {unit}.")
+
+
+def trends_alt(panels: Sequence[dict[str, Any]], x_labels: Sequence[str]) -> str:
+    """Text alternative of :func:`plot_trends`: the sessions, and per parameter its first
+    and last value and whether the last is inside the normative band."""
+    parts = []
+    for p in panels:
+        mean = np.asarray(p["mean"], dtype=float)
+        ok = np.flatnonzero(np.isfinite(mean))
+        if len(ok) == 0:
+            continue
+        first, last = float(mean[ok[0]]), float(mean[ok[-1]])
+        d = int(p.get("decimals", 2))
+        text = f"{p['title']} {first:.{d}f} to {last:.{d}f} {p['unit']}"
+        band = p.get("band")
+        if band is not None:
+            text += (" (inside the normative band)" if band[0] <= last <= band[1]
+                     else " (outside the normative band)")
+        parts.append(text)
+    span = (f"{x_labels[0]} to {x_labels[-1]}" if len(x_labels) > 1
+            else (x_labels[0] if x_labels else ""))
+    return (f"Parameters over {len(x_labels)} sessions, {span}, first to last: "
+            + "; ".join(parts) + ".")

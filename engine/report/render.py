@@ -31,7 +31,7 @@ from engine.report.normative import (
 )
 
 if TYPE_CHECKING:
-    from engine.report.progress import Progress, SessionTrials
+    from engine.report.progress import Change, Progress, ProgressParameter, SessionTrials
 
 TEMPLATE_DIR = Path(__file__).with_name("templates")
 #: Trials per foot-placement figure (one panel each): six fit on an A4 page.
@@ -409,7 +409,7 @@ def build_context(data: ReportData) -> dict[str, Any]:
         if not isinstance(t.result, dict) or "steps" not in t.result:
             raise InputError(f"trial {t.name!r}: result is not a gait JSON object with 'steps'")
     table = spatiotemporal_table(data.trials, data.normative)
-    figures: list[tuple[str, str]] = []
+    figures: list[tuple[str, str, str]] = []  # (caption, text alternative, data URI)
     placements = [(t.name, t.placements) for t in data.trials if t.placements]
     # One panel per trial: a single figure of 10+ trials is taller than an A4 page and
     # the PDF cut off its last trials, so the panels go into figures of a page each.
@@ -420,18 +420,21 @@ def build_context(data: ReportData) -> dict[str, Any]:
         if len(placements) > PLACEMENT_TRIALS_PER_FIGURE:
             caption += (f", trials {k + 1}–{k + len(chunk)} of {len(placements)}"
                         if len(chunk) > 1 else f", trial {k + 1} of {len(placements)}")
-        figures.append((caption, _png_uri(plots.plot_foot_placements(chunk))))
+        figures.append((caption, plots.foot_placements_alt(chunk),
+                        _png_uri(plots.plot_foot_placements(chunk))))
     for t in data.trials:
         if t.times is not None and t.ankle_heights:
+            events = t.result.get("events", []) or []
             figures.append((f"Ankle trajectories — {t.name}",
+                            plots.ankle_heights_alt(t.name, t.times, t.ankle_heights, events),
                             _png_uri(plots.plot_ankle_heights(t.times, t.ankle_heights,
-                                                              t.result.get("events", [])))))
+                                                              events))))
             break  # one example trial keeps the report short
     all_steps = [s for t in data.trials for s in t.result.get("steps", []) or []]
     if all_steps:
         sizes = [len(t.result.get("steps", []) or []) for t in data.trials]
         figures.append(("Parameters per step (lines break between trials)" if len(sizes) > 1
-                        else "Parameters per step",
+                        else "Parameters per step", plots.steps_alt(all_steps),
                         _png_uri(plots.plot_steps(all_steps, sizes))))
     # Sources numbered in the order the table cites them; each band shows its number.
     used_norms: list[str] = []
@@ -450,7 +453,8 @@ def build_context(data: ReportData) -> dict[str, Any]:
         "data": data,
         "table": table,
         "figures": figures,
-        "agreement_figures": [(c, _png_uri(p)) for c, p in data.agreement_figures],
+        "agreement_figures": [(c, _agreement_alt(c, data.agreement), _png_uri(p))
+                              for c, p in data.agreement_figures],
         "agreement_few": any(a.n < MIN_AGREEMENT_PAIRS for a in data.agreement),
         "min_pairs": MIN_AGREEMENT_PAIRS,
         "notes": quality_notes(data, table),
@@ -463,6 +467,37 @@ def build_context(data: ReportData) -> dict[str, Any]:
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "version": __version__,
     }
+
+
+def _agreement_alt(caption: str, rows: list[AgreementRow]) -> str:
+    """Text alternative of an agreement figure: its row of the agreement table (the one
+    whose parameter the caption names, both sides when it says so), else the caption."""
+    cap = caption.lower()
+    named = [r for r in rows if r.parameter.lower() in cap]
+    if "both sides" in cap:
+        named = [r for r in named if "L+R" in r.level] or named
+    if not named:
+        return f"{caption}: Bland–Altman plot, differences against means."
+    r = named[0]
+    return plots.bland_altman_alt(caption, r.n, r.bias, r.rpc, r.unit)
+
+
+def latest_changes(prog: Progress) -> list[tuple[ProgressParameter, list[Change]]]:
+    """Per parameter, the latest session against the first and against the previous one
+    (the previous only from three sessions on: with two it is the first).
+
+    A report over many sessions listed every session against the first and the previous,
+    ~20 rows a session; what a clinician asks is where the subject is now against the
+    baseline and the last visit. The whole series stays in the sessions table and the
+    trend plots.
+    """
+    last = len(prog.sessions) - 1
+    out = []
+    for p in prog.parameters:
+        changes = [c for ref in dict.fromkeys((0, last - 1))
+                   if (c := prog.change(p.key, last, ref)) is not None]
+        out.append((p, changes))
+    return out
 
 
 def _progress_context(data: ReportData) -> dict[str, Any]:
@@ -481,16 +516,21 @@ def _progress_context(data: ReportData) -> dict[str, Any]:
             "title": p.label, "unit": p.unit,
             "mean": [v.mean * p.scale if v else math.nan for v in vals],
             "sd": [v.sd * p.scale if v else math.nan for v in vals],
-            "band": (band.low * p.scale, band.high * p.scale) if band else None})
+            "band": (band.low * p.scale, band.high * p.scale) if band else None,
+            "decimals": p.decimals})
     dates: list[_dt.date | None] = []
     for s in prog.sessions:
         try:
             dates.append(_dt.date.fromisoformat(s.date))
         except ValueError:
             dates.append(None)
-    png = plots.plot_trends(panels, [s.name for s in prog.sessions], dates)
+    names = [s.name for s in prog.sessions]
+    png = plots.plot_trends(panels, names, dates)
     steps = [sum(len(t.result.get("steps", []) or []) for t in s.trials) for s in prog.sessions]
-    return {"progress": prog, "progress_figure": _png_uri(png), "progress_steps": steps}
+    return {"progress": prog, "progress_figure": _png_uri(png), "progress_steps": steps,
+            "progress_alt": plots.trends_alt(panels, names),
+            "progress_latest": latest_changes(prog),
+            "progress_labelled": len(plots.trend_label_indices(len(names))) < len(names)}
 
 
 def _env() -> Environment:
@@ -514,10 +554,13 @@ def render_html(data: ReportData, *, standalone: bool = True) -> str:
 
 
 def render_pdf(data: ReportData) -> bytes:
-    """The same report as a PDF document (A4, via WeasyPrint)."""
+    """The same report as a tagged PDF/UA-1 document (A4, via WeasyPrint)."""
     from weasyprint import HTML  # heavy import, only when a PDF is asked for
 
-    pdf = HTML(string=render_html(data, standalone=True)).write_pdf()
+    # PDF/UA-1: a tagged PDF (structure tree in reading order, headings, tables with
+    # their header cells, figures with their alt text), with its language and title, so
+    # that a screen reader can read the downloaded report as well as the console's.
+    pdf = HTML(string=render_html(data, standalone=True)).write_pdf(pdf_variant="pdf/ua-1")
     if not pdf:
         raise RuntimeError("WeasyPrint produced an empty PDF")
     return bytes(pdf)

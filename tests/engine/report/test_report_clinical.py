@@ -50,7 +50,8 @@ def _trials(n: int, seed: int = 0) -> list[TrialData]:
 def _images(html: str) -> list[tuple[str, np.ndarray]]:
     """(caption, decoded image) of every figure of the HTML report."""
     out = []
-    for uri, cap in re.findall(r'<img src="data:image/png;base64,([^"]+)" alt="([^"]*)"', html):
+    for uri, cap in re.findall(r'<img src="data:image/png;base64,([^"]+)" alt="[^"]*">'
+                               r'<figcaption>([^<]*)</figcaption>', html):
         img = cv2.imdecode(np.frombuffer(base64.b64decode(uri), np.uint8), cv2.IMREAD_COLOR)
         out.append((cap, img))
     return out
