@@ -4,8 +4,10 @@ Formats: x-IMU CSV exports (``Gyroscope X (deg/s)``, ``Accelerometer X (g)``,
 ``Magnetometer X (G)`` ...), Shimmer Consensys CSVs (``Shimmer_8C4F_Gyro_X_CAL`` with a
 units row; ``sep=`` line), Xsens / Movella DOT CSVs (metadata lines, ``PacketCounter``,
 ``SampleTimeFine``, ``Acc_X``, ``Gyr_X``, ``Mag_X``), Madgwick's ``ExampleData.mat``, BROAD
-trials (HDF5 or .mat) and a generic CSV whose units are declared by the caller or read
-from the header. A CSV with several sensors' columns (prefixed per sensor) is read one
+trials (HDF5 or .mat), APDM HDF5, Xsens MVN ``.mvnx`` exports (one recording per tracker,
+:func:`load_mvnx`), phone apps' one-file-per-sensor zips or folders (Sensor Logger,
+phyphox: :func:`load_phone`) and a generic CSV whose units are declared by the caller or
+read from the header. A CSV with several sensors' columns (prefixed per sensor) is read one
 sensor at a time (``sensor=``). Everything is converted to SI: time s, gyr rad/s,
 acc m/s², mag µT (or left as given when ``"norm"``: declared, or arbitrary units such as
 Shimmer's ``local_flux`` and Xsens' a.u.).
@@ -958,8 +960,8 @@ def load_csv(
             f"{p.name}: missing columns: no {' or '.join(_GROUP_NAMES[g] for g in missing)} "
             "X/Y/Z; "
             + ("the file holds one sensor's x, y, z (phone apps such as Sensor Logger write "
-               "one file per sensor): merge them into one CSV with " if bare else "name them "
-               "e.g. ")
+               "one file per sensor): upload the app's zip (or read its folder) instead, or "
+               "merge them into one CSV with " if bare else "name them e.g. ")
             + "time, gyr_x, gyr_y, gyr_z, acc_x, acc_y, acc_z[, mag_x, mag_y, "
             f"mag_z] (found {header})")
     if mag_unit == "none":
@@ -1257,13 +1259,22 @@ def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
     """Read any supported IMU file, choosing the reader from extension and content.
 
     ``**kwargs`` go to :func:`load_csv` (units, frequency) for text files; an APDM
-    ``.h5`` takes ``sensor`` (and ``quat_order``/``quat_frame``), see :func:`load_apdm`.
+    ``.h5`` takes ``sensor`` (and ``quat_order``/``quat_frame``), see :func:`load_apdm`; an
+    Xsens ``.mvnx`` takes ``sensor`` (:func:`load_mvnx`); a ``.zip`` or a folder of a
+    phone app's per-sensor files takes ``platform`` (:func:`load_phone`).
 
     Raises:
         InputError: unsupported file or any reader error.
     """
     p = Path(path)
     suf = p.suffix.lower()
+    if p.is_dir() or suf == ".zip":  # a phone app's one file per sensor
+        return load_phone(p, platform=kwargs.get("platform"))
+    if suf == ".mvnx":
+        return load_mvnx(p, sensor=kwargs.get("sensor"))
+    if suf in (".xls", ".xlsx"):
+        raise InputError(f"{p.name}: Excel workbooks are not read; export the recording as "
+                         "CSV (phyphox: 'CSV (Comma, decimal point)', zipped)")
     if suf in (".hdf5", ".h5"):
         if _is_apdm(p):
             return load_apdm(p, sensor=kwargs.get("sensor"),
@@ -1285,7 +1296,46 @@ def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
         if any(h.startswith("Gyroscope X") for h in rec.meta.get("columns", ())):
             rec.meta["format"] = "x-imu-csv"
         return rec
-    raise InputError(f"{p.name}: unsupported IMU file type {suf!r}; use .csv, .mat or .hdf5")
+    raise InputError(f"{p.name}: unsupported IMU file type {suf!r}; use .csv, .mat, .hdf5, "
+                     ".mvnx (Xsens MVN) or .zip (a phone app's files)")
+
+
+def load_mvnx(path: str | Path, sensor: str | None = None) -> ImuRecording:
+    """One tracker of an Xsens MVN ``.mvnx`` export, readings in the sensor frame and its
+    MVN orientation as the sensor-to-ENU reference (:func:`engine.imu._mvnx.load_mvnx`).
+
+    Raises:
+        MultipleSensorsError: several trackers and ``sensor`` names none of them.
+        InputError: not an MVNX export, no sensor data, damaged XML.
+    """
+    from engine.imu._mvnx import load_mvnx as _load
+
+    return _load(path, sensor)
+
+
+def load_mvnx_all(path: str | Path) -> dict[str, ImuRecording]:
+    """Every tracker of an Xsens MVN ``.mvnx`` export: label -> recording (time first axis,
+    SI, sensor frame; ``quat_ref`` sensor-to-ENU). See :mod:`engine.imu._mvnx`.
+
+    Raises:
+        InputError: not an MVNX export, no sensor data, damaged XML.
+    """
+    from engine.imu._mvnx import load_mvnx_all as _load
+
+    return _load(path)
+
+
+def load_phone(path: str | Path, *, platform: str | None = None) -> ImuRecording:
+    """A phone app's one-file-per-sensor export (zip or folder: Sensor Logger, phyphox)
+    merged on the gyroscope's time stamps, acceleration as specific force (iOS sign
+    handled). See :mod:`engine.imu._phone`.
+
+    Raises:
+        InputError: no accelerometer or gyroscope file, an unsafe or oversized zip.
+    """
+    from engine.imu._phone import load_phone as _load
+
+    return _load(path, platform=platform)
 
 
 #: dropped-sample gaps up to this long are interpolated by :func:`fill_gaps`; longer

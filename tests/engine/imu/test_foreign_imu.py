@@ -505,9 +505,10 @@ def test_apdm_h5(base: ImuRecording, truth: dict[str, Any], tmp_path: Path) -> N
 
 def test_one_file_per_sensor_is_named(tmp_path: Path) -> None:
     """Phone loggers (Sensor Logger) write Gyroscope.csv, Accelerometer.csv … with bare
-    x, y, z: the error says to merge them."""
+    x, y, z: one of them alone is refused, saying to upload the app's zip (read by
+    ``load_phone``, see test_foreign_imu_mvnx_phone.py) or merge them."""
     p = tmp_path / "Gyroscope.csv"
     p.write_text("time,seconds_elapsed,z,y,x\n1700000000000000000,0.0,0.1,0.2,0.3\n"
                  "1700000000010000000,0.01,0.1,0.2,0.3\n")
-    with pytest.raises(InputError, match=r"one file per sensor.*merge them"):
+    with pytest.raises(InputError, match=r"one file per sensor.*upload the app's zip.*merge"):
         load_imu(p)
