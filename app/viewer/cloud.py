@@ -4,7 +4,9 @@ The live view needs the clouds of all sensors several times per second on a 2-co
 machine, so the whole pipeline (per-pixel unprojection with the sensor's intrinsics,
 ``T_world_sensor`` transform, voxel averaging) is one compiled pass per depth image into a
 dense voxel grid covering the points' bounding box. Pixel rays are precomputed per
-intrinsics, so a frame costs one multiply-add per pixel plus the voxel scatter. The result
+intrinsics and lens (:func:`engine.pointcloud.pixel_ray_table`: an Azure Kinect's depth
+lens bends the rays by centimetres at the image border), so a frame costs one multiply-add
+per pixel plus the voxel scatter, with or without a lens. The result
 is float32 points and uint8 colours, ready for viser (``precision="float32"``; float16
 loses millimetres a few metres from the origin).
 
@@ -14,14 +16,16 @@ loses millimetres a few metres from the origin).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from engine.errors import InputError
+from engine.pointcloud import CameraIntrinsics, pixel_ray_table
 
 MAX_VOXELS = 64_000_000  # dense-grid cells (int32 index): 256 MB at most, far above a lab
 
@@ -37,6 +41,9 @@ class DepthView:
         color: RGB colour of this sensor's points.
         highlight: optional ``(H, W)`` bool mask of pixels drawn in ``highlight_color``
             (the tracked body).
+        dist: OpenCV distortion coefficients of the depth lens (k1, k2, p1, p2[, k3...]);
+            ``()``: a pinhole (sensors that deliver undistorted depth, older nodes). They
+            do not change when the image is resized (only ``K`` does).
     """
 
     depth_mm: NDArray[np.uint16]
@@ -44,28 +51,80 @@ class DepthView:
     T_world_sensor: NDArray[np.float64]
     color: tuple[int, int, int] = (200, 200, 200)
     highlight: NDArray[np.bool_] | None = None
+    dist: tuple[float, ...] = ()
 
 
-_rays_cache: dict[tuple[int, int, bytes], NDArray[np.float32]] = {}
+_rays_cache: dict[tuple[int, int, bytes, tuple[float, ...]], NDArray[np.float32]] = {}
 
 
-def pixel_rays(K: NDArray[np.float64], width: int, height: int) -> NDArray[np.float32]:
-    """``(H, W, 2)`` normalised ray slopes ``((u - cx)/fx, (v - cy)/fy)`` (cached)."""
+def pixel_rays(K: NDArray[np.float64], width: int, height: int,
+               dist: tuple[float, ...] = ()) -> NDArray[np.float32]:
+    """``(H, W, 2)`` normalised undistorted rays ``(x/z, y/z)`` of every pixel (cached by
+    intrinsics, lens and image size: the live view's frame size follows the node's scale).
+
+    Without a lens: ``((u - cx)/fx, (v - cy)/fy)``. Pixels outside a lens's valid field
+    are NaN (skipped). Computed by :func:`engine.pointcloud.pixel_ray_table`.
+
+    Raises:
+        InputError: not a 3×3 matrix with positive focal lengths, or distortion that is
+            not OpenCV's.
+    """
     K = np.asarray(K, dtype=np.float64)
-    key = (width, height, K.tobytes())
+    d = tuple(float(x) for x in dist) if any(dist) else ()
+    key = (width, height, K.tobytes(), d)
     r = _rays_cache.get(key)
     if r is None:
-        if K.shape != (3, 3) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        if K.shape != (3, 3) or not (K[0, 0] > 0 and K[1, 1] > 0):
             raise InputError("depth intrinsics must be a 3×3 matrix with positive focal lengths")
-        u = (np.arange(width) - K[0, 2]) / K[0, 0]
-        v = (np.arange(height) - K[1, 2]) / K[1, 1]
-        r = np.empty((height, width, 2), np.float32)
-        r[..., 0] = u[None, :]
-        r[..., 1] = v[:, None]
+        intr = CameraIntrinsics.from_matrix(K, width, height, d or None)
+        r = np.ascontiguousarray(pixel_ray_table(intr), dtype=np.float32)
         if len(_rays_cache) > 64:
             _rays_cache.clear()
         _rays_cache[key] = r
     return r
+
+
+def calibrated_depth_lens(cameras: Mapping[str, Any], node_id: str, K: Any,
+                          size: tuple[int, int]) -> tuple[float, ...] | None:
+    """A node's depth lens as the active calibration recorded it, for the live cloud.
+
+    The lens reaches the server only with the calibration capture (``calib`` header
+    ``depth_dist``; the node's hello has no lens field, so older servers accept newer
+    nodes) and is kept in the calibration's ``meta["cameras"]``. It is used only while
+    the node still reports the camera it was calibrated with: the recorded depth ``K``,
+    scaled to the node's depth size, must match its ``K`` (focal lengths within 0.1 %,
+    principal point within 1 px).
+
+    Args:
+        cameras: ``CalibrationResult.meta["cameras"]`` (``{node: {"depth": {"size", "K",
+            "dist"}}}``).
+        node_id: The node.
+        K: The 3×3 depth intrinsics the node reports (at ``size``), or None.
+        size: ``(width, height)`` of the node's depth images for ``K``.
+
+    Returns:
+        The OpenCV coefficients, ``()`` for a calibrated pinhole (or none recorded:
+        calibrations before lenses were kept, older nodes), None when the recorded camera
+        is not the node's (the caller keeps a pinhole and says so).
+    """
+    cam = cameras.get(node_id) if isinstance(cameras, Mapping) else None
+    depth = cam.get("depth") if isinstance(cam, Mapping) else None
+    if not isinstance(depth, Mapping) or not depth.get("dist"):
+        return ()
+    try:
+        Kc = np.asarray(depth["K"], dtype=float).reshape(3, 3)
+        cw, ch = (float(x) for x in depth["size"])
+        dist = tuple(float(x) for x in depth["dist"])
+        Kn = np.asarray(K, dtype=float).reshape(3, 3)
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not any(dist) or not np.isfinite(dist).all():
+        return () if not any(dist) else None
+    sx, sy = size[0] / cw, size[1] / ch
+    f_ok = (abs(Kc[0, 0] * sx - Kn[0, 0]) <= 1e-3 * Kn[0, 0]
+            and abs(Kc[1, 1] * sy - Kn[1, 1]) <= 1e-3 * Kn[1, 1])
+    c_ok = abs(Kc[0, 2] * sx - Kn[0, 2]) <= 1.0 and abs(Kc[1, 2] * sy - Kn[1, 2]) <= 1.0
+    return dist if f_ok and c_ok else None
 
 
 def scale_intrinsics(K: NDArray[np.float64], scale: float) -> NDArray[np.float64]:
@@ -93,7 +152,10 @@ def _bounds(depth: NDArray[np.uint16], rays: NDArray[np.float32], T: NDArray[np.
             z = d * 0.001
             if z < zmin or z > zmax:
                 continue
-            x = rays[i, j, 0] * z
+            rx = rays[i, j, 0]
+            if rx != rx:  # NaN: no ray inside the lens's valid field
+                continue
+            x = rx * z
             y = rays[i, j, 1] * z
             for k in range(3):
                 p = T[k, 0] * x + T[k, 1] * y + T[k, 2] * z + T[k, 3]
@@ -122,7 +184,10 @@ def _scatter(depth: NDArray[np.uint16], rays: NDArray[np.float32], T: NDArray[np
             z = d * 0.001
             if z < zmin or z > zmax:
                 continue
-            x = rays[i, j, 0] * z
+            rx = rays[i, j, 0]
+            if rx != rx:  # NaN: no ray inside the lens's valid field
+                continue
+            x = rx * z
             y = rays[i, j, 1] * z
             px = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
             py = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
@@ -158,7 +223,8 @@ def merge_depth_views(views: Sequence[DepthView], voxel_m: float = 0.03,
     """Unproject, transform and voxel-average several depth images into one world cloud.
 
     Each occupied voxel yields one point: the mean of its points, coloured by the mean
-    colour of its points (sensor colour, or the highlight colour for masked pixels).
+    colour of its points (sensor colour, or the highlight colour for masked pixels). A view
+    with a lens (``DepthView.dist``) is unprojected along its pixels' undistorted rays.
 
     Args:
         views: depth images with intrinsics and poses.
@@ -184,7 +250,7 @@ def merge_depth_views(views: Sequence[DepthView], voxel_m: float = 0.03,
         T = np.ascontiguousarray(v.T_world_sensor, dtype=np.float64)
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise InputError("T_world_sensor must be a finite 4×4 matrix")
-        rays = pixel_rays(v.K, depth.shape[1], depth.shape[0])
+        rays = pixel_rays(v.K, depth.shape[1], depth.shape[0], v.dist)
         total += _bounds(depth, rays, T, z_range_m[0], z_range_m[1], bounds)
         prepared.append((depth, rays, T, v))
     if total == 0:

@@ -37,7 +37,12 @@ from numpy.typing import NDArray
 from app.server.hub import Hub
 from app.server.registry import NodeSession
 from app.server.streaming import HIGHLIGHT_RGB, DepthFrame, LiveStreams
-from app.viewer.cloud import DepthView, merge_depth_views, scale_intrinsics
+from app.viewer.cloud import (
+    DepthView,
+    calibrated_depth_lens,
+    merge_depth_views,
+    scale_intrinsics,
+)
 from app.viewer.planning import Planner, sensors_from_nodes
 from app.viewer.scene import sensor_color
 from engine.geometry import quat_from_matrix
@@ -213,6 +218,8 @@ class LiveServices:
         self._planner_key: tuple[str, ...] = ()
         self._cloud_frames: dict[str, DepthFrame] = {}
         self._cloud_seq: dict[str, int] = {}
+        #: each node's depth lens for the live cloud (from the active calibration)
+        self._depth_lens: dict[str, tuple[float, ...]] = {}
         self._cloud_task: asyncio.Task[None] | None = None
         self._handles: dict[str, Any] = {}
         self._dragging = False
@@ -409,7 +416,34 @@ class LiveServices:
 
     # ------------------------------------------------------------------ listeners
 
+    def _refresh_lenses(self) -> None:
+        """Each node's depth lens from the active calibration's camera models (the only
+        place the server learns a lens: the calibration capture), for the live cloud;
+        nodes without one, or whose camera changed since, stay pinhole."""
+        from app.server.calibration import active_result
+
+        cal = active_result(self.hub.settings.data_dir)
+        cameras = {} if cal is None else cal.meta.get("cameras", {})
+        lenses: dict[str, tuple[float, ...]] = {}
+        for nid, s in self.hub.registry.nodes.items():
+            if s.sensor.depth_K is None:
+                continue
+            d = calibrated_depth_lens(cameras, nid, s.sensor.depth_K, s.sensor.depth_size)
+            if d is None:
+                log.warning("%s reports another depth camera than calibration %s recorded: "
+                            "its live cloud is drawn without the lens until it is "
+                            "calibrated again", nid, getattr(cal, "version", "?"))
+            elif d:
+                lenses[nid] = d
+        if lenses != self._depth_lens:
+            self._cloud_seq.clear()  # redraw with the new rays
+        self._depth_lens = lenses
+
     def _on_nodes(self, _s: NodeSession) -> None:
+        try:
+            self._refresh_lenses()
+        except Exception:
+            log.exception("could not read the depth lenses of the active calibration")
         try:
             for nid in sorted(self.hub.registry.nodes):  # per-sensor toggles in id order
                 self._node_toggle(nid)
@@ -439,6 +473,18 @@ class LiveServices:
         except Exception:
             log.exception("could not draw the fused skeleton")
 
+    def cloud_view(self, f: DepthFrame) -> DepthView | None:
+        """What the live cloud unprojects of a node's depth frame: the frame with its
+        node's intrinsics at the frame's scale, pose and depth lens (None while the node
+        has no intrinsics or pose)."""
+        s = self.hub.registry.get(f.node)
+        if s is None or s.sensor.depth_K is None or s.sensor.T_world_sensor is None:
+            return None
+        K = scale_intrinsics(np.asarray(s.sensor.depth_K), f.scale)
+        # the lens's coefficients hold at any image scale (only K scales)
+        return DepthView(f.depth_mm, K, np.asarray(s.sensor.T_world_sensor, float),
+                         sensor_color(f.node), f.body, self._depth_lens.get(f.node, ()))
+
     async def _cloud_loop(self) -> None:
         """Redraw the clouds of nodes with a new depth frame, ≤ CLOUD_HZ per node."""
         assert self.viewer is not None
@@ -450,15 +496,11 @@ class LiveServices:
             for nid, f in list(self._cloud_frames.items()):
                 if self._cloud_seq.get(nid) == f.seq:
                     continue  # nothing new: nothing re-sent
-                s = self.hub.registry.get(nid)
-                if s is None or s.sensor.depth_K is None or s.sensor.T_world_sensor is None:
+                view = self.cloud_view(f)
+                if view is None:
                     continue
                 self._cloud_seq[nid] = f.seq
                 visible = self._node_toggle(nid)
-                K = scale_intrinsics(np.asarray(s.sensor.depth_K), f.scale)
-                view = DepthView(f.depth_mm, K,
-                                 np.asarray(s.sensor.T_world_sensor, float), sensor_color(nid),
-                                 f.body)
                 try:
                     pts, cols = await asyncio.to_thread(merge_depth_views, [view], CLOUD_VOXEL_M,
                                                         (0.3, 8.0), HIGHLIGHT_RGB)

@@ -190,6 +190,19 @@ def _flying_pixels(z: FloatArray, rng: np.random.Generator, prob: float) -> Floa
     return out
 
 
+def _lens(dist: Any, name: str) -> FloatArray | None:
+    """OpenCV distortion coefficients as an array, None for none (or all zeros).
+
+    Raises:
+        InputError: not 4, 5, 8, 12 or 14 finite numbers.
+    """
+    d = None if dist is None else np.asarray(dist, dtype=float).ravel()
+    if d is not None and (d.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(d))):
+        raise InputError(f"{name} must be 4, 5, 8, 12 or 14 finite OpenCV distortion "
+                         f"coefficients, got {d.size}")
+    return d if d is not None and np.any(d) else None
+
+
 class SensorRenderer:
     """Renders one sensor's frames; the static room is cast once at construction.
 
@@ -207,18 +220,21 @@ class SensorRenderer:
             stands for sensors whose colour images are delivered rectified, and every
             recorded expectation (calibration accuracy, benches) is for that; tests of
             the lens path turn it on.
+        depth_dist: the same for the depth lens (an Azure Kinect's depth images are not
+            undistorted): each depth pixel measures along its distorted ray, depth
+            still along the optical axis. The coefficients hold at any ``image_scale``.
+            Off by default, as ``color_dist``.
     """
 
     def __init__(self, sensor: SimSensor, rig: Rig,
                  color_size: tuple[int, int] | None = (640, 360), supersample: int = 2,
-                 image_scale: float = 1.0, color_dist: Any = None) -> None:
+                 image_scale: float = 1.0, color_dist: Any = None,
+                 depth_dist: Any = None) -> None:
         self.sensor = sensor
-        cd = None if color_dist is None else np.asarray(color_dist, dtype=float).ravel()
-        if cd is not None and (cd.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(cd))):
-            raise InputError("color_dist must be 4, 5, 8, 12 or 14 finite OpenCV distortion "
-                             f"coefficients, got {cd.size}")
         #: the colour lens's distortion (None: a pinhole)
-        self.color_dist: FloatArray | None = cd if cd is not None and np.any(cd) else None
+        self.color_dist: FloatArray | None = _lens(color_dist, "color_dist")
+        #: the depth lens's distortion (None: a pinhole)
+        self.depth_dist: FloatArray | None = _lens(depth_dist, "depth_dist")
         self.model = sensor.model
         self.room = _Room(rig)
         m = self.model
@@ -233,8 +249,9 @@ class SensorRenderer:
             dw, dh = max(1, round(dw * image_scale)), max(1, round(dh * image_scale))
         self.depth_shape = (dh, dw)
         scene, self._floor_id, self._wall_id = self.room.scene()
-        self._rays_d = self._world_rays(sensor.T_world_sensor, self.K_depth, dw, dh)
-        self._dz_d = _pixel_rays(self.K_depth, dw, dh)[..., 2]
+        self._rays_d = self._world_rays(sensor.T_world_sensor, self.K_depth, dw, dh,
+                                        dist=self.depth_dist)
+        self._dz_d = _pixel_rays(self.K_depth, dw, dh, dist=self.depth_dist)[..., 2]
         ans = scene.cast_rays(_tensor(self._rays_d))
         self._bg_t = ans["t_hit"].numpy().astype(float)  # distance along the unit ray
         self.color_size = color_size
@@ -326,7 +343,8 @@ class SensorRenderer:
         all_v = [np.asarray(V, dtype=float) for V, _, _ in bodies if len(V)]
         if all_v:
             T_sw = self.sensor.T_sensor_world
-            win = self._bbox_pixels(T_sw, self.K_depth, W, H, np.concatenate(all_v))
+            win = self._bbox_pixels(T_sw, self.K_depth, W, H, np.concatenate(all_v),
+                                    self.depth_dist)
             if win is not None:
                 ans = self._cast_bodies(bodies, self._rays_d, win)
                 tb = ans["t_hit"]

@@ -95,16 +95,19 @@ class SimBackend(Backend):
         self.report_truth = report_truth
         self.test_warning = test_warning
         self._step_file = os.environ.get("GAITRIG_TEST_CLOCK_STEP_FILE") or None
-        # TEST HOOK (GAITRIG_TEST_SIM_COLOR_DIST=k1,k2,p1,p2[,k3...]): the calibration
-        # frames are rendered through this colour lens, which the node then reports like a
-        # real sensor's (Backend.color_dist); the simulated rig has none by default
-        lens = os.environ.get("GAITRIG_TEST_SIM_COLOR_DIST")
-        if lens:
-            try:
-                self.color_dist = [float(x) for x in lens.split(",")]
-            except ValueError as exc:
-                raise InputError("GAITRIG_TEST_SIM_COLOR_DIST must be comma-separated "
-                                 f"numbers, got {lens!r}") from exc
+        # TEST HOOKS (GAITRIG_TEST_SIM_COLOR_DIST / _DEPTH_DIST=k1,k2,p1,p2[,k3...]): the
+        # colour (calibration frames) and depth (every frame) are rendered through these
+        # lenses, which the node then reports like a real sensor's (Backend.color_dist,
+        # depth_dist); the simulated rig has none by default
+        for attr, var in (("color_dist", "GAITRIG_TEST_SIM_COLOR_DIST"),
+                          ("depth_dist", "GAITRIG_TEST_SIM_DEPTH_DIST")):
+            lens = os.environ.get(var)
+            if lens:
+                try:
+                    setattr(self, attr, [float(x) for x in lens.split(",")])
+                except ValueError as exc:
+                    raise InputError(f"{var} must be comma-separated numbers, got "
+                                     f"{lens!r}") from exc
         self._step: tuple[float, float] | None = None  # (host time, seconds) of the step
         self._closed = threading.Event()
         self._walker: Any = None
@@ -278,13 +281,15 @@ class SimBackend(Backend):
                 if r is None:
                     if len(self._previews) >= 4:  # a few scales at most (bounded memory)
                         self._previews.clear()
-                    r = self._previews[scale] = SensorRenderer(self.sensor, self.rig, None,
-                                                               image_scale=scale)
+                    r = self._previews[scale] = SensorRenderer(
+                        self.sensor, self.rig, None, image_scale=scale,
+                        depth_dist=self.depth_dist)
             else:
                 if self._renderer is None:
                     m = self.sensor.model
                     self._renderer = SensorRenderer(
-                        self.sensor, self.rig, (m.color_render_width, m.color_render_height))
+                        self.sensor, self.rig, (m.color_render_width, m.color_render_height),
+                        depth_dist=self.depth_dist)
                 r = self._renderer
             frame = r.render([mesh], self._img_rng, with_color=want_color)
         out: dict[str, NDArray[np.uint8] | NDArray[np.uint16]] = {}
@@ -324,7 +329,8 @@ class SimBackend(Backend):
         with self._calib_lock:
             if self._calib_renderer is None:
                 self._calib_renderer = SensorRenderer(self.sensor, self.rig, CAPTURE_COLOR_SIZE,
-                                                      color_dist=self.color_dist)
+                                                      color_dist=self.color_dist,
+                                                      depth_dist=self.depth_dist)
             r = self._calib_renderer
         for _ in range(n):
             t_host = time.time()
