@@ -518,8 +518,10 @@ def observe_sensor(
     first: dict[int, MarkerDetection] = {}
     dup_ids: set[int] = set()
     for img in frames.colors:
-        # per frame only which ids are seen (the corners come from the median image), so
-        # without the lens: undistorting every frame would double the detection time
+        # per frame only which ids are seen, so without the lens (undistorting every frame
+        # would double the detection time): the corners come from the median image,
+        # detected through the lens; a marker the median lost falls back to its first
+        # frame's corners, in the image's own pixels, which the estimator undistorts
         ds = detect_markers(img, dictionary, detector=detector, refine=False)
         dup_ids.update(ds.duplicates)
         ids = {m.id for m in ds.markers if marker_ids is None or m.id in marker_ids}
