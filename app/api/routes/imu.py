@@ -1,20 +1,26 @@
 """IMU page API: upload IMU files (and a depth skeleton), sync, fusion, plots, CSV.
 
-``POST /api/imu/sessions`` (multipart) → a processed session: ``files`` (x-IMU CSV,
-Madgwick ``.mat``, BROAD ``.hdf5``/``.mat``, APDM ``.h5``, generic CSV with declared
-units), ``sensors`` (one name per file, e.g. ``chest``, ``thigh_l``; default the file
-name), optional ``skeleton`` (skeleton CSV, ``engine.io.csv``), ``filter`` (``ours`` |
-``madgwick``), ``beta``, ``synchronise``, ``n_jumps`` and, for CSV, ``gyr_unit``, ``acc_unit``,
-``mag_unit``, ``time_unit`` (``s``/``ms``/``us``/``ns``), ``frequency``: each overrides the
-unit in the file's header or the one detected from the data (``engine.imu.io.load_csv``;
-what was assumed comes back in the warnings). ``file_sensors`` picks the sensor to read
-from a CSV holding several (two Shimmers, an Xsens export of several DOTs): one per file
-(empty for a one-sensor file) or one for all; without it such a file is refused with the
-list of its sensors. Upload the file twice, with two choices, to use two of its sensors.
-``quat_order`` (``wxyz``/``xyzw``) and ``quat_frame`` (``ENU``/``NED``) say how a CSV's
-reference quaternion columns are meant when gravity cannot tell (they are then compared
-with the filter's orientation). Dropped samples are filled on the nominal rate's grid
-(``engine.imu.io.fill_gaps``).
+``POST /api/imu/sessions`` (multipart) → a processed session: ``files`` (x-IMU CSV, Madgwick
+``.mat``, BROAD ``.hdf5``/``.mat``, APDM ``.h5``, Xsens MVN ``.mvnx``, a phone app's
+``.zip`` of one file per sensor, generic CSV with declared units), ``sensors`` (one name per
+file, e.g. ``chest``, ``thigh_l``; default the file name), optional ``skeleton`` (skeleton
+CSV, ``engine.io.csv``), ``filter`` (``ours`` | ``madgwick``), ``beta``, ``synchronise``,
+``n_jumps`` and, for CSV, ``gyr_unit``, ``acc_unit``, ``mag_unit``, ``time_unit``
+(``s``/``ms``/``us``/``ns``), ``frequency``: each overrides the unit in the file's header or
+the one detected from the data (``engine.imu.io.load_csv``; what was assumed comes back in
+the warnings). ``file_sensors`` picks the sensor to read from a CSV holding several (two
+Shimmers, an Xsens export of several DOTs): one per file (empty for a one-sensor file) or
+one for all; without it such a file is refused with the list of its sensors. Upload the file
+twice, with two choices, to use two of its sensors. An ``.mvnx`` without a choice gives one
+stream per tracker, named after its label (after ``<name>_`` when a name is given). A
+``.zip`` (Sensor Logger, phyphox) is unpacked in memory-bounded steps (at most
+``engine.imu._phone.MAX_ZIP_MEMBERS`` members and ``engine.imu._phone.MAX_ZIP_UNCOMPRESSED``
+bytes unpacked, member names never used as paths); ``platform`` (``ios``/``android``)
+declares its acceleration's sign convention when neither the phone's orientation nor its
+metadata tells. ``quat_order`` (``wxyz``/``xyzw``) and ``quat_frame`` (``ENU``/``NED``) say
+how a CSV's reference quaternion columns are meant when gravity cannot tell (they are then
+compared with the filter's orientation). Dropped samples are filled on the nominal rate's
+grid (``engine.imu.io.fill_gaps``).
 
 Instead of a skeleton file, ``recording`` and ``recording_node`` take one sensor's
 skeleton from a recording already transferred to the server (placed in the world by the
@@ -49,7 +55,13 @@ from app.server.imu_analysis import (
 )
 from engine.errors import InputError
 from engine.imu.fusion import PAPER_SENSORS
-from engine.imu.io import ImuRecording, MultipleSensorsError, fill_gaps, load_imu
+from engine.imu.io import (
+    ImuRecording,
+    MultipleSensorsError,
+    fill_gaps,
+    load_imu,
+    load_mvnx_all,
+)
 from engine.io.csv import read_skeleton_csv
 from engine.skeleton import SkeletonSeries
 
@@ -59,7 +71,9 @@ MAX_FILE_BYTES = 64 * 1024 * 1024
 MAX_FILES = 12
 #: Whole multipart request: every IMU file, the skeleton file and the form fields.
 MAX_REQUEST_BYTES = (MAX_FILES + 1) * MAX_FILE_BYTES + 1024 * 1024
-_ALLOWED_SUFFIXES = (".csv", ".txt", ".tsv", ".mat", ".hdf5", ".h5")
+_ALLOWED_SUFFIXES = (".csv", ".txt", ".tsv", ".mat", ".hdf5", ".h5", ".mvnx", ".zip")
+#: streams of one session once MVNX exports are split per tracker (a full-body suit: 17)
+MAX_STREAMS = 24
 _NAME_RE = re.compile(r"^[A-Za-z0-9_\-]{1,40}$")
 _ID_RE = re.compile(r"^[0-9a-f]{16}$")
 
@@ -86,8 +100,8 @@ async def _save(upload: UploadFile, folder: Path, stem: str) -> Path:
     if suffix not in _ALLOWED_SUFFIXES:
         raise HTTPException(status.HTTP_400_BAD_REQUEST,
                             f"{name or 'a file'}: unsupported type {suffix or '(none)'}; upload "
-                            ".csv (x-IMU or generic), .mat (Madgwick or BROAD) or .hdf5/.h5 "
-                            "(BROAD or APDM)")
+                            ".csv (x-IMU or generic), .mat (Madgwick or BROAD), .hdf5/.h5 "
+                            "(BROAD or APDM), .mvnx (Xsens MVN) or .zip (a phone app's files)")
     path = folder / f"{stem}{suffix}"  # never the client's name: no path traversal
     size = 0
     with path.open("wb") as fh:
@@ -162,6 +176,7 @@ async def upload_session(
     file_sensors: Annotated[list[str], Form()] = [],  # noqa: B006 - FastAPI form default
     quat_order: Annotated[Literal["wxyz", "xyzw"] | None, Form()] = None,
     quat_frame: Annotated[Literal["ENU", "NED"] | None, Form()] = None,
+    platform: Annotated[Literal["ios", "android"] | None, Form()] = None,
 ) -> dict[str, Any]:
     """Process uploaded IMU files (and optionally a depth skeleton); see the module doc."""
     files = [f for f in files if f.filename]
@@ -184,6 +199,9 @@ async def upload_session(
         kwargs["quat_order"] = quat_order
     if quat_frame:
         kwargs["quat_frame"] = quat_frame
+    if platform:
+        kwargs["platform"] = platform
+    given = [s.strip() for s in sensors if s.strip()]
     filt: FilterName = filter
     with tempfile.TemporaryDirectory(prefix="gaitrig-imu-") as tmp:
         folder = Path(tmp)
@@ -202,6 +220,20 @@ async def upload_session(
             recs: dict[str, ImuRecording] = {}
             for name, path, up, choice in zip(names, paths, files, choices, strict=True):
                 try:
+                    if path.suffix == ".mvnx" and not choice:  # one stream per tracker
+                        for label, rec in load_mvnx_all(path).items():
+                            stream = _tracker_name(name if given else "", label)
+                            if stream in recs:
+                                raise InputError(f"two streams named {stream!r}; give the "
+                                                 "files different sensor names")
+                            rec.name = stream
+                            recs[stream] = fill_gaps(rec)
+                        if len(recs) > MAX_STREAMS:
+                            raise InputError(
+                                f"{len(recs)} IMU streams (an MVNX export gives one per "
+                                f"tracker); at most {MAX_STREAMS}: choose the trackers in "
+                                "'Sensor in file' (form field file_sensors)")
+                        continue
                     rec = _load(path, {**kwargs, "sensor": choice} if choice else kwargs)
                 except MultipleSensorsError as e:
                     msg = str(e).replace(path.name, up.filename or name).replace(
@@ -215,6 +247,9 @@ async def upload_session(
                 except Exception as e:  # a damaged file can trip any reader library
                     raise InputError(f"{up.filename}: cannot read the file ({e}); check that it "
                                      "is a complete, unmodified export") from None
+                if name in recs:
+                    raise InputError(f"two streams named {name!r}; give the files different "
+                                     "sensor names")
                 rec.name = name
                 recs[name] = rec
             if use_recording:
@@ -296,10 +331,21 @@ async def recordings(user: CurrentUser, settings: SettingsDep) -> list[dict[str,
     return out
 
 
+def _tracker_name(prefix: str, label: str) -> str:
+    """A stream name for an MVNX tracker (``Pelvis``, ``chest_Pelvis``) the form accepts."""
+    name = re.sub(r"[^A-Za-z0-9_\-]", "_", f"{prefix}_{label}" if prefix else label)[:40]
+    return name or "tracker"
+
+
 def _load(path: Path, kwargs: dict[str, Any]) -> ImuRecording:
     # dropped samples filled: the filters assume a constant rate (engine.imu.io.fill_gaps)
     if path.suffix in (".csv", ".txt", ".tsv"):
-        return fill_gaps(load_imu(path, **kwargs))
+        return fill_gaps(load_imu(path, **{k: v for k, v in kwargs.items()
+                                           if k != "platform"}))
+    if path.suffix == ".zip":
+        return fill_gaps(load_imu(path, platform=kwargs.get("platform")))
+    if path.suffix == ".mvnx":
+        return fill_gaps(load_imu(path, sensor=kwargs.get("sensor")))
     if path.suffix in (".h5", ".hdf5"):  # APDM: one sensor of several, its reference frame
         return fill_gaps(load_imu(path, **{k: v for k, v in kwargs.items()
                                            if k in ("sensor", "quat_frame")}))

@@ -1,0 +1,115 @@
+"""IMU upload of an Xsens MVN export (one stream per tracker, or the chosen one) and of a
+phone app's zip (Sensor Logger, iOS sign): the session's reference errors are the
+filter's against the simulated truth; a zip without a gyroscope or accelerometer file,
+with an unsafe member name or unpacking too large is refused with a 400 saying what to
+fix."""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from engine.imu import _phone
+from engine.imu.filter import orientation_filter
+from engine.imu.io import ImuRecording
+from engine.imu.metrics import orientation_errors
+from tests.app.analysis.test_imu_api import client  # noqa: F401 - the logged-in fixture
+from tests.engine.imu.test_foreign_imu_mvnx_phone import (
+    _meta,
+    _motion,
+    sensor_logger,
+    write_mvnx,
+    zip_files,
+)
+
+
+@pytest.fixture(scope="module")
+def sims() -> dict[str, ImuRecording]:
+    return {"Pelvis": _motion(rng=1), "RightLowerLeg": _motion(rng=2, peak=2.0)}
+
+
+def _post(c: TestClient, name: str, content: bytes, **data: object) -> tuple[int, dict]:
+    r = c.post("/api/imu/sessions", files=[("files", (name, content, "application/zip"))],
+               data={"synchronise": "false", **data})
+    return r.status_code, r.json()
+
+
+def _own_error(rec: ImuRecording) -> float:
+    """Our filter's error against the truth (the page runs it on the whole recording)."""
+    q, _, _ = orientation_filter(rec.gyr, rec.acc, rec.mag, frequency=rec.frequency,
+                                 offline=True)
+    assert rec.quat_ref is not None
+    return orientation_errors(q, rec.quat_ref)["total_deg"]
+
+
+def test_mvnx_upload_one_stream_per_tracker(client: TestClient,  # noqa: F811
+                                            sims: dict[str, ImuRecording],
+                                            tmp_path: Path) -> None:
+    content = write_mvnx(tmp_path / "take.mvnx", sims).read_bytes()
+    code, body = _post(client, "take.mvnx", content)
+    assert code == 200, body
+    assert [s["name"] for s in body["sensors"]] == ["Pelvis", "RightLowerLeg"]
+    for name, sim in sims.items():
+        assert body["reference_errors"][name]["total_deg"] == pytest.approx(
+            _own_error(sim), abs=0.01)
+    # a name given to the file prefixes its trackers; a choice takes one tracker
+    code, body = _post(client, "take.mvnx", content, sensors="suit")
+    assert code == 200, body
+    assert [s["name"] for s in body["sensors"]] == ["suit_Pelvis", "suit_RightLowerLeg"]
+    code, body = _post(client, "take.mvnx", content, file_sensors="RightLowerLeg")
+    assert code == 200, body
+    assert [s["name"] for s in body["sensors"]] == ["take_RightLowerLeg"]
+    code, body = _post(client, "take.mvnx", content, file_sensors="Head")
+    assert code == 400 and "Pelvis, RightLowerLeg" in body["detail"]
+    assert "take.mvnx" in body["detail"] and "imu0" not in body["detail"]
+
+
+def test_phone_zip_upload(client: TestClient, sims: dict[str, ImuRecording],  # noqa: F811
+                          tmp_path: Path) -> None:
+    sim = sims["Pelvis"]
+    files = sensor_logger(sim, ios=True, metadata=_meta("ios", False))
+    content = zip_files(tmp_path / "walk.zip", files).read_bytes()
+    code, body = _post(client, "walk.zip", content)
+    assert code == 200, body
+    (row,) = body["sensors"]
+    assert row["name"] == "walk" and row["samples"] == len(sim)
+    assert body["reference_errors"]["walk"]["total_deg"] == pytest.approx(_own_error(sim),
+                                                                          abs=0.01)
+    # declared Android against the iOS data: the sign is then wrong, and the filter's
+    # orientation is upside down against the phone's own
+    code, body = _post(client, "walk.zip", content, platform="android")
+    assert code == 200, body
+    assert body["reference_errors"]["walk"]["total_deg"] > 90.0
+    assert _post(client, "walk.zip", content, platform="windows")[0] == 422
+
+
+def _zip_bytes(files: dict[str, str | bytes]) -> bytes:
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
+        for k, v in files.items():
+            z.writestr(k, v)
+    return buf.getvalue()
+
+
+def test_bad_zips_are_refused(client: TestClient, sims: dict[str, ImuRecording],  # noqa: F811
+                              monkeypatch: pytest.MonkeyPatch) -> None:
+    files = sensor_logger(sims["Pelvis"], ios=False)
+    no_gyro = {k: v for k, v in files.items() if k != "Gyroscope.csv"}
+    code, body = _post(client, "phone.zip", _zip_bytes(no_gyro))
+    assert code == 400 and "phone.zip: no gyroscope file (Gyroscope.csv)" in body["detail"]
+    no_acc = {k: v for k, v in files.items() if k not in ("Accelerometer.csv", "Gravity.csv")}
+    code, body = _post(client, "phone.zip", _zip_bytes(no_acc))
+    assert code == 400 and "no accelerometer file with gravity" in body["detail"]
+    code, body = _post(client, "phone.zip", _zip_bytes({"Location.csv": "time,lat\n1,2\n"}))
+    assert code == 400 and "no accelerometer or gyroscope file" in body["detail"]
+    code, body = _post(client, "phone.zip", _zip_bytes({**files, "../up.csv": "1"}))
+    assert code == 400 and "unsafe file name" in body["detail"]
+    monkeypatch.setattr(_phone, "MAX_ZIP_UNCOMPRESSED", 2**20)
+    code, body = _post(client, "phone.zip", _zip_bytes({**files, "Big.csv": b"0" * 2**21}))
+    assert code == 400 and "split the recording" in body["detail"]
+    code, body = _post(client, "phone.zip", b"not a zip")
+    assert code == 400 and "not a readable zip" in body["detail"]
