@@ -349,7 +349,8 @@ def test_phyphox_folder_with_different_rates(tmp_path: Path) -> None:
     200 Hz, the gyroscope at 100 Hz with jittered time stamps. Merged on the gyroscope's
     stamps, the acceleration interpolated: the filters' error is within 0.1° of a plain
     CSV of the 100 Hz recording of the same motion (noise-free sensors: what differs is
-    the interpolation)."""
+    the interpolation at jittered instants; measured: ours 1.17° against 1.25°, Madgwick
+    0.664° against 0.671°)."""
     fast = _motion(fs=200.0, noise=False)
     slow = _motion(fs=100.0, noise=False)
     assert slow.quat_ref is not None and slow.mag is not None
