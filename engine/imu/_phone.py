@@ -235,7 +235,10 @@ def _read_stream(name: str, path: Path, kind: str, time_unit: str | None,
     """One sensor file read into SI (kind ``acc``/``lin``/``grav``/``gyr``/``mag`` or
     ``quat``), and the time unit used (the next files reuse it: one clock)."""
     disp = Path(name)
-    header, data, units_row, text = _io._read_csv(path)
+    try:
+        header, data, units_row, text = _io._read_csv(path)
+    except InputError as e:  # the reader names its copy of a zip member: name the member
+        raise InputError(str(e).replace(path.name, name)) from None
     t_idx, t_unit = _time_column(header)
     if t_idx is None:
         raise InputError(f"{name}: no time column (time, seconds_elapsed or Time (s)); "

@@ -409,6 +409,9 @@ def test_phone_zip_refusals(sims: dict[str, ImuRecording], tmp_path: Path,
                 z.writestr(folder + k, v)
     with pytest.raises(InputError, match="several recordings"):
         load_imu(two)
+    ragged = zip_files(tmp_path / "k.zip", {**files, "Gyroscope.csv": "time,x,y,z\n1,2\n"})
+    with pytest.raises(InputError, match=r"^Gyroscope\.csv: data row 2 has 2 fields"):
+        load_imu(ragged)
     (tmp_path / "h.zip").write_bytes(b"PK\x03\x04 not really")
     with pytest.raises(InputError, match="not a readable zip"):
         load_imu(tmp_path / "h.zip")
