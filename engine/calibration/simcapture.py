@@ -64,8 +64,11 @@ def render_sensor_frames(sensor: SimSensor, rig: Rig, frames: int, rng: np.rando
     assert r.K_color is not None and r.color_size is not None
     w, h = r.color_size
     color_intr = CameraIntrinsics.from_matrix(r.K_color, w, h, r.color_dist)
+    dh, dw = r.depth_shape
+    depth_intr = (r.K_depth if r.depth_dist is None  # a renderer's depth lens goes along too
+                  else CameraIntrinsics.from_matrix(r.K_depth, dw, dh, r.depth_dist))
     return SensorFrames(sensor_id=sensor.id, colors=colors, depths=depths,
-                        depth_intrinsics=r.K_depth, color_intrinsics=color_intr,
+                        depth_intrinsics=depth_intr, color_intrinsics=color_intr,
                         T_depth_color=sensor.model.T_depth_color, depth_scale=1000.0)
 
 
