@@ -29,8 +29,6 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import uniform_filter1d
-from scipy.signal import find_peaks
 
 from engine.errors import InputError, InsufficientDataError
 from engine.io.markers import MarkerEvent, MarkerTrajectories
@@ -203,6 +201,9 @@ def find_passes(times: FloatArray, centre: FloatArray, rate: float) -> list[Walk
         return []
     c = _nan_fill(times, centre[:, :2])
     c[: np.argmax(ok)] = c[np.argmax(ok)]
+    # scipy where it is used: the server imports this module at start and needs none
+    from scipy.ndimage import uniform_filter1d
+
     win = max(3, round(0.8 * rate))
     cs = uniform_filter1d(c, win, axis=0, mode="nearest")
     # Velocity and turn rate over ±0.25 s baselines: per-sample derivatives of noisy
@@ -279,6 +280,8 @@ def _peaks(t: FloatArray, y: FloatArray, rate: float, height: float, prominence:
     A height threshold (rather than prominence alone) keeps peaks near the start of a
     recording, whose left flank is cut off and whose prominence is therefore small.
     """
+    from scipy.signal import find_peaks
+
     out: list[float] = []
     for a, b in _segments(np.isfinite(y)):
         seg = y[a:b]

@@ -48,8 +48,6 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import uniform_filter1d
-from scipy.signal import butter, filtfilt
 
 from engine import nanstats
 from engine.errors import InputError, InsufficientDataError
@@ -254,6 +252,9 @@ def _lateral_axis(P: FloatArray, js: JointSet, rate: float) -> FloatArray:
             lat[~ok, k] = np.interp(g[~ok], g[ok], lat[ok, k])
         lat[~ok, 2] = 0.0
     if ok.any():
+        # scipy where it is used: the server imports this module at start (storage)
+        from scipy.ndimage import uniform_filter1d
+
         # Smooth over ~0.3 s: the trunk's orientation changes slowly.
         lat = uniform_filter1d(lat, max(1, round(0.3 * rate)), axis=0, mode="nearest")
         lat /= np.maximum(np.linalg.norm(lat, axis=1, keepdims=True), 1e-9)
@@ -378,6 +379,8 @@ def lowpass(X: FloatArray, rate: float, cutoff_hz: float, order: int = 4) -> Flo
     """
     if not 0 < cutoff_hz < rate / 2:
         raise InputError(f"cut-off {cutoff_hz} Hz must be between 0 and Nyquist ({rate / 2} Hz)")
+    from scipy.signal import butter, filtfilt
+
     b, a = butter(order, cutoff_hz / (rate / 2))
     pad = 3 * max(len(a), len(b))
     out = X.copy()

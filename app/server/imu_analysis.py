@@ -25,30 +25,26 @@ import secrets
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from engine.errors import GaitrigError, InsufficientDataError
-from engine.imu.filter import orientation_filter
 from engine.imu.fusion import (
     PAPER_SENSORS,
     flexion_angles,
     interp_quat,
 )
 from engine.imu.io import ImuRecording
-from engine.imu.madgwick import madgwick
 from engine.imu.metrics import ncc, orientation_errors, rmse
-from engine.imu.pipeline import ImuSessionResult, angles_csv, process_imu_session
-from engine.imu.sync import (
-    SyncResult,
-    imu_jump_spikes,
-    shift_recording,
-    synchronize,
-    torso_vertical_acceleration,
-)
 from engine.skeleton import SkeletonSeries
+
+if TYPE_CHECKING:
+    # The filters (numba) and the sync (scipy.signal/stats) are imported in the functions
+    # that run them: the API imports this module at the server's start, which needs neither.
+    from engine.imu.pipeline import ImuSessionResult
+    from engine.imu.sync import SyncResult
 
 FloatArray = NDArray[np.float64]
 FilterName = Literal["ours", "madgwick"]
@@ -121,6 +117,9 @@ def orientations(rec: ImuRecording, filt: FilterName, beta: float, nine_d: bool,
     Raises:
         InputError: bad gain or unusable samples (from the engine).
     """
+    from engine.imu.filter import orientation_filter
+    from engine.imu.madgwick import madgwick
+
     mag = rec.mag if nine_d else None
     if filt == "madgwick":
         gyr = np.nan_to_num(rec.gyr)
@@ -144,6 +143,8 @@ def fuse_session(recordings: dict[str, ImuRecording], skeleton: SkeletonSeries, 
         InputError: unknown sensor names, no chest sensor.
         InsufficientDataError: no jumps, no overlap, no plank pose.
     """
+    from engine.imu.pipeline import process_imu_session
+
     return process_imu_session(
         recordings, skeleton, plank_time=plank_time, q_world_plank=q_world_plank,
         synchronise=synchronise, n_jumps=n_jumps,
@@ -176,6 +177,8 @@ def _figure(rows: int, cols: int = 1, height: float = 1.9) -> tuple[Any, Any]:
 def sync_plot(recordings: dict[str, ImuRecording], sync: SyncResult | None,
               skeleton: SkeletonSeries | None, spikes: dict[str, FloatArray]) -> bytes:
     """Acceleration of every stream on the common clock, detected jump spikes marked."""
+    from engine.imu.sync import torso_vertical_acceleration
+
     names = list(recordings) + (["skeleton"] if skeleton is not None else [])
     fig, axes = _figure(len(names), height=0.85)
     for ax, n in zip(axes[:, 0], names, strict=True):
@@ -247,6 +250,8 @@ def orientation_plot(recordings: dict[str, ImuRecording], ori: dict[str, FloatAr
 
 
 def _spikes_or_none(rec: ImuRecording, n_jumps: int) -> tuple[FloatArray | None, str | None]:
+    from engine.imu.sync import imu_jump_spikes
+
     try:
         return imu_jump_spikes(rec, n_jumps), None
     except InsufficientDataError as e:
@@ -285,6 +290,8 @@ def _angle_stats(res: ImuSessionResult) -> dict[str, Any]:
 def imu_only_job(recordings: dict[str, ImuRecording], *, filt: FilterName, beta: float,
                  n_jumps: int, synchronise: bool) -> ImuJob:
     """Orientations, spikes and (≥ 2 streams) sync of IMU files without a skeleton."""
+    from engine.imu.sync import synchronize
+
     warnings = [f"{n}: {w}" for n, r in recordings.items() for w in r.warnings]
     spikes: dict[str, FloatArray] = {}
     for n, r in recordings.items():
@@ -344,6 +351,8 @@ def fused_job(recordings: dict[str, ImuRecording], skeleton: SkeletonSeries, *,
               truth: SkeletonSeries | None = None, truth_from: float | None = None,
               source: str = "upload") -> ImuJob:
     """Full fusion with plots, CSV and (given a ground truth skeleton) RMSE/NCC figures."""
+    from engine.imu.pipeline import angles_csv
+
     res = fuse_session(recordings, skeleton, filt=filt, beta=beta, synchronise=synchronise,
                        n_jumps=n_jumps, q_world_plank=q_world_plank)
     spikes = ({n: s for n, s in res.sync.spike_times.items()} if res.sync is not None else {})
@@ -405,6 +414,7 @@ def simulate_session(seed: int = 0, fs: float = 100.0, depth_noise_m: float = 0.
         quat_slerp,
         quat_to_matrix,
     )
+    from engine.imu.sync import shift_recording
     from engine.sim.imu import (
         WALKER_BONE_OF_SENSOR,
         Jumping,

@@ -40,7 +40,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from engine import nanstats
-from engine.compare import common_joints, compare_motions, joint_distances
 from engine.errors import GaitrigError, InputError
 from engine.kscc import N_STILL_FRAMES, KsccCalibrator, KsccProgress
 from engine.skeleton import JOINT_SETS, JointSet, SkeletonSeries, TrackingState
@@ -339,6 +338,10 @@ class KsccSession:
 
     def comparison(self) -> dict[str, Any]:
         """Difference over time and similarity once both sides are calibrated."""
+        # here, not at the top: the comparison's DTW kernel loads numba, which the server's
+        # start (the API imports this module) must not pay
+        from engine.compare import common_joints, compare_motions, joint_distances
+
         a, b = self.sides["a"], self.sides["b"]
         if not (a.calibrated and b.calibrated):
             return {"ready": False, "message": "Both users must be calibrated first."}

@@ -33,7 +33,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -42,7 +41,6 @@ from app.nodes.store import NodeStore
 from app.server.clock import ClockEstimate
 from app.transfer import TransferSink
 from engine.errors import GaitrigError, InputError, InsufficientDataError
-from engine.gait import GaitAnalysis
 from engine.integration import SensorStream, integrate_skeletons, resample_stream
 from engine.io.c3d import read_c3d, skeleton_to_markers, write_skeleton_c3d
 from engine.io.csv import read_skeleton_csv, write_skeleton_csv
@@ -431,6 +429,8 @@ def depth_frames(part_dir: Path, t0: float | None, t1: float | None,
         if len(out) >= limit:
             raise InputError(f"more than {limit} depth frames in the range; choose a shorter "
                              "time range")
+        import cv2  # here: the server's start needs no image codec
+
         img = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_UNCHANGED)
         if img is None or img.dtype != np.uint16:
             continue  # a preview JPEG is not depth data
@@ -443,6 +443,8 @@ def depth_frames(part_dir: Path, t0: float | None, t1: float | None,
 
 def depth_zip(frames: list[tuple[float, NDArray[np.uint16]]]) -> bytes:
     """16-bit PNGs (millimetres) in a zip, named by frame number and server time."""
+    import cv2
+
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as z:
         for k, (t, img) in enumerate(frames):
@@ -534,6 +536,10 @@ def sensor_streams(layout: StorageLayout, rec_id: str,
 
 def fused_skeleton(streams: list[SensorStream]) -> tuple[SkeletonSeries, list[MarkerEvent]]:
     """Fused world-frame skeleton (30 Hz) and its gait events when a walk is detected."""
+    # here, not at the top: gait analysis pulls scipy.signal/stats, which the server's
+    # start (this module is on its import path) must not pay
+    from engine.gait import GaitAnalysis
+
     fused, _report = integrate_skeletons(streams)
     try:
         events = GaitAnalysis().fit(fused).marker_events()

@@ -16,8 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
 
 from engine.calibration.corners3d import Observation
 from engine.calibration.markers import marker_model_corners
@@ -182,6 +180,10 @@ def chain_poses(sensor_ids: Sequence[str], edges: Sequence[Edge], origin: int = 
         cols += [j, i]
         w += [wt, wt]
         by_pair[(i, j)] = by_pair[(j, i)] = e
+    # scipy where it is used: the server's start imports this module and needs none
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+
     g = csr_matrix((w, (rows, cols)), shape=(len(nodes), len(nodes)))
     src = index[f"m:{origin}"]
     _, pred = dijkstra(g, directed=False, indices=src, return_predecessors=True)

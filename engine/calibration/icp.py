@@ -21,14 +21,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import open3d as o3d
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
 from engine.errors import InputError
 from engine.geometry import rotation_angle, transform_points
+
+if TYPE_CHECKING:  # open3d and scipy.spatial are imported where used: the server's start
+    import open3d as o3d  # imports this module (calibration store) and needs neither
 
 FloatArray = NDArray[np.float64]
 
@@ -77,6 +79,8 @@ class IcpReport:
 
 def to_o3d(points: ArrayLike) -> o3d.geometry.PointCloud:
     """numpy (N, 3) → Open3D point cloud."""
+    import open3d as o3d
+
     pc = o3d.geometry.PointCloud()
     pc.points = o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     return pc
@@ -87,6 +91,8 @@ def information_eig_ratio(src: FloatArray, dst: FloatArray, dst_normals: FloatAr
     """Conditioning of point-to-plane ICP: λ_min/λ_max of Σ aaᵀ, a = [(p×n)/L, n]."""
     if len(src) == 0 or len(dst) == 0:
         return 0.0
+    from scipy.spatial import cKDTree
+
     d, idx = cKDTree(dst).query(src, distance_upper_bound=max_dist)
     ok = np.isfinite(d)
     if ok.sum() < 6:
@@ -125,6 +131,8 @@ def icp_align(
     Raises:
         InputError: empty clouds or bad voxel size.
     """
+    import open3d as o3d
+
     if voxel is not None and voxel <= 0:
         raise InputError("ICP voxel size must be positive (metres)")
     src_np = np.asarray(source, dtype=np.float64).reshape(-1, 3)

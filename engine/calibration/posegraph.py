@@ -27,8 +27,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
 
 from engine.calibration.graph import Edge
 from engine.calibration.markers import marker_model_corners
@@ -133,6 +131,10 @@ def optimise_poses(
         Pm = P[len(sensors):]
         z = np.einsum("mj,mkj->mk", Pm[:, 2, :3], floor_models) + Pm[:, None, 2, 3]
         return np.concatenate([r, z.ravel() / floor_sigma_m])
+
+    # scipy where it is used: the server's start imports this module and needs none
+    from scipy.optimize import least_squares
+    from scipy.sparse import lil_matrix
 
     sp = lil_matrix((n_res, n_par), dtype=int)
     for j, e in enumerate(edges):

@@ -38,7 +38,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from engine.errors import InputError
 from engine.report.normative import (
@@ -212,6 +211,8 @@ def welch_t_test(a: Sequence[float] | np.ndarray,
                            float(len(xa) + len(xb) - 2), 0.0 if diff else 1.0)
     t = diff / math.sqrt(se2)
     df = se2 ** 2 / (va ** 2 / (len(xa) - 1) + vb ** 2 / (len(xb) - 1))
+    from scipy import stats  # here: the server imports this module at start
+
     p = float(2.0 * stats.t.sf(abs(t), df))
     return WelchResult(t, df, p)
 

@@ -21,7 +21,6 @@ from jinja2 import Environment, FileSystemLoader, select_autoescape
 
 from engine import __version__
 from engine.errors import InputError, InsufficientDataError
-from engine.report import plots
 from engine.report.normative import (
     DEFAULT_MDC_VALUES,
     DEFAULT_NORMATIVE_RANGES,
@@ -403,6 +402,9 @@ def _png_uri(png: bytes) -> str:
 
 def build_context(data: ReportData) -> dict[str, Any]:
     """Template context: tables, figures (as data URIs) and notes."""
+    # matplotlib where figures are drawn: the server imports this module at start
+    from engine.report import plots
+
     if not data.trials:
         raise InsufficientDataError("a report needs at least one analysed trial")
     for t in data.trials:
@@ -472,6 +474,8 @@ def build_context(data: ReportData) -> dict[str, Any]:
 def _agreement_alt(caption: str, rows: list[AgreementRow]) -> str:
     """Text alternative of an agreement figure: its row of the agreement table (the one
     whose parameter the caption names, both sides when it says so), else the caption."""
+    from engine.report import plots
+
     cap = caption.lower()
     named = [r for r in rows if r.parameter.lower() in cap]
     if "both sides" in cap:
@@ -505,6 +509,7 @@ def _progress_context(data: ReportData) -> dict[str, Any]:
     a report of one session)."""
     if len(data.sessions) < 2:
         return {"progress": None, "progress_figure": None}
+    from engine.report import plots
     from engine.report.progress import session_progress
 
     prog: Progress = session_progress(data.sessions, data.normative, data.mdc)
