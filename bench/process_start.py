@@ -46,6 +46,9 @@ from bench._procs import free_port, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = [sys.executable, "-m", "app.cli"]
+#: One admin password for every server of the run: the clinic's folder is started repeatedly
+#: and keeps the account its first start created.
+PASSWORD = secrets.token_urlsafe(12)
 HEAVY = ("scipy.signal", "scipy.stats", "scipy.ndimage", "scipy.optimize", "scipy.interpolate",
          "scipy.spatial", "open3d", "matplotlib", "weasyprint", "numba", "cv2", "viser")
 SERVER_IMPORTS = """
@@ -119,7 +122,7 @@ class Server:
     """``gaitrig serve --no-viewer`` on ``data_dir`` (the admin's password set)."""
 
     def __init__(self, data_dir: Path, log: Path, viewer: bool = False) -> None:
-        self.port, self.password = free_port(), secrets.token_urlsafe(12)
+        self.port, self.password = free_port(), PASSWORD
         self.base = f"http://127.0.0.1:{self.port}"
         self.env = {**os.environ, "GAITRIG_ADMIN_PASSWORD": self.password,
                     "PYTHONUNBUFFERED": "1", "GAITRIG_STORAGE_CHECK_INTERVAL_S": "0",
