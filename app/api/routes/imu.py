@@ -68,6 +68,9 @@ from engine.skeleton import SkeletonSeries
 router = APIRouter(prefix="/imu", route_class=BoundedRoute, tags=["imu"])
 
 MAX_FILE_BYTES = 64 * 1024 * 1024
+#: an MVNX export carries every segment's kinematics too (≈9 kB, 850 numbers, a frame for a
+#: full suit: 64 MB is 2 min at 60 Hz); parsed frame by frame, only the sensor data kept
+MAX_MVNX_BYTES = 256 * 1024 * 1024
 MAX_FILES = 12
 #: Whole multipart request: every IMU file, the skeleton file and the form fields.
 MAX_REQUEST_BYTES = (MAX_FILES + 1) * MAX_FILE_BYTES + 1024 * 1024
@@ -94,7 +97,8 @@ def _view(job: ImuJob) -> dict[str, Any]:
 
 
 async def _save(upload: UploadFile, folder: Path, stem: str) -> Path:
-    """Copy an upload into ``folder`` under a safe name, at most ``MAX_FILE_BYTES``."""
+    """Copy an upload into ``folder`` under a safe name, at most ``MAX_FILE_BYTES``
+    (``MAX_MVNX_BYTES`` for an MVNX export)."""
     name = upload.filename or ""
     suffix = Path(name).suffix.lower()
     if suffix not in _ALLOWED_SUFFIXES:
@@ -103,13 +107,14 @@ async def _save(upload: UploadFile, folder: Path, stem: str) -> Path:
                             ".csv (x-IMU or generic), .mat (Madgwick or BROAD), .hdf5/.h5 "
                             "(BROAD or APDM), .mvnx (Xsens MVN) or .zip (a phone app's files)")
     path = folder / f"{stem}{suffix}"  # never the client's name: no path traversal
+    limit = MAX_MVNX_BYTES if suffix == ".mvnx" else MAX_FILE_BYTES
     size = 0
     with path.open("wb") as fh:
         while chunk := await upload.read(1 << 20):
             size += len(chunk)
-            if size > MAX_FILE_BYTES:
+            if size > limit:
                 raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
-                                    f"{name}: larger than {MAX_FILE_BYTES // 2**20} MB; split "
+                                    f"{name}: larger than {limit // 2**20} MB; split "
                                     "the recording")
             fh.write(chunk)
     if size == 0:

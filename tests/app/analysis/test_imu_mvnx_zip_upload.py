@@ -68,6 +68,20 @@ def test_mvnx_upload_one_stream_per_tracker(client: TestClient,  # noqa: F811
     assert "take.mvnx" in body["detail"] and "imu0" not in body["detail"]
 
 
+def test_mvnx_upload_size_bound(client: TestClient, sims: dict[str, ImuRecording],  # noqa: F811
+                                tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An MVNX export may be larger than other files (segment kinematics in every frame)
+    but is bounded too."""
+    from app.api.routes import imu as route
+
+    content = write_mvnx(tmp_path / "take.mvnx", sims).read_bytes()
+    monkeypatch.setattr(route, "MAX_MVNX_BYTES", len(content) - 1)
+    code, body = _post(client, "take.mvnx", content)
+    assert code == 413 and "take.mvnx: larger than" in body["detail"]
+    monkeypatch.setattr(route, "MAX_MVNX_BYTES", len(content))
+    assert _post(client, "take.mvnx", content)[0] == 200
+
+
 def test_phone_zip_upload(client: TestClient, sims: dict[str, ImuRecording],  # noqa: F811
                           tmp_path: Path) -> None:
     sim = sims["Pelvis"]
