@@ -1289,6 +1289,16 @@ def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
             raise InputError(f"cannot read {p}: {e}") from None
         except Exception as e:  # a damaged file can trip any part of the reader
             raise _damaged(p, e) from None
+        if {"Acceleration", "AngularVelocity"} <= names and "Gyroscope" not in names:
+            # MATLAB Mobile's sensorlog: timetables, MATLAB objects no other reader opens
+            raise InputError(
+                f"{p.name}: a MATLAB Mobile sensor log — its timetables (Acceleration, "
+                "AngularVelocity, MagneticField) can only be opened in MATLAB. There, write "
+                "each as CSV with seconds from one start, e.g. t0 = Acceleration.Timestamp(1);"
+                " T = timetable2table(Acceleration); T.t = seconds(T.Timestamp - t0); "
+                "writetable(T(:, {'t','X','Y','Z'}), 'Accelerometer.csv') — the same t0 for "
+                "AngularVelocity (Gyroscope.csv) and MagneticField (Magnetometer.csv) — zip "
+                "the files and upload the zip")
         return load_broad(p) if "imu_gyr" in names else load_madgwick_mat(p)
     if suf in (".csv", ".txt", ".tsv"):
         # x-IMU exports are one case of the generic reader (their headers carry the units)

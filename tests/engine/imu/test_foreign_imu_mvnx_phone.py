@@ -448,3 +448,28 @@ def test_phone_zip_in_a_folder_and_uncalibrated_g(sims: dict[str, ImuRecording],
     assert rec.meta["acc_unit"] == "g" and rec.meta["acc_sign"] == "ios"
     assert np.allclose(rec.acc, sim.acc, atol=1e-6)
     assert rec.mag is None
+
+
+def test_matlab_mobile(sims: dict[str, ImuRecording], tmp_path: Path) -> None:
+    """MATLAB Mobile's sensor log (.mat of timetables, MATLAB objects) is refused with
+    the conversion to do in MATLAB; the CSVs that conversion writes (``t, X, Y, Z``),
+    zipped, are read."""
+    import scipy.io
+
+    mat = tmp_path / "sensorlog_20261124_100000.mat"
+    scipy.io.savemat(mat, {"Acceleration": np.zeros((3, 3)),
+                           "AngularVelocity": np.zeros((3, 3))})
+    with pytest.raises(InputError, match=r"MATLAB Mobile.*writetable.*upload the zip"):
+        load_imu(mat)
+    sim = sims["Pelvis"]
+
+    def table(a: np.ndarray) -> str:
+        rows = ["t,X,Y,Z"] + [f"{t:.6f},{x:.10g},{y:.10g},{z:.10g}"
+                              for t, (x, y, z) in zip(sim.time, a, strict=True)]
+        return "\n".join(rows) + "\n"
+
+    p = zip_files(tmp_path / "mm.zip", {"Accelerometer.csv": table(sim.acc),
+                                        "Gyroscope.csv": table(sim.gyr)})
+    rec = load_imu(p, platform="android")
+    assert np.allclose(rec.acc, sim.acc, atol=1e-8) and np.allclose(rec.gyr, sim.gyr)
+    assert rec.meta["acc_sign_from"] == "declared"
