@@ -1,0 +1,174 @@
+"""The PDF report is a tagged PDF (PDF/UA-1) that a screen reader can read: language,
+title, a structure tree in reading order, tables with header cells, every figure with a
+text alternative computed from its data, the same as the HTML report's ``alt``.
+
+The PDF's objects are read by :mod:`tests.engine.report.pdf_structure` (no PDF library
+is a dependency).
+"""
+
+from __future__ import annotations
+
+import html as html_lib
+import re
+import zlib
+
+import numpy as np
+import pytest
+
+from engine.report import plots
+from engine.report.render import ReportData, render_html, render_pdf
+from tests.engine.report.pdf_structure import (
+    Name,
+    PdfObjects,
+    StructElem,
+    read_objects,
+    structure_tree,
+)
+from tests.engine.report.test_report import _data
+from tests.engine.report.test_report_many_sessions import _data as _sessions_data
+
+
+@pytest.fixture(scope="module")
+def single() -> tuple[ReportData, str, PdfObjects, StructElem]:
+    data = _data()
+    objs = read_objects(render_pdf(data))
+    return data, render_html(data), objs, structure_tree(objs)
+
+
+@pytest.fixture(scope="module")
+def progress() -> tuple[ReportData, str, PdfObjects, StructElem]:
+    data = _sessions_data(3)
+    objs = read_objects(render_pdf(data))
+    return data, render_html(data), objs, structure_tree(objs)
+
+
+def _html_alts(html: str) -> list[str]:
+    return [html_lib.unescape(a) for a in re.findall(r'<img src="[^"]+" alt="([^"]*)"', html)]
+
+
+def test_the_reader_reads_a_structure_tree() -> None:
+    """The reader on a hand-made tagged PDF with an object stream (as WeasyPrint writes)."""
+    packed = (b"<</Type /StructElem /S /Figure /Alt (Two \\(2\\) feet) /K [0] /P 3 0 R>>"
+              b" <</Type /StructElem /S /H1 /K [1] /P 3 0 R>>")
+    head = b"4 0 5 " + str(len(packed.split(b" <<")[0]) + 1).encode() + b" "
+    stm = zlib.compress(head + packed)
+    pdf = (b"%PDF-1.7\n1 0 obj\n<</Type /Catalog /StructTreeRoot 2 0 R /Lang (en)>>\nendobj\n"
+           b"2 0 obj\n<</Type /StructTreeRoot /K [3 0 R]>>\nendobj\n"
+           b"3 0 obj\n<</Type /StructElem /S /Document /K [5 0 R 4 0 R]>>\nendobj\n"
+           b"6 0 obj\n<</Type /ObjStm /N 2 /First " + str(len(head)).encode()
+           + b" /Filter /FlateDecode /Length " + str(len(stm)).encode() + b">>\nstream\n"
+           + stm + b"\nendstream\nendobj\n"
+           b"trailer\n<</Root 1 0 R /Size 7>>\n%%EOF\n")
+    objs = read_objects(pdf)
+    assert objs.catalog["Lang"] == "en" and isinstance(objs.catalog["Type"], Name)
+    tree = structure_tree(objs)
+    assert [e.type for e in tree.walk()] == ["StructTreeRoot", "Document", "H1", "Figure"]
+    assert tree.find("Figure")[0].alt == "Two (2) feet"
+
+
+def test_pdf_is_tagged_with_language_title_and_pdf_ua(
+        single: tuple[ReportData, str, PdfObjects, StructElem]) -> None:
+    data, _, objs, tree = single
+    cat = objs.catalog
+    assert cat["Lang"] == "en"
+    assert objs.get(cat["MarkInfo"])["Marked"] is True
+    assert objs.get(cat["ViewerPreferences"])["DisplayDocTitle"] is True
+    info = objs.get(objs.trailer["Info"])
+    assert info["Title"] == f"{data.title} — {data.subject_code}"
+    # PDF/UA-1 identification in the XMP metadata
+    raw = objs.streams[cat["Metadata"].num]
+    assert re.search(rb"pdfuaid:part[^0-9]{1,3}1", raw), raw[:400]
+    assert tree.find("Document") and tree.find("H1")
+
+
+def test_reading_order_follows_the_report(
+        progress: tuple[ReportData, str, PdfObjects, StructElem]) -> None:
+    """Headings and figures come in the tree in the order the report reads (the HTML's
+    order), across pages; the page footers are not in it."""
+    _, html, _, tree = progress
+    body = html[html.index("<article"):]
+    want = []
+    for m in re.finditer(r"<(h1|h2)\b|<img\b|<caption\b", body):
+        want.append({"h1": "H1", "h2": "H2", "<img": "Figure",
+                     "<caption": "Caption"}.get(m[1] or m[0]))
+    got = [e.type for e in tree.walk() if e.type in ("H1", "H2", "Figure")
+           or (e.type == "Caption" and _is_table_caption(e, tree))]
+    assert got == want
+    assert [e.type for e in tree.find("Document")[0].kids][:1] == ["Art"]
+
+
+def _is_table_caption(e: StructElem, tree: StructElem) -> bool:
+    return any(k is e for t in tree.find("Table") for k in t.kids)
+
+
+def test_every_figure_has_its_computed_alt_text_in_pdf_and_html(
+        single: tuple[ReportData, str, PdfObjects, StructElem]) -> None:
+    data, html, _, tree = single
+    figs = tree.find("Figure")
+    alts = [f.alt for f in figs]
+    assert len(figs) == 4 and all(alts), alts
+    assert alts == _html_alts(html)  # the same words in the console's report
+    # computed from the data: the placements of each trial and their extent
+    top = alts[0]
+    for t in data.trials:
+        assert t.placements
+        xs = [p["position"][0] for p in t.placements]
+        n_l = sum(p["side"] == "L" for p in t.placements)
+        n_r = len(t.placements) - n_l
+        assert f"{t.name}: {n_l} left and {n_r} right placements along " \
+            f"{max(xs) - min(xs):.1f} m" in top
+    steps = [s for t in data.trials for s in t.result["steps"]]
+    lengths = [100 * s["length_m"] for s in steps if s["side"] == "L"]
+    assert f"{len(lengths)} left steps, length {min(lengths):.0f} to {max(lengths):.0f} cm" \
+        in alts[2]
+    assert alts[1].startswith(f"Ankle height over time in trial {data.trials[0].name}")
+    assert "Bland–Altman" in alts[3]
+
+
+def test_trend_plot_alt_gives_first_and_last_values(
+        progress: tuple[ReportData, str, PdfObjects, StructElem]) -> None:
+    data, html, _, tree = progress
+    alt = tree.find("Figure")[0].alt
+    assert alt is not None and alt == _html_alts(html)[0]
+    assert alt.startswith(f"Parameters over 3 sessions, {data.sessions[0].name} to "
+                          f"{data.sessions[-1].name}")
+    speeds = [sum(s["length_m"] for t in ss.trials for s in t.result["steps"])
+              / sum(s["duration_s"] for t in ss.trials for s in t.result["steps"])
+              for ss in data.sessions]
+    assert f"Walking speed {speeds[0]:.2f} to {speeds[-1]:.2f} m/s" in alt
+
+
+def test_tables_have_header_cells_that_the_data_cells_point_to(
+        progress: tuple[ReportData, str, PdfObjects, StructElem]) -> None:
+    _, html, _, tree = progress
+    tables = tree.find("Table")
+    with_th = [t for t in tables if t.find("TH")]
+    # every data table of the HTML (one with <th>) is tagged with its header cells; a
+    # table split over pages is one /Table per page
+    assert len(with_th) >= len(re.findall(r"<table aria-label", html))
+    for t in with_th:
+        ids = {th.id for th in t.find("TH")}
+        assert None not in ids
+        for td in t.find("TD"):
+            heads = td.attrs.get("Headers")
+            assert heads, "a data cell without header"
+            assert set(heads) <= ids
+    # the sessions table: a cell is read with its session (row) and parameter (column)
+    assert any(len(td.attrs.get("Headers", [])) == 2 for t in with_th for td in t.find("TD"))
+
+
+@pytest.mark.parametrize("n", [1, 4])
+def test_placement_alt_counts_per_trial(n: int) -> None:
+    rng = np.random.default_rng(n)
+    trials = []
+    for k in range(n):
+        pl = [{"side": "LR"[i % 2], "position": [0.5 + 0.7 * i, 0.05, 0.0]}
+              for i in range(5 + k)]
+        trials.append((f"t{k}", pl))
+        rng.normal()
+    alt = plots.foot_placements_alt(trials)
+    for k in range(n):
+        n_all = 5 + k
+        assert f"t{k}: {(n_all + 1) // 2} left and {n_all // 2} right placements along " \
+            f"{0.7 * (n_all - 1):.1f} m" in alt
+    assert ("one panel each" in alt) == (n > 1)
