@@ -123,6 +123,8 @@ def _read(p: Path) -> dict[str, Any]:
                 frames_el.remove(el)  # frames are read once: keep memory flat
             else:
                 el.clear()
+    except InputError:
+        raise
     except ET.ParseError as e:
         raise InputError(f"{p.name}: not a readable MVNX (XML) file — damaged or truncated "
                          f"({e}); export the take again") from None
@@ -144,20 +146,28 @@ def _stack(p: Path, rows: list[FloatArray], tag: str, width: int) -> FloatArray:
     return np.vstack(rows)
 
 
-def _frame_time(p: Path, d: dict[str, Any], warnings: list[str]) -> tuple[FloatArray, float | None]:
+def _frame_time(p: Path, d: dict[str, Any],
+                warnings: list[str]) -> tuple[FloatArray, float | None]:
     """Seconds: frame index / frame rate (exact, dropped frames visible), else the frames'
     ``time`` attribute (ms, rounded to whole ms)."""
     index = np.asarray(d["index"], dtype=float)
     rate = d["rate"]
     if rate and np.isfinite(rate) and rate > 0 and np.all(np.isfinite(index)):
-        return (index - index[0]) / rate, float(rate)
-    ms = np.asarray(d["time_ms"], dtype=float)
-    if not np.all(np.isfinite(ms)):
-        raise InputError(f"{p.name}: frames carry neither an index with the subject's "
-                         "frameRate nor a time; export the take again")
-    warnings.append("time taken from the frames' millisecond time stamps (no frame rate "
-                    "in the file)")
-    return (ms - ms[0]) / 1000.0, None
+        t, out_rate, what = (index - index[0]) / rate, float(rate), "index"
+    else:
+        ms = np.asarray(d["time_ms"], dtype=float)
+        if not np.all(np.isfinite(ms)):
+            raise InputError(f"{p.name}: frames carry neither an index with the subject's "
+                             "frameRate nor a time; export the take again")
+        warnings.append("time taken from the frames' millisecond time stamps (no frame "
+                        "rate in the file)")
+        t, out_rate, what = (ms - ms[0]) / 1000.0, None, "time"
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if len(bad):
+        raise InputError(f"{p.name}: the frames' {what} does not increase at motion frame "
+                         f"{int(bad[0]) + 1} (of {len(t)}); the export is damaged — export the "
+                         "take again")
+    return t, out_rate
 
 
 def _rates_from_orientation(q: FloatArray, t: FloatArray) -> FloatArray:

@@ -423,10 +423,14 @@ def _merge(p: Path, kinds: dict[str, list[tuple[int, str, Path]]],
         used.append(kinds["mag"][0][1])
     quat = None
     if "quat" in kinds:
-        q, unit = _read_stream(kinds["quat"][0][1], kinds["quat"][0][2], "quat", unit,
-                               warnings)
-        quat = _sorted(q)
-        used.append(kinds["quat"][0][1])
+        try:
+            q, unit = _read_stream(kinds["quat"][0][1], kinds["quat"][0][2], "quat", unit,
+                                   warnings)
+        except InputError as e:  # the reference is optional: the motion still loads
+            warnings.append(f"orientation file ignored ({e})")
+        else:
+            quat = _sorted(q)
+            used.append(kinds["quat"][0][1])
     # the common span: every stream's; a magnetometer that cuts much is dropped instead
     t0 = max(read["gyr"].time[0], read["acc"].time[0])
     t1 = min(read["gyr"].time[-1], read["acc"].time[-1])
@@ -456,7 +460,7 @@ def _merge(p: Path, kinds: dict[str, list[tuple[int, str, Path]]],
     merge = ("on the gyroscope's time stamps; "
              + ", ".join(f"{_WHAT[k]} {r:.4g} Hz" for k, r in rates.items())
              + " (the others interpolated linearly)")
-    if max(rates.values()) > 1.05 * min(rates.values()):
+    if rates and max(rates.values()) > 1.05 * min(rates.values()):
         warnings.append(f"streams at different rates merged {merge}")
     q_ref = None
     if quat is not None:

@@ -227,6 +227,16 @@ def test_mvnx_choice_and_refusals(sims: dict[str, ImuRecording], tmp_path: Path)
     cut.write_bytes(p.read_bytes()[: len(p.read_bytes()) // 2])
     with pytest.raises(InputError, match="damaged or truncated"):
         load_imu(cut, sensor="Pelvis")
+    # a frame without an element the others have; frames out of order
+    first = text.index("<sensorFreeAcceleration>", text.index('index="5"'))
+    gap = tmp_path / "gap.mvnx"
+    gap.write_text(text[:first] + text[text.index("</sensorFreeAcceleration>", first) + 25:])
+    with pytest.raises(InputError, match="frame 5 lacks <sensorFreeAcceleration>"):
+        load_imu(gap, sensor="Pelvis")
+    swapped = tmp_path / "swapped.mvnx"
+    swapped.write_text(text.replace('index="7"', 'index="3"'))
+    with pytest.raises(InputError, match="index does not increase at motion frame 7"):
+        load_imu(swapped, sensor="Pelvis")
     other = tmp_path / "other.mvnx"
     other.write_text("<?xml version='1.0'?><data>1 2 3</data>")
     with pytest.raises(InputError, match="not an Xsens MVNX"):
