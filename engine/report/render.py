@@ -477,7 +477,9 @@ def _agreement_alt(caption: str, rows: list[AgreementRow]) -> str:
     from engine.report import plots
 
     cap = caption.lower()
-    named = [r for r in rows if r.parameter.lower() in cap]
+    subject = cap.split(":", 1)[-1].split("(")[0].strip()  # "Bland–Altman: step length"
+    named = ([r for r in rows if r.parameter.lower() in cap]
+             or [r for r in rows if subject and subject in r.parameter.lower()])
     if "both sides" in cap:
         named = [r for r in named if "L+R" in r.level] or named
     if not named:

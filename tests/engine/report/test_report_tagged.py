@@ -122,7 +122,10 @@ def test_every_figure_has_its_computed_alt_text_in_pdf_and_html(
     assert f"{len(lengths)} left steps, length {min(lengths):.0f} to {max(lengths):.0f} cm" \
         in alts[2]
     assert alts[1].startswith(f"Ankle height over time in trial {data.trials[0].name}")
-    assert "Bland–Altman" in alts[3]
+    ag = data.agreement[0]  # the figure's row of the agreement table
+    assert alts[3] == (f"{data.agreement_figures[0][0]}: differences of {ag.n} paired "
+                       f"values against their means; bias {ag.bias:+.2f} {ag.unit}, 95 % "
+                       f"limits of agreement bias ± {ag.rpc:.2f} {ag.unit}.")
 
 
 def test_trend_plot_alt_gives_first_and_last_values(
@@ -172,3 +175,18 @@ def test_placement_alt_counts_per_trial(n: int) -> None:
         assert f"t{k}: {(n_all + 1) // 2} left and {n_all // 2} right placements along " \
             f"{0.7 * (n_all - 1):.1f} m" in alt
     assert ("one panel each" in alt) == (n > 1)
+
+
+def test_agreement_figure_alt_is_its_row_both_sides() -> None:
+    """Captions and rows as the app writes them (app.server.analysis.agreement_rows)."""
+    from engine.report.render import AgreementRow
+
+    data = _data()
+    rows = [AgreementRow("Step length", f"single steps {side}", n, 0.9, 1e-4, bias, 2.0,
+                         3.0, 0.9, "cm")
+            for side, n, bias in (("L", 11, 0.5), ("R", 12, -0.5), ("L+R", 23, 0.1))]
+    png = data.agreement_figures[0][1]
+    data.agreement = rows
+    data.agreement_figures = [("Bland–Altman: step length (single steps, both sides)", png)]
+    alt = _html_alts(render_html(data))[-1]
+    assert "differences of 23 paired values" in alt and "bias +0.10 cm" in alt
