@@ -36,6 +36,7 @@ import re
 import shutil
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -150,9 +151,10 @@ def _unzip(p: Path, dest: Path) -> dict[str, list[tuple[str, Path]]]:
                         dst.write(chunk)
             except InputError:
                 raise
-            except (zipfile.BadZipFile, RuntimeError, OSError, EOFError) as e:
+            except (zipfile.BadZipFile, RuntimeError, OSError, EOFError, NotImplementedError,
+                    zlib.error) as e:  # damaged data, a password, an unknown compression
                 raise InputError(f"{p.name}: cannot unpack {info.filename!r} ({e}); zip the "
-                                 "files again without a password") from None
+                                 "files again (without a password)") from None
             folder = str(PurePosixPath(info.filename.replace("\\", "/")).parent)
             groups.setdefault(folder, []).append((info.filename, out))
     return groups
