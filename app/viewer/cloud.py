@@ -105,7 +105,8 @@ def calibrated_depth_lens(cameras: Mapping[str, Any], node_id: str, K: Any,
     Returns:
         The OpenCV coefficients, ``()`` for a calibrated pinhole (or none recorded:
         calibrations before lenses were kept, older nodes), None when the recorded camera
-        is not the node's (the caller keeps a pinhole and says so).
+        is not the node's or its lens is not one the ray table models (a tilted sensor,
+        a malformed record): the caller keeps a pinhole and says so.
     """
     cam = cameras.get(node_id) if isinstance(cameras, Mapping) else None
     depth = cam.get("depth") if isinstance(cam, Mapping) else None
@@ -118,8 +119,11 @@ def calibrated_depth_lens(cameras: Mapping[str, Any], node_id: str, K: Any,
         Kn = np.asarray(K, dtype=float).reshape(3, 3)
     except (KeyError, TypeError, ValueError):
         return None
-    if not any(dist) or not np.isfinite(dist).all():
-        return () if not any(dist) else None
+    if not any(dist):
+        return ()
+    if (len(dist) not in (4, 5, 8, 12, 14) or not np.isfinite(dist).all()
+            or (len(dist) == 14 and any(dist[12:]))):  # not a lens the ray table models
+        return None
     sx, sy = size[0] / cw, size[1] / ch
     f_ok = (abs(Kc[0, 0] * sx - Kn[0, 0]) <= 1e-3 * Kn[0, 0]
             and abs(Kc[1, 1] * sy - Kn[1, 1]) <= 1e-3 * Kn[1, 1])

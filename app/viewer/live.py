@@ -430,9 +430,10 @@ class LiveServices:
                 continue
             d = calibrated_depth_lens(cameras, nid, s.sensor.depth_K, s.sensor.depth_size)
             if d is None:
-                log.warning("%s reports another depth camera than calibration %s recorded: "
-                            "its live cloud is drawn without the lens until it is "
-                            "calibrated again", nid, getattr(cal, "version", "?"))
+                log.warning("the depth lens calibration %s recorded for %s does not fit the "
+                            "camera it reports now (another K) or is not usable: its live "
+                            "cloud is drawn without a lens until it is calibrated again",
+                            getattr(cal, "version", "?"), nid)
             elif d:
                 lenses[nid] = d
         if lenses != self._depth_lens:

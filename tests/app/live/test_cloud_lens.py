@@ -101,6 +101,9 @@ def test_calibrated_depth_lens_only_for_the_camera_it_was_recorded_with() -> Non
     assert calibrated_depth_lens(cams, "S1", K2, (512, 424)) is None
     assert calibrated_depth_lens({"S1": {"depth": {"dist": [0.1, 0, 0, 0]}}}, "S1", K,
                                  (512, 424)) is None
+    for bad in ([0.1, 0.2, 0.3], [0.1, float("nan"), 0, 0], [0.1] + [0.0] * 11 + [0.01, 0]):
+        c = {"S1": {"depth": {**cams["S1"]["depth"], "dist": bad}}}
+        assert calibrated_depth_lens(c, "S1", K, (512, 424)) is None, bad
 
 
 def test_bad_lens_in_a_view_is_an_input_error() -> None:
