@@ -128,6 +128,17 @@ class SkeletonErrorModel:
             lines of sight) need errors of similar size along and across: 1.0.
         slow_tau_s: Correlation time of that error (≈ the duration of a stance phase:
             the fit error follows the pose, which changes within a gait phase).
+        still_speed_m_s: The slow error evolves at the rate ``1/slow_tau_s`` only while
+            the body moves at least this fast (mean speed of the 25 joints), slower in
+            proportion below it, and not at all while the body stands still. The
+            Kinect v2 fits each depth frame on its own (per-pixel body-part
+            classification of a single depth image, Shotton et al. 2011, CVPR; no
+            temporal model), so an unchanged pose gives the same fit but for the depth
+            noise (``jitter_sd_m``): the fit error follows the pose, not the clock. In
+            walking (joints ≥ 1 m/s on average) nothing changes; it freezes the error of
+            a subject standing still, whose far ankle otherwise wandered 6–9 cm (median
+            range over the 1 s standing start, one-sided, ``bench/sim_stance_wander.py``).
+            0 restores the clock-driven error.
         jitter_sd_m: Frame-to-frame white jitter per axis at the reference distance
             (Kinect v2 joint jitter a few mm: Otte 2016; Wang 2015).
         surface_bias_near_m: Bias towards the sensor of joints on the body half facing the
@@ -212,6 +223,7 @@ class SkeletonErrorModel:
     slow_sd_m: float = 0.012
     lateral_ratio: float = 1.0
     slow_tau_s: float = 0.3
+    still_speed_m_s: float = 0.5
     jitter_sd_m: float = 0.006
     surface_bias_near_m: float = 0.02
     surface_bias_far_m: float = 0.015
@@ -313,11 +325,27 @@ def occluded_joints(origin: FloatArray, joints: FloatArray, A: FloatArray, B: Fl
 # ---------------------------------------------------------------------- observation
 
 
-def _ar1(rng: np.random.Generator, shape: tuple[int, ...], a: float) -> FloatArray:
-    """Unit-variance AR(1) series along axis 0."""
-    w = rng.standard_normal(shape) * np.sqrt(max(1.0 - a * a, 0.0))
+def _ar1(rng: np.random.Generator, shape: tuple[int, ...], a: float,
+         rate: FloatArray | None = None) -> FloatArray:
+    """Unit-variance AR(1) series along axis 0, coefficient ``a`` per sample.
+
+    With ``rate`` (``(T,)`` in [0, 1]) sample k advances by only ``rate[k]`` of a sample
+    (coefficient ``a**rate[k]``): 0 holds the previous value. The random draws are the
+    same with or without ``rate``, so a rate of 1 throughout gives the plain series.
+    """
+    g = np.sqrt(max(1.0 - a * a, 0.0))
+    w = rng.standard_normal(shape) * g
     w[0] = rng.standard_normal(shape[1:])
-    return np.asarray(lfilter([1.0], [1.0, -a], w, axis=0))
+    if rate is None or np.all(rate >= 1.0):
+        return np.asarray(lfilter([1.0], [1.0, -a], w, axis=0))
+    ak = np.power(a, np.clip(rate, 0.0, 1.0))
+    # the same unit draws, scaled for each sample's own coefficient
+    gk = np.sqrt(np.maximum(1.0 - ak * ak, 0.0)) / g if g > 0 else np.zeros_like(ak)
+    x = np.empty(shape)
+    x[0] = w[0]
+    for k in range(1, shape[0]):
+        x[k] = ak[k] * x[k - 1] + gk[k] * w[k]
+    return x
 
 
 def _runs_longer(mask: NDArray[np.bool_], times: FloatArray, dur: float) -> NDArray[np.bool_]:
@@ -482,7 +510,13 @@ def observe_skeletons(
         return m.lateral_ratio * n + (1.0 - m.lateral_ratio) * np.sum(n * u, -1,
                                                                       keepdims=True) * u
 
-    slow = aniso(_ar1(rng, (T, _N, 3), a)) * (m.slow_sd_m * scale * gain)[..., None]
+    # the fit error follows the pose: it evolves while the body moves (see
+    # SkeletonErrorModel.still_speed_m_s)
+    rate = None
+    if m.still_speed_m_s > 0 and T > 1:
+        speed = np.linalg.norm(np.gradient(J, t, axis=0), axis=-1).mean(axis=1)
+        rate = np.clip(speed / m.still_speed_m_s, 0.0, 1.0)
+    slow = aniso(_ar1(rng, (T, _N, 3), a, rate)) * (m.slow_sd_m * scale * gain)[..., None]
     jitter = aniso(rng.standard_normal((T, _N, 3))) * (m.jitter_sd_m * scale * gain)[..., None]
     beta = np.where(_SIDE == 0, m.surface_bias_mid_m,
                     m.surface_bias_near_m * near + m.surface_bias_far_m * far

@@ -553,10 +553,14 @@ class Walker:
     def _build_splines(self) -> None:
         s = self._s
         n = len(s.side)
-        t_keys = [s.t_hs[0] - 1.0, self.start_time - 0.5, self.start_time]
+        # The body stands still until start_time: the splines start there at rest
+        # (clamped: zero velocity) and are held before it (see _pose). Knots far before
+        # the start let the C² spline swing the arms (≈ 1 m/s) and sway the pelvis
+        # (≈ 0.1 m/s) through the "standing" second.
+        t_keys = [self.start_time]
         mid0 = 0.5 * (self._ankle_flat(0) + self._ankle_flat(1))
-        xy = [mid0, mid0, mid0]
-        hd = [s.heading[0]] * 3
+        xy = [mid0]
+        hd = [s.heading[0]]
         for k in range(2, n):
             t_keys.append(s.t_hs[k])
             xy.append(0.5 * (self._ankle_flat(k) + self._ankle_flat(k - 1)))
@@ -575,11 +579,11 @@ class Walker:
         t_hs = np.array(s.t_hs[2:])
         T = np.diff(np.r_[self.start_time, t_hs])
         t_mid = t_hs + 0.6 * np.r_[T[1:], T[-1]]
-        z0 = [s.t_hs[0] - 1.0, self.start_time]
+        z0 = [self.start_time]
         end = [t_hs[-1] + 2.0, t_hs[-1] + 1e3]
-        self._sp_mid = CubicSpline(np.r_[z0, t_mid, end], np.r_[0, 0, sgn, 0, 0],
+        self._sp_mid = CubicSpline(np.r_[z0, t_mid, end], np.r_[0, sgn, 0, 0],
                                    bc_type="clamped")
-        self._sp_hs = CubicSpline(np.r_[z0, t_hs, end], np.r_[0, 0, sgn, 0, 0],
+        self._sp_hs = CubicSpline(np.r_[z0, t_hs, end], np.r_[0, sgn, 0, 0],
                                   bc_type="clamped")
         self._hs_arr = {sd: np.array([s.t_hs[i] for i in range(n) if s.side[i] == sd])
                         for sd in (1, -1)}
@@ -721,10 +725,11 @@ class Walker:
         b, p = self.body, self.params
         ankle_l, Rf_l = self._foot(1, t)
         ankle_r, Rf_r = self._foot(-1, t)
-        xy = self._sp_xy(t)
-        psi = self._sp_hd(t)
-        mid = self._sp_mid(t)  # +1 in left mid-stance
-        hs = self._sp_hs(t)  # +1 at left heel strike
+        ts = np.maximum(t, self.start_time)  # standing still before the start
+        xy = self._sp_xy(ts)
+        psi = self._sp_hd(ts)
+        mid = self._sp_mid(ts)  # +1 in left mid-stance
+        hs = self._sp_hs(ts)  # +1 at left heel strike
         # pelvis: rotation (left hip forward at left heel strike), obliquity (swing side
         # drops), anterior tilt; amplitudes from Perry & Burnfield 2010
         yaw = psi - math.radians(4.0) * hs

@@ -274,3 +274,47 @@ def test_shared_far_leg_refit_is_common_to_the_sensors_of_one_side(scene):
     assert agree(a, _leg_shift(s2, rig, walker, t, model, 3, shared_seed=42)) < 0.2
     assert agree(a, _leg_shift(s3, rig, walker, t, model, 2, shared_seed=43)) < 0.2
     assert agree(a, _leg_shift(s3, rig, walker, t, model, 2, shared_seed=None)) < 0.2
+
+
+def test_fit_error_of_a_still_subject_does_not_wander():
+    """The slow fit error follows the pose, not the clock (``still_speed_m_s``; the
+    Kinect v2 fits every depth frame on its own): while the subject stands still before
+    the start, a tracked ankle's error stays put but for the jitter; while walking it
+    evolves as before. With ``still_speed_m_s=0`` (the clock-driven error) it wanders
+    during the standing too."""
+    rig = default_avenue_rig(seed=0)
+    s = rig.sensor("S1")
+    w = Walker(WalkerParams(), [-0.5, 0.0, 0.0], [11.0, 0.0, 0.0], start_time=3.0,
+               back_and_forth=False, seed=1)
+    t = np.arange(0.0, 6.0, 1 / 30)
+    base = {"jitter_sd_m": 0.0, "acquisition_median_s": 0.0, "leg_swap_rate_hz": 0.0}
+    spread = {}
+    for still in (0.5, 0.0):
+        m = SkeletonErrorModel(**base, still_speed_m_s=still)
+        ser = observe_skeletons(s, rig, w, t, np.random.default_rng(4), m)
+        err = observation_errors(ser, s, w)[:, AL]
+        standing = (t < 2.5) & np.isfinite(err).all(axis=1)
+        walking = (t > 3.5) & np.isfinite(err).all(axis=1)
+        assert standing.sum() > 30 and walking.sum() > 30
+        spread[still] = (np.ptp(err[standing], axis=0).max(),
+                         np.ptp(err[walking], axis=0).max())
+    assert spread[0.5][0] < 1e-6  # frozen while standing still (float round-off)
+    assert spread[0.0][0] > 0.01  # the clock-driven error wanders by cm
+    assert spread[0.5][1] > 0.01  # ... and both evolve while walking
+
+
+def test_ar1_rate_holds_and_reduces_to_the_plain_series():
+    """``_ar1`` with a rate of 1 throughout is the plain AR(1) series of the same draws;
+    a rate of 0 holds the previous value."""
+    from engine.sim.skeleton_model import _ar1
+
+    a = 0.9
+    plain = _ar1(np.random.default_rng(7), (50, 2), a)
+    ones = _ar1(np.random.default_rng(7), (50, 2), a, np.r_[np.ones(49), 0.999999999])
+    assert np.allclose(plain, ones, atol=1e-6)
+    rate = np.ones(50)
+    rate[10:20] = 0.0
+    held = _ar1(np.random.default_rng(7), (50, 2), a, rate)
+    assert np.allclose(held[10:20], held[9])
+    assert np.allclose(held[:10], plain[:10])
+    assert not np.allclose(held[20:], held[19])

@@ -129,3 +129,21 @@ def test_bad_params_are_rejected():
         WalkerParams(landing_speed_frac=2.0)
     with pytest.raises(InputError, match="two steps"):
         Walker(WalkerParams(), [0, 0, 0], [0.5, 0, 0])
+
+
+def test_body_stands_still_before_the_start():
+    """A walk from standing starts still: before ``start_time`` no joint moves but the
+    first foot, whose heel rises 0.3 step times before it (push-off of the first step).
+    The pelvis and arms used to follow spline knots 1000 s before the start and moved
+    through the standing second (hands ≈ 1 m/s, pelvis ≈ 0.1 m/s)."""
+    p = WalkerParams()
+    w = Walker(p, [0.0, 0.0, 0.0], [8.0, 0.0, 0.0], start_time=1.5, back_and_forth=False,
+               seed=3)
+    t = np.arange(0.0, 1.5 - 0.3 * p.step_time_s - 0.02, 0.01)
+    speed = np.linalg.norm(np.gradient(w.joints(t), t, axis=0), axis=-1)
+    assert speed.max() < 1e-6
+    # ... and it does walk afterwards, leaving with the pelvis at rest (no jump)
+    t2 = np.arange(1.5, 3.5, 0.01)
+    v2 = np.linalg.norm(np.gradient(w.joints(t2)[:, KINECT_V2.index("SpineBase"), :2],
+                                    t2, axis=0), axis=1)
+    assert v2[0] < 0.05 and v2.max() > 0.8 * p.speed_m_s
