@@ -194,3 +194,19 @@ def test_html_reflows_at_320_px(browser: Any, artifacts_dir: Path) -> None:
         assert b["right"] <= inner + 1 or (b["scrolls"] and b["reachable"]), b
     page.screenshot(path=str(artifacts_dir / "report_30_sessions_320px.png"), full_page=False)
     ctx.close()
+
+
+def test_a_parameter_missing_in_the_latest_session_says_so() -> None:
+    data = _data(4)
+    for t in data.sessions[-1].trials:
+        for s in t.result["steps"]:
+            s["width_m"] = None
+    html = render_html(data)
+    changes = _table(html, "changes between sessions")
+    row = re.search(r"Step width</td><td class=\"l\">–</td><td class=\"l\" colspan=\"3\">"
+                    r"not measured in the latest session", changes)
+    assert row, changes
+    # its values of the other sessions are still in the sessions table, the latest a dash
+    sessions = _table(html, "sessions")
+    last_row = sessions[sessions.index(data.sessions[-1].name):]
+    assert "<td>–</td>" in last_row
