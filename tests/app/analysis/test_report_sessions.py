@@ -152,3 +152,25 @@ def test_bad_session_ids_are_clear_errors(client: TestClient) -> None:
     assert r.status_code == 422 and "not both" in r.json()["detail"]
     r = client.get(f"/api/reports/subjects/{sid}?sessions=" + "1," * 1500)
     assert r.status_code == 422  # over max_length: FastAPI's validation, not a 500
+
+
+def test_the_downloaded_pdf_is_tagged_like_the_html(client: TestClient) -> None:
+    """The PDF the Reports page downloads is a tagged PDF: language, structure tree, the
+    tables' header cells and every plot with the HTML's text alternative."""
+    import html as html_lib
+
+    from tests.engine.report.pdf_structure import read_objects, structure_tree
+
+    sid = client.subject_id  # type: ignore[attr-defined]
+    r = client.get(f"/api/reports/subjects/{sid}?format=pdf")
+    assert r.status_code == 200, r.text
+    objs = read_objects(r.content)
+    assert objs.catalog["Lang"] == "en"
+    tree = structure_tree(objs)
+    alts = [f.alt for f in tree.find("Figure")]
+    page = client.get(f"/api/reports/subjects/{sid}").text
+    assert alts == [html_lib.unescape(a)
+                    for a in re.findall(r'<img src="[^"]+" alt="([^"]*)"', page)]
+    assert alts[0].startswith("Parameters over 3 sessions, 2026-10-01 baseline to "
+                              "2026-11-26 week 8")
+    assert any(t.find("TH") for t in tree.find("Table"))
