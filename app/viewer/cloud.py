@@ -16,11 +16,11 @@ loses millimetres a few metres from the origin).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -143,7 +143,6 @@ def scale_intrinsics(K: NDArray[np.float64], scale: float) -> NDArray[np.float64
     return K2
 
 
-@numba.njit(cache=True, nogil=True)
 def _bounds(depth: NDArray[np.uint16], rays: NDArray[np.float32], T: NDArray[np.float64],
             zmin: float, zmax: float, out: NDArray[np.float64]) -> int:  # pragma: no cover
     n = 0
@@ -171,7 +170,6 @@ def _bounds(depth: NDArray[np.uint16], rays: NDArray[np.float32], T: NDArray[np.
     return n
 
 
-@numba.njit(cache=True, nogil=True)
 def _scatter(depth: NDArray[np.uint16], rays: NDArray[np.float32], T: NDArray[np.float64],
              zmin: float, zmax: float, lo: NDArray[np.float64], inv_voxel: float,
              dims: NDArray[np.int64], index: NDArray[np.int32], sums: NDArray[np.float64],
@@ -220,6 +218,16 @@ def _scatter(depth: NDArray[np.uint16], rays: NDArray[np.float32], T: NDArray[np
     return n_used
 
 
+@functools.cache
+def _kernels() -> tuple[Any, Any]:
+    """:func:`_bounds` and :func:`_scatter` compiled (numba, cached on disk); numba is
+    loaded by the first cloud, not at the server's start (the API imports this module)."""
+    import numba
+
+    jit = numba.njit(cache=True, nogil=True)
+    return jit(_bounds), jit(_scatter)
+
+
 def merge_depth_views(views: Sequence[DepthView], voxel_m: float = 0.03,
                       z_range_m: tuple[float, float] = (0.3, 8.0),
                       highlight_color: tuple[int, int, int] = (255, 0, 200),
@@ -244,6 +252,7 @@ def merge_depth_views(views: Sequence[DepthView], voxel_m: float = 0.03,
     """
     if not voxel_m > 0:
         raise InputError("voxel size must be > 0 m")
+    bounds_kernel, scatter_kernel = _kernels()
     prepared = []
     bounds = np.array([np.inf] * 3 + [-np.inf] * 3)
     total = 0
@@ -255,7 +264,7 @@ def merge_depth_views(views: Sequence[DepthView], voxel_m: float = 0.03,
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise InputError("T_world_sensor must be a finite 4×4 matrix")
         rays = pixel_rays(v.K, depth.shape[1], depth.shape[0], v.dist)
-        total += _bounds(depth, rays, T, z_range_m[0], z_range_m[1], bounds)
+        total += bounds_kernel(depth, rays, T, z_range_m[0], z_range_m[1], bounds)
         prepared.append((depth, rays, T, v))
     if total == 0:
         return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)
@@ -275,7 +284,7 @@ def merge_depth_views(views: Sequence[DepthView], voxel_m: float = 0.03,
         hl = no_hl if v.highlight is None else np.ascontiguousarray(v.highlight, np.bool_)
         if v.highlight is not None and hl.shape != depth.shape:
             raise InputError("the highlight mask must have the depth image's shape")
-        n = _scatter(depth, rays, T, z_range_m[0], z_range_m[1], lo, 1.0 / voxel_m, dims,
+        n = scatter_kernel(depth, rays, T, z_range_m[0], z_range_m[1], lo, 1.0 / voxel_m, dims,
                      index, sums, cols, counts, n, np.asarray(v.color, np.float64), hl,
                      v.highlight is not None, hl_rgb)
     c = counts[:n, None]

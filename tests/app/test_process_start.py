@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[2]
 #: Libraries the server's start and a node's connection never need (each costs 0.1–1 s to
 #: import and more to finalise); the functions that use them import them.
 HEAVY = ("scipy.signal", "scipy.stats", "scipy.ndimage", "scipy.optimize", "scipy.sparse",
-         "scipy.interpolate", "scipy.spatial", "open3d", "matplotlib", "weasyprint")
+         "scipy.interpolate", "scipy.spatial", "open3d", "matplotlib", "weasyprint", "numba")
 
 
 def _loaded(code: str, names: tuple[str, ...]) -> list[str]:
@@ -50,7 +50,7 @@ def test_the_server_app_imports_no_heavy_library(tmp_path: Path) -> None:
 
 def test_the_node_agent_imports_no_heavy_library() -> None:
     code = "import app.nodes.agent, app.nodes.backends.sim, app.commands.node"
-    assert _loaded(code, (*HEAVY, "numba", "fastapi", "sqlalchemy", "viser")) == []
+    assert _loaded(code, (*HEAVY, "fastapi", "sqlalchemy", "viser")) == []
 
 
 def test_the_heavy_libraries_still_load_where_they_are_used() -> None:
