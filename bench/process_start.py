@@ -6,20 +6,31 @@ Figures (medians of ``--repeat`` runs, seconds):
 * ``python_s``: a bare interpreter (``python -c pass``), the floor every figure includes.
 * ``import_app_main_s``: ``import app.main``; ``app_routers_s``: the same plus
   ``create_app()`` (every API router imported: the server's whole start-up import graph);
-  ``import_node_agent_s``: ``import app.nodes.agent`` and the sim backend's module.
-  ``heavy_server`` / ``heavy_node``: which heavy libraries those imports loaded (none of
-  them is needed to answer the first request or to connect a node).
+  ``app_routers_peer_s``: the same after importing what that graph loaded before its heavy
+  imports moved into the functions using them (scipy.signal/stats/…, open3d, matplotlib,
+  numba), ``app_routers_ratio`` = now / peer. ``import_node_agent_s``: ``import
+  app.nodes.agent`` and the sim backend's module. ``heavy_server`` / ``heavy_node``: which
+  heavy libraries those imports still load.
 * ``server_start_fresh_s`` / ``server_start_clinic_s``: ``gaitrig serve`` until
-  ``/healthz`` answers 200, on a new data folder (migrations, the admin's password hashed)
-  and on a clinic's (``bench/_clinic.py``, ``--subjects``; its recordings list loaded);
-  ``*_login_s``: until the admin's login answers.
-* ``server_stop_term_s`` / ``server_stop_int_s``: SIGTERM (``gaitrig demo``, systemd) or
-  SIGINT (Ctrl-C, the integration tests) to the exit of a server with a sim node connected;
-  ``node_stop_s``: SIGTERM to the exit of a sim node rendering images. ``*_cpu_s``: CPU
-  the process spent between the signal and its exit.
+  ``/healthz`` answers 200, on a new data folder (migrations, the admin's password hashed
+  at the default cost) and on a clinic's (``bench/_clinic.py``, ``--subjects``; its
+  recordings list loaded); ``*_login_s``: until the admin's login answers.
+* ``server_stop_int_s``: SIGINT (Ctrl-C, the integration tests) to the exit of a server
+  (3D view on) with a sim node connected; ``node_stop_s``: SIGTERM to the exit of that
+  node (rendering images); ``*_peer_s``: the same processes started through
+  ``main(argv)``, which leaves Python's exit collection on (every process before
+  :func:`app.cli.main` froze it), ``*_ratio`` = now / peer. ``server_stop_term_s``:
+  SIGTERM (``gaitrig demo``, systemd; uvicorn then ends the process by the signal, no
+  finalisation either way). ``*_cpu_s``: CPU spent between the signal and the exit.
+
+Before / after this bench's changes (same machine, back to back, load 4.4 / 5.6 on 2
+cores): ``import_app_main_s`` 1.55 → 0.66, ``app_routers_s`` 3.18 → 1.61,
+``server_start_clinic_s`` 3.96 → 2.23, ``server_start_fresh_s`` 2.90 → 2.83 (the new
+database and the password hash dominate it), ``server_stop_int_s`` 0.78 → 0.21 (CPU 0.60 →
+0.06), ``node_stop_s`` 0.15 → 0.03.
 
 ``loadavg``: the machine's load (every figure grows with it). Prints ONE JSON line.
-Run: ``PYTHONPATH=. .venv/bin/python bench/process_start.py`` (about a minute;
+Run: ``PYTHONPATH=. .venv/bin/python bench/process_start.py`` (a few minutes;
 ``--subjects 0`` skips the clinic).
 """
 
@@ -46,6 +57,15 @@ from bench._procs import free_port, stop
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = [sys.executable, "-m", "app.cli"]
+#: The peer of the exit figures: the same command line through ``main(argv)``, which leaves
+#: Python's exit collection on (as every process had it before ``app.cli`` froze it).
+PY_COLLECT = [sys.executable, "-c",
+              "import sys; from app.cli import main; sys.exit(main(sys.argv[1:]))"]
+#: What the server's start path imported before its heavy imports moved into the functions
+#: using them: the peer of the import figures loads them first.
+OLD_HEAVY = ("import scipy.signal, scipy.stats, scipy.ndimage, scipy.optimize, "
+             "scipy.interpolate, scipy.sparse, scipy.spatial, open3d, numba\n"
+             "import matplotlib\nmatplotlib.use('Agg')\nimport matplotlib.pyplot\n")
 #: One admin password for every server of the run: the clinic's folder is started repeatedly
 #: and keeps the account its first start created.
 PASSWORD = secrets.token_urlsafe(12)
@@ -80,10 +100,14 @@ def bench_imports(repeat: int) -> dict[str, Any]:
     server = pre + "ROUTERS = False\n" + SERVER_IMPORTS
     routers = pre + "ROUTERS = True\n" + SERVER_IMPORTS
     node = pre + NODE_IMPORTS
+    now = _median(lambda: _py(routers)[0], repeat)
+    peer = _median(lambda: _py(OLD_HEAVY + routers)[0], repeat)
     return {
         "python_s": _median(lambda: _py("pass")[0], repeat),
         "import_app_main_s": _median(lambda: _py(server)[0], repeat),
-        "app_routers_s": _median(lambda: _py(routers)[0], repeat),
+        "app_routers_s": now,
+        "app_routers_peer_s": peer,
+        "app_routers_ratio": round(now / peer, 3),
         "import_node_agent_s": _median(lambda: _py(node)[0], repeat),
         "heavy_server": _py(routers + REPORT)[1],
         "heavy_node": _py(node + REPORT)[1],
@@ -121,7 +145,8 @@ def _until(f: Callable[[], Any], proc: subprocess.Popen[bytes], what: str,
 class Server:
     """``gaitrig serve --no-viewer`` on ``data_dir`` (the admin's password set)."""
 
-    def __init__(self, data_dir: Path, log: Path, viewer: bool = False) -> None:
+    def __init__(self, data_dir: Path, log: Path, viewer: bool = False,
+                 py: list[str] = PY) -> None:
         self.port, self.password = free_port(), PASSWORD
         self.base = f"http://127.0.0.1:{self.port}"
         self.env = {**os.environ, "GAITRIG_ADMIN_PASSWORD": self.password,
@@ -130,7 +155,7 @@ class Server:
         viewer_args = ["--viewer-port", str(free_port())] if viewer else ["--no-viewer"]
         self.t0 = time.perf_counter()
         self.proc = subprocess.Popen(
-            [*PY, "serve", "--host", "127.0.0.1", "--port", str(self.port), *viewer_args,
+            [*py, "serve", "--host", "127.0.0.1", "--port", str(self.port), *viewer_args,
              "--data-dir", str(data_dir), "--log-level", "warning"], cwd=ROOT, env=self.env,
             stdout=log.open("ab"), stderr=subprocess.STDOUT)
 
@@ -188,15 +213,18 @@ def bench_start(tmp: Path, subjects: int, repeat: int) -> dict[str, Any]:
 
 
 def bench_stop(tmp: Path, repeat: int) -> dict[str, Any]:
-    """Signal to exit: a server (viewer on) with a sim node connected, and that node."""
+    """Signal to exit: a server (viewer on) with a sim node connected, and that node; each
+    also with the exit collection on (the ``*_peer`` figures, see :data:`PY_COLLECT`)."""
     figures: dict[str, list[float]] = {}
     log = tmp / "stop.log"
+    runs = (("", PY, signal.SIGINT), ("_peer", PY_COLLECT, signal.SIGINT),
+            ("_term", PY, signal.SIGTERM))
     for k in range(repeat):
-        for sig, name in ((signal.SIGTERM, "server_stop_term"), (signal.SIGINT, "server_stop_int")):
-            s = Server(tmp / f"stop{k}{name}", log, viewer=True)
+        for suffix, py, sig in runs:
+            s = Server(tmp / f"stop{k}{suffix}", log, viewer=True, py=py)
             node = subprocess.Popen(
-                [*PY, "node", "--id", "S1", "--server", f"ws://127.0.0.1:{s.port}",
-                 "--data-dir", str(tmp / f"node{k}{name}"), "--log-level", "warning"],
+                [*py, "node", "--id", "S1", "--server", f"ws://127.0.0.1:{s.port}",
+                 "--data-dir", str(tmp / f"node{k}{suffix}"), "--log-level", "warning"],
                 cwd=ROOT, env=s.env, stdout=log.open("ab"), stderr=subprocess.STDOUT)
             try:
                 s.started()
@@ -208,16 +236,21 @@ def bench_stop(tmp: Path, repeat: int) -> dict[str, Any]:
 
                 _until(online, node, "the node's connection")
                 time.sleep(2.0)  # a few frames rendered, sent and drawn
-                if name == "server_stop_term":  # the node first, as the demo's order is
+                if suffix != "_term":  # the node first, as the demo's order is
                     dt, cpu = signal_exit(node, signal.SIGTERM)
-                    figures.setdefault("node_stop_s", []).append(dt)
-                    figures.setdefault("node_stop_cpu_s", []).append(cpu)
+                    figures.setdefault(f"node_stop{suffix}_s", []).append(dt)
+                    figures.setdefault(f"node_stop{suffix}_cpu_s", []).append(cpu)
                 dt, cpu = signal_exit(s.proc, sig)
+                name = "server_stop_term" if suffix == "_term" else f"server_stop_int{suffix}"
                 figures.setdefault(name + "_s", []).append(dt)
                 figures.setdefault(name + "_cpu_s", []).append(cpu)
             finally:
                 stop([node, s.proc])
-    return {k: round(statistics.median(v), 3) for k, v in figures.items()}
+    out = {k: round(statistics.median(v), 3) for k, v in figures.items()}
+    out["node_stop_ratio"] = round(out["node_stop_s"] / out["node_stop_peer_s"], 3)
+    out["server_stop_int_ratio"] = round(out["server_stop_int_s"] / out["server_stop_int_peer_s"],
+                                         3)
+    return out
 
 
 def main() -> None:
