@@ -34,6 +34,7 @@ from urllib.parse import urlsplit
 
 import cv2
 import numpy as np
+from pydantic import ValidationError
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 
@@ -452,6 +453,8 @@ class NodeAgent:
         self._server_takes_warnings = "warning" in (msg.accepts or [])
         for batch in batches[1:]:
             await ws.send(dump(PartList(parts=batch)))
+        if "sensor_lens" in (msg.accepts or []):  # revision 3: the live view's lens
+            await self._announce_lens(ws)
         log.info("connected to %s", self.server_url)
         self._ever_connected = True
         self._ws = ws
@@ -472,6 +475,19 @@ class NodeAgent:
             for t in (sender, status, stopper, receiver):
                 t.cancel()
             self._sub = None
+
+    async def _announce_lens(self, ws: ClientConnection) -> None:
+        """Send the sensor's cameras and lenses (``sensor_lens``); a lens the protocol
+        cannot carry is left out with a warning (the server then draws a pinhole)."""
+        assert self.info is not None
+        try:
+            lens = self.backend.sensor_lens(self.info)
+        except (ValidationError, InputError) as exc:
+            log.warning("the sensor's lens is not announced (the live view draws a pinhole "
+                        "camera): %s", exc)
+            return
+        if lens is not None:
+            await ws.send(dump(lens))
 
     # ------------------------------------------------------------------ receive
 

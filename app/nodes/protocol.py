@@ -30,8 +30,9 @@ sensor description, parts it holds: as many as :data:`PART_LIST_BYTES` allow, th
 streams at N fps, ``snapshot`` for a one-off image set; the node streams skeleton frames,
 ``status`` once per second, ``rec_state`` when a recording part changes, ``warning`` when
 its sensor backend runs into a problem (revision 2, only to a server whose welcome accepts
-it: :data:`PROTOCOL_REVISION`), and answers malformed input with ``error`` (never by
-closing).
+it: :data:`PROTOCOL_REVISION`), ``sensor_lens`` once right after the welcome with its
+cameras' intrinsics and lens distortion (revision 3, likewise), and answers malformed
+input with ``error`` (never by closing).
 """
 
 from __future__ import annotations
@@ -49,12 +50,14 @@ from engine.errors import InputError
 
 PROTOCOL_VERSION = 1
 #: Revision of version 1 a node speaks, sent as ``hello.protocol`` (which servers before it
-#: never checked): 2 adds the node's ``warning`` messages. A server answers a node of
-#: revision 2 or later with ``welcome.accepts`` naming the optional messages it takes; an
-#: older node gets the welcome it knows (its parser refuses unknown fields), and a node
-#: sends a ``warning`` only to a server whose welcome accepts it (an older one would
-#: answer each with ``error``).
-PROTOCOL_REVISION = 2
+#: never checked): 2 adds the node's ``warning`` messages, 3 its ``sensor_lens``. A server
+#: answers a node of revision 2 or later with ``welcome.accepts`` naming the optional
+#: messages it takes (so its revision: ``sensor_lens`` from 3 on); an older node gets the
+#: welcome it knows (its parser refuses unknown fields) and ignores names it does not
+#: know, and a node sends an optional message only to a server whose welcome accepts it
+#: (an older one would answer each with ``error``; its hello cannot carry them either, an
+#: older server refuses unknown hello fields).
+PROTOCOL_REVISION = 3
 BINARY_MAGIC = b"GRB" + bytes([PROTOCOL_VERSION])
 _HDR = struct.Struct("<4sI")
 MAX_BINARY_HEADER = 16 * 1024
@@ -267,14 +270,78 @@ class NodeWarning(_Msg):
         return _cut(v, WARNING_CHARS)
 
 
-NodeMessage = Annotated[Hello | PartList | Pong | Status | RecState | NodeError | NodeWarning,
-                        Field(discriminator="type")]
+#: Largest image side a camera model may declare (pixels).
+MAX_IMAGE_SIDE = 16384
+
+
+class CameraLens(BaseModel):
+    """One camera as a node's ``sensor_lens`` announces it: the image size, the 3×3
+    intrinsics at that size and the OpenCV distortion of its lens (k1, k2, p1, p2[, k3[,
+    k4, k5, k6[, s1..s4[, τx, τy]]]]; empty: none, an ideal or rectified lens).
+
+    Checked as a calibration capture's camera model is (:func:`check_intrinsics`,
+    :func:`check_distortion`).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+    size: tuple[Annotated[int, Field(ge=1, le=MAX_IMAGE_SIDE)],
+                Annotated[int, Field(ge=1, le=MAX_IMAGE_SIDE)]]
+    K: list[Annotated[list[float], Field(max_length=3)]] = Field(max_length=3)
+    dist: list[float] = Field(default_factory=list, max_length=14)
+
+    @field_validator("K")
+    @classmethod
+    def _check_K(cls, v: list[list[float]]) -> list[list[float]]:
+        return check_intrinsics(v, "K").tolist()
+
+    @field_validator("dist")
+    @classmethod
+    def _check_dist(cls, v: list[float]) -> list[float]:
+        return list(check_distortion(v, "dist")) if v else []
+
+
+class SensorLens(_Msg):
+    """The node's cameras as its sensor reports them, sent once right after the welcome
+    (revision 3, only to a server whose ``welcome`` accepts ``sensor_lens``), so the live
+    point cloud follows the depth lens before any calibration (an Azure Kinect's factory
+    calibration). Each camera's ``size`` and ``K`` are the hello's ``SensorInfo``
+    (``depth_size``/``depth_K``, ``color_size``/``color_K``): the server refuses a lens for
+    another camera (:func:`lens_mismatch`). A camera left out: its lens is not known.
+    """
+
+    type: Literal["sensor_lens"] = "sensor_lens"
+    source: Annotated[str, Field(min_length=1, max_length=64)] = Field(
+        default="reported by the sensor",
+        description="Where the lens comes from, in plain words (\"factory calibration\").")
+    depth: CameraLens | None = None
+    color: CameraLens | None = None
+
+
+def lens_mismatch(lens: SensorLens, sensor: SensorInfo) -> str | None:
+    """Why ``lens`` does not describe the cameras of ``sensor`` (the node's hello), or
+    None when each announced camera has the hello's image size and intrinsics."""
+    for name, cam, size, K in (("depth", lens.depth, sensor.depth_size, sensor.depth_K),
+                               ("colour", lens.color, sensor.color_size, sensor.color_K)):
+        if cam is None:
+            continue
+        if K is None:
+            return f"a {name} lens for a sensor whose hello reported no {name} intrinsics"
+        if tuple(cam.size) != tuple(size):
+            return (f"the {name} lens is for {cam.size[0]}×{cam.size[1]} images, the hello "
+                    f"reported {size[0]}×{size[1]}")
+        if not np.allclose(cam.K, np.asarray(K, dtype=float), rtol=1e-6, atol=1e-6):
+            return f"the {name} lens's intrinsics K are not those of the hello"
+    return None
+
+
+NodeMessage = Annotated[Hello | PartList | Pong | Status | RecState | NodeError | NodeWarning
+                        | SensorLens, Field(discriminator="type")]
 
 # --------------------------------------------------------------------------- server → node
 
 
 #: Optional node messages a server of this revision takes (``welcome.accepts``).
-ACCEPTED_NODE_MESSAGES = ("warning",)
+ACCEPTED_NODE_MESSAGES = ("warning", "sensor_lens")
 
 
 class Welcome(_Msg):
@@ -610,6 +677,40 @@ def encode_calib_frame(
 _DIST_LENGTHS = (4, 5, 8, 12, 14)
 
 
+def check_distortion(v: Any, what: str) -> tuple[float, ...]:
+    """OpenCV distortion coefficients ``v`` checked (a calibration capture's ``calib``
+    header and a node's ``sensor_lens`` alike).
+
+    Raises:
+        ProtocolError: not a list of 4, 5, 8, 12 or 14 finite numbers (``what`` names it).
+    """
+    try:
+        d = np.asarray(v, dtype=float).ravel()
+    except (TypeError, ValueError) as exc:
+        raise ProtocolError(f"{what} is not a list of numbers") from exc
+    if d.size not in _DIST_LENGTHS or not np.all(np.isfinite(d)):
+        raise ProtocolError(f"{what} must be 4, 5, 8, 12 or 14 finite OpenCV "
+                            f"distortion coefficients, got {d.size}")
+    return tuple(float(x) for x in d)
+
+
+def check_intrinsics(v: Any, what: str) -> NDArray[np.float64]:
+    """A 3×3 camera matrix ``v`` checked: finite, positive focal lengths.
+
+    Raises:
+        ProtocolError: it is not (``what`` names it).
+    """
+    try:
+        K = np.asarray(v, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ProtocolError(f"{what} is not a 3×3 matrix of numbers") from exc
+    if K.shape != (3, 3):
+        raise ProtocolError(f"{what} is not 3×3 (shape {K.shape})")
+    if not np.all(np.isfinite(K)) or not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise ProtocolError(f"{what} needs finite numbers and positive focal lengths")
+    return K
+
+
 def calib_distortion(header: dict[str, Any], key: str) -> tuple[float, ...]:
     """The OpenCV distortion ``key`` (``color_dist``/``depth_dist``) of a ``calib``
     header; ``()`` (no distortion) when absent, as older nodes send.
@@ -620,14 +721,7 @@ def calib_distortion(header: dict[str, Any], key: str) -> tuple[float, ...]:
     v = header.get(key)
     if v is None:
         return ()
-    try:
-        d = np.asarray(v, dtype=float).ravel()
-    except (TypeError, ValueError) as exc:
-        raise ProtocolError(f"calib header {key} is not a list of numbers") from exc
-    if d.size not in _DIST_LENGTHS or not np.all(np.isfinite(d)):
-        raise ProtocolError(f"calib header {key} must be 4, 5, 8, 12 or 14 finite OpenCV "
-                            f"distortion coefficients, got {d.size}")
-    return tuple(float(x) for x in d)
+    return check_distortion(v, f"calib header {key}")
 
 
 def calib_error(req_id: int, reason: str) -> bytes:
@@ -647,8 +741,7 @@ def decode_calib_frame(header: dict[str, Any], payload: bytes
     try:
         n = int(header["color_bytes"])
         for k in ("color_K", "depth_K"):
-            if np.asarray(header[k], float).shape != (3, 3):
-                raise ValueError(f"{k} is not 3×3")
+            check_intrinsics(header[k], k)
         if np.asarray(header["T_depth_color"], float).shape != (4, 4):
             raise ValueError("T_depth_color is not 4×4")
         if not float(header["depth_scale"]) > 0:

@@ -36,12 +36,14 @@ from app.nodes.protocol import (
     ProtocolError,
     RecState,
     Refused,
+    SensorLens,
     ServerError,
     Status,
     Welcome,
     decode_binary,
     decode_skeletons,
     dump,
+    lens_mismatch,
     parse_node_message,
 )
 from app.server.recording import RecordingManager
@@ -333,8 +335,26 @@ class Hub:
                 at = t4 if at is None else min(at, t4)
                 if s.on_warning(m.text, at, m.repeats, t4):
                     log.warning("node %s warns: %s", s.id, m.text)
+            elif isinstance(m, SensorLens):
+                await self._on_lens(ws, s, m)
             elif isinstance(m, Hello):
                 await self._reject(ws, s, "hello sent twice on one connection")
+
+    async def _on_lens(self, ws: WebSocket, s: NodeSession, m: SensorLens) -> None:
+        """A node's announced lenses (revision 3): kept for the live view and the Rig page
+        when they describe the cameras of its hello; otherwise refused (a warning, an
+        ``error`` answer; the connection stays and the node is drawn as a pinhole)."""
+        problem = lens_mismatch(m, s.sensor)
+        if problem is not None:
+            await self._reject(ws, s, f"sensor lens refused: {problem}; {s.id} is drawn as "
+                               "a pinhole camera")
+            return
+        s.lens = m
+        log.info("node %s lens (%s): depth %s, colour %s", s.id, m.source,
+                 m.depth.dist if m.depth else "not reported",
+                 m.color.dist if m.color else "not reported")
+        for cb in self.registry.listeners:  # the live cloud's rays follow it
+            cb(s)
 
     def _on_binary(self, s: NodeSession, data: bytes, now: float) -> None:
         header, payload = decode_binary(data, self.settings.max_binary_bytes)

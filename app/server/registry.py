@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.nodes.protocol import PartInfo, SensorInfo, Status
+from app.nodes.protocol import PartInfo, SensorInfo, SensorLens, Status
 from app.server.clock import ClockEstimate, ClockEstimator
 
 SendFn = Callable[[str], Awaitable[None]]
@@ -86,6 +86,8 @@ class NodeSession:
     node_warnings: deque[NodeWarningRecord] = field(
         default_factory=lambda: deque(maxlen=NODE_WARNINGS_KEPT))
     node_warnings_dropped: int = 0
+    #: the cameras' lenses the node announced on this connection (``sensor_lens``)
+    lens: SensorLens | None = None
     _warning_arrivals: deque[float] = field(
         default_factory=lambda: deque(maxlen=NODE_WARNINGS_PER_MINUTE))
 
@@ -171,6 +173,7 @@ class NodeRegistry:
             s.node_warnings.clear()
             s.node_warnings_dropped = 0
         s.backend, s.sensor, s.send = backend, sensor, send
+        s.lens = None  # announced anew after the welcome (an older node: never)
         s.connected, s.connected_at = True, time.time()
         s.last_seen = time.time()
         s.last_seq = None
@@ -261,5 +264,10 @@ class NodeRegistry:
             "node_warnings": [{"at": w.at, "text": w.text, "repeats": w.repeats}
                               for w in reversed(s.node_warnings)],
             "node_warnings_dropped": s.node_warnings_dropped,
+            # the lens the node announced (None: none reported, drawn as a pinhole)
+            "lens": None if s.lens is None else {
+                "source": s.lens.source,
+                "depth_dist": s.lens.depth.dist if s.lens.depth else None,
+                "color_dist": s.lens.color.dist if s.lens.color else None},
             "diag": dict(s.status.diag) if s.status else {},
         }

@@ -218,7 +218,8 @@ class LiveServices:
         self._planner_key: tuple[str, ...] = ()
         self._cloud_frames: dict[str, DepthFrame] = {}
         self._cloud_seq: dict[str, int] = {}
-        #: each node's depth lens for the live cloud (from the active calibration)
+        #: each node's depth lens for the live cloud (the active calibration's, or the
+        #: one the node announced)
         self._depth_lens: dict[str, tuple[float, ...]] = {}
         self._cloud_task: asyncio.Task[None] | None = None
         self._handles: dict[str, Any] = {}
@@ -417,9 +418,11 @@ class LiveServices:
     # ------------------------------------------------------------------ listeners
 
     def _refresh_lenses(self) -> None:
-        """Each node's depth lens from the active calibration's camera models (the only
-        place the server learns a lens: the calibration capture), for the live cloud;
-        nodes without one, or whose camera changed since, stay pinhole."""
+        """Each node's depth lens for the live cloud: the active calibration's camera
+        model while the node reports the camera it was calibrated with, else the lens the
+        node announced when it connected (``sensor_lens``: an Azure Kinect's factory
+        calibration, so the view is right before any calibration). A lens either source
+        has that the ray table cannot model, or none at all: pinhole."""
         from app.server.calibration import active_result
 
         cal = active_result(self.hub.settings.data_dir)
@@ -429,13 +432,25 @@ class LiveServices:
             if s.sensor.depth_K is None:
                 continue
             d = calibrated_depth_lens(cameras, nid, s.sensor.depth_K, s.sensor.depth_size)
+            ann = s.lens.depth if s.lens is not None else None
+            # the announcement passes the calibration's checks too (same camera, a lens
+            # the ray table models)
+            a = (calibrated_depth_lens({nid: {"depth": ann.model_dump()}}, nid,
+                                       s.sensor.depth_K, s.sensor.depth_size)
+                 if ann is not None else ())
             if d is None:
                 log.warning("the depth lens calibration %s recorded for %s does not fit the "
                             "camera it reports now (another K) or is not usable: its live "
-                            "cloud is drawn without a lens until it is calibrated again",
-                            getattr(cal, "version", "?"), nid)
-            elif d:
-                lenses[nid] = d
+                            "cloud is drawn %s until it is calibrated again",
+                            getattr(cal, "version", "?"), nid,
+                            "with the lens the node announced" if a else "without a lens")
+            if a is None:
+                log.warning("the depth lens %s announced (%s) is not one the live cloud can "
+                            "draw: it is drawn %s", nid, s.lens.source if s.lens else "?",
+                            "with its calibration's lens" if d else "without a lens")
+            lens = d or a
+            if lens:
+                lenses[nid] = lens
         if lenses != self._depth_lens:
             self._cloud_seq.clear()  # redraw with the new rays
         self._depth_lens = lenses

@@ -16,7 +16,7 @@ import pytest
 
 from app.nodes.agent import MAX_IMAGE_BACKLOG, NodeAgent
 from app.nodes.backends.base import Backend, Frame
-from app.nodes.protocol import PartVerified, RecStart, RecStop, SensorInfo
+from app.nodes.protocol import PROTOCOL_REVISION, PartVerified, RecStart, RecStop, SensorInfo
 from app.nodes.store import NodeStore, RetentionPolicy
 from tests.tmpfs import mounted_tmpfs
 
@@ -450,7 +450,7 @@ def test_warnings_go_only_to_a_server_that_takes_them(tmp_path: Path,
             await asyncio.wait_for(task, 10)
 
     asyncio.run(scenario())
-    assert hellos[0]["protocol"] == 2
+    assert hellos[0]["protocol"] == PROTOCOL_REVISION >= 2
     if accepts is None:
         assert warnings == [] and types.count("status") >= 2
     else:

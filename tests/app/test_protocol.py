@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -112,7 +113,7 @@ def test_warning_message_and_revision_2_welcome() -> None:
     fields, as this one does: ``extra="forbid"``)."""
     from app.nodes.protocol import PROTOCOL_REVISION, NodeWarning, Welcome
 
-    assert Hello(node_id="S1", token="t").protocol == PROTOCOL_REVISION == 2
+    assert Hello(node_id="S1", token="t").protocol == PROTOCOL_REVISION >= 2
     w = NodeWarning(text="Body tracking stopped: no GPU", t=12.5, repeats=3)
     assert parse_node_message(dump(w)) == w
     cut = parse_node_message(dump(NodeWarning(text="x" * 2000, t=1.0)))
@@ -140,3 +141,110 @@ def test_warning_message_and_revision_2_welcome() -> None:
     WelcomeRevision1.model_validate(plain)
     with pytest.raises(ValidationError, match="accepts"):
         WelcomeRevision1.model_validate(json.loads(dump(later)))
+
+
+K_DEPTH = [[365.0, 0.0, 255.5], [0.0, 365.0, 211.5], [0.0, 0.0, 1.0]]
+LENS = [-0.12, 0.03, 0.0008, -0.0005, 0.0]
+
+
+def test_sensor_lens_message_and_revision_3_welcome() -> None:
+    """Revision 3: a node announces its cameras' lenses (``sensor_lens``) after a welcome
+    that accepts it. Malformed lenses are refused by the checks a calibration capture's
+    camera model gets; a revision-2 node still parses the revision-3 welcome (it names a
+    message it does not know) and a revision-3 node sends no lens to a revision-2 server
+    (its welcome does not accept one)."""
+    from app.nodes.protocol import (
+        ACCEPTED_NODE_MESSAGES,
+        PROTOCOL_REVISION,
+        CameraLens,
+        SensorInfo,
+        SensorLens,
+        Welcome,
+        lens_mismatch,
+    )
+    from app.server.hub import _welcome
+
+    assert PROTOCOL_REVISION == 3 and "sensor_lens" in ACCEPTED_NODE_MESSAGES
+    lens = SensorLens(source="factory calibration",
+                      depth=CameraLens(size=(512, 424), K=K_DEPTH, dist=LENS))
+    assert parse_node_message(dump(lens)) == lens
+    good = json.loads(dump(lens))
+    for bad, fragment in [({"dist": [0.1, 0.2, 0.3]}, "4, 5, 8, 12 or 14"),
+                          ({"dist": [0.1] * 15}, "dist"),
+                          ({"K": [[365.0, 0.0], [0.0, 365.0]]}, "K"),
+                          ({"K": [[-1.0, 0, 1], [0, 365.0, 1], [0, 0, 1]]}, "focal"),
+                          ({"size": [0, 424]}, "size"), ({"size": [512]}, "size"),
+                          ({"model": "brown"}, "model")]:
+        with pytest.raises(ProtocolError, match=fragment):
+            parse_node_message(json.dumps({**good, "depth": {**good["depth"], **bad}}))
+    # NaN and infinity are JSON to Python's parser: refused too
+    nan = dump(lens).replace("-0.12", "NaN")
+    with pytest.raises(ProtocolError, match="finite"):
+        parse_node_message(nan)
+    inf_k = dump(lens).replace("365.0", "Infinity", 1)
+    with pytest.raises(ProtocolError, match="finite"):
+        parse_node_message(inf_k)
+    # no lens (an ideal one) is an empty list
+    assert parse_node_message(json.dumps({**good, "depth": {**good["depth"], "dist": []}})
+                              ).depth.dist == []
+    # it must describe the hello's cameras
+    hello_sensor = SensorInfo(depth_size=(512, 424), depth_K=K_DEPTH)
+    assert lens_mismatch(lens, hello_sensor) is None
+    assert "512×424" in str(lens_mismatch(lens, SensorInfo(depth_size=(640, 576),
+                                                           depth_K=K_DEPTH)))
+    other_K = [[380.0, 0.0, 255.5], [0.0, 380.0, 211.5], [0.0, 0.0, 1.0]]
+    assert "K" in str(lens_mismatch(lens, SensorInfo(depth_K=other_K)))
+    assert "no depth intrinsics" in str(lens_mismatch(lens, SensorInfo()))
+
+    # both directions of compatibility, by what each side parses and sends
+    from typing import Literal
+
+    from pydantic import BaseModel, ConfigDict
+
+    class WelcomeRevision2(BaseModel):  # as a revision-2 node parses it
+        model_config = ConfigDict(extra="forbid")
+        v: Literal[1] = 1
+        type: Literal["welcome"] = "welcome"
+        server_time: float
+        ping_interval_s: float
+        accepts: list[str] | None = None
+
+    settings = SimpleNamespace(clock_ping_interval_s=0.1)
+    for revision in (2, 3):  # a revision-2 node takes the new welcome, ignoring the name
+        w = json.loads(dump(_welcome(settings, revision)))  # type: ignore[arg-type]
+        assert WelcomeRevision2.model_validate(w).accepts == ["warning", "sensor_lens"]
+    assert "accepts" not in json.loads(dump(_welcome(settings, 1)))  # type: ignore[arg-type]
+    # a revision-2 server's parser (this one without sensor_lens) refuses the message:
+    # which is why a node sends it only to a welcome that accepts it (tested end to end
+    # in tests/integration/test_node_lens.py)
+    assert parse_server_message(dump(Welcome(server_time=1.0, ping_interval_s=0.1,
+                                             accepts=["warning"]))).accepts == ["warning"]
+
+
+def test_backend_announces_its_lenses() -> None:
+    """A backend announces each camera whose intrinsics it knows, with its lens; one that
+    knows none (a replay) announces nothing."""
+    from app.nodes.backends.base import Backend
+    from app.nodes.protocol import SensorInfo
+
+    class Fake(Backend):
+        lens_source = "factory calibration"
+
+        def open(self) -> SensorInfo:
+            return SensorInfo()
+
+        def frames(self):  # type: ignore[no-untyped-def]
+            return iter(())
+
+        def now(self) -> float:
+            return 0.0
+
+    b = Fake()
+    assert b.sensor_lens(SensorInfo()) is None
+    b.depth_dist = LENS
+    lens = b.sensor_lens(SensorInfo(depth_size=(640, 576), depth_K=K_DEPTH, color_K=K_DEPTH,
+                                    color_size=(640, 576)))
+    assert lens is not None and lens.source == "factory calibration"
+    assert lens.depth is not None and lens.depth.dist == LENS and lens.depth.size == (640, 576)
+    assert lens.color is not None and lens.color.dist == []  # an ideal colour lens
+    assert parse_node_message(dump(lens)) == lens

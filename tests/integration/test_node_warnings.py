@@ -55,7 +55,7 @@ def test_older_nodes_get_the_welcome_they_know_and_floods_are_bounded(
     old = asyncio.run(welcome(1))
     assert old["type"] == "welcome"
     assert set(old) == {"v", "type", "server_time", "ping_interval_s"}
-    assert asyncio.run(welcome(2))["accepts"] == ["warning"]
+    assert asyncio.run(welcome(2))["accepts"] == ["warning", "sensor_lens"]
 
     async def flood() -> None:
         async with connect(url, open_timeout=5) as ws:

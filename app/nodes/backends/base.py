@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.nodes.protocol import SensorInfo
+from app.nodes.protocol import CameraLens, SensorInfo, SensorLens
 
 log = logging.getLogger("gaitrig.node")
 
@@ -91,10 +91,13 @@ class Backend(ABC):
     #: OpenCV lens distortion (k1, k2, p1, p2[, k3[, k4, k5, k6]]) of the colour/depth
     #: images the backend gives (at ``SensorInfo.color_K``/``depth_K``), known after
     #: :meth:`open`; None = none (an ideal or rectified lens). Sent with each calibration
-    #: frame, not in the ``hello``: a server older than the node refuses unknown sensor
-    #: fields but ignores unknown ``calib`` header keys.
+    #: frame and announced after the welcome (:meth:`sensor_lens`), not in the ``hello``:
+    #: a server older than the node refuses unknown sensor fields but ignores unknown
+    #: ``calib`` header keys.
     color_dist: list[float] | None = None
     depth_dist: list[float] | None = None
+    #: Where those lenses come from, in plain words for the Rig page.
+    lens_source: str = "reported by the sensor"
 
     @abstractmethod
     def open(self) -> SensorInfo:
@@ -124,6 +127,21 @@ class Backend(ABC):
         sink = self.warning_sink
         if sink is not None:
             sink(text)
+
+    def sensor_lens(self, info: SensorInfo) -> SensorLens | None:
+        """The ``sensor_lens`` message announcing the cameras of ``info`` (what
+        :meth:`open` returned) with their lenses: each camera whose intrinsics are known,
+        with :attr:`depth_dist`/:attr:`color_dist` (none: an ideal lens). None when no
+        camera's intrinsics are known (a replay: recordings keep no camera model)."""
+        def camera(size: tuple[int, int], K: list[list[float]] | None,
+                   dist: list[float] | None) -> CameraLens | None:
+            return None if K is None else CameraLens(size=size, K=K, dist=list(dist or []))
+
+        depth = camera(info.depth_size, info.depth_K, self.depth_dist)
+        color = camera(info.color_size, info.color_K, self.color_dist)
+        if depth is None and color is None:
+            return None
+        return SensorLens(source=self.lens_source, depth=depth, color=color)
 
     def diagnostics(self, t_host: float) -> dict[str, float]:
         """Test-only truths (e.g. the simulator's true clock offset); empty for hardware."""

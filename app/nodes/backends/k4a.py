@@ -309,6 +309,7 @@ class K4ABackend(Backend):
     """
 
     name = "k4a"
+    lens_source = "factory calibration"  # the device's, read by pyk4a (open)
 
     def __init__(self, device: int = 0, body_tracking: bool = True,
                  processing_mode: str = "gpu", k4abt_path: str | Path | None = None,

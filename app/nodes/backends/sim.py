@@ -71,6 +71,7 @@ class SimBackend(Backend):
     """
 
     name = "sim"
+    lens_source = "simulator"  # its GAITRIG_TEST_SIM_*_DIST lenses, or none
 
     def __init__(self, sensor_id: str, rig_path: Path | str | None = None, seed: int = 0,
                  clock_offset_s: float | None = None, clock_drift_ppm: float | None = None,
