@@ -16,15 +16,17 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import viser
 from numpy.typing import NDArray
 
 from app.viewer.scene import sensor_color
 from engine.coverage import SENSOR_MODELS, SensorSpec, active_area_polygon
 from engine.errors import InputError
+
+if TYPE_CHECKING:  # viser is needed only with the 3D view on (the Viewer loads it)
+    import viser
 
 log = logging.getLogger("gaitrig.viewer")
 

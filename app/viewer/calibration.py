@@ -4,13 +4,16 @@ edges coloured by residual (green < 1 mm, yellow 1–3 mm, red > 3 mm)."""
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-import viser
 from numpy.typing import NDArray
 
 from engine.calibration.pipeline import CalibrationResult
 from engine.geometry import quat_from_matrix
+
+if TYPE_CHECKING:  # viser is needed only with the 3D view on (the Viewer loads it)
+    import viser
 
 GOOD_M = 0.001
 FAIR_M = 0.003

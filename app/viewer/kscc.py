@@ -10,12 +10,15 @@ overlaid skeletons coincide when the two users do the same thing.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
-import viser
 from numpy.typing import NDArray
 
 from engine.skeleton import JointSet, TrackingState
+
+if TYPE_CHECKING:  # viser is needed only with the 3D view on (the Viewer loads it)
+    import viser
 
 SIDE_COLORS: dict[str, tuple[int, int, int]] = {"a": (11, 92, 173), "b": (207, 34, 46)}
 

@@ -28,10 +28,9 @@ import asyncio
 import contextlib
 import logging
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import viser
 from numpy.typing import NDArray
 
 from app.server.hub import Hub
@@ -48,6 +47,9 @@ from app.viewer.scene import sensor_color
 from engine.geometry import quat_from_matrix
 from engine.sim.rig import Rig, default_avenue_rig, marker_visibility
 from engine.skeleton import KINECT_V2, TrackingState
+
+if TYPE_CHECKING:  # viser is needed only with the 3D view on (the Viewer loads it)
+    import viser
 
 log = logging.getLogger("gaitrig.viewer.live")
 

@@ -17,13 +17,16 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import viser
 from numpy.typing import NDArray
 
 from engine.geometry import quat_from_matrix
 from engine.skeleton import KINECT_V2, TrackingState
+
+if TYPE_CHECKING:  # viser is needed only with the 3D view on (the Viewer loads it)
+    import viser
 
 log = logging.getLogger("gaitrig.viewer")
 
@@ -131,6 +134,8 @@ class Viewer:
     """
 
     def __init__(self, host: str, port: int) -> None:
+        import viser  # here: a server without the 3D view never loads it
+
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.port = int(self.server.get_port())
         # Start behind and above the origin, looking down the walkway (+X), Z up.
