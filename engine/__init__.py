@@ -39,6 +39,7 @@ A worked example on a real Vicon trial: ``examples/vicon_trial.py``; more in
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
@@ -64,6 +65,15 @@ _EXPORTS: dict[str, str] = {
     "GaitCycle": "engine.gait", "gait_cycles": "engine.gait",
     "load_point_cloud": "engine.pointcloud", "load_depth_image": "engine.pointcloud",
     "load_intrinsics": "engine.pointcloud", "load_imu": "engine.imu.io",
+    "CameraIntrinsics": "engine.pointcloud", "depth_to_points": "engine.pointcloud",
+    "pixel_ray_table": "engine.pointcloud",
+    "ImuRecording": "engine.imu.io", "load_mvnx_all": "engine.imu.io",
+    "load_phone": "engine.imu.io", "orientation_filter": "engine.imu.filter",
+    "process_imu_session": "engine.imu.pipeline",
+    "calibrate_frames": "engine.calibration.pipeline",
+    "CalibrationResult": "engine.calibration.pipeline",
+    "simulate_capture": "engine.calibration.simcapture",
+    "load_kscc": "engine.kscc", "save_kscc": "engine.kscc",
     "KsccCalibrator": "engine.kscc", "compare_motions": "engine.compare",
     "GaitrigError": "engine.errors", "InputError": "engine.errors",
     "InsufficientDataError": "engine.errors", "CalibrationError": "engine.errors",
@@ -72,11 +82,14 @@ _EXPORTS: dict[str, str] = {
 __all__ = [
     "Agreement",
     "CalibrationError",
+    "CalibrationResult",
+    "CameraIntrinsics",
     "FeetTrajectories",
     "GaitAnalysis",
     "GaitCycle",
     "GaitEvent",
     "GaitrigError",
+    "ImuRecording",
     "InputError",
     "InsufficientDataError",
     "JointSet",
@@ -92,7 +105,9 @@ __all__ = [
     "__version__",
     "agreement_levels",
     "bland_altman_png",
+    "calibrate_frames",
     "compare_motions",
+    "depth_to_points",
     "feet_from_markers",
     "feet_from_skeleton",
     "gait_cycles",
@@ -102,12 +117,20 @@ __all__ = [
     "load_feet",
     "load_imu",
     "load_intrinsics",
+    "load_kscc",
+    "load_mvnx_all",
+    "load_phone",
     "load_point_cloud",
     "match_events",
     "match_steps",
+    "orientation_filter",
+    "pixel_ray_table",
+    "process_imu_session",
     "read_c3d",
     "read_skeleton_csv",
     "read_trc",
+    "save_kscc",
+    "simulate_capture",
     "write_c3d",
     "write_skeleton_c3d",
     "write_skeleton_csv",
@@ -122,6 +145,8 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ lo
         match_events,
         match_steps,
     )
+    from engine.calibration.pipeline import CalibrationResult, calibrate_frames
+    from engine.calibration.simcapture import simulate_capture
     from engine.compare import compare_motions
     from engine.errors import (
         CalibrationError,
@@ -138,27 +163,57 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ lo
         WalkPass,
         gait_cycles,
     )
-    from engine.imu.io import load_imu
+    from engine.imu.filter import orientation_filter
+    from engine.imu.io import ImuRecording, load_imu, load_mvnx_all, load_phone
+    from engine.imu.pipeline import process_imu_session
     from engine.integration import SensorStream, integrate_skeletons
     from engine.io.c3d import read_c3d, write_c3d, write_skeleton_c3d
     from engine.io.csv import read_skeleton_csv, write_skeleton_csv
     from engine.io.markers import MarkerEvent, MarkerTrajectories
     from engine.io.trc import read_trc, write_trc
-    from engine.kscc import KsccCalibrator
+    from engine.kscc import KsccCalibrator, load_kscc, save_kscc
     from engine.mocap import FeetTrajectories, feet_from_markers, feet_from_skeleton, load_feet
-    from engine.pointcloud import load_depth_image, load_intrinsics, load_point_cloud
+    from engine.pointcloud import (
+        CameraIntrinsics,
+        depth_to_points,
+        load_depth_image,
+        load_intrinsics,
+        load_point_cloud,
+        pixel_ray_table,
+    )
     from engine.skeleton import JointSet, SkeletonSeries, TrackingState, joint_set_for
 
 
-def __getattr__(name: str) -> Any:
-    """Load a re-exported name from its module on first use (PEP 562)."""
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'engine' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value  # later look-ups skip this function
-    return value
+def _lazy_exports(package: str, exports: dict[str, str], namespace: dict[str, Any]
+                  ) -> tuple[Callable[[str], Any], Callable[[], list[str]]]:
+    """The module-level ``__getattr__`` and ``__dir__`` of a package with lazy re-exports.
+
+    Each name of ``exports`` is imported from its module on first use (PEP 562), so
+    importing a package (or any of its submodules, which imports the package first) loads
+    nothing heavy. ``engine`` and each subpackage use it the same way.
+
+    Args:
+        package: The package's ``__name__`` (used in the error message).
+        exports: Public name -> the module that defines it.
+        namespace: The package's ``globals()``: a loaded name is cached there, so later
+            look-ups skip ``__getattr__``.
+
+    Returns:
+        ``(__getattr__, __dir__)`` to assign at the package's module level.
+    """
+
+    def getattr_(name: str) -> Any:
+        module = exports.get(name)
+        if module is None:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        value = getattr(importlib.import_module(module), name)
+        namespace[name] = value
+        return value
+
+    def dir_() -> list[str]:
+        return sorted({*namespace, *exports})
+
+    return getattr_, dir_
 
 
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = _lazy_exports(__name__, _EXPORTS, globals())

@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -51,3 +52,78 @@ def test_file_loaders_and_gait_cycles_are_reexported() -> None:
 
     assert GaitCycle is Gc and load_imu is li and load_point_cloud is lp
     assert all(callable(f) for f in (gait_cycles, load_depth_image, load_intrinsics))
+
+
+#: ``engine`` and every subpackage with re-exports
+PACKAGES = ("engine", "engine.calibration", "engine.imu", "engine.io", "engine.report",
+            "engine.sim")
+
+
+def _reexports(package: str) -> dict[str, str]:
+    exports: dict[str, str] = importlib.import_module(package)._EXPORTS
+    return exports
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_every_name_of_all_imports_and_has_a_docstring(package: str) -> None:
+    mod = importlib.import_module(package)
+    names = set(mod.__all__) - {"__version__"}
+    assert len(mod.__all__) == len(set(mod.__all__)), "a name is listed twice"
+    assert names == set(_reexports(package)), "__all__ and _EXPORTS disagree"
+    for name in sorted(names):
+        ns: dict[str, object] = {}
+        exec(f"from {package} import {name}", ns)  # the way a researcher writes it
+        obj = ns[name]
+        assert obj is getattr(importlib.import_module(_reexports(package)[name]), name)
+        doc = (getattr(obj, "__doc__", None) or "").strip()
+        assert doc, f"{package}.{name} has no docstring"
+        assert not name.startswith("_"), f"{package}.{name} is private"
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_no_reexport_is_shadowed_by_a_submodule(package: str) -> None:
+    """Importing a submodule sets it as the package's attribute: an exported function
+    named like a submodule (``engine.imu.madgwick``) would turn into the module."""
+    import pkgutil
+
+    pkg = importlib.import_module(package)
+    subs = {m.name for m in pkgutil.iter_modules(pkg.__path__)}
+    assert not subs & set(_reexports(package)), sorted(subs & set(_reexports(package)))
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_type_checkers_see_every_reexport(package: str) -> None:
+    """The ``if TYPE_CHECKING`` imports are what mypy and IDEs use: each exported name is
+    imported there from the module ``_EXPORTS`` names."""
+    import ast
+
+    src = importlib.import_module(package).__file__
+    assert src is not None
+    seen: dict[str, str] = {}
+    for node in ast.walk(ast.parse(Path(src).read_text())):
+        if isinstance(node, ast.If) and getattr(node.test, "id", "") == "TYPE_CHECKING":
+            for imp in node.body:
+                assert isinstance(imp, ast.ImportFrom) and imp.module
+                seen.update({a.name: imp.module for a in imp.names})
+    assert seen == _reexports(package)
+
+
+def test_importing_a_subpackage_or_submodule_loads_no_other_module() -> None:
+    """The subpackages' re-exports are lazy too: ``import engine.imu.io`` (what the
+    server's upload route does) must not pull the filters, the simulator or open3d."""
+    code = ("import sys, engine.imu.io, engine.io.c3d, engine.sim, engine.calibration, "
+            "engine.report; print(sorted(m for m in ('engine.imu.filter', 'engine.sim.walker',"
+            " 'engine.calibration.pipeline', 'engine.report.render', 'open3d', 'numba') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=120).stdout.strip()
+    assert out == "[]"
+
+
+def test_this_sessions_loaders_are_reexported() -> None:
+    from engine import load_mvnx_all, load_phone, pixel_ray_table
+    from engine.imu import load_mvnx_all as lm
+    from engine.imu.io import load_phone as lp
+    from engine.pointcloud import pixel_ray_table as pr
+
+    assert load_mvnx_all is lm and load_phone is lp and pixel_ray_table is pr
