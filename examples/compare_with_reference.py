@@ -46,7 +46,7 @@ def demo_files(folder: Path, n: int = 4) -> list[tuple[Path, Path]]:
     import numpy as np
 
     from engine import integrate_skeletons, write_skeleton_csv, write_trc
-    from engine.sim.straight_walk import six_sensor_streams, synth_walk, walk_markers
+    from engine.sim import six_sensor_streams, synth_walk, walk_markers
 
     rng = np.random.default_rng(7)
     out = []

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -110,3 +111,84 @@ def test_batch_gait_keeps_going_past_bad_files(tmp_path: Path,
     empty.mkdir()
     assert ex.main([str(empty), "--out", str(tmp_path / "none.csv")]) == 2
     assert "no .c3d, .trc or .csv file" in capsys.readouterr().err
+
+
+def test_calibrate_simulated_finds_every_tripod_within_a_centimetre(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from engine.calibration import load_calibration
+
+    ex = _load("calibrate_simulated")
+    assert ex.main(["--frames", "2", "--out", str(tmp_path / "cal.json")]) == 0
+    out = capsys.readouterr().out
+    for sid in ("S1", "S2", "S3", "S4", "S5", "S6"):
+        assert f"\n{sid} " in out, out
+    saved = load_calibration(tmp_path / "cal.json")
+    assert saved.sensor_ids == ["S1", "S2", "S3", "S4", "S5", "S6"]
+    errors = ex.calibrate_avenue(frames=2, seed=1)
+    assert sorted(errors) == saved.sensor_ids
+    for sid, e in errors.items():
+        assert e["final_pos_m"] < 0.01 and e["final_rot_deg"] < 0.3, (sid, e)
+
+
+def test_fuse_skeletons_recovers_the_walk_and_names_too_short_a_walk(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    ex = _load("fuse_skeletons")
+    res = ex.fuse_walk(n_steps=14, seed=0)
+    assert sorted(res) == ["mean", "one-sided", "weighted"]
+    assert res["one-sided"]["sensors"] == ["S1", "S3", "S5"]
+    assert len(res["weighted"]["sensors"]) == 6
+    for name, row in res.items():
+        assert row["step_length_m"] == pytest.approx(0.70, abs=0.02), (name, row)
+        assert 0.05 < row["step_width_m"] < 0.15, (name, row)
+        assert 0.5 < row["ankle_rms_cm"] < 5.0, (name, row)
+    # gaitrig's estimator is closer to the truth than the paper's mean (far-leg bias)
+    assert res["weighted"]["ankle_rms_cm"] < res["mean"]["ankle_rms_cm"]
+    assert "ankle RMS" in capsys.readouterr().out
+    assert ex.main(["--steps", "2"]) == 2
+    assert "no straight walking found" in capsys.readouterr().err
+
+
+def test_imu_orientation_demo_reads_its_file_back_and_scores_it(
+        capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    ex = _load("imu_orientation")
+    assert ex.main(["--demo"]) == 0
+    out = capsys.readouterr().out
+    assert "shank_l.csv: 2048 samples at 256.0 Hz" in out and "inclination" in out
+    res = ex.estimate(ex.write_demo_csv(tmp_path / "shank.csv"), "ENU")
+    assert sorted(res) == ["gaitrig causal", "gaitrig offline", "madgwick"]
+    for name, e in res.items():
+        assert 0.0 < e["inclination_deg"] < 4.0 and e["total_deg"] < 6.0, (name, e)
+    no_ref = tmp_path / "plain.csv"
+    rows = np.loadtxt(tmp_path / "shank.csv", delimiter=",", skiprows=1)[:, :10]
+    np.savetxt(no_ref, rows, delimiter=",", comments="", fmt="%.9g",
+               header="time_s,gyr_x_rads,gyr_y_rads,gyr_z_rads,acc_x_ms2,acc_y_ms2,"
+                      "acc_z_ms2,mag_x_ut,mag_y_ut,mag_z_ut")
+    assert ex.main([str(no_ref)]) == 2
+    assert "has no reference orientation" in capsys.readouterr().err
+
+
+def test_imu_orientation_on_a_real_broad_trial(shared_data: Path) -> None:
+    trial = shared_data / "imu" / "broad" / "07_undisturbed_fast_rotation_B.hdf5"
+    if not trial.is_file():
+        pytest.skip(f"{trial} absent")
+    res = _load("imu_orientation").estimate(trial)
+    # BROAD's undisturbed trials: gaitrig's filter within 3° of the optical reference
+    for name in ("gaitrig causal", "gaitrig offline"):
+        assert res[name]["total_deg"] < 3.0, (name, res[name])
+
+
+def test_examples_use_public_names_only() -> None:
+    """An example teaches the API: it imports from ``engine`` or a subpackage's
+    ``__all__``, never a private module path that a refactor may move."""
+    import ast
+    import importlib
+
+    problems = []
+    for path in sorted((ROOT / "examples").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("engine"):
+                public = getattr(importlib.import_module(node.module or ""), "__all__", [])
+                for alias in node.names:
+                    if alias.name not in public:
+                        problems.append(f"{path.name}: from {node.module} import {alias.name}")
+    assert not problems, "\n".join(problems)
