@@ -32,8 +32,11 @@ engine`` stays cheap. Where things live:
   (:class:`~engine.errors.InputError`, :class:`~engine.errors.InsufficientDataError`,
   :class:`~engine.errors.CalibrationError`) whose message says what to fix.
 
-A worked example on a real Vicon trial: ``examples/vicon_trial.py``; more in
-``docs/research.md``.
+Each subpackage re-exports its own public names the same way (``from engine.imu import
+load_mvnx_all``, ``from engine.sim import Walker``); ``docs/engine-api.md`` lists every
+exported name with one line. Worked scripts: ``examples/vicon_trial.py`` (a real Vicon
+trial), ``examples/fuse_skeletons.py``, ``examples/calibrate_simulated.py``,
+``examples/imu_orientation.py``; more in ``docs/research.md``.
 """
 
 from __future__ import annotations

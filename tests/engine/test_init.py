@@ -127,3 +127,20 @@ def test_this_sessions_loaders_are_reexported() -> None:
     from engine.pointcloud import pixel_ray_table as pr
 
     assert load_mvnx_all is lm and load_phone is lp and pixel_ray_table is pr
+
+
+def test_the_api_page_lists_exactly_each_packages_exports() -> None:
+    """``docs/engine-api.md`` has one ``## `package``` section per package whose bullets
+    name exactly that package's ``__all__`` (a new export needs its line; a removed one
+    leaves no stale line)."""
+    import re
+
+    page = (Path(__file__).resolve().parents[2] / "docs" / "engine-api.md").read_text()
+    sections = dict(re.findall(r"^## `([\w.]+)`\n(.*?)(?=^## |\Z)", page, re.M | re.S))
+    assert sorted(sections) == sorted(PACKAGES)
+    for package, body in sections.items():
+        listed = re.findall(rf"^- `{re.escape(package)}\.(\w+)` — \S", body, re.M)
+        assert len(listed) == len(set(listed)), f"{package}: a name is listed twice"
+        want = set(importlib.import_module(package).__all__) - {"__version__"}
+        assert set(listed) == want, (f"{package}: missing {sorted(want - set(listed))}, "
+                                     f"stale {sorted(set(listed) - want)}")
