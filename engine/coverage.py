@@ -271,10 +271,12 @@ class Trapezoid:
 
     @property
     def near_half_width_m(self) -> float:
+        """Half the near edge's width (m)."""
         return self.near_width_m / 2
 
     @property
     def far_half_width_m(self) -> float:
+        """Half the far edge's width (m)."""
         return self.far_width_m / 2
 
     @property
@@ -552,6 +554,11 @@ class CoverageModel:
         return side.astype(np.int8)
 
     def index(self, sensor_id: str) -> int:
+        """Position of sensor ``sensor_id`` in :attr:`sensors`.
+
+        Raises:
+            InputError: no sensor has that id.
+        """
         for i, s in enumerate(self.sensors):
             if s.id == sensor_id:
                 return i

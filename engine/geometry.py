@@ -109,6 +109,14 @@ def look_at(eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) 
 
 
 def quat_normalize(q: ArrayLike) -> FloatArray:
+    """Quaternions ``(..., 4)`` scaled to unit norm (w-first; the sign is kept).
+
+    Args:
+        q: ``(..., 4)`` quaternions, w first; a zero quaternion gives NaN.
+
+    Returns:
+        ``(..., 4)`` unit quaternions.
+    """
     q = np.asarray(q, dtype=float)
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
@@ -147,6 +155,15 @@ def quat_rotate(q: ArrayLike, v: ArrayLike) -> FloatArray:
 
 
 def quat_from_axis_angle(axis: ArrayLike, angle: ArrayLike) -> FloatArray:
+    """Unit quaternion of a rotation by ``angle`` (rad) about ``axis`` (right-hand rule).
+
+    Args:
+        axis: ``(..., 3)`` rotation axes (any length, normalised here).
+        angle: ``(...)`` angles, rad.
+
+    Returns:
+        ``(..., 4)`` unit quaternions, w first.
+    """
     axis = np.asarray(axis, dtype=float)
     axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
     half = 0.5 * np.asarray(angle, dtype=float)[..., None]
@@ -154,6 +171,14 @@ def quat_from_axis_angle(axis: ArrayLike, angle: ArrayLike) -> FloatArray:
 
 
 def quat_from_rotvec(rv: ArrayLike) -> FloatArray:
+    """Unit quaternion of a rotation vector (axis × angle, rad); exact near zero.
+
+    Args:
+        rv: ``(..., 3)`` rotation vectors, rad.
+
+    Returns:
+        ``(..., 4)`` unit quaternions, w first (w ≥ 0 for angles ≤ π).
+    """
     rv = np.asarray(rv, dtype=float)
     theta = np.linalg.norm(rv, axis=-1, keepdims=True)
     half = 0.5 * theta
@@ -164,6 +189,15 @@ def quat_from_rotvec(rv: ArrayLike) -> FloatArray:
 
 
 def quat_to_rotvec(q: ArrayLike) -> FloatArray:
+    """Rotation vector (axis × angle, rad; angle in [0, π]) of quaternions.
+
+    Args:
+        q: ``(..., 4)`` quaternions, w first (normalised here; ``q`` and ``-q`` give the same
+            result, the shortest rotation).
+
+    Returns:
+        ``(..., 3)`` rotation vectors, rad.
+    """
     q = quat_normalize(q)
     q = np.where(q[..., :1] < 0, -q, q)  # shortest rotation
     w = np.clip(q[..., 0], -1.0, 1.0)
@@ -175,6 +209,14 @@ def quat_to_rotvec(q: ArrayLike) -> FloatArray:
 
 
 def quat_to_matrix(q: ArrayLike) -> FloatArray:
+    """Rotation matrices of quaternions (``R @ v`` rotates as :func:`quat_rotate`).
+
+    Args:
+        q: ``(..., 4)`` quaternions, w first (normalised here).
+
+    Returns:
+        ``(..., 3, 3)`` rotation matrices.
+    """
     q = quat_normalize(q)
     w, x, y, z = np.moveaxis(q, -1, 0)
     R = np.stack(

@@ -112,6 +112,7 @@ class KsccProgress:
 
     @property
     def fraction(self) -> float:
+        """Share of the required still frames collected so far, 0–1."""
         return self.n_collected / self.n_required
 
     def to_dict(self) -> dict[str, Any]:
@@ -342,6 +343,7 @@ class StillnessCollector:
 
     @property
     def done(self) -> bool:
+        """Whether ``n_frames`` consecutive still frames have been collected."""
         return len(self._frames) >= self.n_frames
 
     def _restart(self) -> None:

@@ -108,12 +108,23 @@ class JointSet:
     roles: dict[str, str]
 
     def index(self, joint: str) -> int:
+        """Position of ``joint`` in :attr:`joints` (the joint axis of a series' arrays).
+
+        Raises:
+            InputError: the joint is not in this joint set.
+        """
         try:
             return self.joints.index(joint)
         except ValueError:
             raise InputError(f"joint {joint!r} is not in the {self.name} joint set") from None
 
     def role_index(self, role: str) -> int:
+        """Position of the joint playing ``role`` (a key of :attr:`roles`, e.g. ``"ankle_left"``).
+
+        Raises:
+            KeyError: this joint set has no joint for that role.
+            InputError: the role's joint is not in the set (an inconsistent joint set).
+        """
         return self.index(self.roles[role])
 
     @property
@@ -241,6 +252,15 @@ class SkeletonSeries:
         return p
 
     def slice_time(self, t0: float, t1: float) -> SkeletonSeries:
+        """The frames with ``t0 ≤ time ≤ t1`` (s, the series' own clock), as a new series.
+
+        Args:
+            t0: First time kept, s.
+            t1: Last time kept, s.
+
+        Returns:
+            A series sharing the joint set, with a copy of ``meta``.
+        """
         m = (self.times >= t0) & (self.times <= t1)
         return SkeletonSeries(self.times[m], self.positions[m], self.states[m], self.joint_set,
                               dict(self.meta))

@@ -67,6 +67,7 @@ class DetectionSet:
 
     @property
     def ids(self) -> list[int]:
+        """Ids of the detected markers, in detection order."""
         return [m.id for m in self.markers]
 
     def get(self, marker_id: int) -> MarkerDetection | None:

@@ -105,10 +105,12 @@ class CalibrationResult:
 
     @property
     def sensor_ids(self) -> list[str]:
+        """Ids of the calibrated sensors, sorted."""
         return sorted(self.T_world_sensor)
 
     @property
     def rejected(self) -> list[Observation]:
+        """The observations that were not used, each with its ``reason``."""
         return [o for o in self.observations if not o.accepted]
 
 

@@ -164,6 +164,24 @@ class ReportData:
 
 @dataclass
 class TableRow:
+    """One row of the report's spatiotemporal table (values in the displayed unit).
+
+    Attributes:
+        label: Parameter name as shown.
+        unit: Displayed unit (cm, s, steps/min, %).
+        side: ``"L"``, ``"R"`` or ``""`` (both sides pooled).
+        n: Number of values.
+        mean: Mean.
+        sd: Standard deviation.
+        cv_pct: Coefficient of variation, %.
+        decimals: Decimals shown.
+        asymmetry_pct: Left/right asymmetry, % (None where not computed).
+        normative: The normative range compared with, if any.
+        normative_display: The range as shown.
+        normative_ref: Number of its source in the table's footnote.
+        flag: ``""``, ``"below"`` or ``"above"`` the normative range.
+    """
+
     label: str
     unit: str
     side: str  # "L", "R" or "" (both)

@@ -136,6 +136,7 @@ class SimSensor:
 
     @property
     def T_sensor_world(self) -> FloatArray:
+        """Inverse of ``T_world_sensor``: world points into the depth camera frame."""
         return invert_transform(self.T_world_sensor)
 
     @property
@@ -145,6 +146,7 @@ class SimSensor:
 
     @property
     def position(self) -> FloatArray:
+        """Position of the depth camera in the world, ``(3,)`` m."""
         return np.asarray(self.T_world_sensor[:3, 3], dtype=float)
 
     def in_depth_view(self, points_world: ArrayLike, margin_px: float = 0.0) -> NDArray[np.bool_]:
@@ -203,11 +205,13 @@ class Walkway:
 
     @property
     def direction(self) -> FloatArray:
+        """Unit vector from ``start`` to ``end`` (world)."""
         d = np.asarray(self.end, float) - np.asarray(self.start, float)
         return d / np.linalg.norm(d)
 
     @property
     def length(self) -> float:
+        """Length of the centre line, m."""
         return float(np.linalg.norm(np.asarray(self.end, float) - np.asarray(self.start, float)))
 
 
@@ -238,6 +242,11 @@ class Rig:
                          f"{', '.join(s.id for s in self.sensors)}")
 
     def marker(self, id: int) -> FloorMarker:
+        """The floor marker with ArUco id ``id``.
+
+        Raises:
+            InputError: no such marker (the message lists the known ids).
+        """
         for m in self.markers:
             if m.id == id:
                 return m
@@ -246,6 +255,7 @@ class Rig:
 
     @property
     def sensor_ids(self) -> list[str]:
+        """Ids of the rig's sensors, in rig order."""
         return [s.id for s in self.sensors]
 
 

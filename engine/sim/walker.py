@@ -135,6 +135,7 @@ class WalkerParams:
 
     @property
     def step_time_s(self) -> float:
+        """Mean step time (s): step length over speed."""
         return self.step_length_m / self.speed_m_s
 
     @property
@@ -185,23 +186,28 @@ class Anthropometry:
 
     @property
     def ankle_h(self) -> float:
+        """Ankle joint centre above the floor (0.039 H)."""
         return 0.039 * self.height
 
     @property
     def shank(self) -> float:
+        """Knee → ankle."""
         return (0.285 - 0.039) * self.height
 
     @property
     def thigh(self) -> float:
+        """Hip → knee."""
         return (0.530 - 0.285) * self.height
 
     @property
     def hip_half_width(self) -> float:
         # hip joint centres ≈ 0.1 H apart (Bell et al. 1990 pelvis regressions)
+        """Half the distance between the hip joint centres."""
         return 0.05 * self.height
 
     @property
     def foot_length(self) -> float:
+        """Heel → toe tip."""
         return 0.152 * self.height
 
     @property
@@ -216,6 +222,7 @@ class Anthropometry:
 
     @property
     def spine_base_up(self) -> float:
+        """Kinect SpineBase above the hip joint centres' midpoint."""
         return 0.02 * self.height
 
     @property
@@ -230,22 +237,27 @@ class Anthropometry:
 
     @property
     def neck(self) -> float:
+        """SpineShoulder → Neck."""
         return 0.052 * self.height
 
     @property
     def head(self) -> float:
+        """Neck → Head."""
         return 0.066 * self.height
 
     @property
     def shoulder_half_width(self) -> float:
+        """Half the distance between the shoulder joint centres."""
         return 0.105 * self.height
 
     @property
     def upper_arm(self) -> float:
+        """Shoulder → elbow."""
         return 0.186 * self.height
 
     @property
     def forearm(self) -> float:
+        """Elbow → wrist."""
         return 0.146 * self.height
 
     @property
@@ -255,6 +267,7 @@ class Anthropometry:
 
     @property
     def hand_tip(self) -> float:
+        """Kinect HandLeft (mid-hand) → HandTipLeft."""
         return 0.05 * self.height
 
 
