@@ -694,12 +694,23 @@ def _joint_set_by_count(n: int) -> JointSet:
 
 
 def save_kscc(path: str | Path, cal: KsccCalibrator) -> None:
-    """Write a fitted calibration as JSON."""
+    """Write a fitted calibration as JSON (read back by :func:`load_kscc`).
+
+    Args:
+        path: Destination file (overwritten).
+        cal: A fitted calibrator (``KsccCalibrator.to_dict`` is what is written).
+    """
     Path(path).write_text(json.dumps(cal.to_dict(), indent=1))
 
 
 def load_kscc(path: str | Path) -> KsccCalibrator:
     """Read a calibration written by :func:`save_kscc`.
+
+    Args:
+        path: The JSON file.
+
+    Returns:
+        A fitted :class:`KsccCalibrator` (``transform`` works at once).
 
     Raises:
         InputError: unreadable or not a KSCC calibration file.

@@ -279,10 +279,17 @@ def feet_from_skeleton(series: SkeletonSeries, up: str | None = "z",
     """Per-foot trajectories of a skeleton (ankle joints; foot joints as toes).
 
     Args:
-        series: a skeleton in a world frame.
-        up: its vertical axis (``"z"`` for the project's world frame; None to detect,
+        series: A skeleton in a world frame (time first axis, metres).
+        up: Its vertical axis (``"z"`` for the project's world frame; None to detect,
             e.g. for a CSV file in a camera's Y-down frame).
-        tracked_only: treat INFERRED joints as missing (the paper's rule).
+        tracked_only: Treat INFERRED joints as missing (the paper's rule).
+
+    Returns:
+        The ankles (``ankle`` points; foot joints as ``toe``) in metres, Z up, on the
+        series' time axis.
+
+    Raises:
+        InputError: the skeleton has no tracked ankle of a side.
     """
     js = series.joint_set
     P = series.tracked_positions() if tracked_only else series.positions.copy()

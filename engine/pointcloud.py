@@ -473,6 +473,13 @@ def load_point_cloud(path: str | Path) -> PointCloudFile:
     origin keeps its precision when the file stores doubles; float32 coordinates that far
     out are flagged in ``warnings`` (their steps are 0.5 mm).
 
+    Args:
+        path: A ``.ply`` or ``.pcd`` file.
+
+    Returns:
+        A :class:`PointCloudFile`: ``(N, 3)`` points in the file's frame and units (metres
+        expected), colours and normals when present, provenance and warnings.
+
     Raises:
         InputError: missing, empty, oversized, damaged or unsupported file (the message
             says which formats are read).

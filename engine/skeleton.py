@@ -167,7 +167,18 @@ JOINT_SETS: dict[str, JointSet] = {js.name: js for js in (KINECT_V2, KINECT_V1, 
 
 
 def joint_set_for(names: ArrayLike | list[str] | tuple[str, ...]) -> JointSet:
-    """The joint set whose names equal ``names`` (in order), or raise InputError."""
+    """The joint set whose names equal ``names`` (in order).
+
+    Args:
+        names: Joint names in file order (Kinect v1, Kinect v2 or Azure Kinect SDK
+            spellings).
+
+    Returns:
+        The matching :class:`JointSet` of :data:`JOINT_SETS`.
+
+    Raises:
+        InputError: no joint set has exactly these names in this order.
+    """
     names_t = tuple(str(n) for n in names)  # type: ignore[union-attr]
     for js in JOINT_SETS.values():
         if names_t == js.joints:

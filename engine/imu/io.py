@@ -491,6 +491,9 @@ def load_xio_csv(path: str | Path, frequency: float | None = None) -> ImuRecordi
         path: the CSV file.
         frequency: sampling rate, Hz, required when the file has no ``Time (s)`` column.
 
+    Returns:
+        The recording in SI units (rad/s, m/s², µT), time first axis.
+
     Raises:
         InputError: missing columns, unknown units, bad timing.
     """
@@ -571,6 +574,12 @@ def _as_float(p: Path, what: str, a: Any) -> FloatArray:
 def load_madgwick_mat(path: str | Path) -> ImuRecording:
     """Read Madgwick's ``ExampleData.mat`` layout (time s, deg/s, g, gauss).
 
+    Args:
+        path: The ``.mat`` file.
+
+    Returns:
+        The recording in SI units (rad/s, m/s², µT), time first axis.
+
     Raises:
         InputError: unreadable file or missing variables.
     """
@@ -590,6 +599,13 @@ def load_madgwick_mat(path: str | Path) -> ImuRecording:
 
 def load_broad(path: str | Path) -> ImuRecording:
     """Read a BROAD trial (``.hdf5`` or ``.mat``) including its optical reference.
+
+    Args:
+        path: A BROAD trial file (``.hdf5`` or ``.mat``).
+
+    Returns:
+        The recording (SI units, time first axis) with ``quat_ref`` (the optical
+        sensor-to-ENU reference, NaN where lost) and ``movement`` (the evaluated phase).
 
     Raises:
         InputError: unreadable file or missing datasets.
@@ -932,6 +948,11 @@ def load_csv(
         quat_frame: earth frame of the reference quaternions, ``"ENU"`` or ``"NED"``
             (converted to ENU, the filters' frame); ``None`` = told from gravity.
 
+    Returns:
+        The recording in SI units, time first axis; what was assumed is in ``warnings``
+        and ``meta["units_from"]``, a reference orientation in ``quat_ref``
+        (sensor-to-ENU).
+
     Raises:
         MultipleSensorsError: several sensors in the file and ``sensor`` names none of
             them (the message and ``.sensors`` list those found).
@@ -1263,6 +1284,14 @@ def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
     Xsens ``.mvnx`` takes ``sensor`` (:func:`load_mvnx`); a ``.zip`` or a folder of a
     phone app's per-sensor files takes ``platform`` (:func:`load_phone`).
 
+    Args:
+        path: The recording (file, or a folder of a phone app's files).
+        **kwargs: Reader options as above (all of them are :func:`load_csv`'s for a
+            CSV; the other readers ignore the options they do not take).
+
+    Returns:
+        The recording in SI units (rad/s, m/s², µT), time first axis, with ``warnings``.
+
     Raises:
         InputError: unsupported file or any reader error.
     """
@@ -1314,6 +1343,14 @@ def load_mvnx(path: str | Path, sensor: str | None = None) -> ImuRecording:
     """One tracker of an Xsens MVN ``.mvnx`` export, readings in the sensor frame and its
     MVN orientation as the sensor-to-ENU reference (:func:`engine.imu._mvnx.load_mvnx`).
 
+    Args:
+        path: The ``.mvnx`` file.
+        sensor: Tracker label (e.g. ``"RightLowerLeg"``); None for a one-tracker file.
+
+    Returns:
+        The tracker's recording: SI units, time first axis, sensor frame; ``quat_ref``
+        sensor-to-ENU.
+
     Raises:
         MultipleSensorsError: several trackers and ``sensor`` names none of them.
         InputError: not an MVNX export, no sensor data, damaged XML.
@@ -1327,6 +1364,12 @@ def load_mvnx_all(path: str | Path) -> dict[str, ImuRecording]:
     """Every tracker of an Xsens MVN ``.mvnx`` export: label -> recording (time first axis,
     SI, sensor frame; ``quat_ref`` sensor-to-ENU). See :mod:`engine.imu._mvnx`.
 
+    Args:
+        path: The ``.mvnx`` file.
+
+    Returns:
+        Tracker label -> its recording, in file order.
+
     Raises:
         InputError: not an MVNX export, no sensor data, damaged XML.
     """
@@ -1339,6 +1382,15 @@ def load_phone(path: str | Path, *, platform: str | None = None) -> ImuRecording
     """A phone app's one-file-per-sensor export (zip or folder: Sensor Logger, phyphox)
     merged on the gyroscope's time stamps, acceleration as specific force (iOS sign
     handled). See :mod:`engine.imu._phone`.
+
+    Args:
+        path: The app's ``.zip`` export or the folder of its per-sensor CSVs.
+        platform: ``"ios"`` or ``"android"`` (the accelerometer's sign convention); None:
+            told from the phone's orientation quaternions or Sensor Logger's metadata,
+            else Android's convention with a warning.
+
+    Returns:
+        One recording in SI units on the gyroscope's time stamps (time first axis).
 
     Raises:
         InputError: no accelerometer or gyroscope file, an unsafe or oversized zip.
@@ -1368,6 +1420,10 @@ def fill_gaps(rec: ImuRecording, max_gap_s: float = MAX_FILLED_GAP_S) -> ImuReco
     object). The reference
     quaternion and the movement mask take the nearest recorded sample's value, NaN/False
     in filled gaps.
+
+    Args:
+        rec: A recording (SI units, time first axis).
+        max_gap_s: Longest gap filled by interpolation, s.
 
     Returns:
         The filled recording, with a warning saying how many samples were filled.
@@ -1449,6 +1505,10 @@ def load_apdm(path: str | Path, sensor: str | None = None,
         path: the ``.h5`` file.
         sensor: the sensor id or its label, for a file with several sensors.
         quat_frame: ``"ENU"`` or ``"NED"`` for the processed orientation.
+
+    Returns:
+        The sensor's recording in SI units, time first axis, with the device's own
+        orientation estimate as ``quat_ref`` (sensor-to-ENU) when stored.
 
     Raises:
         MultipleSensorsError: several sensors and ``sensor`` names none of them (the

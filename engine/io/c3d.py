@@ -142,6 +142,10 @@ def write_c3d(path: str | Path, markers: MarkerTrajectories, units: str | None =
         markers: trajectories in metres; their ``times[0] * rate`` must be a whole frame
             number (it becomes the file's first frame).
         units: length unit to write (default: ``markers.units``; Vicon tools expect mm).
+
+    Raises:
+        InputError: the time axis does not start on a whole frame, or a label is longer
+            than 255 characters.
     """
     import ezc3d
 
@@ -182,9 +186,15 @@ def skeleton_to_markers(series: SkeletonSeries, events: Sequence[MarkerEvent] = 
     Args:
         series: the skeleton (uniformly sampled for C3D/TRC export).
         events: gait events to carry along.
-        tracked_only: blank joints that are not TRACKED.
-        rate: sampling rate; default from the median time step.
+        tracked_only: blank joints that are not TRACKED (NOT_TRACKED ones are always blank).
+        rate: sampling rate, Hz; default one over the median time step.
         units: unit to record as the unit of the file to write.
+
+    Returns:
+        Marker trajectories (metres, the series' frame and time axis), one per joint.
+
+    Raises:
+        InputError: fewer than two frames and no ``rate``.
     """
     if len(series) < 2 and rate is None:
         raise InputError("need at least two frames (or an explicit rate) to export")
@@ -200,6 +210,16 @@ def write_skeleton_c3d(path: str | Path, series: SkeletonSeries,
     """Export a uniformly sampled skeleton as a C3D file (joints = labelled points).
 
     The time axis is shifted to start on a whole frame if needed.
+
+    Args:
+        path: Destination ``.c3d`` (overwritten).
+        series: The skeleton (metres, time first axis); its rate is one over the median
+        time step.
+        events: Gait events to store in the file's EVENT group.
+        units: Length unit to write (Vicon tools expect ``"mm"``).
+
+    Raises:
+        InputError: fewer than two frames.
     """
     m = skeleton_to_markers(series, events, units=units)
     shift = round(m.times[0] * m.rate) / m.rate - m.times[0]

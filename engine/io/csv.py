@@ -50,6 +50,13 @@ _OTHER_CSV = {"trajectories": "a Vicon Nexus CSV", "devices": "a Vicon Nexus CSV
 def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
     """Read a skeleton CSV file into a :class:`SkeletonSeries` (metres, file axes).
 
+    Args:
+        path: A CSV with ``time`` (s) then ``<Joint>_x, _y, _z`` (m) and optionally
+            ``<Joint>_state`` columns (the layout :func:`write_skeleton_csv` writes).
+
+    Returns:
+        The series, time first axis; the joint set is told from the joint names.
+
     Raises:
         InputError: missing ``time`` column, incomplete x/y/z triplets, unknown joints,
             non-numeric cells or non-increasing times.
@@ -139,7 +146,13 @@ def read_skeleton_csv(path: str | Path) -> SkeletonSeries:
 
 
 def write_skeleton_csv(path: str | Path, series: SkeletonSeries, with_states: bool = True) -> None:
-    """Write a skeleton series as CSV (full float precision, ``nan`` → empty cell)."""
+    """Write a skeleton series as CSV (full float precision, ``nan`` → empty cell).
+
+    Args:
+        path: Destination file (overwritten).
+        series: The skeleton; positions are written in its own frame and units (m).
+        with_states: Add a ``<Joint>_state`` column (``TrackingState`` value) per joint.
+    """
     p = Path(path)
     header = ["time"]
     for j in series.joint_set.joints:

@@ -24,6 +24,9 @@ from engine.io.markers import (
 def read_trc(path: str | Path) -> MarkerTrajectories:
     """Read a TRC file.
 
+    Args:
+        path: An OpenSim / Vicon TRC file (``Units`` in its header: mm, cm or m).
+
     Returns:
         Marker trajectories in metres (file axes; OpenSim files are usually Y-up).
 
@@ -105,7 +108,16 @@ def read_trc(path: str | Path) -> MarkerTrajectories:
 
 
 def write_trc(path: str | Path, markers: MarkerTrajectories, units: str | None = None) -> None:
-    """Write marker trajectories as an OpenSim TRC file (events are not part of TRC)."""
+    """Write marker trajectories as an OpenSim TRC file (events are not part of TRC).
+
+    Args:
+        path: Destination ``.trc`` (overwritten).
+        markers: Trajectories in metres.
+        units: Length unit to write (default: ``markers.units``, else mm).
+
+    Raises:
+        InputError: a marker label contains a tab character.
+    """
     u = units or markers.units or "mm"
     scale = unit_scale(u)
     p = Path(path)
