@@ -129,6 +129,11 @@ def match_steps(measured: Sequence[_Timed], reference: Sequence[_Timed],
     most once, never further apart than ``max_dt_s`` (less than half a step time, so a
     step can never pair with its neighbour).
 
+    Args:
+        measured: Steps, strides or events with ``side`` and ``time_s`` (s) attributes.
+        reference: The reference system's, on the same time axis.
+        max_dt_s: Largest time difference of a pair, s.
+
     Returns:
         ``(measured, reference)`` pairs sorted by reference time.
     """
@@ -241,6 +246,9 @@ def bland_altman_png(measured: ArrayLike, reference: ArrayLike, title: str = "",
         unit: axis unit label (after ``scale``), e.g. ``"cm"``.
         scale: factor applied to values for display (e.g. 100 for m → cm).
         dpi: resolution.
+
+    Returns:
+        The figure as PNG bytes.
     """
     import matplotlib
 

@@ -244,6 +244,10 @@ def compare_motions(a: SkeletonSeries, b: SkeletonSeries, *, by_role: bool = Fal
         band: Sakoe–Chiba band for :func:`dtw`.
         scale_m: Distance scale of the similarity score.
 
+    Returns:
+        The per-joint distances (m) along the alignment, their means and the similarity
+        score (:class:`ComparisonResult`).
+
     Raises:
         InputError: mismatched joint sets (without ``by_role``), unequal lengths
             without alignment.

@@ -1135,6 +1135,9 @@ class GaitAnalysis:
                 mean, sd, cv_pct, left_mean, right_mean, asymmetry_pct; None where a
                 statistic does not apply or cannot be computed).
 
+        Returns:
+            The rows, one dict per step / stride / event / pass / parameter.
+
         Raises:
             InputError: an unknown table, or :meth:`fit` was not called.
         """
@@ -1162,7 +1165,15 @@ class GaitAnalysis:
                          "or summary")
 
     def to_dict(self) -> dict[str, Any]:
-        """The stable JSON document (``docs/gait-json.md``)."""
+        """The stable JSON document (``docs/gait-json.md``).
+
+        Returns:
+            ``{"events", "steps", "strides", "summary"}`` with plain floats (rounded to 1 µ of
+            their SI unit; NaN as None) and ints.
+
+        Raises:
+            InputError: :meth:`fit` was not called.
+        """
         self._check_fitted()
         def clean(o: Any) -> Any:
             if isinstance(o, dict):
@@ -1187,12 +1198,27 @@ class GaitAnalysis:
         })
 
     def marker_events(self) -> list[MarkerEvent]:
-        """Detected events in the form the C3D/TRC writers take (``EVENT`` group)."""
+        """Detected events in the form the C3D/TRC writers take (``EVENT`` group).
+
+        Returns:
+            One :class:`~engine.io.markers.MarkerEvent` per detected event (time s, side, kind,
+            Vicon-style label).
+
+        Raises:
+            InputError: :meth:`fit` was not called.
+        """
         self._check_fitted()
         labels = {"foot_strike": "Foot Strike", "foot_off": "Foot Off",
                   "placement": "Foot Placement"}
         return [MarkerEvent(e.time_s, e.side, e.kind, labels[e.kind]) for e in self.events_]
 
     def to_json(self, indent: int | None = None) -> str:
-        """:meth:`to_dict` serialised as one JSON object."""
+        """:meth:`to_dict` serialised as one JSON object.
+
+        Args:
+            indent: JSON indentation; None writes one line.
+
+        Returns:
+            The JSON text.
+        """
         return json.dumps(self.to_dict(), indent=indent)

@@ -519,7 +519,19 @@ class KsccCalibrator:
     # ------------------------------------------------------------------ fitting
 
     def fit(self, series: SkeletonSeries) -> KsccCalibrator:
-        """Calibrate from the first still window of a recording."""
+        """Calibrate from the first still window of a recording.
+
+        Args:
+            series: The sensor's skeleton recording (time first axis, metres, in ``frame``).
+
+        Returns:
+            ``self``, with ``centre_``, ``heading_``, ``T_universal_input_`` ... and
+            ``still_indices_`` (the frames used) set.
+
+        Raises:
+            InsufficientDataError: too short, or the user never stood still long enough.
+            InputError: a shoulder is missing in every frame, or the skeleton is not in metres.
+        """
         idx = find_still_window(series, self.n_frames, self.frame, self.T_world_sensor,
                                 self.use_inferred, self.facing, **self.stillness)
         P = _valid_positions(series, self.use_inferred)[idx]
@@ -536,6 +548,12 @@ class KsccCalibrator:
             positions: ``(J, 3)`` joints in the input frame.
             states: ``(J,)`` tracking states (optional; NOT_TRACKED joints are ignored).
             joint_set: Needed on the first call only; inferred from J otherwise.
+
+        Returns:
+            The progress (state, frames collected of those required, message) for a live UI.
+
+        Raises:
+            InputError: ``positions`` not ``(J, 3)`` or ``states`` of another length.
         """
         p = np.array(positions, dtype=float)
         if self._collector is None:
@@ -663,7 +681,18 @@ class KsccCalibrator:
                              "update() until it reports 'done'")
 
     def transform_points(self, positions: ArrayLike) -> FloatArray:
-        """Map points ``(..., 3)`` from the input frame into the universal frame."""
+        """Map points ``(..., 3)`` from the input frame into the universal frame.
+
+        Args:
+            positions: ``(..., 3)`` points, m, in the input frame (any leading axes, e.g.
+                ``(T, J, 3)``).
+
+        Returns:
+            The points in the universal frame (``T_universal_input_`` applied), same shape.
+
+        Raises:
+            InputError: not fitted, or the last axis is not 3.
+        """
         self._check_fitted()
         p = np.asarray(positions, dtype=float)
         if p.shape[-1:] != (3,):
@@ -672,7 +701,17 @@ class KsccCalibrator:
         return p @ T[:3, :3].T + T[:3, 3]
 
     def transform(self, series: SkeletonSeries) -> SkeletonSeries:
-        """The whole series in the universal frame (states and times unchanged)."""
+        """The whole series in the universal frame (states and times unchanged).
+
+        Args:
+            series: A recording of the calibrated sensor (same joint set).
+
+        Returns:
+            A new series, ``meta["frame"] = "kscc_universal"``.
+
+        Raises:
+            InputError: not fitted, or another joint set than the calibration's.
+        """
         self._check_fitted()
         if series.joint_set.name != self.joint_set_.name:
             raise InputError(f"KSCC was calibrated on {self.joint_set_.name} skeletons but got "

@@ -93,12 +93,29 @@ class FeetTrajectories:
                 f"{len(self.events)} events, sources={self.sources})")
 
     def foot(self, side: str, part: str | None = None) -> FloatArray:
-        """``(T, 3)`` trajectory of ``part`` (default: the primary point) of ``side``."""
+        """``(T, 3)`` trajectory (m, Z up) of ``part`` (default: the primary point) of ``side``.
+
+        Args:
+            side: ``"L"`` or ``"R"``.
+            part: ``"ankle"``, ``"heel"``, ``"toe"`` ... (a key of ``points[side]``); None: the
+                side's primary point.
+
+        Returns:
+            The trajectory, time first axis (NaN where the marker was missing).
+        """
         pts = self.points[side]
         return pts[part or self.primary[side]]
 
     def point_for(self, side: str, prefer: tuple[str, ...]) -> FloatArray:
-        """First available of ``prefer`` for ``side`` (else the primary point)."""
+        """First available of ``prefer`` for ``side`` (else the primary point).
+
+        Args:
+            side: ``"L"`` or ``"R"``.
+            prefer: Parts in order of preference (e.g. ``("heel", "ankle")``).
+
+        Returns:
+            ``(T, 3)`` trajectory in metres, Z up.
+        """
         for p in prefer:
             if p in self.points[side]:
                 return self.points[side][p]
@@ -158,6 +175,10 @@ def feet_from_markers(
         up: vertical axis of the file (``x``, ``y``, ``z``, optionally ``-``); detected
             when None.
         units: unit the file's numbers are really in, overriding its header.
+
+    Returns:
+        Per-foot trajectories in metres, Z up, on the file's time axis, with the labels
+        used and what was detected (units, up axis).
 
     Raises:
         InputError: no usable ankle/heel data (the message says what is missing and

@@ -721,6 +721,12 @@ def load_intrinsics(path: str | Path) -> CameraIntrinsics:
       ``D``/``d``) and OpenCV calibration YAML/XML (``camera_matrix``, ``image_width``,
       ``distortion_coefficients``, as ``calibrateCamera`` samples write).
 
+    Args:
+        path: A ``.json``, ``.yaml``/``.yml`` or ``.xml`` file in one of the layouts above.
+
+    Returns:
+        The pinhole intrinsics (pixels) with the lens distortion when the file has one.
+
     Raises:
         InputError: unreadable file, or no layout above recognised (the message names the
             keys found and those expected).
@@ -828,6 +834,11 @@ def load_depth_image(path: str | Path, depth_scale: float | None = None
     A depth scale cannot be read from an image; a wrong one is caught only when the
     median depth becomes implausible (beyond 12 m, or below 5 cm): the error names the
     likely scale. Invalid pixels (0, NaN) are 0 in the result.
+
+    Args:
+        path: The depth image file.
+        depth_scale: Raw units per metre (1000 for millimetres); None: 1000 for integer
+            images, 1 for float images.
 
     Returns:
         ``(depth (H, W) float64 metres, the depth scale used)``.

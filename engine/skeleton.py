@@ -243,6 +243,12 @@ class SkeletonSeries:
         The columns and their order are those of the skeleton CSV
         (:func:`engine.io.csv.write_skeleton_csv`), so ``pandas.DataFrame(s.to_columns())``
         is the table that file holds. The arrays are copies.
+
+        Args:
+            with_states: Include the ``<Joint>_state`` columns.
+
+        Returns:
+            Column name -> ``(T,)`` array.
         """
         cols: dict[str, NDArray[Any]] = {"time": self.times.copy()}
         for k, j in enumerate(self.joint_set.joints):
@@ -253,11 +259,25 @@ class SkeletonSeries:
         return cols
 
     def joint(self, name: str) -> NDArray[np.float64]:
-        """``(T, 3)`` trajectory of one joint."""
+        """``(T, 3)`` trajectory of one joint (m, the series' frame).
+
+        Args:
+            name: Joint name of the series' joint set (e.g. ``"AnkleLeft"``).
+
+        Returns:
+            A view into ``positions``.
+
+        Raises:
+            InputError: the joint is not in the joint set.
+        """
         return self.positions[:, self.joint_set.index(name)]
 
     def tracked_positions(self) -> NDArray[np.float64]:
-        """Positions with every joint that is not TRACKED set to NaN."""
+        """Positions with every joint that is not TRACKED set to NaN.
+
+        Returns:
+            A ``(T, J, 3)`` copy of the positions (m).
+        """
         p = self.positions.copy()
         p[self.states != TrackingState.TRACKED] = np.nan
         return p

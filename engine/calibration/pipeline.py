@@ -147,6 +147,10 @@ def calibrate(
             not all on one floor).
         dictionary: Marker dictionary (recorded with the result).
 
+    Returns:
+        The calibration: ``T_world_sensor`` per sensor (jointly optimised), the
+        paper's chained estimate, marker poses, per-sensor residuals (m) and the edge table.
+
     Raises:
         CalibrationError: a sensor has no chain of markers to the origin marker
             (``.unreachable`` lists them), or no sensor is given.
@@ -203,6 +207,11 @@ def calibrate_frames(
         floor_sigma_m: Floor prior (see :func:`calibrate`).
         icp: Refine the optimised poses by ICP of the depth clouds (kept only where it
             improves; see :func:`engine.calibration.icp.refine_with_icp`).
+
+    Returns:
+        The calibration: ``T_world_sensor`` per sensor (world: origin marker, Z up), the
+        paper's chained estimate, marker poses, residuals, every observation with the
+        reason of a rejection, and the ICP reports in ``meta["icp"]``.
 
     Raises:
         InputError: a sensor without depth frames, mismatched frame counts.

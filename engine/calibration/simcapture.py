@@ -83,6 +83,10 @@ def simulate_capture(rig: Rig, frames: int = DEFAULT_FRAMES, seed: int = 0,
         seed: Seed of the depth noise.
         color_size: Colour image size.
         noise: Depth noise, dropouts and flying pixels on.
+
+    Returns:
+        One :class:`SensorFrames` per sensor, in rig order (colour, depth in metres, the
+        camera model).
     """
     rng = np.random.default_rng(seed) if noise else None
     return [render_sensor_frames(s, rig, frames, rng, color_size) for s in rig.sensors]

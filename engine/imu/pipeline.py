@@ -138,6 +138,11 @@ def process_imu_session(
             (quaternions ENU (T, 4), rest flags (T,))``; default our filter with
             ``params``/``offline``.
 
+    Returns:
+        The synchronisation, per-sensor orientations on the common time grid (skeleton
+        clock, s), the plank calibration, the fused skeleton and the knee/elbow flexion
+        (degrees) of the depth and the fused skeleton (:class:`ImuSessionResult`).
+
     Raises:
         InputError: unknown sensor names or missing chest sensor.
         InsufficientDataError: no overlap, no jumps, no plank pose.

@@ -111,7 +111,17 @@ class MarkerTrajectories:
                 f"(positions in m), {len(self.events)} events)")
 
     def index(self, label: str) -> int:
-        """Index of ``label`` (exact match), or InputError listing the labels."""
+        """Index of ``label`` (exact match) on the marker axis.
+
+        Args:
+            label: The marker's label as in the file.
+
+        Returns:
+            Its position in ``labels``.
+
+        Raises:
+            InputError: no such label (the message lists the labels).
+        """
         try:
             return self.labels.index(label)
         except ValueError:
@@ -120,7 +130,17 @@ class MarkerTrajectories:
             ) from None
 
     def marker(self, label: str) -> NDArray[np.float64]:
-        """``(T, 3)`` trajectory of one marker."""
+        """``(T, 3)`` trajectory of one marker (metres, file axes, time first axis).
+
+        Args:
+            label: The marker's label (exact match).
+
+        Returns:
+            A view into ``positions`` (NaN where the marker was not seen).
+
+        Raises:
+            InputError: no such label.
+        """
         return self.positions[:, self.index(label)]
 
 
