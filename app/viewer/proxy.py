@@ -16,7 +16,6 @@ import contextlib
 import logging
 from typing import Any
 
-import httpx
 import websockets
 from fastapi import APIRouter, HTTPException, Request, Response, WebSocket, status
 from fastapi.responses import HTMLResponse
@@ -78,6 +77,10 @@ async def viewer_page(request: Request, path: str = "") -> Response:
     port = _viewer_port(request.app)
     if ".." in path.split("/"):
         raise HTTPException(status.HTTP_404_NOT_FOUND, "no such file of the 3D view")
+    # here, not at the top: httpx loads its command line's libraries (click, rich,
+    # pygments), ~0.1 s of every server's start for a page asked for now and then
+    import httpx
+
     headers = {"accept-encoding": request.headers.get("accept-encoding", "identity")}
     try:
         async with (httpx.AsyncClient(timeout=10.0) as client,
