@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from jinja2 import Environment, FileSystemLoader, select_autoescape
 
 from engine import __version__
 from engine.errors import InputError, InsufficientDataError
@@ -30,6 +29,8 @@ from engine.report.normative import (
 )
 
 if TYPE_CHECKING:
+    from jinja2 import Environment
+
     from engine.report.progress import Change, Progress, ProgressParameter, SessionTrials
 
 TEMPLATE_DIR = Path(__file__).with_name("templates")
@@ -559,6 +560,8 @@ def _progress_context(data: ReportData) -> dict[str, Any]:
 
 
 def _env() -> Environment:
+    from jinja2 import Environment, FileSystemLoader, select_autoescape
+
     env = Environment(loader=FileSystemLoader(TEMPLATE_DIR),
                       autoescape=select_autoescape(["html", "j2"]))
 

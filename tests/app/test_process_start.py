@@ -25,10 +25,11 @@ from app.config import Settings
 from app.main import create_app
 
 ROOT = Path(__file__).resolve().parents[2]
-#: Libraries the server's start and a node's connection never need (each costs 0.1–1 s to
+#: Libraries the server's start and a node's connection never need (each costs 0.05–1 s to
 #: import and more to finalise); the functions that use them import them.
 HEAVY = ("scipy.signal", "scipy.stats", "scipy.ndimage", "scipy.optimize", "scipy.sparse",
-         "scipy.interpolate", "scipy.spatial", "open3d", "matplotlib", "weasyprint", "numba")
+         "scipy.interpolate", "scipy.spatial", "open3d", "matplotlib", "weasyprint", "numba",
+         "jinja2", "httpx")
 
 
 def _loaded(code: str, names: tuple[str, ...]) -> list[str]:
