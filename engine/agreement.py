@@ -57,7 +57,11 @@ class Agreement:
         return self.bias - self.rpc, self.bias + self.rpc
 
     def to_dict(self) -> dict[str, float | int]:
-        """JSON-ready form."""
+        """JSON-ready form.
+
+        Returns:
+            The fields as a flat dict (units as in the field names).
+        """
         return asdict(self)
 
 

@@ -622,7 +622,15 @@ class KsccCalibrator:
     # ------------------------------------------------------------ persistence
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready calibration (to keep it while the sensor stays put, or to send it)."""
+        """JSON-ready calibration (to keep it while the sensor stays put, or to send it).
+
+        Returns:
+            Settings and fitted values (``T_universal_input`` 4×4 as nested lists); what
+            :func:`save_kscc` writes and :meth:`from_dict` reads.
+
+        Raises:
+            InputError: not fitted.
+        """
         self._check_fitted()
         return {
             "kind": "kscc", "version": 1, "joint_set": self.joint_set_.name,

@@ -110,6 +110,12 @@ class JointSet:
     def index(self, joint: str) -> int:
         """Position of ``joint`` in :attr:`joints` (the joint axis of a series' arrays).
 
+        Args:
+            joint: SDK joint name (e.g. ``"AnkleLeft"``).
+
+        Returns:
+            Its index.
+
         Raises:
             InputError: the joint is not in this joint set.
         """
@@ -120,6 +126,12 @@ class JointSet:
 
     def role_index(self, role: str) -> int:
         """Position of the joint playing ``role`` (a key of :attr:`roles`, e.g. ``"ankle_left"``).
+
+        Args:
+            role: Semantic role (``pelvis``, ``head``, ``knee_left`` ...).
+
+        Returns:
+            Index of that joint on the joint axis.
 
         Raises:
             KeyError: this joint set has no joint for that role.

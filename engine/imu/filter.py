@@ -614,11 +614,27 @@ class OrientationFilter:
 
     def fit(self, gyr: ArrayLike, acc: ArrayLike, mag: ArrayLike | None = None,
             ) -> OrientationFilter:
-        """Filter a recording; results go to ``quat_``, ``bias_``, ``rest_``."""
+        """Filter a recording; results go to ``quat_``, ``bias_``, ``rest_``.
+
+        Args:
+            gyr: ``(T, 3)`` or ``(T, S, 3)`` angular rate, rad/s (time first axis).
+            acc: Same shape, accelerometer (m/s²; only directions and ratios are used).
+            mag: Same shape (any unit) or None for 6D (heading then arbitrary).
+
+        Returns:
+            ``self`` (``quat_``: sensor-to-ENU, w first).
+
+        Raises:
+            InputError: shape mismatch or a non-positive ``frequency``.
+        """
         self.quat_, self.bias_, self.rest_ = orientation_filter(
             gyr, acc, mag, frequency=self.frequency, params=self.params, offline=self.offline)
         return self
 
     def get_params(self) -> dict[str, float]:
-        """Tuning parameters as a plain dict."""
+        """Tuning parameters as a plain dict.
+
+        Returns:
+            :class:`FilterParams`' fields (SI units: s, rad/s, m/s²).
+        """
         return asdict(self.params)

@@ -127,7 +127,19 @@ class PlankCalibration:
     spread_deg: dict[str, float] = field(default_factory=dict)
 
     def to_world(self, name: str, q: ArrayLike) -> FloatArray:
-        """Sensor-to-world quaternions of sensor ``name`` from its filter output ``q``."""
+        """Sensor-to-world quaternions of sensor ``name`` from its filter output ``q``.
+
+        Args:
+            name: A sensor that was on the plank.
+            q: ``(..., 4)`` sensor-to-earth quaternions (w first) from its filter.
+
+        Returns:
+            ``(..., 4)`` sensor-to-world quaternions (``q_W_E ⊗ q``; world: the depth
+            skeleton's, Z up).
+
+        Raises:
+            InputError: the sensor was not on the plank.
+        """
         if name not in self.q_world_earth:
             raise InputError(f"sensor {name!r} was not on the plank; have "
                              f"{sorted(self.q_world_earth)}")
@@ -158,6 +170,10 @@ def plank_calibration(
         plank_time: a time at which all sensors lay aligned on the plank.
         q_world_plank: orientation of the plank (= every sensor) in the world frame.
         max_spread_deg: tilt disagreement above which a sensor is rejected.
+
+    Returns:
+        Per sensor ``q_world_earth`` (its earth frame → the world frame), the plank time
+        and each sensor's tilt spread, degrees.
 
     Raises:
         InputError: plank time outside the recording, or a sensor whose tilt disagrees
@@ -193,7 +209,15 @@ def delta_quaternions(q: ArrayLike) -> FloatArray:
 
 
 def joint_rotation(q_prox: ArrayLike, q_dist: ArrayLike) -> FloatArray:
-    """Joint rotation ``q_prox* ⊗ q_dist`` (eq. 7): distal segment relative to proximal."""
+    """Joint rotation ``q_prox* ⊗ q_dist`` (eq. 7): distal segment relative to proximal.
+
+    Args:
+        q_prox: ``(..., 4)`` proximal segment orientations (w first, same earth frame).
+        q_dist: ``(..., 4)`` distal segment orientations.
+
+    Returns:
+        ``(..., 4)`` rotation of the distal segment in the proximal segment's frame.
+    """
     return quat_mul(quat_conj(np.asarray(q_prox, dtype=float)), np.asarray(q_dist, dtype=float))
 
 
@@ -600,6 +624,11 @@ def flexion_angles(skeleton: SkeletonSeries, tracked_only: bool = False) -> dict
     Flexion is the angle between the proximal bone (hip→knee, shoulder→elbow) and the
     distal bone (knee→ankle, elbow→wrist), the same definition for depth, fused and
     reference skeletons.
+
+    Args:
+        skeleton: Any skeleton (time first axis) whose joint set has hip, knee, ankle,
+            shoulder, elbow and wrist roles.
+        tracked_only: Treat joints that are not TRACKED as missing.
 
     Returns:
         ``{"knee_left", "knee_right", "elbow_left", "elbow_right"}`` -> ``(T,)`` degrees

@@ -68,12 +68,26 @@ def sensor_inputs(gyr: ArrayLike, acc: ArrayLike, mag: ArrayLike | None
 
 
 def to_enu(q: ArrayLike) -> FloatArray:
-    """Convert sensor-to-NWU quaternions to sensor-to-ENU (``q_ENU = q_ENU_NWU ⊗ q``)."""
+    """Convert sensor-to-NWU quaternions to sensor-to-ENU (``q_ENU = q_ENU_NWU ⊗ q``).
+
+    Args:
+        q: ``(..., 4)`` sensor-to-NWU quaternions, w first (Madgwick's default frame).
+
+    Returns:
+        ``(..., 4)`` sensor-to-ENU quaternions.
+    """
     return quat_mul(Q_ENU_NWU, q)
 
 
 def from_enu(q: ArrayLike) -> FloatArray:
-    """Convert sensor-to-ENU quaternions to sensor-to-NWU."""
+    """Convert sensor-to-ENU quaternions to sensor-to-NWU.
+
+    Args:
+        q: ``(..., 4)`` sensor-to-ENU quaternions, w first.
+
+    Returns:
+        ``(..., 4)`` sensor-to-NWU quaternions.
+    """
     return quat_mul(Q_ENU_NWU * np.array([1.0, -1.0, -1.0, -1.0]), q)
 
 
@@ -295,7 +309,18 @@ class Madgwick:
 
     def fit(self, gyr: ArrayLike, acc: ArrayLike, mag: ArrayLike | None = None,
             q0: ArrayLike | None = None) -> Madgwick:
-        """Filter a recording; the result is stored in ``quat_``. Returns ``self``."""
+        """Filter a recording; the result is stored in ``quat_``.
+
+        Args:
+            gyr: ``(T, 3)`` or ``(T, S, 3)`` angular rate, rad/s (time first axis).
+            acc: Same shape, accelerometer (any unit).
+            mag: Same shape, magnetometer (any unit), or None for the 6D variant.
+            q0: Initial sensor-to-earth quaternion(s) in ``frame``; default from the first
+                accelerometer (and magnetometer) sample.
+
+        Returns:
+            ``self`` (``quat_``: sensor-to-earth in ``frame``, w first).
+        """
         self.quat_ = madgwick(gyr, acc, mag, beta=self.beta, frequency=self.frequency, q0=q0,
                               frame=self.frame, zeta=self.zeta)
         return self

@@ -21,6 +21,11 @@ def orientation_errors(
     ``2·atan|e_z/e_w|``, inclination error ``2·acos√(e_w² + e_z²)``; each is an RMS over
     the samples in ``mask`` (BROAD's ``movement``); rows with NaN are ignored.
 
+    Args:
+        q_est: ``(T, 4)`` estimated sensor-to-earth quaternions, w first.
+        q_ref: ``(T, 4)`` reference quaternions in the same earth frame.
+        mask: ``(T,)`` samples to evaluate; None: all.
+
     Returns:
         ``{"total_deg", "heading_deg", "inclination_deg"}``.
 
@@ -54,6 +59,13 @@ def orientation_errors(
 def rmse(estimate: ArrayLike, reference: ArrayLike) -> float:
     """Root-mean-square error over samples where both are finite (same unit as inputs).
 
+    Args:
+        estimate: A series (any shape; time first).
+        reference: The reference, same shape and unit; NaN samples in either are skipped.
+
+    Returns:
+        The RMSE, in the inputs' unit.
+
     Raises:
         InputError: shapes differ. InsufficientDataError: no common finite sample.
     """
@@ -71,6 +83,13 @@ def ncc(estimate: ArrayLike, reference: ArrayLike) -> float:
     """Normalised cross-correlation at zero lag (Pearson correlation), in [-1, 1].
 
     The seed paper's Table 1 measure of waveform agreement independent of offset and gain.
+
+    Args:
+        estimate: A series (any shape; time first).
+        reference: The reference, same shape; NaN samples in either are skipped.
+
+    Returns:
+        The correlation coefficient.
 
     Raises:
         InputError: shapes differ. InsufficientDataError: fewer than two common samples or

@@ -195,6 +195,12 @@ def angles_csv(result: ImuSessionResult) -> str:
     Columns: ``time_s`` then ``<joint>_fused_deg`` and ``<joint>_depth_deg`` per joint; the
     depth value is the nearest depth frame's (empty when no frame is within 1.5 frame
     periods).
+
+    Args:
+        result: The output of :func:`process_imu_session`.
+
+    Returns:
+        The CSV text (angles in degrees, 2 decimals; time s).
     """
     t = result.fused.skeleton.times
     depth_t = result.depth_times

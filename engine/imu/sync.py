@@ -54,7 +54,11 @@ class SyncResult:
     warnings: list[str] = field(default_factory=list)
 
     def max_residual(self) -> float:
-        """Largest absolute per-jump residual over all streams (s)."""
+        """Largest absolute per-jump residual over all streams.
+
+        Returns:
+            The residual, s (0 without streams).
+        """
         return float(max((np.max(np.abs(r)) for r in self.residuals.values()), default=0.0))
 
 
@@ -264,6 +268,10 @@ def synchronize(
         min_match: smallest correlation coefficient between an IMU's jump series and the
             skeleton's torso acceleration (median over IMUs) accepted as found.
 
+    Returns:
+        The reference stream, per-stream offsets (s to add to its time stamps; apply them
+        with :func:`shift_recording`), the detected landing times and residuals.
+
     Raises:
         InputError: no streams or an unknown reference.
         InsufficientDataError: the jump series is not found in some stream.
@@ -456,7 +464,15 @@ def _refine_against_skeleton(
 
 
 def shift_recording(rec: ImuRecording, offset: float) -> ImuRecording:
-    """A copy of ``rec`` with ``offset`` seconds added to its time stamps."""
+    """A copy of ``rec`` with ``offset`` seconds added to its time stamps.
+
+    Args:
+        rec: The recording (SI units, time first axis).
+        offset: Seconds to add (``SyncResult.offsets[name]``).
+
+    Returns:
+        A new recording sharing the sample arrays, ``meta["time_offset_s"] = offset``.
+    """
     return ImuRecording(time=rec.time + offset, gyr=rec.gyr, acc=rec.acc, mag=rec.mag,
                         frequency=rec.frequency, name=rec.name, quat_ref=rec.quat_ref,
                         movement=rec.movement, meta={**rec.meta, "time_offset_s": offset},

@@ -201,8 +201,17 @@ def rounded_grid(times: NDArray[np.float64], rate: float | None = None
 
 
 def unit_scale(units: str) -> float:
-    """Metres per ``units`` (``"mm"``, ``"cm"``, ``"m"``, spelled out or in any case),
-    or InputError."""
+    """Metres per ``units`` (``"mm"``, ``"cm"``, ``"m"``, spelled out or in any case).
+
+    Args:
+        units: A file's unit string (``"mm"``, ``"millimeters"``, ``"M"`` ...).
+
+    Returns:
+        The factor to metres (0.001 for mm).
+
+    Raises:
+        InputError: not a length unit.
+    """
     u = normalise_units(units)
     if u is None:
         raise InputError(f"unknown length unit {units!r}; use one of mm, cm, m")
@@ -310,6 +319,16 @@ def detect_units(positions: ArrayLike, labels: list[str]) -> str:
 
     A leg is 0.5–1.2 m and a body 0.3–2.2 m tall (feet-only sets are short), so a
     characteristic length below 5 means metres, below 300 centimetres, else millimetres.
+
+    Args:
+        positions: ``(T, M, 3)`` marker positions in the file's unknown unit.
+        labels: The ``M`` marker labels (tell feet, pelvis and head markers apart).
+
+    Returns:
+        ``"m"``, ``"cm"`` or ``"mm"``.
+
+    Raises:
+        InputError: no frame with two or more markers.
     """
     L = characteristic_length(positions, labels)
     if L < 5.0:
@@ -456,6 +475,15 @@ def up_rotation(up: str) -> NDArray[np.float64]:
 
     Positive axes use a cyclic permutation (keeps handedness and the other axes'
     order); negative ones add a half-turn about the new X axis.
+
+    Args:
+        up: The vertical axis with sign: ``"x"``, ``"y"``, ``"z"``, ``"-y"`` ...
+
+    Returns:
+        ``R`` (3×3) with ``R @ p`` the point in the Z-up frame.
+
+    Raises:
+        InputError: ``up`` is not an axis.
     """
     u = up.strip().lower()
     neg = u.startswith("-")
@@ -473,5 +501,16 @@ def up_rotation(up: str) -> NDArray[np.float64]:
 
 
 def to_z_up(positions: ArrayLike, up: str) -> NDArray[np.float64]:
-    """Rotate ``(..., 3)`` points so that the ``up`` axis becomes +Z."""
+    """Rotate ``(..., 3)`` points so that the ``up`` axis becomes +Z.
+
+    Args:
+        positions: ``(..., 3)`` points (any unit; time first when a series).
+        up: The vertical axis with sign: ``"x"``, ``"y"``, ``"z"``, ``"-y"`` ...
+
+    Returns:
+        The rotated points, same shape (:func:`up_rotation` applied).
+
+    Raises:
+        InputError: ``up`` is not an axis.
+    """
     return np.asarray(positions, dtype=float) @ up_rotation(up).T
