@@ -22,6 +22,7 @@ returns it as an RGB array; :func:`color_fraction`, :func:`changed_fraction` and
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
@@ -171,20 +172,70 @@ def live_server() -> Iterator[LiveServer]:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+#: Straight walking (s, in one pass of the simulated walker) a :func:`record_walk` holds:
+#: ≈ 6 steps at its 0.59 s step time — two or more after the analysis leaves out a pass's
+#: first steps, wherever the recording starts.
+WALK_STRAIGHT_S = 3.5
+#: The first seconds of a pass (from its first heel strike) do not count: the walker
+#: comes out of the turn slowly, and the analysis trims a pass's blurred start (a
+#: recording of a pass's first 3.5 s gave no step).
+PASS_START_SKIP_S = 1.5
+
+
+@functools.lru_cache(maxsize=4)
+def _sim_passes(seed: int) -> tuple[tuple[float, float], ...]:
+    """(first, last heel strike) of each straight pass of the simulated nodes' walker, in
+    seconds into its world cycle (``app.nodes.backends.sim``: every sim node poses the
+    same walker at host time modulo :data:`~app.nodes.backends.sim.WORLD_CYCLE_S`)."""
+    from app.nodes.backends.sim import CHUNK_S, WORLD_CYCLE_S
+    from engine.sim.rig import default_avenue_rig
+    from engine.sim.walker import Walker, WalkerParams
+
+    way = default_avenue_rig(seed).walkway
+    walker = Walker(WalkerParams.random(np.random.default_rng(seed)), way.start, way.end,
+                    start_time=0.0, seed=seed, horizon_s=WORLD_CYCLE_S + CHUNK_S)
+    # (a pass under way at the cycle's end is cut there: the walk starts again standing)
+    return tuple((float(a), min(float(b), WORLD_CYCLE_S))
+                 for a, b in walker.pass_times(WORLD_CYCLE_S + CHUNK_S) if a < WORLD_CYCLE_S)
+
+
+def walk_stop_time(t_start: float, straight_s: float = WALK_STRAIGHT_S,
+                   seed: int = 0) -> float:
+    """Host time (s) at which a recording of the default avenue's simulated nodes started
+    at ``t_start`` holds ``straight_s`` of one straight pass of the walker: a fixed
+    length can be caught at a corridor turn (two short halves of passes, < 2 steps)."""
+    from app.nodes.backends.sim import WORLD_CYCLE_S
+
+    cycle0 = t_start - t_start % WORLD_CYCLE_S
+    for k in range(3):
+        for a, b in _sim_passes(seed):
+            a = cycle0 + k * WORLD_CYCLE_S + a + PASS_START_SKIP_S
+            b = cycle0 + k * WORLD_CYCLE_S + b
+            if b - max(a, t_start) >= straight_s:
+                return max(a, t_start) + straight_s
+    raise AssertionError(f"the simulated walker has no {straight_s:g} s pass")  # not reached
+
+
 def record_walk(server: Any, session_id: int, timeout_s: float = 90.0) -> str:
-    """Record a few seconds of the simulated walker under ``session_id`` through
-    ``server.api`` (a :class:`LiveServer` or a test's own lab) and wait until the
-    recording is complete on the server; its id."""
+    """Record a few steps of the simulated walker (default avenue, seed 0) under
+    ``session_id`` through ``server.api`` (a :class:`LiveServer` or a test's own lab) and
+    wait until the recording is complete on the server; its id.
+
+    The recording is stopped once it holds :data:`WALK_STRAIGHT_S` of straight walking
+    (by the simulator's own footprints, :func:`walk_stop_time`), so each walk has steps:
+    3.5-12 s (6.4 on average), instead of a fixed 7 s that a turn could leave without
+    any (the callers then walked again)."""
     rec = server.api(f"/api/sessions/{session_id}/recordings",
                      {"label": "walk", "streams": [], "image_every": 3})
-    time.sleep(7.0)  # a few steps of the simulated walker
+    # + 0.3 s: the nodes' frames reach the ring a moment after their capture time
+    time.sleep(max(0.0, walk_stop_time(float(rec["t_start"])) + 0.3 - time.time()))
     server.api(f"/api/recordings/{rec['id']}/stop", {}, method="POST")
     deadline = time.time() + timeout_s
     while server.api(f"/api/storage/recordings/{rec['id']}")["state"] != "complete":
         if time.time() > deadline:
             raise TimeoutError(f"recording {rec['id']} was not copied to the server in "
                                f"{timeout_s:g} s")
-        time.sleep(0.3)
+        time.sleep(0.1)
     return str(rec["id"])
 
 
