@@ -132,7 +132,12 @@ class Observation:
     given_edge_m: float = float("nan")
 
     def to_dict(self) -> dict[str, object]:
-        """JSON-friendly summary (corners in metres, rounded)."""
+        """JSON-friendly summary (no corners; distances rounded).
+
+        Returns:
+            Sensor, marker, acceptance and its reason, frame counts, points per frame, plane
+            RMS (mm) and distance (m); None where a value is not finite.
+        """
         return {
             "sensor": self.sensor_id, "marker": self.marker_id, "accepted": self.accepted,
             "reason": self.reason, "frames": self.n_frames, "frames_seen": self.n_frames_seen,

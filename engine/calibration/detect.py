@@ -71,7 +71,14 @@ class DetectionSet:
         return [m.id for m in self.markers]
 
     def get(self, marker_id: int) -> MarkerDetection | None:
-        """Detection of ``marker_id`` or None."""
+        """Detection of ``marker_id``, or None.
+
+        Args:
+            marker_id: The marker's dictionary id.
+
+        Returns:
+            The detection, or None when the marker was not found.
+        """
         for m in self.markers:
             if m.id == marker_id:
                 return m
@@ -130,6 +137,12 @@ def load_image(path: str | Path) -> NDArray[np.uint8]:
     JPEG EXIF orientation is applied (a phone's portrait photo is stored landscape with a
     tag), 16-bit PNG/TIFF photos are scaled to 8 bits, an alpha channel is dropped and a
     grey photo stays grey (detection uses intensity only).
+
+    Args:
+        path: A JPEG, PNG, TIFF, BMP or WebP photo.
+
+    Returns:
+        The image as uint8 array, RGB or grey.
 
     Raises:
         InputError: missing file, unsupported type or an undecodable image.
@@ -430,6 +443,10 @@ def estimate_marker_pose(
         size_m: Printed edge length (m).
         K: 3×3 camera matrix.
         dist: Distortion coefficients or None.
+
+    Returns:
+        ``T_camera_marker`` (4×4, marker → camera, metres) and the reprojection RMS
+        (pixels).
 
     Raises:
         InputError: wrong shapes or PnP failure.

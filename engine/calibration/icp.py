@@ -128,6 +128,10 @@ def icp_align(
             degenerate (information eigenvalue ratio below this): it would be refused
             anyway. The result then keeps ``T_init`` and the before-values.
 
+    Returns:
+        The transform (source → target frame) and the fitness and inlier RMSE (m) before
+        and after (:class:`IcpResult`).
+
     Raises:
         InputError: empty clouds or bad voxel size.
     """

@@ -58,7 +58,17 @@ def dictionary_name(name: str) -> str:
 
 
 def get_dictionary(name: str = DEFAULT_DICTIONARY) -> cv2.aruco.Dictionary:
-    """The OpenCV predefined dictionary named ``name`` (see :func:`dictionary_name`)."""
+    """The OpenCV predefined dictionary named ``name`` (see :func:`dictionary_name`).
+
+    Args:
+        name: A dictionary name (``"DICT_4X4_50"``, ``"4x4_50"`` ...).
+
+    Returns:
+        The ``cv2.aruco.Dictionary``.
+
+    Raises:
+        InputError: unknown dictionary (the message lists the valid names).
+    """
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary_name(name)))
 
 
@@ -85,6 +95,15 @@ def marker_image(
     marker_id: int, px: int = 600, dictionary: str = DEFAULT_DICTIONARY, border_bits: int = 1
 ) -> NDArray[np.uint8]:
     """Square grey image (px × px, uint8) of one marker, black border included.
+
+    Args:
+        marker_id: Id in the dictionary.
+        px: Image edge, pixels.
+        dictionary: Marker dictionary name.
+        border_bits: Width of the black border, in cells.
+
+    Returns:
+        ``(px, px)`` uint8 image, 0 = black, 255 = white.
 
     Raises:
         InputError: id outside the dictionary or too few pixels for the code.

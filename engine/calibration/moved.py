@@ -52,7 +52,12 @@ class SensorCheck:
     T_world_sensor: FloatArray | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready summary (mm and degrees for people)."""
+        """JSON-ready summary (mm and degrees for people).
+
+        Returns:
+            Status, position change (mm), rotation change (deg), the markers used, the
+            residual (mm) and the reason; None for a value that is not known.
+        """
         def num(x: float, k: float = 1.0, nd: int = 3) -> float | None:
             return round(x * k, nd) if np.isfinite(x) else None
 
@@ -106,6 +111,18 @@ def check_sensor_frames(
 
 def check_frames(frames: Sequence[SensorFrames], calibration: CalibrationResult,
                  params: CornerParams | None = None) -> list[SensorCheck]:
-    """:func:`check_sensor_frames` for every sensor, sorted by id."""
+    """:func:`check_sensor_frames` for every sensor, sorted by id.
+
+    Args:
+        frames: Fresh colour + depth frames of each sensor.
+        calibration: The saved calibration to compare with.
+        params: 3D-corner thresholds (defaults when None).
+
+    Returns:
+        One :class:`SensorCheck` per sensor (``ok``, ``moved`` or ``unknown``).
+
+    Raises:
+        InputError: frames without depth.
+    """
     return [check_sensor_frames(f, calibration, params)
             for f in sorted(frames, key=lambda f: f.sensor_id)]

@@ -346,6 +346,15 @@ def apply_icp(res: CalibrationResult, clouds: Mapping[str, FloatArray],
 
     The joint-optimisation poses are kept in ``res.T_world_sensor_joint``, the reports in
     ``res.meta["icp"]``. Sensors without a usable cloud keep their pose (with a reason).
+
+    Args:
+        res: The calibration to refine (its ``T_world_sensor`` are updated).
+        clouds: Sensor id -> ``(N, 3)`` static points in that sensor's depth camera frame
+            (m), e.g. from :func:`static_cloud`.
+        voxel: Voxel edge of the downsampling, m.
+
+    Returns:
+        One ICP report per calibrated sensor (accepted or not, and why).
     """
     # each cloud is voxel-downsampled once here (ICP downsamples the merged others again)
     use = {s: _voxel(p, voxel) for s, p in clouds.items()

@@ -93,10 +93,21 @@ def simulate_capture(rig: Rig, frames: int = DEFAULT_FRAMES, seed: int = 0,
 
 
 def pose_errors(result: CalibrationResult, rig: Rig) -> dict[str, dict[str, Any]]:
-    """Per sensor: position (m) and rotation (deg) errors against the rig's true poses of
-    the chained (paper) estimate, the joint optimisation (``optimised``) and the final
-    pose after ICP (``final``; equal to ``optimised`` where ICP was refused or not run),
-    and the distance to the origin marker."""
+    """Each sensor's pose errors against the simulated rig's true poses.
+
+    Position (m) and rotation (deg) errors of the chained (paper) estimate, the joint
+    optimisation (``optimised``) and the final pose after ICP (``final``; equal to
+    ``optimised`` where ICP was refused or not run), and the distance to the origin marker.
+
+    Args:
+        result: A calibration of a simulated capture of ``rig``.
+        rig: The simulated rig (the ground truth).
+
+    Returns:
+        Sensor id -> ``chained_pos_m``, ``chained_rot_deg``, ``optimised_pos_m``,
+        ``optimised_rot_deg``, ``final_pos_m``, ``final_rot_deg``,
+        ``distance_to_origin_m`` (sensors missing from the calibration are left out).
+    """
     origin = rig.marker(result.origin_marker).T_world_marker[:3, 3]
     joint = result.T_world_sensor_joint or result.T_world_sensor
     out: dict[str, dict[str, Any]] = {}

@@ -115,7 +115,15 @@ def result_from_dict(d: dict[str, Any]) -> CalibrationResult:
 
 
 def save_calibration(result: CalibrationResult, path: str | Path) -> Path:
-    """Write ``result`` as JSON to ``path`` (atomically: temp file + rename)."""
+    """Write ``result`` as JSON to ``path`` (atomically: temp file + rename).
+
+    Args:
+        result: The calibration.
+        path: Destination file (its folder is created).
+
+    Returns:
+        ``path`` as a Path.
+    """
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     tmp = p.with_suffix(p.suffix + ".tmp")
@@ -126,6 +134,12 @@ def save_calibration(result: CalibrationResult, path: str | Path) -> Path:
 
 def load_calibration(path: str | Path) -> CalibrationResult:
     """Read a calibration JSON file.
+
+    Args:
+        path: A file written by :func:`save_calibration`.
+
+    Returns:
+        The calibration (observations keep their summary, not their corners).
 
     Raises:
         InputError: unreadable, not JSON, or not a calibration.
@@ -140,7 +154,14 @@ def load_calibration(path: str | Path) -> CalibrationResult:
 
 
 def list_versions(folder: str | Path) -> list[int]:
-    """Saved calibration versions in ``folder``, ascending."""
+    """Saved calibration versions in ``folder``, ascending.
+
+    Args:
+        folder: The calibrations folder (may not exist yet).
+
+    Returns:
+        The version numbers (empty when none is saved).
+    """
     f = Path(folder)
     if not f.is_dir():
         return []
@@ -155,7 +176,15 @@ def version_path(folder: str | Path, version: int) -> Path:
 
 
 def save_version(result: CalibrationResult, folder: str | Path) -> int:
-    """Save ``result`` as the next version in ``folder``; returns the version number."""
+    """Save ``result`` as the next version in ``folder``.
+
+    Args:
+        result: The calibration (its ``version`` is set here).
+        folder: The calibrations folder (created when missing).
+
+    Returns:
+        The new version number.
+    """
     v = (list_versions(folder) or [0])[-1] + 1
     result.version = v
     save_calibration(result, version_path(folder, v))
@@ -164,6 +193,13 @@ def save_version(result: CalibrationResult, folder: str | Path) -> int:
 
 def load_version(folder: str | Path, version: int | None = None) -> CalibrationResult:
     """Load calibration ``version`` (default: the latest) from ``folder``.
+
+    Args:
+        folder: The calibrations folder.
+        version: Version number; None: the latest.
+
+    Returns:
+        The calibration.
 
     Raises:
         InputError: no such version.
