@@ -40,13 +40,27 @@ class SimClock:
         return 1.0 + self.drift_ppm * 1e-6
 
     def local(self, t_true: ArrayLike) -> NDArray[np.float64] | float:
-        """Local clock reading(s) at true time(s) ``t_true``."""
+        """Local clock reading(s) at true time(s) ``t_true``.
+
+        Args:
+            t_true: True time(s), s.
+
+        Returns:
+            Local time(s), s (a float for a scalar input).
+        """
         t = np.asarray(t_true, dtype=float)
         out = self.offset_s + self.rate * t
         return float(out) if out.ndim == 0 else out
 
     def true(self, t_local: ArrayLike) -> NDArray[np.float64] | float:
-        """True time(s) at which the local clock reads ``t_local`` (inverse of :meth:`local`)."""
+        """True time(s) at which the local clock reads ``t_local`` (inverse of :meth:`local`).
+
+        Args:
+            t_local: Local clock reading(s), s.
+
+        Returns:
+            True time(s), s (a float for a scalar input).
+        """
         t = np.asarray(t_local, dtype=float)
         out = (t - self.offset_s) / self.rate
         return float(out) if out.ndim == 0 else out

@@ -158,6 +158,10 @@ def simulate_imus(
         noise: sensor error model shared by all sensors (independent draws).
         earth_field: Earth field in world coordinates, µT.
         seed: base random seed; sensor ``i`` uses ``seed + i``.
+
+    Returns:
+        Bone name -> recording (SI units, time first axis) with the true sensor-to-ENU
+        orientation in ``quat_ref``.
     """
     mounts = mounts or {}
     return {

@@ -335,6 +335,10 @@ class SensorRenderer:
                 (index = position in the list).
             rng: Random generator for depth noise and dropouts (``None``: noise-free).
             with_color: Also render the colour image (if the renderer has a colour size).
+
+        Returns:
+            The frame: depth ``(H, W)`` uint16 mm along the optical axis (0 = no return),
+            body index and colour.
         """
         m = self.model
         H, W = self.depth_shape
@@ -419,6 +423,18 @@ def render_frame(
     color_size: tuple[int, int] | None = (640, 360),
     rng: np.random.Generator | None = None,
 ) -> SimFrame:
-    """Render one frame (convenience; build a :class:`SensorRenderer` to render many)."""
+    """Render one frame (convenience; build a :class:`SensorRenderer` to render many).
+
+    Args:
+        sensor: The simulated sensor.
+        rig: Its rig (room, floor markers).
+        body_meshes_world: World-frame body meshes, one per body.
+        color_size: Colour image size ``(width, height)``; None: no colour image.
+        rng: Random generator for depth noise; None: noise-free.
+
+    Returns:
+        The frame (depth as uint16 mm along the optical axis, 0 = no return; body
+        index; colour).
+    """
     return SensorRenderer(sensor, rig, color_size).render(body_meshes_world, rng,
                                                           with_color=color_size is not None)

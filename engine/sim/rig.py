@@ -91,17 +91,36 @@ class SensorModel:
     flying_pixel_prob: float = 0.3
 
     def depth_intrinsics(self) -> FloatArray:
-        """3×3 pinhole matrix of the depth camera."""
+        """3×3 pinhole matrix of the depth camera.
+
+        Returns:
+            ``K`` in pixels, from the depth image size and fields of view.
+        """
         return _intrinsics(self.depth_width, self.depth_height, self.depth_hfov_deg,
                            self.depth_vfov_deg)
 
     def color_intrinsics(self, width: int | None = None, height: int | None = None) -> FloatArray:
-        """3×3 pinhole matrix of the colour camera rendered at ``width × height``."""
+        """3×3 pinhole matrix of the colour camera rendered at ``width × height``.
+
+        Args:
+            width: Rendered colour width, px (default: ``color_render_width``).
+            height: Rendered colour height, px (default: ``color_render_height``).
+
+        Returns:
+            ``K`` in pixels.
+        """
         return _intrinsics(width or self.color_render_width, height or self.color_render_height,
                            self.color_hfov_deg, self.color_vfov_deg)
 
     def depth_noise_sd(self, z: ArrayLike) -> FloatArray:
-        """Axial depth-noise standard deviation (m) at depth ``z`` (m)."""
+        """Axial depth-noise standard deviation (m) at depth ``z`` (m).
+
+        Args:
+            z: Depth(s) along the optical axis, m (any shape).
+
+        Returns:
+            ``a + b·z²`` (m), same shape.
+        """
         z = np.asarray(z, dtype=float)
         return self.depth_noise_a_m + self.depth_noise_b_per_m * z * z
 
@@ -150,7 +169,15 @@ class SimSensor:
         return np.asarray(self.T_world_sensor[:3, 3], dtype=float)
 
     def in_depth_view(self, points_world: ArrayLike, margin_px: float = 0.0) -> NDArray[np.bool_]:
-        """Whether world points project into the depth image within the valid range."""
+        """Whether world points project into the depth image within the valid range.
+
+        Args:
+            points_world: ``(..., 3)`` world points, m.
+            margin_px: Pixels to keep clear of the image border.
+
+        Returns:
+            ``(...)`` bool mask.
+        """
         p = transform_points(self.T_sensor_world, points_world)
         K = self.model.depth_intrinsics()
         z = p[..., 2]
@@ -186,12 +213,19 @@ class FloorMarker:
         OpenCV orders corners top-left, top-right, bottom-right, bottom-left of the marker
         image; with the image's x along marker X and its y along marker −Y (image rows go
         "down" while the normal points up), as ``cv2.aruco`` estimatePose expects.
+
+        Returns:
+            ``(4, 3)`` corners in metres, marker frame (z = 0).
         """
         h = self.size_m / 2.0
         return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
 
     def corners_world(self) -> FloatArray:
-        """``(4, 3)`` world corners in OpenCV ArUco order."""
+        """``(4, 3)`` world corners in OpenCV ArUco order.
+
+        Returns:
+            The corners in metres, world frame (``T_world_marker`` applied).
+        """
         return transform_points(self.T_world_marker, self.corners_marker())
 
 
@@ -234,7 +268,17 @@ class Rig:
     room: Room
 
     def sensor(self, id: str) -> SimSensor:
-        """The sensor called ``id`` (raises InputError naming the known ids)."""
+        """The sensor called ``id``.
+
+        Args:
+            id: Sensor id (``"S1"`` ...).
+
+        Returns:
+            The simulated sensor.
+
+        Raises:
+            InputError: no such sensor (the message names the known ids).
+        """
         for s in self.sensors:
             if s.id == id:
                 return s
@@ -243,6 +287,12 @@ class Rig:
 
     def marker(self, id: int) -> FloorMarker:
         """The floor marker with ArUco id ``id``.
+
+        Args:
+            id: Marker id.
+
+        Returns:
+            The floor marker.
 
         Raises:
             InputError: no such marker (the message lists the known ids).
@@ -319,8 +369,16 @@ FIRST_PAIR_X_M = 2.4
 
 
 def sensor_pose(position: ArrayLike, yaw_deg: float, pitch_down_deg: float) -> FloatArray:
-    """``T_world_sensor`` of a camera at ``position`` whose optical axis has the given
-    heading (deg from world +X, counter-clockwise) and downward pitch."""
+    """``T_world_sensor`` of a camera at ``position`` with a heading and a downward pitch.
+
+    Args:
+        position: ``(3,)`` camera centre in the world, m.
+        yaw_deg: Heading of the optical axis, degrees from world +X, counter-clockwise.
+        pitch_down_deg: Downward tilt of the optical axis, degrees.
+
+    Returns:
+        4×4 pose (camera frame: OpenCV, +Z forward, +X right, +Y down).
+    """
     yaw, pitch = math.radians(yaw_deg), math.radians(pitch_down_deg)
     d = np.array([math.cos(yaw) * math.cos(pitch), math.sin(yaw) * math.cos(pitch),
                   -math.sin(pitch)])
@@ -340,6 +398,9 @@ def default_avenue_rig(seed: int | None = 0) -> Rig:
     Args:
         seed: Seed of the clock offsets (uniform ±0.5 s) and drifts (uniform ±100 ppm);
             ``None`` gives ideal clocks.
+
+    Returns:
+        The rig (six sensors, eight markers, the walkway along +X, the room).
     """
     rng = np.random.default_rng(seed) if seed is not None else None
     sensors: list[SimSensor] = []
@@ -578,7 +639,15 @@ def rig_to_toml(rig: Rig) -> str:
 
 
 def save_rig(rig: Rig, path: str | Path) -> None:
-    """Write a rig as TOML (``.toml``) or JSON (``.json``)."""
+    """Write a rig as TOML (``.toml``) or JSON (``.json``).
+
+    Args:
+        rig: The rig.
+        path: Destination; the extension chooses the format.
+
+    Raises:
+        InputError: another extension.
+    """
     p = Path(path)
     if p.suffix.lower() == ".toml":
         p.write_text(rig_to_toml(rig), encoding="utf-8")
@@ -589,7 +658,18 @@ def save_rig(rig: Rig, path: str | Path) -> None:
 
 
 def load_rig(path: str | Path) -> Rig:
-    """Read a rig from TOML or JSON (InputError naming the bad field on invalid content)."""
+    """Read a rig from TOML or JSON.
+
+    Args:
+        path: A ``.toml`` or ``.json`` rig file (as :func:`save_rig` writes).
+
+    Returns:
+        The validated rig.
+
+    Raises:
+        InputError: missing file, another extension, invalid syntax or content (the
+            message names the bad field).
+    """
     p = Path(path)
     if not p.is_file():
         raise InputError(f"rig file {str(p)!r} does not exist")

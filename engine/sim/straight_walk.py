@@ -42,7 +42,21 @@ def synth_walk(step_length: float = 0.7, step_width: float = 0.12, step_time: fl
                side_bias: float = 0.0) -> SynthWalk:
     """A walk of ``n_steps`` strikes (left first) starting at full speed.
 
-    ``side_bias`` (m) shifts the right foot's placements laterally (an asymmetric gait).
+    Args:
+        step_length: Step length, m.
+        step_width: Step width, m.
+        step_time: Step time, s.
+        n_steps: Number of foot strikes.
+        rate: Sampling rate, Hz.
+        double_support_s: Double-support time, s.
+        origin: World point on the walking line (midway between the feet) level with the
+            first (left) strike's ankle, m; the walk is rotated about it by ``heading_deg``.
+        heading_deg: Walking direction, degrees from world +X, counter-clockwise.
+        side_bias: Shifts the right foot's placements laterally (m; an asymmetric gait).
+
+    Returns:
+        The walk with its ground truth (joints in m, world Z up, on ``times``; strikes
+        and offs).
     """
     Ls, W, Ts, ds = step_length, step_width, step_time, double_support_s
     v = Ls / Ts
@@ -101,7 +115,18 @@ def synth_walk(step_length: float = 0.7, step_width: float = 0.12, step_time: fl
 
 def walk_markers(w: SynthWalk, labels: dict[str, str] | None = None, scale: float = 1.0,
                  up: str = "z") -> MarkerTrajectories:
-    """The walk as a marker set (Plug-in Gait names unless ``labels`` maps them)."""
+    """The walk as a marker set (Plug-in Gait names unless ``labels`` maps them).
+
+    Args:
+        w: The walk.
+        labels: Walk point (``ankleL``, ``heelR``, ``toeL`` ...) -> marker label; pelvis
+            markers LASI, RASI, LPSI, RPSI are always added.
+        scale: Has no effect (positions are always in metres).
+        up: ``"z"`` (world, Z up) or ``"y"`` (OpenSim: X forward, Y up, Z right).
+
+    Returns:
+        Marker trajectories in metres on the walk's time axis.
+    """
     names = labels or {"ankleL": "LANK", "ankleR": "RANK", "heelL": "LHEE", "heelR": "RHEE",
                        "toeL": "LTOE", "toeR": "RTOE"}
     P = [w.joints[k] for k in names]
@@ -119,7 +144,14 @@ def walk_markers(w: SynthWalk, labels: dict[str, str] | None = None, scale: floa
 
 
 def walk_skeleton(w: SynthWalk) -> FloatArray:
-    """``(T, 25, 3)`` Kinect v2 joints (world) of the walk: a plausible stick figure."""
+    """``(T, 25, 3)`` Kinect v2 joints (world) of the walk: a plausible stick figure.
+
+    Args:
+        w: The walk.
+
+    Returns:
+        Joint positions, m, world frame (Z up), KINECT_V2 order, on ``w.times``.
+    """
     T = len(w.times)
     J = KINECT_V2.joints
     P = np.zeros((T, len(J), 3))
@@ -229,7 +261,22 @@ def six_sensor_streams(w: SynthWalk, rng: np.random.Generator, noise_m: float = 
                        clocks: bool = True,
                        inferred_frac: float = 0.05,
                        drop: tuple[float, float] | None = None) -> list:  # list[SensorStream]
-    """Six avenue sensors observing the walk at ~30 Hz (jittered) on their own clocks."""
+    """Six avenue sensors observing the walk at ~30 Hz (jittered) on their own clocks.
+
+    Args:
+        w: The walk.
+        rng: Random generator (noise, clocks, frame times).
+        noise_m: Joint position noise, m (1σ).
+        occluded_bias_m: Pull of the body half facing away from each sensor towards it, m.
+        near_bias_m: The same for the half facing it, m.
+        clocks: Random clock offsets (±0.5 s) and drifts (±100 ppm); False: ideal clocks.
+        inferred_frac: Share of joints reported INFERRED.
+        drop: A true-time interval ``(t0, t1)`` blanked in every stream.
+
+    Returns:
+        One :class:`~engine.integration.SensorStream` per sensor (S1 ... S6: sensor frame,
+        local clock, ``T_world_sensor`` and the clock model).
+    """
     from engine.integration import SensorStream
 
     truth = walk_skeleton(w)

@@ -831,7 +831,14 @@ class Walker:
     # ------------------------------------------------------------------ public API
 
     def joints(self, t: ArrayLike) -> FloatArray:
-        """``(T, 25, 3)`` world positions of the Kinect v2 joints (KINECT_V2 order)."""
+        """``(T, 25, 3)`` world positions of the Kinect v2 joints (KINECT_V2 order).
+
+        Args:
+            t: ``(T,)`` true times, s.
+
+        Returns:
+            Joint positions, m, world frame (Z up), time first axis.
+        """
         return self._pose(t)["joints"].copy()
 
     def bone_frames(self, t: ArrayLike) -> dict[str, FloatArray]:
@@ -841,6 +848,12 @@ class Walker:
         distal to the proximal joint (up when standing), +x forward, +y to the subject's
         left; the pelvis frame is x forward, y left, z up; the foot frame has +x towards
         the toes, +z dorsal (up when flat).
+
+        Args:
+            t: ``(T,)`` true times, s.
+
+        Returns:
+            Bone name -> ``(T, 4, 4)`` ``T_world_bone`` (m).
         """
         P = self._pose(t)
         J = P["joints"]
@@ -885,8 +898,14 @@ class Walker:
         return caps
 
     def capsule_segments(self, t: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Capsule end points ``a, b`` ``(T, C, 3)`` and radii ``(C,)`` at times ``t``
-        (order of :attr:`capsules`)."""
+        """Capsule end points and radii at times ``t`` (order of :attr:`capsules`).
+
+        Args:
+            t: ``(T,)`` true times, s.
+
+        Returns:
+            ``(a, b, radii)``: ``(T, C, 3)`` end points (m, world) and ``(C,)`` radii (m).
+        """
         P = self._pose(t)
         J = P["joints"]
         b = self.body
@@ -911,6 +930,9 @@ class Walker:
     def body_mesh(self, t: float) -> tuple[FloatArray, NDArray[np.int32], NDArray[np.int32]]:
         """Triangle mesh of the body at time ``t``.
 
+        Args:
+            t: True time, s.
+
         Returns:
             ``(vertices (V,3) world m, triangles (F,3) int32, part_labels (F,) int32)``,
             ``part_labels`` indexing :attr:`capsules`.
@@ -920,8 +942,16 @@ class Walker:
 
     def foot_placements(self, t0: float = -math.inf, t1: float | None = None
                         ) -> list[FootPlacement]:
-        """Ground-truth foot placements with heel strike in ``[t0, t1]`` (``t1`` defaults
-        to the end of the generated walk, at least 30 s after ``start_time``)."""
+        """Ground-truth foot placements with heel strike in ``[t0, t1]``.
+
+        Args:
+            t0: Start, s (true clock).
+            t1: End, s; None: the end of the generated walk (at least 30 s after
+                ``start_time``).
+
+        Returns:
+            The placements in time order.
+        """
         if t1 is not None and math.isfinite(t1):
             self._ensure(t1)
         s = self._s
@@ -949,6 +979,13 @@ class Walker:
         over) leaves it; ``tests/engine/sim/test_walker_events.py`` checks both against
         the foot's kinematics. Each foot off comes 20 % of a step after the other foot's
         strike (double support 2 × 10 % of the stride, stance 60 %).
+
+        Args:
+            t0: Start, s (true clock).
+            t1: End, s.
+
+        Returns:
+            The events in time order.
         """
         self._ensure(t1)
         s = self._s
@@ -962,7 +999,14 @@ class Walker:
         return sorted(ev, key=lambda e: e.time_s)
 
     def pass_times(self, t1: float) -> list[tuple[float, float]]:
-        """(first heel strike, last heel strike) of each straight pass up to ``t1``."""
+        """(first heel strike, last heel strike) of each straight pass up to ``t1``.
+
+        Args:
+            t1: End, s (true clock).
+
+        Returns:
+            ``(start_s, end_s)`` per pass, in time order.
+        """
         self._ensure(t1)
         s = self._s
         out, start = [], None

@@ -91,14 +91,31 @@ class SimWorld:
         return st
 
     def frame_times(self, sensor_id: str, t0: float, t1: float) -> NDArray[np.float64]:
-        """True capture times of the sensor's frames within ``[t0, t1]``."""
+        """True capture times of the sensor's frames within ``[t0, t1]``.
+
+        Args:
+            sensor_id: Sensor id.
+            t0: Start, s (true clock).
+            t1: End, s (true clock).
+
+        Returns:
+            ``(N,)`` true times, s.
+        """
         st = self._ensure(sensor_id, t1)
         ts = np.concatenate([c.times for c in st.chunks])
         return ts[(ts >= t0) & (ts <= t1)]
 
     def skeletons(self, sensor_id: str, t0: float, t1: float) -> list[SkeletonSeries]:
-        """Per body, the sensor's skeleton series (sensor frame, local times) for frames
-        captured within true times ``[t0, t1]``."""
+        """Per body, the sensor's skeleton series for frames captured within true ``[t0, t1]``.
+
+        Args:
+            sensor_id: Sensor id.
+            t0: Start, s (true clock).
+            t1: End, s (true clock).
+
+        Returns:
+            One series per walker (sensor frame, the sensor's local clock).
+        """
         st = self._ensure(sensor_id, t1)
         out = []
         for b in range(len(self.walkers)):
