@@ -75,6 +75,12 @@ def normative_lookup(
 def load_normative_ranges(path: str | Path) -> list[NormativeRange]:
     """Read a JSON list of ranges (fields as in :class:`NormativeRange`).
 
+    Args:
+        path: A JSON file (as :func:`save_normative_ranges` writes).
+
+    Returns:
+        The ranges, in file order.
+
     Raises:
         InputError: the file is not a list of complete, consistent ranges.
     """
@@ -98,7 +104,12 @@ def load_normative_ranges(path: str | Path) -> list[NormativeRange]:
 
 
 def save_normative_ranges(ranges: list[NormativeRange], path: str | Path) -> None:
-    """Write ranges as JSON (the format :func:`load_normative_ranges` reads)."""
+    """Write ranges as JSON (the format :func:`load_normative_ranges` reads).
+
+    Args:
+        ranges: The ranges.
+        path: Destination file (overwritten).
+    """
     Path(path).write_text(json.dumps([asdict(r) for r in ranges], indent=2), encoding="utf-8")
 
 

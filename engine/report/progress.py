@@ -123,6 +123,12 @@ def mdc95_from_sem(sem: float) -> float:
 def load_mdc_values(path: str | Path) -> list[MdcValue]:
     """Read a JSON list of MDC values (fields as in :class:`MdcValue`, SI units).
 
+    Args:
+        path: A JSON file (as :func:`save_mdc_values` writes).
+
+    Returns:
+        The values, in file order.
+
     Raises:
         InputError: the file is not a list of complete values for known parameters.
     """
@@ -150,7 +156,12 @@ def load_mdc_values(path: str | Path) -> list[MdcValue]:
 
 
 def save_mdc_values(values: Sequence[MdcValue], path: str | Path) -> None:
-    """Write MDC values as JSON (the format :func:`load_mdc_values` reads)."""
+    """Write MDC values as JSON (the format :func:`load_mdc_values` reads).
+
+    Args:
+        values: The values (SI units).
+        path: Destination file (overwritten).
+    """
     Path(path).write_text(json.dumps([asdict(v) for v in values], indent=2), encoding="utf-8")
 
 
@@ -330,7 +341,17 @@ class Progress:
     mdc_sources: list[MdcValue] = field(default_factory=list)
 
     def change(self, key: str, to: int, ref: int = 0) -> Change | None:
-        """The change of parameter ``key`` from session ``ref`` to session ``to``."""
+        """The change of parameter ``key`` from session ``ref`` to session ``to``.
+
+        Args:
+            key: Parameter key (e.g. ``"walking_speed_m_s"``).
+            to: Index of the later session.
+            ref: Index of the earlier session (0: the first; ``to - 1``: the previous).
+
+        Returns:
+            The change, or None when it was not computed (no data, or a pair other than
+            against the first or the previous session).
+        """
         for c in (*self.vs_first, *self.vs_previous):
             if c.parameter.key == key and c.to == to and c.ref == ref:
                 return c
@@ -388,6 +409,11 @@ def session_progress(
         mdc_values: published MDC95 values (b); a parameter without one gets
             "no published MDC".
         parameters: what to follow.
+
+    Returns:
+        Per parameter its value in each session and the changes against the first and
+        the previous session (difference, %, Welch's test of the trials, the MDC95
+        used).
 
     Raises:
         InputError: fewer than two sessions, or a session without trials.

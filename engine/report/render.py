@@ -575,14 +575,32 @@ def _env() -> Environment:
 
 
 def render_html(data: ReportData, *, standalone: bool = True) -> str:
-    """The report as HTML (``standalone`` adds <html>/<head>; else a fragment)."""
+    """The report as HTML.
+
+    Args:
+        data: Everything the report shows.
+        standalone: A whole page (``<html>``/``<head>``); False: a fragment for the console.
+
+    Returns:
+        The HTML text.
+    """
     ctx = build_context(data)
     ctx["standalone"] = standalone
     return _env().get_template("report.html.j2").render(**ctx)
 
 
 def render_pdf(data: ReportData) -> bytes:
-    """The same report as a tagged PDF/UA-1 document (A4, via WeasyPrint)."""
+    """The same report as a tagged PDF/UA-1 document (A4, via WeasyPrint).
+
+    Args:
+        data: Everything the report shows.
+
+    Returns:
+        The PDF bytes.
+
+    Raises:
+        RuntimeError: WeasyPrint produced an empty document.
+    """
     from weasyprint import HTML  # heavy import, only when a PDF is asked for
 
     # PDF/UA-1: a tagged PDF (structure tree in reading order, headings, tables with
@@ -595,7 +613,18 @@ def render_pdf(data: ReportData) -> bytes:
 
 
 def save_report(data: ReportData, path: str | Path) -> Path:
-    """Write the report to ``path`` (.html or .pdf, chosen by suffix)."""
+    """Write the report to ``path`` (.html or .pdf, chosen by suffix).
+
+    Args:
+        data: Everything the report shows.
+        path: Destination ``.html`` or ``.pdf`` (overwritten).
+
+    Returns:
+        ``path`` as a Path.
+
+    Raises:
+        InputError: another suffix.
+    """
     path = Path(path)
     if path.suffix.lower() == ".pdf":
         path.write_bytes(render_pdf(data))

@@ -163,8 +163,8 @@ def _missing_sections(fn: object) -> list[str]:
 
 
 #: packages whose every exported function and public method documents its arguments
-#: and its result (the others are being brought there; see docs/engine-api.md)
-DOCUMENTED = ("engine", "engine.io", "engine.imu", "engine.calibration")
+#: and its result
+DOCUMENTED = PACKAGES
 
 
 @pytest.mark.parametrize("package", DOCUMENTED)
