@@ -286,6 +286,26 @@
     } finally { $("cal-busy").hidden = true; gaitrig.release(btn); }
   });
 
+  // The edge length printed in step 1 and the one entered in step 2 must be the same
+  // markers' (a 20 cm sheet captured as 40 cm puts every sensor twice as far away), yet
+  // step 2 starts from the room's markers: a clinician changing the printed size saw step 2
+  // keep another number. Step 2 follows step 1 until it is typed in, and a difference is said.
+  let capTyped = false;
+  $("cap-size").addEventListener("input", () => { capTyped = true; sizeNote(); });
+  $("sheet-size").addEventListener("input", () => {
+    if (!capTyped && Number($("sheet-size").value) >= 2) $("cap-size").value = $("sheet-size").value;
+    sizeNote();
+  });
+  function sizeNote() {
+    const printed = Number($("sheet-size").value), entered = Number($("cap-size").value);
+    const note = $("cap-size-note");
+    const differ = printed > 0 && entered > 0 && Math.abs(printed - entered) > 1e-6;
+    const text = differ ? `Not the ${printed} cm of the sheet in step 1: if the markers on the floor are `
+      + `that sheet's, enter ${printed} here; else measure their black square.` : "";
+    if (note.textContent !== text) note.textContent = text;
+    note.hidden = !differ;
+  }
+
   // The capture form starts from the markers the server expects (the active calibration's,
   // or the simulated room's); a field the user already changed is left alone.
   async function prefill() {
@@ -294,6 +314,7 @@
     if (ids.value === ids.defaultValue) ids.value = d.marker_ids;
     if (size.value === size.defaultValue) size.value = String(Math.round(d.marker_size_m * 1000) / 10);
     $("cap-source").textContent = `Filled in from ${d.source}.`;
+    sizeNote();
   }
   prefill().catch(() => {});
   refresh().catch((e) => { $("res-summary").textContent = String(e.message || e); });

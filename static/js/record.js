@@ -62,13 +62,33 @@
     if (subjectId === null) { sel.replaceChildren(el("option", { value: "" }, "— add a subject first —")); return; }
     const ss = await api(`/api/sessions?subject_id=${subjectId}`);
     if (!sessionsSeq.current(mine)) return;
-    sel.replaceChildren(...ss.slice().reverse().map((s) => el("option", { value: s.id }, `${gaitrig.day(s.date)}${s.label ? " — " + s.label : ""} (${s.n_recordings} rec.)`)));
+    sel.replaceChildren(...ss.slice().reverse().map((s) => el("option", { value: s.id, "data-recordings": String(s.n_recordings) }, `${gaitrig.day(s.date)}${s.label ? " — " + s.label : ""} (${s.n_recordings} rec.)`)));
     if (!ss.length) sel.append(el("option", { value: "" }, "— add a session —"));
     if (want) sel.value = want;
+    suggestLabel();
+  }
+
+  // A trial without a label is listed by its id ("R20261125-035820-9256") on the Subjects
+  // and Reports pages, and the placeholder "walk 1" looked filled in but was not sent. The
+  // field holds the next walk of the session ("walk 3" after two) until it is typed in, and
+  // a label ending in a number counts on by itself after each recording.
+  let labelTyped = false;
+  $("label").addEventListener("input", () => { labelTyped = $("label").value.trim() !== ""; });
+  function suggestLabel() {
+    // (not while a recording runs: its own label stays in view until it stops)
+    if (labelTyped || !$("stop").disabled) return;
+    const o = $("session").selectedOptions[0];
+    const n = o && o.dataset.recordings !== undefined ? Number(o.dataset.recordings) : 0;
+    $("label").value = `walk ${n + 1}`;
+  }
+  function nextLabel(used) {
+    const m = /^(.*?)(\d+)$/.exec(used);
+    if (m && $("label").value.trim() === used) $("label").value = m[1] + String(Number(m[2]) + 1);
   }
 
   $("project").addEventListener("change", () => fillSubjects());
   $("subject").addEventListener("change", () => fillSessions());
+  $("session").addEventListener("change", suggestLabel);
   let typing = null;
   $("subject-q").addEventListener("input", () => {
     clearTimeout(typing);
@@ -154,6 +174,7 @@
   const chain = gaitrig.latest();
   function follow() { poll(chain.ask()); }
   let copying = null;  // id of the recording stopped here, until its copy is complete
+  let usedLabel = "";  // the trial label of the recording started here
   async function poll(mine) {
     if (!chain.current(mine) || recId === null) return;
     try {
@@ -202,6 +223,7 @@
       const r = await api(`/api/sessions/${sid}/recordings`, { method: "POST", body: JSON.stringify({
         label: $("label").value.trim(), streams, image_every: Number($("every").value) || 1 }) });
       recId = r.id; recStart = r.t_start; recStop = null; $("done-link").hidden = true;
+      usedLabel = $("label").value.trim();
       showLive(r);
       say("rec-msg", `Recording ${r.id} started on ${r.parts.map((p) => p.node_id).join(", ")}.`, true);
       $("stop").disabled = false; $("stop").focus();
@@ -215,6 +237,7 @@
       await api(`/api/recordings/${recId}/stop`, { method: "POST" });
       say("rec-msg", `Recording ${recId} stopped; the server now copies every sensor's part.`, true);
       copying = recId;
+      nextLabel(usedLabel);  // the next walk's label is ready
       // the disabled Stop dropped the keyboard focus to the page; the message takes it (not
       // Start: a second press of the key would start a new recording)
       $("rec-msg").focus();

@@ -241,12 +241,14 @@
     try { ({ items: recs, total } = await listPage(`/api/reports/recordings?limit=${SHOWN}${q ? "&q=" + encodeURIComponent(q) : ""}`)); }
     catch (e) { say("cmp-msg", e.message, true); return; }
     if (!recordingsSeq.current(mine)) return;
-    countText("recording-count", recs.length, total, q, "recordings", "the id or session label in “Find recording”");
+    countText("recording-count", recs.length, total, q, "recordings", "the trial label, session label or id in “Find recording”");
     const sel = $("recording"), was = sel.value;
     sel.replaceChildren(el("option", { value: "" }, recs.length ? "Choose a recording…" : q ? `No recording matches “${q}”` : "No recording on the server yet"));
     for (const r of recs) {
       const who = r.subject_code ? `${r.subject_code}, ${gaitrig.day(r.session_date)} ${r.session_label || ""}` : "no subject";
-      sel.append(el("option", { value: r.id }, `${r.id} — ${who} — ${plural(r.sensors.length, "sensor")}`));
+      // the clinician's own trial label ("walk 2") first: ids alone told the walks apart
+      // by their start time only
+      sel.append(el("option", { value: r.id }, `${r.label ? r.label + " — " : ""}${who} — ${r.id} — ${plural(r.sensors.length, "sensor")}`));
     }
     if (was && recs.some((r) => r.id === was)) sel.value = was;
     else if (was) recordingChanged();  // the chosen recording left the list

@@ -35,10 +35,18 @@
     } catch (e) { $("disk").textContent = "Disk usage unavailable: " + e.message; }
   }
 
+  // "Knee OA (0)" said nothing of what was counted, and stayed 0 after a subject was added
+  const projectText = (p) => `${p.name} (${gaitrig.plural(p.n_subjects, "subject")})`;
+  async function projectCounts() {
+    let ps = [];
+    try { ps = await api("/api/projects"); } catch (e) { return; }  // (the counts only)
+    const byId = new Map(ps.map((p) => [String(p.id), p]));
+    for (const o of $("project").options) if (byId.has(o.value)) o.textContent = projectText(byId.get(o.value));
+  }
   async function loadProjects(select) {
     const ps = await api("/api/projects");
     const sel = $("project");
-    sel.replaceChildren(...ps.map((p) => el("option", { value: p.id }, `${p.name} (${p.n_subjects})`)));
+    sel.replaceChildren(...ps.map((p) => el("option", { value: p.id, "data-name": p.name }, projectText(p))));
     if (!ps.length) { sel.append(el("option", { value: "" }, "— create a project first —")); projectId = null; }
     else {
       projectId = select ?? (ps.some((p) => p.id === projectId) ? projectId : ps[0].id);
@@ -85,7 +93,7 @@
     let found = [];
     try { found = (await listPage("/api/subjects/search", { q, limit: 5, bytes_on_server: false })).items; } catch (e) { return; }
     if (!subjectsSeq.current(mine) || !found.length) return;
-    const names = new Map([...$("project").options].map((o) => [Number(o.value), o.textContent]));
+    const names = new Map([...$("project").options].map((o) => [Number(o.value), o.dataset.name || o.textContent]));
     $("subjects").append(...found.map((s) => el("tr", { "data-elsewhere": s.code }, el("td", { colspan: "4", class: "hint" },
       `${s.code} is in project ${names.get(s.project_id) || s.project_id}: `,
       el("a", { href: `#subject=${s.id}`, onclick: async (ev) => {
@@ -207,12 +215,22 @@
         await loadDetail(false);
       } }, "Transfer again"));
     const confirm = el("input", { "aria-label": `type ${subject.code} to delete ${r.id}`, placeholder: `type ${subject.code}`, size: "8", autocomplete: "off" });
+    // a refusal is said beside the button pressed: written above the session's list, it was
+    // off screen for a recording further down, and the press seemed to do nothing
+    const refusal = el("span", { class: "msg bad", role: "alert" });
     acts.append(confirm, el("button", { type: "button", class: "danger small", onclick: async () => {
+      refusal.textContent = "";
+      if (confirm.value.trim() !== subject.code) {
+        refusal.textContent = `Not deleted: type ${subject.code} in the box first, then press Delete recording.`;
+        confirm.focus(); return;
+      }
       try { const d = await api(`/api/storage/recordings/${r.id}/delete`, { method: "POST", body: JSON.stringify({ confirm: confirm.value }) });
         const kept = Object.entries(d.node_copies || {}).filter(([, v]) => v !== "deleted").map(([n, v]) => `${n}: ${v}`);
-        say("session-msg", `Recording ${r.id} deleted on the server and the nodes.` + (kept.length ? ` Not yet on ${kept.join("; ")}.` : ""), true); await loadDetail(false); await loadSubjects(); }
-      catch (e) { say("session-msg", e.message); }
-    } }, "Delete recording"));
+        say("session-msg", `Recording ${r.label ? r.label + " (" + r.id + ")" : r.id} deleted on the server and the nodes.` + (kept.length ? ` Not yet on ${kept.join("; ")}.` : ""), true);
+        $("session-msg").scrollIntoView({ block: "nearest" });  // (the row pressed is gone)
+        await loadDetail(false); await loadSubjects(); }
+      catch (e) { refusal.textContent = `Not deleted: ${e.message}`; }
+    } }, "Delete recording"), refusal);
     box.append(acts);
     if (r.state === "complete" || r.parts.some((p) => p.state === "complete")) box.append(exportLinks(r));
     box.append(referenceBox(r));
@@ -329,7 +347,7 @@
     ev.preventDefault();
     if (projectId === null) { say("subject-msg", "Create a project first."); return; }
     try { const s = await api("/api/subjects", { method: "POST", body: JSON.stringify({ project_id: projectId, ...subjectBody(ev.target) }) });
-      ev.target.reset(); say("subject-msg", `Subject ${s.code} added.`, true); await select(s.id); }
+      ev.target.reset(); say("subject-msg", `Subject ${s.code} added.`, true); await select(s.id); await projectCounts(); }
     catch (e) { say("subject-msg", e.message); }
   });
   $("edit-form").addEventListener("submit", async (ev) => {

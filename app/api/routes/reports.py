@@ -309,7 +309,8 @@ def list_recordings(response: Response, user: CurrentUser, settings: SettingsDep
                     limit: LimitQ = None, offset: OffsetQ = 0) -> list[dict[str, Any]]:
     """Recordings with sensor data on the server, newest first, with their subject, a
     page at a time (``limit`` ≤ 500, default 100; ``offset``; ``X-Total-Count``
-    header); ``q`` searches the recording id and session label, ``subject_id`` keeps one
+    header); ``q`` searches the recording id, its trial label (``label``) and the session
+    label, ``subject_id`` keeps one
     subject's (a subject is found by its code with ``POST /api/subjects/search``: a code
     in a URL would be kept in access logs).
 
@@ -332,6 +333,7 @@ def list_recordings(response: Response, user: CurrentUser, settings: SettingsDep
     if needle is not None:
         pat = like_pattern(needle)
         filed = filed.where(DbSession.label.ilike(pat, escape="\\")
+                            | DbRecording.label.ilike(pat, escape="\\")
                             | DbRecording.id.ilike(pat, escape="\\"))
     if subject_id is not None:
         filed = filed.where(Subject.id == subject_id)
@@ -383,13 +385,13 @@ def _recording_links(db: Any, rec_ids: str | list[str]) -> dict[str, dict[str, A
     if not want:
         return {}
     rows = (db.query(DbRecording.id, DbRecording.state, DbSession.id, DbSession.label,
-                     DbSession.date, Subject.id, Subject.code)
+                     DbSession.date, Subject.id, Subject.code, DbRecording.label)
             .join(DbSession, DbRecording.session_id == DbSession.id)
             .join(Subject, DbSession.subject_id == Subject.id)
             .filter(DbRecording.id.in_(want)).all())
     return {r[0]: {"db_state": r[1], "session_id": r[2], "session_label": r[3],
                    "session_date": str(r[4]) if r[4] else "", "subject_id": r[5],
-                   "subject_code": r[6]} for r in rows}
+                   "subject_code": r[6], "label": r[7] or ""} for r in rows}
 
 
 @router.get("/recordings/{rec_id}/sensors")
