@@ -23,7 +23,15 @@ FloatArray = NDArray[np.float64]
 
 
 def make_transform(R: ArrayLike, t: ArrayLike) -> FloatArray:
-    """Build a 4×4 transform from a 3×3 rotation and a translation."""
+    """Build a 4×4 transform from a 3×3 rotation and a translation.
+
+    Args:
+        R: 3×3 rotation ``R_to_from``.
+        t: ``(3,)`` translation, m (the ``from`` frame's origin in the ``to`` frame).
+
+    Returns:
+        ``T_to_from`` (4×4).
+    """
     T = np.eye(4)
     T[:3, :3] = np.asarray(R, dtype=float)
     T[:3, 3] = np.asarray(t, dtype=float)
@@ -31,7 +39,14 @@ def make_transform(R: ArrayLike, t: ArrayLike) -> FloatArray:
 
 
 def invert_transform(T: ArrayLike) -> FloatArray:
-    """Inverse of a rigid transform (uses Rᵀ, exact for rotations)."""
+    """Inverse of a rigid transform (uses Rᵀ, exact for rotations).
+
+    Args:
+        T: ``(..., 4, 4)`` rigid transforms ``T_a_b``.
+
+    Returns:
+        ``(..., 4, 4)`` ``T_b_a``.
+    """
     T = np.asarray(T, dtype=float)
     R = T[..., :3, :3]
     t = T[..., :3, 3]
@@ -44,21 +59,44 @@ def invert_transform(T: ArrayLike) -> FloatArray:
 
 
 def transform_points(T: ArrayLike, points: ArrayLike) -> FloatArray:
-    """Apply ``T`` (4×4) to points of shape ``(..., 3)``. NaNs propagate."""
+    """Apply ``T`` (4×4) to points of shape ``(..., 3)``. NaNs propagate.
+
+    Args:
+        T: ``T_a_b`` (4×4).
+        points: ``(..., 3)`` points in frame ``b``, m (e.g. ``(T, J, 3)``, time first).
+
+    Returns:
+        ``(..., 3)`` the same points in frame ``a``.
+    """
     T = np.asarray(T, dtype=float)
     p = np.asarray(points, dtype=float)
     return p @ T[:3, :3].T + T[:3, 3]
 
 
 def rotation_angle(R: ArrayLike) -> FloatArray:
-    """Rotation angle (rad, in [0, π]) of rotation matrices ``(..., 3, 3)``."""
+    """Rotation angle (rad, in [0, π]) of rotation matrices ``(..., 3, 3)``.
+
+    Args:
+        R: ``(..., 3, 3)`` rotation matrices.
+
+    Returns:
+        ``(...)`` angles, rad.
+    """
     R = np.asarray(R, dtype=float)
     c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
     return np.arccos(np.clip(c, -1.0, 1.0))
 
 
 def pose_error(T_est: ArrayLike, T_true: ArrayLike) -> tuple[float, float]:
-    """Translation error (m) and rotation error (rad) between two poses."""
+    """Translation error (m) and rotation error (rad) between two poses.
+
+    Args:
+        T_est: Estimated 4×4 pose ``T_world_x``.
+        T_true: True 4×4 pose of the same frame.
+
+    Returns:
+        ``(distance between the origins in m, angle of R_est·R_trueᵀ in rad)``.
+    """
     T_est = np.asarray(T_est, dtype=float)
     T_true = np.asarray(T_true, dtype=float)
     dt = float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]))
@@ -67,13 +105,27 @@ def pose_error(T_est: ArrayLike, T_true: ArrayLike) -> tuple[float, float]:
 
 
 def skew(v: ArrayLike) -> FloatArray:
-    """Cross-product matrix ``[v]×`` of a 3-vector."""
+    """Cross-product matrix ``[v]×`` of a 3-vector.
+
+    Args:
+        v: ``(3,)`` vector.
+
+    Returns:
+        3×3 matrix with ``skew(v) @ u == np.cross(v, u)``.
+    """
     x, y, z = np.asarray(v, dtype=float)
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def so3_exp(w: ArrayLike) -> FloatArray:
-    """Rotation matrix of a rotation vector (axis × angle, rad) via Rodrigues."""
+    """Rotation matrix of a rotation vector (axis × angle, rad) via Rodrigues.
+
+    Args:
+        w: ``(3,)`` rotation vector, rad.
+
+    Returns:
+        3×3 rotation matrix (first order below 1e-12 rad).
+    """
     w = np.asarray(w, dtype=float)
     theta = float(np.linalg.norm(w))
     if theta < 1e-12:
@@ -83,7 +135,14 @@ def so3_exp(w: ArrayLike) -> FloatArray:
 
 
 def so3_log(R: ArrayLike) -> FloatArray:
-    """Rotation vector of a rotation matrix (inverse of :func:`so3_exp`)."""
+    """Rotation vector of a rotation matrix (inverse of :func:`so3_exp`).
+
+    Args:
+        R: ``(..., 3, 3)`` rotation matrices.
+
+    Returns:
+        ``(..., 3)`` rotation vectors, rad (angle in [0, π]).
+    """
     return quat_to_rotvec(quat_from_matrix(R))
 
 
@@ -92,6 +151,17 @@ def look_at(eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) 
 
     Camera frame follows the OpenCV/Kinect depth convention: +Z forward (optical axis),
     +X right in the image, +Y down in the image.
+
+    Args:
+        eye: ``(3,)`` camera centre in the world, m.
+        target: ``(3,)`` world point on the optical axis, m.
+        up: World up direction (the image's −Y points as close to it as possible).
+
+    Returns:
+        ``T_world_camera`` (4×4).
+
+    Raises:
+        InputError: the viewing direction is parallel to ``up``.
     """
     eye = np.asarray(eye, dtype=float)
     z = np.asarray(target, dtype=float) - eye
@@ -122,13 +192,28 @@ def quat_normalize(q: ArrayLike) -> FloatArray:
 
 
 def quat_conj(q: ArrayLike) -> FloatArray:
-    """Conjugate (= inverse for unit quaternions)."""
+    """Conjugate (= inverse for unit quaternions).
+
+    Args:
+        q: ``(..., 4)`` quaternions, w first.
+
+    Returns:
+        ``(..., 4)`` ``(w, −x, −y, −z)``.
+    """
     q = np.asarray(q, dtype=float)
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def quat_mul(p: ArrayLike, q: ArrayLike) -> FloatArray:
-    """Hamilton product ``p ⊗ q`` (broadcasting over leading axes)."""
+    """Hamilton product ``p ⊗ q`` (broadcasting over leading axes).
+
+    Args:
+        p: ``(..., 4)`` quaternions, w first (e.g. ``q_a_b``).
+        q: ``(..., 4)`` quaternions, w first (e.g. ``q_b_c``).
+
+    Returns:
+        ``(..., 4)`` the product (``q_a_c``).
+    """
     p = np.asarray(p, dtype=float)
     q = np.asarray(q, dtype=float)
     pw, px, py, pz = np.moveaxis(p, -1, 0)
@@ -145,7 +230,15 @@ def quat_mul(p: ArrayLike, q: ArrayLike) -> FloatArray:
 
 
 def quat_rotate(q: ArrayLike, v: ArrayLike) -> FloatArray:
-    """Rotate vectors ``v`` (..., 3) by unit quaternions ``q`` (..., 4)."""
+    """Rotate vectors ``v`` (..., 3) by unit quaternions ``q`` (..., 4).
+
+    Args:
+        q: ``(..., 4)`` unit quaternions ``q_a_b``, w first.
+        v: ``(..., 3)`` vectors in frame ``b``.
+
+    Returns:
+        ``(..., 3)`` the vectors in frame ``a`` (``q ⊗ v ⊗ q*``).
+    """
     q = np.asarray(q, dtype=float)
     v = np.asarray(v, dtype=float)
     w = q[..., :1]
@@ -231,7 +324,14 @@ def quat_to_matrix(q: ArrayLike) -> FloatArray:
 
 
 def quat_from_matrix(R: ArrayLike) -> FloatArray:
-    """Unit quaternion (w ≥ 0) of rotation matrices ``(..., 3, 3)`` (Shepperd's method)."""
+    """Unit quaternion (w ≥ 0) of rotation matrices ``(..., 3, 3)`` (Shepperd's method).
+
+    Args:
+        R: ``(..., 3, 3)`` rotation matrices.
+
+    Returns:
+        ``(..., 4)`` unit quaternions, w first, w ≥ 0.
+    """
     R = np.asarray(R, dtype=float)
     batch = R.shape[:-2]
     Rf = R.reshape(-1, 3, 3)
@@ -260,13 +360,29 @@ def quat_from_matrix(R: ArrayLike) -> FloatArray:
 
 
 def quat_angle(q: ArrayLike) -> FloatArray:
-    """Rotation angle (rad, [0, π]) of unit quaternions."""
+    """Rotation angle (rad, [0, π]) of unit quaternions.
+
+    Args:
+        q: ``(..., 4)`` quaternions, w first (normalised here).
+
+    Returns:
+        ``(...)`` angles, rad.
+    """
     q = quat_normalize(q)
     return 2.0 * np.arccos(np.clip(np.abs(q[..., 0]), 0.0, 1.0))
 
 
 def quat_slerp(q0: ArrayLike, q1: ArrayLike, u: ArrayLike) -> FloatArray:
-    """Spherical linear interpolation for ``u`` in [0, 1] (shortest path)."""
+    """Spherical linear interpolation for ``u`` in [0, 1] (shortest path).
+
+    Args:
+        q0: ``(..., 4)`` start quaternions, w first.
+        q1: ``(..., 4)`` end quaternions.
+        u: ``(...)`` interpolation fractions (0 → ``q0``, 1 → ``q1``).
+
+    Returns:
+        ``(..., 4)`` unit quaternions.
+    """
     q0 = quat_normalize(q0)
     q1 = quat_normalize(q1)
     u = np.asarray(u, dtype=float)[..., None]
@@ -289,6 +405,14 @@ def procrustes(src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None = None)
     """Rigid transform (no scale) ``T_dst_src`` minimising Σ wᵢ‖T·srcᵢ − dstᵢ‖².
 
     Kabsch/Umeyama with the reflection guard. Rows with NaN in either set are ignored.
+
+    Args:
+        src: ``(N, 3)`` points in the source frame.
+        dst: ``(N, 3)`` corresponding points in the destination frame.
+        weights: ``(N,)`` non-negative weights; None: equal.
+
+    Returns:
+        ``T_dst_src`` (4×4, ``dst ≈ T @ src``).
 
     Raises:
         InputError: fewer than three usable, non-collinear correspondences.
