@@ -77,7 +77,15 @@ def _pair(measured: ArrayLike, reference: ArrayLike) -> tuple[FloatArray, FloatA
 
 
 def pearson(measured: ArrayLike, reference: ArrayLike) -> tuple[float, float]:
-    """Pearson's r and its two-sided p-value (NaN when a variable is constant)."""
+    """Pearson's r and its two-sided p-value (NaN when a variable is constant).
+
+    Args:
+        measured: ``(n,)`` values of the system under test.
+        reference: ``(n,)`` paired reference values.
+
+    Returns:
+        ``(r, p)``.
+    """
     a, b = _pair(measured, reference)
     if np.ptp(a) == 0 or np.ptp(b) == 0:
         return float("nan"), float("nan")
@@ -90,6 +98,16 @@ def icc_a1(ratings: ArrayLike) -> float:
 
     ``(MSR − MSE) / (MSR + (k−1)·MSE + k·(MSC − MSE)/n)`` from the two-way ANOVA
     without replication.
+
+    Args:
+        ratings: ``(n_targets, k_raters)`` values; rows with NaN are left out.
+
+    Returns:
+        ICC(A,1) (NaN when the ANOVA's denominator is 0, e.g. all values equal).
+
+    Raises:
+        InputError: not a matrix with at least two raters.
+        InsufficientDataError: fewer than two complete targets.
     """
     Y = np.asarray(ratings, dtype=float)
     if Y.ndim != 2 or Y.shape[1] < 2:
@@ -110,7 +128,16 @@ def icc_a1(ratings: ArrayLike) -> float:
 
 
 def agreement(measured: ArrayLike, reference: ArrayLike) -> Agreement:
-    """All statistics of one table row for paired values."""
+    """All statistics of one table row for paired values.
+
+    Args:
+        measured: ``(n,)`` values of the system under test (SI units).
+        reference: ``(n,)`` paired reference values, same unit.
+
+    Returns:
+        n, both means and SDs, Pearson's r and p, bias, RPC, CV % and ICC(A,1)
+        (:class:`Agreement`).
+    """
     a, b = _pair(measured, reference)
     d = a - b
     sd_d = float(d.std(ddof=1))

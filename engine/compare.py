@@ -34,12 +34,17 @@ def common_joints(a: JointSet, b: JointSet, by_role: bool = False
                   ) -> tuple[list[str], NDArray[np.int64], NDArray[np.int64]]:
     """Names and indices of the joints compared between joint sets ``a`` and ``b``.
 
+    Args:
+        a: First joint set.
+        b: Second joint set.
+        by_role: Map joints by semantic role (compare e.g. Kinect v2 with Azure Kinect).
+
     Returns:
         ``(names, idx_a, idx_b)``: joint names (role names when mapped by role) and
         their indices in each set.
 
     Raises:
-        InputError: different joint sets and ``by_role`` is false.
+        InputError: different joint sets and ``by_role`` is false, or no role in common.
     """
     if a.name == b.name:
         idx = np.arange(len(a.joints), dtype=np.int64)
@@ -72,6 +77,16 @@ def frame_costs(a: ArrayLike, b: ArrayLike) -> FloatArray:
 
     Joints missing (NaN) in either frame are left out of that pair's mean; a pair with
     no joint in common costs ``inf``.
+
+    Args:
+        a: ``(N, J, 3)`` joint positions, m.
+        b: ``(M, J, 3)`` joint positions of the same joints, m.
+
+    Returns:
+        ``(N, M)`` costs, m.
+
+    Raises:
+        InputError: shapes do not match, or the matrix would be too large.
     """
     A = np.asarray(a, dtype=float)
     B = np.asarray(b, dtype=float)
@@ -213,7 +228,18 @@ class ComparisonResult:
 
 
 def similarity_score(mean_distance_m: float, scale_m: float = 0.10) -> float:
-    """``100·exp(−d/scale)``: 100 identical, 61 at 5 cm, 37 at 10 cm (module docstring)."""
+    """``100·exp(−d/scale)``: 100 identical, 61 at 5 cm, 37 at 10 cm (module docstring).
+
+    Args:
+        mean_distance_m: Mean joint distance, m.
+        scale_m: Distance at which the score is 100/e, m.
+
+    Returns:
+        The score, 0–100.
+
+    Raises:
+        InputError: ``scale_m`` not positive.
+    """
     if scale_m <= 0:
         raise InputError("scale_m must be > 0")
     return float(100.0 * np.exp(-mean_distance_m / scale_m))
@@ -278,9 +304,19 @@ def joint_distances(a: SkeletonSeries, b: SkeletonSeries, *, by_role: bool = Fal
     Each frame of ``a`` is paired with the frame of ``b`` nearest in time; pairs further
     apart than ``max_gap_s`` get NaN.
 
+    Args:
+        a: First stream (its times are kept).
+        b: Second stream, same frame and clock.
+        by_role: Map joints by role (different joint sets).
+        max_gap_s: Largest time difference of a frame pair, s.
+
     Returns:
         ``(times, joints, distances)`` with ``times`` of ``a`` (T,), the compared joint
         names and ``(T, J)`` distances in metres.
+
+    Raises:
+        InsufficientDataError: a stream has no frames.
+        InputError: joint sets that cannot be compared.
     """
     names, ia, ib = common_joints(a.joint_set, b.joint_set, by_role)
     if len(b) == 0:

@@ -148,7 +148,16 @@ class FusionReport:
 
 
 def correct_timestamps(times: FloatArray, offset_s: float, drift_ppm: float = 0.0) -> FloatArray:
-    """Node-clock times → reference times (inverse of ``offset + (1+drift)·t``)."""
+    """Node-clock times → reference times (inverse of ``offset + (1+drift)·t``).
+
+    Args:
+        times: ``(T,)`` times on the node's clock, s.
+        offset_s: The node clock's offset, s.
+        drift_ppm: Its drift, parts per million.
+
+    Returns:
+        ``(T,)`` times on the reference clock, s.
+    """
     return (np.asarray(times, dtype=float) - offset_s) / (1.0 + drift_ppm * 1e-6)
 
 
@@ -159,6 +168,11 @@ def resample_stream(stream: SensorStream, grid: FloatArray, max_gap_s: float = 0
     Vectorised over joints: for every grid time the last valid sample at or before it
     and the first valid sample after it are found from running maxima/minima of the
     valid sample indices, and the pair is interpolated when it spans ≤ ``max_gap_s``.
+
+    Args:
+        stream: The sensor's skeletons, calibration and clock model.
+        grid: ``(G,)`` output times on the reference clock, s.
+        max_gap_s: Longest gap bridged by interpolation, s.
 
     Returns:
         ``(G, J, 3)`` positions (NaN where the sensor has no estimate within
@@ -376,6 +390,18 @@ def lowpass(X: FloatArray, rate: float, cutoff_hz: float, order: int = 4) -> Flo
     """Zero-phase Butterworth low-pass along axis 0, per finite segment.
 
     Segments too short for ``filtfilt``'s padding are left unfiltered.
+
+    Args:
+        X: ``(T, ...)`` samples, time first (NaN splits segments).
+        rate: Sampling rate, Hz.
+        cutoff_hz: Cut-off frequency, Hz.
+        order: Butterworth order (doubled by the forward-backward pass).
+
+    Returns:
+        The filtered samples, same shape (NaN kept).
+
+    Raises:
+        InputError: the cut-off is not between 0 and Nyquist.
     """
     if not 0 < cutoff_hz < rate / 2:
         raise InputError(f"cut-off {cutoff_hz} Hz must be between 0 and Nyquist ({rate / 2} Hz)")

@@ -45,7 +45,18 @@ _key = label_key
 
 
 def resolve_label(labels: list[str], name: str) -> str:
-    """Match a user-given marker name (case-insensitive, subject prefix optional)."""
+    """Match a user-given marker name (case-insensitive, subject prefix optional).
+
+    Args:
+        labels: The file's marker labels.
+        name: The name given (``"LHEE"``, ``"lhee"``, ``"Subject:LHEE"`` ...).
+
+    Returns:
+        The matching label as in the file.
+
+    Raises:
+        InputError: no label matches (the message lists them).
+    """
     if name in labels:
         return name
     k = _key(name)
@@ -123,7 +134,16 @@ class FeetTrajectories:
 
 
 def fill_gaps(times: FloatArray, x: FloatArray, max_gap_s: float = MAX_GAP_S) -> FloatArray:
-    """Linear interpolation over NaN runs no longer than ``max_gap_s`` (per column)."""
+    """Linear interpolation over NaN runs no longer than ``max_gap_s`` (per column).
+
+    Args:
+        times: ``(T,)`` s.
+        x: ``(T, ...)`` samples, time first.
+        max_gap_s: Longest NaN run filled, s.
+
+    Returns:
+        A filled copy; longer runs and runs at the ends stay NaN.
+    """
     out = np.array(x, dtype=float, copy=True)
     flat = out.reshape(len(times), -1)
     for c in range(flat.shape[1]):

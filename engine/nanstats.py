@@ -39,25 +39,65 @@ def _reduce(fn: Callable[..., Any], a: ArrayLike, axis: int | tuple[int, ...] | 
 
 
 def nanmean(a: ArrayLike, axis: int | tuple[int, ...] | None = None) -> Any:
-    """``np.nanmean`` without warnings: NaN where a slice is all NaN."""
+    """``np.nanmean`` without warnings: NaN where a slice is all NaN.
+
+    Args:
+        a: Values (NaN = missing).
+        axis: Axis or axes to reduce (None: all).
+
+    Returns:
+        A float, or an array of the remaining axes.
+    """
     return _reduce(np.nanmean, a, axis)
 
 
 def nanmedian(a: ArrayLike, axis: int | tuple[int, ...] | None = None) -> Any:
-    """``np.nanmedian`` without warnings: NaN where a slice is all NaN."""
+    """``np.nanmedian`` without warnings: NaN where a slice is all NaN.
+
+    Args:
+        a: Values (NaN = missing).
+        axis: Axis or axes to reduce (None: all).
+
+    Returns:
+        A float, or an array of the remaining axes.
+    """
     return _reduce(np.nanmedian, a, axis)
 
 
 def nanstd(a: ArrayLike, axis: int | tuple[int, ...] | None = None) -> Any:
-    """``np.nanstd`` (ddof 0) without warnings: NaN where a slice is all NaN."""
+    """``np.nanstd`` (ddof 0) without warnings: NaN where a slice is all NaN.
+
+    Args:
+        a: Values (NaN = missing).
+        axis: Axis or axes to reduce (None: all).
+
+    Returns:
+        A float, or an array of the remaining axes.
+    """
     return _reduce(np.nanstd, a, axis)
 
 
 def nanmax(a: ArrayLike, axis: int | tuple[int, ...] | None = None) -> Any:
-    """``np.nanmax`` without warnings: NaN where a slice is all NaN."""
+    """``np.nanmax`` without warnings: NaN where a slice is all NaN.
+
+    Args:
+        a: Values (NaN = missing).
+        axis: Axis or axes to reduce (None: all).
+
+    Returns:
+        A float, or an array of the remaining axes.
+    """
     return _reduce(np.nanmax, a, axis)
 
 
 def nanmin(a: ArrayLike, axis: int | tuple[int, ...] | None = None) -> Any:
-    """``np.nanmin`` without warnings: NaN where a slice is all NaN."""
+    """``np.nanmin`` without warnings: NaN where a slice is all NaN.
+
+    Args:
+        a: Values (NaN = missing).
+        axis: Axis or axes to reduce (None: all).
+
+    Returns:
+        A float, or an array of the remaining axes.
+    """
     return _reduce(np.nanmin, a, axis)

@@ -80,6 +80,12 @@ def as_intrinsics(obj: object) -> CameraIntrinsics:
     """Coerce intrinsics given as :class:`CameraIntrinsics` or any object with
     ``fx, fy, cx, cy, width, height`` attributes (e.g. the simulator's) to ours.
 
+    Args:
+        obj: The intrinsics object.
+
+    Returns:
+        Our :class:`CameraIntrinsics`.
+
     Raises:
         InputError: the object lacks those attributes.
     """
@@ -102,6 +108,12 @@ def as_intrinsics(obj: object) -> CameraIntrinsics:
 def load_intrinsics_json(path: str | Path) -> CameraIntrinsics:
     """Read Open3D-style intrinsics JSON (``width``, ``height``, column-major
     ``intrinsic_matrix``).
+
+    Args:
+        path: The JSON file.
+
+    Returns:
+        The pinhole intrinsics (pixels).
 
     Raises:
         InputError: missing keys or a matrix that is not 3×3.
@@ -330,6 +342,13 @@ def project_points(points: ArrayLike, intrinsics: CameraIntrinsics) -> FloatArra
     """Pinhole projection (no distortion) of camera-frame points to pixels (N, 2).
 
     Points with z ≤ 0 project to NaN.
+
+    Args:
+        points: ``(N, 3)`` points in the camera frame (OpenCV: +Z forward), m.
+        intrinsics: The camera's pinhole intrinsics.
+
+    Returns:
+        ``(N, 2)`` pixel coordinates ``(u, v)``.
     """
     p = np.asarray(points, dtype=float).reshape(-1, 3)
     z = p[:, 2]
@@ -402,6 +421,11 @@ def voxel_downsample(
     """Average points (and colours) per cubic voxel of edge ``voxel`` metres.
 
     Pure numpy (sort-free unique on integer keys), so it runs without Open3D objects.
+
+    Args:
+        points: ``(N, 3)`` points, m.
+        voxel: Voxel edge, m.
+        colors: ``(N, 3)`` uint8 colours, or None.
 
     Returns:
         ``(points (M, 3), colours (M, 3) uint8 or None)``.
