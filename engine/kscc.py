@@ -126,6 +126,13 @@ def level_transform(frame: str | ArrayLike = "kinect", T_world_sensor: ArrayLike
                     ) -> tuple[FloatArray, FloatArray | None]:
     """``T_level_input`` (4×4, Z up) and the sensor's horizontal view axis in that frame.
 
+    Args:
+        frame: The skeleton's axes: ``"kinect"`` (Kinect SDK camera space, Y up),
+            ``"opencv"`` (a gaitrig node's sensor frame, Y down), ``"world"`` (Z up) or an
+            up vector ``(3,)`` in the input frame.
+        T_world_sensor: The sensor's 4×4 pose when known: it is then the transform
+            (``frame`` is ignored) and its optical axis the view axis.
+
     Returns:
         The transform and the unit horizontal optical axis (or ``None`` when the input
         frame says nothing about the sensor, i.e. ``frame="world"`` without a pose).
@@ -206,6 +213,15 @@ def facing_left(pose: ArrayLike, joint_set: JointSet, mode: FacingMode = "should
     visible shoulder / hip. ``None`` when the required joints are missing (both
     shoulders for ``"shoulders"``/``"arms"``) or closer than ``min_width_m`` seen from
     above.
+
+    Args:
+        pose: ``(J, 3)`` joints of one frame in the level frame (Z up), m; NaN = missing.
+        joint_set: Its joint set (roles name the joints).
+        mode: ``"shoulders"``, ``"arms"`` or ``"trunk"`` as above.
+        min_width_m: Shortest usable horizontal span, m.
+
+    Returns:
+        ``(3,)`` unit vector (z = 0), or None.
     """
     P = np.asarray(pose, dtype=float)
 
@@ -256,6 +272,9 @@ def check_metres(pose: ArrayLike) -> None:
 
     Uses the median joint distance from the median joint position, so one wild joint
     (a fitting failure) does not trigger it.
+
+    Args:
+        pose: ``(J, 3)`` joints of one frame (NaN = missing).
 
     Raises:
         InputError: the spread exceeds ``MAX_BODY_SPREAD_M``.
@@ -432,6 +451,18 @@ def find_still_window(series: SkeletonSeries, n_frames: int = N_STILL_FRAMES,
                       use_inferred: bool = True, facing: FacingMode = "arms",
                       **stillness: float) -> NDArray[np.int64]:
     """Indices of the first ``n_frames`` consecutive still frames of a recording.
+
+    Args:
+        series: The recording (time first axis, metres).
+        n_frames: Consecutive still frames required.
+        frame: The skeleton's axes (see :func:`level_transform`).
+        T_world_sensor: The sensor's pose when known.
+        use_inferred: Use INFERRED joints too.
+        facing: How the facing is measured (see :func:`facing_left`).
+        **stillness: Thresholds of :class:`StillnessCollector`.
+
+    Returns:
+        ``(n_frames,)`` frame indices into ``series``.
 
     Raises:
         InsufficientDataError: too short, or the user never stood still long enough.
@@ -772,7 +803,19 @@ def load_kscc(path: str | Path) -> KsccCalibrator:
 
 
 def kscc_calibrate(series: SkeletonSeries, **kwargs: object) -> KsccCalibrator:
-    """Batch KSCC: ``KsccCalibrator(**kwargs).fit(series)``."""
+    """Batch KSCC: ``KsccCalibrator(**kwargs).fit(series)``.
+
+    Args:
+        series: The sensor's recording with the user standing still.
+        **kwargs: :class:`KsccCalibrator` settings.
+
+    Returns:
+        The fitted calibrator.
+
+    Raises:
+        InsufficientDataError: the user never stood still long enough.
+        InputError: bad settings or a skeleton not in metres.
+    """
     return KsccCalibrator(**kwargs).fit(series)  # type: ignore[arg-type]
 
 

@@ -183,3 +183,23 @@ def test_exported_functions_document_arguments_and_result(package: str) -> None:
         elif inspect.isfunction(obj) and (gaps := _missing_sections(obj)):
             problems.append(f"{package}.{name}: no {gaps}")
     assert not problems, "\n".join(problems)
+
+
+def test_every_modules_all_is_current() -> None:
+    """Modules that declare their own ``__all__`` (``engine.kscc``, ``engine.coverage``
+    ...) list only names they define, each documented."""
+    import inspect
+    import pkgutil
+
+    problems = []
+    for info in pkgutil.walk_packages(engine.__path__, "engine."):
+        mod = importlib.import_module(info.name)
+        for name in getattr(mod, "__all__", ()):
+            if not hasattr(mod, name):
+                problems.append(f"{info.name}.__all__ names {name}, which it does not define")
+                continue
+            obj = getattr(mod, name)
+            if (inspect.isfunction(obj) or inspect.isclass(obj)) and not (
+                    obj.__doc__ or "").strip():
+                problems.append(f"{info.name}.{name} has no docstring")
+    assert not problems, "\n".join(problems)
