@@ -114,7 +114,18 @@ SensorLike = SensorSpec | tuple  # (id, T_world_sensor, fov_h, fov_v, min_range,
 
 
 def as_sensor(s: SensorLike) -> SensorSpec:
-    """Accept a :class:`SensorSpec` or an ``(id, T, fov_h, fov_v, min_r, max_r)`` tuple."""
+    """Accept a :class:`SensorSpec` or an ``(id, T, fov_h, fov_v, min_r, max_r)`` tuple.
+
+    Args:
+        s: The sensor: a spec, or a tuple of id, ``T_world_sensor`` (4×4), horizontal and
+            vertical field of view (deg) and depth range (m).
+
+    Returns:
+        The :class:`SensorSpec`.
+
+    Raises:
+        InputError: a tuple of another shape or a bad pose.
+    """
     if isinstance(s, SensorSpec):
         return s
     if isinstance(s, tuple) and len(s) == 6:
@@ -166,6 +177,23 @@ def avenue_rig(n_rows: int = 3, row_spacing_m: float = 2.5, width_m: float = 2.0
     along +X) rotated ``inward_deg`` towards the walkway centre line and pitched by
     ``pitch_deg``. Defaults and ids (``S1``… with odd ids on +Y, the left of a walker
     going +X) match the simulated lab's default rig (``engine.sim.rig``).
+
+    Args:
+        n_rows: Rows of two sensors.
+        row_spacing_m: Distance between rows along X, m.
+        width_m: Distance between a row's two sensors, m.
+        inward_deg: Turn towards the centre line, degrees.
+        height_m: Sensor height above the floor, m.
+        pitch_deg: Pitch, degrees (negative: down).
+        first_row_x_m: X of the first row, m.
+        facing: ``-1`` or ``+1``: the optical axes' direction along X.
+        model: A ``SENSOR_MODELS`` key (field of view, range).
+
+    Returns:
+        The sensors, ``S1`` ... in row order.
+
+    Raises:
+        InputError: ``n_rows`` < 1 or ``facing`` not ±1.
     """
     if n_rows < 1 or facing not in (-1, 1):
         raise InputError("avenue_rig: need n_rows ≥ 1 and facing ±1")
@@ -186,6 +214,15 @@ def sensors_from_rig(rig: object) -> list[SensorSpec]:
 
     Duck-typed: needs ``rig.sensors`` with ``id``, ``T_world_sensor`` and a ``model``
     carrying ``depth_hfov_deg``, ``depth_vfov_deg``, ``range_min_m``, ``range_max_m``.
+
+    Args:
+        rig: The rig.
+
+    Returns:
+        One :class:`SensorSpec` per sensor, in rig order.
+
+    Raises:
+        InputError: the rig has no sensors.
     """
     out = []
     for s in getattr(rig, "sensors", []):
@@ -358,6 +395,14 @@ def active_area_polygon(sensor: SensorLike, body_height_m: float = 1.8,
     sees a whole standing body — the active area to draw on the floor of the 3D view.
 
     Returns an empty ``(0, 3)`` array when there is no such spot (e.g. tilted too far).
+
+    Args:
+        sensor: The placed sensor (spec or tuple, see :func:`as_sensor`).
+        body_height_m: Height of the standing body, m.
+        body_radius_m: Its radius, m.
+
+    Returns:
+        ``(K, 3)`` world polygon, m (z = 0).
     """
     s = as_sensor(sensor)
     A, b = _frustum_halfspaces(s)
@@ -412,7 +457,19 @@ def active_area_trapezoid(height_m: float, vfov_deg: float, hfov_deg: float,
 
 
 def preset_trapezoid(model: str, height_m: float = 1.0, **kwargs: float) -> Trapezoid:
-    """:func:`active_area_trapezoid` for a ``SENSOR_MODELS`` preset."""
+    """:func:`active_area_trapezoid` for a ``SENSOR_MODELS`` preset.
+
+    Args:
+        model: A ``SENSOR_MODELS`` key (e.g. ``"kinect_v2"``).
+        height_m: Sensor height above the floor, m.
+        **kwargs: Further :func:`active_area_trapezoid` arguments.
+
+    Returns:
+        The trapezoid (m).
+
+    Raises:
+        InputError: unknown model.
+    """
     if model not in SENSOR_MODELS:
         raise InputError(f"unknown sensor model {model!r}; known: {sorted(SENSOR_MODELS)}")
     m = SENSOR_MODELS[model]
@@ -610,7 +667,24 @@ class CoverageModel:
 def coverage_map(sensors: Iterable[SensorLike], grid: Grid | tuple, body_height_m: float = 1.8,
                  body_radius_m: float = 0.2, walkway_axis: ArrayLike = (1.0, 0.0),
                  min_side_angle_deg: float = 5.0) -> CoverageMap:
-    """One-shot coverage map; see :class:`CoverageModel` for the arguments."""
+    """One-shot coverage map; see :class:`CoverageModel` for the arguments.
+
+    Args:
+        sensors: The placed sensors (specs or tuples, see :func:`as_sensor`).
+        grid: The floor grid, or ``(x0, x1, y0, y1, cell)`` in metres.
+        body_height_m: Height of the standing body, m.
+        body_radius_m: Its radius, m.
+        walkway_axis: Walking direction on the floor ``(x, y)`` (two-sided coverage is
+            judged across it).
+        min_side_angle_deg: Smallest angle off the walkway axis for a sensor to count as
+            seeing one side.
+
+    Returns:
+        Per floor cell the number of sensors seeing a whole standing body.
+
+    Raises:
+        InputError: a bad grid or sensor.
+    """
     return CoverageModel(sensors, grid, body_height_m, body_radius_m, walkway_axis,
                          min_side_angle_deg).map()
 
@@ -640,8 +714,15 @@ def coverage_image(cmap: CoverageMap, pixels_per_cell: int = 4) -> NDArray[np.ui
     count (6 or more share the darkest colour); two-sided cells carry a white diagonal
     hatch (every fourth pixel diagonal).
 
+    Args:
+        cmap: The coverage map.
+        pixels_per_cell: Image pixels per grid cell.
+
     Returns:
         ``(Ny·ppc, Nx·ppc, 3)`` uint8 image.
+
+    Raises:
+        InputError: ``pixels_per_cell`` < 1.
     """
     if pixels_per_cell < 1:
         raise InputError("pixels_per_cell must be ≥ 1")
@@ -680,7 +761,15 @@ class PlacementRow:
 
 
 def placement_table(sensors: Iterable[SensorLike]) -> list[PlacementRow]:
-    """Rows for a printed placement sheet, one per sensor, in the given order."""
+    """Rows for a printed placement sheet, one per sensor, in the given order.
+
+    Args:
+        sensors: The placed sensors (specs or tuples, see :func:`as_sensor`).
+
+    Returns:
+        Per sensor its distance (m) and bearing (deg) from marker 1 (the world origin),
+        height (m), yaw and pitch (deg).
+    """
     rows = []
     for s in map(as_sensor, sensors):
         t = s.T_world_sensor[:3, 3]
@@ -694,7 +783,14 @@ def placement_table(sensors: Iterable[SensorLike]) -> list[PlacementRow]:
 
 
 def format_placement_table(rows: Sequence[PlacementRow]) -> str:
-    """Plain-text table (cm and degrees, for people) of :func:`placement_table` rows."""
+    """Plain-text table (cm and degrees, for people) of :func:`placement_table` rows.
+
+    Args:
+        rows: The rows.
+
+    Returns:
+        The table, one line per sensor under a header and a rule.
+    """
     head = (f"{'sensor':<10}{'dist cm':>9}{'bearing °':>11}{'height cm':>11}{'yaw °':>8}"
             f"{'pitch °':>9}")
     lines = [head, "-" * len(head)]
