@@ -43,7 +43,17 @@ class MarkerEvent:
 
 
 def normalise_event(label: str, context: str, time_s: float) -> MarkerEvent:
-    """Map a file's event label/context to a :class:`MarkerEvent`."""
+    """Map a file's event label/context to a :class:`MarkerEvent`.
+
+    Args:
+        label: The event's label (``"Foot Strike"``, ``"Heel Strike"``, ``"Toe Off"`` ...).
+        context: Its context (``"Left"``, ``"Right"``; anything else: no side).
+        time_s: Its time, s.
+
+    Returns:
+        The event with kind ``foot_strike``, ``foot_off``, ``placement`` or the label in
+        snake case, and side ``L``, ``R`` or ``""``.
+    """
     ctx = context.strip().lower()
     side = "L" if ctx.startswith("l") else "R" if ctx.startswith("r") else ""
     key = re.sub(r"[^a-z]", "", label.lower())
@@ -150,6 +160,13 @@ def check_time_unit(times: NDArray[np.float64], name: str) -> None:
     Gait needs at least a few samples per second, so a median frame step of more than
     half a second means another unit: without this the analysis would only say that no
     walking was found.
+
+    Args:
+        times: ``(T,)`` the file's time column.
+        name: The file's name, for the message.
+
+    Raises:
+        InputError: a median step above 0.5 (the message names the likely unit).
     """
     if len(times) > 1:
         dt = float(np.median(np.diff(times)))
@@ -170,6 +187,12 @@ def normalise_units(units: str) -> str | None:
     Exporters write the unit in any case, padded, in brackets or spelled out
     (``"MM"``, ``" mm"``, ``"[mm]"``, ``"Millimeter"``, ``"metres"``); None for an empty
     or unknown string (the caller then guesses the unit from the body size).
+
+    Args:
+        units: The file's unit string.
+
+    Returns:
+        ``"mm"``, ``"cm"``, ``"dm"``, ``"m"`` or None.
     """
     u = units.strip().strip("[]()").strip().rstrip(".").lower()
     u = _UNIT_WORDS.get(u.removesuffix("s") if len(u) > 2 else u, u)
@@ -219,9 +242,23 @@ def unit_scale(units: str) -> float:
 
 
 def file_units(units: str, positions: ArrayLike, labels: list[str]) -> str:
-    """The unit of a file's numbers: its header's, normalised (:func:`normalise_units`),
-    or guessed from the body size (:func:`detect_units`) when the header gives none or
-    one that is not a length unit (``--units`` then overrides it)."""
+    """The unit of a file's numbers: its header's, or guessed from the body size.
+
+    The header's unit is normalised (:func:`normalise_units`); the body size decides
+    (:func:`detect_units`) when the header gives none or one that is not a length unit
+    (``--units`` then overrides it).
+
+    Args:
+        units: The header's unit string.
+        positions: ``(T, M, 3)`` marker positions in that unit.
+        labels: The ``M`` marker labels.
+
+    Returns:
+        ``"mm"``, ``"cm"``, ``"dm"`` or ``"m"``.
+
+    Raises:
+        InputError: no unit in the header and too few markers to guess one.
+    """
     return normalise_units(units) or detect_units(positions, labels)
 
 
@@ -250,13 +287,29 @@ _SIDE_TOKENS = {"L": ("l", "left", "lt"), "R": ("r", "right", "rt")}
 
 
 def label_key(label: str) -> str:
-    """Bare, lower-case, alphanumeric form of a label (``Subject:`` prefix removed)."""
+    """Bare, lower-case, alphanumeric form of a label (``Subject:`` prefix removed).
+
+    Args:
+        label: A marker label (``"Sub01:L_Heel"``).
+
+    Returns:
+        The key (``"lheel"``).
+    """
     return re.sub(r"[^a-z0-9]", "", label.split(":")[-1].lower())
 
 
 def side_part_keys(side: str, stem: str) -> list[str]:
-    """The label keys (:func:`label_key`) naming ``stem`` on ``side``, in order: side
-    token before or after the stem, then with a :data:`PART_QUALIFIERS` word."""
+    """The label keys (:func:`label_key`) naming ``stem`` on ``side``, in order.
+
+    Side token before or after the stem, then with a :data:`PART_QUALIFIERS` word.
+
+    Args:
+        side: ``"L"`` or ``"R"``.
+        stem: A part's stem (``"hee"``, ``"ank"`` ...).
+
+    Returns:
+        The candidate keys, most likely first.
+    """
     ks: list[str] = []
     for q in ("",) + (PART_QUALIFIERS if len(stem) > 2 else ()):
         for tok in _SIDE_TOKENS[side]:
@@ -267,8 +320,17 @@ def side_part_keys(side: str, stem: str) -> list[str]:
 
 
 def find_marker(labels: list[str], side: str, part: str) -> str | None:
-    """Label of the ``part`` (a :data:`PART_STEMS` key: ``ankle``, ``heel``, ``toe``,
-    ``asis``, ``psis``, ``hip``) marker of ``side`` (``L``/``R``), or None."""
+    """Label of the ``part`` marker of ``side``, or None.
+
+    Args:
+        labels: The file's marker labels.
+        side: ``"L"`` or ``"R"``.
+        part: A :data:`PART_STEMS` key: ``ankle``, ``heel``, ``toe``, ``asis``, ``psis``,
+            ``hip``.
+
+    Returns:
+        The label as in the file, or None when no label names that part.
+    """
     keys = [label_key(lab) for lab in labels]
     for stem in PART_STEMS[part]:
         for k in side_part_keys(side, stem):
@@ -296,6 +358,16 @@ def characteristic_length(positions: ArrayLike, labels: list[str]) -> float:
 
     Leg length (pelvis markers to foot markers) when both are labelled, else the median
     over frames of the largest marker extent along any axis (≈ body height).
+
+    Args:
+        positions: ``(T, M, 3)`` marker positions, file units.
+        labels: The ``M`` marker labels.
+
+    Returns:
+        The length, file units.
+
+    Raises:
+        InputError: no frame with two or more markers.
     """
     P = np.asarray(positions, dtype=float)
     up = _group(labels, _UPPER_KEYS)
@@ -339,8 +411,17 @@ def detect_units(positions: ArrayLike, labels: list[str]) -> str:
 
 
 def labelled_vertical_axis(positions: ArrayLike, labels: list[str]) -> str | None:
-    """Vertical axis (with sign) along which labelled pelvis/head markers sit furthest
-    above labelled foot markers, or None when the set lacks either group."""
+    """Vertical axis told by labelled markers: the one along which pelvis/head sit above feet.
+
+    Args:
+        positions: ``(T, M, 3)`` marker positions.
+        labels: The ``M`` marker labels.
+
+    Returns:
+        The axis with sign (``"z"``, ``"-y"`` ...) along which the labelled pelvis/head
+        markers sit furthest above the labelled foot markers, or None when the set lacks
+        either group.
+    """
     P = np.asarray(positions, dtype=float)
     up = _group(labels, _UPPER_KEYS)
     feet = _group(labels, _FOOT_KEYS)
@@ -413,6 +494,10 @@ def floor_axis(positions: ArrayLike, labels: list[str]) -> int | None:
     of the still samples, pooled per kind over both feet. Unlike body shape or travel
     this holds for feet-only files and whatever the heading (a walk along an axis once
     made the lateral axis pass for the vertical one).
+
+    Args:
+        positions: ``(T, M, 3)`` marker positions.
+        labels: The ``M`` marker labels.
 
     Returns:
         None without a left/right pair of one kind or with too few still samples.
