@@ -190,7 +190,17 @@ def _agree(a: FloatArray, b: FloatArray) -> float:
 
 
 def sensor_labels(path: str | Path) -> list[str]:
-    """The trackers of an MVNX export, in file order (``<sensors>`` labels)."""
+    """The trackers of an MVNX export, in file order (``<sensors>`` labels).
+
+    Args:
+        path: The ``.mvnx`` file.
+
+    Returns:
+        The tracker labels (e.g. ``"Pelvis"``, ``"RightLowerLeg"``).
+
+    Raises:
+        InputError: not an MVNX file, or damaged XML.
+    """
     return list(_read(Path(path))["sensors"])
 
 
@@ -198,6 +208,13 @@ def load_mvnx_all(path: str | Path) -> dict[str, ImuRecording]:
     """Every tracker of an Xsens MVNX export as its own recording (label -> recording).
 
     See the module docstring for what is read and how the readings are rebuilt.
+
+    Args:
+        path: The ``.mvnx`` file.
+
+    Returns:
+        Tracker label -> recording (SI units, time first axis, sensor frame;
+        ``quat_ref`` sensor-to-ENU).
 
     Raises:
         InputError: not an MVNX file, damaged XML, no sensor data in the export (a

@@ -147,8 +147,18 @@ class PlankCalibration:
 
 
 def interp_quat(times: FloatArray, q: FloatArray, t: ArrayLike) -> FloatArray:
-    """Slerp a ``(T, 4)`` quaternion series sampled at ``times`` at the times ``t``
-    (clamped to the series' span)."""
+    """Slerp a ``(T, 4)`` quaternion series sampled at ``times`` at the times ``t``.
+
+    Times outside the series' span are clamped to its ends.
+
+    Args:
+        times: ``(T,)`` increasing sample times, s.
+        q: ``(T, 4)`` unit quaternions, w first.
+        t: ``(N,)`` query times, s.
+
+    Returns:
+        ``(N, 4)`` unit quaternions.
+    """
     tq = np.clip(np.asarray(t, dtype=float), times[0], times[-1])
     i = np.clip(np.searchsorted(times, tq, side="right") - 1, 0, len(times) - 2)
     u = (tq - times[i]) / (times[i + 1] - times[i])
@@ -203,7 +213,14 @@ def plank_calibration(
 
 
 def delta_quaternions(q: ArrayLike) -> FloatArray:
-    """Per-sample rotation increments Δq_{t+1} = q_t* ⊗ q_{t+1} (eq. 5), ``(T-1, 4)``."""
+    """Per-sample rotation increments Δq_{t+1} = q_t* ⊗ q_{t+1} (eq. 5).
+
+    Args:
+        q: ``(T, 4)`` orientations, w first (time first axis).
+
+    Returns:
+        ``(T-1, 4)`` increments, each in the frame of the earlier sample.
+    """
     qq = np.asarray(q, dtype=float)
     return quat_mul(quat_conj(qq[:-1]), qq[1:])
 

@@ -38,6 +38,13 @@ Q_ENU_NWU: FloatArray = np.array([np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)])
 def as_sensor_array(x: ArrayLike, name: str) -> FloatArray:
     """Return ``x`` as a float ``(T, S, 3)`` array (a ``(T, 3)`` input becomes ``S = 1``).
 
+    Args:
+        x: ``(T, 3)`` or ``(T, S, 3)`` samples.
+        name: Its name, for the message.
+
+    Returns:
+        ``(T, S, 3)`` float array.
+
     Raises:
         InputError: wrong shape.
     """
@@ -53,6 +60,14 @@ def sensor_inputs(gyr: ArrayLike, acc: ArrayLike, mag: ArrayLike | None
                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Gyroscope, accelerometer and magnetometer as ``(T, S, 3)`` arrays of one shape
     (magnetometer zeros when absent).
+
+    Args:
+        gyr: ``(T, 3)`` or ``(T, S, 3)`` angular rate, rad/s.
+        acc: Accelerometer, same shape.
+        mag: Magnetometer, same shape, or None.
+
+    Returns:
+        ``(gyr, acc, mag)`` as ``(T, S, 3)`` float arrays.
 
     Raises:
         InputError: the three do not have the same shape.

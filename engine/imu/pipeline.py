@@ -74,6 +74,16 @@ def find_plank_time(
     """Middle of the first period (≥ ``min_duration``) where every sensor rests and all
     sensors show the same tilt — the plank pose.
 
+    Args:
+        times: ``(T,)`` common time grid, s.
+        orientations: Sensor name -> ``(T, 4)`` filter output (sensor-to-earth).
+        rest: Sensor name -> ``(T,)`` rest flags of the filter.
+        max_spread_deg: Largest tilt disagreement between sensors, degrees.
+        min_duration: Shortest period, s.
+
+    Returns:
+        The plank time, s.
+
     Raises:
         InsufficientDataError: no such period.
     """

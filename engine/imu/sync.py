@@ -154,6 +154,18 @@ def imu_jump_spikes(rec: ImuRecording, n_jumps: int = 5, min_interval: float = 0
     after each flight; the ``n_jumps`` consecutive flights of shortest total span are the
     series. Without enough flights (e.g. a clipped or heavily filtered recording) the
     ``n_jumps`` highest acceleration peaks are used (:func:`detect_spikes`).
+
+    Args:
+        rec: The recording (SI units).
+        n_jumps: Jumps performed.
+        min_interval: Shortest time between landings, s.
+        min_flight: Shortest free fall counted as a jump's flight, s.
+
+    Returns:
+        ``(n_jumps,)`` landing times on the IMU's own clock, s.
+
+    Raises:
+        InsufficientDataError: fewer than ``n_jumps`` landings or peaks found.
     """
     ok = np.all(np.isfinite(rec.acc), axis=1)
     t = rec.time[ok]
@@ -197,6 +209,10 @@ def torso_height(
     relative to its own median so that a joint missing in some frames does not step the
     mean) on a uniform grid at the median frame rate.
 
+    Args:
+        skeleton: The depth skeleton (world frame, metres).
+        up: The world's up direction.
+
     Returns:
         ``(times, height)`` (s, m).
 
@@ -228,6 +244,11 @@ def torso_vertical_acceleration(
 
     The torso height is resampled to the median frame rate and differentiated twice with a
     Savitzky-Golay filter (cubic, ``window`` seconds), which smooths depth-sensor noise.
+
+    Args:
+        skeleton: The depth skeleton (world frame, metres).
+        up: The world's up direction.
+        window: Savitzky-Golay window, s.
 
     Returns:
         ``(times, acc)``: uniform time grid (s) and vertical acceleration (m/s²).
