@@ -32,6 +32,15 @@ class NodeWarningOut(BaseModel):
     repeats: int = Field(description="How many times it was raised.")
 
 
+class NodeLensOut(BaseModel):
+    """The lenses a node announced when it connected (``sensor_lens``, docs/backbone.md)."""
+
+    source: str = Field(description="Where they come from (\"factory calibration\").")
+    depth_dist: list[float] | None = Field(
+        description="OpenCV distortion of the depth camera ([]: none; null: not reported).")
+    color_dist: list[float] | None = Field(description="The same for the colour camera.")
+
+
 class NodeHealth(BaseModel):
     """Health of one node (times in server seconds since the epoch)."""
 
@@ -67,6 +76,10 @@ class NodeHealth(BaseModel):
         "first (at most 5 distinct texts; a repeat updates its entry).")
     node_warnings_dropped: int = Field(
         default=0, description="Warnings the node sent beyond the server's rate limit.")
+    lens: NodeLensOut | None = Field(
+        default=None, description="The lenses the node announced; null: none reported (an "
+        "older node, a replay): the live view draws it as a pinhole camera unless a "
+        "calibration recorded its lens.")
     diag: dict[str, float] = Field(default_factory=dict)
 
 

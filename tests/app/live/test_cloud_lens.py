@@ -176,13 +176,99 @@ def test_live_cloud_of_simulated_nodes_with_a_depth_lens(
     assert np.percentile(np.abs(pinhole[:, 2]), 99) > 0.03
 
 
+def test_live_lens_source_calibration_when_it_fits_else_the_announced_one(
+        tmp_path: Path) -> None:
+    """Which depth lens the live cloud uses per node: the active calibration's while the
+    node reports the K it was calibrated with, else the lens the node announced
+    (``sensor_lens``), else none; an announced lens the ray table cannot model (tilted)
+    is not used."""
+    from app.nodes.protocol import CameraLens, SensorInfo, SensorLens
+    from app.server import calibration as cal
+    from app.server.registry import NodeRegistry
+    from app.viewer.live import LiveServices
+    from engine.calibration.pipeline import CalibrationResult
+
+    K = [[365.0, 0.0, 255.5], [0.0, 365.0, 211.5], [0.0, 0.0, 1.0]]
+    K_other = [[380.0, 0.0, 255.5], [0.0, 380.0, 211.5], [0.0, 0.0, 1.0]]
+    factory = (-0.1, 0.02, 0.0, 0.0, 0.0)
+    tilted = [0.1] + [0.0] * 11 + [0.01, 0.0]
+
+    async def send(_raw: str) -> None:
+        return None
+
+    # S1: calibrated with LENS at the K it reports; S2: calibrated, but at another K (a
+    # swapped device); S3: not calibrated; S4: not calibrated, a tilted lens; S5: none
+    cameras = {sid: {"depth": {"size": [512, 424], "K": Kc, "dist": list(LENS)}}
+               for sid, Kc in (("S1", K), ("S2", K_other))}
+    poses = {sid: np.eye(4) for sid in ("S1", "S2")}
+    cal.save(tmp_path, CalibrationResult(poses, poses, {1: np.eye(4)}, {1: 0.4},
+                                         {s: 0.001 for s in poses}, [], [],
+                                         meta={"cameras": cameras}))
+    registry = NodeRegistry()
+    hub = SimpleNamespace(registry=registry, settings=SimpleNamespace(data_dir=tmp_path))
+    live = LiveServices(hub, None)  # type: ignore[arg-type]
+    sensor = SensorInfo(depth_K=K, depth_size=(512, 424), T_world_sensor=np.eye(4).tolist())
+    for sid, dist in (("S1", factory), ("S2", factory), ("S3", factory), ("S4", tilted),
+                      ("S5", None)):
+        s = registry.connect(sid, "k4a", sensor, send, True)
+        live._on_nodes(s)
+        # before its announcement: the calibration's lens where it fits, else none
+        assert live._depth_lens.get(sid) == (LENS if sid == "S1" else None)
+        if dist is not None:
+            s.lens = SensorLens(source="factory calibration",
+                                depth=CameraLens(size=(512, 424), K=K, dist=list(dist)))
+            live._on_nodes(s)  # as the hub calls the listeners on an announcement
+    assert live._depth_lens == {"S1": LENS, "S2": factory, "S3": factory}
+    # a reconnection (an older agent, announcing nothing) forgets the announced lens
+    live._on_nodes(registry.connect("S3", "k4a", sensor, send, True))
+    assert "S3" not in live._depth_lens and live._depth_lens["S1"] == LENS
+
+
 def test_server_live_cloud_of_lens_node_processes_is_flat(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """End to end: a server with the 3D view on (the active calibration recorded the
     nodes' depth lens), two simulated node processes on loopback rendering their depth
     through that lens, a 3D-view client connected through the login proxy: the clouds the
     server draws put the floor both sensors see flat (|z| median 0.3 mm, 99th percentile
-    1.9 mm; with the calibration's lens left out, as before: 13 mm and 57 mm)."""
+    1.9 mm; with the calibration's lens left out, as before nodes announced theirs: 13 mm
+    and 57 mm). Without a calibration the nodes' announced lens does it
+    (``tests/integration/test_node_lens.py``)."""
+    from app.server import calibration as cal
+    from engine.calibration.pipeline import CalibrationResult
+    from engine.sim.rig import default_avenue_rig
+
+    rig = default_avenue_rig(0)
+    poses = {s: rig.sensor(s).T_world_sensor for s in LENS_NODES}
+    m = rig.sensor("S1").model
+    cameras = {s: {"depth": {"size": [m.depth_width, m.depth_height],
+                             "K": m.depth_intrinsics().tolist(), "dist": list(LENS)}}
+               for s in LENS_NODES}
+    cal.save(tmp_path, CalibrationResult(poses, poses, {1: np.eye(4)}, {1: 0.4},
+                                         {s: 0.001 for s in LENS_NODES}, [], [],
+                                         meta={"cameras": cameras}))
+    z, lens_of, _ = live_floor_of_lens_nodes(tmp_path, monkeypatch)
+    assert lens_of == dict.fromkeys(LENS_NODES, LENS)
+    assert np.median(z) < 0.003 and np.percentile(z, 99) < 0.01, np.percentile(z, [50, 95, 99])
+
+
+#: the simulated nodes of :func:`live_floor_of_lens_nodes`
+LENS_NODES = ("S1", "S2")
+
+
+def live_floor_of_lens_nodes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                             env: dict[str, str] | None = None
+                             ) -> tuple[np.ndarray, dict[str, tuple[float, ...]],
+                                        list[dict[str, object]]]:
+    """Run a server with the 3D view on (data in ``tmp_path``: a calibration saved there
+    is the active one) and the simulated node processes :data:`LENS_NODES`, rendering their
+    depth through :data:`LENS` (``env`` adds to their environment), with a 3D-view client
+    connected through the login proxy, until the server drew each node's cloud.
+
+    Returns:
+        ``|z|`` (m) of the floor points the server drew (each node's own voxels, away from
+        the walls; of frames with their body mask), the depth lens each node's cloud was
+        drawn with, and ``GET /api/nodes`` while the nodes were connected.
+    """
     import os
     import socket
     import subprocess
@@ -197,31 +283,34 @@ def test_server_live_cloud_of_lens_node_processes_is_flat(
 
     from app.config import Settings
     from app.main import create_app
-    from app.server import calibration as cal
     from app.viewer import live as live_mod
     from app.viewer.scene import sensor_color
-    from engine.calibration.pipeline import CalibrationResult
     from engine.sim.rig import default_avenue_rig
     from tests.app.test_viewer import _camera_message
 
     rig = default_avenue_rig(0)
-    ids = ("S1", "S2")
-    poses = {s: rig.sensor(s).T_world_sensor for s in ids}
-    m = rig.sensor("S1").model
-    cameras = {s: {"depth": {"size": [m.depth_width, m.depth_height],
-                             "K": m.depth_intrinsics().tolist(), "dist": list(LENS)}}
-               for s in ids}
-    cal.save(tmp_path, CalibrationResult(poses, poses, {1: np.eye(4)}, {1: 0.4},
-                                         {s: 0.001 for s in ids}, [], [],
-                                         meta={"cameras": cameras}))
+    ids = LENS_NODES
     drawn: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    draw = live_mod.populate_cloud
+    draw, merge = live_mod.populate_cloud, live_mod.merge_depth_views
+    # node colour → its last view: had a body mask, its depth lens
+    masked: dict[tuple[int, ...], tuple[bool, tuple[float, ...]]] = {}
+    lens_of: dict[str, tuple[float, ...]] = {}
+
+    def merge_spy(views: list[DepthView], *args: object) -> object:
+        masked[tuple(views[0].color)] = (views[0].highlight is not None, views[0].dist)
+        return merge(views, *args)  # type: ignore[arg-type]
 
     def spy(server: object, node_id: str, pts: np.ndarray, cols: np.ndarray,
             visible: bool = True) -> object:
-        drawn[node_id] = (pts.copy(), cols.copy())
+        # a depth frame whose body index came too late (streaming.PAIR_WAIT_S, a loaded
+        # machine) draws the walker in the sensor's colour: not the floor's to measure
+        has_mask, dist = masked.get(tuple(sensor_color(node_id)), (False, ()))
+        if has_mask:
+            drawn[node_id] = (pts.copy(), cols.copy())
+            lens_of[node_id] = dist
         return draw(server, node_id, pts, cols, visible)  # type: ignore[arg-type]
 
+    monkeypatch.setattr(live_mod, "merge_depth_views", merge_spy)
     monkeypatch.setattr(live_mod, "populate_cloud", spy)
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -234,9 +323,10 @@ def test_server_live_cloud_of_lens_node_processes_is_flat(
     thread.start()
     env = {**os.environ, "GAITRIG_NODE_TOKEN": "tok-tok-tok", "PYTHONUNBUFFERED": "1",
            "GAITRIG_NODE_MIN_FREE_GB": "0", "GAITRIG_NODE_MIN_FREE_PERCENT": "0",
-           "GAITRIG_TEST_SIM_DEPTH_DIST": ",".join(str(x) for x in LENS)}
+           "GAITRIG_TEST_SIM_DEPTH_DIST": ",".join(str(x) for x in LENS), **(env or {})}
     procs: list[subprocess.Popen[bytes]] = []
     stop = threading.Event()
+    nodes: list[dict[str, object]] = []
     try:
         deadline = time.monotonic() + 30
         while not server.started and time.monotonic() < deadline:
@@ -273,6 +363,8 @@ def test_server_live_cloud_of_lens_node_processes_is_flat(
                 (tmp_path / f"{s}.log").read_text(errors="replace")[-2000:] for s in ids]
             time.sleep(0.2)
         assert set(drawn) == set(ids), f"clouds drawn: {sorted(drawn)}"
+        nodes = httpx.get(f"http://127.0.0.1:{port}/api/nodes", timeout=10,
+                          headers={"Authorization": f"Bearer {token}"}).json()
     finally:
         stop.set()
         for p in procs:
@@ -292,5 +384,4 @@ def test_server_live_cloud_of_lens_node_processes_is_flat(
         inner = ((pts[:, :2] > lo) & (pts[:, :2] < hi)).all(axis=1) & (np.abs(pts[:, 2]) < 0.2)
         assert (own & inner).sum() > 300, sid
         floor.append(pts[own & inner, 2])
-    z = np.abs(np.concatenate(floor))
-    assert np.median(z) < 0.003 and np.percentile(z, 99) < 0.01, np.percentile(z, [50, 95, 99])
+    return np.abs(np.concatenate(floor)), lens_of, nodes
