@@ -187,6 +187,11 @@ def fit_plane(
 ) -> tuple[FloatArray, float, NDArray[np.bool_]] | None:
     """Robust plane through ``points`` (N, 3): RANSAC, then least squares on inliers.
 
+    Args:
+        points: ``(N, 3)`` points, m.
+        params: Thresholds (inlier distance, iterations).
+        rng: Random generator of the RANSAC samples.
+
     Returns:
         ``(plane (4,) = (n, d) with n·x = d and |n| = 1, inlier RMS, inlier mask)`` or None
         when no plane has three points.
@@ -244,6 +249,15 @@ def detect_with_lens(image: ArrayLike, intrinsics: CameraIntrinsics,
     their corners mapped back to the image's own pixels
     (:func:`engine.calibration.detect.detect_markers` with ``K`` and ``dist``), which
     :func:`corner_rays` undistorts. Without distortion: the plain detection.
+
+    Args:
+        image: The colour (or grey) image, uint8.
+        intrinsics: The colour camera's intrinsics and lens.
+        dictionary: Marker dictionary name.
+        detector: A detector to reuse (:func:`engine.calibration.detect.make_detector`).
+
+    Returns:
+        The markers found, corners in the image's own pixels.
     """
     if intrinsics.dist and np.any(intrinsics.dist_array != 0):
         return detect_markers(image, dictionary, detector=detector, K=intrinsics.K,
@@ -252,8 +266,15 @@ def detect_with_lens(image: ArrayLike, intrinsics: CameraIntrinsics,
 
 
 def corner_rays(px: ArrayLike, intrinsics: CameraIntrinsics) -> FloatArray:
-    """Rays ``(N, 3)`` with z = 1 (camera frame) through image pixels ``(N, 2)`` of a
-    camera with the lens of ``intrinsics`` (its distortion removed)."""
+    """Rays with z = 1 (camera frame) through image pixels of a camera with a lens.
+
+    Args:
+        px: ``(N, 2)`` pixel coordinates ``(u, v)``.
+        intrinsics: The camera's intrinsics; its distortion is removed.
+
+    Returns:
+        ``(N, 3)`` rays ``(x/z, y/z, 1)``.
+    """
     return _undistorted_rays(np.asarray(px, dtype=np.float64).reshape(-1, 2), intrinsics)
 
 
@@ -420,6 +441,18 @@ def average_observation(
 
     Frames whose corners stray from the median by more than 4 σ (someone walked over the
     marker, a depth glitch) are dropped before averaging.
+
+    Args:
+        sensor_id: The sensor.
+        marker_id: The marker.
+        per_frame: Per frame the 3D corners, or the reason they could not be computed.
+        n_seen: Frames in which the marker was detected.
+        n_total: Frames captured.
+        params: Thresholds (defaults when None).
+        corners_px: The marker's image corners (kept for display).
+
+    Returns:
+        The observation, accepted or rejected with its reason.
     """
     p = params or CornerParams()
     min_frames = p.min_frames if p.min_frames is not None else max(2, int(np.ceil(0.3 * n_total)))
@@ -467,7 +500,15 @@ def robust_mean_image(images: Sequence[NDArray[np.uint8]], max_frames: int = 9
     """Per-pixel temporal median of up to ``max_frames`` evenly spaced images.
 
     The sensor and markers are still during capture, so the median keeps the markers and
-    removes image noise and transients (a person walking past, a flicker)."""
+    removes image noise and transients (a person walking past, a flicker).
+
+    Args:
+        images: The frames (same shape, uint8).
+        max_frames: Most frames used.
+
+    Returns:
+        The median image, uint8.
+    """
     if len(images) == 1:
         return np.asarray(images[0])
     idx = np.unique(np.linspace(0, len(images) - 1, min(max_frames, len(images))).round()

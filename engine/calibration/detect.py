@@ -101,7 +101,18 @@ class MarkerPose:
 def make_detector(
     dictionary: str = DEFAULT_DICTIONARY, subpix: bool = True
 ) -> cv2.aruco.ArucoDetector:
-    """An ``ArucoDetector`` for ``dictionary`` with sub-pixel corner refinement."""
+    """An ``ArucoDetector`` for ``dictionary`` with sub-pixel corner refinement.
+
+    Args:
+        dictionary: Marker dictionary name.
+        subpix: Refine corners to sub-pixel precision.
+
+    Returns:
+        The OpenCV detector.
+
+    Raises:
+        InputError: unknown dictionary.
+    """
     params = cv2.aruco.DetectorParameters()
     if subpix:
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
@@ -237,6 +248,13 @@ def find_dictionary(image: ArrayLike, exclude: str | None = None) -> tuple[str, 
     printed; a single marker is not enough (a false one turns up in textured images).
     One size per family is tried (``DICT_6X6_250``): the ``_50/100/250/1000`` sizes share
     their first codes.
+
+    Args:
+        image: The photo or frame, uint8.
+        exclude: A dictionary not to try (the one that already failed).
+
+    Returns:
+        ``(dictionary name, markers found)`` or None.
     """
     gray = _to_gray(image)
     up = _upsampling(gray.shape)
@@ -255,8 +273,17 @@ def find_dictionary(image: ArrayLike, exclude: str | None = None) -> tuple[str, 
 
 
 def no_markers_error(image: ArrayLike, dictionary: str) -> InputError:
-    """The error for an image where ``dictionary`` finds no marker, naming the
-    dictionary that does find markers in it when there is one."""
+    """The error for an image where ``dictionary`` finds no marker.
+
+    It names the dictionary that does find markers in the image when there is one.
+
+    Args:
+        image: The image.
+        dictionary: The dictionary that found nothing.
+
+    Returns:
+        The :class:`InputError` to raise.
+    """
     found = find_dictionary(image, exclude=dictionary)
     if found is not None:
         return InputError(f"no {dictionary} marker in the image, but {found[1]} "
@@ -307,6 +334,15 @@ def refine_corners_template(
     ChArUco boards have at least that). The refined corners are returned only when the
     correlation is ≥ 0.7 and no corner moved more than ``max_shift_px`` (default: the
     larger of 2 px and 10 % of the marker's mean edge); otherwise ``det`` unchanged.
+
+    Args:
+        gray: The grey image.
+        det: The detection to refine.
+        dictionary: Marker dictionary name.
+        max_shift_px: Largest corner move accepted, px (None: see above).
+
+    Returns:
+        The refined detection, or ``det``.
     """
     from engine.calibration.markers import marker_image
 
@@ -422,7 +458,18 @@ def reprojection_rms(
     K: ArrayLike,
     dist: ArrayLike | None = None,
 ) -> float:
-    """RMS distance (pixels) between observed corners and the projected model corners."""
+    """RMS distance (pixels) between observed corners and the projected model corners.
+
+    Args:
+        T_camera_marker: 4×4 marker pose in the camera frame (m).
+        corners_px: ``(4, 2)`` observed corners, OpenCV order.
+        size_m: Marker edge length, m.
+        K: 3×3 camera matrix.
+        dist: Distortion coefficients, or None.
+
+    Returns:
+        The RMS, pixels.
+    """
     T = np.asarray(T_camera_marker, dtype=float)
     rvec, _ = cv2.Rodrigues(T[:3, :3])
     proj, _ = cv2.projectPoints(

@@ -63,6 +63,13 @@ def build_edges(observations: Sequence[Observation], marker_sizes: Mapping[int, 
     An observation whose corners do not fit the marker's square is marked rejected (in
     place, with the reason): a measured edge length far from the given one says the size
     is wrong, a large misfit says the marker is partly occluded or not flat.
+
+    Args:
+        observations: Every sensor↔marker observation.
+        marker_sizes: Marker id -> edge length, m.
+
+    Returns:
+        One edge (``T_sensor_marker`` and its expected error) per usable observation.
     """
     edges: list[Edge] = []
     for o in observations:
@@ -99,6 +106,15 @@ def check_connectivity(sensor_ids: Sequence[str], edges: Sequence[Edge], origin:
 
     The message says, per unreachable sensor, what it saw and why observations were
     rejected, so the user knows which marker to move or which sensor to turn.
+
+    Args:
+        sensor_ids: The sensors to calibrate.
+        edges: The usable edges.
+        origin: The world's marker.
+        rejected: Rejected observations (their reasons go in the message).
+
+    Raises:
+        CalibrationError: a sensor cannot be reached from ``origin``.
     """
     adj: dict[str, set[str]] = {}
     for e in edges:
@@ -160,6 +176,11 @@ def chain_poses(sensor_ids: Sequence[str], edges: Sequence[Edge], origin: int = 
 
     Edge weight = the observation's expected corner error squared (variances add along a
     chain). Each node's pose is composed along its shortest path.
+
+    Args:
+        sensor_ids: The sensors.
+        edges: The usable edges.
+        origin: The world's marker (its pose is the identity).
 
     Returns:
         ``(T_world_sensor, T_world_marker, chain edges as (sensor, marker))``.

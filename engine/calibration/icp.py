@@ -78,7 +78,14 @@ class IcpReport:
 
 
 def to_o3d(points: ArrayLike) -> o3d.geometry.PointCloud:
-    """numpy (N, 3) → Open3D point cloud."""
+    """numpy (N, 3) → Open3D point cloud.
+
+    Args:
+        points: ``(N, 3)`` points, m.
+
+    Returns:
+        The Open3D cloud (float64 coordinates).
+    """
     import open3d as o3d
 
     pc = o3d.geometry.PointCloud()
@@ -88,7 +95,18 @@ def to_o3d(points: ArrayLike) -> o3d.geometry.PointCloud:
 
 def information_eig_ratio(src: FloatArray, dst: FloatArray, dst_normals: FloatArray,
                           max_dist: float) -> float:
-    """Conditioning of point-to-plane ICP: λ_min/λ_max of Σ aaᵀ, a = [(p×n)/L, n]."""
+    """Conditioning of point-to-plane ICP: λ_min/λ_max of Σ aaᵀ, a = [(p×n)/L, n].
+
+    Args:
+        src: ``(N, 3)`` source points (already in the target's frame), m.
+        dst: ``(M, 3)`` target points, m.
+        dst_normals: ``(M, 3)`` target normals.
+        max_dist: Correspondence distance, m.
+
+    Returns:
+        The ratio in [0, 1] (near 0: a direction ICP cannot constrain, e.g. a bare floor;
+        0 with fewer than six correspondences).
+    """
     if len(src) == 0 or len(dst) == 0:
         return 0.0
     from scipy.spatial import cKDTree
