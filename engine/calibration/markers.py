@@ -45,6 +45,12 @@ _BOTTOM_BAND_M = 0.02  # scale bar and page footer
 def dictionary_name(name: str) -> str:
     """Canonical OpenCV name (``DICT_...``) for a user-given dictionary name.
 
+    Args:
+        name: ``"DICT_4X4_50"``, ``"4x4_50"``, ``"aruco_original"`` ... in any case.
+
+    Returns:
+        The ``cv2.aruco`` attribute name.
+
     Raises:
         InputError: unknown dictionary (the message lists the valid names).
     """
@@ -73,7 +79,17 @@ def get_dictionary(name: str = DEFAULT_DICTIONARY) -> cv2.aruco.Dictionary:
 
 
 def dictionary_size(name: str = DEFAULT_DICTIONARY) -> int:
-    """Number of distinct ids in a dictionary."""
+    """Number of distinct ids in a dictionary.
+
+    Args:
+        name: Marker dictionary name.
+
+    Returns:
+        The number of ids (ids run from 0).
+
+    Raises:
+        InputError: unknown dictionary.
+    """
     return int(get_dictionary(name).bytesList.shape[0])
 
 
@@ -81,6 +97,12 @@ def marker_model_corners(size_m: float) -> FloatArray:
     """The four corners (4, 3) of a marker of edge ``size_m`` in the marker frame.
 
     Order TL, TR, BR, BL as detected by OpenCV; z = 0.
+
+    Args:
+        size_m: Edge length of the black square, m.
+
+    Returns:
+        ``(4, 3)`` corners, m.
 
     Raises:
         InputError: non-positive size.
@@ -125,6 +147,14 @@ def marker_cells(marker_id: int, dictionary: str = DEFAULT_DICTIONARY,
                  border_bits: int = 1) -> NDArray[np.bool_]:
     """The marker's cells, black border included: ``(n, n)`` bools, True = black, row 0 at
     the top of the printed image.
+
+    Args:
+        marker_id: Id in the dictionary.
+        dictionary: Marker dictionary name.
+        border_bits: Width of the black border, in cells.
+
+    Returns:
+        ``(n, n)`` bools.
 
     Raises:
         InputError: id outside the dictionary.
@@ -175,6 +205,12 @@ def marker_path_m(marker_id: int, size_m: float, x_m: float, y_top_m: float,
 
 def parse_ids(spec: str | Iterable[int]) -> list[int]:
     """Parse ``"1-8"``, ``"1,3,5-7"`` (or an iterable of ints) into a sorted unique list.
+
+    Args:
+        spec: The ids as text or integers.
+
+    Returns:
+        Sorted unique ids.
 
     Raises:
         InputError: malformed text, negative ids or reversed ranges.

@@ -76,6 +76,16 @@ def check_sensor_frames(
 ) -> SensorCheck:
     """Re-estimate one sensor's pose from fresh frames and compare it with ``calibration``.
 
+    Args:
+        frames: Fresh colour + depth frames of the sensor.
+        calibration: The saved calibration.
+        params: 3D-corner thresholds (defaults when None).
+        pos_m: Position change above which the sensor counts as moved, m.
+        rot_deg: Rotation change above which it counts as moved, degrees.
+
+    Returns:
+        ``ok``, ``moved`` or ``unknown`` with the changes and what to do.
+
     Raises:
         InputError: frames without depth (see :func:`observe_sensor`).
     """

@@ -246,9 +246,18 @@ def calibrate_frames(
 
 
 def camera_model_dict(frames: SensorFrames) -> dict[str, Any]:
-    """JSON-ready camera model a sensor's observations were computed with (kept with the
-    calibration in ``meta["cameras"]``): each image's size, 3×3 K and OpenCV distortion
-    (``[]``: none, a pinhole)."""
+    """JSON-ready camera model a sensor's observations were computed with.
+
+    Kept with the calibration in ``meta["cameras"]``: each image's size, 3×3 K and OpenCV
+    distortion (``[]``: none, a pinhole).
+
+    Args:
+        frames: The sensor's frames and camera model.
+
+    Returns:
+        ``{"color" | "depth": {"size": [w, h], "K": 3×3 lists, "dist": [...]}}`` for the
+        images the sensor has.
+    """
     from engine.calibration.corners3d import _intr
 
     out: dict[str, Any] = {}
@@ -286,10 +295,20 @@ ICP_VOXEL_M = 0.02
 
 
 def static_cloud(frames: SensorFrames, max_frames: int = 9, stride: int = 2) -> FloatArray:
-    """The sensor's static scene as points in its (depth camera) frame: the per-pixel
-    temporal median of up to ``max_frames`` depth frames (removes noise, dropouts and a
-    person walking through) on every ``stride``-th pixel, unprojected with the depth
-    intrinsics (1 cm spacing at 2.5 m: ample for the 2 cm ICP voxel)."""
+    """The sensor's static scene as points in its (depth camera) frame.
+
+    The per-pixel temporal median of up to ``max_frames`` depth frames (removes noise,
+    dropouts and a person walking through) on every ``stride``-th pixel, unprojected with
+    the depth intrinsics (1 cm spacing at 2.5 m: ample for the 2 cm ICP voxel).
+
+    Args:
+        frames: The sensor's depth frames and camera model.
+        max_frames: Most frames in the median.
+        stride: Pixel step in both image directions.
+
+    Returns:
+        ``(N, 3)`` points, m (OpenCV camera frame).
+    """
     from engine.calibration.corners3d import _intr
 
     if frames.depths is None or len(frames.depths) == 0:
@@ -327,7 +346,15 @@ def _voxel(points: FloatArray, voxel: float) -> FloatArray:
 
 
 def icp_report_dict(r: IcpReport) -> dict[str, Any]:
-    """JSON-ready ICP outcome of one sensor."""
+    """JSON-ready ICP outcome of one sensor.
+
+    Args:
+        r: The report.
+
+    Returns:
+        Sensor, accepted, reason, the correction (mm, deg) and, when ICP ran, the
+        fitness, inlier RMSE (mm) and conditioning before and after.
+    """
     d: dict[str, Any] = {"sensor": r.sensor_id, "accepted": r.accepted, "reason": r.reason,
                          "correction_mm": round(r.correction_m * 1000, 3),
                          "correction_deg": round(r.correction_deg, 4)}

@@ -42,7 +42,15 @@ def _num(x: float) -> float | None:
 
 
 def result_to_dict(result: CalibrationResult) -> dict[str, Any]:
-    """JSON-ready dictionary of a calibration."""
+    """JSON-ready dictionary of a calibration.
+
+    Args:
+        result: The calibration.
+
+    Returns:
+        Plain lists, numbers and strings (poses as nested 4×4 lists), with the format
+        version.
+    """
     return {
         "format": FORMAT, "format_version": FORMAT_VERSION,
         "version": result.version, "created": result.created,
@@ -64,6 +72,12 @@ def result_to_dict(result: CalibrationResult) -> dict[str, Any]:
 
 def result_from_dict(d: dict[str, Any]) -> CalibrationResult:
     """Inverse of :func:`result_to_dict` (observations keep their summary, no corners).
+
+    Args:
+        d: A dict as :func:`result_to_dict` writes.
+
+    Returns:
+        The calibration.
 
     Raises:
         InputError: not a gaitrig calibration or a newer format.
@@ -169,7 +183,18 @@ def list_versions(folder: str | Path) -> list[int]:
 
 
 def version_path(folder: str | Path, version: int) -> Path:
-    """File of calibration ``version`` in ``folder``."""
+    """File of calibration ``version`` in ``folder``.
+
+    Args:
+        folder: The calibrations folder.
+        version: Version number, from 1.
+
+    Returns:
+        The file's path (it may not exist).
+
+    Raises:
+        InputError: a version below 1.
+    """
     if version < 1:
         raise InputError("calibration versions start at 1")
     return Path(folder) / f"calibration-v{int(version)}.json"
@@ -214,7 +239,15 @@ def load_version(folder: str | Path, version: int | None = None) -> CalibrationR
 
 
 def pose_change(T_old: FloatArray, T_new: FloatArray) -> tuple[float, float]:
-    """Translation (m) and rotation (deg) between two poses of one sensor."""
+    """Translation (m) and rotation (deg) between two poses of one sensor.
+
+    Args:
+        T_old: 4×4 ``T_world_sensor`` before.
+        T_new: 4×4 ``T_world_sensor`` after.
+
+    Returns:
+        ``(distance in m, angle in degrees)``.
+    """
     d = invert_transform(T_old) @ np.asarray(T_new, dtype=float)
     return (float(np.linalg.norm(np.asarray(T_new)[:3, 3] - np.asarray(T_old)[:3, 3])),
             float(np.degrees(rotation_angle(d[:3, :3]))))
