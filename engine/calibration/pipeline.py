@@ -353,7 +353,7 @@ def icp_report_dict(r: IcpReport) -> dict[str, Any]:
 
     Returns:
         Sensor, accepted, reason, the correction (mm, deg) and, when ICP ran, the
-        fitness, inlier RMSE (mm) and conditioning before and after.
+        fitness and inlier RMSE (mm) before and after, and the conditioning.
     """
     d: dict[str, Any] = {"sensor": r.sensor_id, "accepted": r.accepted, "reason": r.reason,
                          "correction_mm": round(r.correction_m * 1000, 3),
