@@ -115,8 +115,17 @@ PROGRESS_PARAMETERS: tuple[ProgressParameter, ...] = (
 
 
 def mdc95_from_sem(sem: float) -> float:
-    """MDC95 = 1.96 · √2 · SEM: the smallest change between two measurements that exceeds
-    their measurement error with 95 % confidence (SEM from a test–retest study)."""
+    """MDC95 = 1.96 · √2 · SEM.
+
+    The smallest change between two measurements that exceeds their measurement error with
+    95 % confidence (SEM from a test–retest study).
+
+    Args:
+        sem: Standard error of measurement, in the parameter's unit.
+
+    Returns:
+        The MDC95, same unit.
+    """
     return 1.96 * math.sqrt(2.0) * float(sem)
 
 
@@ -203,6 +212,10 @@ def welch_t_test(a: Sequence[float] | np.ndarray,
     Same t, Welch–Satterthwaite df and p as ``scipy.stats.ttest_ind(b, a,
     equal_var=False)``; non-finite values are dropped. With no spread in either group
     (identical trials) p is 0 if the means differ and 1 if not (scipy gives NaN).
+
+    Args:
+        a: Values of the earlier session's trials.
+        b: Values of the later session's trials.
 
     Returns:
         The test, or None when either group has fewer than :data:`MIN_TRIALS_FOR_TEST`
@@ -372,8 +385,15 @@ def _row_value(rows: list[TableRow], p: ProgressParameter) -> tuple[int, float, 
 
 
 def session_value(trials: Sequence[TrialData], p: ProgressParameter) -> SessionValue | None:
-    """A parameter of one session: its value as the report's table defines it, and the
-    value of each trial alone; None when no trial has it."""
+    """A parameter of one session, as the report's table defines it, and per trial.
+
+    Args:
+        trials: The session's analysed trials.
+        p: The parameter.
+
+    Returns:
+        The session's value and each trial's value alone; None when no trial has it.
+    """
     n, mean, sd = _row_value(spatiotemporal_table(list(trials), ()), p)
     if n == 0 or not math.isfinite(mean):
         return None

@@ -326,6 +326,16 @@ def marker_visible(
     located in depth), the view not more grazing than ``acos(min_cos_incidence)`` and
     every projected edge at least ``min_side_px`` native pixels long (ArUco detection at
     the rendered resolution needs roughly this much). Body occlusion is ignored.
+
+    Args:
+        sensor: The simulated sensor.
+        marker: The floor marker.
+        max_distance_m: Farthest marker centre, m (default: the depth range).
+        min_cos_incidence: Smallest cosine between the view ray and the marker normal.
+        min_side_px: Shortest projected edge, native colour pixels.
+
+    Returns:
+        True when the marker can be detected.
     """
     m = sensor.model
     T_cw = invert_transform(sensor.T_world_color)
@@ -349,7 +359,15 @@ def marker_visible(
 
 
 def marker_visibility(rig: Rig, **kwargs: Any) -> dict[int, list[str]]:
-    """Marker id → ids of the sensors that see it (see :func:`marker_visible`)."""
+    """Marker id → ids of the sensors that see it (see :func:`marker_visible`).
+
+    Args:
+        rig: The rig.
+        **kwargs: :func:`marker_visible` thresholds.
+
+    Returns:
+        For every marker the ids of the sensors that see it (possibly none).
+    """
     return {mk.id: [s.id for s in rig.sensors if marker_visible(s, mk, **kwargs)]
             for mk in rig.markers}
 
@@ -441,7 +459,14 @@ def _rot_z(a: float) -> FloatArray:
 
 
 def rig_to_dict(rig: Rig) -> dict[str, Any]:
-    """Plain (JSON/TOML-serialisable) representation of a rig."""
+    """Plain (JSON/TOML-serialisable) representation of a rig.
+
+    Args:
+        rig: The rig.
+
+    Returns:
+        Sensors (pose, model, clock), markers, walkway and room as plain values (m, deg).
+    """
 
     def model_dict(m: SensorModel) -> dict[str, Any]:
         d = {k: getattr(m, k) for k in SensorModel.__dataclass_fields__}
@@ -517,7 +542,17 @@ def _pose(d: Any, key: str, where: str) -> FloatArray:
 
 
 def rig_from_dict(d: dict[str, Any]) -> Rig:
-    """Build and validate a rig from :func:`rig_to_dict` output (InputError names the field)."""
+    """Build and validate a rig from :func:`rig_to_dict` output.
+
+    Args:
+        d: The dict (e.g. a parsed rig file).
+
+    Returns:
+        The rig.
+
+    Raises:
+        InputError: a missing or invalid field (the message names it).
+    """
     sensors_raw = _get(d, "sensors", "")
     if not isinstance(sensors_raw, list) or not sensors_raw:
         raise InputError("rig file: field 'sensors' must be a non-empty list")
@@ -614,7 +649,14 @@ def _toml_table(lines: list[str], header: str, d: dict[str, Any]) -> None:
 
 
 def rig_to_toml(rig: Rig) -> str:
-    """TOML text of a rig (readable back with :func:`rig_from_dict` via ``tomllib``)."""
+    """TOML text of a rig (readable back with :func:`rig_from_dict` via ``tomllib``).
+
+    Args:
+        rig: The rig.
+
+    Returns:
+        The TOML text.
+    """
     d = rig_to_dict(rig)
     lines = ["# gaitrig rig file: poses are 4×4 T_world_<frame> (metres), world Z up,",
              "# origin at floor marker 1; sensor frames are OpenCV (+Z forward, +Y down)."]

@@ -213,6 +213,23 @@ def observe(truth: FloatArray, times_true: FloatArray, T_world_sensor: FloatArra
     facing away from the sensor, by ``near_bias_m`` on the half facing it. ``drop``
     blanks a true-time interval; joints beyond ``max_range_m`` are NOT_TRACKED; a random
     fraction is INFERRED.
+
+    Args:
+        truth: ``(T, 25, 3)`` world skeleton (Kinect v2 order), m.
+        times_true: ``(T,)`` true times, s.
+        T_world_sensor: The sensor's 4×4 pose.
+        rng: Random generator.
+        noise_m: Joint noise, m (1σ).
+        occluded_bias_m: Pull of the far body half towards the sensor, m.
+        near_bias_m: Pull of the near half, m.
+        clock_offset_s: The sensor clock's offset, s.
+        clock_drift_ppm: Its drift, ppm.
+        drop: A true-time interval ``(t0, t1)`` blanked.
+        max_range_m: Farthest tracked joint, m.
+        inferred_frac: Share of joints reported INFERRED.
+
+    Returns:
+        The series in the sensor frame on the sensor's clock.
     """
     c = T_world_sensor[:3, 3]
     T, J = truth.shape[:2]
@@ -248,7 +265,16 @@ def observe(truth: FloatArray, times_true: FloatArray, T_world_sensor: FloatArra
 
 
 def sample_truth(w: SynthWalk, truth: FloatArray, times: FloatArray) -> FloatArray:
-    """World skeleton ``truth`` (on ``w.times``) linearly sampled at ``times``."""
+    """World skeleton ``truth`` (on ``w.times``) linearly sampled at ``times``.
+
+    Args:
+        w: The walk (its ``times``).
+        truth: ``(T, J, 3)`` world skeleton on ``w.times``, m.
+        times: ``(N,)`` true times, s.
+
+    Returns:
+        ``(N, J, 3)`` world skeleton, m.
+    """
     out = np.empty((len(times), *truth.shape[1:]))
     for j in range(truth.shape[1]):
         for c in range(3):

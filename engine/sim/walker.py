@@ -1061,7 +1061,14 @@ def capsules_mesh(A: FloatArray, B: FloatArray, radii: FloatArray
                   ) -> tuple[FloatArray, NDArray[np.int32], NDArray[np.int32]]:
     """Triangle mesh of capsules ``A[i]``→``B[i]`` with ``radii[i]``.
 
-    Returns ``(vertices (V,3), triangles (F,3) int32, part_labels (F,) int32)``.
+    Args:
+        A: ``(C, 3)`` first end points, m.
+        B: ``(C, 3)`` second end points, m.
+        radii: ``(C,)`` radii, m.
+
+    Returns:
+        ``(vertices (V,3), triangles (F,3) int32, part_labels (F,) int32)``, each triangle
+        labelled with its capsule's index.
     """
     dirs, tris, top = _TEMPLATE
     C = len(radii)
