@@ -68,7 +68,14 @@ DEFAULT_NORMATIVE_RANGES: tuple[NormativeRange, ...] = (
 def normative_lookup(
     ranges: tuple[NormativeRange, ...] | list[NormativeRange] = DEFAULT_NORMATIVE_RANGES,
 ) -> dict[str, NormativeRange]:
-    """Index ranges by parameter key."""
+    """Index ranges by parameter key.
+
+    Args:
+        ranges: The ranges (default: the built-in ones).
+
+    Returns:
+        Parameter key -> its range (a later range of the same key wins).
+    """
     return {r.parameter: r for r in ranges}
 
 

@@ -61,7 +61,15 @@ def _fallback_fonts(plot: Callable[P, R]) -> Callable[P, R]:
 
 
 def figure_png(fig: Figure, dpi: int = 130) -> bytes:
-    """Serialise a figure to PNG and close it."""
+    """Serialise a figure to PNG and close it.
+
+    Args:
+        fig: The matplotlib figure.
+        dpi: Resolution, dots per inch.
+
+    Returns:
+        The PNG bytes.
+    """
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     plt.close(fig)
@@ -103,7 +111,16 @@ def plot_foot_placements(trials: Sequence[tuple[str, Sequence[dict[str, Any]]]])
 def plot_ankle_heights(
     times: np.ndarray, heights: dict[str, np.ndarray], events: Sequence[dict[str, Any]] = ()
 ) -> bytes:
-    """Vertical ankle trajectories over time with gait events marked."""
+    """Vertical ankle trajectories over time with gait events marked.
+
+    Args:
+        times: ``(T,)`` s.
+        heights: Side (``"L"``/``"R"``) -> ``(T,)`` ankle height, m.
+        events: Gait JSON events (``side``, ``kind``, ``time_s``).
+
+    Returns:
+        The figure as PNG bytes.
+    """
     fig, ax = plt.subplots(figsize=(7.5, 2.6))
     for side, h in heights.items():
         ax.plot(times, np.asarray(h) * 100.0, color=SIDE_COLOURS.get(side, "k"), lw=1.2,
@@ -167,7 +184,17 @@ def plot_steps(steps: Sequence[dict[str, Any]],
 @_fallback_fonts
 def plot_bland_altman(measured: np.ndarray, reference: np.ndarray, title: str,
                       unit: str) -> bytes:
-    """Bland–Altman plot: difference vs mean with bias and ±1.96·SD limits."""
+    """Bland–Altman plot: difference vs mean with bias and ±1.96·SD limits.
+
+    Args:
+        measured: ``(n,)`` values of the system under test (displayed unit).
+        reference: ``(n,)`` paired reference values.
+        title: Figure title.
+        unit: Axis unit.
+
+    Returns:
+        The figure as PNG bytes.
+    """
     m = np.asarray(measured, dtype=float)
     r = np.asarray(reference, dtype=float)
     ok = np.isfinite(m) & np.isfinite(r)
@@ -198,7 +225,15 @@ MAX_TREND_LABELS = 6
 
 def trend_label_indices(n: int, most: int = MAX_TREND_LABELS) -> list[int]:
     """Indices of the sessions whose names label a trend plot's axis: all of ``n`` up to
-    ``most``, else ``most`` evenly spaced ones including the first and the last."""
+    ``most``, else ``most`` evenly spaced ones including the first and the last.
+
+    Args:
+        n: Number of sessions.
+        most: Most labels.
+
+    Returns:
+        Increasing session indices.
+    """
     if n <= most:
         return list(range(n))
     return sorted(set(np.rint(np.linspace(0, n - 1, most)).astype(int).tolist()))
@@ -272,7 +307,14 @@ def _range_text(vals: Sequence[float] | np.ndarray, unit: str, decimals: int) ->
 
 def foot_placements_alt(trials: Sequence[tuple[str, Sequence[dict[str, Any]]]]) -> str:
     """Text alternative of :func:`plot_foot_placements` for the same ``trials``: per trial
-    its left and right placements and the distance they span along the walkway."""
+    its left and right placements and the distance they span along the walkway.
+
+    Args:
+        trials: ``(name, steps)`` per trial (gait JSON steps).
+
+    Returns:
+        The text.
+    """
     parts = []
     for name, placements in trials:
         n = {s: sum(1 for p in placements if p.get("side") == s) for s in ("L", "R")}
@@ -289,7 +331,17 @@ def foot_placements_alt(trials: Sequence[tuple[str, Sequence[dict[str, Any]]]]) 
 def ankle_heights_alt(name: str, times: np.ndarray, heights: dict[str, np.ndarray],
                       events: Sequence[dict[str, Any]] = ()) -> str:
     """Text alternative of :func:`plot_ankle_heights`: duration, each ankle's height range
-    and the events marked."""
+    and the events marked.
+
+    Args:
+        name: The trial's name.
+        times: ``(T,)`` s.
+        heights: Side -> ``(T,)`` ankle height, m.
+        events: Gait JSON events.
+
+    Returns:
+        The text.
+    """
     t = np.asarray(times, dtype=float)
     t = t[np.isfinite(t)]
     dur = float(t.max() - t.min()) if len(t) else 0.0
@@ -307,7 +359,14 @@ def ankle_heights_alt(name: str, times: np.ndarray, heights: dict[str, np.ndarra
 
 def steps_alt(steps: Sequence[dict[str, Any]]) -> str:
     """Text alternative of :func:`plot_steps`: per side the steps and the range of step
-    length, width and time."""
+    length, width and time.
+
+    Args:
+        steps: Gait JSON steps.
+
+    Returns:
+        The text.
+    """
     parts = []
     for side in ("L", "R"):
         mine = [s for s in steps if s.get("side") == side]
@@ -326,14 +385,34 @@ def steps_alt(steps: Sequence[dict[str, Any]]) -> str:
 
 
 def bland_altman_alt(caption: str, n: int, bias: float, rpc: float, unit: str) -> str:
-    """Text alternative of a Bland–Altman figure from its agreement figures."""
+    """Text alternative of a Bland–Altman figure from its agreement figures.
+
+    Args:
+        caption: The figure's caption.
+        n: Number of pairs.
+        bias: Mean difference (displayed unit).
+        rpc: Reproducibility coefficient (1.96·SD, displayed unit).
+        unit: The unit.
+
+    Returns:
+        The text.
+    """
     return (f"{caption}: differences of {n} paired values against their means; bias "
             f"{bias:+.2f} {unit}, 95 % limits of agreement bias ± {rpc:.2f} {unit}.")
 
 
 def trends_alt(panels: Sequence[dict[str, Any]], x_labels: Sequence[str]) -> str:
     """Text alternative of :func:`plot_trends`: the sessions, and per parameter its first
-    and last value and whether the last is inside the normative band."""
+    and last value and whether the last is inside the normative band.
+
+    Args:
+        panels: The trend plot's panels (``title``, ``unit``, per-session ``mean``, ``decimals``,
+            the normative ``band``).
+        x_labels: Session names.
+
+    Returns:
+        The text.
+    """
     parts = []
     for p in panels:
         mean = np.asarray(p["mean"], dtype=float)

@@ -254,6 +254,12 @@ def pace(trials: list[TrialData]) -> Pace:
     session) and cadence 60 · steps / Σ step times: a long walk weighs by its steps, a
     two-step trial does not count as much as a 20-step one, as a mean of the trials'
     values would have it.
+
+    Args:
+        trials: Analysed trials.
+
+    Returns:
+        Speed (m/s), cadence (steps/min), Σ step times (s), Σ lengths (m) and the steps.
     """
     steps = [s for t in trials for s in t.result.get("steps", []) or []
              if _finite(s.get("duration_s")) and s["duration_s"] > 0]
@@ -292,7 +298,14 @@ def _pooled(param: Parameter, trials: list[TrialData]) -> tuple[int, float, floa
 
 
 def trial_paces(trials: list[TrialData]) -> list[tuple[str, Pace]]:
-    """``(name, pace)`` of each trial, for the report's per-trial table."""
+    """``(name, pace)`` of each trial, for the report's per-trial table.
+
+    Args:
+        trials: Analysed trials.
+
+    Returns:
+        ``(trial name, its Pace)`` in trial order.
+    """
     return [(t.name, pace([t])) for t in trials]
 
 
@@ -318,6 +331,13 @@ def spatiotemporal_table(
 
     Asymmetry is the symmetry index ``100·|L − R| / ((L + R) / 2)`` (Robinson et al.,
     J Manipulative Physiol Ther 1987), 0 % = perfectly symmetric.
+
+    Args:
+        trials: Analysed trials.
+        normative: Ranges to compare with.
+
+    Returns:
+        The table's rows (displayed units).
     """
     norms = normative_lookup(normative)
     rows: list[TableRow] = []
@@ -355,7 +375,15 @@ def spatiotemporal_table(
 
 
 def quality_notes(data: ReportData, table: list[TableRow]) -> list[str]:
-    """Plain-language warnings about data quality, derived from the facts given."""
+    """Plain-language warnings about data quality, derived from the facts given.
+
+    Args:
+        data: The report's data (quality facts, trials).
+        table: Its spatiotemporal table.
+
+    Returns:
+        The warnings, one sentence each (empty when there is nothing to say).
+    """
     q = data.quality
     notes = list(q.notes)
     for t in data.trials:
@@ -420,7 +448,18 @@ def _png_uri(png: bytes) -> str:
 
 
 def build_context(data: ReportData) -> dict[str, Any]:
-    """Template context: tables, figures (as data URIs) and notes."""
+    """Template context: tables, figures (as data URIs) and notes.
+
+    Args:
+        data: Everything the report shows.
+
+    Returns:
+        The Jinja2 template's variables.
+
+    Raises:
+        InsufficientDataError: no analysed trial.
+        InputError: a trial whose result is not a gait JSON object.
+    """
     # matplotlib where figures are drawn: the server imports this module at start
     from engine.report import plots
 
@@ -515,6 +554,12 @@ def latest_changes(prog: Progress) -> list[tuple[ProgressParameter, list[Change]
     ~20 rows a session; what a clinician asks is where the subject is now against the
     baseline and the last visit. The whole series stays in the sessions table and the
     trend plots.
+
+    Args:
+        prog: The session progress.
+
+    Returns:
+        Per followed parameter its latest changes (against the first, then the previous).
     """
     last = len(prog.sessions) - 1
     out = []
