@@ -154,6 +154,9 @@ def dtw(cost: ArrayLike, band: float = 0.2) -> DtwResult:
         band: Band half-width: frames if ≥ 1, else a fraction of ``max(N, M)``. It is
             widened to at least the slope of the diagonal so a path always exists.
 
+    Returns:
+        The optimal path and its total and per-pair cost (:class:`DtwResult`).
+
     Raises:
         InputError: empty or negative cost matrix, or no finite path.
     """

@@ -434,6 +434,10 @@ def active_area_trapezoid(height_m: float, vfov_deg: float, hfov_deg: float,
         tilt_deg: Downward tilt of the optical axis (negative tilts up).
         body_radius_m: Radius of the body cylinder (0 = a line, as in the paper).
 
+    Returns:
+        Near and far distances and widths (m) and the floor polygon in the sensor's
+        floor frame (:class:`Trapezoid`).
+
     Raises:
         InputError: impossible geometry, or no spot where the whole body is visible.
     """
@@ -697,7 +701,12 @@ BLIND_RGB = (215, 25, 28)
 
 
 def coverage_legend() -> list[tuple[str, tuple[int, int, int]]]:
-    """(label, RGB) pairs explaining :func:`coverage_image` colours."""
+    """(label, RGB) pairs explaining :func:`coverage_image` colours.
+
+    Returns:
+        ``(label, (r, g, b))`` per colour: blind first, then by sensor count, then the
+        two-sided hatch.
+    """
     out: list[tuple[str, tuple[int, int, int]]] = [("blind spot (no sensor sees the whole "
                                                     "body)", BLIND_RGB)]
     for k, c in enumerate(_RAMP, start=1):

@@ -195,6 +195,10 @@ def find_passes(times: FloatArray, centre: FloatArray, rate: float) -> list[Walk
         times: ``(T,)`` seconds.
         centre: ``(T, 3)`` body centre (pelvis or mid-feet), Z up.
         rate: sampling rate (Hz).
+
+    Returns:
+        The straight passes in time order (start and end times in s, unit direction
+        on the floor).
     """
     ok = np.isfinite(centre[:, :2]).all(axis=1)
     if ok.sum() < 3:

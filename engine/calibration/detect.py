@@ -196,6 +196,9 @@ def camera_for_image(
         calib_size: ``(width, height)`` the calibration was made at.
         image_size: ``(width, height)`` of the photo.
 
+    Returns:
+        ``(K, dist)`` for the photo's size (the inputs when the sizes are equal).
+
     Raises:
         InputError: a portrait photo with a landscape calibration (or the reverse), or
             another aspect ratio.

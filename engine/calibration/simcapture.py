@@ -47,6 +47,9 @@ def render_sensor_frames(sensor: SimSensor, rig: Rig, frames: int, rng: np.rando
         color_dist: OpenCV distortion of the colour lens to render (None: a pinhole;
             ignored with ``renderer``, which has its own). The frames' colour intrinsics
             carry it, as a node reporting its lens sends it.
+
+    Returns:
+        The sensor's :class:`SensorFrames` (colour, depth in metres, camera model).
     """
     if frames < 1:
         raise InputError(f"frames must be at least 1, got {frames}")

@@ -324,6 +324,10 @@ def load_mvnx(path: str | Path, sensor: str | None = None) -> ImuRecording:
         sensor: the tracker's label (``Pelvis``, ``RightLowerLeg`` …; case ignored); may be
             omitted for an export of one tracker.
 
+    Returns:
+        The tracker's recording (SI units, time first axis, sensor frame; ``quat_ref``
+        sensor-to-ENU).
+
     Raises:
         MultipleSensorsError: several trackers and ``sensor`` names none of them (the
             message lists the labels).

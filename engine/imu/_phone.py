@@ -357,6 +357,9 @@ def load_phone(path: str | Path, *, platform: str | None = None) -> ImuRecording
             (face up reads +9.81 m/s²): the convention of the acceleration files when the
             data and metadata cannot tell (declared: it overrides both).
 
+    Returns:
+        One recording in SI units on the gyroscope's time stamps (time first axis).
+
     Raises:
         InputError: no accelerometer or gyroscope file, several recordings in one
             archive, an unsafe or oversized zip, unreadable files, no common time span.

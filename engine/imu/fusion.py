@@ -260,6 +260,9 @@ def select_reference_frame(
         t_min, t_max: restrict the search to this time range (e.g. the IMU recording).
         candidates: ``(T,)`` frames allowed as centre (e.g. where the IMUs are still).
 
+    Returns:
+        The frame index into ``skeleton``.
+
     Raises:
         InsufficientDataError: no window with all needed joints tracked.
     """

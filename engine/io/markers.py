@@ -211,6 +211,9 @@ def rounded_grid(times: NDArray[np.float64], rate: float | None = None
     Args:
         times: ``(T,)`` seconds, increasing.
         rate: the grid's rate (Hz) when the file states it; else fitted (least squares).
+
+    Returns:
+        ``(T,)`` times, s: the grid, or ``times`` unchanged.
     """
     if len(times) < 3:
         return times

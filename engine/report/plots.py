@@ -33,7 +33,11 @@ R = TypeVar("R")
 
 @functools.cache
 def font_families() -> list[str]:
-    """``DejaVu Sans`` followed by the installed fallback families, for ``font.family``."""
+    """``DejaVu Sans`` followed by the installed fallback families, for ``font.family``.
+
+    Returns:
+        The family names.
+    """
     names = {f.name for f in font_manager.fontManager.ttflist}
     if not any(f in names for f in FALLBACK_FAMILIES):
         # matplotlib caches its font list across runs: a font installed after the cache
@@ -83,6 +87,9 @@ def plot_foot_placements(trials: Sequence[tuple[str, Sequence[dict[str, Any]]]])
     Args:
         trials: ``(name, placements)`` with placements ``{"side", "position": [x, y, z]}``
             in metres, already expressed along (x) and across (y) the walking direction.
+
+    Returns:
+        The figure as PNG bytes.
     """
     n = max(len(trials), 1)
     # One scale for all panels: with each panel autoscaled, a 1.4 m trial was drawn as
@@ -150,6 +157,9 @@ def plot_steps(steps: Sequence[dict[str, Any]],
         steps: gait JSON steps of all trials, trial after trial.
         trial_sizes: steps per trial (summing to ``len(steps)``); the line of each side
             breaks between trials, so that two walks are not drawn as one.
+
+    Returns:
+        The figure as PNG bytes.
     """
     sizes = list(trial_sizes) if trial_sizes else [len(steps)]
     trial_of = np.repeat(np.arange(len(sizes)), sizes)
@@ -252,6 +262,9 @@ def plot_trends(panels: Sequence[dict[str, Any]], x_labels: Sequence[str],
             :func:`trend_label_indices` of them are written under the axis).
         dates: the sessions' dates (``datetime.date``) to space them in time; None (or
             any missing) puts them at equal steps.
+
+    Returns:
+        The figure as PNG bytes.
     """
     n = max(len(panels), 1)
     cols = min(n, 3)

@@ -421,6 +421,9 @@ def jump_height(t: ArrayLike, jumps: ArrayLike, flight_v: float = 2.2, push: flo
         flight_v: take-off speed, m/s.
         push: push-off duration, s.
         land: duration of the impact deceleration, s.
+
+    Returns:
+        ``(T,)`` vertical offset, m.
     """
     tt = np.asarray(t, dtype=float)
     z = np.zeros_like(tt)

@@ -95,6 +95,12 @@ def depth_to_points(depth: NDArray[Any], K: FloatArray, depth_scale: float = 100
         depth: ``(H, W)`` depth along the optical axis (uint16 mm by default); 0 = none.
         K: 3×3 intrinsics.
         depth_scale: Depth units per metre.
+
+    Returns:
+        ``(N, 3)`` points of the pixels with depth, m (OpenCV camera frame).
+
+    Raises:
+        InputError: ``depth`` is not a 2-D image.
     """
     d = np.asarray(depth)
     if d.ndim != 2:

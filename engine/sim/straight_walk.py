@@ -188,8 +188,14 @@ def walk_skeleton(w: SynthWalk) -> FloatArray:
 
 
 def avenue_poses() -> list[tuple[str, FloatArray]]:
-    """Six sensors as in the seed paper's avenue: pairs at x = 2.4, 4.9, 7.4 m,
-    y = ±1 m, 1 m high, looking back along −X, toed in 35° toward the walkway."""
+    """Six sensors as in the seed paper's avenue.
+
+    Pairs at x = 2.4, 4.9, 7.4 m, y = ±1 m, 1 m high, looking back along −X, toed in 35°
+    toward the walkway.
+
+    Returns:
+        ``(sensor id, T_world_sensor)`` for S1 ... S6.
+    """
     out = []
     for k, x in enumerate((2.4, 4.9, 7.4)):
         for j, sg in enumerate((1.0, -1.0)):
