@@ -155,3 +155,25 @@ def test_recording_delete_refusal_is_said_beside_the_button(page: Any, live_serv
     page.locator(f".recording[data-recording='{last}']").wait_for(state="detached")
     recs = live_server.api(f"/api/subjects/{sid}")["sessions"][0]["recordings"]
     assert [r["id"] for r in recs] == [first]
+
+
+def test_reports_session_ticks_take_their_own_row(page: Any, live_server: LiveServer,
+                                                  artifacts_dir: Path) -> None:
+    sid, _ = _subject_with_session(live_server, "Afternoon layout", "AFT05")
+    live_server.api("/api/sessions", {"subject_id": sid, "label": "6 weeks"})
+    page.goto(live_server.base_url + "/reports.html")
+    page.wait_for_function(f"[...document.querySelectorAll('#subject option')]"
+                           f".some(o => o.value === '{sid}')")
+    page.select_option("#subject", str(sid))
+    pick = page.locator("#sessions-pick")
+    pick.wait_for()
+    screenshot(page, artifacts_dir, "afternoon_reports_sessions", "#subject-form")
+    form = page.locator("#subject-form").bounding_box()
+    find = page.locator("#subject-q").bounding_box()
+    subject = page.locator("#subject").bounding_box()
+    box = pick.bounding_box()
+    assert form and find and subject and box
+    # beside the fields, the ticks' height pushed them down under an empty band
+    assert find["y"] - form["y"] < 60, f"Find subject code {find['y'] - form['y']:.0f} px down"
+    assert box["y"] >= subject["y"] + subject["height"], "the session ticks sit beside the fields"
+    assert box["width"] > 0.9 * form["width"]
