@@ -157,6 +157,16 @@ const gaitrig = (() => {
       `${free} · ${parts}, `, state);
   }
 
+  // The lens the node announced (the live 3D view draws its depth through it until a
+  // calibration recorded one), in plain words: where from and its first coefficients.
+  function lensText(lens) {
+    const d = lens && lens.depth_dist;
+    if (!d) return "Lens: none reported (drawn as a pinhole camera)";
+    if (!d.length) return `Lens: no distortion (${lens.source})`;
+    const coef = ["k1", "k2"].map((k, i) => `${k} ${d[i].toFixed(3)}`).join(", ");
+    return `Lens: ${lens.source} (${coef}, …)`;
+  }
+
   function row(n, warnMs) {
     const status = n.connected ? el("span", { class: "ok" }, "online") : el("span", { class: "off" }, "offline");
     const notes = el("ul", { class: "warnings" });
@@ -171,7 +181,8 @@ const gaitrig = (() => {
     }
     const free = diskCell(n);
     return el("tr", { "data-node": n.id },
-      el("th", { scope: "row" }, n.id), el("td", {}, status),
+      el("th", { scope: "row" }, n.id, el("div", { class: "lens" }, lensText(n.lens))),
+      el("td", {}, status),
       el("td", { class: "num" }, n.connected ? fmt(n.fps, 1, " fps") : "—"),
       el("td", { class: "num" }, String(n.dropped_frames)),
       el("td", { class: "num" }, clockCell(n, warnMs)),
