@@ -248,3 +248,28 @@ def test_backend_announces_its_lenses() -> None:
     assert lens.depth is not None and lens.depth.dist == LENS and lens.depth.size == (640, 576)
     assert lens.color is not None and lens.color.dist == []  # an ideal colour lens
     assert parse_node_message(dump(lens)) == lens
+
+
+def test_a_k4a_node_announces_its_factory_lens(monkeypatch: pytest.MonkeyPatch) -> None:
+    """An Azure Kinect node (pyk4a faked) announces the depth camera's factory lens in
+    OpenCV's order (the SDK stores p2 before p1), at the depth image's size and K."""
+    import sys
+
+    from app.nodes.backends.k4a import K4ABackend, distortion_from_k4a_params
+    from tests.app.test_k4abt import FakeCalibration, fake_pyk4a
+
+    # the SDK's raw parameters: cx, cy, fx, fy, k1..k6, codx, cody, p2, p1, radius
+    raw = [320.0, 288.0, 504.0, 504.0, 0.5, -0.03, 0.001, 0.8, 0.02, 0.004, 0.0, 0.0,
+           -0.0002, 0.0007, 1.7]
+    monkeypatch.setattr(FakeCalibration, "get_distortion_coefficients",  # as pyk4a ≥ 1.2
+                        lambda self, kind: np.array(distortion_from_k4a_params(raw)),
+                        raising=False)
+    monkeypatch.setitem(sys.modules, "pyk4a", fake_pyk4a([]))
+    be = K4ABackend(body_tracking=False)
+    info = be.open()
+    lens = be.sensor_lens(info)
+    assert lens is not None and lens.source == "factory calibration"
+    assert lens.depth is not None and lens.depth.size == (640, 576) == info.depth_size
+    assert info.depth_K == lens.depth.K
+    assert lens.depth.dist == [0.5, -0.03, 0.0007, -0.0002, 0.001, 0.8, 0.02, 0.004]
+    assert parse_node_message(dump(lens)) == lens
