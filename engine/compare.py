@@ -220,7 +220,11 @@ class ComparisonResult:
                 f"similarity {self.similarity:.1f} (scale {self.scale_m:g} m))")
 
     def per_joint(self) -> dict[str, float]:
-        """``{joint: mean distance (m)}`` — :attr:`per_joint_mean_m` by name."""
+        """``{joint: mean distance (m)}`` — :attr:`per_joint_mean_m` by name.
+
+        Returns:
+            Joint (or role) name -> mean distance, m.
+        """
         return {j: float(d) for j, d in zip(self.joints, self.per_joint_mean_m, strict=True)}
 
     @property

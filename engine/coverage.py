@@ -101,7 +101,19 @@ class SensorSpec:
     @classmethod
     def from_model(cls, id: str, T_world_sensor: ArrayLike, model: str | SensorModel
                    ) -> SensorSpec:
-        """A sensor of a preset type (``SENSOR_MODELS`` key or a :class:`SensorModel`)."""
+        """A sensor of a preset type (``SENSOR_MODELS`` key or a :class:`SensorModel`).
+
+        Args:
+            id: Sensor id.
+            T_world_sensor: Its 4×4 pose.
+            model: A ``SENSOR_MODELS`` key (e.g. ``"kinect_v2"``) or a :class:`SensorModel`.
+
+        Returns:
+            The spec with the model's fields of view and range.
+
+        Raises:
+            InputError: unknown model.
+        """
         if isinstance(model, str):
             if model not in SENSOR_MODELS:
                 raise InputError(f"unknown sensor model {model!r}; known: {sorted(SENSOR_MODELS)}")
@@ -322,7 +334,15 @@ class Trapezoid:
         return self.far_m - self.near_m
 
     def polygon_world(self, T_world_floor: ArrayLike) -> FloatArray:
-        """Polygon corners (K, 3) on the floor in the world, given the floor frame pose."""
+        """Polygon corners (K, 3) on the floor in the world, given the floor frame pose.
+
+        Args:
+            T_world_floor: 4×4 pose of the sensor's floor frame (origin below the sensor, x
+                along its heading, z up).
+
+        Returns:
+            ``(K, 3)`` world points, m (z = 0 in the floor frame).
+        """
         T = np.asarray(T_world_floor, dtype=float)
         P = np.column_stack([self.polygon, np.zeros(len(self.polygon))])
         return P @ T[:3, :3].T + T[:3, 3]
@@ -506,7 +526,11 @@ class Grid:
         return (round((self.y1 - self.y0) / self.cell), round((self.x1 - self.x0) / self.cell))
 
     def centres(self) -> tuple[FloatArray, FloatArray]:
-        """Cell-centre coordinates ``x`` (Nx,) and ``y`` (Ny,)."""
+        """Cell-centre coordinates ``x`` (Nx,) and ``y`` (Ny,).
+
+        Returns:
+            ``(x, y)`` in metres.
+        """
         ny, nx = self.shape
         x = self.x0 + (np.arange(nx, dtype=np.float64) + 0.5) * self.cell
         y = self.y0 + (np.arange(ny, dtype=np.float64) + 0.5) * self.cell
@@ -538,11 +562,23 @@ class CoverageMap:
     blind: NDArray[np.bool_]
 
     def fraction(self, mask: NDArray[np.bool_]) -> float:
-        """Fraction of the grid's cells where ``mask`` is true."""
+        """Fraction of the grid's cells where ``mask`` is true.
+
+        Args:
+            mask: ``(Ny, Nx)`` bools.
+
+        Returns:
+            The fraction, 0–1.
+        """
         return float(np.mean(mask))
 
     def to_dict(self) -> dict[str, object]:
-        """JSON-ready summary and per-cell arrays (rows = y increasing) for a browser."""
+        """JSON-ready summary and per-cell arrays (rows = y increasing) for a browser.
+
+        Returns:
+            Grid, sensor ids, per-cell counts and two-sided flags, covered and two-sided
+            fractions.
+        """
         g = self.grid
         return {
             "grid": {"x0": g.x0, "x1": g.x1, "y0": g.y0, "y1": g.y1, "cell": g.cell,
@@ -617,6 +653,12 @@ class CoverageModel:
     def index(self, sensor_id: str) -> int:
         """Position of sensor ``sensor_id`` in :attr:`sensors`.
 
+        Args:
+            sensor_id: Sensor id.
+
+        Returns:
+            Its index.
+
         Raises:
             InputError: no sensor has that id.
         """
@@ -626,7 +668,18 @@ class CoverageModel:
         raise InputError(f"no sensor {sensor_id!r} in the coverage model")
 
     def move_sensor(self, sensor_id: str, T_world_sensor: ArrayLike) -> CoverageMap:
-        """Re-pose one sensor and return the updated map (recomputes only its layer)."""
+        """Re-pose one sensor and return the updated map (recomputes only its layer).
+
+        Args:
+            sensor_id: Sensor id.
+            T_world_sensor: Its new 4×4 pose.
+
+        Returns:
+            The updated coverage map.
+
+        Raises:
+            InputError: no sensor has that id, or a bad pose.
+        """
         i = self.index(sensor_id)
         old = self.sensors[i]
         s = SensorSpec(old.id, np.asarray(T_world_sensor, dtype=float), old.hfov_deg,
@@ -639,7 +692,17 @@ class CoverageModel:
         return self.map()
 
     def add_sensor(self, sensor: SensorLike) -> CoverageMap:
-        """Add a tripod (planning mode) and return the updated map."""
+        """Add a tripod (planning mode) and return the updated map.
+
+        Args:
+            sensor: The new sensor (spec or tuple, see :func:`as_sensor`).
+
+        Returns:
+            The updated coverage map.
+
+        Raises:
+            InputError: its id is already in the model, or a bad sensor.
+        """
         s = as_sensor(sensor)
         if any(o.id == s.id for o in self.sensors):
             raise InputError(f"a sensor {s.id!r} is already in the coverage model")
@@ -652,7 +715,17 @@ class CoverageModel:
         return self.map()
 
     def remove_sensor(self, sensor_id: str) -> CoverageMap:
-        """Remove a tripod and return the updated map."""
+        """Remove a tripod and return the updated map.
+
+        Args:
+            sensor_id: Sensor id.
+
+        Returns:
+            The updated coverage map.
+
+        Raises:
+            InputError: no sensor has that id.
+        """
         i = self.index(sensor_id)
         del self.sensors[i]
         self._vis = np.delete(self._vis, i, axis=0)
@@ -660,7 +733,11 @@ class CoverageModel:
         return self.map()
 
     def map(self) -> CoverageMap:
-        """Aggregate the per-sensor layers into a :class:`CoverageMap`."""
+        """Aggregate the per-sensor layers into a :class:`CoverageMap`.
+
+        Returns:
+            The coverage map of the current sensors.
+        """
         counts = self._vis.sum(axis=0, dtype=np.int64)
         left = (self._vis & (self._side > 0)).sum(axis=0, dtype=np.int64)
         right = (self._vis & (self._side < 0)).sum(axis=0, dtype=np.int64)

@@ -143,7 +143,11 @@ class FusionReport:
     clock_offsets_s: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready form."""
+        """JSON-ready form.
+
+        Returns:
+            The fields as plain values (gaps as dicts).
+        """
         return asdict(self)
 
 

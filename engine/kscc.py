@@ -116,7 +116,11 @@ class KsccProgress:
         return self.n_collected / self.n_required
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready form for a live UI."""
+        """JSON-ready form for a live UI.
+
+        Returns:
+            The fields and ``fraction``.
+        """
         return {"state": self.state, "n_collected": self.n_collected,
                 "n_required": self.n_required, "fraction": self.fraction,
                 "message": self.message}
@@ -378,7 +382,18 @@ class StillnessCollector:
         return KsccProgress(state, len(self._frames), self.n_frames, msg)
 
     def update(self, time: float, positions: ArrayLike) -> KsccProgress:
-        """Feed one frame (``(J, 3)``, NaN = missing joint) at ``time`` seconds."""
+        """Feed one frame (``(J, 3)``, NaN = missing joint) at ``time`` seconds.
+
+        Args:
+            time: Frame time, s (strictly increasing).
+            positions: ``(J, 3)`` joints in the level frame (Z up), m.
+
+        Returns:
+            The progress after this frame.
+
+        Raises:
+            InputError: a frame of another shape, times not increasing, or not in metres.
+        """
         p = np.asarray(positions, dtype=float)
         if p.shape != self._sum.shape:
             raise InputError(f"a {self.joint_set.name} frame must have shape {self._sum.shape}, "
@@ -678,6 +693,12 @@ class KsccCalibrator:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> KsccCalibrator:
         """Inverse of :meth:`to_dict`.
+
+        Args:
+            d: A dict as :meth:`to_dict` writes.
+
+        Returns:
+            The fitted calibrator.
 
         Raises:
             InputError: not a KSCC calibration, or malformed.

@@ -67,7 +67,20 @@ class CameraIntrinsics:
     def from_matrix(
         cls, K: ArrayLike, width: int, height: int, dist: ArrayLike | None = None
     ) -> CameraIntrinsics:
-        """Build from a 3×3 camera matrix."""
+        """Build from a 3×3 camera matrix.
+
+        Args:
+            K: 3×3 camera matrix (pixels).
+            width: Image width, px.
+            height: Image height, px.
+            dist: OpenCV distortion coefficients, or None for a pinhole.
+
+        Returns:
+            The intrinsics.
+
+        Raises:
+            InputError: ``K`` is not 3×3.
+        """
         Km = np.asarray(K, dtype=float)
         if Km.shape != (3, 3):
             raise InputError(f"camera matrix must be 3×3, got shape {Km.shape}")

@@ -344,7 +344,19 @@ class FrameCornerEstimator:
     def frame(
         self, depth: ArrayLike, detections: Sequence[MarkerDetection]
     ) -> dict[int, FrameCorners | str]:
-        """Corners (or a rejection reason) per detected marker id in one frame."""
+        """Corners (or a rejection reason) per detected marker id in one frame.
+
+        Args:
+            depth: ``(H, W)`` depth image of the frame (the estimator's depth camera).
+            detections: The markers detected in the frame's colour image.
+
+        Returns:
+            Marker id -> its 3D corners in the depth camera frame (m), or why they could not
+            be computed.
+
+        Raises:
+            InputError: the depth image's size differs from the depth camera's.
+        """
         out: dict[int, FrameCorners | str] = {}
         d = np.asarray(depth)
         if d.shape != (self.di.height, self.di.width):

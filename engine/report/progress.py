@@ -304,7 +304,11 @@ class Change:
         return bool(verdicts) and all(verdicts)
 
     def describe(self) -> str:
-        """e.g. "faster by 0.19 m/s (+15.2 %)"."""
+        """e.g. "faster by 0.19 m/s (+15.2 %)".
+
+        Returns:
+            The change in words, in the parameter's display unit.
+        """
         p = self.parameter
         amount = f"{abs(self.delta) * p.scale:.{p.decimals}f} {p.unit}"
         pct = f" ({self.pct:+.1f} %)" if math.isfinite(self.pct) else ""
@@ -313,7 +317,11 @@ class Change:
         return f"{self.direction} by {amount}{pct}"
 
     def trial_verdict(self) -> str:
-        """Verdict (a) in words, with the p-value."""
+        """Verdict (a) in words, with the p-value.
+
+        Returns:
+            Whether the trials differ (Welch's test), or why it was not tested.
+        """
         if self.welch is None:
             return TOO_FEW_TRIALS
         p = "p < 0.001" if self.welch.p < 0.001 else f"p = {self.welch.p:.3f}"
@@ -322,7 +330,11 @@ class Change:
         return f"within trial-to-trial variability ({p})"
 
     def mdc_verdict(self) -> str:
-        """Verdict (b) in words, with the MDC95."""
+        """Verdict (b) in words, with the MDC95.
+
+        Returns:
+            Whether the change exceeds the published MDC95, or that none is published.
+        """
         if self.mdc is None:
             return NO_PUBLISHED_MDC
         p = self.parameter

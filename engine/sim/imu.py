@@ -375,7 +375,14 @@ class StandingStart:
         return next(a for bone, a, *_ in self._LIMBS if bone == seg)
 
     def joints(self, t: ArrayLike) -> FloatArray:
-        """``(T, 25, 3)`` world joint positions (Kinect v2 order)."""
+        """``(T, 25, 3)`` world joint positions (Kinect v2 order).
+
+        Args:
+            t: ``(T,)`` true times, s.
+
+        Returns:
+            Joint positions, m, world frame (Z up).
+        """
         tt = np.atleast_1d(np.asarray(t, dtype=float))
         out = np.asarray(self.walker.joints(np.maximum(tt, self.start_time))).copy()
         pre = tt < self.start_time
@@ -384,7 +391,14 @@ class StandingStart:
         return out
 
     def bone_frames(self, t: ArrayLike) -> dict[str, FloatArray]:
-        """World pose ``(T, 4, 4)`` of each bone (the walker's bones and frames)."""
+        """Bone name -> ``(T, 4, 4)`` world poses (the walker's bones and frames).
+
+        Args:
+            t: ``(T,)`` true times, s.
+
+        Returns:
+            ``T_world_bone`` per bone (m).
+        """
         tt = np.atleast_1d(np.asarray(t, dtype=float))
         out = {k: np.asarray(v).copy() for k, v in
                self.walker.bone_frames(np.maximum(tt, self.start_time)).items()}
@@ -396,7 +410,14 @@ class StandingStart:
         return out
 
     def capsule_segments(self, t: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Capsule end points ``(T, C, 3)`` twice and radii ``(C,)`` (walker's capsules)."""
+        """Capsule end points and radii (the walker's capsules).
+
+        Args:
+            t: ``(T,)`` true times, s.
+
+        Returns:
+            ``(a, b, radii)``: ``(T, C, 3)`` end points (m, world) and ``(C,)`` radii (m).
+        """
         tt = np.atleast_1d(np.asarray(t, dtype=float))
         A, B, r = self.walker.capsule_segments(np.maximum(tt, self.start_time))
         A, B = np.asarray(A).copy(), np.asarray(B).copy()
@@ -468,13 +489,27 @@ class Jumping:
         return jump_height(np.atleast_1d(np.asarray(t, dtype=float)), self.jumps)
 
     def joints(self, t: ArrayLike) -> FloatArray:
-        """``(T, J, 3)`` world joints."""
+        """``(T, J, 3)`` world joints.
+
+        Args:
+            t: ``(T,)`` true times, s.
+
+        Returns:
+            Joint positions, m, world frame (Z up).
+        """
         J = np.asarray(self.subject.joints(t)).copy()
         J[..., 2] += self._dz(t)[:, None]
         return J
 
     def bone_frames(self, t: ArrayLike) -> dict[str, FloatArray]:
-        """Bone name -> ``(T, 4, 4)`` world poses."""
+        """Bone name -> ``(T, 4, 4)`` world poses (the walker's bones and frames).
+
+        Args:
+            t: ``(T,)`` true times, s.
+
+        Returns:
+            ``T_world_bone`` per bone (m).
+        """
         dz = self._dz(t)
         out = {k: np.asarray(v).copy() for k, v in self.subject.bone_frames(t).items()}
         for v in out.values():
@@ -482,7 +517,14 @@ class Jumping:
         return out
 
     def capsule_segments(self, t: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Capsule end points ``(T, C, 3)`` twice and radii ``(C,)``."""
+        """Capsule end points and radii (the walker's capsules).
+
+        Args:
+            t: ``(T,)`` true times, s.
+
+        Returns:
+            ``(a, b, radii)``: ``(T, C, 3)`` end points (m, world) and ``(C,)`` radii (m).
+        """
         A, B, r = self.subject.capsule_segments(t)
         dz = self._dz(t)[:, None]
         A, B = np.asarray(A).copy(), np.asarray(B).copy()

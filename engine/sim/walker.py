@@ -164,6 +164,12 @@ class WalkerParams:
         √(3.1² − 1.8²) ≈ 2.5 cm within subjects; Owings & Grabiner 2004, J Biomech
         37:935: 2–2.5 cm), with the subject means spread N(0.115, 0.018) m (seed 000
         Vicon 11.7 ± 1.8 cm).
+
+        Args:
+            rng: Random generator.
+
+        Returns:
+            The parameters (SI units).
         """
         height = float(np.clip(rng.normal(1.72, 0.06), 1.50, 2.00))
         speed = float(np.clip(rng.normal(1.25, 0.15), 0.85, 1.70))
@@ -878,7 +884,11 @@ class Walker:
     @cached_property
     def capsules(self) -> list[Capsule]:
         """Body parts as capsules between joints (radii after Winter/NASA anthropometry,
-        scaled by height)."""
+        scaled by height).
+
+        Returns:
+            The capsules (names, end joints, radii in m).
+        """
         s = self.params.height_m / 1.75
         caps = [
             Capsule("pelvis", "HipLeft", "HipRight", 0.095 * s),
