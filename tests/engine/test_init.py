@@ -203,3 +203,53 @@ def test_every_modules_all_is_current() -> None:
                     obj.__doc__ or "").strip():
                 problems.append(f"{info.name}.{name} has no docstring")
     assert not problems, "\n".join(problems)
+
+
+#: public functions whose docstrings still lack a section, by ``path:qualified name``:
+#: the file was being changed by another engineer when the rest of ``engine/`` was
+#: brought in line; remove an entry when its docstring is completed
+KNOWN_DOC_GAPS = {
+    "engine/sim/skeleton_model.py:occluded_joints",
+    "engine/sim/skeleton_model.py:observation_errors",
+    "engine/sim/skeleton_model.py:SkeletonErrorModel.perfect",
+}
+
+
+def test_every_public_function_in_engine_has_its_sections() -> None:
+    """Every public class, function and method in ``engine/`` (exported or not) has a
+    docstring, with ``Args:`` when it takes arguments and ``Returns:`` when it returns
+    something (properties and private names excepted)."""
+    import ast
+
+    root = Path(engine.__file__).resolve().parent
+    problems = []
+
+    def check(path: str, node: ast.AST, prefix: str) -> None:
+        for n in getattr(node, "body", []):
+            if not isinstance(n, ast.FunctionDef | ast.ClassDef) or n.name.startswith("_"):
+                continue
+            where = f"{path}:{prefix}{n.name}"
+            doc = ast.get_docstring(n) or ""
+            if isinstance(n, ast.ClassDef):
+                if not doc:
+                    problems.append(f"{where}: no docstring")
+                check(path, n, f"{prefix}{n.name}.")
+                continue
+            decorators = {getattr(d, "id", getattr(d, "attr", "")) for d in n.decorator_list}
+            if decorators & {"property", "cached_property"} or where in KNOWN_DOC_GAPS:
+                continue
+            args = [a.arg for a in n.args.args + n.args.kwonlyargs if a.arg not in ("self", "cls")]
+            ret = n.returns
+            gaps = [s for s, needed in (
+                ("docstring", not doc),
+                ("Args", bool(args) and "Args:" not in doc),
+                ("Returns", ret is not None and not (isinstance(ret, ast.Constant)
+                                                     and ret.value is None)
+                 and "Returns:" not in doc and "Yields:" not in doc)) if needed]
+            if gaps:
+                problems.append(f"{where}: no {', '.join(gaps)}")
+
+    for p in sorted(root.rglob("*.py")):
+        rel = f"engine/{p.relative_to(root).as_posix()}"
+        check(rel, ast.parse(p.read_text()), "")
+    assert not problems, "\n".join(problems)
