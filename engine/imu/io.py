@@ -1276,6 +1276,11 @@ def _drop_repeated_rows(time: FloatArray, values: FloatArray,
     return time[~same], ~same
 
 
+#: The options :func:`load_imu` passes on to :func:`load_csv`.
+_CSV_OPTIONS = frozenset({"gyr_unit", "acc_unit", "mag_unit", "time_unit", "frequency",
+                          "sensor", "quat_order", "quat_frame"})
+
+
 def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
     """Read any supported IMU file, choosing the reader from extension and content.
 
@@ -1331,6 +1336,11 @@ def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
         return load_broad(p) if "imu_gyr" in names else load_madgwick_mat(p)
     if suf in (".csv", ".txt", ".tsv"):
         # x-IMU exports are one case of the generic reader (their headers carry the units)
+        unknown = sorted(set(kwargs) - _CSV_OPTIONS)
+        if unknown:
+            raise InputError(f"{p.name}: the CSV reader has no option {', '.join(unknown)}"
+                             f" (it takes {', '.join(sorted(_CSV_OPTIONS))}; 'platform' "
+                             "is for a phone app's .zip or folder)")
         rec = load_csv(p, **kwargs)
         if any(h.startswith("Gyroscope X") for h in rec.meta.get("columns", ())):
             rec.meta["format"] = "x-imu-csv"

@@ -207,3 +207,21 @@ def test_damaged_mat_and_hdf5_give_input_error(tmp_path: Path) -> None:
                            "Accelerometer": np.zeros((2, 3))})
     with pytest.raises(InputError, match="'time' is not numeric"):
         load_imu(bad)
+
+
+def test_load_imu_names_an_option_the_csv_reader_does_not_take(tmp_path: Path) -> None:
+    """An option meant for another reader (``platform`` is for a phone app's zip) is an
+    InputError that names it and the CSV reader's options, not a TypeError; the list of
+    options passed on is exactly load_csv's keywords."""
+    import inspect
+
+    from engine.imu.io import _CSV_OPTIONS
+
+    keywords = {n for n, p in inspect.signature(load_csv).parameters.items()
+                if p.kind is inspect.Parameter.KEYWORD_ONLY}
+    assert keywords == _CSV_OPTIONS
+    path = _generic(tmp_path)
+    with pytest.raises(InputError, match=r"no option platform .*gyr_unit.*zip or folder"):
+        load_imu(path, platform="ios")
+    assert load_imu(path, gyr_unit="rad/s", acc_unit="m/s2", mag_unit="uT").frequency \
+        == pytest.approx(FS)
