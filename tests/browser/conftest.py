@@ -273,6 +273,54 @@ def page(browser: Any, live_server: LiveServer) -> Iterator[Any]:
         p.context.close()
 
 
+#: Counts the page's requests in flight (``fetch`` and ``XMLHttpRequest``) from its first
+#: script on: :func:`wait_settled` waits on it. Added with ``add_init_script`` before the
+#: page is opened; a page's streams (websockets) are not requests and are not counted.
+TRACK_REQUESTS_JS = """(() => {
+  if (window.__net) return;
+  const net = window.__net = { pending: 0, started: 0, last: performance.now() };
+  const begin = () => { net.pending += 1; net.started += 1; net.last = performance.now(); };
+  const end = () => { net.pending -= 1; net.last = performance.now(); };
+  const realFetch = window.fetch;
+  window.fetch = function (...args) {
+    begin();
+    // settled once the body is read too: a page reads it (json()) on the answer
+    return realFetch.apply(this, args).then((r) => {
+      r.clone().arrayBuffer().then(end, end);
+      return r;
+    }, (e) => { end(); throw e; });
+  };
+  const send = XMLHttpRequest.prototype.send;
+  XMLHttpRequest.prototype.send = function (...args) {
+    begin();
+    this.addEventListener("loadend", end);
+    return send.apply(this, args);
+  };
+})()"""
+
+
+def track_requests(page: Any) -> None:
+    """Count ``page``'s requests in flight from its next navigation on (for
+    :func:`wait_settled`)."""
+    page.add_init_script(TRACK_REQUESTS_JS)
+
+
+def wait_settled(page: Any, quiet_ms: float = 400, timeout_ms: float = 30000) -> None:
+    """Wait until the page (opened after :func:`track_requests`) has loaded, asked for
+    something, has no request in flight and none finished or began in the last
+    ``quiet_ms`` (an answer that leads to another request, and its drawing, have
+    happened), then for two animation frames: what a fixed "let the first answers
+    arrive" sleep waited for, without its margin. A page that polls settles between
+    two polls."""
+    page.wait_for_load_state("load")
+    page.wait_for_function(
+        "(q) => window.__net && window.__net.started > 0 && window.__net.pending === 0 "
+        "&& performance.now() - window.__net.last >= q", arg=quiet_ms, timeout=timeout_ms,
+        polling=50)
+    page.evaluate("() => new Promise((r) => requestAnimationFrame(() => "
+                  "requestAnimationFrame(() => r(true))))")
+
+
 def screenshot(page: Any, artifacts_dir: Path, name: str,
                selector: str | None = None) -> NDArray[np.uint8]:
     """Save a PNG of the page (or of one element) as ``<artifacts>/browser/<name>.png``.

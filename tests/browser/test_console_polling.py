@@ -55,13 +55,17 @@ def test_rig_page_stops_polling_while_hidden_and_polls_at_once_when_shown(
         page: Any, live_server: LiveServer) -> None:
     """The Rig page asks for the sensors and recordings every second while it is seen;
     hidden, it asks nothing; shown again, it asks at once (before its next second)."""
+    # the page's timers on a clock the test moves on (time flows as usual meanwhile):
+    # 3.5 s of a hidden tab pass at once instead of being waited for
+    page.clock.install()
+    page.reload()
     page.wait_for_function("document.getElementById('summary').textContent.includes('online')")
     page.evaluate(COUNT_FETCHES_JS)
     page.wait_for_function("window.__asked.filter((u) => u.includes('/api/nodes')).length >= 2")
     page.evaluate(SET_HIDDEN_JS, True)
     page.wait_for_timeout(300)  # a request already on its way when the tab was hidden
     page.evaluate(COUNT_FETCHES_JS)  # counts start over
-    page.wait_for_timeout(3500)  # 3 polls of each list when the page polled regardless
+    page.clock.run_for(3500)  # 3 polls of each list when the page polled regardless
     assert _asked(page, "/api/nodes") == 0
     assert _asked(page, "/api/recordings") == 0
     # shown: both lists asked for within the visibilitychange handler itself
@@ -97,6 +101,8 @@ def test_live_page_stops_polling_while_hidden(page: Any, live_server: LiveServer
     page.wait_for_timeout(500)
     page.evaluate(SET_HIDDEN_JS, True)
     page.evaluate(COUNT_FETCHES_JS)
+    # (real time: on Playwright's fake clock the page's 200 ms timers and animation frames
+    # of six streaming panels run one by one, minutes for 6 s)
     page.wait_for_timeout(6000)
     assert _asked(page, "/api/nodes") == 0
     page.evaluate(SET_HIDDEN_JS, False)

@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 
-from tests.browser.conftest import LiveServer, screenshot
+from tests.browser.conftest import LiveServer, screenshot, track_requests, wait_settled
 
 pytestmark = pytest.mark.browser
 
@@ -73,10 +73,11 @@ def test_first_visit_of_each_page_is_clean(page: Any, live_server: LiveServer,
     console_errors: list[str] = []
     page.on("console", lambda m: console_errors.append(f"{m.text} ({m.location.get('url')})")
             if m.type == "error" else None)
+    track_requests(page)
     page.goto(f"{live_server.base_url}/{name}.html")
-    # (no "networkidle": the Live and KSCC pages stream and poll for as long as they are open)
-    page.wait_for_load_state("load")
-    page.wait_for_timeout(2000)  # let the first answers arrive and render
+    # the first answers arrived and drew (no "networkidle": the Live and KSCC pages stream
+    # and poll for as long as they are open; a fixed 2 s was waited here)
+    wait_settled(page)
     got = page.evaluate(AUDIT_JS)
     screenshot(page, artifacts_dir, f"ux_first_visit_{name}")
     assert not page.js_errors, page.js_errors

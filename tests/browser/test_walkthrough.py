@@ -17,7 +17,14 @@ from typing import Any
 
 import pytest
 
-from tests.browser.conftest import LiveServer, login, record_walk, screenshot
+from tests.browser.conftest import (
+    LiveServer,
+    login,
+    record_walk,
+    screenshot,
+    track_requests,
+    wait_settled,
+)
 
 pytestmark = pytest.mark.browser
 
@@ -118,10 +125,10 @@ def _tablet_width_needs_no_sideways_scrolling(
     page.route(lambda url: "/viewer" in url and "/api/" not in url,
                lambda route: route.fulfill(status=200, content_type="text/html",
                                            body="<!doctype html><title>3D view</title>"))
+    track_requests(page)
     for name in ("live", "calibrate"):
         page.goto(f"{live_server.base_url}/{name}.html")
-        page.wait_for_load_state("load")
-        page.wait_for_timeout(1500)  # the first answers arrive and draw
+        wait_settled(page)  # the first answers arrived and drew
         screenshot(page, artifacts_dir, f"walkthrough_tablet_{name}")
         sw, cw = page.evaluate("[document.documentElement.scrollWidth, "
                                "document.documentElement.clientWidth]")
