@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-import cv2
 import numpy as np
 from pydantic import ValidationError
 from websockets.asyncio.client import ClientConnection, connect
@@ -180,6 +179,8 @@ def encode_image(stream: str, img: np.ndarray, scale: float, fmt: str) -> tuple[
     stays 16-bit PNG when PNG is asked for, and becomes a false-colour JPEG preview
     otherwise (JPEG has no 16-bit mode).
     """
+    import cv2  # only nodes that send images need OpenCV (as downscale_image)
+
     img = downscale_image(stream, img, scale)
     if stream == "color" and img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)

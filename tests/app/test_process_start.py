@@ -52,7 +52,8 @@ def test_the_server_app_imports_no_heavy_library(tmp_path: Path) -> None:
 
 def test_the_node_agent_imports_no_heavy_library() -> None:
     code = "import app.nodes.agent, app.nodes.backends.sim, app.commands.node"
-    assert _loaded(code, (*HEAVY, "fastapi", "sqlalchemy", "viser")) == []
+    # (OpenCV too: only a node that sends images needs it, and loads it with its first)
+    assert _loaded(code, (*HEAVY, "cv2", "fastapi", "sqlalchemy", "viser")) == []
 
 
 def test_the_heavy_libraries_still_load_where_they_are_used() -> None:
