@@ -38,7 +38,7 @@ def http(url: str, data: dict[str, Any] | None = None, token: str | None = None,
         return json.loads(r.read())
 
 
-def wait_for(cond: Any, timeout: float, what: str, step: float = 0.2) -> Any:
+def wait_for(cond: Any, timeout: float, what: str, step: float = 0.1) -> Any:
     deadline = time.time() + timeout
     last: Any = None
     while time.time() < deadline:

@@ -51,7 +51,7 @@ def test_periodic_check_reports_a_bumped_tripod_without_a_request(tmp_path: Path
 
         # no POST: the server's own check finds it
         last = wait_for(lambda: (d := r.api("/api/calibration/live-check"))["warnings"] and d,
-                        600, "the periodic check to report the moved sensor", step=1.0)
+                        600, "the periodic check to report the moved sensor", step=0.2)
         assert [w["sensor"] for w in last["warnings"]] == ["S2"], last
         w = last["warnings"][0]
         assert w["moved_mm"] == pytest.approx(BUMP_M * 1000, abs=5), w
@@ -66,7 +66,7 @@ def test_periodic_check_reports_a_bumped_tripod_without_a_request(tmp_path: Path
         # a recording holds the periodic check back; the warning stays meanwhile
         rec = r.api("/api/recordings", {})
         d = wait_for(lambda: _periodic(r, "skipped", f"recording {rec['id']}"), 300,
-                     "the periodic check to wait for the recording", step=0.5)
+                     "the periodic check to wait for the recording", step=0.1)
         assert [x["sensor"] for x in d["warnings"]] == ["S2"]
         r.api(f"/api/recordings/{rec['id']}/stop", method="POST")
 
