@@ -318,3 +318,37 @@ def test_ar1_rate_holds_and_reduces_to_the_plain_series():
     assert np.allclose(held[10:20], held[9])
     assert np.allclose(held[:10], plain[:10])
     assert not np.allclose(held[20:], held[19])
+
+
+def test_far_jitter_gain_sets_the_turned_away_ankles_frame_to_frame_jitter():
+    """``far_jitter_gain`` scales the far-side jitter alone: a subject standing still in
+    front of a left sensor (S1; the right ankle is on the turned-away half), slow error
+    off, so the frame-to-frame change of an ankle's error is the jitter. Per metre of
+    distance, the far ankle jitters like the near one with a gain of 0 (the default), ≈ ×2
+    with the far noise gain (None: the same as ``far_noise_gain``, 1.6 × ≈ 0.7 turned
+    away, the former model)."""
+    rig = default_avenue_rig(seed=0)
+    s = rig.sensor("S1")
+    w = Walker(WalkerParams(), [-0.5, 0.0, 0.0], [11.0, 0.0, 0.0], start_time=3.0,
+               back_and_forth=False, seed=1)
+    t = np.arange(0.0, 6.0, 1 / 30)
+    standing = t < 2.5
+    dist = np.linalg.norm(w.joints(t) - s.position, axis=-1)
+    base = {"slow_sd_m": 0.0, "acquisition_median_s": 0.0, "leg_swap_rate_hz": 0.0,
+            "partial_occlusion_gain": 0.0}
+
+    def jitter_per_m(gain: float | None, j: int) -> float:
+        m = SkeletonErrorModel(**base, far_jitter_gain=gain)
+        ser = observe_skeletons(s, rig, w, t, np.random.default_rng(4), m)
+        err = observation_errors(ser, s, w)[standing, j]
+        ok = np.isfinite(err).all(axis=1)
+        assert ok.sum() > 60
+        return float(np.std(np.diff(err[ok], axis=0)) / np.mean(dist[standing][ok, j]))
+
+    near = jitter_per_m(None, AL)
+    assert jitter_per_m(0.0, AL) == pytest.approx(near)  # the near ankle is unaffected
+    assert jitter_per_m(0.0, AR) / near == pytest.approx(1.0, abs=0.2)
+    assert 1.7 < jitter_per_m(None, AR) / near < 2.6
+    gained = SkeletonErrorModel.far_noise_gain
+    assert jitter_per_m(gained, AR) == pytest.approx(jitter_per_m(None, AR))
+    assert SkeletonErrorModel.far_jitter_gain == 0.0
