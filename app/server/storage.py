@@ -211,6 +211,10 @@ class UsageIndex:
         self._lock = threading.Lock()
         self._changed_in_scan: set[str] | None = None  # reported while a rescan runs
         self._scan_lock = threading.Lock()
+        #: grows whenever a kept size may have changed (measured, reported changed,
+        #: rescanned): an answer built from the index is still right while it and the
+        #: folders' stamps are the same (``GET /api/storage`` keeps its answer so)
+        self.version = 0
         #: when the last full rescan ended (time.time()), None before the first
         self.scanned_at: float | None = None
 
@@ -224,6 +228,7 @@ class UsageIndex:
         n = self.layout.measure_bytes(rec_id)
         with self._lock:
             self._known[rec_id] = (stamp, n)
+            self.version += 1
         return n
 
     def recording_bytes(self, rec_id: str) -> int:
@@ -236,10 +241,16 @@ class UsageIndex:
             return hit[1]
         return self._measure(rec_id, stamp)
 
-    def many(self, rec_ids: Iterable[str]) -> dict[str, int]:
-        """Bytes of each of ``rec_ids``: two folder listings, then only the recordings
-        whose stamp changed are read."""
-        recs, refs = _folders(self.layout.recordings), _folders(self.layout.references)
+    def stamps(self) -> tuple[dict[str, int], dict[str, int]]:
+        """The recordings' and the references' folders with their mtime_ns (two folder
+        listings): what :meth:`many` compares the kept sizes with."""
+        return _folders(self.layout.recordings), _folders(self.layout.references)
+
+    def many(self, rec_ids: Iterable[str],
+             stamps: tuple[dict[str, int], dict[str, int]] | None = None) -> dict[str, int]:
+        """Bytes of each of ``rec_ids``: two folder listings (or ``stamps``, from
+        :meth:`stamps`), then only the recordings whose stamp changed are read."""
+        recs, refs = stamps if stamps is not None else self.stamps()
         out: dict[str, int] = {}
         for rec_id in rec_ids:
             stamp = (recs.get(rec_id, 0), refs.get(rec_id, 0))
@@ -255,6 +266,7 @@ class UsageIndex:
         """Something below a recording's folder changed: measure it again when asked."""
         with self._lock:
             self._known.pop(rec_id, None)
+            self.version += 1
             if self._changed_in_scan is not None:
                 self._changed_in_scan.add(rec_id)
 
@@ -281,6 +293,7 @@ class UsageIndex:
             for rec_id in self._changed_in_scan or ():  # maybe measured before it changed
                 fresh.pop(rec_id, None)
             self._known, self._changed_in_scan = fresh, None
+            self.version += 1
         self.scanned_at = time.time()
         return len(fresh)
 
@@ -305,15 +318,18 @@ def usage_index(data_dir: Path) -> UsageIndex:
 
 
 def note_changed(path: Path) -> None:
-    """A file at ``path``, below ``<data_dir>/recordings/<rec_id>/``, was written or
-    removed: the data folder's :class:`UsageIndex` (if one is in use) measures that
-    recording again when asked."""
+    """A file at ``path``, below ``<data_dir>/recordings/<rec_id>/`` or
+    ``<data_dir>/references/<rec_id>/``, was written or removed: the data folder's
+    :class:`UsageIndex` (if one is in use) measures that recording again when asked."""
     p = Path(path).absolute()
-    for rec_dir in (p, *p.parents):
-        if rec_dir.parent.name == "recordings":
-            idx = _INDEXES.get(rec_dir.parent.parent)
-            if idx is not None:
-                idx.changed(rec_dir.name)
+    for data_dir, idx in list(_INDEXES.items()):
+        for top in ("recordings", "references"):
+            try:
+                rel = p.relative_to(data_dir / top)
+            except ValueError:
+                continue
+            if rel.parts:
+                idx.changed(rel.parts[0])
             return
 
 

@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from app.api.routes import storage as storage_routes
 from app.config import Settings
 from app.main import create_app
 from app.server import storage as st
@@ -84,10 +85,12 @@ def test_usage_follows_the_files(clinic: tuple[TestClient, Clinic, Path],
     assert walked == []
 
     code, rec_id, node = _first_with_files(data, c)
-    # a reference file put in (an upload): its folder's time says so
+    # a reference file put in by hand: its folder's time says so once the kept overview
+    # is older than STAMPS_MAX_AGE_S (the server's own writes are reported at once)
     refs = data / "references" / rec_id
     refs.mkdir(parents=True)
     (refs / "abc.trc").write_bytes(b"x" * 1000)
+    monkeypatch.setattr(storage_routes, "STAMPS_MAX_AGE_S", 0.0)
     assert _subjects(c)[code][0] == first[code][0] + 1000
     assert walked == [rec_id]
 

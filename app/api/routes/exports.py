@@ -45,6 +45,7 @@ from app.server.storage import (
     depth_zip,
     export_skeleton,
     fused_skeleton,
+    note_changed,
     read_part_skeleton,
     read_reference,
     recording_poses,
@@ -202,6 +203,8 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
         if placed:  # its row did not commit: the file goes too
             path.unlink(missing_ok=True)
         raise
+    finally:
+        note_changed(folder)  # the recording's bytes on the server (GET /api/storage)
     return reference_json(ref)
 
 
@@ -265,5 +268,6 @@ def delete_reference(rec_id: str, ref_id: int, request: Request, user: CurrentUs
         raise
     erasures.finish(layout.data_dir, eid, committed=True)
     path.unlink(missing_ok=True)  # after the commit: a failed one keeps row and file
+    note_changed(path)
     purge(db)
     return {"deleted": "reference", "id": ref_id}

@@ -48,6 +48,7 @@ from app.db.data import ReferenceImport, Subject
 from app.db.data import Session as DbSession
 from app.server import analysis as an
 from app.server import erasures
+from app.server.storage import note_changed
 from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.report.progress import SessionTrials
 from engine.report.render import ReportData, render_html, render_pdf
@@ -711,6 +712,7 @@ async def put_reference(rec_id: str, request: Request, file: UploadFile, user: C
         if folder.exists():
             os.replace(folder, Path(tmp) / "replaced")  # deleted with the temporary folder
         os.replace(new, folder)
+    note_changed(folder)  # the recording's bytes on the server (GET /api/storage)
     return {"rec_id": rec_id, "attached": True, **meta}
 
 
@@ -750,6 +752,7 @@ def delete_reference(rec_id: str, user: CurrentUser, settings: SettingsDep) -> d
                             f"({exc.strerror or exc}); try again") from exc
     erasures.finish(settings.data_dir, eid, committed=True)
     shutil.rmtree(gone, ignore_errors=True)
+    note_changed(folder)  # the recording's bytes on the server (GET /api/storage)
     return {"rec_id": rec_id, "attached": False}
 
 

@@ -9,16 +9,21 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
+import re
+import threading
+import time
 from collections.abc import AsyncIterator
 from collections.abc import Set as AbstractSet
 from contextlib import asynccontextmanager
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Annotated, Any
 
-from fastapi import APIRouter, FastAPI, HTTPException, Query, Request, status
+from fastapi import APIRouter, FastAPI, HTTPException, Query, Request, Response, status
 from pydantic import BaseModel, Field
-from sqlalchemy import func, select
+from sqlalchemy import event, func, select
 
 from app.api.deps import CurrentUser, DbDep, ExportsDep, HubDep
 from app.api.limits import BoundedRoute
@@ -88,14 +93,148 @@ class ConfirmId(BaseModel):
     confirm: str = Field(max_length=200, description="The recording id typed again.")
 
 
-@router.get("")
+_WATCHED_TABLES = re.compile(r"\b(subjects|sessions|recordings)\b", re.IGNORECASE)
+#: columns of those tables the storage overview shows or groups by
+_WATCHED_COLUMNS = frozenset({"id", "project_id", "code", "subject_id", "session_id"})
+_SET_COLUMN = re.compile(r"\"?(\w+)\"?\s*=")
+
+
+def _changes_overview(statement: str) -> bool:
+    """Whether an SQL statement may change what the storage overview lists (a subject,
+    session or recording added, removed, renamed or moved); a recording's state written
+    back (the data sync does so all the time) does not."""
+    head = statement.lstrip()[:8].upper()
+    if head.startswith(("SELECT", "PRAGMA", "SAVEPOIN", "RELEASE", "BEGIN", "COMMIT",
+                        "ROLLBACK")):
+        return False
+    if not _WATCHED_TABLES.search(statement):
+        return False
+    if head.startswith("UPDATE"):
+        set_clause = re.split(r"\sWHERE\s", re.split(r"\sSET\s", statement, maxsplit=1,
+                                                     flags=re.IGNORECASE)[-1],
+                              maxsplit=1, flags=re.IGNORECASE)[0]
+        return bool(_WATCHED_COLUMNS & {c.lower() for c in _SET_COLUMN.findall(set_clause)})
+    return True  # INSERT, DELETE, a schema change
+
+
+class _DbGeneration:
+    """Grows whenever this process writes a subject, session or recording row, again
+    when that connection goes back to the pool (after its commit or rollback: an
+    answer read from the old rows meanwhile is not kept under the new count)."""
+
+    def __init__(self, engine: Any) -> None:
+        self.value = 0
+        event.listen(engine, "after_cursor_execute", self._executed)
+        event.listen(engine.pool, "checkin", self._checked_in)
+
+    def _executed(self, conn: Any, _cursor: Any, statement: str, *_args: Any) -> None:
+        if _changes_overview(statement):
+            conn.info["gaitrig_overview_written"] = True
+            self.value += 1
+
+    def _checked_in(self, _dbapi_conn: Any, record: Any) -> None:
+        if record is not None and record.info.pop("gaitrig_overview_written", False):
+            self.value += 1
+
+
+_GENERATION_LOCK = threading.Lock()
+
+
+def _db_generation(request: Request) -> _DbGeneration:
+    """The app's :class:`_DbGeneration` (listening from the first request on)."""
+    gen: _DbGeneration | None = getattr(request.app.state, "overview_generation", None)
+    if gen is None:
+        with _GENERATION_LOCK:
+            gen = getattr(request.app.state, "overview_generation", None)
+            if gen is None:
+                engine = request.app.state.db_sessions.kw["bind"]
+                gen = request.app.state.overview_generation = _DbGeneration(engine)
+    return gen
+
+
+@dataclass
+class _Overview:
+    """The subjects' part of ``GET /api/storage``, kept with what it was built from."""
+
+    db_generation: int
+    usage_version: int
+    stamps: tuple[dict[str, int], dict[str, int]]
+    checked_at: float  # time.monotonic() of the stamps' last listing
+    rows: list[Any]  # (subject id, project id, code, its recording ids)
+    subjects_json: bytes
+
+
+def _subject_rows(db: Any) -> list[Any]:
+    """(id, project id, code, recording ids) of every subject, in the overview's order."""
+    # one row per subject with its recording ids joined in SQL, without the ORM: a row
+    # per recording (30 000 in a clinic) took ten times as long
+    s, se, r = m.Subject.__table__, m.Session.__table__, m.Recording.__table__
+    rows = db.execute(select(s.c.id, s.c.project_id, s.c.code,
+                             func.aggregate_strings(r.c.id, ","))
+                      .select_from(s.outerjoin(se, se.c.subject_id == s.c.id)
+                                   .outerjoin(r, r.c.session_id == se.c.id))
+                      .group_by(s.c.id).order_by(s.c.project_id, s.c.code, s.c.id)).all()
+    return [(x[0], x[1], x[2], x[3].split(",") if x[3] else []) for x in rows]  # (no comma
+    # in an id)
+
+
+def _dumps(obj: Any) -> bytes:
+    """JSON as FastAPI's ``JSONResponse`` renders it (so a kept answer is the same bytes)."""
+    return json.dumps(obj, ensure_ascii=False, allow_nan=False, indent=None,
+                      separators=(",", ":")).encode("utf-8")
+
+
+#: Seconds an overview is given without listing the recordings' folders again. Every
+#: change the server makes below them is reported to the usage index (a transfer ended,
+#: an analysis or a reference written, a deletion, the periodic check's finds), which
+#: makes a new one at once; the listing (a ``stat`` per recording folder: 15-40 ms for
+#: 2 000 on a loaded machine, and a clinic keeps every recording) only catches a file
+#: put at the top of a folder by hand.
+STAMPS_MAX_AGE_S = 10.0
+
+
+def _subjects_json(request: Request, db: Any, idx: Any) -> bytes:
+    """The overview's ``subjects`` list as JSON, built again only when a subject,
+    session or recording row was written, the usage index's sizes changed, or (listed
+    at most every :data:`STAMPS_MAX_AGE_S`) a recording's folder stamp did.
+
+    A clinic's list is thousands of subjects: building it per request (the joined query,
+    a size per recording, FastAPI's encoding of every item) took 6-8 times what a new
+    server's did (bench/storage_scale.py)."""
+    gen = _db_generation(request)
+    db_generation, usage_version = gen.value, idx.version  # before anything is read
+    kept: _Overview | None = getattr(request.app.state, "storage_overview", None)
+    if kept is not None and (kept.db_generation, kept.usage_version) == (db_generation,
+                                                                         usage_version):
+        now = time.monotonic()
+        if now - kept.checked_at < STAMPS_MAX_AGE_S:
+            return kept.subjects_json
+        stamps = idx.stamps()
+        if stamps == kept.stamps:
+            kept.checked_at = now
+            return kept.subjects_json
+    else:
+        stamps = idx.stamps()
+    checked_at = time.monotonic()
+    rows = kept.rows if kept is not None and kept.db_generation == db_generation else \
+        _subject_rows(db)
+    sizes = idx.many((i for x in rows for i in x[3]), stamps)
+    out = _dumps([{"id": x[0], "project_id": x[1], "code": x[2],
+                   "bytes": sum(sizes[i] for i in x[3]), "n_recordings": len(x[3])}
+                  for x in rows])
+    request.app.state.storage_overview = _Overview(db_generation, usage_version, stamps,
+                                                   checked_at, rows, out)
+    return out
+
+
+@router.get("", response_model=dict[str, Any])
 def usage(request: Request, user: CurrentUser, db: DbDep, hub: HubDep,
           subjects_too: Annotated[bool, Query(alias="subjects", description=(
               "false: only the disk and pending deletions, without the bytes of every "
               "subject"))] = True,
           rescan: Annotated[bool, Query(description=(
               "true: measure every recording folder again first (after files were changed "
-              "by hand; seconds at clinic size)"))] = False) -> dict[str, Any]:
+              "by hand; seconds at clinic size)"))] = False) -> Response:
     """Disk of the data folder, bytes stored per subject, and the node copies of deleted
     recordings still to delete (``pending_node_deletions``: node id → recording ids).
 
@@ -106,25 +245,14 @@ def usage(request: Request, user: CurrentUser, db: DbDep, hub: HubDep,
     idx = usage_index(layout.data_dir)
     if rescan:
         idx.rescan()
-    subjects: list[dict[str, Any]] = []
-    if subjects_too:
-        # one row per subject with its recording ids joined in SQL, without the ORM: a
-        # row per recording (30 000 in a clinic) took ten times as long
-        s, se, r = m.Subject.__table__, m.Session.__table__, m.Recording.__table__
-        rows = db.execute(select(s.c.id, s.c.project_id, s.c.code,
-                                 func.aggregate_strings(r.c.id, ","))
-                          .select_from(s.outerjoin(se, se.c.subject_id == s.c.id)
-                                       .outerjoin(r, r.c.session_id == se.c.id))
-                          .group_by(s.c.id).order_by(s.c.project_id, s.c.code, s.c.id)).all()
-        recs = {x[0]: x[3].split(",") if x[3] else [] for x in rows}  # (ids have no comma)
-        sizes = idx.many(i for ids in recs.values() for i in ids)
-        subjects = [{"id": x[0], "project_id": x[1], "code": x[2],
-                     "bytes": sum(sizes[i] for i in recs[x[0]]),
-                     "n_recordings": len(recs[x[0]])} for x in rows]
-    return {"disk": layout.disk(), "data_dir": str(layout.data_dir), "subjects": subjects,
-            "pending_node_deletions": hub.transfers.pending_deletions(),
-            "usage_scanned_at": None if idx.scanned_at is None else
-            datetime.fromtimestamp(idx.scanned_at, UTC).isoformat(timespec="seconds")}
+    subjects = _subjects_json(request, db, idx) if subjects_too else b"[]"
+    head = _dumps({"disk": layout.disk(), "data_dir": str(layout.data_dir)})
+    tail = _dumps({"pending_node_deletions": hub.transfers.pending_deletions(),
+                   "usage_scanned_at": None if idx.scanned_at is None else
+                   datetime.fromtimestamp(idx.scanned_at, UTC).isoformat(timespec="seconds")})
+    # the kept list goes in as it is: {head..., "subjects": [...], tail...}
+    return Response(head[:-1] + b',"subjects":' + subjects + b"," + tail[1:],
+                    media_type="application/json")
 
 
 @router.get("/recordings/{rec_id}")
