@@ -24,6 +24,9 @@ server figures. Figures:
 * ``unfiled_ms`` / ``unfiled_ms_peer`` / ``unfiled_ratio``: ``GET /api/storage/unfiled``
   of the clinic against the peer; ``unfiled_fn_ms`` / ``unfiled_fn_ms_old``: the new and
   the old computation in this process.
+* ``subjects_ms`` / ``recordings_ms`` / ``sessions_ms`` (each with ``_peer`` and
+  ``_ratio``): a page of 50 subjects with their counts and bytes, the newest recordings'
+  page, one subject's sessions, on the clinic and on the peer.
 * ``check_pass_ms``: one pass's share of the periodic check of settled recordings (five
   recordings' parts: manifest read, a ``stat`` per file).
 * ``cleanup_s``: the start-up clean-up of leftovers over the clinic's folders.
@@ -208,6 +211,13 @@ def imports_s() -> float:
     return round(float(out.stdout.strip().splitlines()[-1]), 2)
 
 
+#: What a clinician's pages ask on every visit, measured on the clinic and on the peer
+#: (the same page size on both: the peer has 50 subjects, so 50 a page).
+LIST_ENDPOINTS = (("storage", "/api/storage"), ("unfiled", "/api/storage/unfiled"),
+                  ("subjects", "/api/subjects?limit=50"), ("recordings", "/api/recordings"),
+                  ("sessions", "/api/sessions?subject_id=1"))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--subjects", type=int, default=5000, help="the clinic's subjects")
@@ -233,7 +243,7 @@ def main() -> int:
             out["healthz_during_sweep_ms"] = healthz_during_sweep(servers[0], 6.0)
             servers.append(Server(tmp / "peer", tmp / "peer.log"))  # one start at a time
             out["server_start_s_peer"] = round(servers[1].wait(), 2)
-            for name, path in (("storage", "/api/storage"), ("unfiled", "/api/storage/unfiled")):
+            for name, path in LIST_ENDPOINTS:
                 big, peer = [], []
                 for _ in range(args.repeat):
                     peer.append(servers[1].call("GET", path)[0])

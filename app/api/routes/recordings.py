@@ -13,6 +13,7 @@ recording ran that are not part of it, with why).
 from __future__ import annotations
 
 import json
+import threading
 import time
 from collections.abc import Collection
 from pathlib import Path
@@ -68,6 +69,29 @@ def _images_skipped(layout: StorageLayout, rec_id: str, node_id: str) -> int | N
         _SKIPPED.clear()
     _SKIPPED[path] = (mtime, n)
     return n
+
+
+_ORDER_LOCK = threading.Lock()
+_order: tuple[tuple[Recording, ...], list[Recording]] = ((), [])
+
+
+def _newest_first(recordings: dict[str, Recording]) -> list[Recording]:
+    """The server's recordings, newest first (a new list: the caller may filter it).
+
+    Sorting a clinic's tens of thousands of recordings per page took as long as the rest
+    of the page, so the order is kept while the same recordings are known (one pass in C
+    compares them; a recording's ``created`` never changes); any added, removed or
+    replaced one sorts them again.
+    """
+    global _order
+    now = tuple(recordings.values())
+    with _ORDER_LOCK:
+        kept, order = _order
+    if kept != now:
+        order = sorted(now, key=lambda r: r.created, reverse=True)
+        with _ORDER_LOCK:
+            _order = (now, order)
+    return list(order)
 
 
 def _not_in_recording(hub: Hub, rec: Recording) -> list[dict[str, Any]]:
@@ -146,7 +170,7 @@ async def list_recordings(
     # a subject's recordings asked by id come whole (up to the largest page)
     page = page_of(limit, offset, RECORDINGS_PAGE if ids is None else RECORDINGS_PAGE_MAX,
                    RECORDINGS_PAGE_MAX)
-    recs = list(hub.recordings.recordings.values())
+    recs = _newest_first(hub.recordings.recordings)
     if ids is not None:
         want = {i.strip() for i in ids.split(",") if i.strip()}
         recs = [r for r in recs if r.id in want]
@@ -155,7 +179,6 @@ async def list_recordings(
     if q and q.strip():
         needle = q.strip().lower()
         recs = [r for r in recs if needle in r.id.lower()]
-    recs.sort(key=lambda r: r.created, reverse=True)
     set_total(response, len(recs))
     recs = recs[page.offset:page.offset + page.limit]
     layout = StorageLayout(settings.data_dir)
