@@ -27,7 +27,10 @@ rebuilt in their own frame, as the filters need them:
 
 from __future__ import annotations
 
+import re
 import xml.etree.ElementTree as ET
+from array import array
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +50,20 @@ _Q_ENU_NWU = np.array([np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)])
 _SENSOR_TAGS = ("sensorOrientation", "sensorFreeAcceleration", "sensorMagneticField",
                 "sensorAcceleration", "sensorAngularVelocity")
 _HEADER_FRAMES = {"identity", "tpose", "tpose-isb", "npose", "tpose_isb"}
+#: what a hostile file could inflate, bounded (an MVN export is ~6 levels deep, ~10
+#: elements a frame, 23 segments and at most 17 trackers plus props, short labels)
+MAX_DEPTH = 32
+MAX_FRAME_CHILDREN = 256
+MAX_LABELS = 256
+MAX_LABEL_CHARS = 100
+MAX_TRACKERS = 64
+#: characters of one frame element's numbers (a full suit's segment data: ~4 kB)
+MAX_VALUE_CHARS = 256 * 2**10
+#: the XML prolog (declaration, comments) read before the root element
+_PROLOG_BYTES = 2**20
+_PROLOG_SPACE = re.compile(rb"[ \t\r\n]*")
+_ENCODING = re.compile(rb"""encoding\s*=\s*["']([A-Za-z0-9._-]+)["']""")
+_ENCODINGS = {b"utf-8", b"utf8", b"us-ascii", b"ascii", b"iso-8859-1", b"latin-1", b"latin1"}
 
 
 def _local(tag: str) -> str:
@@ -68,12 +85,71 @@ def _check_head(p: Path) -> None:
         raise InputError(f"{p.name}: {size / 2**20:.0f} MB is more than the "
                          f"{MAX_MVNX_BYTES // 2**20} MB an MVNX export may have; export a "
                          "shorter take")
-    if b"<!DOCTYPE" in head or b"<!ENTITY" in head:
-        raise InputError(f"{p.name}: the XML declares a DTD or entities, which MVNX exports "
-                         "never do; export the take again from MVN")
+    _check_prolog(p)
     if b"<mvnx" not in head and b"<frames" not in head:
         raise InputError(f"{p.name}: not an Xsens MVNX export (no <mvnx> element); export "
                          "the take from MVN as MVNX")
+
+
+def _check_prolog(p: Path) -> None:
+    """Refuse a DTD (entity expansion: billion laughs, external entities) wherever the
+    prolog puts it, and encodings that could hide one from a byte scan.
+
+    A DTD can only stand in the prolog, before the root element, between the XML
+    declaration, comments and processing instructions: each is skipped by its own end
+    (a comment may hold ``<mvnx``), so ``<!DOCTYPE`` after 64 kB of comment is still
+    seen. UTF-16/32 (``<`` is two or four bytes) and declared encodings other than
+    UTF-8/ASCII/Latin-1 are refused: MVN writes UTF-8.
+    """
+    with p.open("rb") as fh:
+        head = fh.read(_PROLOG_BYTES)
+    if head.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\x00" in head[:4]:
+        raise InputError(f"{p.name}: the XML is UTF-16 or UTF-32 encoded; MVN writes UTF-8 "
+                         "— export the take again from MVN")
+    i = 3 if head.startswith(b"\xef\xbb\xbf") else 0
+    while True:
+        m = _PROLOG_SPACE.match(head, i)
+        i = m.end() if m else i
+        end = b"?>" if head.startswith(b"<?", i) else b"-->" if head.startswith(b"<!--", i) \
+            else None
+        if end is not None:
+            j = head.find(end, i + 2)
+            if j < 0:
+                raise InputError(f"{p.name}: the XML's prolog (declaration and comments "
+                                 f"before <mvnx>) is longer than {_PROLOG_BYTES // 2**20} MB "
+                                 "or unterminated; export the take again from MVN")
+            if end == b"?>" and (enc := _ENCODING.search(head, i, j)) and \
+                    enc.group(1).lower() not in _ENCODINGS:
+                raise InputError(f"{p.name}: the XML declares the encoding "
+                                 f"{enc.group(1).decode('ascii')!r}; MVN writes UTF-8 — "
+                                 "export the take again from MVN")
+            i = j + len(end)
+        elif head.startswith(b"<!", i):
+            raise InputError(f"{p.name}: the XML declares a DTD or entities, which MVNX "
+                             "exports never do; export the take again from MVN")
+        else:
+            return  # the root element (or not XML: the parser says so)
+
+
+@dataclass
+class _Column:
+    """One frame element's numbers, every frame's appended (8 bytes a value: a 256 MB
+    export's numbers fit in less than the file)."""
+
+    values: array[float] = field(default_factory=lambda: array("d"))
+    counts: list[int] = field(default_factory=list)
+
+    def __bool__(self) -> bool:
+        return bool(self.counts)
+
+
+def _numbers(p: Path, tag: str, text: str, frame: object) -> array[float]:
+    """A frame element's text as numbers, bounded in length."""
+    if len(text) > MAX_VALUE_CHARS:
+        raise InputError(f"{p.name}: frame {frame}: <{tag}> holds {len(text):,} characters, "
+                         f"more than the {MAX_VALUE_CHARS:,} an MVN frame has; the export is "
+                         "damaged")
+    return array("d", map(float, text.split()))
 
 
 def _read(p: Path) -> dict[str, Any]:
@@ -84,45 +160,67 @@ def _read(p: Path) -> dict[str, Any]:
     rate: float | None = None
     index: list[float] = []
     time_ms: list[float] = []
-    rows: dict[str, list[FloatArray]] = {t: [] for t in (*_SENSOR_TAGS, "angularVelocity")}
+    rows: dict[str, _Column] = {t: _Column() for t in (*_SENSOR_TAGS, "angularVelocity")}
     stack: list[str] = []
-    frames_el: ET.Element | None = None
+    elems: list[ET.Element] = []
     n_frames = 0
+    n_children = 0
     try:
         for event, el in ET.iterparse(p, events=("start", "end")):
             tag = _local(el.tag)
             if event == "start":
                 parent = stack[-1] if stack else ""
                 stack.append(tag)
+                elems.append(el)
+                if len(stack) > MAX_DEPTH:
+                    raise InputError(f"{p.name}: elements nested more than {MAX_DEPTH} deep; "
+                                     "not an MVN export")
+                if tag == "frame":
+                    n_children = 0
+                elif parent == "frame":
+                    n_children += 1
+                    if n_children > MAX_FRAME_CHILDREN:
+                        raise InputError(f"{p.name}: a frame holds more than "
+                                         f"{MAX_FRAME_CHILDREN} elements; not an MVN export")
                 if tag == "subject" and el.get("frameRate"):
                     rate = float(el.get("frameRate", "nan"))
-                elif tag == "sensor" and parent == "sensors":
-                    sensors.append(el.get("label") or f"sensor{len(sensors) + 1}")
-                elif tag == "segment" and parent == "segments":
-                    segments.append(el.get("label") or f"segment{len(segments) + 1}")
-                elif tag == "frames":
-                    frames_el = el
+                elif tag in ("sensor", "segment") and parent == f"{tag}s":
+                    names = sensors if tag == "sensor" else segments
+                    label = el.get("label") or f"{tag}{len(names) + 1}"
+                    if len(names) >= MAX_LABELS or len(label) > MAX_LABEL_CHARS:
+                        raise InputError(f"{p.name}: more than {MAX_LABELS} {tag}s or a {tag} "
+                                         f"label longer than {MAX_LABEL_CHARS} characters; "
+                                         "not an MVN export")
+                    names.append(label)
                 continue
             stack.pop()
-            if tag != "frame":
-                continue
-            if el.get("type", "normal") == "normal" and el.get("type") not in _HEADER_FRAMES:
+            elems.pop()
+            parent = stack[-1] if stack else ""
+            if parent == "frame":
+                continue  # read with its frame
+            if tag == "frame" and el.get("type", "normal") == "normal":
                 n_frames += 1
+                frame = el.get("index", n_frames)
                 got = {_local(c.tag): c.text or "" for c in el}
-                for t in rows:
+                for t, col in rows.items():
                     if t in got:
-                        rows[t].append(np.array(got[t].split(), dtype=float))
-                    elif rows[t]:
-                        raise InputError(f"{p.name}: frame {el.get('index', n_frames)} lacks "
-                                         f"<{t}> that earlier frames have; the export is "
-                                         "damaged")
+                        vals = _numbers(p, t, got[t], frame)
+                        col.values.extend(vals)
+                        col.counts.append(len(vals))
+                    elif col:
+                        raise InputError(f"{p.name}: frame {frame} lacks <{t}> that earlier "
+                                         "frames have; the export is damaged")
+                if rows["sensorOrientation"].counts[-1:] and \
+                        rows["sensorOrientation"].counts[-1] > 4 * MAX_TRACKERS:
+                    raise InputError(f"{p.name}: more than {MAX_TRACKERS} trackers in a frame; "
+                                     "not an MVN export")
                 idx, tm = el.get("index"), el.get("time")
                 index.append(float(idx) if idx not in (None, "") else np.nan)
                 time_ms.append(float(tm) if tm not in (None, "") else np.nan)
-            if frames_el is not None:
-                frames_el.remove(el)  # frames are read once: keep memory flat
-            else:
-                el.clear()
+            # what was read is dropped: memory stays flat whatever the file holds
+            el.clear()
+            if elems:
+                elems[-1].remove(el)
     except InputError:
         raise
     except ET.ParseError as e:
@@ -137,13 +235,13 @@ def _read(p: Path) -> dict[str, Any]:
             "time_ms": time_ms, "rows": rows}
 
 
-def _stack(p: Path, rows: list[FloatArray], tag: str, width: int) -> FloatArray:
+def _stack(p: Path, col: _Column, tag: str, width: int) -> FloatArray:
     """Frames × values of one element; all frames must hold the same count."""
-    n = {len(r) for r in rows}
-    if len(n) != 1 or next(iter(n)) % width:
-        raise InputError(f"{p.name}: <{tag}> holds {sorted(n)} values per frame; expected "
+    n = set(col.counts)
+    if len(n) != 1 or next(iter(n)) % width or not next(iter(n)):
+        raise InputError(f"{p.name}: <{tag}> holds {sorted(n)[:8]} values per frame; expected "
                          f"the same multiple of {width} in every frame")
-    return np.vstack(rows)
+    return np.frombuffer(col.values, dtype=float).reshape(len(col.counts), -1).copy()
 
 
 def _frame_time(p: Path, d: dict[str, Any],

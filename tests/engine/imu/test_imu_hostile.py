@@ -1,0 +1,146 @@
+"""Hostile IMU uploads (security review 19): XML bombs and inflated MVNX exports, zip
+tricks in phone exports. Each must end in an :class:`InputError` that says what is wrong,
+quickly and with bounded memory, never a crash, a hang or a memory blow-up."""
+
+from __future__ import annotations
+
+import tracemalloc
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from engine.errors import InputError
+from engine.imu import _mvnx
+from engine.imu.io import load_imu, load_mvnx_all
+
+_LOL = (b'<!DOCTYPE lolz [<!ENTITY lol "lol">'
+        + b"".join(b'<!ENTITY lol%d "%s">' % (i, (b"&lol%d;" % (i - 1) if i > 1 else b"&lol;")
+                                              * 10) for i in range(1, 10)) + b"]>")
+_FRAME = (b'<frame type="normal" index="%d"><sensorOrientation>1 0 0 0</sensorOrientation>'
+          b"<sensorFreeAcceleration>0 0 0</sensorFreeAcceleration></frame>")
+
+
+def _mvnx_of(frames: bytes, head: bytes = b"", sensors: bytes = b'<sensor label="P"/>') -> bytes:
+    return (b'<?xml version="1.0" encoding="UTF-8"?>' + head
+            + b'<mvnx><subject frameRate="60"><sensors>' + sensors + b"</sensors><frames>"
+            + frames + b"</frames></subject></mvnx>")
+
+
+def _small_frames(n: int) -> bytes:
+    return b"".join(_FRAME % i for i in range(n))
+
+
+def _refused(tmp_path: Path, data: bytes, match: str) -> None:
+    p = tmp_path / "take.mvnx"
+    p.write_bytes(data)
+    with pytest.raises(InputError, match=match):
+        load_mvnx_all(p)
+
+
+def test_dtd_after_a_long_comment_is_refused(tmp_path: Path) -> None:
+    # the old check read only the first 64 kB; a comment (holding "<mvnx") pushed the DTD past it
+    pad = b"<!-- <mvnx " + b"x" * 70_000 + b" -->"
+    _refused(tmp_path, _mvnx_of(b"&lol9;", pad + _LOL), "DTD or entities")
+    xxe = b'<!DOCTYPE m [<!ENTITY x SYSTEM "file:///etc/passwd">]>'
+    _refused(tmp_path, _mvnx_of(_small_frames(3), pad + xxe,
+                                b'<sensor label="&x;"/>'), "DTD or entities")
+
+
+def test_billion_laughs_and_utf16_dtd_are_refused(tmp_path: Path) -> None:
+    _refused(tmp_path, _mvnx_of(b"&lol9;", _LOL), "DTD or entities")
+    u16 = ('<?xml version="1.0" encoding="UTF-16"?><!DOCTYPE m [<!ENTITY a "b">]>'
+           '<mvnx><frames></frames></mvnx>').encode("utf-16")
+    _refused(tmp_path, u16, "UTF-16")
+    latin = _mvnx_of(_small_frames(3)).replace(b"UTF-8", b"shift_jis")
+    _refused(tmp_path, latin, "encoding")
+
+
+def test_deep_nesting_is_refused(tmp_path: Path) -> None:
+    n = 100_000
+    _refused(tmp_path, b"<mvnx>" + b"<a>" * n + b"</a>" * n + b"</mvnx>", "nested")
+
+
+def test_a_frame_with_many_children_is_refused(tmp_path: Path) -> None:
+    _refused(tmp_path, _mvnx_of(b'<frame type="normal">' + b"<a/>" * 100_000 + b"</frame>"),
+             "more than 256 elements")
+
+
+def test_one_huge_text_node_is_refused_before_splitting(tmp_path: Path) -> None:
+    big = b"<sensorOrientation>" + b"1 " * 1_000_000 + b"</sensorOrientation>"
+    _refused(tmp_path, _mvnx_of(b'<frame type="normal" index="0">' + big + b"</frame>"),
+             "characters")
+
+
+def test_many_trackers_and_long_labels_are_refused(tmp_path: Path) -> None:
+    # 20 000 trackers took 75 s (one recording each) before the cap
+    many = (b'<frame type="normal" index="%d"><sensorOrientation>' + b"1 0 0 0 " * 2000
+            + b"</sensorOrientation><sensorFreeAcceleration>" + b"0 0 0 " * 2000
+            + b"</sensorFreeAcceleration></frame>")
+    _refused(tmp_path, _mvnx_of(b"".join(many % i for i in range(3))), "trackers")
+    _refused(tmp_path, _mvnx_of(_small_frames(3), sensors=b'<sensor label="' + b"A" * 10_000
+                                + b'"/>'), "label longer")
+    _refused(tmp_path, _mvnx_of(_small_frames(3), sensors=b'<sensor label="s"/>' * 1000),
+             "more than 256 sensors")
+
+
+def test_elements_outside_the_frames_do_not_pile_up(tmp_path: Path) -> None:
+    # 200 000 empty elements beside the frames: the tree kept every one (~80 B each)
+    p = tmp_path / "take.mvnx"
+    p.write_bytes(_mvnx_of(b"<x/>" * 200_000 + _small_frames(3)))
+    tracemalloc.start()
+    try:
+        recs = load_mvnx_all(p)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert list(recs) == ["P"]
+    assert peak < 4 * 2**20, peak
+
+
+def test_small_frames_stream_in_memory_below_the_file_size(tmp_path: Path) -> None:
+    """A long take of small frames: the parser streams and keeps the numbers 8 bytes
+    each, so parsing peaks under the file's size (it peaked at 2.4× with one small array
+    per frame and element). 20 000 frames, 2.7 MB: parsing 2.3 MB, the whole load with
+    the recordings 7.5 MB; 256 MB (the upload limit) extrapolates to ~0.7 GB."""
+    p = tmp_path / "take.mvnx"
+    p.write_bytes(_mvnx_of(_small_frames(20_000)))
+    tracemalloc.start()
+    try:
+        d = _mvnx._read(p)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert len(d["index"]) == 20_000
+    assert peak < p.stat().st_size, (peak, p.stat().st_size)
+
+
+def test_the_mvnx_limits_are_above_a_real_export() -> None:
+    # a full suit: 23 segments, 17 trackers, ~10 elements a frame, ~9 kB of numbers a frame
+    assert _mvnx.MAX_TRACKERS >= 17 and _mvnx.MAX_LABELS >= 23
+    assert _mvnx.MAX_FRAME_CHILDREN >= 20 and _mvnx.MAX_VALUE_CHARS >= 16 * 2**10
+
+
+def test_zip_tricks_are_refused_or_ignored(tmp_path: Path) -> None:
+    """Held before this review (regression guards): thousands of empty members, a nested
+    zip (never opened), a symlink entry (read as a file's bytes, never followed)."""
+    many = tmp_path / "many.zip"
+    with zipfile.ZipFile(many, "w") as z:
+        for i in range(3000):
+            z.writestr(f"e{i}.csv", b"")
+    with pytest.raises(InputError, match="files in the zip"):
+        load_imu(many)
+    nested = tmp_path / "nested.zip"
+    with zipfile.ZipFile(nested, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("inner.zip", many.read_bytes())
+    with pytest.raises(InputError, match="no accelerometer or gyroscope"):
+        load_imu(nested)
+    link = tmp_path / "link.zip"
+    with zipfile.ZipFile(link, "w") as z:
+        info = zipfile.ZipInfo("Gyroscope.csv")
+        info.external_attr = (0o120777 << 16)  # a symlink to /etc/passwd
+        z.writestr(info, "/etc/passwd")
+        z.writestr("Accelerometer.csv", "time,x,y,z\n1,0,0,9.8\n2,0,0,9.8\n")
+    with pytest.raises(InputError) as e:
+        load_imu(link)
+    assert "root:" not in str(e.value)
