@@ -217,8 +217,11 @@ const gaitrig = (() => {
     const text = sys.last_backup_at
       ? `No backup of this server since ${new Date(at).toLocaleDateString()}.`
       : "This server has never been backed up.";
+    // (a clinician logged in as administrator read a command and a file they could not
+    // open: who does it, and the guide's words on it, are said too)
     document.getElementById("summary").before(el("p", { id: "backup-notice", role: "status" },
-      text + " Run gaitrig backup on the server (see docs/backup.md)."));
+      text + " Ask whoever looks after the server to run gaitrig backup there (docs/backup.md): ",
+      el("a", { href: "/help.html#backups" }, "why backups matter")));
   }
 
   async function rigPage() {

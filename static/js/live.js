@@ -79,7 +79,8 @@
     const worst = lats.length ? Math.max(...lats) : null;
     el.textContent = `${ids.length} sensor${ids.length > 1 ? "s" : ""} streaming; capture-to-screen latency ` +
       (lats.length ? `median ${median(lats).toFixed(0)} ms, worst sensor ${worst.toFixed(0)} ms` : "measuring…") +
-      (clockRtt === null ? "" : ` (clock offset to the server measured to ±${(clockRtt / 2).toFixed(1)} ms).`);
+      // (a loopback round trip printed "±0.0 ms", as if exact)
+      (clockRtt === null ? "" : ` (clock offset to the server measured to ${clockRtt / 2 < 0.05 ? "better than ±0.1" : "±" + (clockRtt / 2).toFixed(1)} ms).`);
   }
 
   function connect() {

@@ -177,3 +177,17 @@ def test_reports_session_ticks_take_their_own_row(page: Any, live_server: LiveSe
     assert find["y"] - form["y"] < 60, f"Find subject code {find['y'] - form['y']:.0f} px down"
     assert box["y"] >= subject["y"] + subject["height"], "the session ticks sit beside the fields"
     assert box["width"] > 0.9 * form["width"]
+
+
+def test_backup_reminder_says_who_and_links_the_guide(page: Any) -> None:
+    # the browser tests' server was never backed up: its administrator is reminded
+    notice = page.locator("#backup-notice")
+    notice.wait_for()
+    assert "never been backed up" in notice.inner_text()
+    # a command and a file name alone told a clinician neither who does it nor why
+    assert "Ask whoever looks after the server" in notice.inner_text()
+    link = notice.get_by_role("link", name="why backups matter")
+    assert link.get_attribute("href") == "/help.html#backups"
+    link.click()
+    page.wait_for_url("**/help.html#backups")
+    assert page.locator("#backups").is_visible()
