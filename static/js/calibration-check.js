@@ -74,5 +74,19 @@
       state.className = "warn"; state.textContent = String(e.message || e);
     } finally { gaitrig.release(btn); }
   });
-  last().catch((e) => { state.textContent = String(e.message || e); });
+  // Before the first calibration the check has nothing to compare with: the button was
+  // offered all the same and answered with the server's refusal. Say what to do first.
+  async function firstLook() {
+    const saved = await gaitrig.api("/api/calibration");
+    if (Array.isArray(saved) && !saved.length) {
+      lastSeq.acted();
+      btn.disabled = true;
+      state.className = "";
+      state.replaceChildren("No calibration yet: the check compares the sensors with one. Calibrate first with the ",
+        gaitrig.el("a", { href: "/calibration-wizard.html" }, "spatial calibration wizard"), ".");
+      return;
+    }
+    await last();
+  }
+  firstLook().catch((e) => { state.textContent = String(e.message || e); });
 })();

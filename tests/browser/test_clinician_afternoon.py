@@ -191,3 +191,20 @@ def test_backup_reminder_says_who_and_links_the_guide(page: Any) -> None:
     link.click()
     page.wait_for_url("**/help.html#backups")
     assert page.locator("#backups").is_visible()
+
+
+def test_bumped_tripod_check_before_any_calibration_says_what_to_do(page: Any,
+                                                                     live_server: LiveServer
+                                                                     ) -> None:
+    # a lab that never calibrated (other tests of this server may have saved one)
+    page.route("**/api/calibration", lambda route: route.fulfill(
+        status=200, body="[]", headers={"Content-Type": "application/json"}))
+    page.goto(live_server.base_url + "/calibrate.html")
+    state = page.locator("#bump-state")
+    page.wait_for_function("document.getElementById('bump-state').textContent"
+                           ".startsWith('No calibration yet')")
+    # the button was offered and answered "no calibration yet: calibrate the rig first…"
+    assert page.locator("#bump-check").is_disabled()
+    link = state.get_by_role("link", name="spatial calibration wizard")
+    assert link.get_attribute("href") == "/calibration-wizard.html"
+    assert not page.js_errors
