@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import json
 import struct
+import unicodedata
 from collections.abc import Sequence
 from typing import Annotated, Any, Literal
 
@@ -315,6 +316,16 @@ class SensorLens(_Msg):
         description="Where the lens comes from, in plain words (\"factory calibration\").")
     depth: CameraLens | None = None
     color: CameraLens | None = None
+
+    @field_validator("source")
+    @classmethod
+    def _plain_source(cls, v: str) -> str:
+        # shown on the Rig page and written to the server's log: no line breaks (forged
+        # log lines), control or bidirectional-override characters (a reversed text)
+        if any(unicodedata.category(c) in ("Cc", "Cf", "Zl", "Zp") for c in v):
+            raise ValueError("source must be plain text on one line (no control, format or "
+                             "line-break characters)")
+        return v
 
 
 def lens_mismatch(lens: SensorLens, sensor: SensorInfo) -> str | None:

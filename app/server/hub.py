@@ -344,6 +344,10 @@ class Hub:
         """A node's announced lenses (revision 3): kept for the live view and the Rig page
         when they describe the cameras of its hello; otherwise refused (a warning, an
         ``error`` answer; the connection stays and the node is drawn as a pinhole)."""
+        if s.lens is not None:  # sent once after the welcome: a flood rebuilds nothing
+            await self._reject(ws, s, "sensor lens sent twice on one connection; the first "
+                               "is kept (reconnect to announce another)")
+            return
         problem = lens_mismatch(m, s.sensor)
         if problem is not None:
             await self._reject(ws, s, f"sensor lens refused: {problem}; {s.id} is drawn as "

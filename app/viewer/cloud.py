@@ -17,6 +17,8 @@ loses millimetres a few metres from the origin).
 from __future__ import annotations
 
 import functools
+import threading
+from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -54,7 +56,13 @@ class DepthView:
     dist: tuple[float, ...] = ()
 
 
-_rays_cache: dict[tuple[int, int, bytes, tuple[float, ...]], NDArray[np.float32]] = {}
+#: bytes of ray tables kept (LRU): a node cannot grow the cache by announcing lenses or
+#: sending frames of many sizes; the largest image a node may send (hub
+#: ``MAX_IMAGE_PIXELS``, 4096²) makes a 134 MB table, so one always fits
+MAX_RAYS_CACHE_BYTES = 256 * 2**20
+_rays_cache: OrderedDict[tuple[int, int, bytes, tuple[float, ...]], NDArray[np.float32]] = \
+    OrderedDict()
+_rays_lock = threading.Lock()
 
 
 def pixel_rays(K: NDArray[np.float64], width: int, height: int,
@@ -72,15 +80,20 @@ def pixel_rays(K: NDArray[np.float64], width: int, height: int,
     K = np.asarray(K, dtype=np.float64)
     d = tuple(float(x) for x in dist) if any(dist) else ()
     key = (width, height, K.tobytes(), d)
-    r = _rays_cache.get(key)
+    with _rays_lock:
+        r = _rays_cache.get(key)
+        if r is not None:
+            _rays_cache.move_to_end(key)
     if r is None:
         if K.shape != (3, 3) or not (K[0, 0] > 0 and K[1, 1] > 0):
             raise InputError("depth intrinsics must be a 3×3 matrix with positive focal lengths")
         intr = CameraIntrinsics.from_matrix(K, width, height, d or None)
         r = np.ascontiguousarray(pixel_ray_table(intr), dtype=np.float32)
-        if len(_rays_cache) > 64:
-            _rays_cache.clear()
-        _rays_cache[key] = r
+        with _rays_lock:
+            while _rays_cache and (sum(t.nbytes for t in _rays_cache.values()) + r.nbytes
+                                   > MAX_RAYS_CACHE_BYTES):
+                _rays_cache.popitem(last=False)  # the least recently used
+            _rays_cache[key] = r
     return r
 
 
