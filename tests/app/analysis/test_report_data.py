@@ -89,7 +89,7 @@ def test_trials_line_gives_steps_per_trial_and_sensors_once() -> None:
     analyses = [_analysis(f"R{k}", {"S1": 1.0, "S2": 2.0}, "3", 1.0) for k in (1, 2, 3)]
     analyses[2]["gait"]["steps"] = analyses[2]["gait"]["steps"][:3]
     html = render_html(an.build_report("P-1", analyses))
-    line = re.search(r"Trials used</b></td><td[^>]*>(.*?)</td>", html, re.S)
+    line = re.search(r"Trials used</th><td[^>]*>(.*?)</td>", html, re.S)
     assert line is not None
     assert line.group(1) == "3, 27 steps: R1 (12 steps); R2 (12 steps); R3 (3 steps)"
     analyses[2]["sensors_used"] = ["S1"]

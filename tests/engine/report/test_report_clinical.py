@@ -126,13 +126,13 @@ def test_each_normative_band_cites_its_source_and_population() -> None:
     cited = {n: author for n, _, author in
              re.findall(r"\[(\d)\] ([^;]+?): ([A-Z][a-z]+) [A-Z]+", foot)}
     assert len(cited) >= 3, foot[:600]
-    row = re.search(r"<td[^>]*>Step length</td>.*?</tr>", html, re.S)
+    row = re.search(r"<th[^>]*>Step length</th>.*?</tr>", html, re.S)
     assert row is not None
     num = re.search(r"<sup>\[(\d)\]</sup>", row.group(0))
     assert num is not None, "the step-length band has no source number"
     assert cited[num.group(1)] == "Hollman"
     assert re.search(rf"\[{num.group(1)}\] healthy adults over 70 y", foot)
-    speed = re.search(r"<td[^>]*>Walking speed</td>.*?</tr>", html, re.S)
+    speed = re.search(r"<th[^>]*>Walking speed</th>.*?</tr>", html, re.S)
     assert speed is not None and "<sup>[1]</sup>" in speed.group(0)
     assert "CV = 100 · SD / mean" in html and "not matched to this subject's age" in html
 
@@ -192,7 +192,7 @@ def test_footnote_says_what_n_counts_for_the_gait_cycle_phases() -> None:
     """Stance showed N = 6 for three trials (one value per trial and side) while the
     footnote said only speed and cadence were over trials."""
     html = render_html(ReportData("P-105", _trials(3)))
-    row = re.search(r"<td[^>]*>Stance</td>\s*<td[^>]*>both</td>\s*<td>(\d+)</td>", html)
+    row = re.search(r"<th[^>]*>Stance</th>\s*<th[^>]*>both</th>\s*<td>(\d+)</td>", html)
     assert row is not None and row.group(1) == "6"
     assert "stance, swing and double support over trials" in html
     assert "per side for stance and swing" in html
@@ -219,10 +219,12 @@ def test_header_facts_stay_in_the_header_grid() -> None:
     of 6: the age was pushed off to the right margin."""
     info = {"Height": "174 cm", "Sex": "female", "Born": "1958", "Age": "≈ 68 y"}
     html = render_html(ReportData("P-107", _trials(1), subject_info=info))
-    meta = html[html.index('<table class="meta">'):]
-    meta = meta[:meta.index("</table>")]
+    meta = html[html.index('<div class="gr-facts">'):]
+    meta = meta[:meta.index("</div>")]
+    # one fact a row (its label the row header), the facts three abreast in three tables
     rows = re.findall(r"<tr>(.*?)</tr>", meta, re.S)
-    assert all(r.count("<td") <= 6 for r in rows), rows
+    assert len(rows) == 1 + 4 and meta.count("<table") == 3
+    assert all(r.count("<td") == 1 and r.count('<th scope="row"') == 1 for r in rows), rows
     assert "≈ 68 y" in meta
 
 

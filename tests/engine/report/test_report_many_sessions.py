@@ -62,9 +62,9 @@ def test_html_has_every_session_and_the_latest_changes(n: int) -> None:
     changes = _table(html, "changes between sessions")
     # the latest session against the first and the previous, once per parameter
     assert f"The latest session, {data.sessions[-1].name}" in changes
-    assert changes.count('<td class="l">first</td>') == 9
-    assert changes.count('<td class="l">previous</td>') == 9
-    step_l = re.search(r"Step length, left</td><td class=\"l\">first</td>\s*"
+    assert changes.count('<th scope="row" class="l rh">first</th>') == 9
+    assert changes.count('<th scope="row" class="l rh">previous</th>') == 9
+    step_l = re.search(r"Step length, left</th><th scope=\"row\" class=\"l rh\">first</th>\s*"
                        r"<td class=\"l\">longer by ([0-9.]+) cm", changes)
     assert step_l and float(step_l[1]) == pytest.approx(0.4 * (n - 1), abs=1.0)
     # the trend plot's alt text covers the whole series
@@ -203,7 +203,7 @@ def test_a_parameter_missing_in_the_latest_session_says_so() -> None:
             s["width_m"] = None
     html = render_html(data)
     changes = _table(html, "changes between sessions")
-    row = re.search(r"Step width</td><td class=\"l\">–</td><td class=\"l\" colspan=\"3\">"
+    row = re.search(r"Step width</th><th scope=\"row\" class=\"l rh\">–</th><td class=\"l\" colspan=\"3\">"
                     r"not measured in the latest session", changes)
     assert row, changes
     # its values of the other sessions are still in the sessions table, the latest a dash

@@ -78,9 +78,9 @@ def test_without_step_times_the_trials_summary_values_are_used() -> None:
 
 
 def _row(html: str, label: str) -> list[str]:
-    m = re.search(rf"<td[^>]*>{label}</td>(.*?)</tr>", html, re.S)
+    m = re.search(rf"<th[^>]*>{label}</th>(.*?)</tr>", html, re.S)
     assert m is not None, label
-    return re.findall(r"<td[^>]*>\s*([^<]*?)\s*</td>", m.group(1))
+    return re.findall(r"<t[dh][^>]*>\s*([^<]*?)\s*</t[dh]>", m.group(1))
 
 
 @pytest.mark.skipif(shutil.which("pdftotext") is None, reason="poppler-utils not installed")
