@@ -32,6 +32,7 @@ the magnitudes are 1 g (iOS raw in g).
 
 from __future__ import annotations
 
+import csv
 import re
 import shutil
 import tempfile
@@ -54,6 +55,10 @@ FloatArray = NDArray[np.float64]
 #: members a zip may have, and their total uncompressed size (zip bombs)
 MAX_ZIP_MEMBERS = 256
 MAX_ZIP_UNCOMPRESSED = 256 * 2**20
+#: bytes of a metadata file read (Sensor Logger's Metadata.csv: two lines)
+_MAX_METADATA_BYTES = 64 * 2**10
+#: columns of one sensor file (Sensor Logger's orientation has 9; phyphox 4)
+MAX_COLUMNS = 64
 #: a magnetometer whose span would shorten the merged recording by more is dropped
 _MAX_MAG_CUT_S = 1.0
 
@@ -232,6 +237,12 @@ def _time_column(header: list[str]) -> tuple[int | None, str]:
     return None, ""
 
 
+def _some(header: list[str], n: int = 12) -> str:
+    """The first columns of a header for a message (a hostile one may have a million)."""
+    cut = [h[:40] for h in header[:n]]
+    return ", ".join(cut) + (f" … ({len(header):,} columns)" if len(header) > n else "")
+
+
 def _read_stream(name: str, path: Path, kind: str, time_unit: str | None,
                  warnings: list[str]) -> tuple[_Stream, str | None]:
     """One sensor file read into SI (kind ``acc``/``lin``/``grav``/``gyr``/``mag`` or
@@ -241,10 +252,17 @@ def _read_stream(name: str, path: Path, kind: str, time_unit: str | None,
         header, data, units_row, text = _io._read_csv(path)
     except InputError as e:  # the reader names its copy of a zip member: name the member
         raise InputError(str(e).replace(path.name, name)) from None
+    except csv.Error as e:  # a cell longer than the csv module's field limit (128 kB)
+        raise InputError(f"{name}: not a sensor CSV ({e}); export the recording again"
+                         ) from None
+    if len(header) > MAX_COLUMNS:
+        raise InputError(f"{name}: {len(header):,} columns, more than the {MAX_COLUMNS} a "
+                         f"phone sensor file has (first: {_some(header)}); export the "
+                         "recording again")
     t_idx, t_unit = _time_column(header)
     if t_idx is None:
         raise InputError(f"{name}: no time column (time, seconds_elapsed or Time (s)); "
-                         f"found {header}")
+                         f"found {_some(header)}")
     meta: dict[str, Any] = {}
     w: list[str] = []
     try:
@@ -258,13 +276,13 @@ def _read_stream(name: str, path: Path, kind: str, time_unit: str | None,
     if kind == "quat":
         q_idx, named = _io._quat_columns(header, "")
         if not q_idx or not named:
-            raise InputError(f"{name}: no qw, qx, qy, qz columns; found {header}")
+            raise InputError(f"{name}: no qw, qx, qy, qz columns; found {_some(header)}")
         _io._text_error(disp, text, {t_idx, *q_idx})
         vals = data[:, q_idx]
         return _Stream(name, time, vals), unit_used
     axes, col_units = _columns(header)
     if set(axes) != {"x", "y", "z"}:
-        raise InputError(f"{name}: no x, y, z columns; found {header}")
+        raise InputError(f"{name}: no x, y, z columns; found {_some(header)}")
     idx = [axes[a] for a in "xyz"]
     _io._text_error(disp, text, {t_idx, *idx})
     raw = data[:, idx]
@@ -302,13 +320,14 @@ def _sorted(s: _Stream) -> _Stream:
 
 def _metadata(path: Path) -> dict[str, str]:
     """Key/value pairs of a metadata CSV: one header row and one value row (Sensor
-    Logger), or ``property,value`` rows (phyphox ``meta/device.csv``)."""
-    import csv
-
+    Logger), or ``property,value`` rows (phyphox ``meta/device.csv``). Only its first
+    64 kB are read (a few lines in every app; a hostile one may be 256 MB), and a file
+    the csv module cannot split tells nothing."""
     try:
-        rows = list(csv.reader(path.read_text(encoding="utf-8-sig",
-                                              errors="replace").splitlines()))
-    except OSError:
+        with path.open("rb") as fh:
+            head = fh.read(_MAX_METADATA_BYTES).decode("utf-8-sig", errors="replace")
+        rows = list(csv.reader(head.splitlines()))
+    except (OSError, csv.Error):
         return {}
     rows = [r for r in rows if r]
     if len(rows) >= 2 and len(rows[0]) > 2 and len(rows[0]) == len(rows[1]):

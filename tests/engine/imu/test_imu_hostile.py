@@ -144,3 +144,36 @@ def test_zip_tricks_are_refused_or_ignored(tmp_path: Path) -> None:
     with pytest.raises(InputError) as e:
         load_imu(link)
     assert "root:" not in str(e.value)
+
+
+_ACC = b"time,x,y,z\n" + b"".join(b"%d,0,0,9.8\n" % (i * 10**7) for i in range(200))
+
+
+def _phone_zip(tmp_path: Path, members: dict[str, bytes]) -> Path:
+    p = tmp_path / "phone.zip"
+    with zipfile.ZipFile(p, "w", zipfile.ZIP_DEFLATED) as z:
+        for name, data in members.items():
+            z.writestr(name, data)
+    return p
+
+
+def test_a_csv_with_a_million_columns_is_refused_in_a_short_message(tmp_path: Path) -> None:
+    # the whole header came back in the message (~10 MB of error text) after 56 s
+    n = 200_000
+    wide = (b",".join(b"c%d" % i for i in range(n)) + b"\n"
+            + b",".join(b"1" for _ in range(n)) + b"\n")
+    with pytest.raises(InputError, match="columns, more than the 64") as e:
+        load_imu(_phone_zip(tmp_path, {"Gyroscope.csv": wide, "Accelerometer.csv": _ACC}))
+    assert len(str(e.value)) < 500
+
+
+def test_a_field_past_the_csv_limit_is_an_input_error(tmp_path: Path) -> None:
+    # csv.Error ("field larger than field limit") escaped the reader, not an InputError
+    long_line = b"time,x,y,z\n" + b"1" * 500_000 + b"\n"
+    with pytest.raises(InputError, match="not a sensor CSV"):
+        load_imu(_phone_zip(tmp_path, {"Gyroscope.csv": long_line, "Accelerometer.csv": _ACC}))
+    gyr = b"time,x,y,z\n" + b"".join(b"%d,0.1,0,0\n" % (i * 10**7) for i in range(200))
+    meta = b"platform,version\n" + b"x" * 500_000 + b",1\n"
+    rec = load_imu(_phone_zip(tmp_path, {"Gyroscope.csv": gyr, "Accelerometer.csv": _ACC,
+                                         "Metadata.csv": meta}))
+    assert len(rec) > 100 and rec.meta["acc_sign_from"] == "assumed"
