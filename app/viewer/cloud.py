@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from engine.errors import InputError
-from engine.pointcloud import CameraIntrinsics, pixel_ray_table
+from engine.pointcloud import CameraIntrinsics, undistort_normalised
 
 MAX_VOXELS = 64_000_000  # dense-grid cells (int32 index): 256 MB at most, far above a lab
 
@@ -71,7 +71,8 @@ def pixel_rays(K: NDArray[np.float64], width: int, height: int,
     intrinsics, lens and image size: the live view's frame size follows the node's scale).
 
     Without a lens: ``((u - cx)/fx, (v - cy)/fy)``. Pixels outside a lens's valid field
-    are NaN (skipped). Computed by :func:`engine.pointcloud.pixel_ray_table`.
+    are NaN (skipped). :func:`engine.pointcloud.pixel_ray_table`'s rays, kept in this
+    module's cache (at most :data:`MAX_RAYS_CACHE_BYTES`), not the engine's.
 
     Raises:
         InputError: not a 3×3 matrix with positive focal lengths, or distortion that is
@@ -88,7 +89,12 @@ def pixel_rays(K: NDArray[np.float64], width: int, height: int,
         if K.shape != (3, 3) or not (K[0, 0] > 0 and K[1, 1] > 0):
             raise InputError("depth intrinsics must be a 3×3 matrix with positive focal lengths")
         intr = CameraIntrinsics.from_matrix(K, width, height, d or None)
-        r = np.ascontiguousarray(pixel_ray_table(intr), dtype=np.float32)
+        # pixel_ray_table's rays, computed here: its own cache holds 16 float64 tables
+        # whatever their size (4.3 GB at 4096² frames), this one is bounded in bytes
+        u, v = np.meshgrid(np.arange(width, dtype=np.float64),
+                           np.arange(height, dtype=np.float64))
+        rays = undistort_normalised(np.stack([u.ravel(), v.ravel()], axis=1), intr)
+        r = np.ascontiguousarray(rays.reshape(height, width, 2), dtype=np.float32)
         with _rays_lock:
             while _rays_cache and (sum(t.nbytes for t in _rays_cache.values()) + r.nbytes
                                    > MAX_RAYS_CACHE_BYTES):

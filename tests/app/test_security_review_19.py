@@ -90,3 +90,17 @@ def test_ray_tables_kept_are_bounded_in_bytes(monkeypatch: pytest.MonkeyPatch) -
     total = sum(t.nbytes for t in cloud._rays_cache.values())
     assert 0 < total <= 1 << 20, total
     assert next(reversed(cloud._rays_cache))[:2] == (139, 100)  # the newest kept
+
+
+def test_live_rays_are_the_engines_and_leave_its_cache_alone() -> None:
+    """The live cloud's rays are :func:`engine.pointcloud.pixel_ray_table`'s, but held in
+    the cloud's byte-bounded cache only: the engine's cache (16 float64 tables, whatever
+    their size) no longer grows with each frame size a node sends."""
+    from engine.pointcloud import CameraIntrinsics, _ray_table, pixel_ray_table
+
+    dist = (0.1, 0.01, 0.001, -0.002, 0.0)
+    before = _ray_table.cache_info().currsize
+    r = cloud.pixel_rays(np.array(K), 97, 61, dist)
+    assert _ray_table.cache_info().currsize == before
+    ref = pixel_ray_table(CameraIntrinsics.from_matrix(np.array(K), 97, 61, dist))
+    np.testing.assert_allclose(r, ref, atol=1e-6, equal_nan=True)
