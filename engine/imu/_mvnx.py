@@ -57,6 +57,9 @@ MAX_FRAME_CHILDREN = 256
 MAX_LABELS = 256
 MAX_LABEL_CHARS = 100
 MAX_TRACKERS = 64
+#: elements in a file: a real 256 MB export has < 1 M; each costs ~5 µs to walk, so a
+#: file of empty elements (64 M in 256 MB, ~5 min) is stopped after ~1 min at most
+MAX_ELEMENTS = 12_000_000
 #: characters of one frame element's numbers (a full suit's segment data: ~4 kB)
 MAX_VALUE_CHARS = 256 * 2**10
 #: the XML prolog (declaration, comments) read before the root element
@@ -158,13 +161,14 @@ def _read(p: Path) -> dict[str, Any]:
     sensors: list[str] = []
     segments: list[str] = []
     rate: float | None = None
-    index: list[float] = []
-    time_ms: list[float] = []
+    index: array[float] = array("d")
+    time_ms: array[float] = array("d")
     rows: dict[str, _Column] = {t: _Column() for t in (*_SENSOR_TAGS, "angularVelocity")}
     stack: list[str] = []
     elems: list[ET.Element] = []
     n_frames = 0
     n_children = 0
+    n_elements = 0
     try:
         for event, el in ET.iterparse(p, events=("start", "end")):
             tag = _local(el.tag)
@@ -172,6 +176,11 @@ def _read(p: Path) -> dict[str, Any]:
                 parent = stack[-1] if stack else ""
                 stack.append(tag)
                 elems.append(el)
+                n_elements += 1
+                if n_elements > MAX_ELEMENTS:
+                    raise InputError(f"{p.name}: more than {MAX_ELEMENTS:,} XML elements, far "
+                                     "more than an MVN export of this size has; not an MVN "
+                                     "export")
                 if len(stack) > MAX_DEPTH:
                     raise InputError(f"{p.name}: elements nested more than {MAX_DEPTH} deep; "
                                      "not an MVN export")

@@ -98,6 +98,17 @@ def test_elements_outside_the_frames_do_not_pile_up(tmp_path: Path) -> None:
     assert peak < 4 * 2**20, peak
 
 
+def test_the_element_count_is_bounded(tmp_path: Path,
+                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """256 MB of empty elements is 64 M elements, ~5 min of walking (2 M took 10.7 s
+    here); the count is bounded (12 M in use; 1 000 here to keep the test small)."""
+    monkeypatch.setattr(_mvnx, "MAX_ELEMENTS", 1000)
+    _refused(tmp_path, _mvnx_of(b"<x/>" * 2000 + _small_frames(3)), "more than 1,000 XML")
+    p = tmp_path / "ok.mvnx"
+    p.write_bytes(_mvnx_of(_small_frames(100)))  # ~310 elements: read
+    assert len(load_mvnx_all(p)["P"]) == 100
+
+
 def test_small_frames_stream_in_memory_below_the_file_size(tmp_path: Path) -> None:
     """A long take of small frames: the parser streams and keeps the numbers 8 bytes
     each, so parsing peaks under the file's size (it peaked at 2.4× with one small array
