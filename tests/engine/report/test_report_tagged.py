@@ -11,6 +11,7 @@ from __future__ import annotations
 import html as html_lib
 import re
 import zlib
+from html.parser import HTMLParser
 
 import numpy as np
 import pytest
@@ -158,6 +159,146 @@ def test_tables_have_header_cells_that_the_data_cells_point_to(
             assert set(heads) <= ids
     # the sessions table: a cell is read with its session (row) and parameter (column)
     assert any(len(td.attrs.get("Headers", [])) == 2 for t in with_th for td in t.find("TD"))
+
+
+class _Cell:
+    """One cell of an HTML table: header or data, its scope, text and grid column."""
+
+    def __init__(self, tag: str, attrs: dict[str, str | None]) -> None:
+        self.th = tag == "th"
+        self.scope = attrs.get("scope")
+        self.colspan = int(attrs.get("colspan") or 1)
+        self.rowspan = int(attrs.get("rowspan") or 1)
+        self.text = ""
+        self.col = 0
+
+
+class _Tables(HTMLParser):
+    """The report's tables as rows of cells (with the text a screen reader reads: hidden
+    text too), each with its class and whether it has a header row (``<thead>``)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.tables: list[dict] = []
+        self.cell: _Cell | None = None
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        a = dict(attrs)
+        if tag == "table":
+            self.tables.append({"cls": a.get("class") or "", "label": a.get("aria-label"),
+                                "rows": [], "thead": False})
+        elif tag == "thead":
+            self.tables[-1]["thead"] = True
+        elif tag == "tr":
+            self.tables[-1]["rows"].append([])
+        elif tag in ("td", "th"):
+            self.cell = _Cell(tag, a)
+            row = self.tables[-1]["rows"][-1]
+            self.cell.col = sum(c.colspan for c in row)
+            row.append(self.cell)
+
+    def handle_endtag(self, tag: str) -> None:
+        if tag in ("td", "th"):
+            self.cell = None
+
+    def handle_data(self, data: str) -> None:
+        if self.cell is not None:
+            self.cell.text += data
+
+
+def _check_html_headers(html: str) -> dict[str, int]:
+    """Every data cell of every table has a row header (``th scope=row`` in its row, with
+    words), and in a table with a header row exactly one column header (``th scope=col``
+    over its column); a fact table (no header row) gives a value ONE label. Returns the
+    number of data cells per table (by label or class)."""
+    p = _Tables()
+    p.feed(html[html.index("<article"):])
+    counts: dict[str, int] = {}
+    for t in p.tables:
+        name = t["label"] or t["cls"]
+        cols = {}
+        for row in t["rows"]:
+            for c in row:
+                assert c.rowspan == 1, f"{name}: a rowspan header is mis-tagged in the PDF"
+                if c.th and c.scope == "col":
+                    for k in range(c.colspan):
+                        cols[c.col + k] = c
+        n = 0
+        for row in t["rows"]:
+            rowh = [c for c in row if c.th and c.scope == "row"]
+            assert all(c.th and c.scope in ("row", "col") for c in row if c.th), name
+            for c in (c for c in row if not c.th):
+                n += 1
+                where = f"{name}: cell {c.text.strip()!r}"
+                assert rowh, f"{where} has no row header"
+                assert all(h.text.strip() for h in rowh), f"{where}: an empty row header"
+                if t["thead"]:
+                    heads = {cols[k] for k in range(c.col, c.col + c.colspan) if k in cols}
+                    assert len(heads) == 1, f"{where}: {len(heads)} column headers"
+                else:
+                    assert len(rowh) == 1, f"{where}: read with {len(rowh)} labels"
+        counts[name] = counts.get(name, 0) + n
+    return counts
+
+
+def _has_content(e: StructElem) -> bool:
+    return any(k.text_ids for k in e.walk())
+
+
+def _check_pdf_headers(tree: StructElem) -> tuple[int, int]:
+    """The same in the PDF structure tree: each /TD's /Headers name the /TH cells of its own
+    /TR (row headers, each with content: a hidden repeat is tagged too) and, in a table
+    with a /THead, the one /TH of the header rows over the cell's column (WeasyPrint's IDs
+    are table-row-column). Returns the numbers of data and fact tables."""
+    n_data = n_fact = 0
+    for t in tree.find("Table"):
+        if not t.find("TH"):
+            continue
+        head = {th.id for h in t.find("THead") for th in h.find("TH")}
+        n_data += bool(head)
+        n_fact += not head
+        for tr in t.find("TR"):
+            if any(k.type == "THead" and tr in k.walk() for k in t.kids):
+                continue
+            rowh = [k.id for k in tr.kids if k.type == "TH"]
+            col = 0
+            for k in tr.kids:
+                span = int(k.attrs.get("ColSpan", 1))
+                if k.type == "TD":
+                    heads = list(k.attrs.get("Headers", []))
+                    assert rowh and heads[:len(rowh)] == rowh, (heads, rowh)
+                    colh = heads[len(rowh):]
+                    if head:
+                        assert len(colh) == span and set(colh) <= head, (heads, head)
+                        assert [int(h.rsplit("-", 1)[1]) for h in colh] == \
+                            list(range(col, col + span)), "column header of another column"
+                    else:
+                        assert not colh and len(rowh) == 1, heads
+                else:
+                    assert k.type == "TH" and _has_content(k), "an empty row header"
+                col += span
+    return n_data, n_fact
+
+
+@pytest.mark.parametrize("report", ["single", "progress"])
+def test_every_data_cell_is_read_with_its_row_and_column_header(
+        report: str, request: pytest.FixtureRequest) -> None:
+    """A number is read with its parameter (and side, comparison, trial, sensor or level)
+    and its column; a fact with its label. "single" is a one-session report with an
+    agreement section, "progress" a subject report over three sessions."""
+    _, html, _, tree = request.getfixturevalue(report)
+    counts = _check_html_headers(html)
+    want = ({"spatiotemporal parameters", "per trial", "per-sensor quality", "agreement"}
+            if report == "single" else
+            {"sessions", "changes between sessions", "spatiotemporal parameters",
+             "per trial"})
+    assert want <= set(counts) and all(counts[k] for k in want), counts
+    n_data, n_fact = _check_pdf_headers(tree)
+    assert n_data >= len(re.findall(r"<table aria-label", html))
+    assert n_fact >= html.count('<table class="meta">') >= 2
+    # a left/right row says its parameter too: its header is there, hidden, in both
+    assert re.search(r'<tr class="side">\s*<th scope="row" class="l rh"><span class="gr-vh">'
+                     r"Step length</span></th>\s*<th[^>]*>left</th>", html)
 
 
 @pytest.mark.parametrize("n", [1, 4])
