@@ -104,3 +104,43 @@ def test_live_rays_are_the_engines_and_leave_its_cache_alone() -> None:
     assert _ray_table.cache_info().currsize == before
     ref = pixel_ray_table(CameraIntrinsics.from_matrix(np.array(K), 97, 61, dist))
     np.testing.assert_allclose(r, ref, atol=1e-6, equal_nan=True)
+
+
+def test_hostile_imu_uploads_are_4xx_with_a_message(admin_client: object) -> None:
+    """Through the route: an XML bomb past the old 64 kB look, an external entity, a
+    UTF-16 DTD, a million-column phone CSV: each a 400 naming the user's file, never a
+    500; without a login, 401 before anything is read."""
+    import io
+    import zipfile
+
+    from fastapi.testclient import TestClient
+
+    c: TestClient = admin_client  # type: ignore[assignment]
+    pad = b"<!-- <mvnx " + b"x" * 70_000 + b" -->"
+    lol = (b'<!DOCTYPE l [<!ENTITY a "aaaaaaaaaa">' + b"".join(
+        b'<!ENTITY a%d "%s">' % (i, (b"&a%d;" % (i - 1) if i > 1 else b"&a;") * 10)
+        for i in range(1, 10)) + b"]>")
+    xxe = b'<!DOCTYPE m [<!ENTITY x SYSTEM "file:///etc/passwd">]>'
+    body = (b"<mvnx><subject frameRate='60'><sensors><sensor label='&x;'/></sensors>"
+            b"</subject></mvnx>")
+    wide = io.BytesIO()
+    with zipfile.ZipFile(wide, "w", zipfile.ZIP_DEFLATED) as z:
+        n = 100_000
+        z.writestr("Gyroscope.csv", b",".join(b"c%d" % i for i in range(n)) + b"\n"
+                   + b",".join(b"1" for _ in range(n)) + b"\n")
+        z.writestr("Accelerometer.csv", b"time,x,y,z\n1,0,0,9.8\n2,0,0,9.8\n")
+    cases = {"bomb.mvnx": b"<?xml version='1.0'?>" + pad + lol + b"<mvnx>&a9;</mvnx>",
+             "xxe.mvnx": b"<?xml version='1.0'?>" + pad + xxe + body,
+             "u16.mvnx": ("<?xml version='1.0' encoding='UTF-16'?>" + xxe.decode()
+                          + body.decode()).encode("utf-16"),
+             "wide.zip": wide.getvalue()}
+    for name, data in cases.items():
+        r = c.post("/api/imu/sessions",
+                   files=[("files", (name, data, "application/octet-stream"))])
+        assert r.status_code == 400, (name, r.status_code, r.text[:300])
+        detail = str(r.json()["detail"])
+        assert name in detail and "root:" not in detail and len(detail) < 1000, detail
+    anonymous = TestClient(c.app, raise_server_exceptions=False)  # no login, no cookie
+    r = anonymous.post("/api/imu/sessions",
+                       files=[("files", ("xxe.mvnx", cases["xxe.mvnx"], "application/xml"))])
+    assert r.status_code == 401

@@ -248,6 +248,8 @@ async def upload_session(
                     # the engine names our temporary file; name the user's instead
                     msg = str(e).replace(path.name, up.filename or name).replace(
                         path.stem, Path(up.filename or name).stem).replace(str(folder) + "/", "")
+                    if up.filename and up.filename not in msg:  # a zip's member was named
+                        msg = f"{up.filename}: {msg}"
                     raise InputError(msg) from None
                 except Exception as e:  # a damaged file can trip any reader library
                     raise InputError(f"{up.filename}: cannot read the file ({e}); check that it "
