@@ -217,3 +217,22 @@ def test_a_file_that_vanishes_is_found_by_the_periodic_check(
     now = {x["code"]: x for x in _check_overview(c, data)}
     assert now[code]["bytes"] == before[code]["bytes"] - size
     _check_lists(c, data)
+
+
+def test_a_reference_uploaded_and_deleted_through_the_api(
+        clinic: tuple[TestClient, Clinic, Path]) -> None:
+    from tests.app.test_storage_cleanup import _skeleton_csv
+
+    c, cl, data = clinic
+    before = {x["code"]: x for x in _check_overview(c, data)}
+    rec_id = cl.recording_ids[2]
+    code = _code_of(data, rec_id)
+    body = _skeleton_csv()
+    r = c.post(f"/api/exports/{rec_id}/references",
+               files={"file": ("walk.csv", body, "text/csv")})
+    assert r.status_code == 201, r.text
+    now = {x["code"]: x for x in _check_overview(c, data)}  # at once, not after 10 s
+    assert now[code]["bytes"] == before[code]["bytes"] + len(body)
+    r = c.post(f"/api/exports/{rec_id}/references/{r.json()['id']}/delete")
+    assert r.status_code == 200, r.text
+    assert {x["code"]: x for x in _check_overview(c, data)}[code] == before[code]
