@@ -62,6 +62,8 @@ MAX_TRACKERS = 64
 MAX_ELEMENTS = 12_000_000
 #: characters of one frame element's numbers (a full suit's segment data: ~4 kB)
 MAX_VALUE_CHARS = 256 * 2**10
+#: bytes between two ``<`` (a tag's attributes, a text node)
+_MAX_RUN = 2**20
 #: the XML prolog (declaration, comments) read before the root element
 _PROLOG_BYTES = 2**20
 _PROLOG_SPACE = re.compile(rb"[ \t\r\n]*")
@@ -89,6 +91,7 @@ def _check_head(p: Path) -> None:
                          f"{MAX_MVNX_BYTES // 2**20} MB an MVNX export may have; export a "
                          "shorter take")
     _check_prolog(p)
+    _check_runs(p)
     if b"<mvnx" not in head and b"<frames" not in head:
         raise InputError(f"{p.name}: not an Xsens MVNX export (no <mvnx> element); export "
                          "the take from MVN as MVNX")
@@ -132,6 +135,27 @@ def _check_prolog(p: Path) -> None:
                              "exports never do; export the take again from MVN")
         else:
             return  # the root element (or not XML: the parser says so)
+
+
+def _check_runs(p: Path) -> None:
+    """Refuse a run of more than :data:`_MAX_RUN` bytes without a ``<``: one start tag
+    with a million attributes (``<`` may not stand in an attribute value) or one huge text
+    node. Expat hands a tag's attributes over all at once: 10 MB of them took 600 MB.
+    An MVN export's longest run is a frame element's numbers (a few kB). One pass in
+    256 kB blocks (~0.7 s for 256 MB)."""
+    run = 0
+    with p.open("rb") as fh:
+        while block := fh.read(2**18):  # small blocks: the pieces are many small objects
+            pieces = block.split(b"<")
+            run += len(pieces[0])
+            longest = max(run, max(map(len, pieces[1:-1]), default=0))
+            if len(pieces) > 1:
+                run = len(pieces[-1])
+                longest = max(longest, run)
+            if longest > _MAX_RUN:
+                raise InputError(f"{p.name}: more than {_MAX_RUN // 2**20} MB without an XML "
+                                 "tag (one element with a huge text or a huge number of "
+                                 "attributes); not an MVN export")
 
 
 @dataclass

@@ -67,7 +67,7 @@ def test_a_frame_with_many_children_is_refused(tmp_path: Path) -> None:
 
 
 def test_one_huge_text_node_is_refused_before_splitting(tmp_path: Path) -> None:
-    big = b"<sensorOrientation>" + b"1 " * 1_000_000 + b"</sensorOrientation>"
+    big = b"<sensorOrientation>" + b"1 " * 200_000 + b"</sensorOrientation>"
     _refused(tmp_path, _mvnx_of(b'<frame type="normal" index="0">' + big + b"</frame>"),
              "characters")
 
@@ -85,9 +85,10 @@ def test_many_trackers_and_long_labels_are_refused(tmp_path: Path) -> None:
 
 
 def test_elements_outside_the_frames_do_not_pile_up(tmp_path: Path) -> None:
-    # 200 000 empty elements beside the frames: the tree kept every one (~80 B each)
+    # 500 000 empty elements beside the frames: the tree kept every one (~80 B each,
+    # ~39 MB); now only the pre-scan's block (< 12 MB at worst) is held at once
     p = tmp_path / "take.mvnx"
-    p.write_bytes(_mvnx_of(b"<x/>" * 200_000 + _small_frames(3)))
+    p.write_bytes(_mvnx_of(b"<x/>" * 500_000 + _small_frames(3)))
     tracemalloc.start()
     try:
         recs = load_mvnx_all(p)
@@ -95,7 +96,21 @@ def test_elements_outside_the_frames_do_not_pile_up(tmp_path: Path) -> None:
     finally:
         tracemalloc.stop()
     assert list(recs) == ["P"]
-    assert peak < 4 * 2**20, peak
+    assert peak < 16 * 2**20, peak
+
+
+def test_a_tag_with_a_million_attributes_is_refused_before_parsing(tmp_path: Path) -> None:
+    # expat hands them over at once: 10 MB of attributes peaked at 600 MB (256 MB: ~15 GB)
+    attrs = b" ".join(b'a%d=">"' % i for i in range(200_000))  # '>' is legal in a value
+    _refused(tmp_path, _mvnx_of(b"<x " + attrs + b"/>" + _small_frames(3)), "without an XML tag")
+
+
+def test_a_long_run_across_read_blocks_is_seen(tmp_path: Path) -> None:
+    # 3.5 MB of frames, then a 1.5 MB text node that straddles the scan's blocks
+    frames = _small_frames(26_000)
+    assert 3 * 2**20 < len(frames) < 4 * 2**20
+    _refused(tmp_path, _mvnx_of(frames + b"<c>" + b"7" * (3 * 2**19) + b"</c>"),
+             "without an XML tag")
 
 
 def test_the_element_count_is_bounded(tmp_path: Path,
