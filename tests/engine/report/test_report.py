@@ -165,3 +165,46 @@ def test_pdf_renders_to_png_with_content(tmp_path: Path, artifacts_dir: Path):
     # a rendered page is not blank: ink covers a real fraction of it
     ink = (first.mean(axis=2) < 200).mean()
     assert 0.02 < ink < 0.6
+
+
+def test_pdf_fetches_nothing_but_its_own_data_uris(monkeypatch: pytest.MonkeyPatch,
+                                                   tmp_path: Path) -> None:
+    """Whatever reached the page (here an image and a stylesheet on a local web server and
+    a local file, planted in the rendered HTML), the PDF renderer asks no address and
+    reads no file; the report's own data: plots are still drawn."""
+    import http.server
+    import threading
+
+    from engine.report import render
+
+    asked: list[str] = []
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            asked.append(self.path)
+            self.send_response(404)
+            self.end_headers()
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    secret = tmp_path / "secret.png"
+    secret.write_bytes(b"not an image")
+    base = f"http://127.0.0.1:{server.server_address[1]}"
+    plain = render.render_html
+
+    def planted(data: ReportData, standalone: bool = False) -> str:
+        html = plain(data, standalone=standalone)
+        return html.replace("</body>", f'<img src="{base}/img.png" alt=""><img src="'
+                            f'{secret.as_uri()}" alt=""><link rel="stylesheet" href="'
+                            f'{base}/x.css"></body>')
+
+    monkeypatch.setattr(render, "render_html", planted)
+    try:
+        pdf = render_pdf(_data())
+    finally:
+        server.shutdown()
+    assert asked == []
+    assert pdf.startswith(b"%PDF") and pdf.count(b"/Subtype /Image") >= 3
