@@ -37,6 +37,7 @@ import math
 import os
 import re
 import secrets
+from collections import Counter
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -640,14 +641,37 @@ def agreement_rows(measured: list[dict[str, Any]], reference: list[dict[str, Any
     return rows, figs
 
 
+def trial_names(labels: Mapping[str, str]) -> dict[str, str]:
+    """The name a report gives each recording: its trial label ("walk 3") where that
+    label is the recording's alone in the report, label and id where labels repeat, the
+    id where there is no label.
+
+    Args:
+        labels: rec_id → the trial label given when recording ("" for none).
+
+    Returns:
+        rec_id → name.
+    """
+    counts = Counter(v.strip() for v in labels.values() if v.strip())
+    out = {}
+    for rec_id, label in labels.items():
+        label = label.strip()
+        out[rec_id] = (rec_id if not label else label if counts[label] == 1
+                       else f"{label} ({rec_id})")
+    return out
+
+
 def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
                  title: str = "Gait report", subject_info: dict[str, Any] | None = None,
                  session_label: str = "", session_date: str = "",
-                 references: Mapping[str, list[dict[str, Any]]] | None = None) -> ReportData:
+                 references: Mapping[str, list[dict[str, Any]]] | None = None,
+                 trial_labels: Mapping[str, str] | None = None) -> ReportData:
     """A :class:`ReportData` from analysed recordings (failed analyses become notes).
 
     Args:
         references: rec_id → reference gait JSON steps (agreement section).
+        trial_labels: rec_id → the trial's label (:func:`trial_names` names the trials;
+            without it, trials are named by recording id).
 
     Raises:
         InsufficientDataError: no analysis with a gait result.
@@ -689,7 +713,15 @@ def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
     # The sensors go into the trial names only when trials differ in them; otherwise the
     # data-quality section lists them once (ten trials repeated "(S1, …, S6)" ten times).
     same = len({tuple(a.get("sensors_used") or ()) for a in good}) == 1
-    trials = [trial_from_analysis(a, with_sensors=not same) for a in good]
+    names = trial_names({str(a.get("rec_id")): (trial_labels or {}).get(str(a.get("rec_id")), "")
+                         for a in good})
+    trials = []
+    for a in good:
+        rec_id = str(a.get("rec_id"))
+        trial = trial_from_analysis(a, name=names[rec_id], with_sensors=not same)
+        if names[rec_id] != rec_id and rec_id not in names[rec_id]:
+            trial.source = rec_id
+        trials.append(trial)
     return ReportData(subject_code, trials, title=title,
                       subject_info=subject_info or {}, session_label=session_label,
                       session_date=session_date, quality=q, agreement=rows,

@@ -98,6 +98,8 @@ class TrialData:
             with x along and y across the walking direction (m), for the top view.
         times: optional ``(T,)`` times of the ankle trajectories.
         ankle_heights: optional ``{"L": (T,), "R": (T,)}`` vertical ankle positions (m).
+        source: the recording id (or file) the trial came from, when ``name`` is the
+            clinician's label for it; listed beside the name in "Trials used".
     """
 
     name: str
@@ -105,6 +107,7 @@ class TrialData:
     placements: list[dict[str, Any]] | None = None
     times: np.ndarray | None = None
     ankle_heights: dict[str, np.ndarray] | None = None
+    source: str = ""
 
 
 @dataclass
@@ -520,7 +523,8 @@ def build_context(data: ReportData) -> dict[str, Any]:
         "notes": quality_notes(data, table),
         "norm_sources": [(s, "; ".join(populations.get(s, []))) for s in used_norms],
         "n_steps": len(all_steps),
-        "trial_steps": [(t.name, len(t.result.get("steps", []) or [])) for t in data.trials],
+        "trial_steps": [(t.name, t.source, len(t.result.get("steps", []) or []))
+                        for t in data.trials],
         "trial_paces": trial_paces(data.trials),
         "session_pace": pace(data.trials),
         **_progress_context(data),

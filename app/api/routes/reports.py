@@ -463,7 +463,8 @@ def recording_report(rec_id: str, request: Request, user: CurrentUser, settings:
         data = an.build_report(code, [res], title=title,
                                session_label=str(link.get("session_label") or ""),
                                session_date=str(link.get("session_date") or ""),
-                               references=refs)
+                               references=refs,
+                               trial_labels={rec_id: str(link.get("label") or "")})
     except InsufficientDataError as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
     except InputError as exc:
@@ -490,6 +491,7 @@ class SubjectReportSource:
     session_date: str
     file_stamp: str  # date in the PDF's file name
     recordings: list[tuple[str, str]]  # (rec_id, state) in session order
+    labels: dict[str, str] = field(default_factory=dict)  # rec_id → trial label
     references: dict[str, tuple[Path, float]] = field(default_factory=dict)
     #: (session id, label, ISO date, its rec_ids) in time order, when the report spans
     #: several sessions (for "Change over sessions"); empty for one session
@@ -525,6 +527,7 @@ def subject_report_source(db: Any, data_dir: Path, subject: Any,
         file_stamp=(str(session.date) if session is not None
                     else _dt.date.today().isoformat()),
         recordings=recs,
+        labels={r.id: r.label or "" for se in chosen for r in se.recordings},
         references=_reference_paths(db, data_dir, {
             rec_id: an.recording_dir(data_dir, rec_id) for rec_id, _ in recs}),
         sessions=([] if session is not None else
@@ -565,7 +568,7 @@ def build_subject_report(src: SubjectReportSource, data_dir: Path, live: dict[st
         src.code, analyses,
         title="Gait report" + ("" if sensors is None else f" — {_subset(sensors)}"),
         subject_info=src.info, session_label=src.session_label,
-        session_date=src.session_date, references=refs)
+        session_date=src.session_date, references=refs, trial_labels=src.labels)
     data.quality.notes += ref_notes
     data.sessions = _session_trials(src, analyses, data)
     for s_ in skipped:

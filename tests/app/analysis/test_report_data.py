@@ -143,3 +143,19 @@ def test_interpolated_gaps_are_a_count_that_says_of_what() -> None:
     """'Short gaps interpolated  71' gave a bare number: frames? %? gaps of what?"""
     html = render_html(an.build_report("P-1", [_analysis("R1", {"S1": 1.0}, "3", 1.0)]))
     assert "2 gaps in single joints' trajectories" in html
+
+
+def test_trials_are_named_by_their_labels_and_keep_their_recording_ids() -> None:
+    """A clinician's trial labels name the trials ("walk 3"), the recording id stays
+    beside each in "Trials used"; a label given twice keeps the id in the name, and a
+    trial without a label is named by its id."""
+    assert an.trial_names({"R1": "walk 1", "R2": " ", "R3": "fast", "R4": "fast"}) == {
+        "R1": "walk 1", "R2": "R2", "R3": "fast (R3)", "R4": "fast (R4)"}
+    analyses = [_analysis(f"R{k}", {"S1": 1.0, "S2": 2.0}, "3", 1.0) for k in (1, 2, 3)]
+    html = render_html(an.build_report("P-1", analyses, trial_labels={
+        "R1": "walk 1", "R2": "walk 2"}))
+    line = re.search(r"Trials used</th><td[^>]*>(.*?)</td>", html, re.S)
+    assert line is not None
+    assert line.group(1) == ("3, 36 steps: walk 1 — R1 (12 steps); walk 2 — R2 (12 steps); "
+                             "R3 (12 steps)")
+    assert re.search(r"<th scope=\"row\"[^>]*>walk 2</th>", html)  # the "Per trial" row
