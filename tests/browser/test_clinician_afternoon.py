@@ -84,6 +84,18 @@ def test_project_list_says_what_it_counts_and_counts_a_new_subject(page: Any) ->
     page.wait_for_function(f"{selected} === 'Afternoon clinic (1 subject)'", timeout=10000)
 
 
+def _wait_settled_copy(page: Any) -> None:
+    """Wait until the Record page's recording is complete or incomplete, and say which
+    with the page's reason and message when it is not complete (the wait once timed out
+    in a clean-clone run with nothing to tell why)."""
+    page.wait_for_function("['complete', 'incomplete'].includes(document.getElementById("
+                           "'state-badge')?.dataset.state)", timeout=90000)
+    badge = page.locator("#state-badge")
+    assert badge.get_attribute("data-state") == "complete", (
+        badge.get_attribute("data-reason"), page.inner_text("#rec-msg"),
+        page.inner_text("#parts"))
+
+
 def test_record_page_fills_the_trial_label_and_counts_on(page: Any, live_server: LiveServer,
                                                          artifacts_dir: Path) -> None:
     sid, session_id = _subject_with_session(live_server, "Afternoon record", "AFT02")
@@ -99,7 +111,7 @@ def test_record_page_fills_the_trial_label_and_counts_on(page: Any, live_server:
     page.click("#stop")
     page.wait_for_function("document.getElementById('label').value === 'walk 2'")
     screenshot(page, artifacts_dir, "afternoon_record_next_label")
-    page.wait_for_selector("#state-badge[data-state=complete]", timeout=90000)
+    _wait_settled_copy(page)
     recs = live_server.api(f"/api/subjects/{sid}")["sessions"][0]["recordings"]
     assert [r["label"] for r in recs] == ["walk 1"]
     # a label of the clinician's own that ends in a number counts on too
@@ -109,7 +121,7 @@ def test_record_page_fills_the_trial_label_and_counts_on(page: Any, live_server:
     page.wait_for_function("document.getElementById('elapsed').textContent >= '0:01.0'")
     page.click("#stop")
     page.wait_for_function("document.getElementById('label').value === '10 m walk fast 4'")
-    page.wait_for_selector("#state-badge[data-state=complete]", timeout=90000)
+    _wait_settled_copy(page)
 
 
 def test_reports_recording_list_names_and_finds_the_trial_label(page: Any,
