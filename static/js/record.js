@@ -62,7 +62,7 @@
     if (subjectId === null) { sel.replaceChildren(el("option", { value: "" }, "— add a subject first —")); return; }
     const ss = await api(`/api/sessions?subject_id=${subjectId}`);
     if (!sessionsSeq.current(mine)) return;
-    sel.replaceChildren(...ss.slice().reverse().map((s) => el("option", { value: s.id, "data-recordings": String(s.n_recordings) }, `${gaitrig.day(s.date)}${s.label ? " — " + s.label : ""} (${s.n_recordings} rec.)`)));
+    sel.replaceChildren(...ss.slice().reverse().map((s) => el("option", { value: s.id, "data-recordings": String(s.n_recordings) }, `${gaitrig.day(s.date)}${s.label ? " — " + s.label : ""} (${s.n_recordings} recording${s.n_recordings === 1 ? "" : "s"})`)));
     if (!ss.length) sel.append(el("option", { value: "" }, "— add a session —"));
     if (want) sel.value = want;
     suggestLabel();

@@ -84,12 +84,26 @@ def test_project_list_says_what_it_counts_and_counts_a_new_subject(page: Any) ->
     page.wait_for_function(f"{selected} === 'Afternoon clinic (1 subject)'", timeout=10000)
 
 
-def _wait_settled_copy(page: Any) -> None:
+def _wait_settled_copy(page: Any, server: LiveServer) -> None:
     """Wait until the Record page's recording is complete or incomplete, and say which
-    with the page's reason and message when it is not complete (the wait once timed out
-    in a clean-clone run with nothing to tell why)."""
-    page.wait_for_function("['complete', 'incomplete'].includes(document.getElementById("
-                           "'state-badge')?.dataset.state)", timeout=90000)
+    with the page's reason and message when it is not complete; when it settles on
+    neither, say what the page and the server show (the wait once timed out in a
+    clean-clone run with nothing to tell why)."""
+    try:
+        page.wait_for_function("['complete', 'incomplete'].includes(document.getElementById("
+                               "'state-badge')?.dataset.state)", timeout=60000)
+    except Exception as exc:  # playwright's TimeoutError: say what stood
+        rec_id = page.evaluate("(document.getElementById('rec-msg').textContent"
+                               ".match(/R[0-9-]+/) || [''])[0]")
+        server_view = server.api(f"/api/storage/recordings/{rec_id}") if rec_id else None
+        live_view = server.api(f"/api/recordings/{rec_id}") if rec_id else None
+        log_tail = (server.data_dir / "demo.log").read_text(errors="replace")[-4000:]
+        badge_html = page.evaluate('document.getElementById("rec-state").innerHTML')
+        raise AssertionError(
+            f"the Record page's recording settled on neither complete nor incomplete: "
+            f"badge {badge_html}, "
+            f"message {page.inner_text('#rec-msg')!r}, parts {page.inner_text('#parts')!r}, "
+            f"server {server_view}, live {live_view}, log tail:\n{log_tail}") from exc
     badge = page.locator("#state-badge")
     assert badge.get_attribute("data-state") == "complete", (
         badge.get_attribute("data-reason"), page.inner_text("#rec-msg"),
@@ -111,7 +125,7 @@ def test_record_page_fills_the_trial_label_and_counts_on(page: Any, live_server:
     page.click("#stop")
     page.wait_for_function("document.getElementById('label').value === 'walk 2'")
     screenshot(page, artifacts_dir, "afternoon_record_next_label")
-    _wait_settled_copy(page)
+    _wait_settled_copy(page, live_server)
     recs = live_server.api(f"/api/subjects/{sid}")["sessions"][0]["recordings"]
     assert [r["label"] for r in recs] == ["walk 1"]
     # a label of the clinician's own that ends in a number counts on too
@@ -121,7 +135,7 @@ def test_record_page_fills_the_trial_label_and_counts_on(page: Any, live_server:
     page.wait_for_function("document.getElementById('elapsed').textContent >= '0:01.0'")
     page.click("#stop")
     page.wait_for_function("document.getElementById('label').value === '10 m walk fast 4'")
-    _wait_settled_copy(page)
+    _wait_settled_copy(page, live_server)
 
 
 def test_reports_recording_list_names_and_finds_the_trial_label(page: Any,
