@@ -151,16 +151,36 @@ class _Room:
         return sc, fid, wid
 
     def floor_colour(self, p: FloatArray) -> FloatArray:
-        """RGB of floor points ``(N, 3)``: grey tiles, markers with quiet zone."""
+        """RGB of floor points ``(N, 3)``: grey tiles, markers with quiet zone.
+
+        Args:
+            p: ``(N, 3)`` world points on the floor, m.
+
+        Returns:
+            ``(N, 3)`` RGB, 0–255 floats.
+        """
         # 0.5 m tiles with faint grout lines give the floor some texture
         fx, fy = np.mod(p[:, 0], 0.5), np.mod(p[:, 1], 0.5)
         grout = (np.minimum(fx, 0.5 - fx) < 0.008) | (np.minimum(fy, 0.5 - fy) < 0.008)
         tile = (np.floor(p[:, 0] / 0.5) + np.floor(p[:, 1] / 0.5)) % 2
         g = np.where(grout, 95.0, 140.0 + 12.0 * tile)
         col = np.repeat(g[:, None], 3, axis=1) * [1.0, 0.97, 0.9]
+        if len(p) == 0:
+            return col
+        z_range = (float(np.nanmin(p[:, 2])), float(np.nanmax(p[:, 2])))
         for m, T_mw, tex in self.markers:
-            q = transform_points(T_mw, p)
             half = m.size_m * (0.5 + QUIET_ZONE)
+            # only points in the marker's world bounding box can be on it: transforming
+            # every floor pixel once per marker was most of a renderer's construction
+            box = _marker_box(m.T_world_marker, half, z_range)
+            if box is None:
+                idx = np.arange(len(p))
+            else:
+                lo, hi = box
+                idx = np.flatnonzero(np.all((p >= lo) & (p <= hi), axis=1))
+            if len(idx) == 0:
+                continue
+            q = transform_points(T_mw, p[idx])
             inside = (np.abs(q[:, 0]) <= half) & (np.abs(q[:, 1]) <= half)
             if not np.any(inside):
                 continue
@@ -168,8 +188,38 @@ class _Room:
             # image column along marker +X, image row along marker −Y (see FloorMarker)
             col_px = np.clip(((q[inside, 0] + half) / (2 * half) * n).astype(int), 0, n - 1)
             row_px = np.clip(((half - q[inside, 1]) / (2 * half) * n).astype(int), 0, n - 1)
-            col[inside] = tex[row_px, col_px][:, None].astype(float)
+            col[idx[inside]] = tex[row_px, col_px][:, None].astype(float)
         return col
+
+
+def _marker_box(T_world_marker: FloatArray, half: float, z_range: tuple[float, float]
+                ) -> tuple[FloatArray, FloatArray] | None:
+    """World axis-aligned box holding every point with world z in ``z_range`` whose
+    marker-frame ``|x|, |y| <= half`` (the marker square's prism along its normal).
+
+    Args:
+        T_world_marker: The marker's pose.
+        half: Half edge of the printed square (marker and quiet zone), m.
+        z_range: ``(z_min, z_max)`` of the points to be tested, m (world).
+
+    Returns:
+        ``(lo, hi)`` corners, widened by 1 µm so rounding cannot drop a point on the
+        square's edge; None when the normal is nearly horizontal (the prism is then not
+        bounded by the z range: every point must be tested).
+    """
+    R, t = T_world_marker[:3, :3], T_world_marker[:3, 3]
+    if abs(R[2, 2]) < 1e-3:
+        return None
+    # vertices of the prism cut by the planes z = z_min and z = z_max: the square's
+    # corners slid along the normal until their world z reaches each plane
+    corners = np.array([[sx * half, sy * half] for sx in (-1, 1) for sy in (-1, 1)])
+    verts = []
+    for z in z_range:
+        s = (z - t[2] - corners @ R[2, :2]) / R[2, 2]
+        local = np.column_stack([corners, s])
+        verts.append(local @ R.T + t)
+    v = np.concatenate(verts)
+    return v.min(axis=0) - 1e-6, v.max(axis=0) + 1e-6
 
 
 def _flying_pixels(z: FloatArray, rng: np.random.Generator, prob: float) -> FloatArray:

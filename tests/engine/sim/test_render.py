@@ -4,8 +4,8 @@ import pytest
 
 from engine.errors import InputError
 from engine.geometry import invert_transform, transform_points
-from engine.sim.render import SensorRenderer, depth_to_points, render_frame
-from engine.sim.rig import default_avenue_rig, marker_visible
+from engine.sim.render import QUIET_ZONE, SensorRenderer, _Room, depth_to_points, render_frame
+from engine.sim.rig import FloorMarker, default_avenue_rig, marker_visible
 from engine.sim.walker import Walker, WalkerParams
 from engine.skeleton import KINECT_V2
 
@@ -92,3 +92,43 @@ def test_flying_pixels_only_at_depth_edges():
     changed = out != z
     assert changed[:, 15].all() and changed.sum() == 20  # the far side of the edge only
     assert np.all((out[:, 15] > 1.0) & (out[:, 15] < 3.0))
+
+
+def _floor_colour_brute_force(room: _Room, p: np.ndarray) -> np.ndarray:
+    """The floor colour with every point tested against every marker (no culling)."""
+    fx, fy = np.mod(p[:, 0], 0.5), np.mod(p[:, 1], 0.5)
+    grout = (np.minimum(fx, 0.5 - fx) < 0.008) | (np.minimum(fy, 0.5 - fy) < 0.008)
+    tile = (np.floor(p[:, 0] / 0.5) + np.floor(p[:, 1] / 0.5)) % 2
+    out = np.repeat(np.where(grout, 95.0, 140.0 + 12.0 * tile)[:, None], 3, axis=1) \
+        * [1.0, 0.97, 0.9]
+    for m, T_mw, tex in room.markers:
+        q = transform_points(T_mw, p)
+        half = m.size_m * (0.5 + QUIET_ZONE)
+        inside = (np.abs(q[:, 0]) <= half) & (np.abs(q[:, 1]) <= half)
+        n = tex.shape[0]
+        col_px = np.clip(((q[inside, 0] + half) / (2 * half) * n).astype(int), 0, n - 1)
+        row_px = np.clip(((half - q[inside, 1]) / (2 * half) * n).astype(int), 0, n - 1)
+        out[inside] = tex[row_px, col_px][:, None].astype(float)
+    return out
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 25.0, 89.99, 90.0])
+def test_floor_colour_culling_changes_no_pixel(tilt_deg: float) -> None:
+    """Testing only the points in each marker's bounding box colours exactly the pixels
+    that testing every point does: flat markers, a tilted one, and one standing on edge
+    (whose prism the z range does not bound)."""
+    rig = default_avenue_rig(seed=0)
+    c, s = np.cos(np.radians(tilt_deg)), np.sin(np.radians(tilt_deg))
+    T = np.eye(4)
+    T[:3, :3] = [[1, 0, 0], [0, c, -s], [0, s, c]]
+    T[:3, 3] = [1.0, 0.3, 0.05]
+    rig.markers.append(FloorMarker(id=9, size_m=0.2, T_world_marker=T))
+    room = _Room(rig)
+    rng = np.random.default_rng(1)
+    lo, hi = np.array(rig.room.floor_min), np.array(rig.room.floor_max)
+    p = np.column_stack([rng.uniform(lo[0], hi[0], 200_000), rng.uniform(lo[1], hi[1], 200_000),
+                         rng.normal(0.0, 0.05, 200_000)])
+    # dense around every marker, edges included
+    near = [m.T_world_marker[:3, 3] + rng.uniform(-0.2, 0.2, (20_000, 3)) for m in rig.markers]
+    p = np.vstack([p, *near])
+    assert np.array_equal(room.floor_colour(p), _floor_colour_brute_force(room, p))
