@@ -5,7 +5,10 @@
 ping loop, and the message loop. A malformed or oversized message is answered with an
 ``error`` message and logged with its reason; the connection stays open (only frames above
 the transport limit, ``Settings.ws_transport_max_bytes``, make the websocket layer close
-it with code 1009).
+it with code 1009). Refusals are bounded per connection (:class:`RefusalBudget`): beyond a
+burst they are counted, not answered or logged one by one, and summarised once a window
+(log and the node's health); a node that keeps sending refused messages past
+:data:`MAX_REFUSED_PER_WINDOW` a window is disconnected (:data:`CLOSE_FLOOD`).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import secrets
 import struct
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from fastapi import WebSocket, WebSocketDisconnect
@@ -56,6 +60,19 @@ CLOSE_REFUSED = 4401
 CLOSE_PROTOCOL = 4400
 CLOSE_REPLACED = 4409
 CLOSE_BUSY = 1013  # try again later
+#: Policy violation: the node kept sending messages the server refuses (a broken or hostile
+#: node); an ordinary close for the agent, which reconnects after its back-off.
+CLOSE_FLOOD = 1008
+#: Refusals answered and logged one by one on a connection: a burst of this many, refilled
+#: at :data:`REFUSALS_PER_S`. A working node is refused a handful of messages in a day (a
+#: lens that does not match, a message of a newer revision), so it never reaches the end.
+REFUSAL_BURST = 20
+REFUSALS_PER_S = 1.0
+#: Beyond the budget, refusals are counted and summarised once per window of this length.
+REFUSAL_WINDOW_S = 10.0
+#: Refused messages in one window past which the connection is closed (100 a second for
+#: ten seconds: no working node comes near; a flood costs the server a parse each).
+MAX_REFUSED_PER_WINDOW = 1000
 #: Node connections that have not yet presented a valid hello, at once. Each may send one
 #: message up to the transport limit before it is checked, so this bounds what anonymous
 #: clients on the LAN can make the server hold (as the data channel's MAX_HANDSHAKES).
@@ -114,6 +131,65 @@ def check_image_size(data: bytes, what: str) -> None:
     if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
         raise ProtocolError(f"{what} declares {size[0]}×{size[1]} pixels, more than the "
                             f"{MAX_IMAGE_PIXELS:,} a sensor image may have")
+
+
+@dataclass
+class RefusalBudget:
+    """How many refused messages of one connection are answered and logged one by one
+    (a token bucket), and the count of the current window for its summary.
+
+    Times are ``time.monotonic()`` seconds.
+    """
+
+    node_id: str
+    tokens: float = float(REFUSAL_BURST)
+    last: float | None = None
+    window_start: float | None = None
+    in_window: int = 0  # refused in the current window
+    counted: int = 0  # of those, counted only (neither answered nor logged)
+    first_reason: str = ""
+
+    def refuse(self, reason: str, now: float) -> bool:
+        """Count a refused message.
+
+        Returns:
+            Whether it may be answered and logged by itself (within the budget).
+        """
+        if self.last is not None:
+            self.tokens = min(float(REFUSAL_BURST),
+                              self.tokens + (now - self.last) * REFUSALS_PER_S)
+        self.last = now
+        if self.window_start is None:
+            self.window_start = now
+        if self.in_window == 0:
+            self.first_reason = reason
+        self.in_window += 1
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return True
+        self.counted += 1
+        return False
+
+    @property
+    def flooding(self) -> bool:
+        """Whether this window's refusals passed :data:`MAX_REFUSED_PER_WINDOW`."""
+        return self.in_window > MAX_REFUSED_PER_WINDOW
+
+    def summary(self, now: float | None = None) -> str | None:
+        """The window's summary when some of its refusals were only counted, else None;
+        with ``now``, only once the window has ended (it then starts afresh)."""
+        if self.window_start is None:
+            return None
+        elapsed = (now if now is not None else time.monotonic()) - self.window_start
+        if now is not None and elapsed < REFUSAL_WINDOW_S:
+            return None
+        text = None
+        if self.counted:
+            text = (f"node {self.node_id}: {self.in_window:,} messages refused in the last "
+                    f"{max(elapsed, 0.1):.0f} s ({self.counted:,} of them counted only, not "
+                    f"answered or logged); the first: {self.first_reason[:200]}")
+        self.window_start, self.in_window, self.counted = None, 0, 0
+        return text
 
 
 class Hub:
@@ -239,13 +315,14 @@ class Hub:
                                         restarted)
         log.info("node %s connected from %s (%s)", hello.node_id, peer, hello.backend)
         pinger: asyncio.Task[None] | None = None
+        budget = RefusalBudget(hello.node_id)
         try:
             # inside the try: a node gone before its welcome is disconnected, not left
             # registered as connected
             await ws.send_text(dump(_welcome(self.settings, hello.protocol)))
             self._on_listing(hello.node_id, hello.parts)
-            pinger = asyncio.create_task(self._ping_loop(ws, session))
-            await self._message_loop(ws, session, generation)
+            pinger = asyncio.create_task(self._ping_loop(ws, session, budget))
+            await self._message_loop(ws, session, generation, budget)
         except WebSocketDisconnect:
             pass
         except Exception:
@@ -253,6 +330,7 @@ class Hub:
         finally:
             if pinger is not None:
                 pinger.cancel()
+            self._summarise(session, budget.summary())  # what the last window counted
             # only the node's current connection cleans up: a replaced one ending while
             # the new one is being set up must not mark the node offline
             if self._generation.get(hello.node_id) == generation:
@@ -276,23 +354,60 @@ class Hub:
             await ws.send_text(dump(Refused(reason=reason)))
             await ws.close(code=code, reason=reason[:120])
 
-    async def _ping_loop(self, ws: WebSocket, s: NodeSession) -> None:
+    async def _ping_loop(self, ws: WebSocket, s: NodeSession,
+                         budget: RefusalBudget) -> None:
         seq = 0
         try:
             while ws.application_state == WebSocketState.CONNECTED:
+                # a flood that stopped is still summarised, once its window ends
+                self._summarise(s, budget.summary(time.monotonic()))
                 seq += 1
                 await ws.send_text(dump(Ping(seq=seq, t1=time.time())))
                 await asyncio.sleep(self.settings.clock_ping_interval_s)
         except (WebSocketDisconnect, RuntimeError, OSError):
             pass  # the message loop notices the disconnect and cleans up
 
-    async def _reject(self, ws: WebSocket, s: NodeSession, reason: str) -> None:
+    def _summarise(self, s: NodeSession, text: str | None) -> None:
+        """Log a window's refusal summary and show it in the node's health."""
+        if text is not None:
+            log.warning("%s", text)
+            s.refusal_summary = (time.time(), text)
+
+    async def _reject(self, ws: WebSocket, s: NodeSession, reason: str,
+                      budget: RefusalBudget) -> bool:
+        """Refuse one message: answered with ``error`` and logged within the budget,
+        counted beyond it.
+
+        Returns:
+            Whether the connection must be closed (:attr:`RefusalBudget.flooding`).
+        """
         s.rejected_messages += 1
         s.last_rejection = reason
-        log.warning("rejected message from node %s: %s", s.id, reason)
-        await ws.send_text(dump(ServerError(reason=reason)))
+        now = time.monotonic()
+        self._summarise(s, budget.summary(now))  # the previous window's, when it ended
+        if budget.refuse(reason, now):
+            log.warning("rejected message from node %s: %s", s.id, reason)
+            await ws.send_text(dump(ServerError(reason=reason)))
+        elif budget.counted == 1:  # told once a window, so the node knows why it hears nothing
+            await ws.send_text(dump(ServerError(
+                reason=f"{reason[:200]} (more refused messages are counted, not answered; "
+                f"past {MAX_REFUSED_PER_WINDOW:,} in {REFUSAL_WINDOW_S:g} s the connection is "
+                "closed)")))
+        return budget.flooding
 
-    async def _message_loop(self, ws: WebSocket, s: NodeSession, generation: int) -> None:
+    async def _close_flooding(self, ws: WebSocket, s: NodeSession,
+                              budget: RefusalBudget) -> None:
+        first = budget.first_reason
+        self._summarise(s, budget.summary())
+        reason = (f"more than {MAX_REFUSED_PER_WINDOW} refused messages in "
+                  f"{REFUSAL_WINDOW_S:g} s; first: {first}")
+        log.warning("node %s: connection closed: %s", s.id, reason[:300])
+        with contextlib.suppress(Exception):
+            await ws.send_text(dump(ServerError(reason=reason[:2000])))
+            await ws.close(code=CLOSE_FLOOD, reason=_close_reason(reason))
+
+    async def _message_loop(self, ws: WebSocket, s: NodeSession, generation: int,
+                            budget: RefusalBudget) -> None:
         while True:
             msg = await ws.receive()
             t4 = time.time()
@@ -306,59 +421,68 @@ class Hub:
                          "ignored", s.id)
                 return
             s.last_seen = t4
+            refused: str | None = None
             data = msg.get("bytes")
             if data is not None:
                 try:
                     self._on_binary(s, data, t4)
                 except ProtocolError as exc:
-                    await self._reject(ws, s, str(exc))
-                continue
-            try:
-                m = parse_node_message(msg.get("text") or "", self.settings.max_control_bytes)
-            except ProtocolError as exc:
-                await self._reject(ws, s, str(exc))
-                continue
-            if isinstance(m, Pong):
-                s.clock.add(m.t1, m.t2, m.t3, t4)
-            elif isinstance(m, Status):
-                s.status = m
-            elif isinstance(m, RecState):
-                s.parts[m.part.rec_id] = m.part
-                self.recordings.on_part(s.id, m.part)
-            elif isinstance(m, PartList):  # the rest of the hello's listing
-                self._on_listing(s.id, m.parts)
-            elif isinstance(m, NodeError):
-                log.warning("node %s reported: %s", s.id, m.reason)
-            elif isinstance(m, NodeWarning):
-                at = s.to_server(m.t)
-                # no clock estimate yet, or one that puts it after its arrival: arrival
-                at = t4 if at is None else min(at, t4)
-                if s.on_warning(m.text, at, m.repeats, t4):
-                    log.warning("node %s warns: %s", s.id, m.text)
-            elif isinstance(m, SensorLens):
-                await self._on_lens(ws, s, m)
-            elif isinstance(m, Hello):
-                await self._reject(ws, s, "hello sent twice on one connection")
+                    refused = str(exc)
+            else:
+                try:
+                    m = parse_node_message(msg.get("text") or "",
+                                           self.settings.max_control_bytes)
+                except ProtocolError as exc:
+                    refused = str(exc)
+                else:
+                    refused = self._on_message(s, m, t4)
+            if refused is not None and await self._reject(ws, s, refused, budget):
+                await self._close_flooding(ws, s, budget)
+                return
 
-    async def _on_lens(self, ws: WebSocket, s: NodeSession, m: SensorLens) -> None:
+    def _on_message(self, s: NodeSession, m: Any, t4: float) -> str | None:
+        """Act on one parsed control message; the reason when it is refused."""
+        if isinstance(m, Pong):
+            s.clock.add(m.t1, m.t2, m.t3, t4)
+        elif isinstance(m, Status):
+            s.status = m
+        elif isinstance(m, RecState):
+            s.parts[m.part.rec_id] = m.part
+            self.recordings.on_part(s.id, m.part)
+        elif isinstance(m, PartList):  # the rest of the hello's listing
+            self._on_listing(s.id, m.parts)
+        elif isinstance(m, NodeError):
+            log.warning("node %s reported: %s", s.id, m.reason)
+        elif isinstance(m, NodeWarning):
+            at = s.to_server(m.t)
+            # no clock estimate yet, or one that puts it after its arrival: arrival
+            at = t4 if at is None else min(at, t4)
+            if s.on_warning(m.text, at, m.repeats, t4):
+                log.warning("node %s warns: %s", s.id, m.text)
+        elif isinstance(m, SensorLens):
+            return self._on_lens(s, m)
+        elif isinstance(m, Hello):
+            return "hello sent twice on one connection"
+        return None
+
+    def _on_lens(self, s: NodeSession, m: SensorLens) -> str | None:
         """A node's announced lenses (revision 3): kept for the live view and the Rig page
-        when they describe the cameras of its hello; otherwise refused (a warning, an
-        ``error`` answer; the connection stays and the node is drawn as a pinhole)."""
+        when they describe the cameras of its hello; otherwise refused (the reason is
+        returned: a warning, an ``error`` answer; the connection stays and the node is
+        drawn as a pinhole)."""
         if s.lens is not None:  # sent once after the welcome: a flood rebuilds nothing
-            await self._reject(ws, s, "sensor lens sent twice on one connection; the first "
-                               "is kept (reconnect to announce another)")
-            return
+            return ("sensor lens sent twice on one connection; the first is kept (reconnect "
+                    "to announce another)")
         problem = lens_mismatch(m, s.sensor)
         if problem is not None:
-            await self._reject(ws, s, f"sensor lens refused: {problem}; {s.id} is drawn as "
-                               "a pinhole camera")
-            return
+            return f"sensor lens refused: {problem}; {s.id} is drawn as a pinhole camera"
         s.lens = m
         log.info("node %s lens (%s): depth %s, colour %s", s.id, m.source,
                  m.depth.dist if m.depth else "not reported",
                  m.color.dist if m.color else "not reported")
         for cb in self.registry.listeners:  # the live cloud's rays follow it
             cb(s)
+        return None
 
     def _on_binary(self, s: NodeSession, data: bytes, now: float) -> None:
         header, payload = decode_binary(data, self.settings.max_binary_bytes)
@@ -390,6 +514,12 @@ class Hub:
             s.images[str(stream)] = LatestImage(t_local, s.to_server(t_local),
                                                 str(header.get("format", "png")), bytes(payload),
                                                 header)
+
+
+def _close_reason(text: str) -> str:
+    """``text`` cut to a websocket close reason's 123 bytes of UTF-8."""
+    raw = text.encode()
+    return text if len(raw) <= 123 else raw[:120].decode(errors="ignore") + "…"
 
 
 def _welcome(settings: Settings, revision: int) -> Welcome:

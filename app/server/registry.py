@@ -26,6 +26,10 @@ NODE_WARNINGS_KEPT = 5
 #: Warning messages taken from one node per minute at most; more are counted, not kept
 #: (a node sends far fewer: :data:`app.nodes.agent.WARNING_BURST`).
 NODE_WARNINGS_PER_MINUTE = 20
+#: Seconds a summary of refused messages (``app.server.hub.RefusalBudget``) stays among the
+#: node's health warnings: long enough to be read on the Rig page after a flood closed the
+#: connection and the node reconnected.
+REFUSAL_SUMMARY_SHOWN_S = 600.0
 
 
 @dataclass
@@ -83,6 +87,8 @@ class NodeSession:
     images: dict[str, LatestImage] = field(default_factory=dict)
     rejected_messages: int = 0
     last_rejection: str | None = None
+    #: (server time, text) of the newest summary of refused messages counted, not logged
+    refusal_summary: tuple[float, str] | None = None
     node_warnings: deque[NodeWarningRecord] = field(
         default_factory=lambda: deque(maxlen=NODE_WARNINGS_KEPT))
     node_warnings_dropped: int = 0
@@ -233,6 +239,9 @@ class NodeRegistry:
                     f"{st.unverified_parts} parts not yet verified on the server "
                     f"({st.unverified_bytes / 1024**3:.1f} GB) cannot be deleted: transfer "
                     "them.")
+        if s.refusal_summary is not None and now - s.refusal_summary[0] < REFUSAL_SUMMARY_SHOWN_S:
+            at, text = s.refusal_summary
+            warnings.append(f"{text} ({max(now - at, 0):.0f} s ago)")
         return {
             "id": s.id,
             "connected": s.connected,
