@@ -113,7 +113,7 @@ def synth_walk(step_length: float = 0.7, step_width: float = 0.12, step_time: fl
     return SynthWalk(t, joints, strikes, offs, Ls, W, Ts, ds)
 
 
-def walk_markers(w: SynthWalk, labels: dict[str, str] | None = None, scale: float = 1.0,
+def walk_markers(w: SynthWalk, labels: dict[str, str] | None = None,
                  up: str = "z") -> MarkerTrajectories:
     """The walk as a marker set (Plug-in Gait names unless ``labels`` maps them).
 
@@ -121,7 +121,6 @@ def walk_markers(w: SynthWalk, labels: dict[str, str] | None = None, scale: floa
         w: The walk.
         labels: Walk point (``ankleL``, ``heelR``, ``toeL`` ...) -> marker label; pelvis
             markers LASI, RASI, LPSI, RPSI are always added.
-        scale: Has no effect (positions are always in metres).
         up: ``"z"`` (world, Z up) or ``"y"`` (OpenSim: X forward, Y up, Z right).
 
     Returns:
@@ -140,7 +139,8 @@ def walk_markers(w: SynthWalk, labels: dict[str, str] | None = None, scale: floa
     if up == "y":  # OpenSim convention: X forward, Y up, Z right
         X = np.stack([X[..., 1], X[..., 2], X[..., 0]], axis=-1)
     rate = round(1.0 / float(np.median(np.diff(w.times))), 6)
-    return MarkerTrajectories(w.times, X / scale * scale, labs, rate, "m")
+    # metres always: a file in other units is made by the writer (``write_trc(units=…)``)
+    return MarkerTrajectories(w.times, X, labs, rate, "m")
 
 
 def walk_skeleton(w: SynthWalk) -> FloatArray:
