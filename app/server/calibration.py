@@ -180,7 +180,10 @@ def _set_pose(session: Any, T: list[list[float]]) -> None:
 
 def apply_to_registry(registry: Any, data_dir: Path) -> list[str]:
     """Give every known node the active calibration's pose (replacing the pose the node
-    reported), and keep doing so for nodes that (re)connect later.
+    reported; a node it leaves out gets its reported pose back), keep doing so for nodes
+    that (re)connect later, and let the node listeners (3D view, live cloud's lenses,
+    planner) redraw every node at once: a restored or accepted version changes the poses
+    and the camera models of nodes that are not in it too.
 
     Returns:
         Ids of the nodes that got a calibrated pose now.
@@ -191,6 +194,8 @@ def apply_to_registry(registry: Any, data_dir: Path) -> list[str]:
         if node_id in poses:
             _set_pose(s, poses[node_id]["T_world_sensor"])
             applied.append(node_id)
+        elif s.sensor.T_world_sensor != s.reported_pose:
+            _set_pose(s, s.reported_pose)  # an older version's pose would pass for the node's
     listeners = registry.listeners
     if not any(getattr(cb, "_gaitrig_calibration", False) for cb in listeners):
         def on_connect(session: Any) -> None:
@@ -200,13 +205,12 @@ def apply_to_registry(registry: Any, data_dir: Path) -> list[str]:
         on_connect._gaitrig_calibration = True  # type: ignore[attr-defined]
         # first, so the 3D view and planner listeners after it see the calibrated pose
         listeners.insert(0, on_connect)
-    # the poses changed: let the listeners (3D view, live graph, planner) redraw
-    for node_id in applied:
+    for s in list(registry.nodes.values()):
         for cb in list(listeners):
             if getattr(cb, "_gaitrig_calibration", False):
                 continue
             try:
-                cb(registry.nodes[node_id])
+                cb(s)
             except Exception:  # a display must never break applying a calibration
                 log.exception("a node listener failed after applying the calibration")
     return sorted(applied)

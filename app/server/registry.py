@@ -72,6 +72,9 @@ class NodeSession:
     clock: ClockEstimator
     backend: str = "unknown"
     sensor: SensorInfo = field(default_factory=lambda: SensorInfo())
+    #: the pose the node reported in its hello: an active calibration's pose replaces
+    #: ``sensor.T_world_sensor``, and a node the next active one leaves out goes back to it
+    reported_pose: list[list[float]] | None = None
     connected: bool = False
     connected_at: float | None = None
     disconnected_at: float | None = None
@@ -179,6 +182,7 @@ class NodeRegistry:
             s.node_warnings.clear()
             s.node_warnings_dropped = 0
         s.backend, s.sensor, s.send = backend, sensor, send
+        s.reported_pose = sensor.T_world_sensor
         s.lens = None  # announced anew after the welcome (an older node: never)
         s.connected, s.connected_at = True, time.time()
         s.last_seen = time.time()

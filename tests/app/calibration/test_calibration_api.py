@@ -127,3 +127,65 @@ def test_active_calibration_applied_to_node_streams(client: TestClient,
     assert np.allclose(registry.get("S2").sensor.T_world_sensor, res.T_world_sensor["S2"])
     poses = cal.active_poses(settings.data_dir)
     assert poses["S3"]["source"] == "calibration" and poses["S3"]["calibration_version"] == "1"
+
+
+def test_accept_and_restore_take_effect_on_live_poses_and_lenses_at_once(
+        client: TestClient, settings: Settings) -> None:
+    """Accepting a capture or restoring a version changes, without the nodes reconnecting,
+    each connected node's pose and the depth lens the live cloud draws it through — also
+    for a node the new active version leaves out: its reported pose and announced lens
+    come back instead of staying the previous version's."""
+    from app.api.routes.calibration import _manager
+    from app.nodes.protocol import CameraLens, SensorInfo, SensorLens
+    from app.server.calibration import CaptureJob
+    from engine.calibration.pipeline import CalibrationResult
+
+    async def send(_: str) -> None:
+        return None
+
+    K = [[365.0, 0.0, 255.5], [0.0, 365.0, 211.5], [0.0, 0.0, 1.0]]
+    factory, lens_a, lens_b = ((-0.1, 0.02, 0.0, 0.0, 0.0), (-0.12, 0.03, 0.0008, -0.0005, 0.0),
+                               (-0.05, 0.01, 0.0, 0.0, 0.0))
+
+    def at(x: float) -> np.ndarray:
+        T = np.eye(4)
+        T[0, 3] = x
+        return T
+
+    def version(poses: dict[str, np.ndarray], dist: tuple[float, ...]) -> CalibrationResult:
+        cams = {s: {"depth": {"size": [512, 424], "K": K, "dist": list(dist)}} for s in poses}
+        return CalibrationResult(poses, poses, {1: np.eye(4)}, {1: 0.4},
+                                 {s: 0.001 for s in poses}, [], [], meta={"cameras": cams})
+
+    app = client.app
+    hub, live = app.state.hub, app.state.live  # type: ignore[attr-defined]
+    hub.registry.listeners.append(live._on_nodes)  # as it does with the 3D view on
+    s1 = hub.registry.connect("S1", "k4a", SensorInfo(depth_K=K, depth_size=(512, 424),
+                                                      T_world_sensor=at(0.5).tolist()),
+                              send, True)
+    s1.lens = SensorLens(source="factory calibration",
+                         depth=CameraLens(size=(512, 424), K=K, dist=list(factory)))
+    assert cal.save(settings.data_dir, version({"S1": at(1.0)}, lens_a)) == 1
+    assert client.post("/api/calibration/apply").json() == {"applied_to": ["S1"]}
+
+    def now() -> tuple[float, tuple[float, ...] | None]:
+        return s1.sensor.T_world_sensor[0][3], live._depth_lens.get("S1")
+
+    assert now() == (1.0, lens_a)
+    mgr = _manager(app, hub, settings.data_dir)
+    for job_id, poses, dist in ((41, {"S1": at(2.0)}, lens_b), (42, {"S9": at(3.0)}, lens_a)):
+        mgr.jobs[job_id] = CaptureJob(job_id, "calibrate", list(poses), 1, {}, state="done",
+                                      result=version(poses, dist))
+    r = client.post("/api/calibration/captures/41/accept")
+    assert r.status_code == 200 and r.json() == {"version": 2, "applied_to": ["S1"]}
+    assert now() == (2.0, lens_b)
+    r = client.post("/api/calibration/1/restore").json()
+    assert r == {"version": 3, "restored_from": 1, "applied_to": ["S1"]}
+    assert now() == (1.0, lens_a)
+    # a version without S1: its own pose and its announced lens, not version 1's
+    assert client.post("/api/calibration/captures/42/accept").json()["applied_to"] == []
+    assert now() == (0.5, factory)
+    assert client.post("/api/calibration/2/restore").json()["applied_to"] == ["S1"]
+    assert now() == (2.0, lens_b)
+    assert client.post("/api/calibration/4/restore").json()["applied_to"] == []
+    assert now() == (0.5, factory)
