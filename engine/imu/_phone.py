@@ -116,6 +116,29 @@ def _safe_member(name: str) -> bool:
     return ".." not in re.split(r"[\\/]", name)
 
 
+def _sensor_members(infos: list[zipfile.ZipInfo]) -> list[zipfile.ZipInfo]:
+    """The members :func:`load_phone` unpacks: text tables, not macOS's or hidden files."""
+    return [i for i in infos if not i.is_dir() and i.filename.lower().endswith(
+        (".csv", ".txt", ".tsv")) and not any(part.startswith(("__MACOSX", "."))
+                                              for part in i.filename.split("/"))]
+
+
+def zip_unpacked_bytes(path: str | Path) -> int | None:
+    """Bytes :func:`load_phone` would unpack from a phone app's zip, from its directory
+    alone (nothing is unpacked). A bound, not an estimate: ``zipfile`` never reads more of
+    a member than its declared size (a member longer than declared fails its CRC).
+
+    Returns:
+        The total, or None when the file is not a readable zip (:func:`load_phone` then
+        says why).
+    """
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return sum(i.file_size for i in _sensor_members(zf.infolist()))
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError):
+        return None
+
+
 def _unzip(p: Path, dest: Path) -> dict[str, list[tuple[str, Path]]]:
     """The CSV members of a zip copied to ``dest`` under generated names, grouped by their
     folder in the archive: folder -> [(member name, copy)]."""
@@ -133,9 +156,7 @@ def _unzip(p: Path, dest: Path) -> dict[str, list[tuple[str, Path]]]:
         if bad:
             raise InputError(f"{p.name}: unsafe file name in the zip ({bad[0][:60]!r}: an "
                              "absolute path or '..'); zip the recording's files again")
-        wanted = [i for i in infos if not i.is_dir() and i.filename.lower().endswith(
-            (".csv", ".txt", ".tsv")) and not any(part.startswith(("__MACOSX", "."))
-                                                  for part in i.filename.split("/"))]
+        wanted = _sensor_members(infos)
         total = sum(i.file_size for i in wanted)
         if total > MAX_ZIP_UNCOMPRESSED:
             raise InputError(f"{p.name}: the zip's files unpack to {total / 2**20:.0f} MB, "

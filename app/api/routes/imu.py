@@ -15,7 +15,8 @@ twice, with two choices, to use two of its sensors. An ``.mvnx`` without a choic
 stream per tracker, named after its label (after ``<name>_`` when a name is given). A
 ``.zip`` (Sensor Logger, phyphox) is unpacked in memory-bounded steps (at most
 ``engine.imu._phone.MAX_ZIP_MEMBERS`` members and ``engine.imu._phone.MAX_ZIP_UNCOMPRESSED``
-bytes unpacked, member names never used as paths); ``platform`` (``ios``/``android``)
+bytes unpacked, member names never used as paths; the zips of one request at most
+``MAX_ZIPS_UNPACKED_BYTES`` together, else 413); ``platform`` (``ios``/``android``)
 declares its acceleration's sign convention when neither the phone's orientation nor its
 metadata tells. ``quat_order`` (``wxyz``/``xyzw``) and ``quat_frame`` (``ENU``/``NED``) say
 how a CSV's reference quaternion columns are meant when gravity cannot tell (they are then
@@ -54,6 +55,7 @@ from app.server.imu_analysis import (
     simulated_job,
 )
 from engine.errors import InputError
+from engine.imu._phone import zip_unpacked_bytes
 from engine.imu.fusion import PAPER_SENSORS
 from engine.imu.io import (
     ImuRecording,
@@ -75,6 +77,10 @@ MAX_FILES = 12
 #: Whole multipart request: every IMU file, the skeleton file and the form fields.
 MAX_REQUEST_BYTES = (MAX_FILES + 1) * MAX_FILE_BYTES + 1024 * 1024
 _ALLOWED_SUFFIXES = (".csv", ".txt", ".tsv", ".mat", ".hdf5", ".h5", ".mvnx", ".zip")
+#: phone zips of one request, unpacked together: parsing one peaks at ≈3.8× its unpacked
+#: size in memory (256 MB → ≈1 GB), so 12 full ones would need ≈12 GB; one phone
+#: recording of this size is over two hours of Sensor Logger at 100 Hz
+MAX_ZIPS_UNPACKED_BYTES = 256 * 2**20
 #: streams of one session once MVNX exports are split per tracker (a full-body suit: 17)
 MAX_STREAMS = 24
 _NAME_RE = re.compile(r"^[A-Za-z0-9_\-]{1,40}$")
@@ -222,6 +228,7 @@ async def upload_session(
         use_recording = bool(recording) and skel_path is None
 
         def work() -> ImuJob:
+            _check_zips_unpacked(paths, files)
             recs: dict[str, ImuRecording] = {}
             for name, path, up, choice in zip(names, paths, files, choices, strict=True):
                 try:
@@ -279,6 +286,27 @@ async def upload_session(
         job = await run_in_threadpool(work)
     _store(request).add(job)
     return _view(job)
+
+
+def _check_zips_unpacked(paths: list[Path], files: list[UploadFile]) -> None:
+    """Refuse (413) phone zips that unpack to more than ``MAX_ZIPS_UNPACKED_BYTES``
+    together, before any is unpacked (each one alone is bounded by the engine)."""
+    sizes = [(up.filename or path.name, zip_unpacked_bytes(path) or 0)
+             for path, up in zip(paths, files, strict=True) if path.suffix == ".zip"]
+    total = sum(n for _, n in sizes)
+    if total <= MAX_ZIPS_UNPACKED_BYTES:
+        return
+    mb, limit = f"{total / 2**20:.0f} MB", f"{MAX_ZIPS_UNPACKED_BYTES // 2**20} MB"
+    if len(sizes) == 1:
+        msg = (f"{sizes[0][0]}: the zip unpacks to {mb}, more than the {limit} one session "
+               "may unpack; split the recording")
+    else:
+        name, largest = max(sizes, key=lambda s: s[1])
+        msg = (f"the {len(sizes)} phone zips of this session unpack to {mb} together (the "
+               f"largest, {name}, to {largest / 2**20:.0f} MB), more than the {limit} one "
+               "session may unpack; upload them in several sessions, fewer zips each, or "
+               "split the longest recording")
+    raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, msg)
 
 
 def _fuse_named(recs: dict[str, ImuRecording], sk: SkeletonSeries, filt: FilterName,

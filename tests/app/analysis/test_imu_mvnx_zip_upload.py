@@ -127,3 +127,59 @@ def test_bad_zips_are_refused(client: TestClient, sims: dict[str, ImuRecording],
     assert code == 400 and "split the recording" in body["detail"]
     code, body = _post(client, "phone.zip", b"not a zip")
     assert code == 400 and "not a readable zip" in body["detail"]
+
+
+def test_phone_zips_of_one_session_bounded_together(
+        client: TestClient, sims: dict[str, ImuRecording],  # noqa: F811
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Phone zips unpack to ≈3.8× their size in memory: one request's zips together may
+    unpack to at most MAX_ZIPS_UNPACKED_BYTES, refused (413, saying the total, the limit
+    and what to do) from their directories before any is unpacked. A zip whose directory
+    understates a member cannot slip past: it is refused when unpacked."""
+    from app.api.routes import imu as route
+
+    files = sensor_logger(sims["Pelvis"], ios=False)
+    content = zip_files(tmp_path / "walk.zip", files).read_bytes()
+    size = _phone.zip_unpacked_bytes(tmp_path / "walk.zip")
+    assert size is not None and size > len(content)  # deflated CSV
+    loaded: list[Path] = []
+    real_load = route._load
+
+    def load(path: Path, kwargs: dict) -> ImuRecording:
+        loaded.append(path)
+        return real_load(path, kwargs)
+
+    monkeypatch.setattr(route, "_load", load)
+    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", size)
+    code, body = _post(client, "walk.zip", content)
+    assert code == 200, body
+    loaded.clear()
+    r = client.post("/api/imu/sessions", data={"synchronise": "false"},
+                    files=[("files", (n, content, "application/zip"))
+                           for n in ("walk1.zip", "walk2.zip", "notes.csv")])
+    assert r.status_code == 413 and not loaded
+    detail = r.json()["detail"]
+    mb = f"{2 * size / 2**20:.0f} MB"
+    assert detail.startswith(f"the 2 phone zips of this session unpack to {mb} together "
+                             "(the largest, walk1.zip, "), detail
+    assert f"more than the {size // 2**20} MB one session may unpack; upload them in " \
+           "several sessions" in detail
+    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", size - 1)
+    code, body = _post(client, "walk.zip", content)
+    assert code == 413 and not loaded
+    assert body["detail"].startswith("walk.zip: the zip unpacks to "), body
+    assert "split the recording" in body["detail"]
+    # a member longer than its directory says: counted at its declared size, and zipfile
+    # reads no more than that (its CRC then fails), so the bound holds
+    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", size)
+    data = bytearray(_zip_bytes({"Gyroscope.csv": b"0" * 100_000}))
+    for sig, at in ((b"PK\x03\x04", 22), (b"PK\x01\x02", 24)):  # local header, directory
+        k = data.find(sig)
+        data[k + at:k + at + 4] = (1000).to_bytes(4, "little")
+    tmp_zip = tmp_path / "lying.zip"
+    tmp_zip.write_bytes(bytes(data))
+    assert _phone.zip_unpacked_bytes(tmp_zip) == 1000
+    code, body = _post(client, "lying.zip", bytes(data))
+    assert code == 400 and "lying.zip: cannot unpack 'Gyroscope.csv'" in body["detail"], body
+    assert _phone.zip_unpacked_bytes(tmp_path / "none.zip") is None
+    assert _post(client, "bad.zip", b"not a zip")[0] == 400  # the engine says why
