@@ -35,7 +35,8 @@ def test_record_stop_transfer_and_subjects_page(page: Any, live_server: LiveServ
     assert n_parts == live_server.n_nodes
     # the session list counts the new recording
     page.wait_for_function(
-        "document.getElementById('session').selectedOptions[0].textContent.includes('(1 recording)')")
+        "document.getElementById('session').selectedOptions[0].textContent"
+        ".includes('(1 recording)')")
     page.focus("#stop")
     page.keyboard.press("Enter")  # as a keyboard user: focus must not drop to the page
     page.wait_for_function("document.activeElement.id === 'rec-msg'")
