@@ -10,6 +10,32 @@
     return tr;
   }
   const mm = (v) => (v === null || v === undefined ? "—" : (v * 1000).toFixed(1));
+  // What a calibration's worst error against the markers means for the person who accepts
+  // it (the help's rule of thumb: under 3 mm accept; a red line is a marker to fix; above
+  // 10 mm the gait report warns that step width is not to be relied on).
+  function verdict(worstM, pending) {
+    const v = worstM * 1000;
+    if (v < 3) return { cls: "verdict-good", text: "good (under 3 mm)" + (pending ? ": accept it" : "") };
+    if (v <= 10) return { cls: "verdict-check", text: "fair (3–10 mm): a red line in the graph shows a marker "
+      + "that is wrinkled, partly covered or seen very obliquely; fix it and capture again if you can" };
+    return { cls: "verdict-bad", text: "too large (over 10 mm): step width would not be reliable; "
+      + "fix the markers on the red lines and capture again" };
+  }
+  // The depth-image fine-tuning (ICP) of one sensor in plain words; the engine's reason and
+  // figures stay in the cell's title and the technical figures.
+  function icpPlain(r) {
+    if (r.accepted) return "kept: the sensors' depth images now line up better";
+    const why = r.reason || "";
+    const plain = /overlap with the other/.test(why) ? "this sensor's view overlaps the others' too little"
+      : /degenerate|one plane/.test(why) ? "it sees mostly floor, which cannot steady it"
+      : /did not improve/.test(why) ? "it would not have improved the fit"
+      : /moved the sensor/.test(why) ? "it disagreed with the markers too much"
+      : "";
+    return "not kept" + (plain ? `: ${plain}` : "") + " — the markers alone place this sensor";
+  }
+  const icpFigures = (r) => (r.fitness !== undefined
+    ? `ICP fitness ${r.fitness_before.toFixed(2)}→${r.fitness.toFixed(2)}, inlier RMSE `
+      + `${r.inlier_rmse_before_mm.toFixed(1)}→${r.inlier_rmse_mm.toFixed(1)} mm` : "ICP did not run");
 
   $("sheet-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
@@ -87,11 +113,20 @@
   function show(doc, pending) {
     const sens = Object.keys(doc.T_world_sensor).sort();
     const worst = Math.max(...sens.map((s) => doc.sensor_residual_m[s] || 0));
-    const head = pending ? "New calibration (not saved yet — accept or reject below)" : `Version ${doc.version}`;
+    const head = pending ? "New calibration, not saved yet" : `Version ${doc.version}`;
     // the local time, as in the saved-versions table (was the raw "2026-11-24T17:14:50Z")
     const when = new Date(doc.created_iso).toLocaleString();
-    $("res-summary").textContent = `${head} (${when}, ${doc.meta.source || "captured"}): `
-      + `${gaitrig.plural(sens.length, "sensor")}, ${gaitrig.plural(doc.edges.length, "sensor–marker edge")}, worst sensor residual ${(worst * 1000).toFixed(2)} mm.`;
+    // in words first ("worst sensor residual 1.39 mm" told a clinician nothing); the
+    // exact figure and the graph's size are in the title and the technical figures
+    const markers = new Set(doc.edges.map((e) => e.marker)).size;
+    const v = verdict(worst, pending);
+    const summary = $("res-summary");
+    summary.replaceChildren(`${head} (${when}, ${doc.meta.source || "captured"}): `
+      + `${gaitrig.plural(sens.length, "sensor")} placed from ${gaitrig.plural(markers, "marker")}. `
+      + `Error against the markers: ${(worst * 1000).toFixed(1)} mm at worst — `,
+      el("span", { class: v.cls, "data-verdict": v.cls.slice(8) }, v.text), ".");
+    summary.title = `worst sensor residual ${(worst * 1000).toFixed(2)} mm; `
+      + `${gaitrig.plural(doc.edges.length, "sensor–marker edge")}`;
     $("res-details").hidden = false; $("res-empty").hidden = true;
     drawGraph(doc);
     const icp = Object.fromEntries((doc.meta.icp || []).map((r) => [r.sensor, r]));
@@ -108,11 +143,22 @@
       const o = el("span", {}, e ? `${(fp * 1000).toFixed(1)} / ${fr.toFixed(2)}` : "—");
       if (e) o.className = fp <= 0.01 && fr <= 0.5 ? "good" : "warn";
       const r = icp[s];
-      const icpTxt = !r ? "—" : (r.accepted ? "kept" : "not kept") + (r.fitness !== undefined
-        ? ` (fitness ${r.fitness_before.toFixed(2)}→${r.fitness.toFixed(2)}, RMSE ${r.inlier_rmse_before_mm.toFixed(1)}→${r.inlier_rmse_mm.toFixed(1)} mm)` : "");
-      const icpCell = el("span", r ? { title: r.reason } : {}, icpTxt);
+      // (was "not kept (fitness 0.77→0.77, RMSE 16.0→16.0 mm)": the figures are in the title)
+      const icpCell = el("span", r ? { title: `${r.reason}; ${icpFigures(r)}` } : {}, r ? icpPlain(r) : "—");
+      const res = doc.sensor_residual_m[s];
+      const resCell = el("span", { title: `residual ${res === undefined || res === null ? "—" : (res * 1000).toFixed(2)} mm` }, mm(res));
+      if (res !== undefined && res !== null) resCell.className = res < 0.003 ? "good" : "warn";
       tb.append(row([s, `${T[0][3].toFixed(3)}, ${T[1][3].toFixed(3)}, ${T[2][3].toFixed(3)}`,
-        mm(doc.sensor_residual_m[s]), icpCell, ...(truth ? [c, o] : [])]));
+        resCell, icpCell, ...(truth ? [c, o] : [])]));
+    }
+    // the exact figures, for the research engineer
+    const figs = $("res-figures-list");
+    figs.replaceChildren(el("li", {}, `${gaitrig.plural(doc.edges.length, "sensor–marker edge")}; `
+      + `worst sensor residual ${(worst * 1000).toFixed(2)} mm`));
+    for (const s of sens) {
+      const res = doc.sensor_residual_m[s];
+      figs.append(el("li", { "data-sensor": s }, `${s}: residual ${res === undefined || res === null ? "—" : (res * 1000).toFixed(2)} mm; `
+        + (icp[s] ? `${icp[s].accepted ? "ICP kept" : "ICP not kept"} (${icp[s].reason}); ${icpFigures(icp[s])}` : "no ICP report")));
     }
     const eb = $("edge-table").querySelector("tbody"); eb.replaceChildren();
     for (const e of doc.edges) {
@@ -121,6 +167,8 @@
     }
     const ul = $("rejected"); ul.replaceChildren();
     const rej = doc.observations.filter((o) => !o.accepted);
+    $("res-more-summary").textContent = `Each marker each sensor saw (${doc.edges.length}), `
+      + `and the sightings left out (${rej.length ? rej.length : "none"})`;
     if (!rej.length) ul.append(el("li", {}, "None."));
     for (const o of rej) ul.append(el("li", {}, `${o.sensor} · marker ${o.marker}: ${o.reason}`));
   }
@@ -158,9 +206,15 @@
   }
 
   let pendingJob = null;
+  // The Accept/Reject box sits right under the result it judges (it was in step 2, above
+  // the result, away from what it accepts); a refusal is said in it, the outcome under it.
+  function decide(open) {
+    $("decide").hidden = !open;
+    $("decide-error").textContent = ""; $("decide-state").textContent = "";
+  }
   $("cap-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
-    $("cap-error").textContent = ""; $("decide").hidden = true; pendingJob = null;
+    $("cap-error").textContent = ""; decide(false); pendingJob = null;
     const btn = ev.target.querySelector("button"); btn.disabled = true;
     try {
       const j0 = await gaitrig.api("/api/calibration/capture", { method: "POST", body: JSON.stringify({
@@ -171,35 +225,46 @@
         $("cap-error").textContent = j.message + (j.unreachable ? ` (unreachable: ${j.unreachable.join(", ")})` : "");
         $("cap-error").append(" ", el("a", { href: "/help.html#ts-calibration-fails" }, "What does this mean?"));
       } else if (j.state === "done") {
-        $("cap-state").textContent = "Done: check the graph and the residuals, then accept or reject.";
+        $("cap-state").textContent = "Done: check the result in step 3, then accept or reject it under the result.";
         shownSeq.acted(); show(j.result, true);
-        pendingJob = j.id; $("decide").hidden = false;
+        pendingJob = j.id; decide(true);
+        // the result and its buttons are below the fold: the page shows the result and the
+        // focus goes to its summary (the verdict), from which Tab leads on to Accept
+        $("res-h").scrollIntoView({ block: "start" });
+        $("res-summary").focus({ preventScroll: true });
       }
     } catch (e) {
       $("cap-error").textContent = String(e.message || e);
     } finally { gaitrig.release(btn); }
   });
-  // Accept, Reject and Restore say why they failed (they failed silently: an unhandled
-  // rejection, the buttons still there and nothing said)
-  $("accept").addEventListener("click", async () => {
+  // Accept and Reject say why they failed (they failed silently: an unhandled rejection,
+  // the buttons still there and nothing said). Both are disabled while one is asked (a
+  // second press reported "Not saved" for a calibration the first had saved); once
+  // decided the box closes and the focus goes to the outcome under it (not to the page).
+  async function decideWith(pressed, path, failed, done) {
     if (pendingJob === null) return;
-    $("cap-error").textContent = "";
+    // (the pressed one first: it gets the focus back)
+    const btns = [pressed, pressed.id === "accept" ? $("reject") : $("accept")];
+    $("decide-error").textContent = "";
+    for (const b of btns) b.disabled = true;
     let r;
-    try { r = await gaitrig.api(`/api/calibration/captures/${pendingJob}/accept`, { method: "POST" }); }
-    catch (e) { $("cap-error").textContent = `Not saved: ${e.message || e}`; return; }
-    $("decide").hidden = true; pendingJob = null;
-    $("cap-state").textContent = `Saved as version ${r.version} and applied to ${r.applied_to.join(", ") || "no node"}.`;
+    try { r = await gaitrig.api(`/api/calibration/captures/${pendingJob}/${path}`, { method: "POST" }); }
+    catch (e) {
+      $("decide-error").textContent = `${failed}: ${e.message || e}`;
+      for (const b of btns) gaitrig.release(b);
+      return;
+    }
+    decide(false); pendingJob = null;
+    for (const b of btns) b.disabled = false;
+    $("cap-state").textContent = "";  // ("Done: check the result…" no longer holds)
+    $("decide-state").textContent = done(r);
+    $("decide-state").focus();
     await refresh();
-  });
-  $("reject").addEventListener("click", async () => {
-    if (pendingJob === null) return;
-    $("cap-error").textContent = "";
-    try { await gaitrig.api(`/api/calibration/captures/${pendingJob}/reject`, { method: "POST" }); }
-    catch (e) { $("cap-error").textContent = `Not rejected: ${e.message || e}`; return; }
-    $("decide").hidden = true; pendingJob = null;
-    $("cap-state").textContent = "Rejected: the active calibration is unchanged.";
-    await refresh();
-  });
+  }
+  $("accept").addEventListener("click", (ev) => decideWith(ev.currentTarget, "accept", "Not saved",
+    (r) => `Saved as version ${r.version} and applied to ${r.applied_to.join(", ") || "no sensor"}.`));
+  $("reject").addEventListener("click", (ev) => decideWith(ev.currentTarget, "reject", "Not rejected",
+    () => "Rejected: the active calibration is unchanged."));
 
   function showCheck(j) {
     const t = $("check-table"); t.hidden = false;

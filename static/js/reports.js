@@ -281,7 +281,8 @@
     const num = (s, f) => (s ? f(s) : null);
     const rows = [
       ["Sensors", a.sensors_used.join(", "), b.sensors_used.join(", "), null],
-      ["Sensors per joint sample", a.fusion ? a.fusion.sensors_per_sample.toFixed(2) : "—",
+      // (was "Sensors per joint sample": the fusion's term)
+      ["Sensors seeing each joint (average)", a.fusion ? a.fusion.sensors_per_sample.toFixed(2) : "—",
         b.fusion ? b.fusion.sensors_per_sample.toFixed(2) : "—", null],
       ["Steps analysed", num(sa, (s) => String(s.n_steps)) || "—", num(sb, (s) => String(s.n_steps)) || "—", null],
     ];
@@ -321,7 +322,7 @@
       body.replaceChildren();
       for (const [label, va, vb, d] of cmpRows(r.a, r.b)) {
         const tr = el("tr");
-        tr.append(el("th", { scope: "row" }, label), el("td", {}, va), el("td", {}, vb), el("td", {}, d === null ? "" : d));
+        tr.append(el("th", label.startsWith("Sensors seeing") ? { scope: "row", title: "sensors per joint sample, after fusion" } : { scope: "row" }, label), el("td", {}, va), el("td", {}, vb), el("td", {}, d === null ? "" : d));
         body.append(tr);
       }
       $("cmp-a-h").textContent = `A: ${a.join(", ")}`;

@@ -56,6 +56,11 @@ def test_wizard_captures_from_nodes_accepts_and_checks(page: Any, live_server: L
     assert len(failed) == 2
     summary = page.text_content("#res-summary") or ""
     assert "not saved yet" in summary
+    assert "Error against the markers" in summary and "residual" not in summary, summary
+    assert page.locator("#res-summary [data-verdict]").count() == 1
+    assert page.evaluate("document.activeElement.id") == "res-summary"
+    assert page.locator("#res-figures-list li").count() == n + 1  # the whole, then each sensor
+    assert page.get_by_role("group", name="Use this calibration?").is_visible()
     assert not re.search(r"\d{4}-\d\d-\d\dT\d\d:", summary), summary  # a readable time
     assert page.locator("#graph circle.sensor").count() == n
     assert page.locator("#graph rect.marker").count() >= 2
@@ -74,13 +79,13 @@ def test_wizard_captures_from_nodes_accepts_and_checks(page: Any, live_server: L
     page.route("**/api/calibration/captures/*/accept", lambda route: route.fulfill(
         status=503, body='{"detail": "server busy"}', headers={"Content-Type": "application/json"}))
     page.click("#accept")
-    page.wait_for_function("document.getElementById('cap-error').textContent.includes('busy')")
-    assert "Not saved" in (page.text_content("#cap-error") or "")
+    page.wait_for_function("document.getElementById('decide-error').textContent.includes('busy')")
+    assert "Not saved" in (page.text_content("#decide-error") or "")
     assert page.is_visible("#accept")
     page.unroute("**/api/calibration/captures/*/accept")
     page.click("#accept")
-    page.wait_for_function("document.getElementById('cap-state').textContent.includes('Saved')")
-    assert page.text_content("#cap-error") == ""
+    page.wait_for_function("document.getElementById('decide-state').textContent.includes('Saved')")
+    assert page.text_content("#decide-error") == "" and page.is_hidden("#decide")
     after = live_server.api("/api/calibration")
     assert len(after) == len(before) + 1
     active = live_server.api("/api/calibration/active")
@@ -111,4 +116,128 @@ def test_wizard_captures_from_nodes_accepts_and_checks(page: Any, live_server: L
     page.goto(live_server.base_url + "/calibrate.html")
     page.wait_for_function("document.getElementById('bump-state').textContent"
                            ".includes('no sensor moved')", timeout=15_000)
+    assert not page.js_errors
+
+
+def _result(worst_mm: float) -> dict[str, Any]:
+    """A captured calibration's result as the server sends it: two sensors, S2 the worst."""
+    def at(x: float, y: float) -> list[list[float]]:
+        return [[1.0, 0, 0, x], [0, 1.0, 0, y], [0, 0, 1.0, 1.0], [0, 0, 0, 1.0]]
+    res = {"S1": 0.0008, "S2": worst_mm / 1000}
+    return {
+        "created_iso": "2026-11-24T10:00:00Z", "meta": {"source": "capture from 2 sensors", "icp": [
+            {"sensor": "S1", "accepted": True, "reason": "improved", "fitness_before": 0.61,
+             "fitness": 0.74, "inlier_rmse_before_mm": 9.3, "inlier_rmse_mm": 6.1},
+            {"sensor": "S2", "accepted": False,
+             "reason": "too little overlap with the other sensors (fitness 0.05)",
+             "fitness_before": 0.05, "fitness": 0.05, "inlier_rmse_before_mm": 16.0,
+             "inlier_rmse_mm": 16.0}]},
+        "T_world_sensor": {"S1": at(2.0, 1.0), "S2": at(5.0, -1.0)},
+        "T_world_marker": {"1": at(0.0, 0.0), "2": at(3.0, 0.0)},
+        "sensor_residual_m": res,
+        "edges": [{"sensor": s, "marker": m, "residual_m": res[s], "in_chain": True,
+                   "distance_m": 2.4} for s, m in (("S1", 1), ("S1", 2), ("S2", 2))],
+        "observations": [{"sensor": "S2", "marker": 1, "accepted": False,
+                          "reason": "the marker is partly occluded or not flat"}],
+    }
+
+
+def test_wizard_says_the_result_in_words_and_asks_under_it(page: Any, live_server: LiveServer,
+                                                           artifacts_dir: Path) -> None:
+    """The result of a capture says its worst error against the markers in words (good,
+    fair, too large), keeps the exact figures under "Technical figures", and asks "Use this
+    calibration?" right under it: the focus goes to the result, Tab leads on to Accept, a
+    refused Accept says so in the box, Reject closes it and says what happened. The
+    server's capture job is answered by the test (a real one: the test above)."""
+    job = {"id": 9077, "kind": "capture", "state": "done", "message": "", "frames": 8,
+           "created": 0, "nodes": {"S1": {"received": 8, "error": None},
+                                   "S2": {"received": 8, "error": None}},
+           "marker_sizes_m": {}}
+    answers = {"accept": (503, {"detail": "server busy"}), "reject": (200, {"rejected": True})}
+    asked: list[str] = []
+
+    def job_route(route: Any) -> None:
+        url = route.request.url
+        if route.request.method == "POST" and url.endswith("/capture"):
+            route.fulfill(status=202, json={"id": job["id"]})
+        elif route.request.method == "GET" and url.endswith(f"/captures/{job['id']}"):
+            route.fulfill(json=job)
+        elif route.request.method == "POST" and url.rsplit("/", 1)[-1] in answers:
+            asked.append(url.rsplit("/", 1)[-1])
+            status, body = answers[url.rsplit("/", 1)[-1]]
+            route.fulfill(status=status, json=body)
+        else:
+            route.continue_()
+
+    page.route(re.compile(r".*/api/calibration/captur.*"), job_route)
+    page.goto(live_server.base_url + "/calibration-wizard.html")
+    page.wait_for_function("document.getElementById('cap-source').textContent.length > 0")
+
+    def capture(worst_mm: float) -> str:
+        job["result"] = _result(worst_mm)
+        page.click("#cap-form button[type=submit]")
+        page.wait_for_function("!document.getElementById('decide').hidden")
+        page.wait_for_function("document.activeElement.id === 'res-summary'")
+        return " ".join((page.text_content("#res-summary") or "").split())
+
+    summary = capture(4.2)
+    assert "2 sensors placed from 2 markers" in summary, summary
+    assert "Error against the markers: 4.2 mm at worst" in summary, summary
+    assert "fair (3–10 mm): a red line in the graph" in summary, summary
+    assert page.get_attribute("#res-summary [data-verdict]", "data-verdict") == "check"
+    assert "residual" not in summary  # the engineer's word is in the title
+    assert "4.20 mm" in (page.get_attribute("#res-summary", "title") or "")
+    # in words in the table, the engine's figures in the title and the technical figures
+    icp = page.locator("#sensor-table tbody tr td:nth-child(4) span")
+    assert icp.nth(1).inner_text().startswith("not kept: this sensor's view overlaps")
+    assert "ICP fitness 0.05→0.05" in (icp.nth(1).get_attribute("title") or "")
+    assert not page.is_visible("#res-figures-list")  # closed until asked for
+    page.click("#res-figures > summary")
+    figures = page.inner_text("#res-figures-list")
+    assert "worst sensor residual 4.20 mm" in figures, figures
+    assert "S2: residual 4.20 mm; ICP not kept (too little overlap" in figures, figures
+    assert "inlier RMSE 9.3→6.1 mm" in figures, figures
+    assert "sightings left out (1)" in page.inner_text("#res-more-summary")
+    # the choice is right under the result it judges, a named group, on screen
+    decide = page.get_by_role("group", name="Use this calibration?")
+    assert decide.is_visible()
+    box, details = decide.bounding_box(), page.locator("#res-details").bounding_box()
+    assert box and details and box["y"] >= details["y"] + details["height"], (box, details)
+    assert page.evaluate("document.getElementById('res-h').getBoundingClientRect().top") < 200
+    page.locator("#decide").scroll_into_view_if_needed()
+    screenshot(page, artifacts_dir, "calibration_result_decide", "#decide")
+    page.click("#res-more > summary")
+    page.screenshot(path=str(artifacts_dir / "browser" / "calibration_result_words.png"),
+                    full_page=True)
+    # from the result, Tab goes through it (help link, the two disclosures) to Accept
+    tabs = []
+    for _ in range(6):
+        page.keyboard.press("Tab")
+        tabs.append(page.evaluate("document.activeElement.id || "
+                                  "document.activeElement.textContent"))
+        if tabs[-1] == "accept":
+            break
+    assert tabs[-1] == "accept", tabs
+    # a refused Accept says why in the box and keeps the choice (and the focus) there
+    page.keyboard.press("Enter")
+    page.wait_for_function("document.getElementById('decide-error').textContent.includes('busy')")
+    assert (page.text_content("#decide-error") or "").startswith("Not saved: ")
+    assert page.get_attribute("#decide-error", "role") == "alert"
+    assert page.is_visible("#accept") and page.is_enabled("#accept")
+    assert page.evaluate("document.activeElement.id") == "accept"
+    # Reject closes the box; the focus goes to what happened (not to the page)
+    page.click("#reject")
+    page.wait_for_function("document.getElementById('decide').hidden")
+    assert page.text_content("#decide-state") == "Rejected: the active calibration is unchanged."
+    assert page.evaluate("document.activeElement.id") == "decide-state"
+    assert page.text_content("#decide-error") == ""
+    assert asked == ["accept", "reject"]
+
+    summary = capture(0.9)
+    assert "0.9 mm at worst — good (under 3 mm): accept it." in summary, summary
+    assert page.get_attribute("#res-summary [data-verdict]", "data-verdict") == "good"
+    assert page.text_content("#decide-state") == ""  # the last outcome is not this one's
+    summary = capture(12.5)
+    assert "too large (over 10 mm): step width would not be reliable" in summary, summary
+    assert page.get_attribute("#res-summary [data-verdict]", "data-verdict") == "bad"
     assert not page.js_errors
