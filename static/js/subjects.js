@@ -140,28 +140,42 @@
 
   // A recording's export that the server refuses (a part not on the server, too many
   // images…) was a failed download in the browser's download bar, without the reason:
-  // these go through fetch, and a refusal is said beside the links.
+  // these go through fetch, and what happens is said beside the link: preparing, done
+  // (file and size) or the refusal. The subject's zip said nothing at all while it was
+  // put together (minutes with many recordings). `data-what` names the download in the
+  // messages, `data-note` adds to "Preparing…". A second press while one runs is ignored.
+  // (The browser keeps a large answer's blob on disk, not in the page's memory.)
   async function download(ev) {
     ev.preventDefault();
     const a = ev.currentTarget, msg = a.parentNode.querySelector(".msg");
+    if (a.getAttribute("aria-disabled") === "true") return;
+    const what = a.dataset.what || a.textContent;
     const tell = (text, good) => { msg.textContent = text; msg.className = "msg " + (good ? "good" : "bad"); };
-    tell(`Preparing ${a.textContent}…`, true);
+    const What = what.charAt(0).toUpperCase() + what.slice(1);
+    tell(`Preparing ${what}…${a.dataset.note ? " " + a.dataset.note : ""}`, true);
+    a.setAttribute("aria-disabled", "true");
     try {
       const r = await fetch(a.href, { credentials: "same-origin" });
       if (r.status === 401) { gaitrig.toLogin(); return; }
       if (!r.ok) {
         let d = r.statusText; try { d = (await r.json()).detail || d; } catch (e) { /* not JSON */ }
-        tell(`${a.textContent} not exported: ${d}`); return;
+        tell(`${What} not exported: ${d}`); return;
       }
       const m = /filename="([^"]+)"/.exec(r.headers.get("Content-Disposition") || "");
       const name = m ? m[1] : "";
-      const url = URL.createObjectURL(await r.blob());
+      const blob = await r.blob();
+      const url = URL.createObjectURL(blob);
       const tmp = el("a", { href: url, download: name });
       document.body.append(tmp); tmp.click(); tmp.remove();
       setTimeout(() => URL.revokeObjectURL(url), 10000);
-      tell(`${a.textContent} downloaded${name ? " (" + name + ")" : ""}.`, true);
-    } catch (e) { tell(`${a.textContent} not exported: ${e.message}`); }
+      tell(`${What} downloaded (${name ? name + ", " : ""}${bytes(blob.size)}).`, true);
+    } catch (e) {
+      // (a stream cut short ends here too: "network error")
+      tell(`${What} not exported: ${e.message === "Failed to fetch" || e.name === "TypeError"
+        ? "the connection to the server broke off; try again" : e.message}`);
+    } finally { a.removeAttribute("aria-disabled"); }
   }
+  $("export-link").addEventListener("click", download);
 
   function exportLinks(r) {
     const box = el("div", { class: "actions" }, el("span", { class: "hint" }, "Export:"));
@@ -302,7 +316,10 @@
     $("record-link").href = `/record.html#subject=${subject.id}`;
     // (the recordings were listed here but the way to their gait report was not)
     $("report-link").href = `/reports.html#subject=${subject.id}`;
+    // (another subject's download message is not this one's)
+    if ($("export-link").getAttribute("href") !== `/api/subjects/${subject.id}/export`) $("export-msg").textContent = "";
     $("export-link").href = `/api/subjects/${subject.id}/export`;
+    $("export-link").dataset.what = `all data of ${subject.code} (zip)`;
     if (fillForm) {
       const f = $("edit-form").elements;
       f.code.value = subject.code; f.sex.value = subject.sex; f.birth_year.value = subject.birth_year ?? "";

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
 import sqlite3
 import zipfile
 from pathlib import Path
@@ -51,13 +52,35 @@ def test_two_browsers_edit_one_subject(page: Any, browser: Any, live_server: Liv
         other.wait_for_function("document.getElementById('edit-msg').textContent === 'Saved.'")
         got = live_server.api(f"/api/subjects/{s['id']}")
         assert got["height_m"] == pytest.approx(1.72) and got["notes"] == "uses a cane"
-        # the whole subject as one download
+        # the whole subject as one download; the page says it is being prepared (the link
+        # said nothing while the zip was put together), then why it was refused
         link = page.locator("#export-link")
         assert link.get_attribute("href") == f"/api/subjects/{s['id']}/export"
+        held: list[Any] = []
+        page.route(f"**/api/subjects/{s['id']}/export", lambda route: held.append(route))
+        link.click()
+        page.wait_for_function("document.getElementById('export-msg').textContent"
+                               ".startsWith('Preparing all data of EDT01 (zip)…')")
+        assert page.get_attribute("#export-msg", "role") == "status"
+        assert link.get_attribute("aria-disabled") == "true"
+        link.click(force=True)  # a second press while it runs asks for nothing more
+        held[0].fulfill(status=409, json={"detail": "the subject is being deleted"})
+        page.wait_for_function("document.getElementById('export-msg').textContent.includes("
+                               "'not exported')")
+        assert page.text_content("#export-msg") == (
+            "All data of EDT01 (zip) not exported: the subject is being deleted")
+        assert len(held) == 1 and link.get_attribute("aria-disabled") is None
+        page.unroute(f"**/api/subjects/{s['id']}/export")
         with page.expect_download() as dl:
             link.click()
         z = zipfile.ZipFile(io.BytesIO(Path(dl.value.path()).read_bytes()))
         assert json.loads(z.read("subject.json"))["code"] == "EDT01"
+        page.wait_for_function("document.getElementById('export-msg').textContent"
+                               ".includes('downloaded')")
+        said = page.text_content("#export-msg") or ""
+        name = dl.value.suggested_filename
+        assert said.startswith(f"All data of EDT01 (zip) downloaded ({name}, "), said
+        assert re.search(r", \d+ kB\)\.$|, [\d.]+ MB\)\.$", said), said
         # the administrator downloads the audit trail, which recorded that export
         page.wait_for_selector("#audit:not([hidden])")
         with page.expect_download() as dl:
