@@ -521,17 +521,20 @@ def _lower_body_tracked(fusion: Mapping[str, Any]) -> float | None:
     return float(np.mean(vals)) if vals else None
 
 
-def quality_from_analyses(analyses: list[dict[str, Any]]) -> QualityInfo:
-    """The report's data-quality facts from recording analyses."""
+def quality_from_analyses(analyses: list[dict[str, Any]],
+                          trial_labels: Mapping[str, str] | None = None) -> QualityInfo:
+    """The report's data-quality facts from recording analyses (a note names a recording
+    by its trial label in ``trial_labels``, rec_id → label: :func:`recording_named`)."""
     q = QualityInfo(recordings=len(analyses))
     tracked: list[float] = []
     versions: dict[str, None] = {}  # ordered set
     gaps = 0
     for a in analyses:
         mirrored: list[str] = []
+        named = recording_named(str(a["rec_id"]), (trial_labels or {}).get(str(a["rec_id"]), ""))
         for node, f in (a.get("sensors") or {}).items():
             if "skipped" in f:
-                q.notes.append(f"Recording {a['rec_id']}: sensor {node} not used — "
+                q.notes.append(f"{named}: sensor {node} not used — "
                                f"{f['skipped']}.")
                 continue
             if node not in q.sensors_used:
@@ -556,13 +559,13 @@ def quality_from_analyses(analyses: list[dict[str, Any]]) -> QualityInfo:
                 mirrored.append(f"{node} ({f['mirrored_pct']:.0f} %)")
         if mirrored:
             # One line per recording: six sensors used to give six near-identical notes.
-            q.notes.append(f"Recording {a['rec_id']}: left/right labels were corrected from "
+            q.notes.append(f"{named}: left/right labels were corrected from "
                            "the walking direction where a sensor saw the subject from behind "
                            f"(share of its frames: {', '.join(mirrored)}).")
         opts = a.get("options") or {}
         if opts.get("sensors") is not None:
             avail = a.get("sensors_available") or []
-            q.notes.append(f"Recording {a['rec_id']} was analysed with a subset of its sensors "
+            q.notes.append(f"{named} was analysed with a subset of its sensors "
                            f"({', '.join(a.get('sensors_used') or [])} of {', '.join(avail)}); "
                            "sensors on one side of the walkway see the far leg through the "
                            "body, so its step width and length are less accurate.")
@@ -661,6 +664,27 @@ def trial_names(labels: Mapping[str, str]) -> dict[str, str]:
     return out
 
 
+#: A recording's state as a report's note says it (the console's words for it).
+STATE_WORDS = {"pending": "starting", "recording": "still recording", "stopping": "stopping",
+               "on_nodes": "still on the sensors", "on_node": "still on the sensor",
+               "transferring": "being copied to the server", "incomplete": "incomplete"}
+
+
+def recording_named(rec_id: str, label: str = "", state: str = "") -> str:
+    """How a report's note names a recording: by the trial label the clinician gave it,
+    with the recording id beside (``Trial “walk 3” (recording <id>)``), or by its id
+    alone where there is no label (``Recording <id>``).
+
+    Args:
+        state: the recording's state (``on_nodes``…), said in words beside the id.
+    """
+    label = " ".join(label.split())
+    state = STATE_WORDS.get(state, state)
+    beside = f", {state}" if state else ""
+    return (f"Trial “{label}” (recording {rec_id}{beside})" if label
+            else f"Recording {rec_id}" + (f" ({state})" if state else ""))
+
+
 def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
                  title: str = "Gait report", subject_info: dict[str, Any] | None = None,
                  session_label: str = "", session_date: str = "",
@@ -681,10 +705,12 @@ def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
         why = "; ".join(f"{a.get('rec_id')}: {a.get('error')}" for a in analyses)
         raise InsufficientDataError("no recording gave a gait result"
                                     + (f" ({why})" if why else ""))
-    q = quality_from_analyses(good)
+    q = quality_from_analyses(good, trial_labels)
     for a in analyses:
         if not a.get("ok"):
-            q.notes.append(f"Recording {a.get('rec_id')} was not used: {a.get('error')}")
+            rec_id = str(a.get("rec_id"))
+            q.notes.append(f"{recording_named(rec_id, (trial_labels or {}).get(rec_id, ''))} "
+                           f"was not used: {a.get('error')}")
     rows: list[AgreementRow] = []
     figs: list[tuple[str, bytes]] = []
     meas_all: list[dict[str, Any]] = []

@@ -175,16 +175,19 @@ def _reference_paths(db: Any, data_dir: Path, rec_dirs: dict[str, Path]
     return out
 
 
-def _reference_steps(paths: dict[str, tuple[Path, float]], method: str
+def _reference_steps(paths: dict[str, tuple[Path, float]], method: str,
+                     labels: dict[str, str] | None = None
                      ) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
-    """rec_id → reference steps on the recording's time axis, and notes on failures."""
+    """rec_id → reference steps on the recording's time axis, and notes on failures
+    (naming each recording by its trial label in ``labels``, rec_id → label)."""
     out: dict[str, list[dict[str, Any]]] = {}
     notes: list[str] = []
     for rec_id, (path, off) in paths.items():
         try:
             steps = an.reference_steps(path, method)
         except GaitrigError as exc:
-            notes.append(f"Recording {rec_id}: the reference could not be used — {exc}")
+            notes.append(f"{an.recording_named(rec_id, (labels or {}).get(rec_id, ''))}: "
+                         f"the reference could not be used — {exc}")
             continue
         out[rec_id] = [{**s, "time_s": s["time_s"] + off} for s in steps]
     return out, notes
@@ -550,7 +553,7 @@ def build_subject_report(src: SubjectReportSource, data_dir: Path, live: dict[st
     for rec_id, state in src.recordings:
         d = an.recording_dir(data_dir, rec_id)
         if state != "complete" or not an.part_dirs(d):
-            skipped.append(f"{rec_id} ({state})")
+            skipped.append(f"{rec_id} ({an.STATE_WORDS.get(state, state)})")
             continue
         used.add(rec_id)
         try:
@@ -563,7 +566,7 @@ def build_subject_report(src: SubjectReportSource, data_dir: Path, live: dict[st
         raise NothingToReportError(f"{src.where} has no complete recording to report on{more}; "
                               "record a walk and transfer it to the server first")
     refs, ref_notes = _reference_steps(
-        {k: v for k, v in src.references.items() if k in used}, method)
+        {k: v for k, v in src.references.items() if k in used}, method, src.labels)
     data = an.build_report(
         src.code, analyses,
         title="Gait report" + ("" if sensors is None else f" — {_subset(sensors)}"),
@@ -571,9 +574,11 @@ def build_subject_report(src: SubjectReportSource, data_dir: Path, live: dict[st
         session_date=src.session_date, references=refs, trial_labels=src.labels)
     data.quality.notes += ref_notes
     data.sessions = _session_trials(src, analyses, data)
-    for s_ in skipped:
-        data.quality.notes.append(f"Recording {s_} was not used: it is not complete on the "
-                                  "server.")
+    for rec_id, state in src.recordings:
+        if rec_id in used:
+            continue
+        data.quality.notes.append(f"{an.recording_named(rec_id, src.labels.get(rec_id, ''), state)}"
+                                  " was not used: it is not complete on the server.")
     return data
 
 

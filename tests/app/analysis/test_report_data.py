@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
+import pytest
 
 from app.server import analysis as an
 from engine.report.render import ReportData, TrialData, render_html
@@ -159,3 +161,51 @@ def test_trials_are_named_by_their_labels_and_keep_their_recording_ids() -> None
     assert line.group(1) == ("3, 36 steps: walk 1 — R1 (12 steps); walk 2 — R2 (12 steps); "
                              "R3 (12 steps)")
     assert re.search(r"<th scope=\"row\"[^>]*>walk 2</th>", html)  # the "Per trial" row
+
+
+def test_a_note_names_an_unused_recording_by_its_trial_label(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """"Recording R20261124-… was not used" named the recording by an id the clinician
+    never sees on the Record page: a note names the trial's label, the id beside it (a
+    trial without a label keeps the id alone), for a failed analysis, a recording not
+    complete on the server and a reference that could not be used."""
+    assert an.recording_named("R9", "walk  3") == "Trial “walk 3” (recording R9)"
+    assert an.recording_named("R9", " ") == "Recording R9"
+    assert an.recording_named("R9", "walk 3", "on_nodes") == (
+        "Trial “walk 3” (recording R9, still on the sensors)")
+    assert an.recording_named("R9", "", "transferring") == (
+        "Recording R9 (being copied to the server)")
+    analyses = [_analysis("R1", {"S1": 1.0}, "3", 1.0),
+                {"rec_id": "R2", "ok": False, "error": "no steps were found"},
+                {"rec_id": "R3", "ok": False, "error": "no steps were found"}]
+    analyses[0]["sensors"]["S1"]["mirrored_pct"] = 12.0  # its other notes too
+    data = an.build_report("P-1", analyses, trial_labels={"R1": "walk 1", "R2": "walk 2"})
+    assert any(n.startswith("Trial “walk 1” (recording R1): left/right labels were corrected")
+               for n in data.quality.notes), data.quality.notes
+    assert data.quality.notes[-2:] == [
+        "Trial “walk 2” (recording R2) was not used: no steps were found",
+        "Recording R3 was not used: no steps were found"]
+    assert "Trial “walk 2” (recording R2) was not used" in render_html(data)
+
+    # a subject's report: one recording analysed, one still on the sensors, one with a
+    # reference file that cannot be read
+    from app.api.routes import reports as rr
+
+    monkeypatch.setattr(an, "part_dirs", lambda d: {"S1": d})
+    monkeypatch.setattr(an, "analyse_recording",
+                        lambda d, options, live: _analysis(d.name, {"S1": 1.0}, "3", 1.0))
+    bad = tmp_path / "ref.csv"
+    bad.write_text("not a reference\n")
+    src = rr.SubjectReportSource(
+        subject_id=1, code="P-1", where="subject P-1", info={}, session_label="baseline",
+        session_date="2026-11-24", file_stamp="2026-11-24",
+        recordings=[("R1", "complete"), ("R2", "on_nodes"), ("R3", "incomplete")],
+        labels={"R1": "walk 1", "R2": "walk 2", "R3": ""},
+        references={"R1": (bad, 0.0)})
+    notes = rr.build_subject_report(src, tmp_path, {}).quality.notes
+    assert "Trial “walk 2” (recording R2, still on the sensors) was not used: it is not " \
+           "complete on the server." in notes, notes
+    assert "Recording R3 (incomplete) was not used: it is not complete on the server." \
+           in notes, notes
+    assert any(n.startswith("Trial “walk 1” (recording R1): the reference could not be used")
+               for n in notes), notes
