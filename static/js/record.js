@@ -208,12 +208,18 @@
     } catch (e) { if (chain.current(mine)) { say("rec-msg", e.message); gaitrig.wait(2000).then(() => poll(mine)); } }
   }
 
+  // The image interval means something only when images are recorded: it was offered
+  // (and its value checked) with no images ticked.
+  function everyField() { $("every-field").hidden = !($("depth").checked || $("color").checked); }
+  for (const s of ["depth", "color"]) $(s).addEventListener("change", everyField);
+  everyField();  // (a browser that restores the ticks of a reloaded page)
+
   $("start").addEventListener("click", async () => {
     const sid = $("session").value;
     if (!sid) { say("rec-msg", "Choose a subject and a session first (or add them under “Who and when”)."); return; }
     const streams = ["depth", "color"].filter((s) => $(s).checked);
     // checked here: the server's refusal named its field ("image_every: Input should be…")
-    if (!$("every").checkValidity()) {
+    if (streams.length && !$("every").checkValidity()) {
       say("rec-msg", "Images of every N-th frame: enter a whole number from 1 to 1000.");
       $("every").focus();
       return;
@@ -221,7 +227,7 @@
     $("start").disabled = true;
     try {
       const r = await api(`/api/sessions/${sid}/recordings`, { method: "POST", body: JSON.stringify({
-        label: $("label").value.trim(), streams, image_every: Number($("every").value) || 1 }) });
+        label: $("label").value.trim(), streams, image_every: streams.length ? Number($("every").value) || 1 : 1 }) });
       recId = r.id; recStart = r.t_start; recStop = null; $("done-link").hidden = true;
       usedLabel = $("label").value.trim();
       showLive(r);

@@ -528,8 +528,8 @@ def test_keyboard_only_login_record_and_report(browser: Any, lab: Lab,
                            ".selectedOptions[0]?.text || '')")
     assert focus.tab_to("Start recording") == [
         "…or a new subject code", "Add", "Session", "…or a new session today, label", "Add",
-        "Subjects & recordings", "Trial label", "Depth images", "Colour images",
-        "Images of every N-th frame"]
+        "Subjects & recordings", "Trial label", "Depth images", "Colour images"]
+    # (no images ticked: the image interval is not offered)
     page.keyboard.press("Enter")
     _text(page, "#rec-msg", "started")
     focus.expect("Stop")  # Start is disabled: the focus is on Stop

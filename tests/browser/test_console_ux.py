@@ -4,10 +4,10 @@ Each page is loaded fresh (nothing recorded, nothing calibrated) and checked for
 JavaScript or console error, no leaked programming values ("undefined", "NaN",
 "[object Object]"), no element marked ``hidden`` that is still displayed (a class's
 ``display:flex`` used to win over the attribute: the calibration wizard showed
-Accept/Reject before any capture), no project jargon (seed/issue numbers) in visible
-text, every visible form control with a label, disabled buttons that look disabled,
-no list bullets drawn over text (the coverage legend), no drop-down list too narrow
-for its chosen option, and no horizontal scrolling.
+Accept/Reject before any capture), no project jargon (seed/issue numbers) or guessed
+abbreviation ("Rec.") in visible text, every visible form control with a label,
+disabled buttons that look disabled, no list bullets drawn over text (the coverage
+legend), no drop-down list too narrow for its chosen option, and no horizontal scrolling.
 """
 
 from __future__ import annotations
@@ -28,7 +28,9 @@ PAGES = ["rig", "live", "calibrate", "calibration-wizard", "record", "subjects",
 
 # Text a person should never read: values leaked from code, and internal references.
 LEAKED = re.compile(r"\bundefined\b|\bNaN\b|\[object Object\]|Traceback")
-JARGON = re.compile(r"\bseed (paper|\d{3})\b|\bissue \d+\b", re.IGNORECASE)
+# ... and abbreviations a clinician has to guess ("Rec." headed the Subjects page's column
+# of recordings)
+JARGON = re.compile(r"\bseed (paper|\d{3})\b|\bissue \d+\b|\brec\.(?!\w)", re.IGNORECASE)
 
 AUDIT_JS = """() => {
   const visible = (e) => e.getClientRects().length > 0

@@ -249,6 +249,9 @@ def _record_page_refuses_a_bad_image_interval_in_plain_words(
     page.goto(f"{live_server.base_url}/record.html#subject={walked.subject_id}")
     page.wait_for_function("document.getElementById('session').value !== ''")
     assert not page.locator("#parts").is_visible()
+    # the image interval is offered only with images to record
+    assert not page.locator("#every").is_visible()
+    page.check("#depth")
     page.fill("#every", "5000")
     page.click("#start")
     page.wait_for_function("document.getElementById('rec-msg').textContent.length > 0")
