@@ -81,6 +81,24 @@ def demo_password(data_dir: Path) -> str:
     return pw
 
 
+def _demo_login(base: str, password: str) -> dict[str, Any] | None:
+    """The demo's own login (to count the sensors online), or None when the admin's
+    password is no longer the generated one."""
+    for attempt in range(3):
+        try:
+            return dict(_request(base + "/api/auth/login",
+                                 {"username": "admin", "password": password}, timeout=15.0))
+        except urllib.error.HTTPError as exc:
+            if exc.code in (401, 403):
+                return None
+            raise
+        except (urllib.error.URLError, OSError):
+            if attempt == 2:  # the server answered /healthz: a loaded start, not a refusal
+                raise
+            time.sleep(1.0)
+    return None
+
+
 def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
     for p in reversed(procs):  # nodes first, the server last
         if p.poll() is None:
@@ -149,23 +167,30 @@ def run(args: argparse.Namespace) -> int:
                 break
             except (urllib.error.URLError, OSError):
                 time.sleep(0.2)
-        print(f"\ngaitrig demo: console at {base}/  (login: admin / {password})", flush=True)
+        auth = _demo_login(base, password)
+        # the account outlives this file: once the password is changed in the console the
+        # generated one no longer logs in (printing it, and crashing on it, told a lie)
+        login = (f"admin / {password}" if auth is not None else
+                 "admin / the password you set in the console (the generated one in "
+                 f"{data / 'demo-login.txt'} was changed)")
+        print(f"\ngaitrig demo: console at {base}/  (login: {login})", flush=True)
         print(f"gaitrig demo: {args.nodes} simulated sensors starting; Ctrl-C stops everything",
               flush=True)
-        auth = _request(base + "/api/auth/login", {"username": "admin", "password": password})
         announced = -1
         while not stopping:
             if procs[0].poll() is not None:
                 print("gaitrig demo: the server stopped", file=sys.stderr)
                 return 1
-            try:
-                nodes = _request(base + "/api/nodes", token=auth["token"])
-                online = sum(1 for n in nodes if n["connected"])
-                if online != announced:
-                    print(f"gaitrig demo: {online} of {args.nodes} sensors online", flush=True)
-                    announced = online
-            except (urllib.error.URLError, OSError, KeyError):
-                pass
+            if auth is not None:  # (without a login of its own, the Rig page counts them)
+                try:
+                    nodes = _request(base + "/api/nodes", token=auth["token"])
+                    online = sum(1 for n in nodes if n["connected"])
+                    if online != announced:
+                        print(f"gaitrig demo: {online} of {args.nodes} sensors online",
+                              flush=True)
+                        announced = online
+                except (urllib.error.URLError, OSError, KeyError):
+                    pass
             for i, p in enumerate(procs[1:], start=1):
                 if p.poll() is not None and not stopping:
                     print(f"gaitrig demo: node S{i} exited ({p.returncode})", file=sys.stderr)

@@ -76,3 +76,48 @@ def test_demo_six_nodes_online_and_clean_stop(tmp_path: Path) -> None:
              and "Z" not in (Path(f"/proc/{k}") / "stat").read_text().rsplit(")", 1)[1][:3]]
     assert alive == [], f"processes left behind: {alive}"
     assert demo.returncode == 0
+
+
+def test_demo_after_the_password_was_changed_in_the_console(tmp_path: Path) -> None:
+    """The demo folder's account outlives its generated password: once a clinician has
+    changed it in the console, the demo neither prints the dead password as the login nor
+    stops on its own refused login; it says which password to use and keeps running."""
+    from fastapi.testclient import TestClient
+
+    from app.config import Settings
+    from app.main import create_app
+
+    # the server's account as the console left it: another password than the file's
+    changed = "Changed-in-the-console-7Qw"
+    settings = Settings(data_dir=tmp_path / "server", viewer_enabled=False,
+                        admin_password=changed)
+    with TestClient(create_app(settings)):
+        pass
+    (tmp_path / "demo-login.txt").write_text("generated-long-ago-Zr4pQ\n")
+    port = free_port()
+    gaitrig = Path(sys.executable).parent / "gaitrig"
+    log = tmp_path / "demo.log"
+    with open(log, "wb") as f:
+        demo = subprocess.Popen([str(gaitrig), "demo", "--port", str(port), "--no-viewer",
+                                 "--nodes", "1", "--no-images", "--data-dir", str(tmp_path)],
+                                stdout=f, stderr=subprocess.STDOUT,
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        out = wait_for(lambda: (lambda t: t if "console at" in t else None)(log.read_text()),
+                       60, "the console line")
+        assert "the password you set in the console" in out, out
+        assert "generated-long-ago-Zr4pQ" not in out
+        token = http(f"http://127.0.0.1:{port}/api/auth/login",
+                     {"username": "admin", "password": changed})["token"]
+        wait_for(lambda: http(f"http://127.0.0.1:{port}/api/nodes", token=token)[0]["connected"],
+                 30, "the node online")
+        assert demo.poll() is None, log.read_text()
+        assert "Traceback" not in log.read_text()
+    finally:
+        demo.send_signal(signal.SIGINT)
+        try:
+            demo.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            demo.kill()
+            raise
+    assert demo.returncode == 0, log.read_text()
