@@ -35,6 +35,7 @@ from __future__ import annotations
 import csv
 import re
 import shutil
+import struct
 import tempfile
 import zipfile
 import zlib
@@ -55,6 +56,11 @@ FloatArray = NDArray[np.float64]
 #: members a zip may have, and their total uncompressed size (zip bombs)
 MAX_ZIP_MEMBERS = 256
 MAX_ZIP_UNCOMPRESSED = 256 * 2**20
+#: Bytes of a zip's central directory (its file list) read at most: ``zipfile`` parses the
+#: whole list into objects of ~0.5 kB each when it opens a zip, before any member count can
+#: be checked (a 64 MB upload of empty entries held ~1.4 M of them). 256 members with long
+#: names and extra fields fit many times over.
+MAX_ZIP_DIRECTORY_BYTES = 2**20
 #: bytes of a metadata file read (Sensor Logger's Metadata.csv: two lines)
 _MAX_METADATA_BYTES = 64 * 2**10
 #: columns of one sensor file (Sensor Logger's orientation has 9; phyphox 4)
@@ -123,6 +129,47 @@ def _sensor_members(infos: list[zipfile.ZipInfo]) -> list[zipfile.ZipInfo]:
                                               for part in i.filename.split("/"))]
 
 
+def _zip_directory_bytes(path: Path) -> int | None:
+    """The size of a zip's central directory as its end record declares it, read from the
+    file's last 64 kB (nothing else parsed); None when no end record is found.
+
+    ``zipfile`` reads exactly that many bytes of file list and parses all of them, so
+    bounding it bounds what opening the zip costs, whatever entry count the record claims.
+    """
+    with path.open("rb") as f:
+        f.seek(0, 2)
+        size = f.tell()
+        tail_len = min(size, 22 + 0xFFFF)  # the end record, then at most a 64 kB comment
+        f.seek(size - tail_len)
+        tail = f.read(tail_len)
+        at = tail.rfind(b"PK\x05\x06")
+        if at < 0 or len(tail) - at < 22:
+            return None
+        directory = int(struct.unpack_from("<I", tail, at + 12)[0])
+        loc = at - 20  # a Zip64 archive keeps the real size in its own end record
+        if directory == 0xFFFFFFFF and loc >= 0 and tail[loc:loc + 4] == b"PK\x06\x07":
+            f.seek(int(struct.unpack_from("<Q", tail, loc + 8)[0]))
+            rec = f.read(56)
+            if len(rec) == 56 and rec[:4] == b"PK\x06\x06":
+                directory = int(struct.unpack_from("<Q", rec, 40)[0])
+    return directory
+
+
+def _open_zip(p: Path) -> zipfile.ZipFile:
+    """``zipfile.ZipFile(p)`` once its file list is known to be of a phone recording's size.
+
+    Raises:
+        InputError: The file list is longer than :data:`MAX_ZIP_DIRECTORY_BYTES`.
+        zipfile.BadZipFile, OSError: As ``zipfile`` raises them.
+    """
+    directory = _zip_directory_bytes(p)
+    if directory is not None and directory > MAX_ZIP_DIRECTORY_BYTES:
+        raise InputError(f"{p.name}: the zip's list of files is {directory / 2**20:.1f} MB, "
+                         f"far longer than a phone recording's (at most {MAX_ZIP_MEMBERS} "
+                         "files); zip one recording")
+    return zipfile.ZipFile(p)
+
+
 def zip_unpacked_bytes(path: str | Path) -> int | None:
     """Bytes :func:`load_phone` would unpack from a phone app's zip, from its directory
     alone (nothing is unpacked). A bound, not an estimate: ``zipfile`` never reads more of
@@ -133,9 +180,9 @@ def zip_unpacked_bytes(path: str | Path) -> int | None:
         says why).
     """
     try:
-        with zipfile.ZipFile(path) as zf:
+        with _open_zip(Path(path)) as zf:
             return sum(i.file_size for i in _sensor_members(zf.infolist()))
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError):
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError, InputError):
         return None
 
 
@@ -143,7 +190,7 @@ def _unzip(p: Path, dest: Path) -> dict[str, list[tuple[str, Path]]]:
     """The CSV members of a zip copied to ``dest`` under generated names, grouped by their
     folder in the archive: folder -> [(member name, copy)]."""
     try:
-        zf = zipfile.ZipFile(p)
+        zf = _open_zip(p)
     except (zipfile.BadZipFile, OSError) as e:
         raise InputError(f"{p.name}: not a readable zip archive ({e}); zip the recording's "
                          "files again") from None

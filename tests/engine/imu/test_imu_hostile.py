@@ -203,3 +203,38 @@ def test_a_field_past_the_csv_limit_is_an_input_error(tmp_path: Path) -> None:
     rec = load_imu(_phone_zip(tmp_path, {"Gyroscope.csv": gyr, "Accelerometer.csv": _ACC,
                                          "Metadata.csv": meta}))
     assert len(rec) > 100 and rec.meta["acc_sign_from"] == "assumed"
+
+
+def test_a_zip_whose_file_list_is_huge_is_refused_before_it_is_parsed(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``zipfile`` turns a zip's whole file list into objects as it opens it, before any
+    member count can be checked: a list longer than a phone recording's is refused from the
+    end record's declared size, without opening the zip (and so without that memory)."""
+    from engine.imu import _phone
+
+    big = tmp_path / "many.zip"
+    with zipfile.ZipFile(big, "w") as zf:
+        for k in range(12_000):  # ~1.4 MB of file list, no data
+            zf.writestr(f"Recording/{'x' * 60}_{k:05d}.csv", b"")
+    opened: list[object] = []
+    real_zipfile = zipfile.ZipFile
+    monkeypatch.setattr(_phone.zipfile, "ZipFile",
+                        lambda *a, **k: opened.append(a) or real_zipfile(*a, **k))
+    with pytest.raises(InputError, match=r"many\.zip: the zip's list of files is 1\.\d MB"):
+        load_imu(big)
+    assert _phone.zip_unpacked_bytes(big) is None
+    assert opened == []
+    # a phone recording's zip: its declared list size is the real one, and it opens
+    small = tmp_path / "walk.zip"
+    with zipfile.ZipFile(small, "w") as zf:
+        zf.writestr("Walk/Accelerometer.csv", "time,x,y,z\n0,0,0,9.8\n")
+        zf.writestr("Walk/Gyroscope.csv", "time,x,y,z\n0,0,0,0\n")
+    with real_zipfile(small) as zf:
+        listed = sum(46 + len(i.filename) + len(i.extra) + len(i.comment)
+                     for i in zf.infolist())
+        unpacked = sum(i.file_size for i in zf.infolist())
+    assert _phone._zip_directory_bytes(small) == listed
+    assert _phone.zip_unpacked_bytes(small) == unpacked
+    # not a zip at all: no end record, left to zipfile's own message
+    (tmp_path / "no.zip").write_bytes(b"not a zip" * 100)
+    assert _phone._zip_directory_bytes(tmp_path / "no.zip") is None
