@@ -171,6 +171,7 @@
       + `and the sightings left out (${rej.length ? rej.length : "none"})`;
     if (!rej.length) ul.append(el("li", {}, "None."));
     for (const o of rej) ul.append(el("li", {}, `${o.sensor} · marker ${o.marker}: ${o.reason}`));
+    return v;
   }
 
   const sleep = gaitrig.wait;  // (a watch of the job pauses while the page is hidden)
@@ -208,10 +209,16 @@
   let pendingJob = null;
   // The Accept/Reject box sits right under the result it judges (it was in step 2, above
   // the result, away from what it accepts); a refusal is said in it, the outcome under it.
-  function decide(open) {
+  // A result whose error is too large (over 10 mm) is accepted only once the person ticks
+  // that they know what it costs: one press of the usual button saved a calibration the
+  // page itself called unreliable.
+  function decide(open, tooLarge = false) {
     $("decide").hidden = !open;
     $("decide-error").textContent = ""; $("decide-state").textContent = "";
+    $("decide-bad").hidden = !tooLarge; $("accept-bad").checked = false;
+    $("accept").disabled = open && tooLarge;
   }
+  $("accept-bad").addEventListener("change", (ev) => { $("accept").disabled = !ev.currentTarget.checked; });
   $("cap-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
     $("cap-error").textContent = ""; decide(false); pendingJob = null;
@@ -226,8 +233,8 @@
         $("cap-error").append(" ", el("a", { href: "/help.html#ts-calibration-fails" }, "What does this mean?"));
       } else if (j.state === "done") {
         $("cap-state").textContent = "Done: check the result in step 3, then accept or reject it under the result.";
-        shownSeq.acted(); show(j.result, true);
-        pendingJob = j.id; decide(true);
+        shownSeq.acted(); const v = show(j.result, true);
+        pendingJob = j.id; decide(true, v.cls === "verdict-bad");
         // the result and its buttons are below the fold: the page shows the result and the
         // focus goes to its summary (the verdict), from which Tab leads on to Accept
         $("res-h").scrollIntoView({ block: "start" });

@@ -237,7 +237,25 @@ def test_wizard_says_the_result_in_words_and_asks_under_it(page: Any, live_serve
     assert "0.9 mm at worst — good (under 3 mm): accept it." in summary, summary
     assert page.get_attribute("#res-summary [data-verdict]", "data-verdict") == "good"
     assert page.text_content("#decide-state") == ""  # the last outcome is not this one's
+    assert page.is_enabled("#accept") and not page.is_visible("#accept-bad")
     summary = capture(12.5)
     assert "too large (over 10 mm): step width would not be reliable" in summary, summary
     assert page.get_attribute("#res-summary [data-verdict]", "data-verdict") == "bad"
+    # too large: accepted only once the person ticks that they know what it costs
+    assert not page.is_enabled("#accept")
+    page.check("#accept-bad")
+    assert page.is_enabled("#accept")
+    page.uncheck("#accept-bad")
+    assert not page.is_enabled("#accept")
+    answers["accept"] = (200, {"version": 7, "applied_to": ["S1", "S2"]})
+    page.check("#accept-bad")
+    page.click("#accept")
+    page.wait_for_function("document.getElementById('decide').hidden")
+    assert (page.text_content("#decide-state") or "").startswith("Saved as version 7")
+    assert asked[-1] == "accept"
+    # the next result is asked about afresh: the tick is not carried over
+    capture(12.5)
+    assert not page.is_checked("#accept-bad") and not page.is_enabled("#accept")
+    capture(4.2)
+    assert page.is_enabled("#accept") and not page.is_visible("#accept-bad")
     assert not page.js_errors
