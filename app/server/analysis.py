@@ -716,6 +716,8 @@ def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
     meas_all: list[dict[str, Any]] = []
     ref_all: list[dict[str, Any]] = []
     with_ref: list[str] = []
+    names = trial_names({str(a.get("rec_id")): (trial_labels or {}).get(str(a.get("rec_id")), "")
+                         for a in good})
     for k, a in enumerate(good):
         ref = (references or {}).get(str(a.get("rec_id")))
         if ref:
@@ -729,8 +731,10 @@ def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
         rows, figs = agreement_rows(meas_all, ref_all)
         # A subject report may hold one referenced trial among many: say which.
         n_pairs = max((r.n for r in rows), default=0)
-        basis = (f"Steps of {'recording' if len(with_ref) == 1 else 'recordings'} "
-                 f"{', '.join(with_ref)} ({len(with_ref)} of {len(good)} trials) paired with "
+        # named as the Per trial table names them (the clinician's labels, not ids)
+        basis = (f"Steps of {'trial' if len(with_ref) == 1 else 'trials'} "
+                 f"{', '.join(names[r] for r in with_ref)} ({len(with_ref)} of {len(good)} "
+                 "trials) paired with "
                  f"the steps of the attached reference within 0.25 s: {n_pairs} pairs.")
         if not rows:
             q.notes.append("A reference recording is attached but fewer than three steps "
@@ -739,8 +743,6 @@ def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
     # The sensors go into the trial names only when trials differ in them; otherwise the
     # data-quality section lists them once (ten trials repeated "(S1, …, S6)" ten times).
     same = len({tuple(a.get("sensors_used") or ()) for a in good}) == 1
-    names = trial_names({str(a.get("rec_id")): (trial_labels or {}).get(str(a.get("rec_id")), "")
-                         for a in good})
     trials = []
     for a in good:
         rec_id = str(a.get("rec_id"))

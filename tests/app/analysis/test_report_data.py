@@ -108,7 +108,12 @@ def test_agreement_says_what_it_rests_on_and_flags_few_pairs() -> None:
     analyses[1]["gait"]["steps"] = meas
     html = render_html(an.build_report("P-1", analyses, references={"R2": ref}))
     section = html[html.index("Agreement with the reference system"):]
-    assert "recording R2 (1 of 3 trials)" in section and ": 6 pairs" in section
+    assert "Steps of trial R2 (1 of 3 trials)" in section and ": 6 pairs" in section
+    # named by the clinician's trial label, as the Per trial table names it
+    labelled = render_html(an.build_report("P-1", analyses, references={"R2": ref},
+                                           trial_labels={"R2": "walk 2", "R1": "walk 1"}))
+    section = labelled[labelled.index("Agreement with the reference system"):]
+    assert "Steps of trial walk 2 (1 of 3 trials)" in section, section[:600]
     assert "<td>3&nbsp;†</td>" in section and "Fewer than 10 pairs" in section
     assert "<td>6&nbsp;†</td>" in section
 
