@@ -617,7 +617,7 @@ class CaptureManager:
         frames = [self._sensor_frames(job, n) for n in job.nodes]
         res = calibrate_frames(frames, job.marker_sizes)
         res.meta["source"] = (f"capture {job.id}: {job.frames} frames from "
-                              f"{len(job.nodes)} connected nodes")
+                              f"{len(job.nodes)} connected sensors")
         job.result = res
         job.doc = result_to_dict(res)
         job.state = "done"
