@@ -77,6 +77,38 @@ def _run(argv: Sequence[str] | None) -> int:
         # goes to devnull so that the interpreter's final flush cannot raise again
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
+    except Exception as exc:
+        message = settings_error(exc)
+        if message is None:
+            raise
+        for line in message.splitlines():
+            print(f"gaitrig {args.command}: {line}", file=sys.stderr)
+        return 2
+
+
+def settings_error(exc: BaseException) -> str | None:
+    """What is wrong with the ``GAITRIG_*`` settings, when ``exc`` says so; else None.
+
+    A setting the server or a node refuses (``GAITRIG_NODE_TOKEN`` too short, a port that
+    is not a number ...) is named with its environment variable, without its value (it
+    may be a password), instead of a pydantic traceback.
+
+    Args:
+        exc: The exception a command raised.
+
+    Returns:
+        One line per refused setting, or None when ``exc`` is not about the settings.
+    """
+    from pydantic import ValidationError
+
+    if not isinstance(exc, ValidationError) or exc.title != "Settings":
+        return None
+    lines = []
+    for err in exc.errors():
+        field = str(err["loc"][0]) if err["loc"] else ""
+        lines.append(f"setting GAITRIG_{field.upper()} (or the option that sets it) "
+                     f"refused: {err['msg']}")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":
