@@ -10,39 +10,9 @@ import argparse
 import sys
 from typing import Any, Literal
 
+from app.commands._file_options import add_units_argument, add_up_argument, up_axis_missing
+
 HELP = "gait parameters (steps, strides, speed, cadence ...) of a C3D/TRC/CSV file"
-
-
-#: The vertical axes ``--up`` takes.
-AXES = ("x", "y", "z", "-x", "-y", "-z")
-#: ``--up`` given without an axis (yet: a negative axis follows as its own word).
-_AXIS_PENDING = "?"
-
-
-class _Up(argparse.Action):
-    """``--up AXIS``, or ``--up`` alone, waiting for the :class:`_NegativeAxis` after it
-    (choices checked here: argparse would check the waiting mark against them)."""
-
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
-                 values: Any, option_string: str | None = None) -> None:
-        # "Y", "+y" are y (the file headers and other tools write axes so)
-        axis = None if values is None else str(values).strip().lower().removeprefix("+")
-        if axis is not None and axis not in AXES:
-            parser.error(f"argument --up: invalid choice: {values!r} (choose from "
-                         f"{', '.join(AXES)})")
-        setattr(namespace, self.dest, _AXIS_PENDING if axis is None else axis)
-
-
-class _NegativeAxis(argparse.Action):
-    """The ``-x``/``-y``/``-z`` right after ``--up`` (``--up -y``), which argparse parses
-    as an option; anywhere else it is an error that names the spelling to use."""
-
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
-                 values: Any, option_string: str | None = None) -> None:
-        if getattr(namespace, self.dest, None) != _AXIS_PENDING:
-            parser.error(f"unrecognized argument {option_string}: for a vertical axis "
-                         f"pointing down write --up {option_string}")
-        setattr(namespace, self.dest, option_string)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,15 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--left", metavar="NAME",
                         help="left-foot marker to analyse (default: automatic, e.g. LANK/LHEE)")
     parser.add_argument("--right", metavar="NAME", help="right-foot marker to analyse")
-    parser.add_argument("--up", nargs="?", action=_Up, metavar="{" + ",".join(AXES) + "}",
-                        help="vertical axis of the file, '-y' for Y down (default: detected)")
-    # argparse reads the "-y" of "--up -y" as an option of its own, not as --up's value:
-    # so it is one (hidden), which hands its axis to the --up just before it
-    for axis in ("x", "y", "z"):
-        parser.add_argument(f"-{axis}", dest="up", nargs=0, action=_NegativeAxis,
-                            help=argparse.SUPPRESS)
-    parser.add_argument("--units", choices=["mm", "cm", "m"], type=str.lower,
-                        help="length unit of the file's numbers (default: from the file)")
+    add_up_argument(parser, "vertical axis of the file, '-y' for Y down (default: detected)")
+    add_units_argument(parser, "length unit of the file's numbers (default: from the file)")
     parser.add_argument("--method", choices=["crossing", "heelstrike"], default="crossing",
                         help="crossing: foot placements where the ankles pass each other "
                              "(seed paper); heelstrike: Zeni foot strike / foot off")
@@ -100,11 +63,12 @@ def _table(doc: dict[str, Any]) -> str:
         if p is not None:
             lines.append(f"{label:<18}{_fmt(p.get('mean')):>8}{'':>16}"
                          f"{_fmt(p.get('left_mean')):>8}{_fmt(p.get('right_mean')):>8}")
-    lines += ["", f"{'step':>4} {'side':>4} {'time s':>8} {'length cm':>10} {'width cm':>9} "
-                  f"{'time s':>7}"]
+    # "at s": the instant the step ends; "duration s": the step time (the summary's)
+    lines += ["", f"{'step':>4} {'side':>4} {'at s':>8} {'length cm':>10} {'width cm':>9} "
+                  f"{'duration s':>10}"]
     for i, st in enumerate(doc["steps"], 1):
         lines.append(f"{i:>4} {st['side']:>4} {st['time_s']:>8.3f} {st['length_m'] * 100:>10.1f} "
-                     f"{st['width_m'] * 100:>9.1f} {st['duration_s']:>7.3f}")
+                     f"{st['width_m'] * 100:>9.1f} {st['duration_s']:>10.3f}")
     return "\n".join(lines)
 
 
@@ -116,9 +80,9 @@ def run(args: argparse.Namespace) -> int:
     from engine.gait import GaitAnalysis
     from engine.mocap import load_feet
 
-    if args.up == _AXIS_PENDING:
-        print(f"gaitrig gait: error: --up needs an axis: one of {', '.join(AXES)}",
-              file=sys.stderr)
+    missing = up_axis_missing("gait", args)
+    if missing:
+        print(missing, file=sys.stderr)
         return 2
     excl: bool | Literal["auto", "L", "R"] = (
         args.exclude_first if args.exclude_first in ("auto", "L", "R")

@@ -11,6 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from app.commands._file_options import add_units_argument, add_up_argument, up_axis_missing
 from engine.wording import count
 
 HELP = "gait report (HTML or PDF) of one or more C3D/TRC/CSV walking trials"
@@ -27,8 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(seed paper); heelstrike: Zeni foot strike / foot off")
     parser.add_argument("--left", metavar="NAME", help="left-foot marker (default: automatic)")
     parser.add_argument("--right", metavar="NAME", help="right-foot marker")
-    parser.add_argument("--up", choices=["x", "y", "z", "-x", "-y", "-z"],
-                        help="vertical axis of the files (default: detected)")
+    add_up_argument(parser, "vertical axis of the files, '-y' for Y down (default: detected)")
+    add_units_argument(parser, "length unit of the files' numbers (default: from each file)")
     parser.add_argument("--title", default="Gait report", help="report title")
     parser.add_argument("-o", "--output", required=True, type=Path, metavar="PATH",
                         help="report file: .pdf or .html")
@@ -40,6 +41,10 @@ def run(args: argparse.Namespace) -> int:
     from engine.errors import GaitrigError
     from engine.report.render import save_report
 
+    missing = up_axis_missing("report", args)
+    if missing:
+        print(missing, file=sys.stderr)
+        return 2
     out: Path = args.output
     if out.suffix.lower() not in (".pdf", ".html", ".htm"):
         print(f"gaitrig report: error: -o must end in .pdf or .html, got {out.name!r}",
@@ -55,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"gaitrig report: error: {f}: no such file", file=sys.stderr)
             return 2
         try:
-            analyses.append(analyse_file(p, args.method, args.left, args.right, args.up))
+            analyses.append(analyse_file(p, args.method, args.left, args.right, args.up,
+                                         args.units))
         except GaitrigError as exc:
             print(f"gaitrig report: error: {p.name}: {exc}", file=sys.stderr)
             return 2

@@ -528,7 +528,9 @@ def quality_from_analyses(analyses: list[dict[str, Any]],
     q = QualityInfo(recordings=len(analyses))
     tracked: list[float] = []
     versions: dict[str, None] = {}  # ordered set
-    gaps = 0
+    # None when nothing was fused (mocap files): no sensor or fused skeleton had gaps to
+    # fill, so the report does not claim "0 gaps ... (each sensor and the fused skeleton)"
+    gaps: int | None = None
     for a in analyses:
         mirrored: list[str] = []
         named = recording_named(str(a["rec_id"]), (trial_labels or {}).get(str(a["rec_id"]), ""))
@@ -573,7 +575,8 @@ def quality_from_analyses(analyses: list[dict[str, Any]],
         lb = _lower_body_tracked(fus)
         if lb is not None:
             tracked.append(lb)
-        gaps += int(fus.get("gaps_filled") or 0)
+        if fus:
+            gaps = (gaps or 0) + int(fus.get("gaps_filled") or 0)
         if not versions and any(
                 (f.get("pose_source") == "node") for f in (a.get("sensors") or {}).values()):
             note = ("Sensor poses are those reported by the nodes (no rig calibration "
@@ -757,8 +760,12 @@ def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
 
 
 def analyse_file(path: Path, method: str = "crossing", left: str | None = None,
-                 right: str | None = None, up: str | None = None) -> dict[str, Any]:
+                 right: str | None = None, up: str | None = None,
+                 units: str | None = None) -> dict[str, Any]:
     """Analyse a C3D/TRC/CSV file as a report trial (``ok`` always True; errors raise).
+
+    ``left``, ``right``, ``up`` and ``units`` are :func:`engine.mocap.load_feet`'s
+    (None: detected from the file).
 
     Raises:
         GaitrigError: unreadable file, no usable ankle/heel data, too few steps.
@@ -766,7 +773,7 @@ def analyse_file(path: Path, method: str = "crossing", left: str | None = None,
     from engine.mocap import load_feet
 
     try:
-        feet = load_feet(path, left=left, right=right, up=up)
+        feet = load_feet(path, left=left, right=right, up=up, units=units)
     except GaitrigError:
         raise
     except (OSError, ValueError, KeyError, IndexError) as exc:  # a malformed file

@@ -144,3 +144,20 @@ def test_up_without_an_axis_says_which(tmp_path: Path,
     rc, out, err = _run([str(p), "--up"], capsys)
     assert rc == 2 and out == ""
     assert "--up needs an axis" in err and "-y" in err
+
+
+def test_step_table_names_its_time_columns(tmp_path: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """The step table's two times are the instant a step ends and its duration (both were
+    headed 'time s')."""
+    p = tmp_path / "walk.trc"
+    write_trc(p, walk_markers(synth_walk(step_time=0.55)), units="mm")
+    rc, out, err = _run([str(p)], capsys)
+    assert rc == 0, err
+    lines = out.splitlines()
+    head = next(i for i, line in enumerate(lines) if line.split()[:2] == ["step", "side"])
+    assert lines[head].split() == ["step", "side", "at", "s", "length", "cm", "width", "cm",
+                                   "duration", "s"]
+    first = lines[head + 1].split()
+    assert float(first[-1]) == pytest.approx(0.55, abs=0.01)
+    assert float(first[2]) > 0.55  # the instant, on the file's time axis

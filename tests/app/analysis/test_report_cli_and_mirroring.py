@@ -85,3 +85,38 @@ def test_unmirroring_matches_the_simulated_mirroring() -> None:
         assert agree > 0.9, (k, agree)
         assert abs(frac - swapped[tracked].mean()) < 0.05
     assert total_mirrored > 300  # the walk is seen from behind for a good part
+
+
+def test_cli_report_takes_up_and_units_as_gait_does(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--up -y`` (a Y-down lab) and ``--units``, spelled as for ``gaitrig gait``."""
+    from engine.io.trc import write_trc
+    from engine.sim.straight_walk import walk_markers
+
+    m = walk_markers(synth_walk(n_steps=12))
+    m.positions = np.stack([m.positions[..., 0], -m.positions[..., 2], m.positions[..., 1]],
+                           axis=-1)  # Y down, Z along the walk's left (right-handed)
+    f = tmp_path / "ydown.trc"
+    write_trc(f, m, units="mm")
+    out = tmp_path / "r.html"
+    argv = [str(f), "--subject", "P1", "-o", str(out)]
+    assert main(["report", *argv, "--up", "-y", "--units", "MM"]) == 0, capsys.readouterr()
+    assert "70.0" in out.read_text()  # 0.70 m steps once Y-down is turned Z-up
+    capsys.readouterr()
+    # the unit given is used, not the file's: metres make the body 1000 times too tall
+    assert main(["report", *argv, "--units", "m"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("gaitrig report: error:") and "--units" in err
+    assert main(["report", *argv, "--up"]) == 2
+    assert "--up needs an axis" in capsys.readouterr().err
+
+
+def test_a_report_of_files_claims_no_interpolated_gaps(tmp_path: Path) -> None:
+    """A mocap file is not fused: its report said '0 gaps in single joints' trajectories
+    (each sensor and the fused skeleton)' of sensors it never had."""
+    from app.server.analysis import analyse_file, build_report
+    from engine.report.render import render_html
+
+    data = build_report("P1", [analyse_file(_walk_csv(tmp_path / "walk.csv"))])
+    assert data.quality.gaps_filled is None
+    assert "Short gaps interpolated" not in render_html(data)
