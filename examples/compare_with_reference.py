@@ -90,6 +90,9 @@ def compare(pairs: list[tuple[Path, Path]], offset_s: float = 0.0, method: str =
         results[attr] = {}
         for side in ("L", "R"):
             if side not in levels:
+                # agreement statistics need at least three pairs: say so, not a blank row
+                n = sum(s.side == side for m, r in trials for s, _ in match_steps(m, r))
+                print(f"{label:<12} {side:<5} {n:>3}  too few paired steps (3 needed)")
                 continue
             a = levels[side]
             results[attr][side] = a
@@ -111,7 +114,7 @@ def compare(pairs: list[tuple[Path, Path]], offset_s: float = 0.0, method: str =
 
 def main(argv: list[str] | None = None) -> int:
     """Command line: see the module docstring."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("files", type=Path, nargs="*",
                         help="MEASURED REFERENCE pairs (gaitrig export, reference file)")
     parser.add_argument("--offset", type=float, default=0.0,

@@ -77,7 +77,7 @@ def analyse(trial: Path, out: Path) -> dict[str, object]:
 
 def main(argv: list[str] | None = None) -> int:
     """Command line: see the module docstring."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("trial", type=Path, nargs="?", default=DEFAULT_TRIAL,
                         help="a .c3d, .trc or skeleton .csv file (default: the Vicon trial "
                              "of ../shared/data)")

@@ -79,6 +79,35 @@ def test_compare_with_reference_names_a_time_offset(tmp_path: Path) -> None:
     assert ex.compare(pairs, offset_s=0.0)["length_m"]["L"].n >= 4
 
 
+def test_compare_with_reference_says_when_a_side_has_too_few_pairs(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A short trial pairs fewer than the three steps per side agreement needs: each such
+    row says so (the table was printed empty)."""
+    from engine import write_trc
+    from engine.sim import synth_walk, walk_markers
+
+    ex = _load("compare_with_reference")
+    f = tmp_path / "short.trc"
+    write_trc(f, walk_markers(synth_walk(n_steps=5)))
+    res = ex.compare([(f, f)])
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if "too few paired steps (3 needed)" in line]
+    assert len(rows) == 6
+    assert not any(res[p] for p in ("length_m", "width_m", "duration_s"))
+    # the pair counts per side are those the statistics would have used
+    n = {line.split()[2]: int(line.split()[3]) for line in rows if line.startswith("step time")}
+    assert 0 < n["L"] < 3 and 0 < n["R"] < 3
+
+
+def test_example_help_gives_the_whole_first_sentence() -> None:
+    for name in ("vicon_trial", "compare_with_reference"):
+        run = subprocess.run([sys.executable, str(ROOT / "examples" / f"{name}.py"), "--help"],
+                             capture_output=True, text=True, timeout=120, cwd=ROOT)
+        text = " ".join(run.stdout.split())
+        first = " ".join(_load(name).__doc__.split("\n\n")[0].split())
+        assert run.returncode == 0 and first.endswith(".") and first in text, text
+
+
 def test_batch_gait_keeps_going_past_bad_files(tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
     from engine.io.trc import write_trc
