@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from engine.errors import InputError
 from engine.geometry import invert_transform, look_at, transform_points
 from engine.io.markers import MarkerTrajectories
 from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
@@ -121,11 +122,19 @@ def walk_markers(w: SynthWalk, labels: dict[str, str] | None = None,
         w: The walk.
         labels: Walk point (``ankleL``, ``heelR``, ``toeL`` ...) -> marker label; pelvis
             markers LASI, RASI, LPSI, RPSI are always added.
-        up: ``"z"`` (world, Z up) or ``"y"`` (OpenSim: X forward, Y up, Z right).
+        up: ``"z"`` (world, Z up) or ``"y"`` (Y up, as OpenSim and many labs write:
+            X = the world's Y, Y = its Z, Z = its X, still right-handed).
 
     Returns:
         Marker trajectories in metres on the walk's time axis.
+
+    Raises:
+        InputError: ``up`` is neither ``"z"`` nor ``"y"``.
     """
+    if up not in ("z", "y"):  # "-y" or "x" gave Z up without a word
+        raise InputError(f"walk_markers: up must be 'z' or 'y', got {up!r}; for another "
+                         "axis rotate the positions (engine.io.up_rotation gives the "
+                         "rotation taking an axis to +Z)")
     names = labels or {"ankleL": "LANK", "ankleR": "RANK", "heelL": "LHEE", "heelR": "RHEE",
                        "toeL": "LTOE", "toeR": "RTOE"}
     P = [w.joints[k] for k in names]
@@ -136,7 +145,7 @@ def walk_markers(w: SynthWalk, labels: dict[str, str] | None = None,
         P.append(pel + np.array(off))
         labs.append(lab)
     X = np.stack(P, axis=1)
-    if up == "y":  # OpenSim convention: X forward, Y up, Z right
+    if up == "y":
         X = np.stack([X[..., 1], X[..., 2], X[..., 0]], axis=-1)
     rate = round(1.0 / float(np.median(np.diff(w.times))), 6)
     # metres always: a file in other units is made by the writer (``write_trc(units=…)``)
