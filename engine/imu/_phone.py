@@ -175,6 +175,9 @@ def zip_unpacked_bytes(path: str | Path) -> int | None:
     alone (nothing is unpacked). A bound, not an estimate: ``zipfile`` never reads more of
     a member than its declared size (a member longer than declared fails its CRC).
 
+    Args:
+        path: The zip file.
+
     Returns:
         The total, or None when the file is not a readable zip (:func:`load_phone` then
         says why).
