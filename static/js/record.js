@@ -181,7 +181,7 @@
       const [r, live] = await Promise.all([api(`/api/storage/recordings/${recId}`),
         api(`/api/recordings/${recId}`).catch(() => null)]);
       if (!chain.current(mine)) return;
-      recStart = r.t_start; recStop = r.t_stop;
+      recStart = r.t_start; recStop = r.t_stop; tick();  // the time agrees with the state drawn
       const badge = $("state-badge");  // (redrawn only when it changed: a live region)
       if (!badge || badge.dataset.state !== r.state || badge.dataset.reason !== (r.reason || ""))
         $("rec-state").replaceChildren(el("span", { class: "badge st-" + r.state, id: "state-badge", "data-state": r.state, "data-reason": r.reason || "" }, STATE_TEXT[r.state] || r.state),
@@ -229,6 +229,9 @@
       const r = await api(`/api/sessions/${sid}/recordings`, { method: "POST", body: JSON.stringify({
         label: $("label").value.trim(), streams, image_every: streams.length ? Number($("every").value) || 1 : 1 }) });
       recId = r.id; recStart = r.t_start; recStop = null; $("done-link").hidden = true;
+      // the last recording's time stayed until the next tick: a Stop pressed on it ended
+      // the new recording before its start time, with no frame
+      tick();
       usedLabel = $("label").value.trim();
       showLive(r);
       say("rec-msg", `Recording ${r.id} started on ${r.parts.map((p) => p.node_id).join(", ")}.`, true);

@@ -113,6 +113,7 @@ def _wait_settled_copy(page: Any, server: LiveServer) -> None:
 def test_record_page_fills_the_trial_label_and_counts_on(page: Any, live_server: LiveServer,
                                                          artifacts_dir: Path) -> None:
     sid, session_id = _subject_with_session(live_server, "Afternoon record", "AFT02")
+    page.clock.install()  # time flows as usual until the second walk's start (below)
     page.goto(live_server.base_url + f"/record.html#subject={sid}")
     page.wait_for_function(f"document.getElementById('session').value === '{session_id}'")
     # an unlabelled trial is listed by its id on the Subjects and Reports pages
@@ -130,8 +131,17 @@ def test_record_page_fills_the_trial_label_and_counts_on(page: Any, live_server:
     assert [r["label"] for r in recs] == ["walk 1"]
     # a label of the clinician's own that ends in a number counts on too
     page.fill("#label", "10 m walk fast 3")
+    # The new walk's own time is shown with its "recording" state: the last walk's
+    # 0:02.1 stayed on screen until the page's next 100 ms tick, and a Stop pressed on it
+    # ended the new walk before its start time, without a frame. The page's timers are
+    # held still here (from 1 s on: the clock cannot be moved back to where it already
+    # is), so no tick can set the time right before it is read.
+    page.clock.pause_at(page.evaluate("Date.now()") / 1000 + 1.0)  # (seconds)
     page.click("#start")
     page.wait_for_selector("#state-badge[data-state=recording]")
+    shown = page.inner_text("#elapsed")
+    assert shown < "0:01.0", f"the last walk's time ({shown}) shown for the new one"
+    page.clock.resume()
     page.wait_for_function("document.getElementById('elapsed').textContent >= '0:01.0'")
     page.click("#stop")
     page.wait_for_function("document.getElementById('label').value === '10 m walk fast 4'")
