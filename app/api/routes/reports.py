@@ -71,11 +71,16 @@ EstimatorQ = Literal["weighted", "mean"]
 # ---------------------------------------------------------------------------- helpers
 
 
-def _rec_dir(settings: Any, rec_id: str) -> Path:
+def _rec_dir(settings: Any, rec_id: str, hub: Any) -> Path:
     try:
         d = an.recording_dir(settings.data_dir, rec_id)
     except InputError as exc:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    if not d.exists() and rec_id not in hub.recordings.recordings:
+        # (a mistyped id was told to transfer a recording that does not exist)
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"no recording {rec_id!r}: check its id (the Subjects page lists "
+                            "every recording)")
     if not an.part_dirs(d):
         raise HTTPException(status.HTTP_404_NOT_FOUND,
                             f"recording {rec_id} has no sensor data on the server; transfer "
@@ -109,7 +114,7 @@ def _live_poses(hub: Any) -> dict[str, Any]:
 
 def _analyse(settings: Any, hub: Any, rec_id: str, sensors: tuple[str, ...] | None,
              method: str, estimator: str) -> dict[str, Any]:
-    d = _rec_dir(settings, rec_id)
+    d = _rec_dir(settings, rec_id, hub)
     try:
         return an.analyse_recording(d, an.AnalysisOptions(method, estimator, sensors),
                                     _live_poses(hub))
@@ -402,7 +407,7 @@ def _recording_links(db: Any, rec_ids: str | list[str]) -> dict[str, dict[str, A
 def recording_sensors(rec_id: str, user: CurrentUser, settings: SettingsDep,
                       hub: HubDep) -> dict[str, Any]:
     """The recording's sensors, positions and walkway sides (for subset presets)."""
-    d = _rec_dir(settings, rec_id)
+    d = _rec_dir(settings, rec_id, hub)
     poses = an.sensor_poses(d, _live_poses(hub))
     pos = {k: list(np.asarray(v["T_world_sensor"], dtype=float)[:3, 3])
            for k, v in poses.items() if k in an.part_dirs(d)}
@@ -460,7 +465,7 @@ def recording_report(rec_id: str, request: Request, user: CurrentUser, settings:
     link = _recording_links(db, rec_id).get(rec_id, {})
     code = str(link.get("subject_code") or "unassigned")
     title = "Gait report" + ("" if sub is None else f" — {_subset(sub)}")
-    refs, ref_notes = _references(db, settings.data_dir, {rec_id: _rec_dir(settings, rec_id)},
+    refs, ref_notes = _references(db, settings.data_dir, {rec_id: _rec_dir(settings, rec_id, hub)},
                                   method)
     try:
         data = an.build_report(code, [res], title=title,
@@ -679,9 +684,10 @@ def subject_report(subject_id: int, request: Request, user: CurrentUser,
 
 
 @router.get("/recordings/{rec_id}/reference")
-def get_reference(rec_id: str, user: CurrentUser, settings: SettingsDep) -> dict[str, Any]:
+def get_reference(rec_id: str, user: CurrentUser, settings: SettingsDep,
+                  hub: HubDep) -> dict[str, Any]:
     """The reference attached to a recording (``attached`` False when none)."""
-    ref = _reference_file(_rec_dir(settings, rec_id))
+    ref = _reference_file(_rec_dir(settings, rec_id, hub))
     if ref is None:
         return {"rec_id": rec_id, "attached": False}
     return {"rec_id": rec_id, "attached": True, **ref[1]}
@@ -690,11 +696,12 @@ def get_reference(rec_id: str, user: CurrentUser, settings: SettingsDep) -> dict
 @router.post("/recordings/{rec_id}/reference", status_code=201,
              max_body_size=MAX_UPLOAD_BYTES + _MULTIPART_OVERHEAD)
 async def put_reference(rec_id: str, request: Request, file: UploadFile, user: CurrentUser,
-                        settings: SettingsDep, offset_s: float = Query(0.0, ge=-3600, le=3600,
-                        description="reference time of the recording's start")
-                        ) -> dict[str, Any]:
+                        settings: SettingsDep, hub: HubDep,
+                        offset_s: float = Query(0.0, ge=-3600, le=3600,
+                                                description="reference time of the recording's "
+                                                "start")) -> dict[str, Any]:
     """Attach a reference recording (C3D/TRC/CSV); it must contain a walk with steps."""
-    d = _rec_dir(settings, rec_id)
+    d = _rec_dir(settings, rec_id, hub)
     _sweep_stale_uploads(d)
     # The new folder (file and meta.json) is made in a temporary folder whose name ends in
     # .tmp (backups leave it out; removed on any failure, or by a later upload after a
@@ -740,9 +747,10 @@ def _sweep_stale_uploads(rec_dir: Path) -> None:
 
 
 @router.delete("/recordings/{rec_id}/reference")
-def delete_reference(rec_id: str, user: CurrentUser, settings: SettingsDep) -> dict[str, Any]:
+def delete_reference(rec_id: str, user: CurrentUser, settings: SettingsDep,
+                     hub: HubDep) -> dict[str, Any]:
     """Detach the reference recording (logged in the erasure log, docs/backup.md)."""
-    d = _rec_dir(settings, rec_id)
+    d = _rec_dir(settings, rec_id, hub)
     folder = d / erasures.REPORT_REFERENCE_DIR
     if not folder.is_dir():
         return {"rec_id": rec_id, "attached": False}

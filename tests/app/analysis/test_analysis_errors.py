@@ -84,3 +84,16 @@ def test_typed_engine_error_from_the_analysis_is_4xx(client: TestClient,
         r = client.get(f"/api/reports/recordings/{REC}/{path}")
         assert r.status_code == 422, (path, r.text)
         assert "not connected" in r.json()["detail"]
+
+
+def test_an_unknown_recording_is_named_as_unknown(client: TestClient) -> None:
+    """A mistyped recording id is "no recording", not "transfer it from the nodes first"
+    (which sent the person after a transfer of something that does not exist); a recording
+    the server knows but holds no data of still says to transfer it."""
+    for path in ("analysis", "report", "sensors", "reference"):
+        r = client.get(f"/api/reports/recordings/nosuchrec1/{path}")
+        assert r.status_code == 404, (path, r.text)
+        assert r.json()["detail"].startswith("no recording 'nosuchrec1': check its id"), r.text
+    (an.recording_dir(client.app.state.settings.data_dir, "rec0002")).mkdir()
+    r = client.get("/api/reports/recordings/rec0002/analysis")
+    assert r.status_code == 404 and "transfer" in r.json()["detail"], r.text
