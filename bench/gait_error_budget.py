@@ -104,9 +104,26 @@ def _pairs(meas: list[Any], ref: list[Any], attr: str
     return out
 
 
+def _by_index(meas: list[Any], ref: list[Any], out: dict[str, list[float]], side: str
+              ) -> None:
+    """Step errors (cm) by the step's place in the walk: ``first`` is the first kept step
+    (the first right step, R1 − L1, once the first left step is excluded), ``second`` the
+    first kept left step (L2 − R1), ``later L`` / ``later R`` the rest."""
+    order = {id(r): i for i, r in enumerate(ref)}
+    for m, r in match_steps(meas, ref, 0.25):
+        i = order[id(r)]
+        where = "first" if i == 0 else "second" if i == 1 else f"later {m.side}"
+        for name, attr in (("step_length", "length_m"), ("step_width", "width_m")):
+            out.setdefault(f"{side} {name} {where}", []).append(
+                100.0 * float(getattr(m, attr) - getattr(r, attr)))
+
+
 def run(n_subjects: int, n_walks: int, seed: int, variants: list[dict[str, Any]]
         ) -> dict[str, Any]:
-    """Per variant and row: error variance, bias, ICC(A,1), reference SD (cm)."""
+    """Per variant and row: error variance, bias, ICC(A,1), reference SD (cm); and the
+    step rows' error variance by the step's place in the walk (``by_step``: n and cm²;
+    the paper's N per walk put an error on its first left placement L1, which only the
+    first kept right step and the first left stride contain)."""
     rng = np.random.default_rng(seed)
     rig = default_avenue_rig(seed=seed)
     walks = []
@@ -121,6 +138,7 @@ def run(n_subjects: int, n_walks: int, seed: int, variants: list[dict[str, Any]]
         data: dict[str, dict[str, tuple[list[float], list[float]]]] = {
             f"{side} {row}": ([], []) for side in ("one", "two") for row in ROWS}
         failed = 0
+        by_step: dict[str, list[float]] = {}
         for subj, walk, w, t_end, ref in walks:
             streams = _observe(w, t_end, rig, model, (seed, subj, walk))
             for side in ("one", "two"):
@@ -132,6 +150,7 @@ def run(n_subjects: int, n_walks: int, seed: int, variants: list[dict[str, Any]]
                 except GaitrigError:
                     failed += 1
                     continue
+                _by_index(g.steps_, ref.steps_, by_step, side)
                 for name, attr, mine, theirs in (
                         ("step_length", "length_m", g.steps_, ref.steps_),
                         ("step_width", "width_m", g.steps_, ref.steps_),
@@ -151,6 +170,8 @@ def run(n_subjects: int, n_walks: int, seed: int, variants: list[dict[str, Any]]
                         "n_out": int(np.sum(np.abs(d - np.median(d)) > 4 * mad)),
                         "bias": round(float(np.mean(d)), 2), "icc": round(ag.icc_a1, 3),
                         "ref_sd": round(float(np.std(b, ddof=1)), 2)}
+        res["by_step"] = {k: [len(d), round(float(np.var(d, ddof=1)), 1)]
+                          for k, d in sorted(by_step.items()) if len(d) >= 3}
         out[f"v{vi}"] = res
     return out
 
