@@ -197,6 +197,31 @@ class SkeletonErrorModel:
         acquisition_median_s: Median delay before a body entering the view is reported
             (seed 000: "a few hundred ms"; log-normal, clipped to 0.15–1.5 s).
         acquisition_sigma: Log-normal shape of that delay.
+        acquisition_fit_gain: Extra factor on the slowly varying fit error just after
+            the body is acquired, decaying with the time since acquisition: the fit error
+            is multiplied by ``1 + acquisition_fit_gain · exp(−Δt / acquisition_fit_tau_s)``
+            (Δt: time since the first tracked frame of the current tracking episode).
+            A tracker that has just found a person fits it worse for a while (seed 000:
+            the Kinect "needs some time to recognize a person that enters the volume";
+            the SDK's per-person state, e.g. its body-size estimate, is built over the
+            first frames). No study found measures the size or the time course of that
+            initial error (seed 000 reports only that a delay exists; Otte 2016, Wang
+            2015 and Geerse 2015 analyse steady tracking; Geerse 2015 analyse only the
+            intermediate 6 m of a 10 m walkway), so it has no literature value: 0 (off)
+            by default. Measured as a candidate for seed 000's one-sided right steps in
+            ``docs/simulation.md`` ("Acquisition-phase fit error"): it worsens left and
+            right steps, one- and two-sided, alike (a sensor's acquisition is not tied
+            to one foot), so it stays off. It decays with time, not with movement
+            (unlike ``still_speed_m_s``): it is the tracker's state that settles, not the
+            pose that changes.
+        acquisition_fit_tau_s: e-folding time of that decay (s).
+        clipped_fit_gain: Extra factor on the slowly varying fit error of a body partly
+            outside the depth frustum: ``1 + clipped_fit_gain · f`` with ``f`` the
+            fraction of the 25 joints out of view (the Kinect v2 SDK tracks clipped
+            bodies and flags them, ``Body.ClippedEdges``; a fit to part of a body is
+            less constrained). No measured size either: 0 (off); measured with the
+            acquisition term in ``docs/simulation.md`` (no row moves: bodies are clipped
+            only near a sensor, where the next pair tracks them).
         min_joints_in_view: Fraction of the 25 joints that must be in the frustum for a
             body to be detected (Kinect v2 tracks partially visible bodies but needs the
             trunk).
@@ -256,6 +281,9 @@ class SkeletonErrorModel:
     occlusion_hangover_s: float = 0.07
     acquisition_median_s: float = 0.4
     acquisition_sigma: float = 0.4
+    acquisition_fit_gain: float = 0.0
+    acquisition_fit_tau_s: float = 1.0
+    clipped_fit_gain: float = 0.0
     min_joints_in_view: float = 0.5
     leg_swap_rate_hz: float = 0.004
     leg_swap_duration_s: tuple[float, float] = (0.1, 0.3)
@@ -427,6 +455,32 @@ def _far_leg_refit(t: FloatArray, J: FloatArray, far: FloatArray, fwd: FloatArra
     return np.asarray(off[piece])
 
 
+def acquisition_gain(t: FloatArray, acquired_at: FloatArray, gain: float, tau_s: float
+                     ) -> FloatArray:
+    """Factor on the slow fit error after acquisition (``acquisition_fit_gain``).
+
+    Args:
+        t: ``(T,)`` times (s, the sensor's true time axis).
+        acquired_at: ``(T,)`` start time of the tracking episode each sample belongs to
+            (s), NaN where untracked.
+        gain: Extra factor at the instant of acquisition (≥ 0).
+        tau_s: e-folding time of its decay (s, > 0).
+
+    Returns:
+        ``(T,)`` factor ``1 + gain · exp(−(t − acquired_at) / tau_s)``; 1 where
+        ``acquired_at`` is NaN (body not tracked) or ``gain`` is 0.
+
+    Raises:
+        InputError: ``gain`` < 0 or ``tau_s`` ≤ 0.
+    """
+    if gain < 0 or tau_s <= 0:
+        raise InputError("acquisition_fit_gain must be ≥ 0 and acquisition_fit_tau_s > 0")
+    since = np.asarray(t, dtype=float) - np.asarray(acquired_at, dtype=float)
+    env = np.where(np.isnan(since), 0.0, np.exp(-np.clip(np.nan_to_num(since), 0.0, None)
+                                                / tau_s))
+    return np.asarray(1.0 + gain * env)
+
+
 def observe_skeletons(
     sensor: SimSensor,
     rig: Rig | None,
@@ -461,7 +515,8 @@ def observe_skeletons(
         ``mirrored`` (T,) bool (labels swapped because seen from behind),
         ``leg_swapped`` (T,) bool (lower-leg labels swapped by a fitting failure),
         ``hidden_tracked`` (T, 25) bool (occluded but reported TRACKED), ``occluded``
-        (T, 25) bool (ground-truth occlusion) and ``body_id``.
+        (T, 25) bool (ground-truth occlusion), ``acquired_at`` (T,) true time of the
+        current tracking episode's first frame (NaN while untracked) and ``body_id``.
     """
     m = model or SkeletonErrorModel()
     t = np.asarray(times_true, dtype=float)
@@ -482,6 +537,8 @@ def observe_skeletons(
     trunk = in_view[:, _IDX["SpineBase"]] & in_view[:, _IDX["SpineMid"]]
     detectable = trunk & (in_view.mean(axis=1) >= m.min_joints_in_view)
     tracked = np.zeros(T, dtype=bool)
+    # start of the current tracking episode (first tracked frame), NaN while untracked
+    acquired_at = np.full(T, np.nan)
     seen_since = np.nan
     delay = 0.0
     for k in range(T):
@@ -494,6 +551,8 @@ def observe_skeletons(
                 m.acquisition_median_s * np.exp(m.acquisition_sigma * rng.standard_normal()),
                 0.15, 1.5))
         tracked[k] = t[k] - seen_since >= delay
+        if tracked[k]:
+            acquired_at[k] = t[k] if k == 0 or not tracked[k - 1] else acquired_at[k - 1]
 
     # ---- geometry of the view: which body half faces the sensor, back-facing
     fr = walker.bone_frames(t)["pelvis"]
@@ -535,6 +594,15 @@ def observe_skeletons(
         speed = np.linalg.norm(np.gradient(J, t, axis=0), axis=-1).mean(axis=1)
         rate = np.clip(speed / m.still_speed_m_s, 0.0, 1.0)
     slow = aniso(_ar1(rng, (T, _N, 3), a, rate)) * (m.slow_sd_m * scale * gain)[..., None]
+    # a fresh fit, or a fit to a clipped body, is worse; no new random draws, so the
+    # other errors are unchanged (common random numbers with the terms off)
+    if m.acquisition_fit_gain != 0:
+        slow *= acquisition_gain(t, acquired_at, m.acquisition_fit_gain,
+                                 m.acquisition_fit_tau_s)[:, None, None]
+    if m.clipped_fit_gain != 0:
+        if m.clipped_fit_gain < 0:
+            raise InputError("clipped_fit_gain must be ≥ 0")
+        slow *= (1.0 + m.clipped_fit_gain * (1.0 - in_view.mean(axis=1)))[:, None, None]
     jitter = (aniso(rng.standard_normal((T, _N, 3)))
               * (m.jitter_sd_m * scale * gain_jitter)[..., None])
     beta = np.where(_SIDE == 0, m.surface_bias_mid_m,
@@ -608,7 +676,7 @@ def observe_skeletons(
         "sensor_id": sensor.id, "frame": "sensor", "units": "m", "body_id": body_id,
         "times_true": t.copy(), "times_local": t_local, "body_tracked": tracked,
         "mirrored": mirrored, "leg_swapped": swapped, "occluded": occl,
-        "hidden_tracked": hidden_tracked,
+        "hidden_tracked": hidden_tracked, "acquired_at": acquired_at,
     }
     return SkeletonSeries(times=t_local, positions=pos, states=states, joint_set=_JS,
                           meta=meta)

@@ -352,3 +352,73 @@ def test_far_jitter_gain_sets_the_turned_away_ankles_frame_to_frame_jitter():
     gained = SkeletonErrorModel.far_noise_gain
     assert jitter_per_m(gained, AR) == pytest.approx(jitter_per_m(None, AR))
     assert SkeletonErrorModel.far_jitter_gain == 0.0
+
+
+def test_acquisition_gain_is_one_off_and_decays_after_acquisition():
+    """``acquisition_gain``: 1 with the gain 0 or while untracked, ``1 + gain`` at the
+    instant of acquisition, decaying by e per ``tau_s``; a negative gain is refused."""
+    from engine.errors import InputError
+    from engine.sim.skeleton_model import acquisition_gain
+
+    t = np.arange(0.0, 4.0, 0.5)
+    acq = np.where(t >= 1.0, 1.0, np.nan)
+    assert np.all(acquisition_gain(t, acq, 0.0, 1.0) == 1.0)
+    g = acquisition_gain(t, acq, 2.0, 1.0)
+    assert np.all(g[t < 1.0] == 1.0)
+    assert g[t == 1.0][0] == pytest.approx(3.0)
+    assert g[t == 2.0][0] == pytest.approx(1.0 + 2.0 / np.e)
+    assert np.all(np.diff(g[t >= 1.0]) < 0)
+    with pytest.raises(InputError):
+        acquisition_gain(t, acq, -1.0, 1.0)
+    with pytest.raises(InputError):
+        acquisition_gain(t, acq, 1.0, 0.0)
+
+
+#: Only the slowly varying fit error, so that the estimate's error is that term alone.
+_SLOW_ONLY = {"jitter_sd_m": 0.0, "surface_bias_near_m": 0.0, "surface_bias_far_m": 0.0,
+              "surface_bias_mid_m": 0.0, "occlusion_pull_m": 0.0, "inferred_sd_m": 0.0,
+              "leg_swap_rate_hz": 0.0, "mirror_back_facing": False}
+
+
+def test_acquisition_and_clipped_fit_terms_scale_the_slow_fit_error():
+    """With the terms off (the defaults) the series is the former one draw for draw,
+    whatever ``acquisition_fit_tau_s``; with ``acquisition_fit_gain`` the slow fit error
+    is ×(1 + gain) at the first tracked frame and decays with the time since it; with
+    ``clipped_fit_gain`` it grows with the fraction of the body out of the frustum and is
+    unchanged for a body fully in view. No other draw changes."""
+    rig = default_avenue_rig(seed=0)
+    s = rig.sensor("S3")  # acquires the walker during the walk (out of range at first)
+    w = Walker(WalkerParams(), [-0.5, 0.0, 0.0], [11.0, 0.0, 0.0], start_time=1.0,
+               back_and_forth=False, seed=1)
+    t = np.arange(0.0, 7.0, 1 / 30)
+
+    def observe(**over):
+        return observe_skeletons(s, rig, w, t, np.random.default_rng(5),
+                                 SkeletonErrorModel(**over))
+
+    base = observe()
+    assert np.array_equal(observe(acquisition_fit_tau_s=0.3).positions, base.positions,
+                          equal_nan=True)
+    acq = base.meta["acquired_at"]
+    tracked = base.meta["body_tracked"]
+    first = np.flatnonzero(tracked)[0]
+    assert first > 0 and acq[first] == t[first] and np.all(acq[tracked] == t[first])
+    assert np.all(np.isnan(acq[~tracked]))
+
+    off = observation_errors(observe(**_SLOW_ONLY), s, w)
+    on = observation_errors(observe(**_SLOW_ONLY, acquisition_fit_gain=3.0,
+                                    acquisition_fit_tau_s=0.5), s, w)
+    ok = np.isfinite(off).all(axis=2) & (np.linalg.norm(off, axis=2) > 1e-4)
+    ratio = np.linalg.norm(on, axis=2)[ok] / np.linalg.norm(off, axis=2)[ok]
+    rows = np.nonzero(ok)[0]
+    expect = 1.0 + 3.0 * np.exp(-(t[rows] - t[first]) / 0.5)
+    assert np.allclose(ratio, expect)
+    assert ratio.max() > 3.9 and ratio[-1] < 1.05  # ×4 when acquired, ≈ 1 at the end
+
+    in_view = s.in_depth_view(w.joints(t), margin_px=2.0)  # as the model counts it
+    clipped = observation_errors(observe(**_SLOW_ONLY, clipped_fit_gain=2.0), s, w)
+    r = np.linalg.norm(clipped, axis=2)[ok] / np.linalg.norm(off, axis=2)[ok]
+    out = 1.0 - in_view.mean(axis=1)[rows]
+    assert np.allclose(r, 1.0 + 2.0 * out)
+    assert np.any(out > 0) and np.any(out == 0)  # both cases are exercised
+    assert np.all(r[out > 0] > 1.0) and np.all(r[out == 0] == pytest.approx(1.0))
