@@ -344,7 +344,7 @@ def test_bad_input_over_http(recorded: Recorded, tmp_path: Path) -> None:
     h = {"Authorization": f"Bearer {recorded.token}"}
     rid = recorded.rec_id
     code, body, _ = recorded.get("/api/reports/recordings/R19990101-000000-dead/analysis")
-    assert code == 404 and "transfer" in body["detail"]
+    assert code == 404 and "no recording" in body["detail"]  # unknown: not "transfer it"
     code, body, _ = recorded.get("/api/reports/recordings/..%2F..%2Fetc/analysis")
     assert code in (400, 404)
     code, body, _ = recorded.get(f"/api/reports/recordings/{rid}/analysis?sensors=S9")
