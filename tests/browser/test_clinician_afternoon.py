@@ -34,12 +34,19 @@ def _subject_with_session(server: LiveServer, project: str, code: str) -> tuple[
 
 
 def _record(server: LiveServer, session_id: int, label: str, timeout_s: float = 90.0) -> str:
-    """A few seconds of the simulated walker under ``label``, copied to the server; its id."""
+    """A recording under ``label``, stopped once every sensor has frames in it and copied
+    to the server; its id. (What these tests look at is its label and its place in the
+    lists, not its steps: a fixed 4 s walk each took 12 s of the module.)"""
     rec = server.api(f"/api/sessions/{session_id}/recordings",
                      {"label": label, "streams": [], "image_every": 3})
-    time.sleep(4.0)
-    server.api(f"/api/recordings/{rec['id']}/stop", {}, method="POST")
     deadline = time.time() + timeout_s
+    while not all(p["n_frames"] > 0
+                  for p in server.api(f"/api/recordings/{rec['id']}")["parts"]):
+        if time.time() > deadline:
+            raise TimeoutError(f"recording {rec['id']} got no frame from every sensor in "
+                               f"{timeout_s:g} s")
+        time.sleep(0.1)
+    server.api(f"/api/recordings/{rec['id']}/stop", {}, method="POST")
     while server.api(f"/api/storage/recordings/{rec['id']}")["state"] != "complete":
         if time.time() > deadline:
             raise TimeoutError(f"recording {rec['id']} was not copied in {timeout_s:g} s")
