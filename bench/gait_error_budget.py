@@ -20,8 +20,12 @@ sensor's observation of each walk draws from its own generator seeded by (seed, 
 walk, sensor), so the difference between two variants is the effect of the parameters,
 not of a new sample. Turning one term on at a time gives its variance contribution.
 
+A variant may also hold ``"paper_keeps_inferred": true``: the paper's mean then keeps
+INFERRED joints and drops only NOT_TRACKED ones (its Discussion's reading; see
+``bench.gait_study.PAPER_KEPT_STATES``); the key is not a model field.
+
 Usage: ``python bench/gait_error_budget.py [--subjects 10] [--walks 5] [--seed 0]
-[--variants '[{}, {"far_leg_refit_sd_m": 0.02}]']``.
+[--variants '[{}, {"far_leg_refit_sd_m": 0.02}, {"paper_keeps_inferred": true}]']``.
 """
 
 from __future__ import annotations
@@ -39,6 +43,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.gait_study import (
     ONE_SIDED,
+    PAPER_KEPT_STATES,
+    PAPER_KEPT_STATES_DISCUSSION,
     REGISTRATION_YAW_DEG,
     _paper_analysis,
     _reference,
@@ -134,7 +140,10 @@ def run(n_subjects: int, n_walks: int, seed: int, variants: list[dict[str, Any]]
             walks.append((subj, walk, w, t_end, _reference(w, t_end, True)))
     out: dict[str, Any] = {}
     for vi, over in enumerate(variants):
-        model = SkeletonErrorModel(**over)
+        fields = dict(over)
+        kept = (PAPER_KEPT_STATES_DISCUSSION if fields.pop("paper_keeps_inferred", False)
+                else PAPER_KEPT_STATES)
+        model = SkeletonErrorModel(**fields)
         data: dict[str, dict[str, tuple[list[float], list[float]]]] = {
             f"{side} {row}": ([], []) for side in ("one", "two") for row in ROWS}
         failed = 0
@@ -145,7 +154,7 @@ def run(n_subjects: int, n_walks: int, seed: int, variants: list[dict[str, Any]]
                 use = streams if side == "two" else [s for s in streams
                                                      if s.sensor_id in ONE_SIDED]
                 try:
-                    fused, _ = integrate_skeletons(use, "mean")
+                    fused, _ = integrate_skeletons(use, "mean", kept_states=kept)
                     g: GaitAnalysis = _paper_analysis().fit(feet_from_skeleton(fused))
                 except GaitrigError:
                     failed += 1

@@ -7,9 +7,11 @@ sensors", plus our estimator):
    ``t_local = offset + (1 + drift_ppm·1e-6)·t_ref`` (the :class:`engine.sim.clock.SimClock`
    convention), and its joints to the world frame with ``T_world_sensor``.
 2. Every sensor is resampled to a common 30 Hz grid by linear interpolation of its
-   TRACKED samples; INFERRED and NOT_TRACKED joints are missing values. Interpolation
-   never bridges a gap longer than ``max_gap_s`` (0.2 s); shorter gaps are bridged and
-   reported.
+   TRACKED samples; INFERRED and NOT_TRACKED joints are missing values (the paper's
+   Methods: "Untracked or inferred joint positions were considered as missing values";
+   ``kept_states`` can also keep INFERRED ones, its Discussion's other reading, for the
+   bench). Interpolation never bridges a gap longer than ``max_gap_s`` (0.2 s); shorter
+   gaps are bridged and reported.
 3. Per joint and sample the sensors are combined:
 
    * ``"mean"`` — the paper's equal-weight mean of the tracked estimates;
@@ -165,9 +167,11 @@ def correct_timestamps(times: FloatArray, offset_s: float, drift_ppm: float = 0.
     return (np.asarray(times, dtype=float) - offset_s) / (1.0 + drift_ppm * 1e-6)
 
 
-def resample_stream(stream: SensorStream, grid: FloatArray, max_gap_s: float = 0.2
+def resample_stream(stream: SensorStream, grid: FloatArray, max_gap_s: float = 0.2,
+                    kept_states: Collection[int] = (TrackingState.TRACKED,)
                     ) -> tuple[FloatArray, NDArray[np.bool_], list[GapFill]]:
-    """One sensor's TRACKED joints in the world frame on ``grid``.
+    """One sensor's TRACKED joints (or those in ``kept_states``) in the world frame on
+    ``grid``.
 
     Vectorised over joints: for every grid time the last valid sample at or before it
     and the first valid sample after it are found from running maxima/minima of the
@@ -177,6 +181,8 @@ def resample_stream(stream: SensorStream, grid: FloatArray, max_gap_s: float = 0
         stream: The sensor's skeletons, calibration and clock model.
         grid: ``(G,)`` output times on the reference clock, s.
         max_gap_s: Longest gap bridged by interpolation, s.
+        kept_states: Tracking states whose samples are used; the others are missing
+            values (default: TRACKED only).
 
     Returns:
         ``(G, J, 3)`` positions (NaN where the sensor has no estimate within
@@ -186,7 +192,8 @@ def resample_stream(stream: SensorStream, grid: FloatArray, max_gap_s: float = 0
     s = stream.series
     t = correct_timestamps(s.times, stream.clock_offset_s, stream.clock_drift_ppm)
     P = transform_points(np.asarray(stream.T_world_sensor, dtype=float), s.positions)
-    valid = (s.states == TrackingState.TRACKED) & np.isfinite(P).all(axis=-1)  # (T, J)
+    keep = np.array(sorted(int(k) for k in kept_states), dtype=s.states.dtype)
+    valid = np.isin(s.states, keep) & np.isfinite(P).all(axis=-1)  # (T, J)
     T, J = valid.shape
     G = len(grid)
     out = np.full((G, J, 3), np.nan)
@@ -437,6 +444,7 @@ def integrate_skeletons(
     cutoff_hz: float | None = 6.0,
     sensors: Collection[str] | None = None,
     surface_bias_m: float = SURFACE_BIAS_M,
+    kept_states: Collection[int] = (TrackingState.TRACKED,),
 ) -> tuple[SkeletonSeries, FusionReport]:
     """Fuse several sensors' skeletons of one subject into one world-frame skeleton.
 
@@ -450,6 +458,10 @@ def integrate_skeletons(
             the paper's one-sided analysis of the same recording); None uses all.
         surface_bias_m: ``"weighted"`` only: how far each sensor's limb joints lie
             towards it (:data:`SURFACE_BIAS_M`); 0 for sensors known to be unbiased.
+        kept_states: tracking states of a sensor's joints that are used (default
+            TRACKED only: INFERRED and NOT_TRACKED are missing values, the paper's
+            Methods); ``(TRACKED, INFERRED)`` keeps the SDK's guesses of occluded joints
+            and drops only NOT_TRACKED ones (the paper's Discussion, another reading).
 
     Returns:
         The fused skeleton (world frame, reference clock; TRACKED where sensors gave an
@@ -476,6 +488,11 @@ def integrate_skeletons(
             raise InputError("no sensors selected")
     if estimator not in ("mean", "weighted"):
         raise InputError(f"estimator must be 'mean' or 'weighted', got {estimator!r}")
+    kept = sorted({int(k) for k in kept_states})
+    if TrackingState.TRACKED not in kept or not set(kept) <= {TrackingState.TRACKED,
+                                                              TrackingState.INFERRED}:
+        raise InputError("kept_states must be TRACKED, optionally with INFERRED; got "
+                         + ", ".join(str(k) for k in kept))
     js = streams[0].series.joint_set
     for k, s in enumerate(streams):
         if s.series.joint_set.name != js.name:
@@ -501,7 +518,7 @@ def integrate_skeletons(
                                            for s, i in zip(streams, ids, strict=True)})
     real = np.zeros(E.shape[:3], dtype=bool)
     for k, s in enumerate(streams):
-        E[k], bridged, f = resample_stream(s, grid, max_gap_s)
+        E[k], bridged, f = resample_stream(s, grid, max_gap_s, kept)
         real[k] = np.isfinite(E[k]).all(axis=-1) & ~bridged
         report.gaps_filled += f
     have = np.asarray(np.isfinite(E).all(axis=-1), dtype=bool)
@@ -533,4 +550,6 @@ def integrate_skeletons(
     report.sensors_per_sample = float(used.sum() / n_fused)
     meta = {"frame": "world", "estimator": estimator, "sensors": ids, "rate_hz": rate_hz,
             "cutoff_hz": cutoff_hz, "samples": G}
+    if kept != [TrackingState.TRACKED]:
+        meta["kept_states"] = [TrackingState(k).name for k in kept]
     return SkeletonSeries(grid, X, states, js, meta), report

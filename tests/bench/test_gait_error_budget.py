@@ -34,3 +34,16 @@ def test_by_index_puts_each_step_by_its_place_in_the_walk():
     assert "one step_length second" not in out
     assert out["one step_length later R"] == [pytest.approx(-1.0)]
     assert out["one step_width later L"] == [pytest.approx(3.0)]
+
+
+def test_a_variant_can_let_the_paper_mean_keep_inferred_joints():
+    """``"paper_keeps_inferred": true`` in a variant is not a model field: it makes the
+    paper's mean keep INFERRED joints (the same walks and draws), so the one-sided
+    placements, where the far ankle is often inferred, change and the default's do not."""
+    from bench.gait_error_budget import run
+
+    out = run(1, 1, 0, [{}, {"paper_keeps_inferred": True}, {}])
+    assert out["v1"]["model"] == {"paper_keeps_inferred": True}
+    assert out["v0"]["one step_length L"] == out["v2"]["one step_length L"]
+    rows = [k for k in out["v0"] if k.startswith("one step")]
+    assert any(out["v1"][k] != out["v0"][k] for k in rows)

@@ -97,6 +97,34 @@ def test_inferred_joints_are_missing_values(walk) -> None:  # type: ignore[no-un
     assert rep.sensors_per_sample < 6
 
 
+def test_kept_states_can_keep_inferred_joints(walk) -> None:  # type: ignore[no-untyped-def]
+    """``kept_states=(TRACKED, INFERRED)`` (the paper's Discussion: only untracked joints
+    ignored) averages a sensor's INFERRED guesses in; NOT_TRACKED stays missing, the
+    default is unchanged and any other choice of states is refused."""
+    rng = np.random.default_rng(5)
+    streams = six_sensor_streams(walk, rng, occluded_bias_m=0.0, inferred_frac=0.0)
+    j = KINECT_V2.index("KneeLeft")
+    for s in streams:
+        s.series.states[:, j] = TrackingState.INFERRED  # every sensor's knee guessed ...
+    streams[0].series.positions[:, j] += 1.0  # ... one of them wildly
+    default, rep0 = integrate_skeletons(streams, "mean")
+    assert np.isnan(default.positions[:, j]).all()
+    assert "kept_states" not in default.meta
+    both = (TrackingState.TRACKED, TrackingState.INFERRED)
+    kept, rep = integrate_skeletons(streams, "mean", kept_states=both)
+    assert kept.meta["kept_states"] == ["INFERRED", "TRACKED"]
+    assert _rms_vs_truth(walk, kept, "KneeLeft") > 0.05  # the wild guess is averaged in
+    assert rep0.tracked_pct["KneeLeft"] == 0.0 and rep.tracked_pct["KneeLeft"] > 90.0
+    # a NOT_TRACKED joint is missing whatever is kept
+    for s in streams:
+        s.series.states[:, j] = TrackingState.NOT_TRACKED
+    none, _ = integrate_skeletons(streams, "mean", kept_states=both)
+    assert np.isnan(none.positions[:, j]).all()
+    for bad in ((TrackingState.INFERRED,), (TrackingState.TRACKED, TrackingState.NOT_TRACKED)):
+        with pytest.raises(InputError, match="kept_states"):
+            integrate_skeletons(streams, "mean", kept_states=bad)
+
+
 def test_weighted_removes_side_bias_that_mean_keeps(walk) -> None:  # type: ignore[no-untyped-def]
     rng = np.random.default_rng(6)
     # Each sensor pulls joints toward itself: 1.5 cm on the half it faces, 3.5 cm on the
