@@ -388,6 +388,35 @@ def gait_cycles(events: list[Any]) -> list[GaitCycle]:
     return sorted(out, key=lambda c: c.time_s)
 
 
+def measured_points(feet: FeetTrajectories, method: Method) -> dict[str, str]:
+    """Which point of each foot ``method`` measures, in words with its labels.
+
+    Args:
+        feet: Per-foot trajectories (their ``primary`` point and ``sources``).
+        method: ``"crossing"`` (the primary point: an ankle joint centre, ankle, heel or
+            a named point) or ``"heelstrike"`` (the heel, else a named point or the ankle).
+
+    Returns:
+        ``{"L": ..., "R": ...}``, e.g. ``"ankle: LANK"``, ``"heel: LHEE"``, ``"ankle joint
+        centre: midpoint of LANK and LMED"``.
+    """
+    src = getattr(feet, "sources", {}) or {}
+    out = {}
+    for side in ("L", "R"):
+        if method == "crossing":
+            part = feet.primary[side]
+        else:
+            part = next((p for p in ("explicit", "heel", "ankle") if p in feet.points[side]),
+                        feet.primary[side])
+        label = src.get(f"{side}_{part}", "")
+        if part == "ankle_centre":
+            out[side] = label or "ankle joint centre"
+        else:
+            word = "named point" if part == "explicit" else part
+            out[side] = f"{word}: {label}" if label else word
+    return out
+
+
 class GaitAnalysis:
     """Gait events, steps, strides and summary from per-foot trajectories.
 
@@ -503,7 +532,10 @@ class GaitAnalysis:
             raise InsufficientDataError(f"only {len(t)} frames; a gait analysis needs a walk "
                                         "of several steps")
         rate = feet.rate
-        pL, pR = feet.foot("L"), feet.foot("R")
+        # The body centre (passes, Zeni's reference) from the file's own points: an ankle
+        # joint centre estimated from a lateral marker changes neither method's passes.
+        pL, pR = (feet.points[s]["ankle"] if feet.primary[s] == "ankle_centre"
+                  else feet.foot(s) for s in ("L", "R"))
         if feet.pelvis is not None and np.isfinite(feet.pelvis).all(axis=1).sum() > len(t) // 2:
             centre = feet.pelvis
         else:
@@ -562,6 +594,10 @@ class GaitAnalysis:
                 "subject walked farther, place or add sensors to cover more of the walkway"
             )
         self.summary_ = self._summary(float(rate))
+        self.summary_["foot_points"] = measured_points(feet, self.method)
+        # the notes are about the crossing method's point (a lateral ankle marker's centre)
+        self.summary_["notes"] = (list(getattr(feet, "notes", []))
+                                  if self.method == "crossing" else [])
         return self
 
     def _frame(self, wp: WalkPass) -> tuple[FloatArray, FloatArray]:
@@ -1160,7 +1196,8 @@ class GaitAnalysis:
             cols = ("mean", "sd", "cv_pct", "left_mean", "right_mean", "asymmetry_pct")
             out: list[dict[str, Any]] = []
             for key, val in self.summary_.items():
-                if key in ("method", "frame_rate_hz", "n_passes", "n_steps", "n_strides"):
+                if key in ("method", "frame_rate_hz", "n_passes", "n_steps", "n_strides",
+                           "foot_points", "notes"):  # facts of the analysis, not parameters
                     continue
                 stats = val if isinstance(val, dict) else {"mean": val}
                 out.append({"parameter": key, **{c: stats.get(c) for c in cols}})

@@ -25,6 +25,8 @@ from engine.io.markers import (
     detect_units,
     detect_vertical_axis,
     find_marker,
+    find_medial_ankle,
+    is_lateral_ankle,
     label_key,
     labelled_vertical_axis,
     to_z_up,
@@ -38,6 +40,18 @@ FloatArray = NDArray[np.float64]
 
 #: Short gaps in mocap data (marker drop-outs) are bridged up to this length.
 MAX_GAP_S = 0.2
+#: Marker diameter when a file with a lateral-malleolus marker gives none (C3D
+#: ``PROCESSING:MarkerDiameter``): Vicon's 14 mm markers, Plug-in Gait's default.
+DEFAULT_MARKER_DIAMETER_M = 0.014
+#: Ankle width (across the malleoli, Plug-in Gait's ``AnkleWidth``) when a file has
+#: neither a medial malleolus marker nor the subject's measurement: the adult bimalleolar
+#: breadth midway between women's and men's means of the 2012 US Army anthropometric survey
+#: (ANSUR II; Gordon et al. 2014, NATICK/TR-15/007: about 65 and 73 mm). A width off by
+#: x moves each foot's point by x/2, step widths by about x.
+DEFAULT_ANKLE_WIDTH_M = 0.070
+#: Below this heel→toe length on the floor a frame gives no foot axis (the foot is seen
+#: end-on or a marker jumped); the axis is interpolated from the neighbouring frames.
+MIN_FOOT_AXIS_M = 0.05
 
 # The marker-name matcher (find_marker, PART_STEMS) lives in engine.io.markers, with the
 # unit and vertical-axis detection that use the same names.
@@ -82,6 +96,13 @@ class FeetTrajectories:
         events: annotated events carried over from the file.
         from_skeleton: the points are a body-tracking skeleton's joints (a model's
             estimate, e.g. its "foot" joint), not markers on the foot.
+        notes: data-quality remarks on the points (a population ankle width used, a
+            lateral-malleolus marker kept as it is), for reports.
+
+    A foot whose ankle marker sits on the lateral malleolus (``LANK``) also has an
+    ``"ankle_centre"`` point, the ankle joint centre estimated from it
+    (:func:`ankle_joint_centre`), and that is its primary point; ``sources`` says how
+    it was formed (``"L_ankle_centre"``).
     """
 
     times: FloatArray
@@ -92,6 +113,7 @@ class FeetTrajectories:
     sources: dict[str, str] = field(default_factory=dict)
     events: list[MarkerEvent] = field(default_factory=list)
     from_skeleton: bool = False
+    notes: list[str] = field(default_factory=list)
 
     def __repr__(self) -> str:
         # A notebook shows the object: what it holds, not seven arrays of numbers.
@@ -158,6 +180,153 @@ def fill_gaps(times: FloatArray, x: FloatArray, max_gap_s: float = MAX_GAP_S) ->
             if times[b] - times[a] <= max_gap_s + 1e-9:
                 v[a + 1:b] = np.interp(times[a + 1:b], [times[a], times[b]], [v[a], v[b]])
     return out
+
+
+def medial_directions(ankle: FloatArray, heel: FloatArray, toe: FloatArray,
+                      other: FloatArray) -> FloatArray | None:
+    """Per frame, the unit vector on the floor from a foot's lateral side to its medial side.
+
+    Perpendicular to the foot's heel→toe axis on the floor (Z up), pointing towards the
+    other foot: the sign is taken once for the whole walk (the median over frames of the
+    other foot's side), so it holds for left-handed (mirrored) files and any heading.
+    Frames without a foot axis (a marker missing, heel and toe less than
+    :data:`MIN_FOOT_AXIS_M` apart on the floor) take it interpolated from their
+    neighbours.
+
+    Args:
+        ankle: ``(T, 3)`` the foot's lateral ankle marker, m, Z up.
+        heel: ``(T, 3)`` its heel marker.
+        toe: ``(T, 3)`` its toe marker.
+        other: ``(T, 3)`` a point of the other foot (its ankle marker).
+
+    Returns:
+        ``(T, 3)`` unit vectors with zero Z, or None when fewer than two frames give a
+        foot axis or the other foot's side cannot be told.
+    """
+    f = toe[:, :2] - heel[:, :2]
+    n_f = np.linalg.norm(f, axis=1)
+    ok = np.isfinite(n_f) & (n_f >= MIN_FOOT_AXIS_M)
+    if ok.sum() < 2:
+        return None
+    n = np.full((len(f), 2), np.nan)
+    n[ok] = np.stack([-f[ok, 1], f[ok, 0]], axis=1) / n_f[ok, None]  # the foot's left
+    if not ok.all():
+        # the angle, unwrapped, is interpolated (components would pass through zero)
+        ang = np.unwrap(np.arctan2(n[ok, 1], n[ok, 0]))
+        i = np.arange(len(f))
+        a = np.interp(i, i[ok], ang)
+        n = np.stack([np.cos(a), np.sin(a)], axis=1)
+    side = nanstats.nanmedian(np.sum((other[:, :2] - ankle[:, :2]) * n, axis=1))
+    if not np.isfinite(side) or side == 0.0:
+        return None
+    out = np.zeros((len(f), 3))
+    out[:, :2] = np.sign(side) * n
+    return out
+
+
+def ankle_joint_centre(ankle: FloatArray, medial: FloatArray | None,
+                       heel: FloatArray | None, toe: FloatArray | None, other: FloatArray,
+                       ankle_width_m: float | None,
+                       marker_diameter_m: float = DEFAULT_MARKER_DIAMETER_M,
+                       ) -> tuple[FloatArray, str] | None:
+    """The ankle joint centre from a lateral-malleolus marker, as Plug-in Gait estimates it.
+
+    In order: the midpoint of the lateral and medial malleolus markers; else the lateral
+    marker moved medially by ``ankle_width_m / 2 + marker_diameter_m / 2`` on the floor,
+    perpendicular to the foot's heel→toe axis (:func:`medial_directions`). Frames where
+    the medial marker is missing take the second rule with the half distance between
+    the two markers measured in the others.
+
+    Args:
+        ankle: ``(T, 3)`` lateral malleolus marker, m, Z up.
+        medial: ``(T, 3)`` medial malleolus marker, or None.
+        heel: ``(T, 3)`` heel marker, or None.
+        toe: ``(T, 3)`` toe marker, or None.
+        other: ``(T, 3)`` a point of the other foot (tells medial from lateral).
+        ankle_width_m: distance across the malleoli, m (None: the medial marker only).
+        marker_diameter_m: the markers' diameter, m.
+
+    Returns:
+        ``(T, 3)`` the centre (m, Z up, NaN where it cannot be formed) and the rule used
+        (``"medial"`` or ``"width"``), or None when neither rule applies (no medial
+        marker, and no heel and toe to give the foot's axis or no width).
+    """
+    axis = (medial_directions(ankle, heel, toe, other)
+            if heel is not None and toe is not None else None)
+    if medial is not None and np.isfinite(medial).all(axis=1).sum() >= 2:
+        c = 0.5 * (ankle + medial)
+        miss = ~np.isfinite(medial).all(axis=1)
+        if axis is not None and miss.any():
+            half = float(nanstats.nanmedian(np.linalg.norm((medial - ankle)[:, :2], axis=1)))
+            c[miss] = ankle[miss] + 0.5 * half * axis[miss]
+        return c, "medial"
+    if axis is None or ankle_width_m is None:
+        return None
+    return ankle + (0.5 * ankle_width_m + 0.5 * marker_diameter_m) * axis, "width"
+
+
+def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str],
+                   labels: list[str], P: FloatArray, t: FloatArray,
+                   meta: dict[str, object]) -> list[str]:
+    """Add the ``ankle_centre`` point of each foot whose ankle marker is lateral.
+
+    Returns the notes to report (a population width used, a marker kept as it is).
+    """
+    notes: list[str] = []
+    by_default: list[tuple[str, float]] = []  # (marker, offset cm) placed by the default
+    widths = meta.get("ankle_width_m")
+    widths = widths if isinstance(widths, dict) else {}
+    d = meta.get("marker_diameter_m")
+    diameter = float(d) if isinstance(d, int | float) else DEFAULT_MARKER_DIAMETER_M
+    d_from = "PROCESSING:MarkerDiameter" if isinstance(d, int | float) else "default"
+    for side, word in (("L", "left"), ("R", "right")):
+        other = "R" if side == "L" else "L"
+        lab = sources.get(f"{side}_ankle")
+        ref = pts[other].get("ankle", pts[other].get("heel"))
+        med_lab = find_medial_ankle(labels, side)
+        # a bare "Ankle" is a joint's name, unless a medial marker says it is a malleolus
+        # (OpenSim's L.Ankle beside L.Ankle.Med)
+        if (lab is None or ref is None
+                or not (is_lateral_ankle(lab, side) or med_lab is not None)):
+            continue
+        medial = (fill_gaps(t, P[:, labels.index(med_lab)]) if med_lab is not None
+                  else None)
+        w = widths.get(side)
+        width = float(w) if isinstance(w, int | float) else None
+        res = ankle_joint_centre(pts[side]["ankle"], medial, pts[side].get("heel"),
+                                 pts[side].get("toe"), ref,
+                                 width if width is not None else DEFAULT_ANKLE_WIDTH_M,
+                                 diameter)
+        if res is None:
+            notes.append(f"The {word} ankle marker {lab} is on the lateral malleolus and no "
+                         "heel and toe markers give the foot's axis to find the joint "
+                         f"centre from it: {lab} itself is measured, which puts the "
+                         "crossing method's step widths about 8 cm wider (an ankle width "
+                         "and a marker) than between the ankle joints.")
+            continue
+        centre, rule = res
+        pts[side]["ankle_centre"] = centre
+        if rule == "medial":
+            how = f"ankle joint centre: midpoint of {lab} and {med_lab}"
+        else:
+            off_cm = 100 * (0.5 * (width or DEFAULT_ANKLE_WIDTH_M) + 0.5 * diameter)
+            src = (f"PROCESSING:{side}AnkleWidth" if width is not None
+                   else "population default")
+            how = (f"ankle joint centre: {lab} moved {off_cm:.1f} cm medially (ankle width "
+                   f"{1000 * (width or DEFAULT_ANKLE_WIDTH_M):.0f} mm: {src}; marker "
+                   f"diameter {1000 * diameter:.0f} mm: {d_from})")
+            if width is None:
+                by_default.append((lab, off_cm))
+        sources[f"{side}_ankle_centre"] = how
+    if by_default:
+        labs = " and ".join(lab for lab, _ in by_default)
+        which = "joint centres were" if len(by_default) == 2 else "joint centre was"
+        notes.append(f"The ankle {which} placed {by_default[0][1]:.1f} cm medial of {labs} "
+                     f"with a population ankle width of {1000 * DEFAULT_ANKLE_WIDTH_M:.0f} mm "
+                     "(the file gives neither medial malleolus markers nor the subject's "
+                     "ankle widths): an ankle 1 cm wider or narrower than that makes the "
+                     "crossing method's step widths about 1 cm narrower or wider.")
+    return notes
 
 
 def _check_units(P: FloatArray, labels: list[str], units: str) -> None:
@@ -286,12 +455,21 @@ def feet_from_markers(
                 "docs/gait-json.md lists them); available labels: "
                 + ", ".join(labels) + "; name the foot markers with --left/--right"
             )
+    notes: list[str] = []
+    if not explicit:
+        # A lateral-malleolus marker (LANK) is 3-4 cm outside the joint the crossing
+        # method was designed for (a skeleton's ankle): its joint centre is measured.
+        notes = _ankle_centres(pts, sources, scope, P[:, [labels.index(x) for x in scope]],
+                               t, markers.meta)
+        for side in ("L", "R"):
+            if primary[side] == "ankle" and "ankle_centre" in pts[side]:
+                primary[side] = "ankle_centre"
     pelvis = _pelvis(scope, P[:, [labels.index(x) for x in scope]], t)
     if pelvis is not None:
         sources["pelvis"] = pelvis[1]
     return FeetTrajectories(t, float(markers.rate), pts, primary,
                             None if pelvis is None else pelvis[0], sources,
-                            list(markers.events))
+                            list(markers.events), notes=notes)
 
 
 def _pelvis(labels: list[str], P: FloatArray, t: FloatArray) -> tuple[FloatArray, str] | None:

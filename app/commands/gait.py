@@ -44,9 +44,15 @@ def _table(doc: dict[str, Any]) -> str:
     lines = [f"method: {s['method']}   passes: {s['n_passes']}   steps: {s['n_steps']}   "
              f"strides: {s['n_strides']}",
              f"walking speed: {_fmt(s['walking_speed_m_s'], 1, 2)} m/s   "
-             f"cadence: {_fmt(s['cadence_steps_min'])} steps/min", "",
-             f"{'parameter':<18}{'mean':>8}{'SD':>8}{'CV %':>8}{'left':>8}{'right':>8}"
-             f"{'asym %':>8}"]
+             f"cadence: {_fmt(s['cadence_steps_min'])} steps/min"]
+    # which point of each foot was measured (a lateral ankle marker's joint centre ...)
+    for side, word in (("L", "left"), ("R", "right")):
+        point = (s.get("foot_points") or {}).get(side)
+        if point:
+            lines.append(f"{word} foot measured at: {point}")
+    lines += [f"note: {n}" for n in s.get("notes") or []]
+    lines += ["", f"{'parameter':<18}{'mean':>8}{'SD':>8}{'CV %':>8}{'left':>8}"
+                  f"{'right':>8}{'asym %':>8}"]
     for key, label, scale in (("step_length_m", "step length cm", 100.0),
                               ("step_width_m", "step width cm", 100.0),
                               ("step_time_s", "step time s", 1.0),

@@ -564,6 +564,9 @@ def quality_from_analyses(analyses: list[dict[str, Any]],
             q.notes.append(f"{named}: left/right labels were corrected from "
                            "the walking direction where a sensor saw the subject from behind "
                            f"(share of its frames: {', '.join(mirrored)}).")
+        # how the feet were measured, where it needs saying (a population ankle width)
+        for note in ((a.get("gait") or {}).get("summary") or {}).get("notes") or []:
+            q.notes.append(f"{named}: {note}")
         opts = a.get("options") or {}
         if opts.get("sensors") is not None:
             avail = a.get("sensors_available") or []

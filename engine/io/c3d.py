@@ -52,6 +52,25 @@ def _first_frame(header_first: int, params: dict[str, Any]) -> int:
     return header_first
 
 
+def _subject_length_m(params: dict[str, Any], name: str) -> float | None:
+    """A ``PROCESSING`` subject measurement (Plug-in Gait ``LAnkleWidth`` ...) in metres.
+
+    Vicon Nexus writes them in millimetres whatever ``POINT:UNITS`` says; a value of
+    0.02-0.2 is taken as metres (other exporters). 0 (not measured) or anything outside
+    a human ankle's or marker's range gives None.
+    """
+    v = _param(params, "PROCESSING", name)
+    try:
+        x = float(v[0]) if v else float("nan")
+    except (TypeError, ValueError):
+        return None
+    if 2.0 <= x <= 200.0:
+        return x * 1e-3
+    if 0.002 <= x <= 0.2:
+        return x
+    return None
+
+
 def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
     """Read the 3-D points, labels, rate, units and events of a C3D file.
 
@@ -62,7 +81,9 @@ def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
 
     Returns:
         Marker trajectories in metres (file axes), NaN where a marker is missing
-        (negative residual or an exact 0,0,0).
+        (negative residual or an exact 0,0,0). Plug-in Gait's ``PROCESSING`` ankle widths
+        and marker diameter, when the file has them, are in ``meta["ankle_width_m"]``
+        (``{"L": m, "R": m}``) and ``meta["marker_diameter_m"]``.
 
     Raises:
         InputError: the file cannot be read or has no 3-D points.
@@ -127,10 +148,17 @@ def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
         n_ev = min(int(np.asarray(used).ravel()[0]), len(ev_t))
         events = [normalise_event(str(ev_l[i]), str(ev_c[i]), float(ev_t[i]))
                   for i in range(n_ev)]
+    meta: dict[str, Any] = {"source": str(p), "first_frame": first}
+    widths = {side: _subject_length_m(params, f"{side}AnkleWidth") for side in ("L", "R")}
+    if any(w is not None for w in widths.values()):
+        meta["ankle_width_m"] = {s: w for s, w in widths.items() if w is not None}
+    diameter = _subject_length_m(params, "MarkerDiameter")
+    if diameter is not None and diameter <= 0.05:
+        meta["marker_diameter_m"] = diameter
     return MarkerTrajectories(
         times=times, positions=xyz[:, keep],
         labels=[lb for lb, k_ in zip(labels, keep, strict=True) if k_],
-        rate=rate, units=units, events=events, meta={"source": str(p), "first_frame": first},
+        rate=rate, units=units, events=events, meta=meta,
     )
 
 

@@ -280,8 +280,26 @@ PART_STEMS: dict[str, tuple[str, ...]] = {
 }
 #: Words after a part's name that say which point of it is marked, as in ``L.Ankle.Lat``
 #: (OpenSim), ``LAnkleOut``, ``LHeelBack``, ``LToeTip`` (Qualisys): tried after the bare
-#: name. Medial points (``Ankle.Med``) are not taken for the ankle.
+#: name. Medial points (``Ankle.Med``) are not taken for the ankle (they serve to place
+#: its joint centre: :func:`find_medial_ankle`).
 PART_QUALIFIERS = ("lat", "lateral", "out", "outer", "back", "post", "posterior", "tip")
+#: Ankle stems (of :data:`PART_STEMS`) that name a marker on the LATERAL malleolus (Plug-in
+#: Gait / Helen Hayes ``LANK``, CAST ``L_FAL``, ``LLMA``, IOR ``L_LM``): the ankle joint
+#: centre lies ankle width / 2 + marker radius medial of it. A bare ``Ankle`` (Kinect
+#: ``AnkleLeft``, OpenPose ``LAnkle``, MediaPipe ``left_ankle``) and ``AJC`` name the joint
+#: itself; with a lateral qualifier (``L.Ankle.Lat``, ``LAnkleOut``) it is the malleolus.
+LATERAL_ANKLE_STEMS = ("ank", "lmal", "malleolus", "latmal", "latmalleolus",
+                       "lateralmalleolus", "mal", "fal", "lma", "lm")
+#: Qualifiers (:data:`PART_QUALIFIERS`) that make any ankle name a lateral-malleolus one.
+LATERAL_QUALIFIERS = ("lat", "lateral", "out", "outer")
+#: Medial malleolus names: Plug-in Gait's optional ``LMED``, Oxford Foot Model / Qualisys
+#: ``LMMA``, ``L_MMAL``, ``LMedMal``, CAST ``L_TAM``, IOR ``L_MM`` (two letters: side in
+#: front only), and any ankle name with a medial qualifier (OpenSim ``L.Ankle.Med``,
+#: ``LAnkleIn``).
+MEDIAL_ANKLE_STEMS = ("med", "mma", "mmal", "medmal", "medmalleolus", "medialmalleolus",
+                      "tam", "mm")
+#: Qualifiers after an ankle name that make it the medial malleolus.
+MEDIAL_QUALIFIERS = ("med", "medial", "in", "inner")
 #: One-marker pelvis/sacrum names (bare, lower-case, alphanumeric).
 PELVIS_SINGLE = ("sacr", "sacrum", "vsacral", "sacral", "pelvis", "spinebase", "hipcenter",
                  "midhip", "root")
@@ -301,20 +319,22 @@ def label_key(label: str) -> str:
     return re.sub(r"[^a-z0-9]", "", label.split(":")[-1].lower())
 
 
-def side_part_keys(side: str, stem: str) -> list[str]:
+def side_part_keys(side: str, stem: str,
+                   qualifiers: tuple[str, ...] = PART_QUALIFIERS) -> list[str]:
     """The label keys (:func:`label_key`) naming ``stem`` on ``side``, in order.
 
-    Side token before or after the stem, then with a :data:`PART_QUALIFIERS` word.
+    Side token before or after the stem, then with a word of ``qualifiers``.
 
     Args:
         side: ``"L"`` or ``"R"``.
         stem: A part's stem (``"hee"``, ``"ank"`` ...).
+        qualifiers: Words that may follow the stem (default :data:`PART_QUALIFIERS`).
 
     Returns:
         The candidate keys, most likely first.
     """
     ks: list[str] = []
-    for q in ("",) + (PART_QUALIFIERS if len(stem) > 2 else ()):
+    for q in ("",) + (qualifiers if len(stem) > 2 else ()):
         for tok in _SIDE_TOKENS[side]:
             ks.append(tok + stem + q)
             if len(stem) > 2:
@@ -339,6 +359,48 @@ def find_marker(labels: list[str], side: str, part: str) -> str | None:
         for k in side_part_keys(side, stem):
             if k in keys:
                 return labels[keys.index(k)]
+    return None
+
+
+def is_lateral_ankle(label: str, side: str) -> bool:
+    """Whether an ankle marker's label names the lateral malleolus of ``side``.
+
+    Args:
+        label: The label :func:`find_marker` gave for the ankle (``"LANK"``,
+            ``"Sub:L.Ankle.Lat"``).
+        side: ``"L"`` or ``"R"``.
+
+    Returns:
+        True for :data:`LATERAL_ANKLE_STEMS` and ankle names with a
+        :data:`LATERAL_QUALIFIERS` word; False for joint names (``AnkleLeft``, ``LAJC``).
+    """
+    k = label_key(label)
+    keys = {x for stem in LATERAL_ANKLE_STEMS for x in side_part_keys(side, stem)}
+    keys |= {x for stem in ("ankle", "ank") for x in side_part_keys(side, stem,
+                                                                    LATERAL_QUALIFIERS)
+             if x not in side_part_keys(side, stem, ())}  # a bare "Ankle" is the joint
+    return k in keys
+
+
+def find_medial_ankle(labels: list[str], side: str) -> str | None:
+    """Label of the medial malleolus marker of ``side``, or None.
+
+    Args:
+        labels: The file's marker labels.
+        side: ``"L"`` or ``"R"``.
+
+    Returns:
+        The label as in the file (:data:`MEDIAL_ANKLE_STEMS`, or an ankle name with a
+        :data:`MEDIAL_QUALIFIERS` word such as ``L.Ankle.Med``), or None.
+    """
+    keys = [label_key(lab) for lab in labels]
+    cands = [x for stem in MEDIAL_ANKLE_STEMS for x in side_part_keys(side, stem, ())]
+    for stem in ("ankle", "ank", "malleolus", "mal"):
+        cands += [x for x in side_part_keys(side, stem, MEDIAL_QUALIFIERS)
+                  if x not in side_part_keys(side, stem, ())]
+    for k in cands:
+        if k in keys:
+            return labels[keys.index(k)]
     return None
 
 

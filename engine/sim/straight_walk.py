@@ -118,6 +118,14 @@ def walk_markers(w: SynthWalk, labels: dict[str, str] | None = None,
                  up: str = "z") -> MarkerTrajectories:
     """The walk as a marker set (Plug-in Gait names unless ``labels`` maps them).
 
+    An ankle named as a lateral-malleolus marker (``LANK``, ``L.Ankle.Lat``:
+    :func:`engine.io.markers.is_lateral_ankle`) sits where Plug-in Gait puts it, on the
+    lateral malleolus of a subject with the population ankle width:
+    :data:`engine.mocap.DEFAULT_ANKLE_WIDTH_M` / 2 + :data:`engine.mocap.DEFAULT_MARKER_DIAMETER_M`
+    / 2 outside the ankle joint, perpendicular to the foot's heel→toe axis. The walk's
+    ground truth (widths between the joints) is then what the crossing method's joint
+    centre recovers. Other names (``AnkleLeft``, ``L_Ankle``) are the joint itself.
+
     Args:
         w: The walk.
         labels: Walk point (``ankleL``, ``heelR``, ``toeL`` ...) -> marker label; pelvis
@@ -137,7 +145,20 @@ def walk_markers(w: SynthWalk, labels: dict[str, str] | None = None,
                          "rotation taking an axis to +Z)")
     names = labels or {"ankleL": "LANK", "ankleR": "RANK", "heelL": "LHEE", "heelR": "RHEE",
                        "toeL": "LTOE", "toeR": "RTOE"}
-    P = [w.joints[k] for k in names]
+    from engine.io.markers import is_lateral_ankle
+    from engine.mocap import DEFAULT_ANKLE_WIDTH_M, DEFAULT_MARKER_DIAMETER_M
+
+    P = []
+    for k, lab in names.items():
+        x = w.joints[k]
+        side = k[-1]
+        if k.startswith("ankle") and is_lateral_ankle(lab, side):
+            f = w.joints[f"toe{side}"] - w.joints[f"heel{side}"]
+            left = np.stack([-f[:, 1], f[:, 0], np.zeros(len(f))], axis=1)
+            left /= np.linalg.norm(left, axis=1, keepdims=True)
+            half = 0.5 * (DEFAULT_ANKLE_WIDTH_M + DEFAULT_MARKER_DIAMETER_M)
+            x = x + (half if side == "L" else -half) * left
+        P.append(x)
     labs = list(names.values())
     pel = w.joints["pelvis"]
     for lab, off in (("LASI", (0.05, 0.12, 0.0)), ("RASI", (0.05, -0.12, 0.0)),

@@ -339,10 +339,21 @@ SAME: dict[str, Builder] = {
 
 
 @pytest.fixture(scope="module")
-def real(shared_data: Path) -> tuple[MarkerTrajectories, Doc]:
-    """The real Vicon trial and the CLI's answer on the original file."""
+def real(shared_data: Path, tmp_path_factory: pytest.TempPathFactory
+         ) -> tuple[MarkerTrajectories, Doc]:
+    """The real Vicon trial and the CLI's answer on it as the variants are written.
+
+    The variants keep its markers but not its Plug-in Gait ``PROCESSING`` group, so the
+    crossing method places their ankle joint centres with the population ankle width
+    (``engine.mocap.DEFAULT_ANKLE_WIDTH_M``) instead of the subject's 63-64 mm: 3-4 mm
+    narrower steps than on the original file. The reference is the trial written the
+    same way (the original's own widths: ``test_lateral_ankle_markers_real_trial``).
+    """
     f = shared_data / "mocap" / "kineticstoolkit" / "walk.c3d"
-    return read_c3d(f), _doc([str(f)])
+    m = read_c3d(f)
+    p = tmp_path_factory.mktemp("real") / "walk.c3d"
+    write_c3d(p, m)
+    return m, _doc([str(p)])
 
 
 @pytest.fixture(scope="module")
@@ -372,6 +383,21 @@ def base(request: pytest.FixtureRequest) -> tuple[MarkerTrajectories, Doc]:
     return request.getfixturevalue(request.param)  # type: ignore[no-any-return]
 
 
+#: Cases that kill a heel or toe marker of the real trial: that foot has no heel→toe
+#: axis, so its lateral ankle marker is measured as it is (no joint centre), as when the
+#: file has no such marker at all — their reference is the trial's Plug-in Gait markers
+#: without those (not the whole trial without them: its model outputs have an RFOO, which
+#: is taken for a toe where no RTOE is listed).
+_DEAD_FOOT = {"c3d_dead_heels": ("LHEE", "RHEE"),
+              "c3d_dead_markers_nan": ("LKNE", "RTOE", "LPSI", "SACR"),
+              "c3d_dead_markers_zero": ("LKNE", "RTOE", "LPSI", "SACR")}
+
+
+def _without(m: MarkerTrajectories, labels: tuple[str, ...]) -> MarkerTrajectories:
+    keep = [k for k, lab in enumerate(m.labels) if lab not in labels]
+    return replace(m, positions=m.positions[:, keep], labels=[m.labels[k] for k in keep])
+
+
 @pytest.mark.parametrize("case", sorted(SAME))
 def test_same_walk_same_steps(case: str, base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
                               capsys: pytest.CaptureFixture[str]) -> None:
@@ -379,6 +405,13 @@ def test_same_walk_same_steps(case: str, base: tuple[MarkerTrajectories, Doc], t
     p, extra = SAME[case](m, tmp_path)
     rc, doc, err = _run([str(p), "--json", *extra], capsys)
     assert rc == 0 and doc is not None, err
+    if case in _DEAD_FOOT and "LHEE" in m.labels:
+        v = _without(_renamed(m, NAMINGS["plug_in_gait"]), _DEAD_FOOT[case])
+        rc, ref, err = _run([str(_write("c3d", v, tmp_path / "ref.c3d")), "--json"], capsys)
+        assert rc == 0 and ref is not None, err
+        kept = {lab[0] + "ANK" for lab in _DEAD_FOOT[case] if lab[1:] in ("HEE", "TOE")}
+        assert all(any(f"marker {k} is on the lateral" in n for n in doc["summary"]["notes"])
+                   for k in kept), doc["summary"]["notes"]
     _same_steps(ref, doc, 1.0 / m.rate)
 
 
@@ -572,11 +605,21 @@ def _renamed(m: MarkerTrajectories, names: dict[str, str]) -> MarkerTrajectories
     return replace(m, positions=np.stack(pos, axis=1), labels=labels)
 
 
+#: Conventions whose ankle name (a bare ``Ankle``) names the joint itself, as skeletons
+#: and markerless trackers do: the point is measured as it is. Renamed from the real
+#: trial's lateral-malleolus LANK, their steps are those of the Plug-in Gait file with
+#: LANK/RANK named explicitly (the marker itself), not of its estimated joint centres.
+JOINT_ANKLE_NAMINGS = ("opensim_dots", "cortex_underscore", "word_prefix", "word_suffix",
+                       "lt_rt_prefix", "letter_suffix", "openpose_markerless",
+                       "mediapipe_markerless", "theia_markerless", "kinect", "azure_kinect")
+
+
 @pytest.fixture(scope="module")
 def real_feet_ref(real: tuple[MarkerTrajectories, Doc],
                   tmp_path_factory: pytest.TempPathFactory) -> dict[str, Doc]:
     """The CLI's answer on the real trial's own labels, per pelvis convention (the
-    body centre used to find the walking passes is the pelvis markers' mean)."""
+    body centre used to find the walking passes is the pelvis markers' mean), and with
+    the lateral ankle markers measured as they are (``… as_is``)."""
     m, _ = real
     out = {}
     for key in ("plug_in_gait", "helen_hayes_sacrum", "no_pelvis"):
@@ -586,7 +629,15 @@ def real_feet_ref(real: tuple[MarkerTrajectories, Doc],
         p = tmp_path_factory.mktemp("names") / f"{key}.c3d"
         write_c3d(p, _renamed(m, names))
         out[key] = _doc([str(p)])
+        out[f"{key} as_is"] = _doc([str(p), "--left", "LANK", "--right", "RANK"])
     return out
+
+
+def _names_ref(naming: str, refs: dict[str, Doc]) -> Doc:
+    names = NAMINGS[naming]
+    pelvis = ("no_pelvis" if "LASI" not in names and "SACR" not in names
+              else "plug_in_gait")
+    return refs[pelvis + (" as_is" if naming in JOINT_ANKLE_NAMINGS else "")]
 
 
 @pytest.mark.parametrize("naming", sorted(NAMINGS))
@@ -594,15 +645,14 @@ def test_marker_naming_conventions(naming: str, real: tuple[MarkerTrajectories, 
                                    real_feet_ref: dict[str, Doc], tmp_path: Path,
                                    capsys: pytest.CaptureFixture[str]) -> None:
     """Ankle, heel, toe and pelvis found under each convention: the same steps as the
-    Plug-in Gait names (the ankle is the point measured when both ankle and heel exist)."""
+    Plug-in Gait names (the ankle is the point measured when both ankle and heel exist:
+    the joint centre of a lateral-malleolus name, a joint's name as it is)."""
     m, _ = real
     names = NAMINGS[naming]
     p = _write("trc", _renamed(m, names), tmp_path / "n.trc")
     rc, doc, err = _run([str(p), "--json"], capsys)
     assert rc == 0 and doc is not None, err
-    pelvis = ("no_pelvis" if "LASI" not in names and "SACR" not in names
-              else "plug_in_gait")
-    _same_steps(real_feet_ref[pelvis], doc, 0.01)
+    _same_steps(_names_ref(naming, real_feet_ref), doc, 0.01)
 
 
 def test_ankle_preferred_over_heel(real: tuple[MarkerTrajectories, Doc], tmp_path: Path,
@@ -646,7 +696,9 @@ def test_naming_conventions_other_axes(naming: str, up: str,
     p = _write("c3d", _file_axes(_renamed(m, names), up), tmp_path / "n.c3d")
     rc, doc, err = _run([str(p), "--json"], capsys)
     assert rc == 0 and doc is not None, err
-    _same_steps(real_feet_ref["plug_in_gait"], doc, 0.01)
+    # (kinect, mediapipe: joint names, the markers as they are — JOINT_ANKLE_NAMINGS)
+    ref = real_feet_ref["plug_in_gait" + (" as_is" if naming in JOINT_ANKLE_NAMINGS else "")]
+    _same_steps(ref, doc, 0.01)
 
 
 # ------------------------------------------------------------------ TRC dialects
@@ -905,7 +957,9 @@ def test_whole_lab_conventions(lab: str, real: tuple[MarkerTrajectories, Doc],
     p = _write(kind, v, tmp_path / f"lab.{kind}", units)
     rc, doc, err = _run([str(p), "--json"], capsys)
     assert rc == 0 and doc is not None, err
-    _same_steps(real_feet_ref["plug_in_gait"], doc, max(1.0 / rate, 0.01))
+    # (pose2sim, mediapipe: joint names, the markers as they are — JOINT_ANKLE_NAMINGS)
+    ref = real_feet_ref["plug_in_gait" + (" as_is" if naming in JOINT_ANKLE_NAMINGS else "")]
+    _same_steps(ref, doc, max(1.0 / rate, 0.01))
 
 
 def test_kinect_csv_camera_frame(skeleton_csv: tuple[str, Doc], tmp_path: Path,
@@ -1036,3 +1090,187 @@ def test_csv_times_with_three_decimals(tmp_path: Path,
             for f in (exact, rounded)]
     assert all(rc == 0 for rc, _, _ in runs), runs
     _same_steps(runs[0][1], runs[1][1], 1.0 / 150.0)  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------ lateral ankle markers
+
+def _width_means(doc: Doc) -> tuple[float, float]:
+    w = doc["summary"]["step_width_m"]
+    return w["left_mean"], w["right_mean"]
+
+
+def test_lateral_ankle_markers_real_trial(shared_data: Path, real: tuple[MarkerTrajectories,
+                                                                          Doc]) -> None:
+    """Plug-in Gait's LANK/RANK sit on the lateral malleoli, 3.5-5 cm outside the heels:
+    the crossing method measured between them, 20.3 cm steps against heel strikes' 12.4.
+    It now measures the ankle joint centres, placed with the file's PROCESSING ankle
+    widths (64/63 mm): per side within 1.5 cm of the heel-strike widths, and within 2 cm
+    on the floor of Plug-in Gait's own joint centres (its LTIO/RTIO outputs)."""
+    from engine.mocap import feet_from_markers
+
+    f = shared_data / "mocap" / "kineticstoolkit" / "walk.c3d"
+    cross = _doc([str(f)])
+    heel = _doc([str(f), "--method", "heelstrike"])
+    lateral = _doc([str(f), "--left", "LANK", "--right", "RANK"])
+    for c, h, lat in zip(_width_means(cross), _width_means(heel), _width_means(lateral),
+                         strict=True):
+        assert abs(c - h) < 0.015, (c, h)
+        assert lat - h > 0.06, (lat, h)  # the markers themselves: ≈ 8 cm wider
+    pts = cross["summary"]["foot_points"]
+    assert "PROCESSING:LAnkleWidth" in pts["L"] and "64 mm" in pts["L"], pts
+    assert "PROCESSING:RAnkleWidth" in pts["R"] and "63 mm" in pts["R"], pts
+    assert cross["summary"]["notes"] == []
+    assert heel["summary"]["foot_points"] == {"L": "heel: LHEE", "R": "heel: RHEE"}
+    # the heel-strike method is unchanged: the same steps as with the heels named
+    _same_steps(_doc([str(f), "--method", "heelstrike", "--left", "LHEE", "--right", "RHEE"]),
+                heel, 0.01)
+    m = read_c3d(f)
+    assert m.meta["ankle_width_m"] == {"L": pytest.approx(0.064), "R": pytest.approx(0.063)}
+    feet = feet_from_markers(m)
+    for s in ("L", "R"):
+        ajc = m.marker(f"{s}TIO")  # Plug-in Gait's ankle joint centre (Z up already)
+        d = np.linalg.norm((feet.foot(s) - ajc)[:, :2], axis=1)
+        d_lat = np.linalg.norm((feet.points[s]["ankle"] - ajc)[:, :2], axis=1)
+        assert np.nanmedian(d) < 0.02 and np.nanmedian(d_lat) > 0.03, (s, np.nanmedian(d))
+    # without the PROCESSING group (the variants above): the population width, said so
+    no_proc = real[1]
+    assert all("population default" in p for p in no_proc["summary"]["foot_points"].values())
+    assert [n.split(" with ")[0] for n in no_proc["summary"]["notes"]] == [
+        "The ankle joint centres were placed 4.2 cm medial of LANK and RANK"]
+    assert "population ankle width of 70 mm" in no_proc["summary"]["notes"][0]
+    for c, h, c_proc in zip(_width_means(no_proc), _width_means(heel), _width_means(cross),
+                            strict=True):
+        assert abs(c - h) < 0.015, (c, h)
+        # 70 mm instead of 64/63: each foot ≈ 3 mm further in
+        assert 0.004 < c_proc - c < 0.009, (c_proc, c)
+
+
+def _with_medial(m: MarkerTrajectories) -> MarkerTrajectories:
+    """The real trial's Plug-in Gait markers, medial malleolus markers LMED/RMED placed
+    opposite LANK/RANK across Plug-in Gait's ankle joint centres (so their midpoints are
+    those centres), and the centres themselves as XL/XR (names no rule takes)."""
+    v = _renamed(m, NAMINGS["plug_in_gait"])
+    extra = {}
+    for s in ("L", "R"):
+        ajc = m.marker(f"{s}TIO")
+        extra[f"{s}MED"] = 2.0 * ajc - m.marker(f"{s}ANK")
+        extra[f"X{s}"] = ajc
+    P = np.concatenate([v.positions, np.stack(list(extra.values()), axis=1)], axis=1)
+    return replace(v, positions=P, labels=v.labels + list(extra))
+
+
+MEDIAL_VARIANTS: dict[str, tuple[str, Callable[[MarkerTrajectories], MarkerTrajectories],
+                                 str]] = {
+    "as_is_c3d": ("c3d", lambda m: m, "mm"),
+    "rotated_135_far_trc": ("trc", lambda m: _map(m, _rz(135.0), (40.0, -25.0, 0.0)), "mm"),
+    "y_up_metres_c3d": ("c3d", lambda m: _file_axes(_map(m, _rz(-60.0)), "y"), "m"),
+    "mirrored_x_up_trc": ("trc", lambda m: _map(_file_axes(m, "x"), _mirror(1)), "mm"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MEDIAL_VARIANTS))
+def test_medial_malleolus_markers(case: str, real: tuple[MarkerTrajectories, Doc],
+                                  tmp_path: Path,
+                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """With medial malleolus markers the joint centre is the midpoint of the two
+    malleoli: the same steps as measuring the true centres (named XL/XR), in any
+    heading, place, vertical axis, unit and handedness."""
+    m, _ = real
+    kind, f, units = MEDIAL_VARIANTS[case]
+    p = _write(kind, f(_with_medial(m)), tmp_path / f"v.{kind}", units)
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    assert doc["summary"]["foot_points"] == {
+        "L": "ankle joint centre: midpoint of LANK and LMED",
+        "R": "ankle joint centre: midpoint of RANK and RMED"}
+    assert doc["summary"]["notes"] == []
+    rc, ref, err = _run([str(p), "--json", "--left", "XL", "--right", "XR"], capsys)
+    assert rc == 0 and ref is not None, err
+    _same_steps(ref, doc, 0.01)
+
+
+def test_medial_marker_makes_a_bare_ankle_a_malleolus(real: tuple[MarkerTrajectories, Doc],
+                                                      tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]
+                                                      ) -> None:
+    """OpenSim's L.Ankle beside L.Ankle.Med: a bare ankle name is a joint's, unless a
+    medial marker shows it is the lateral malleolus (then the midpoint is measured)."""
+    m, _ = real
+    names = {"LANK": "L.Ankle", "RANK": "R.Ankle", "LMED": "L.Ankle.Med",
+             "RMED": "R.Ankle.Med"}
+    v = _with_medial(m)
+    p = _write("trc", replace(v, labels=[names.get(x, x) for x in v.labels]),
+               tmp_path / "o.trc")
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    assert doc["summary"]["foot_points"]["L"] == ("ankle joint centre: midpoint of L.Ankle "
+                                                  "and L.Ankle.Med")
+    rc, ref, err = _run([str(p), "--json", "--left", "XL", "--right", "XR"], capsys)
+    assert rc == 0 and ref is not None, err
+    _same_steps(ref, doc, 0.01)
+
+
+@pytest.mark.parametrize("mirrored", [False, True])
+@pytest.mark.parametrize("heading", [0.0, 100.0, 225.0])
+def test_medial_direction_any_heading(heading: float, mirrored: bool) -> None:
+    """The medial direction is perpendicular to the heel→toe axis on the floor and points
+    to the other foot, whatever the heading and handedness; a frame without a foot axis
+    takes it from its neighbours; the width rule moves the marker by width/2 + radius."""
+    from engine.mocap import ankle_joint_centre, medial_directions
+
+    T = 20
+    R = _rz(heading) @ (_mirror(1) if mirrored else np.eye(3))
+    fwd, left = R @ np.array([1.0, 0.0, 0.0]), R @ np.array([0.0, 1.0, 0.0])
+    base = np.array([3e3, -2e3, 0.08]) + np.linspace(0, 1, T)[:, None] * fwd  # far out
+    ank = base + 0.0 * left                      # a right foot's lateral marker …
+    heel = base - 0.05 * fwd + 0.03 * left       # … its heel 3 cm medial of it
+    toe = base + 0.15 * fwd + 0.03 * left
+    other = base + 0.25 * left                   # the left foot
+    heel[5:8] = np.nan                           # no foot axis in three frames
+    n = medial_directions(ank, heel, toe, other)
+    assert n is not None
+    assert np.allclose(n, left, atol=1e-9)
+    res = ankle_joint_centre(ank, None, heel, toe, other, 0.064, 0.014)
+    assert res is not None and res[1] == "width"
+    assert np.allclose(res[0], ank + 0.039 * left, atol=1e-9)
+    # no toe: no foot axis, no centre (the caller keeps the marker and says so)
+    assert ankle_joint_centre(ank, None, heel, None, other, 0.064) is None
+    # a medial marker: its midpoint
+    res = ankle_joint_centre(ank, ank + 0.08 * left, None, None, other, None)
+    assert res is not None and res[1] == "medial"
+    assert np.allclose(res[0], ank + 0.04 * left)
+
+
+def test_processing_widths_read_in_mm_or_metres(real: tuple[MarkerTrajectories, Doc],
+                                                tmp_path: Path) -> None:
+    """PROCESSING subject measurements are read in mm (Vicon) or metres, whatever the
+    points' unit; a 0 (not measured) is no width."""
+    import ezc3d
+
+    m, _ = real
+    v = _renamed(m, NAMINGS["plug_in_gait"])
+    for units, vals, want in (("m", (64.0, 0.0, 10.0), ({"L": 0.064}, 0.010)),
+                              ("mm", (0.07, 0.068, None), ({"L": 0.07, "R": 0.068}, None))):
+        p = _write("c3d", v, tmp_path / f"{units}.c3d", units)
+        c = ezc3d.c3d(str(p))
+        for name, x in zip(("LAnkleWidth", "RAnkleWidth", "MarkerDiameter"), vals,
+                           strict=True):
+            if x is not None:
+                c.add_parameter("PROCESSING", name, [x])
+        c.write(str(p))
+        got = read_c3d(p).meta
+        assert got.get("ankle_width_m") == {k: pytest.approx(x) for k, x in want[0].items()}
+        assert got.get("marker_diameter_m") == (None if want[1] is None
+                                                else pytest.approx(want[1]))
+
+
+def test_table_says_which_point_was_measured(shared_data: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """The text output names the point of each foot (the JSON's foot_points)."""
+    f = shared_data / "mocap" / "kineticstoolkit" / "walk.c3d"
+    assert main(["gait", str(f)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[2] == ("left foot measured at: ankle joint centre: LANK moved 3.9 cm medially "
+                      "(ankle width 64 mm: PROCESSING:LAnkleWidth; marker diameter 14 mm: "
+                      "default)")
+    assert out[3].startswith("right foot measured at: ankle joint centre: RANK moved 3.9 cm")

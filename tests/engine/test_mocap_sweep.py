@@ -141,12 +141,21 @@ def test_real_file_reference_equals_rewritten_copy(real: MarkerTrajectories, sha
                                                    capsys: pytest.CaptureFixture[str],
                                                    tmp_path: Path) -> None:
     f = shared_data / "mocap" / "kineticstoolkit" / "walk.c3d"
-    rc, orig, _ = _run([str(f), "--json"], capsys)
     p = tmp_path / "copy.c3d"
     write_c3d(p, real, units="mm")
-    rc2, copy, _ = _run([str(p), "--json"], capsys)
+    # The copy has the markers but not the PROCESSING group, whose ankle widths place
+    # the ankle joint centres of the original (the copy's: a population width): the
+    # markers themselves give the same steps.
+    as_is = ["--left", "LANK", "--right", "RANK"]
+    rc, orig, _ = _run([str(f), "--json", *as_is], capsys)
+    rc2, copy, _ = _run([str(p), "--json", *as_is], capsys)
     assert rc == rc2 == 0 and orig is not None and copy is not None
     _same_steps(orig, copy)
+    rc, orig, _ = _run([str(f), "--json"], capsys)
+    rc2, copy, _ = _run([str(p), "--json"], capsys)
+    assert orig is not None and copy is not None
+    assert "PROCESSING:LAnkleWidth" in orig["summary"]["foot_points"]["L"]
+    assert "population default" in copy["summary"]["foot_points"]["L"]
 
 
 # ---------------------------------------------------------------- same walk, other files
@@ -194,11 +203,24 @@ def _with_decoys(m: MarkerTrajectories) -> MarkerTrajectories:
                    labels=names + m.labels)
 
 
+def _as_is_ref(m: MarkerTrajectories, tmp: Path, capsys: pytest.CaptureFixture[str]) -> Doc:
+    """The base file's steps with its ankle markers measured as they are (named with
+    --left/--right): no joint centre estimated from a lateral-malleolus LANK."""
+    p = tmp / "ref_as_is.c3d"
+    write_c3d(p, m, units="mm")
+    rc, doc, err = _run([str(p), "--json", "--left", "LANK", "--right", "RANK"], capsys)
+    assert rc == 0 and doc is not None, err
+    return doc
+
+
 @pytest.mark.parametrize("case", sorted(SAME_WALK))
 def test_same_walk_same_steps(case: str, base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
                               capsys: pytest.CaptureFixture[str]) -> None:
     m, ref = base
     kind, units, f, extra = SAME_WALK[case]
+    if "--left" in extra:
+        # named markers are measured as they are, the automatic LANK at its joint centre
+        ref = _as_is_ref(m, tmp_path, capsys)
     p = _write(kind, f(m), tmp_path, units)
     rc, doc, err = _run([str(p), "--json", *extra], capsys)
     assert rc == 0, err
@@ -241,14 +263,29 @@ def _feet_renamed(m: MarkerTrajectories, left: str, right: str) -> MarkerTraject
     return _relabel(keep, {"LANK": left, "RANK": right})
 
 
+#: Name sets of a lateral-malleolus marker: with the heels and toes gone there is no foot
+#: axis to place its joint centre, so the marker is measured as it is, and said so.
+_LATERAL = ("pig", "prefixed", "lower_pig", "mal")
+
+
 @pytest.mark.parametrize("names", sorted(NAMES))
 def test_marker_names(names: str, base: tuple[MarkerTrajectories, Doc], tmp_path: Path,
                       capsys: pytest.CaptureFixture[str]) -> None:
-    m, ref = base
+    """Each name set finds the ankles. Only the ankle markers are kept, so every set
+    measures them as they are (joint names, a heel name, or lateral-malleolus names
+    without a foot axis): the base file's steps with LANK/RANK named."""
+    m, _ = base
+    ref = _as_is_ref(m, tmp_path, capsys)
     p = _write("trc", _feet_renamed(m, *NAMES[names]), tmp_path)
     rc, doc, err = _run([str(p), "--json"], capsys)
     assert rc == 0 and doc is not None, err
     _same_steps(ref, doc)
+    notes = doc["summary"]["notes"]
+    if names in _LATERAL:
+        left = NAMES[names][0]
+        assert len(notes) == 2 and f"marker {left} is on the lateral malleolus" in notes[0]
+    else:
+        assert notes == []
 
 
 @pytest.mark.parametrize(("case", "expect"), [

@@ -120,3 +120,30 @@ def test_a_report_of_files_claims_no_interpolated_gaps(tmp_path: Path) -> None:
     data = build_report("P1", [analyse_file(_walk_csv(tmp_path / "walk.csv"))])
     assert data.quality.gaps_filled is None
     assert "Short gaps interpolated" not in render_html(data)
+
+
+def test_a_report_of_files_says_how_the_ankles_were_measured(tmp_path: Path) -> None:
+    """A lateral-malleolus ankle marker (LANK) whose joint centre cannot be placed (no
+    heel marker for the foot's axis) is measured as it is: the report's data-quality
+    notes say so, naming the trial, as the gait JSON's summary does."""
+    from app.server.analysis import analyse_file, build_report
+    from engine.io.c3d import write_c3d
+    from engine.io.markers import MarkerTrajectories
+    from engine.report.render import render_html
+
+    w = synth_walk(n_steps=12, rate=100.0)
+    P = walk_skeleton(w)
+    names = {"AnkleLeft": "LANK", "AnkleRight": "RANK", "FootLeft": "LTOE",
+             "FootRight": "RTOE", "SpineBase": "SACR", "Head": "HEAD"}
+    idx = [KINECT_V2.index(j) for j in names]
+    f = tmp_path / "walk.c3d"
+    write_c3d(f, MarkerTrajectories(w.times, P[:, idx], list(names.values()), 100.0, "m"))
+    a = analyse_file(f)
+    notes = a["gait"]["summary"]["notes"]
+    assert [n.split(" is on")[0] for n in notes] == ["The left ankle marker LANK",
+                                                      "The right ankle marker RANK"]
+    assert a["gait"]["summary"]["foot_points"] == {"L": "ankle: LANK", "R": "ankle: RANK"}
+    data = build_report("P1", [a])
+    assert [n for n in data.quality.notes if "lateral malleolus" in n] == [
+        f"Recording walk.c3d: {n}" for n in notes]
+    assert "RANK itself is measured" in render_html(data)
