@@ -46,7 +46,8 @@ DEFAULT_MARKER_DIAMETER_M = 0.014
 #: Ankle width (across the malleoli, Plug-in Gait's ``AnkleWidth``) when a file has
 #: neither a medial malleolus marker nor the subject's measurement: the adult bimalleolar
 #: breadth midway between women's and men's means of the 2012 US Army anthropometric survey
-#: (ANSUR II; Gordon et al. 2014, NATICK/TR-15/007: about 65 and 73 mm). A width off by
+#: (ANSUR II; Gordon et al. 2014, NATICK/TR-15/007: about 65 and 73 mm, as recalled: not
+#: yet checked against the report's tables). A width off by
 #: x moves each foot's point by x/2, step widths by about x.
 DEFAULT_ANKLE_WIDTH_M = 0.070
 #: Below this heel→toe length on the floor a frame gives no foot axis (the foot is seen
