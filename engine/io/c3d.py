@@ -19,6 +19,7 @@ from engine.io.markers import (
     MarkerTrajectories,
     file_units,
     normalise_event,
+    normalise_units,
     unit_scale,
 )
 from engine.skeleton import SkeletonSeries, TrackingState
@@ -162,8 +163,44 @@ def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
     )
 
 
+def _subject_lengths(meta: dict[str, Any]) -> dict[str, float]:
+    """The ``PROCESSING`` subject measurements :func:`read_c3d` put in ``meta``, in metres.
+
+    ``meta["ankle_width_m"]`` (``{"L": m, "R": m}``) gives ``LAnkleWidth``/``RAnkleWidth``,
+    ``meta["marker_diameter_m"]`` ``MarkerDiameter``; absent keys give nothing.
+
+    Raises:
+        InputError: a value that is not a positive length in the range :func:`read_c3d`
+            reads back (2-200 mm).
+    """
+    out: dict[str, float] = {}
+    widths = meta.get("ankle_width_m") or {}
+    if not isinstance(widths, dict):
+        raise InputError("meta['ankle_width_m'] must be {'L': metres, 'R': metres}")
+    named = [(f"{s}AnkleWidth", widths[s]) for s in ("L", "R") if widths.get(s) is not None]
+    if meta.get("marker_diameter_m") is not None:
+        named.append(("MarkerDiameter", meta["marker_diameter_m"]))
+    for name, v in named:
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            x = float("nan")
+        if not 0.002 <= x <= 0.2:  # NaN fails too
+            raise InputError(f"{name} {v!r} is not a length in metres between 0.002 and 0.2 "
+                             "(meta['ankle_width_m'] / meta['marker_diameter_m'])")
+        out[name] = x
+    return out
+
+
 def write_c3d(path: str | Path, markers: MarkerTrajectories, units: str | None = None) -> None:
     """Write marker trajectories (and their events) to a C3D file.
+
+    The subject's ankle widths and marker diameter that :func:`read_c3d` took from a
+    file's ``PROCESSING`` group (``markers.meta["ankle_width_m"]``,
+    ``meta["marker_diameter_m"]``) are written back there as Plug-in Gait names them
+    (``LAnkleWidth``, ``RAnkleWidth``, ``MarkerDiameter``), in the unit written (mm or
+    m; a file in cm gets mm, Vicon's unit for them): a file read and written again keeps
+    the ankle joint centres the crossing method places with them.
 
     Args:
         path: destination ``.c3d``.
@@ -172,8 +209,9 @@ def write_c3d(path: str | Path, markers: MarkerTrajectories, units: str | None =
         units: length unit to write (default: ``markers.units``; Vicon tools expect mm).
 
     Raises:
-        InputError: the time axis does not start on a whole frame, or a label is longer
-            than 255 characters.
+        InputError: the time axis does not start on a whole frame, a label is longer
+            than 255 characters, or an ankle width / marker diameter in ``meta`` is not a
+            length in metres of 0.002-0.2.
     """
     import ezc3d
 
@@ -185,6 +223,7 @@ def write_c3d(path: str | Path, markers: MarkerTrajectories, units: str | None =
                          "shift the times first")
     if any(len(lab) > 255 for lab in markers.labels):
         raise InputError("C3D labels must be at most 255 characters")
+    subject = _subject_lengths(markers.meta or {})
     c = ezc3d.c3d()
     c["parameters"]["POINT"]["RATE"]["value"] = [float(markers.rate)]
     c["parameters"]["POINT"]["LABELS"]["value"] = tuple(markers.labels)
@@ -196,6 +235,11 @@ def write_c3d(path: str | Path, markers: MarkerTrajectories, units: str | None =
     last = int(first) + len(markers)  # one-based, as Vicon writes them
     for name, v in (("ACTUAL_START_FIELD", int(first) + 1), ("ACTUAL_END_FIELD", last)):
         c.add_parameter("TRIAL", name, [v % 65536, v // 65536])
+    # in the points' unit where read_c3d tells it from the value (mm: 64, m: 0.064); a cm
+    # value (6.4) would read as mm, so cm files get mm as Vicon Nexus writes them
+    length_scale = scale if normalise_units(u) in ("mm", "m") else 1e-3
+    for name, x in subject.items():
+        c.add_parameter("PROCESSING", name, [float(x / length_scale)])
     for e in markers.events:
         minutes = int(e.time_s // 60.0)
         c.add_event([minutes, float(e.time_s - 60.0 * minutes)],

@@ -91,6 +91,58 @@ def test_vicon_file_round_trip(shared_data: Path, tmp_path: Path) -> None:
     np.testing.assert_allclose(t.positions, m.positions, rtol=1e-12, equal_nan=True)
 
 
+def _crossing_widths(path: Path) -> list[tuple[str, float]]:
+    g = GaitAnalysis("crossing").fit(load_feet(path))
+    return [(s.side, s.width_m) for s in g.steps_]
+
+
+@pytest.mark.parametrize("units", ["mm", "m", "cm"])
+def test_vicon_ankle_widths_survive_a_rewrite(shared_data: Path, tmp_path: Path,
+                                              units: str) -> None:
+    """The Plug-in Gait ankle widths read from PROCESSING are written back there (the
+    points' unit, mm for a cm file), so a rewritten trial places the crossing method's
+    ankle joint centres as the original does: the same step widths within 1 mm (the
+    copy fell back to the 70 mm population width before, 3-4 mm narrower steps)."""
+    src = shared_data / "mocap" / "kineticstoolkit" / "walk.c3d"
+    m = read_c3d(src)
+    assert m.meta["ankle_width_m"] == {"L": pytest.approx(0.064), "R": pytest.approx(0.063)}
+    p = tmp_path / f"w_{units}.c3d"
+    write_c3d(p, m, units=units)
+    r = read_c3d(p)
+    assert r.meta["ankle_width_m"] == {"L": pytest.approx(0.064), "R": pytest.approx(0.063)}
+    assert "marker_diameter_m" not in r.meta  # the trial gives none: none invented
+    # as Vicon tools and plain ezc3d read them: PROCESSING floats, mm or m
+    proc = ezc3d.c3d(str(p))["parameters"]["PROCESSING"]
+    want = (0.064, 0.063) if units == "m" else (64.0, 63.0)
+    got = [float(np.ravel(proc[f"{s}AnkleWidth"]["value"])[0]) for s in ("L", "R")]
+    np.testing.assert_allclose(got, want, rtol=1e-6)
+    orig, copy = _crossing_widths(src), _crossing_widths(p)
+    assert [s for s, _ in copy] == [s for s, _ in orig] and len(orig) >= 3
+    np.testing.assert_allclose([w for _, w in copy], [w for _, w in orig], atol=1e-3)
+    assert load_feet(p).notes == []  # no population width said to be used
+
+
+def test_c3d_marker_diameter_and_one_side_written_back(tmp_path: Path) -> None:
+    """A diameter and a single side's width go back as they came; a file without them
+    has no PROCESSING group; a width that is not a length in metres is refused."""
+    m = walk_markers(synth_walk())
+    p = tmp_path / "none.c3d"
+    write_c3d(p, m, units="mm")
+    assert "PROCESSING" not in ezc3d.c3d(str(p))["parameters"]
+    assert "ankle_width_m" not in read_c3d(p).meta
+    m.meta = {"ankle_width_m": {"R": 0.071}, "marker_diameter_m": 0.025}
+    for units in ("mm", "m"):
+        write_c3d(tmp_path / f"one_{units}.c3d", m, units=units)
+        r = read_c3d(tmp_path / f"one_{units}.c3d")
+        assert r.meta["ankle_width_m"] == {"R": pytest.approx(0.071)}
+        assert r.meta["marker_diameter_m"] == pytest.approx(0.025)
+    for bad in ({"ankle_width_m": {"L": 64.0}}, {"ankle_width_m": 0.07},
+                {"marker_diameter_m": float("nan")}):
+        m.meta = bad
+        with pytest.raises(InputError, match="metres"):
+            write_c3d(tmp_path / "bad.c3d", m)
+
+
 def test_trc_round_trip_exact(tmp_path: Path) -> None:
     m = walk_markers(synth_walk(), up="y")
     m.positions[7, 1] = np.nan
