@@ -266,12 +266,91 @@ def ankle_joint_centre(ankle: FloatArray, medial: FloatArray | None,
     return ankle + (0.5 * ankle_width_m + 0.5 * marker_diameter_m) * axis, "width"
 
 
+#: Length of the moving average that gives the direction of travel (a stride or so).
+TRAVEL_SMOOTH_S = 1.0
+#: Below this speed on the floor a frame gives no direction of travel (standing, turning).
+MIN_TRAVEL_SPEED_M_S = 0.2
+
+
+def travel_directions(centre: FloatArray, rate: float) -> FloatArray | None:
+    """Per frame, the unit direction of travel on the floor of a body point.
+
+    The point is averaged over :data:`TRAVEL_SMOOTH_S` (the feet's side-to-side sway
+    cancels over a stride) and differentiated; frames slower than
+    :data:`MIN_TRAVEL_SPEED_M_S` take the direction interpolated from their neighbours.
+
+    Args:
+        centre: ``(T, 3)`` a body point (the midpoint of the ankle markers), m, Z up,
+            on a uniform time axis; NaN where unknown.
+        rate: Frames per second.
+
+    Returns:
+        ``(T, 3)`` unit vectors with zero Z, or None when fewer than two frames move.
+    """
+    c = centre[:, :2].copy()
+    ok = np.isfinite(c).all(axis=1)
+    if ok.sum() < 2:
+        return None
+    i = np.arange(len(c))
+    for k in range(2):  # the edges held, gaps bridged, for the average
+        c[:, k] = np.interp(i, i[ok], c[ok, k])
+    n = max(1, round(TRAVEL_SMOOTH_S * rate) // 2)
+    pad = np.concatenate([np.repeat(c[:1], n, axis=0), c, np.repeat(c[-1:], n, axis=0)])
+    kern = np.ones(2 * n + 1) / (2 * n + 1)
+    sm = np.stack([np.convolve(pad[:, k], kern, mode="valid") for k in range(2)], axis=1)
+    v = np.gradient(sm, axis=0) * rate
+    speed = np.linalg.norm(v, axis=1)
+    moving = ok & (speed >= MIN_TRAVEL_SPEED_M_S)
+    if moving.sum() < 2:
+        return None
+    ang = np.unwrap(np.arctan2(v[moving, 1], v[moving, 0]))
+    a = np.interp(i, i[moving], ang)
+    out = np.zeros((len(c), 3))
+    out[:, 0], out[:, 1] = np.cos(a), np.sin(a)
+    return out
+
+
+def walking_medial_directions(travel: FloatArray, ankle: FloatArray,
+                              other: FloatArray) -> FloatArray | None:
+    """A foot's medial direction without its heel→toe axis: across the walking direction.
+
+    Perpendicular to the direction of travel on the floor, pointing towards the other
+    foot (the sign taken once for the walk, as :func:`medial_directions` does). The
+    foot's turn-out is not known: each 10° of it moves a point placed 4 cm along this
+    direction about 7 mm along the walk and under 1 mm across it.
+
+    Args:
+        travel: ``(T, 3)`` unit direction of travel (:func:`travel_directions`).
+        ankle: ``(T, 3)`` the foot's lateral ankle marker, m, Z up.
+        other: ``(T, 3)`` a point of the other foot.
+
+    Returns:
+        ``(T, 3)`` unit vectors with zero Z, or None when the other foot's side cannot
+        be told.
+    """
+    n = np.stack([-travel[:, 1], travel[:, 0]], axis=1)  # the walk's left
+    side = nanstats.nanmedian(np.sum((other[:, :2] - ankle[:, :2]) * n, axis=1))
+    if not np.isfinite(side) or side == 0.0:
+        return None
+    out = np.zeros((len(n), 3))
+    out[:, :2] = np.sign(side) * n
+    return out
+
+
 def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str],
                    labels: list[str], P: FloatArray, t: FloatArray,
                    meta: dict[str, object]) -> list[str]:
     """Add the ``ankle_centre`` point of each foot whose ankle marker is lateral.
 
-    Returns the notes to report (a population width used, a marker kept as it is).
+    A foot whose centre cannot be placed (no heel→toe axis, no medial marker) while the
+    other foot's can is moved medially across the walking direction
+    (:func:`walking_medial_directions`) by its own ankle width (the file's, else the
+    population one): one foot at its joint and the other at its lateral marker would make
+    every step width about half an ankle width plus a marker radius (≈ 4 cm) too wide.
+    With neither foot placeable both markers are kept (the same point on each foot).
+
+    Returns the notes to report (a population width used, a foot placed across the
+    walking direction, a marker kept as it is).
     """
     notes: list[str] = []
     by_default: list[tuple[str, float]] = []  # (marker, offset cm) placed by the default
@@ -280,7 +359,10 @@ def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str
     d = meta.get("marker_diameter_m")
     diameter = float(d) if isinstance(d, int | float) else DEFAULT_MARKER_DIAMETER_M
     d_from = "PROCESSING:MarkerDiameter" if isinstance(d, int | float) else "default"
-    for side, word in (("L", "left"), ("R", "right")):
+    words = {"L": "left", "R": "right"}
+    # per lateral foot: (label, medial label, width or None, other foot's point)
+    todo: dict[str, tuple[str, str | None, float | None, FloatArray]] = {}
+    for side in ("L", "R"):
         other = "R" if side == "L" else "L"
         lab = sources.get(f"{side}_ankle")
         ref = pts[other].get("ankle", pts[other].get("heel"))
@@ -290,36 +372,64 @@ def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str
         if (lab is None or ref is None
                 or not (is_lateral_ankle(lab, side) or med_lab is not None)):
             continue
+        w = widths.get(side)
+        todo[side] = (lab, med_lab, float(w) if isinstance(w, int | float) else None, ref)
+
+    def width_words(side: str, lab: str, width: float | None) -> tuple[float, str]:
+        off_cm = 100 * (0.5 * (width or DEFAULT_ANKLE_WIDTH_M) + 0.5 * diameter)
+        src = f"PROCESSING:{side}AnkleWidth" if width is not None else "population default"
+        if width is None:
+            by_default.append((lab, off_cm))
+        return off_cm, (f"ankle joint centre: {lab} moved {off_cm:.1f} cm medially (ankle "
+                        f"width {1000 * (width or DEFAULT_ANKLE_WIDTH_M):.0f} mm: {src}; "
+                        f"marker diameter {1000 * diameter:.0f} mm: {d_from}")
+
+    unplaced: list[str] = []
+    for side, (lab, med_lab, width, ref) in todo.items():
         medial = (fill_gaps(t, P[:, labels.index(med_lab)]) if med_lab is not None
                   else None)
-        w = widths.get(side)
-        width = float(w) if isinstance(w, int | float) else None
         res = ankle_joint_centre(pts[side]["ankle"], medial, pts[side].get("heel"),
                                  pts[side].get("toe"), ref,
                                  width if width is not None else DEFAULT_ANKLE_WIDTH_M,
                                  diameter)
         if res is None:
-            notes.append(f"The {word} ankle marker {lab} is on the lateral malleolus and no "
-                         "heel and toe markers give the foot's axis to find the joint "
-                         f"centre from it: {lab} itself is measured, which puts the "
-                         "crossing method's step widths about 8 cm wider (an ankle width "
-                         "and a marker) than between the ankle joints.")
+            unplaced.append(side)
             continue
         centre, rule = res
         pts[side]["ankle_centre"] = centre
         if rule == "medial":
-            how = f"ankle joint centre: midpoint of {lab} and {med_lab}"
+            sources[f"{side}_ankle_centre"] = (f"ankle joint centre: midpoint of {lab} and "
+                                               f"{med_lab}")
         else:
-            off_cm = 100 * (0.5 * (width or DEFAULT_ANKLE_WIDTH_M) + 0.5 * diameter)
-            src = (f"PROCESSING:{side}AnkleWidth" if width is not None
-                   else "population default")
-            how = (f"ankle joint centre: {lab} moved {off_cm:.1f} cm medially (ankle width "
-                   f"{1000 * (width or DEFAULT_ANKLE_WIDTH_M):.0f} mm: {src}; marker "
-                   f"diameter {1000 * diameter:.0f} mm: {d_from})")
-            if width is None:
-                by_default.append((lab, off_cm))
-        sources[f"{side}_ankle_centre"] = how
+            sources[f"{side}_ankle_centre"] = width_words(side, lab, width)[1] + ")"
+    for side in unplaced:
+        lab, _, width, ref = todo[side]
+        other = "R" if side == "L" else "L"
+        n = None
+        if "ankle_centre" in pts[other] and len(t) > 1:
+            travel = travel_directions(0.5 * (pts[side]["ankle"] + pts[other]["ankle"]),
+                                       float(1.0 / np.median(np.diff(t))))
+            if travel is not None:
+                n = walking_medial_directions(travel, pts[side]["ankle"], ref)
+        if n is None:
+            notes.append(f"The {words[side]} ankle marker {lab} is on the lateral malleolus "
+                         "and no heel and toe markers give the foot's axis to find the joint "
+                         f"centre from it: {lab} itself is measured, which puts the "
+                         "crossing method's step widths about 8 cm wider (an ankle width "
+                         "and a marker) than between the ankle joints.")
+            continue
+        off_cm, how = width_words(side, lab, width)
+        pts[side]["ankle_centre"] = pts[side]["ankle"] + 0.01 * off_cm * n
+        sources[f"{side}_ankle_centre"] = how + "; across the walking direction)"
+        notes.append(f"The {words[side]} foot has no heel and toe markers to give its axis: "
+                     f"its ankle joint centre was placed {off_cm:.1f} cm medial of {lab} "
+                     "across the walking direction (the foot's turn-out unknown: each 10° "
+                     "of it moves the centre about 7 mm along the walk, under 1 mm across), "
+                     f"as the {words[other]} foot's was placed from its markers; measuring "
+                     f"{lab} itself would make every step width about {off_cm:.0f} cm "
+                     "wider.")
     if by_default:
+        by_default.sort(key=lambda x: [v[0] for v in todo.values()].index(x[0]))  # L, R
         labs = " and ".join(lab for lab, _ in by_default)
         which = "joint centres were" if len(by_default) == 2 else "joint centre was"
         notes.append(f"The ankle {which} placed {by_default[0][1]:.1f} cm medial of {labs} "

@@ -386,8 +386,9 @@ def base(request: pytest.FixtureRequest) -> tuple[MarkerTrajectories, Doc]:
 
 
 #: Cases that kill a heel or toe marker of the real trial: that foot has no heel→toe
-#: axis, so its lateral ankle marker is measured as it is (no joint centre), as when the
-#: file has no such marker at all — their reference is the trial's Plug-in Gait markers
+#: axis, so its lateral ankle marker is measured as it is (both feet) or moved across the
+#: walking direction (one foot), as when the file has no such marker at all — their
+#: reference is the trial's Plug-in Gait markers
 #: without those (not the whole trial without them: its model outputs have an RFOO, which
 #: is taken for a toe where no RTOE is listed).
 _DEAD_FOOT = {"c3d_dead_heels": ("LHEE", "RHEE"),
@@ -411,9 +412,14 @@ def test_same_walk_same_steps(case: str, base: tuple[MarkerTrajectories, Doc], t
         v = _without(_renamed(m, NAMINGS["plug_in_gait"]), _DEAD_FOOT[case])
         rc, ref, err = _run([str(_write("c3d", v, tmp_path / "ref.c3d")), "--json"], capsys)
         assert rc == 0 and ref is not None, err
-        kept = {lab[0] + "ANK" for lab in _DEAD_FOOT[case] if lab[1:] in ("HEE", "TOE")}
-        assert all(any(f"marker {k} is on the lateral" in n for n in doc["summary"]["notes"])
-                   for k in kept), doc["summary"]["notes"]
+        dead = {lab[0] for lab in _DEAD_FOOT[case] if lab[1:] in ("HEE", "TOE")}
+        notes = doc["summary"]["notes"]
+        if len(dead) == 2:  # neither foot has an axis: both markers kept
+            assert all(any(f"marker {s}ANK is on the lateral" in n for n in notes)
+                       for s in dead), notes
+        else:  # the other foot's centre placed: this one's across the walking direction
+            word = {"L": "left", "R": "right"}[dead.pop()]
+            assert any(n.startswith(f"The {word} foot has no heel and toe") for n in notes)
     _same_steps(ref, doc, 1.0 / m.rate)
 
 
@@ -1276,3 +1282,83 @@ def test_table_says_which_point_was_measured(shared_data: Path,
                       "(ankle width 64 mm: PROCESSING:LAnkleWidth; marker diameter 14 mm: "
                       "default)")
     assert out[3].startswith("right foot measured at: ankle joint centre: RANK moved 3.9 cm")
+
+
+#: (file kind, heading °, mirrored file, foot without heel and toe, the file's ankle
+#: widths L/R in m or None: the population width, which walk_markers places LANK with)
+_ONE_FOOT_AXIS = {
+    "c3d_widths_known": ("c3d", 100.0, False, "L", (0.060, 0.080)),
+    "trc_default_width_mirrored": ("trc", 225.0, True, "R", None),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_ONE_FOOT_AXIS))
+def test_one_foot_without_heel_and_toe(case: str, tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """One foot has lateral ankle, heel and toe markers, the other only its lateral
+    ankle marker: that foot's joint centre is placed across the walking direction with
+    its own ankle width (the file's, else the population one), so the steps are those
+    between the true joint centres (named XL/XR) within 1 mm. Keeping that foot's
+    marker, as before, made every step about 4 cm (half an ankle width and a marker)
+    too wide."""
+    from engine.mocap import DEFAULT_ANKLE_WIDTH_M
+    from engine.sim.straight_walk import synth_walk, walk_markers
+
+    kind, heading, mirrored, bare, widths = _ONE_FOOT_AXIS[case]
+    w = synth_walk(n_steps=12, rate=100.0, heading_deg=heading)
+    m = walk_markers(w)  # LANK/RANK on the lateral malleoli of a 70 mm ankle
+    P = m.positions.copy()
+    if widths is not None:
+        # move each marker outwards to the malleolus of the file's ankle width
+        for side, width in zip("LR", widths, strict=True):
+            k = m.labels.index(f"{side}ANK")
+            out = P[:, k] - w.joints[f"ankle{side}"]
+            out /= np.linalg.norm(out, axis=1, keepdims=True)
+            P[:, k] += 0.5 * (width - DEFAULT_ANKLE_WIDTH_M) * out
+        m.meta = {"ankle_width_m": dict(zip("LR", widths, strict=True))}
+    keep = [k for k, lab in enumerate(m.labels) if lab not in (f"{bare}HEE", f"{bare}TOE")]
+    truth = np.stack([w.joints["ankleL"], w.joints["ankleR"]], axis=1)
+    m = replace(m, positions=np.concatenate([P[:, keep], truth], axis=1),
+                labels=[m.labels[k] for k in keep] + ["XL", "XR"])
+    m = _map(m, _mirror(0) if mirrored else None, (2500.0, -700.0, 0.0))
+    p = _write(kind, m, tmp_path / f"one_foot.{kind}", "mm")
+    rc, doc, err = _run([str(p), "--json"], capsys)
+    assert rc == 0 and doc is not None, err
+    rc, ref, err = _run([str(p), "--json", "--left", "XL", "--right", "XR"], capsys)
+    assert rc == 0 and ref is not None, err
+    _same_steps(ref, doc, 0.01)
+    rc, as_is, err = _run([str(p), "--json", "--left", "LANK", "--right", "RANK"], capsys)
+    assert rc == 0 and as_is is not None, err
+    for a, r in zip(as_is["steps"], ref["steps"], strict=True):
+        assert a["width_m"] - r["width_m"] > 0.07  # both markers: ≈ 8 cm wider
+    pts, notes = doc["summary"]["foot_points"], doc["summary"]["notes"]
+    mm_ = round(1000 * (widths[0 if bare == "L" else 1] if widths else DEFAULT_ANKLE_WIDTH_M))
+    src = f"PROCESSING:{bare}AnkleWidth" if widths else "population default"
+    assert f"ankle width {mm_} mm: {src}" in pts[bare], pts
+    assert pts[bare].endswith("across the walking direction)"), pts
+    other = "R" if bare == "L" else "L"
+    assert "across" not in pts[other] and "moved" in pts[other], pts
+    word = {"L": "left", "R": "right"}[bare]
+    assert notes[0].startswith(f"The {word} foot has no heel and toe markers"), notes
+    assert len(notes) == (1 if widths else 2), notes
+
+
+@pytest.mark.parametrize("bare", ["L", "R"])
+def test_real_trial_one_foot_without_heel_and_toe(shared_data: Path, bare: str) -> None:
+    """The Vicon trial with one foot's heel and toe markers (and Plug-in Gait's foot
+    outputs) removed: that foot's joint centre, placed across the walking direction,
+    gives the whole file's crossing step widths within 1 mm (the marker kept: 3.8 cm
+    wider); lengths move by under 1 cm (the foot's turn-out is not known)."""
+    from engine.gait import GaitAnalysis
+    from engine.mocap import feet_from_markers
+
+    m = read_c3d(shared_data / "mocap" / "kineticstoolkit" / "walk.c3d")
+    full = GaitAnalysis("crossing").fit(feet_from_markers(m)).steps_
+    gone = {f"{bare}HEE", f"{bare}TOE", f"{bare}FOO"}
+    feet = feet_from_markers(_without(m, tuple(gone)))
+    one = GaitAnalysis("crossing").fit(feet).steps_
+    assert [s.side for s in one] == [s.side for s in full] and len(full) >= 3
+    for a, b in zip(full, one, strict=True):
+        assert abs(a.width_m - b.width_m) < 1e-3, (a.width_m, b.width_m)
+        assert abs(a.length_m - b.length_m) < 0.01, (a.length_m, b.length_m)
+    assert feet.sources[f"{bare}_ankle_centre"].endswith("across the walking direction)")
