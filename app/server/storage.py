@@ -24,6 +24,7 @@ import io
 import json
 import os
 import shutil
+import stat
 import tempfile
 import threading
 import time
@@ -334,10 +335,19 @@ def note_changed(path: Path) -> None:
 
 
 def dir_bytes(path: Path) -> int:
-    """Bytes of every file below ``path`` (0 if it does not exist)."""
-    if not path.exists():
-        return 0
-    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+    """Bytes of every file below ``path`` (0 if it does not exist).
+
+    A file or folder that vanishes while it is counted counts 0: a transfer renames its
+    temporary files into place (and a deletion removes them) while the storage pages are
+    read — ``rglob`` then ``stat`` of a renamed file answered a poll with a 500.
+    """
+    total = 0
+    for base, _dirs, files in os.walk(path):  # os.walk skips a folder gone meanwhile
+        for name in files:
+            with contextlib.suppress(OSError):
+                st = os.stat(os.path.join(base, name), follow_symlinks=False)
+                total += st.st_size if stat.S_ISREG(st.st_mode) else 0  # no link followed
+    return total
 
 
 # --------------------------------------------------------------------------- reading parts

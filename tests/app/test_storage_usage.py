@@ -124,3 +124,34 @@ def test_a_transfer_that_ends_is_measured_again(tmp_path: Path) -> None:
     assert idx.recording_bytes("R1") == 300
     st.StorageLayout(tmp_path).delete_recording("R1")
     assert idx.many(["R1", "R2"]) == {"R1": 0, "R2": 0}
+
+
+def test_files_that_vanish_while_counted_count_nothing(tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """A transfer renames its temporary files into place while the storage pages poll a
+    recording's size: a file listed and then gone before it is measured counts 0 (it
+    answered the Record page's poll with a 500), and so does a folder gone meanwhile.
+    Links are not followed (a size is the data folder's own)."""
+    rec = tmp_path / "rec"
+    (rec / "S1").mkdir(parents=True)
+    (rec / "S1" / "frames.bin").write_bytes(b"x" * 1000)
+    (rec / "S1" / "chunk.tmp").write_bytes(b"y" * 500)
+    (rec / "S2").mkdir()
+    (rec / "S2" / "frames.bin").write_bytes(b"z" * 300)
+    outside = tmp_path / "outside.bin"
+    outside.write_bytes(b"o" * 10_000)
+    (rec / "S1" / "link.bin").symlink_to(outside)
+    assert st.dir_bytes(rec) == 1800
+    real_walk = st.os.walk
+
+    def walk_then_vanish(top: Any, *a: Any, **k: Any) -> Iterator[Any]:
+        for base, dirs, files in real_walk(top, *a, **k):
+            # listed, then renamed into place and removed before being measured
+            for name in files:
+                if name == "chunk.tmp":
+                    (Path(base) / name).unlink()
+            yield base, dirs, files
+
+    monkeypatch.setattr(st.os, "walk", walk_then_vanish)
+    assert st.dir_bytes(rec) == 1300
+    assert st.dir_bytes(tmp_path / "no-such-folder") == 0

@@ -22,6 +22,7 @@ returns it as an RGB array; :func:`color_fraction`, :func:`changed_fraction` and
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import os
@@ -169,6 +170,12 @@ def live_server() -> Iterator[LiveServer]:
     finally:
         stop_process(proc)
         log.close()
+        # kept for the person reading a failure (a 500's traceback is only in this log)
+        from tests.conftest import ARTIFACTS
+
+        ARTIFACTS.mkdir(exist_ok=True)
+        with contextlib.suppress(OSError):
+            shutil.copyfile(tmp / "demo.log", ARTIFACTS / "browser-demo.log")
         shutil.rmtree(tmp, ignore_errors=True)
 
 
