@@ -157,6 +157,12 @@ def initial_orientation(
     return q[0] if single else q
 
 
+#: Gradient norm below which the objective is at its minimum (no correction step): the
+#: gradient's terms are products of unit quaternions and residuals of at most 2, so a
+#: residual at double-precision rounding gives a norm around 1e-16.
+_GRAD_ZERO = 1e-12
+
+
 @njit(cache=True, fastmath=False)
 def _madgwick_loop(
     gyr: FloatArray, acc: FloatArray, mag: FloatArray, use_mag: bool, q0: FloatArray,
@@ -217,6 +223,11 @@ def _madgwick_loop(
                     g3 += (-4.0 * bx * qz + 2.0 * bz * qx) * f3 \
                         + (-2.0 * bx * qw + 2.0 * bz * qy) * f4 + 2.0 * bx * qx * f5
                 gn = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2 + g3 * g3)
+                if gn < _GRAD_ZERO:
+                    # the measurements fit q exactly (e.g. q0 from this very sample): the
+                    # gradient is zero, and normalising its rounding noise would step β·dt
+                    # in an arbitrary direction (which one depends on the numpy build)
+                    gn = 0.0
             if gn > 0.0 and zeta > 0.0:
                 # Gyro bias drift compensation (eqs. 47-49): ω_ε = 2 q* ⊗ ∇f/|∇f|
                 ex = 2.0 * (qw * g1 - qx * g0 - qy * g3 + qz * g2) / gn
