@@ -29,6 +29,16 @@ def _children(pid: int) -> set[int]:
     return kids
 
 
+def _interrupt(demo: subprocess.Popen[bytes]) -> None:
+    """Ctrl-C as in a terminal; killed (and the test failed) if it does not stop in 20 s."""
+    demo.send_signal(signal.SIGINT)
+    try:
+        demo.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        demo.kill()
+        raise
+
+
 def test_demo_six_nodes_online_and_clean_stop(tmp_path: Path) -> None:
     port, vport = free_port(), free_port()
     gaitrig = Path(sys.executable).parent / "gaitrig"
@@ -66,12 +76,7 @@ def test_demo_six_nodes_online_and_clean_stop(tmp_path: Path) -> None:
         kids = _children(demo.pid)
         assert len(kids) == 7  # server + six nodes
     finally:
-        demo.send_signal(signal.SIGINT)
-        try:
-            demo.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            demo.kill()
-            raise
+        _interrupt(demo)
     alive = [k for k in kids if Path(f"/proc/{k}").exists()
              and "Z" not in (Path(f"/proc/{k}") / "stat").read_text().rsplit(")", 1)[1][:3]]
     assert alive == [], f"processes left behind: {alive}"
@@ -114,10 +119,5 @@ def test_demo_after_the_password_was_changed_in_the_console(tmp_path: Path) -> N
         assert demo.poll() is None, log.read_text()
         assert "Traceback" not in log.read_text()
     finally:
-        demo.send_signal(signal.SIGINT)
-        try:
-            demo.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            demo.kill()
-            raise
+        _interrupt(demo)
     assert demo.returncode == 0, log.read_text()
