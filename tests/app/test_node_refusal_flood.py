@@ -66,7 +66,9 @@ def _nodes(settings: Settings) -> dict[str, dict[str, Any]]:
 
 
 async def _hello(url: str, node_id: str) -> ClientConnection:
-    ws = await connect(url, open_timeout=5, max_size=None, ping_interval=None)
+    # max_queue=None: a test that reads nothing for a while (pings, refusals arriving)
+    # must still see the close frame; a full queue stops reading and close() waited 10 s
+    ws = await connect(url, open_timeout=5, max_size=None, ping_interval=None, max_queue=None)
     await ws.send(dump(Hello(node_id=node_id, token=NODE_TOKEN)))
     assert json.loads(await asyncio.wait_for(ws.recv(), 5))["type"] == "welcome"
     return ws
