@@ -312,7 +312,8 @@ def test_a_refusal_to_come_back_later_is_retried_not_final(tmp_path: Path, reaso
             return
         await ws.send(dump(Welcome(server_time=time.time(),  # type: ignore[attr-defined]
                                    ping_interval_s=0.1)))
-        await asyncio.sleep(5)
+        # served until the node goes (a fixed 5 s sleep held the server's exit that long)
+        await ws.wait_closed()  # type: ignore[attr-defined]
 
     async def scenario() -> None:
         async with serve(handler, "127.0.0.1", 0) as srv:
