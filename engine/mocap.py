@@ -217,10 +217,18 @@ def medial_directions(ankle: FloatArray, heel: FloatArray, toe: FloatArray,
         i = np.arange(len(f))
         a = np.interp(i, i[ok], ang)
         n = np.stack([np.cos(a), np.sin(a)], axis=1)
+    return _towards_other_foot(n, ankle, other)
+
+
+def _towards_other_foot(n: FloatArray, ankle: FloatArray, other: FloatArray
+                        ) -> FloatArray | None:
+    """``(T, 2)`` floor directions ``n`` as ``(T, 3)`` vectors, signed once for the whole
+    walk to point towards the other foot (the median over frames); None when its side
+    cannot be told."""
     side = nanstats.nanmedian(np.sum((other[:, :2] - ankle[:, :2]) * n, axis=1))
     if not np.isfinite(side) or side == 0.0:
         return None
-    out = np.zeros((len(f), 3))
+    out = np.zeros((len(n), 3))
     out[:, :2] = np.sign(side) * n
     return out
 
@@ -329,12 +337,7 @@ def walking_medial_directions(travel: FloatArray, ankle: FloatArray,
         be told.
     """
     n = np.stack([-travel[:, 1], travel[:, 0]], axis=1)  # the walk's left
-    side = nanstats.nanmedian(np.sum((other[:, :2] - ankle[:, :2]) * n, axis=1))
-    if not np.isfinite(side) or side == 0.0:
-        return None
-    out = np.zeros((len(n), 3))
-    out[:, :2] = np.sign(side) * n
-    return out
+    return _towards_other_foot(n, ankle, other)
 
 
 def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str],
