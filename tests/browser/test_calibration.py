@@ -243,6 +243,8 @@ def test_wizard_says_the_result_in_words_and_asks_under_it(page: Any, live_serve
     assert page.get_attribute("#res-summary [data-verdict]", "data-verdict") == "bad"
     # too large: accepted only once the person ticks that they know what it costs
     assert not page.is_enabled("#accept")
+    page.locator("#decide").scroll_into_view_if_needed()
+    screenshot(page, artifacts_dir, "calibration_result_too_large", "#decide")
     page.check("#accept-bad")
     assert page.is_enabled("#accept")
     page.uncheck("#accept-bad")
