@@ -175,7 +175,10 @@ def live_server() -> Iterator[LiveServer]:
 
         ARTIFACTS.mkdir(exist_ok=True)
         with contextlib.suppress(OSError):
-            shutil.copyfile(tmp / "demo.log", ARTIFACTS / "browser-demo.log")
+            # one per test worker (make test runs several, each with its own server)
+            worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+            name = f"browser-demo-{worker}.log" if worker else "browser-demo.log"
+            shutil.copyfile(tmp / "demo.log", ARTIFACTS / name)
         shutil.rmtree(tmp, ignore_errors=True)
 
 
