@@ -66,7 +66,7 @@ from app.transfer import (
     pull_channel,
     set_timeout,
 )
-from app.transfer._channel import HELLO_LEN
+from app.transfer._channel import HELLO_LEN, HELLO_MAGIC
 from engine.errors import InputError
 from engine.wording import count
 
@@ -254,7 +254,9 @@ class TransferManager:
         data = b""
         try:
             async with asyncio.timeout(CHANNEL_OFFER_S):
-                while len(data) < HELLO_LEN:
+                # bytes that cannot begin a hello are refused at once, not after the
+                # timeout (a stray client would hold one of the MAX_HANDSHAKES slots)
+                while len(data) < HELLO_LEN and HELLO_MAGIC.startswith(data[:len(HELLO_MAGIC)]):
                     got = await loop.sock_recv(conn, HELLO_LEN - len(data))
                     if not got:
                         break
