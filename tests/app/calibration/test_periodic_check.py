@@ -32,11 +32,11 @@ def _periodic(r: Rig, state: str, text: str) -> dict[str, Any] | None:
 
 
 def test_periodic_check_reports_a_bumped_tripod_without_a_request(tmp_path: Path) -> None:
-    r = Rig(tmp_path, {"GAITRIG_CALIBRATION_CHECK_INTERVAL_S": "2"})
+    r = Rig(tmp_path, {"GAITRIG_CALIBRATION_CHECK_INTERVAL_S": "0.5"})
     try:
         d = wait_for(lambda: _periodic(r, "skipped", "no calibration yet"), 120,
                      "the periodic check to report that nothing is calibrated")
-        assert d["periodic"]["enabled"] and d["periodic"]["interval_s"] == 2
+        assert d["periodic"]["enabled"] and d["periodic"]["interval_s"] == 0.5
         assert d["checked"] is False and d["warnings"] == []
 
         save_version(truth_calibration(["S1", "S2"]), calibration_dir(tmp_path / "server"))
