@@ -14,7 +14,6 @@ import hashlib
 import json
 import shutil
 import signal
-import time
 from pathlib import Path
 from typing import Any
 
@@ -101,8 +100,16 @@ def _disk_full_on_the_server(make_rig: Any, tmp_path: Path, recs: Path) -> None:
         assert "disk is full" in r["reason"] and "S1" in r["reason"], r
         assert r["parts"][0]["state"] == "incomplete"
         assert not (recs / second / "S1" / "manifest.json").exists()
-        time.sleep(1.0)  # a retry must not turn it complete while the disk is full
-        assert rig.api(f"/api/storage/recordings/{second}")["state"] == "incomplete"
+        # a retry while the disk is still full fails again and leaves it incomplete (asked
+        # for: the automatic one comes only every 10 s)
+        failed = "transfer failed (server disk is full"
+        before = rig.log_text("server").count(failed)
+        rig.api(f"/api/storage/recordings/{second}/transfer", {})
+        wait_for(lambda: rig.log_text("server").count(failed) > before, 40,
+                 "the retry on a full disk to fail")
+        r = wait_state(rig, second, {"incomplete"}, timeout=40)
+        assert "disk is full" in r["reason"], r
+        assert not (recs / second / "S1" / "manifest.json").exists()
         # nothing else lost: the first recording is still complete and intact
         assert rig.api(f"/api/storage/recordings/{first}")["state"] == "complete"
         assert_identical(rig, tmp_path / "server", first, "S1")
