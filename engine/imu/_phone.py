@@ -170,10 +170,71 @@ def _open_zip(p: Path) -> zipfile.ZipFile:
     return zipfile.ZipFile(p)
 
 
+class ZipDirectory:
+    """A phone app's zip with its directory (file list) read once, kept open to unpack.
+
+    Made by :func:`read_zip_directory`; what a caller bounds (:attr:`unpacked_bytes`) is
+    what :func:`load_phone` then unpacks, from the same parsed list. Close it (or use it
+    in a ``with``) when done; :func:`load_phone` leaves a directory it is given open.
+
+    Attributes:
+        path: The zip file.
+        members: Every entry of the zip, in its order.
+        sensor_members: The entries :func:`load_phone` unpacks (text tables, not macOS's
+            or hidden files).
+        unpacked_bytes: Their declared sizes together: a bound, not an estimate
+            (``zipfile`` never reads more of a member than its declared size; a member
+            longer than declared fails its CRC).
+    """
+
+    def __init__(self, path: Path, zf: zipfile.ZipFile) -> None:
+        self.path = path
+        self._zf = zf
+        self.members = zf.infolist()
+        self.sensor_members = _sensor_members(self.members)
+        self.unpacked_bytes = sum(i.file_size for i in self.sensor_members)
+
+    def close(self) -> None:
+        """Close the zip file."""
+        self._zf.close()
+
+    def __enter__(self) -> ZipDirectory:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read_zip_directory(path: str | Path) -> ZipDirectory:
+    """Open a phone app's zip and read its directory, once (nothing is unpacked).
+
+    Args:
+        path: The zip file.
+
+    Returns:
+        Its members and the bytes :func:`load_phone` would unpack, the zip kept open for
+        :func:`load_phone` (which takes the result in place of the path).
+
+    Raises:
+        InputError: Not a readable zip, or a file list longer than
+            :data:`MAX_ZIP_DIRECTORY_BYTES`.
+    """
+    p = Path(path)
+    try:
+        zf = _open_zip(p)
+    except (zipfile.BadZipFile, OSError) as e:
+        raise InputError(f"{p.name}: not a readable zip archive ({e}); zip the recording's "
+                         "files again") from None
+    try:
+        return ZipDirectory(p, zf)
+    except BaseException:
+        zf.close()
+        raise
+
+
 def zip_unpacked_bytes(path: str | Path) -> int | None:
     """Bytes :func:`load_phone` would unpack from a phone app's zip, from its directory
-    alone (nothing is unpacked). A bound, not an estimate: ``zipfile`` never reads more of
-    a member than its declared size (a member longer than declared fails its CRC).
+    alone (:attr:`ZipDirectory.unpacked_bytes` of :func:`read_zip_directory`).
 
     Args:
         path: The zip file.
@@ -183,56 +244,50 @@ def zip_unpacked_bytes(path: str | Path) -> int | None:
         says why).
     """
     try:
-        with _open_zip(Path(path)) as zf:
-            return sum(i.file_size for i in _sensor_members(zf.infolist()))
+        with read_zip_directory(path) as d:
+            return d.unpacked_bytes
     except (zipfile.BadZipFile, OSError, ValueError, EOFError, InputError):
         return None
 
 
-def _unzip(p: Path, dest: Path) -> dict[str, list[tuple[str, Path]]]:
-    """The CSV members of a zip copied to ``dest`` under generated names, grouped by their
-    folder in the archive: folder -> [(member name, copy)]."""
-    try:
-        zf = _open_zip(p)
-    except (zipfile.BadZipFile, OSError) as e:
-        raise InputError(f"{p.name}: not a readable zip archive ({e}); zip the recording's "
-                         "files again") from None
-    with zf:
-        infos = zf.infolist()
-        if len(infos) > MAX_ZIP_MEMBERS:
-            raise InputError(f"{p.name}: {len(infos)} files in the zip, more than the "
-                             f"{MAX_ZIP_MEMBERS} a phone recording has; zip one recording")
-        bad = [i.filename for i in infos if not _safe_member(i.filename)]
-        if bad:
-            raise InputError(f"{p.name}: unsafe file name in the zip ({bad[0][:60]!r}: an "
-                             "absolute path or '..'); zip the recording's files again")
-        wanted = _sensor_members(infos)
-        total = sum(i.file_size for i in wanted)
-        if total > MAX_ZIP_UNCOMPRESSED:
-            raise InputError(f"{p.name}: the zip's files unpack to {total / 2**20:.0f} MB, "
-                             f"more than {MAX_ZIP_UNCOMPRESSED // 2**20} MB; split the "
-                             "recording")
-        groups: dict[str, list[tuple[str, Path]]] = {}
-        written = 0
-        for k, info in enumerate(wanted):
-            out = dest / f"m{k}{Path(info.filename).suffix.lower()}"
-            try:
-                with zf.open(info) as src, out.open("wb") as dst:
-                    while chunk := src.read(1 << 20):
-                        written += len(chunk)
-                        if written > MAX_ZIP_UNCOMPRESSED:  # sizes in the header may lie
-                            raise InputError(f"{p.name}: the zip unpacks to more than "
-                                             f"{MAX_ZIP_UNCOMPRESSED // 2**20} MB; split the "
-                                             "recording")
-                        dst.write(chunk)
-            except InputError:
-                raise
-            except (zipfile.BadZipFile, RuntimeError, OSError, EOFError, NotImplementedError,
-                    zlib.error) as e:  # damaged data, a password, an unknown compression
-                raise InputError(f"{p.name}: cannot unpack {info.filename!r} ({e}); zip the "
-                                 "files again (without a password)") from None
-            folder = str(PurePosixPath(info.filename.replace("\\", "/")).parent)
-            groups.setdefault(folder, []).append((info.filename, out))
+def _unzip(d: ZipDirectory, dest: Path) -> dict[str, list[tuple[str, Path]]]:
+    """The CSV members of a zip, from its directory read once, copied to ``dest`` under
+    generated names, grouped by their folder in the archive: folder -> [(member name,
+    copy)]."""
+    p, zf, infos = d.path, d._zf, d.members
+    if len(infos) > MAX_ZIP_MEMBERS:
+        raise InputError(f"{p.name}: {len(infos)} files in the zip, more than the "
+                         f"{MAX_ZIP_MEMBERS} a phone recording has; zip one recording")
+    bad = [i.filename for i in infos if not _safe_member(i.filename)]
+    if bad:
+        raise InputError(f"{p.name}: unsafe file name in the zip ({bad[0][:60]!r}: an "
+                         "absolute path or '..'); zip the recording's files again")
+    total = d.unpacked_bytes
+    if total > MAX_ZIP_UNCOMPRESSED:
+        raise InputError(f"{p.name}: the zip's files unpack to {total / 2**20:.0f} MB, "
+                         f"more than {MAX_ZIP_UNCOMPRESSED // 2**20} MB; split the "
+                         "recording")
+    groups: dict[str, list[tuple[str, Path]]] = {}
+    written = 0
+    for k, info in enumerate(d.sensor_members):
+        out = dest / f"m{k}{Path(info.filename).suffix.lower()}"
+        try:
+            with zf.open(info) as src, out.open("wb") as dst:
+                while chunk := src.read(1 << 20):
+                    written += len(chunk)
+                    if written > MAX_ZIP_UNCOMPRESSED:  # sizes in the header may lie
+                        raise InputError(f"{p.name}: the zip unpacks to more than "
+                                         f"{MAX_ZIP_UNCOMPRESSED // 2**20} MB; split the "
+                                         "recording")
+                    dst.write(chunk)
+        except InputError:
+            raise
+        except (zipfile.BadZipFile, RuntimeError, OSError, EOFError, NotImplementedError,
+                zlib.error) as e:  # damaged data, a password, an unknown compression
+            raise InputError(f"{p.name}: cannot unpack {info.filename!r} ({e}); zip the "
+                             "files again (without a password)") from None
+        folder = str(PurePosixPath(info.filename.replace("\\", "/")).parent)
+        groups.setdefault(folder, []).append((info.filename, out))
     return groups
 
 
@@ -437,12 +492,14 @@ def _sign_from_orientation(acc: FloatArray, q: FloatArray) -> tuple[float, float
 # ------------------------------------------------------------------------ merge
 
 
-def load_phone(path: str | Path, *, platform: str | None = None) -> ImuRecording:
+def load_phone(path: str | Path | ZipDirectory, *, platform: str | None = None
+               ) -> ImuRecording:
     """Read a phone app's one-file-per-sensor export (a ``.zip`` or a folder) as one
     recording; see the module docstring for the files, the merge and the iOS sign.
 
     Args:
-        path: the zip archive or the folder.
+        path: the zip archive or the folder, or a zip's directory already read
+            (:func:`read_zip_directory`: the zip is not opened again; left open).
         platform: ``"ios"`` (Core Motion's sign: face up reads z = −1 g) or ``"android"``
             (face up reads +9.81 m/s²): the convention of the acceleration files when the
             data and metadata cannot tell (declared: it overrides both).
@@ -454,14 +511,20 @@ def load_phone(path: str | Path, *, platform: str | None = None) -> ImuRecording
         InputError: no accelerometer or gyroscope file, several recordings in one
             archive, an unsafe or oversized zip, unreadable files, no common time span.
     """
-    p = Path(path)
+    given, p = (path, path.path) if isinstance(path, ZipDirectory) else (None, Path(path))
     if platform is not None and platform.strip().lower() not in ("ios", "android"):
         raise InputError(f"unknown platform {platform!r}; use 'ios' or 'android'")
-    if not p.exists():
+    if given is None and not p.exists():
         raise InputError(f"cannot read {p}: no such file or folder")
     tmp = Path(tempfile.mkdtemp(prefix="gaitrig-phone-"))
     try:
-        groups = _folder_files(p) if p.is_dir() else _unzip(p, tmp)
+        if given is not None:
+            groups = _unzip(given, tmp)
+        elif p.is_dir():
+            groups = _folder_files(p)
+        else:
+            with read_zip_directory(p) as d:
+                groups = _unzip(d, tmp)
         return _merge(p, _recording_files(p.name, groups), platform)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

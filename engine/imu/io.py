@@ -27,7 +27,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,6 +35,9 @@ from numpy.typing import NDArray
 from engine.errors import InputError
 from engine.geometry import quat_conj, quat_mul, quat_rotate
 from engine.wording import count
+
+if TYPE_CHECKING:  # _phone imports this module
+    from engine.imu._phone import ZipDirectory
 
 FloatArray = NDArray[np.float64]
 
@@ -1388,13 +1391,16 @@ def load_mvnx_all(path: str | Path) -> dict[str, ImuRecording]:
     return _load(path)
 
 
-def load_phone(path: str | Path, *, platform: str | None = None) -> ImuRecording:
+def load_phone(path: str | Path | ZipDirectory, *, platform: str | None = None
+               ) -> ImuRecording:
     """A phone app's one-file-per-sensor export (zip or folder: Sensor Logger, phyphox)
     merged on the gyroscope's time stamps, acceleration as specific force (iOS sign
     handled). See :mod:`engine.imu._phone`.
 
     Args:
-        path: The app's ``.zip`` export or the folder of its per-sensor CSVs.
+        path: The app's ``.zip`` export or the folder of its per-sensor CSVs, or a zip's
+            directory already read (``engine.imu._phone.read_zip_directory``: the zip is
+            not opened again, and left open).
         platform: ``"ios"`` or ``"android"`` (the accelerometer's sign convention); None:
             told from the phone's orientation quaternions or Sensor Logger's metadata,
             else Android's convention with a warning.

@@ -15,13 +15,15 @@ twice, with two choices, to use two of its sensors. An ``.mvnx`` without a choic
 stream per tracker, named after its label (after ``<name>_`` when a name is given). A
 ``.zip`` (Sensor Logger, phyphox) is unpacked in memory-bounded steps (at most
 ``engine.imu._phone.MAX_ZIP_MEMBERS`` members and ``engine.imu._phone.MAX_ZIP_UNCOMPRESSED``
-bytes unpacked, member names never used as paths; the zips of one request at most
-``MAX_ZIPS_UNPACKED_BYTES`` together, else 413); ``platform`` (``ios``/``android``)
-declares its acceleration's sign convention when neither the phone's orientation nor its
-metadata tells. ``quat_order`` (``wxyz``/``xyzw``) and ``quat_frame`` (``ENU``/``NED``) say
-how a CSV's reference quaternion columns are meant when gravity cannot tell (they are then
-compared with the filter's orientation). Dropped samples are filled on the nominal rate's
-grid (``engine.imu.io.fill_gaps``).
+bytes unpacked, member names never used as paths). What one request reads — its zips
+unpacked, its CSVs (and skeleton CSV) as they are — is at most ``MAX_ZIPS_UNPACKED_BYTES``
+together, else 413 before any file is read; each zip's directory is read once, for that
+bound and for its unpacking (``engine.imu._phone.read_zip_directory``). ``platform``
+(``ios``/``android``) declares its acceleration's sign convention when neither the phone's
+orientation nor its metadata tells. ``quat_order`` (``wxyz``/``xyzw``) and ``quat_frame``
+(``ENU``/``NED``) say how a CSV's reference quaternion columns are meant when gravity
+cannot tell (they are then compared with the filter's orientation). Dropped samples are
+filled on the nominal rate's grid (``engine.imu.io.fill_gaps``).
 
 Instead of a skeleton file, ``recording`` and ``recording_node`` take one sensor's
 skeleton from a recording already transferred to the server (placed in the world by the
@@ -34,6 +36,7 @@ Results stay in server memory (last few sessions), never on disk.
 
 from __future__ import annotations
 
+import contextlib
 import re
 import tempfile
 from pathlib import Path
@@ -55,7 +58,7 @@ from app.server.imu_analysis import (
     simulated_job,
 )
 from engine.errors import InputError
-from engine.imu._phone import zip_unpacked_bytes
+from engine.imu._phone import ZipDirectory, load_phone, read_zip_directory
 from engine.imu.fusion import PAPER_SENSORS
 from engine.imu.io import (
     ImuRecording,
@@ -77,10 +80,15 @@ MAX_FILES = 12
 #: Whole multipart request: every IMU file, the skeleton file and the form fields.
 MAX_REQUEST_BYTES = (MAX_FILES + 1) * MAX_FILE_BYTES + 1024 * 1024
 _ALLOWED_SUFFIXES = (".csv", ".txt", ".tsv", ".mat", ".hdf5", ".h5", ".mvnx", ".zip")
-#: phone zips of one request, unpacked together: parsing one peaks at ≈3.8× its unpacked
-#: size in memory (256 MB → ≈1 GB), so 12 full ones would need ≈12 GB; one phone
-#: recording of this size is over two hours of Sensor Logger at 100 Hz
+#: text one request reads: its phone zips unpacked and its CSVs (the skeleton's too)
+#: together, one budget. Parsing peaks at ≈3.8× a zip's unpacked size in memory (256 MB →
+#: ≈1 GB), a CSV's at ≈4× its numbers' (docs/file-formats.md), and every file's recording
+#: is held until the session is built: 12 full zips would need ≈12 GB, and 12 CSVs of 64 MB
+#: were allowed beside them; one phone recording of this size is over two hours of Sensor
+#: Logger at 100 Hz
 MAX_ZIPS_UNPACKED_BYTES = 256 * 2**20
+#: files read as text, counted at their size against ``MAX_ZIPS_UNPACKED_BYTES``
+_TEXT_SUFFIXES = (".csv", ".txt", ".tsv")
 #: streams of one session once MVNX exports are split per tracker (a full-body suit: 17)
 MAX_STREAMS = 24
 _NAME_RE = re.compile(r"^[A-Za-z0-9_\-]{1,40}$")
@@ -228,7 +236,12 @@ async def upload_session(
         use_recording = bool(recording) and skel_path is None
 
         def work() -> ImuJob:
-            _check_zips_unpacked(paths, files)
+            with contextlib.ExitStack() as opened:
+                return read_all(opened)
+
+        def read_all(opened: contextlib.ExitStack) -> ImuJob:
+            zips = _zip_directories(paths, opened)
+            _check_unpacked(paths, files, zips, skel_path, skel_name)
             recs: dict[str, ImuRecording] = {}
             for name, path, up, choice in zip(names, paths, files, choices, strict=True):
                 try:
@@ -246,7 +259,13 @@ async def upload_session(
                                 f"tracker); at most {MAX_STREAMS}: choose the trackers in "
                                 "'Sensor in file' (form field file_sensors)")
                         continue
-                    rec = _load(path, {**kwargs, "sensor": choice} if choice else kwargs)
+                    file_kw = {**kwargs, "sensor": choice} if choice else dict(kwargs)
+                    if path in zips:  # its directory read once: for the bound, to unpack
+                        zipped = zips[path]
+                        if isinstance(zipped, Exception):  # said in the file's turn
+                            raise zipped
+                        file_kw["zip_directory"] = zipped
+                    rec = _load(path, file_kw)
                 except MultipleSensorsError as e:
                     msg = str(e).replace(path.name, up.filename or name).replace(
                         "with sensor", "in 'Sensor in file' (form field file_sensors)")
@@ -288,25 +307,60 @@ async def upload_session(
     return _view(job)
 
 
-def _check_zips_unpacked(paths: list[Path], files: list[UploadFile]) -> None:
-    """Refuse (413) phone zips that unpack to more than ``MAX_ZIPS_UNPACKED_BYTES``
-    together, before any is unpacked (each one alone is bounded by the engine)."""
-    sizes = [(up.filename or path.name, zip_unpacked_bytes(path) or 0)
-             for path, up in zip(paths, files, strict=True) if path.suffix == ".zip"]
+def _zip_directories(paths: list[Path], opened: contextlib.ExitStack
+                     ) -> dict[Path, ZipDirectory | Exception]:
+    """Each uploaded zip's directory, read once (closed with ``opened``); a zip that
+    cannot be read keeps its error, raised when its turn comes (files are reported in
+    order)."""
+    out: dict[Path, ZipDirectory | Exception] = {}
+    for path in paths:
+        if path.suffix != ".zip":
+            continue
+        try:
+            out[path] = opened.enter_context(read_zip_directory(path))
+        except Exception as e:  # a damaged file can trip any reader library
+            out[path] = e
+    return out
+
+
+def _check_unpacked(paths: list[Path], files: list[UploadFile],
+                    zips: dict[Path, ZipDirectory | Exception], skel_path: Path | None,
+                    skel_name: str) -> None:
+    """Refuse (413) a request whose files hold more than ``MAX_ZIPS_UNPACKED_BYTES`` of
+    text to read — phone zips unpacked (from their directories: each one alone is bounded
+    by the engine), CSVs and the skeleton CSV at their size — before any is read."""
+    sizes = [(up.filename or path.name, d.unpacked_bytes if isinstance(d, ZipDirectory)
+              else 0) for path, up in zip(paths, files, strict=True)
+             if (d := zips.get(path)) is not None]
     total = sum(n for _, n in sizes)
+    limit = f"{MAX_ZIPS_UNPACKED_BYTES // 2**20} MB"
+    if total > MAX_ZIPS_UNPACKED_BYTES:
+        mb = f"{total / 2**20:.0f} MB"
+        if len(sizes) == 1:
+            msg = (f"{sizes[0][0]}: the zip unpacks to {mb}, more than the {limit} one "
+                   "session may unpack; split the recording")
+        else:
+            name, largest = max(sizes, key=lambda s: s[1])
+            msg = (f"the {len(sizes)} phone zips of this session unpack to {mb} together "
+                   f"(the largest, {name}, to {largest / 2**20:.0f} MB), more than the "
+                   f"{limit} one session may unpack; upload them in several sessions, "
+                   "fewer zips each, or split the longest recording")
+        raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, msg)
+    text = [(up.filename or path.name, path.stat().st_size)
+            for path, up in zip(paths, files, strict=True) if path.suffix in _TEXT_SUFFIXES]
+    if skel_path is not None:
+        text.append((skel_name or skel_path.name, skel_path.stat().st_size))
+    sizes += text
+    total += sum(n for _, n in text)
     if total <= MAX_ZIPS_UNPACKED_BYTES:
         return
-    mb, limit = f"{total / 2**20:.0f} MB", f"{MAX_ZIPS_UNPACKED_BYTES // 2**20} MB"
-    if len(sizes) == 1:
-        msg = (f"{sizes[0][0]}: the zip unpacks to {mb}, more than the {limit} one session "
-               "may unpack; split the recording")
-    else:
-        name, largest = max(sizes, key=lambda s: s[1])
-        msg = (f"the {len(sizes)} phone zips of this session unpack to {mb} together (the "
-               f"largest, {name}, to {largest / 2**20:.0f} MB), more than the {limit} one "
-               "session may unpack; upload them in several sessions, fewer zips each, or "
-               "split the longest recording")
-    raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, msg)
+    name, largest = max(sizes, key=lambda s: s[1])
+    raise HTTPException(
+        status.HTTP_413_CONTENT_TOO_LARGE,
+        f"upload fewer or shorter files: the {len(sizes)} files of this session hold "
+        f"{total / 2**20:.0f} MB to read (CSVs as they are, phone zips unpacked; the "
+        f"largest, {name}, {largest / 2**20:.0f} MB), at most {limit} in one session; "
+        "upload them in several sessions or split the longest recording")
 
 
 def _fuse_named(recs: dict[str, ImuRecording], sk: SkeletonSeries, filt: FilterName,
@@ -374,11 +428,12 @@ def _tracker_name(prefix: str, label: str) -> str:
 
 def _load(path: Path, kwargs: dict[str, Any]) -> ImuRecording:
     # dropped samples filled: the filters assume a constant rate (engine.imu.io.fill_gaps)
-    if path.suffix in (".csv", ".txt", ".tsv"):
+    if path.suffix in _TEXT_SUFFIXES:
         return fill_gaps(load_imu(path, **{k: v for k, v in kwargs.items()
                                            if k != "platform"}))
-    if path.suffix == ".zip":
-        return fill_gaps(load_imu(path, platform=kwargs.get("platform")))
+    if path.suffix == ".zip":  # its directory already read (_zip_directories)
+        return fill_gaps(load_phone(kwargs.get("zip_directory") or path,
+                                    platform=kwargs.get("platform")))
     if path.suffix == ".mvnx":
         return fill_gaps(load_imu(path, sensor=kwargs.get("sensor")))
     if path.suffix in (".h5", ".hdf5"):  # APDM: one sensor of several, its reference frame

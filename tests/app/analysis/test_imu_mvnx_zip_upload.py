@@ -9,7 +9,9 @@ from __future__ import annotations
 import io
 import zipfile
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
@@ -183,3 +185,92 @@ def test_phone_zips_of_one_session_bounded_together(
     assert code == 400 and "lying.zip: cannot unpack 'Gyroscope.csv'" in body["detail"], body
     assert _phone.zip_unpacked_bytes(tmp_path / "none.zip") is None
     assert _post(client, "bad.zip", b"not a zip")[0] == 400  # the engine says why
+
+
+def _csv_bytes(seconds: float = 2.0) -> bytes:
+    """A generic one-sensor CSV (gyroscope rad/s, acceleration g: declare the units)."""
+    t = np.arange(round(seconds * 100)) / 100
+    return "\n".join(["time,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z",
+                      *(f"{ti:.2f},0.01,0,0,0,0,1.0" for ti in t)]).encode()
+
+
+def test_one_budget_for_the_csvs_and_zips_of_a_request(
+        client: TestClient, sims: dict[str, ImuRecording],  # noqa: F811
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Plain CSVs (and the skeleton CSV) count against MAX_ZIPS_UNPACKED_BYTES too, at
+    their size, with the zips at their unpacked size: one budget per request. Past it the
+    request is refused (413, the total, the limit and what to do) before any file is read,
+    and nothing is stored; at it, accepted. Each zip's directory is read once, for the
+    bound and the unpacking."""
+    from app.api.routes import imu as route
+    from app.server.imu_analysis import ImuStore
+
+    content = zip_files(tmp_path / "walk.zip", sensor_logger(sims["Pelvis"], ios=False)
+                        ).read_bytes()
+    unpacked = _phone.zip_unpacked_bytes(tmp_path / "walk.zip")
+    assert unpacked is not None
+    csv = _csv_bytes()
+    added: list[object] = []
+    real_add = ImuStore.add
+    monkeypatch.setattr(ImuStore, "add",
+                        lambda self, job: added.append(job) or real_add(self, job))
+    loaded: list[Path] = []
+    real_load = route._load
+
+    def load(path: Path, kwargs: dict) -> ImuRecording:
+        loaded.append(path)
+        return real_load(path, kwargs)
+
+    monkeypatch.setattr(route, "_load", load)
+    opened: list[Path] = []
+
+    class Counting(zipfile.ZipFile):  # defined before the patch: the real class
+        def __init__(self, file: Path, *a: Any, **k: Any) -> None:
+            opened.append(file)
+            super().__init__(file, *a, **k)
+
+    monkeypatch.setattr(_phone.zipfile, "ZipFile", Counting)
+
+    def post(*named: tuple[str, bytes], skeleton: bytes | None = None) -> Any:
+        up = [("files", (n, c, "application/octet-stream")) for n, c in named]
+        if skeleton is not None:
+            up.append(("skeleton", ("walk_depth.csv", skeleton, "text/csv")))
+        return client.post("/api/imu/sessions", files=up, data={
+            "synchronise": "false", "gyr_unit": "rad/s", "acc_unit": "g"})
+
+    def mb(n: int) -> str:
+        return f"{n / 2**20:.0f} MB"
+
+    # at the budget: accepted, the zip opened once (before: once for the bound, once to
+    # unpack it)
+    total = unpacked + len(csv)
+    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", total)
+    r = post(("walk.zip", content), ("mine.csv", csv))
+    assert r.status_code == 200, r.text
+    assert [s["name"] for s in r.json()["sensors"]] == ["walk", "mine"]
+    assert len(opened) == 1 and len(loaded) == 2 and len(added) == 1
+    # one byte over: refused before any file is read, nothing stored
+    opened.clear()
+    loaded.clear()
+    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", total - 1)
+    r = post(("walk.zip", content), ("mine.csv", csv))
+    assert r.status_code == 413 and not loaded and len(added) == 1, r.text
+    largest = "walk.zip" if unpacked >= len(csv) else "mine.csv"
+    assert r.json()["detail"] == (
+        f"upload fewer or shorter files: the 2 files of this session hold {mb(total)} to "
+        f"read (CSVs as they are, phone zips unpacked; the largest, {largest}, "
+        f"{mb(max(unpacked, len(csv)))}), at most {mb(total - 1)} in one session; upload "
+        "them in several sessions or split the longest recording")
+    assert len(opened) == 1
+    # CSVs only (twelve 64 MB ones fitted before), the skeleton CSV counted too
+    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", 2 * len(csv))
+    r = post(("mine1.csv", csv), ("mine2.csv", csv), ("mine3.csv", csv))
+    assert r.status_code == 413 and not loaded and len(added) == 1, r.text
+    assert r.json()["detail"].startswith("upload fewer or shorter files: the 3 files of "
+                                         "this session hold ")
+    r = post(("mine1.csv", csv), ("mine2.csv", csv), skeleton=b"time,SpineBase_x\n0,0\n")
+    assert r.status_code == 413 and not loaded and len(added) == 1, r.text
+    assert "the 3 files of this session" in r.json()["detail"]
+    r = post(("mine1.csv", csv), ("mine2.csv", csv))
+    assert r.status_code == 200, r.text
+    assert len(loaded) == 2 and len(added) == 2

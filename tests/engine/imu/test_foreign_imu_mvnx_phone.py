@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -438,6 +439,43 @@ def test_phone_zip_refusals(sims: dict[str, ImuRecording], tmp_path: Path,
     monkeypatch.setattr(_phone, "MAX_ZIP_UNCOMPRESSED", 32 * 2**20)
     with pytest.raises(InputError, match=r"unpack to 6[0-9] MB"):
         load_imu(bomb)
+
+
+def test_zip_directory_read_once_for_the_bound_and_the_unpacking(
+        sims: dict[str, ImuRecording], tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``read_zip_directory`` opens the zip once: its members, the ones ``load_phone``
+    unpacks and their declared total; ``load_phone`` given it opens no zip again (and
+    leaves it open for its owner), given a path it opens the zip once."""
+    sim = sims["Pelvis"]
+    files = sensor_logger(sim, ios=False)
+    p = zip_files(tmp_path / "walk.zip", {**files, "__MACOSX/._Gyroscope.csv": "x",
+                                          ".hidden.csv": "x", "photo.jpg": b"\xff" * 500})
+    opened: list[object] = []
+
+    class Counting(zipfile.ZipFile):  # defined before the patch: the real class
+        def __init__(self, file: Path, *a: Any, **k: Any) -> None:
+            opened.append(file)
+            super().__init__(file, *a, **k)
+
+    monkeypatch.setattr(_phone.zipfile, "ZipFile", Counting)
+    with _phone.read_zip_directory(p) as d:
+        assert opened == [p]
+        assert d.path == p and len(d.members) == len(files) + 3
+        assert sorted(i.filename for i in d.sensor_members) == sorted(files)
+        sizes = {k: len(v.encode() if isinstance(v, str) else v) for k, v in files.items()}
+        assert d.unpacked_bytes == sum(sizes.values())
+        rec = _phone.load_phone(d)
+        assert opened == [p]  # unpacked from the directory already read
+        assert np.allclose(rec.gyr, sim.gyr, atol=1e-8)
+        assert d._zf.fp is not None  # still open: the caller owns it
+    assert d._zf.fp is None
+    assert _phone.zip_unpacked_bytes(p) == d.unpacked_bytes
+    opened.clear()
+    assert len(load_imu(p)) == len(rec) and opened == [p]
+    (tmp_path / "no.zip").write_bytes(b"PK\x03\x04 not really")
+    with pytest.raises(InputError, match=r"^no\.zip: not a readable zip archive"):
+        _phone.read_zip_directory(tmp_path / "no.zip")
 
 
 def test_phone_zip_in_a_folder_and_uncalibrated_g(sims: dict[str, ImuRecording],
