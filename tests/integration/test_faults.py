@@ -3,7 +3,7 @@
 One recording on four nodes meets, at once: a second start, a node's clock stepped by
 NTP, a node killed (SIGKILL) and restarted while it runs, a node whose websocket is cut
 (a TCP proxy between it and the server drops every connection), a node whose disk fills
-up (a 32 KiB tmpfs, when this runs as root), and a node that joins after the start. The
+up (a 16 KiB tmpfs, when this runs as root), and a node that joins after the start. The
 restarted node records again into its part, the late one from when it joined.
 Then: stop, stop again, stop an unknown recording, delete it while it is transferred.
 Every frame a node wrote must end on the server byte-identical, and each part must say
@@ -84,9 +84,9 @@ class CuttableProxy:
 
 @pytest.fixture
 def tiny_node_disk(tmp_path: Path) -> Iterator[Path | None]:
-    """The recordings folder of node S3 on a 32 KiB tmpfs (None when it cannot be
+    """The recordings folder of node S3 on a 16 KiB tmpfs (None when it cannot be
     mounted: the disk-full part of the test is skipped then)."""
-    with tmpfs_if_possible(tmp_path / "nodes" / "S3" / "recordings", "32k") as folder:
+    with tmpfs_if_possible(tmp_path / "nodes" / "S3" / "recordings", "16k") as folder:
         yield folder
 
 
