@@ -130,14 +130,23 @@ def _test_corrupt(name: str, idx: int) -> bool:
     return False
 
 
+def _test_chunk_delay() -> float:
+    """TEST HOOK: seconds to hold every chunk back (``GAITRIG_TEST_CHUNK_DELAY_S``; with
+    ``GAITRIG_TEST_CHUNK_DELAY_FILE`` set, only while that file exists, so a test can
+    release a slowed transfer once it has seen what it wanted)."""
+    delay = float(os.environ.get("GAITRIG_TEST_CHUNK_DELAY_S", "0") or 0)
+    gate = os.environ.get("GAITRIG_TEST_CHUNK_DELAY_FILE")
+    return 0.0 if delay <= 0 or (gate and not os.path.exists(gate)) else delay
+
+
 async def _test_chunk_hooks(name: str, idx: int, message: bytearray, start: int) -> None:
     """TEST HOOKS of the transfer acceptance tests (environment of the node process):
     ``GAITRIG_TEST_CHUNK_DELAY_S`` slows every chunk down (so a transfer can be
-    interrupted), ``GAITRIG_TEST_CORRUPT_CHUNK=<file>:<index>`` flips one byte of that
-    chunk (at ``message[start]``) the first time it is sent. ``GAITRIG_TEST_CHUNK_SIZE``
-    (in :meth:`_manifest`) makes small parts span many chunks. The data channel's
-    equivalent is :func:`_test_channel_hook`."""
-    delay = float(os.environ.get("GAITRIG_TEST_CHUNK_DELAY_S", "0") or 0)
+    interrupted; see :func:`_test_chunk_delay`), ``GAITRIG_TEST_CORRUPT_CHUNK=<file>:<index>``
+    flips one byte of that chunk (at ``message[start]``) the first time it is sent.
+    ``GAITRIG_TEST_CHUNK_SIZE`` (in :meth:`_manifest`) makes small parts span many chunks.
+    The data channel's equivalent is :func:`_test_channel_hook`."""
+    delay = _test_chunk_delay()
     if delay > 0:
         await asyncio.sleep(delay)
     if len(message) > start and _test_corrupt(name, idx):
@@ -148,7 +157,7 @@ def _test_channel_hook(name: str, idx: int) -> bool:
     """TEST HOOKS on the data channel (runs in its thread): the delay and corruption of
     :func:`_test_chunk_hooks`, and ``GAITRIG_TEST_CUT_DATA_CHANNEL=<file>:<index>``
     closes the channel once, just before that chunk (the websocket stays up)."""
-    delay = float(os.environ.get("GAITRIG_TEST_CHUNK_DELAY_S", "0") or 0)
+    delay = _test_chunk_delay()
     if delay > 0:
         time.sleep(delay)
     cut = os.environ.get("GAITRIG_TEST_CUT_DATA_CHANNEL")

@@ -18,8 +18,9 @@ from app.server import backup as bk
 from tests.app.data.test_record_flow import record, setup_session, wait_state
 from tests.integration.conftest import Rig, wait_for
 
-# ~60 chunks of 512 bytes per 3-s part at 0.3 s each (two channels): the transfer lasts
-# ~9 s, well beyond the start-up of the backup command on a loaded machine
+# chunks of 512 bytes at 0.3 s each (two channels) while the test holds the transfer back
+# (the file exists): a 3-s part takes seconds, beyond the start-up of the backup command
+# on a loaded machine; released once the backup has left it out
 SLOW = {"GAITRIG_TEST_CHUNK_SIZE": "512", "GAITRIG_TEST_CHUNK_DELAY_S": "0.3"}
 
 
@@ -45,13 +46,15 @@ def _listing(rig: Rig) -> list[tuple[str, list[tuple[str, str]]]]:
 
 @pytest.mark.timeout(400)
 def test_backup_while_a_part_arrives_then_restore(make_rig: Any, tmp_path: Path) -> None:
-    rig: Rig = make_rig(SLOW)
+    hold = tmp_path / "hold-transfers"
+    rig: Rig = make_rig({**SLOW, "GAITRIG_TEST_CHUNK_DELAY_FILE": str(hold)})
     rig.start_node("S1")
     rig.wait_online(["S1"])
     ids = setup_session(rig)
     done = record(rig, ids["session"]["id"], seconds=1.0)
     assert wait_state(rig, done, {"complete", "incomplete"}, timeout=120)["state"] == "complete"
 
+    hold.touch()
     arriving = record(rig, ids["session"]["id"], seconds=3.0)
     incoming = tmp_path / "server" / "recordings" / arriving / "S1" / ".incoming"
     wait_for(incoming.is_dir, 30, "the part's transfer to be under way", step=0.05)
@@ -66,6 +69,7 @@ def test_backup_while_a_part_arrives_then_restore(make_rig: Any, tmp_path: Path)
     assert man["counts"]["recordings"] == 2  # the row is in: its part is what is left out
 
     # the transfer was not disturbed; once complete a backup holds it
+    hold.unlink()  # full speed from now on: the backup has seen it arriving
     assert wait_state(rig, arriving, {"complete", "incomplete"}, timeout=180)["state"] == (
         "complete")
     second = tmp_path / "second.tar"
