@@ -5,7 +5,9 @@ reason without marking anything complete or losing another recording.
 
 Node test hooks (environment): ``GAITRIG_TEST_CHUNK_SIZE`` makes the small simulated
 parts span many chunks, ``GAITRIG_TEST_CHUNK_DELAY_S`` slows each chunk so the transfer
-can be interrupted, ``GAITRIG_TEST_CORRUPT_CHUNK`` flips a byte of one chunk once.
+can be interrupted (while the file ``GAITRIG_TEST_CHUNK_DELAY_FILE`` names exists: the
+resumed transfers run at full speed), ``GAITRIG_TEST_CORRUPT_CHUNK`` flips a byte of one
+chunk once.
 """
 
 from __future__ import annotations
@@ -45,7 +47,10 @@ def transferring(rig: Rig, rec_id: str) -> dict[str, Any] | None:
 @pytest.mark.timeout(300)
 def test_corrupt_chunk_server_kill_and_node_cut_all_resume(make_rig: Any, tmp_path: Path
                                                            ) -> None:
+    hold = tmp_path / "hold-transfers"  # chunks are slowed while it exists
+    hold.touch()
     rig: Rig = make_rig({"GAITRIG_TEST_CHUNK_SIZE": "512", "GAITRIG_TEST_CHUNK_DELAY_S": "0.1",
+                         "GAITRIG_TEST_CHUNK_DELAY_FILE": str(hold),
                          "GAITRIG_TEST_CORRUPT_CHUNK": "frames.bin:1"})
     node = rig.start_node("S1")
     rig.wait_online(["S1"])
@@ -55,6 +60,7 @@ def test_corrupt_chunk_server_kill_and_node_cut_all_resume(make_rig: Any, tmp_pa
     rec_id = record(rig, ids["session"]["id"], seconds=3.0)
     wait_for(lambda: transferring(rig, rec_id), 30, "the transfer to be under way", step=0.05)
     rig.kill_server()
+    hold.unlink()  # interrupted: the resumed transfer need not crawl
     incoming = tmp_path / "server" / "recordings" / rec_id / "S1" / ".incoming"
     assert incoming.is_dir() and any(p.stat().st_size for p in incoming.glob("*.part"))
     rig.start_server()
@@ -67,10 +73,12 @@ def test_corrupt_chunk_server_kill_and_node_cut_all_resume(make_rig: Any, tmp_pa
 
     # 2. the node's socket is cut mid-transfer (killed): incomplete with the reason, then
     # resumed when the node is back
+    hold.touch()
     rec_id = record(rig, ids["session"]["id"], seconds=3.0)
     wait_for(lambda: transferring(rig, rec_id), 30, "the transfer to be under way", step=0.05)
     node.send_signal(signal.SIGKILL)  # the socket drops without a close frame
     node.wait()
+    hold.unlink()
     r = wait_state(rig, rec_id, {"incomplete"}, timeout=20)
     assert "S1" in (r["reason"] or "") and "disconnected" in r["reason"]
     rig.start_node("S1", name="S1-again")
