@@ -246,13 +246,16 @@ def test_identifiers_named_in_docs_exist() -> None:
             if p.suffix in (".py", ".js", ".html", ".sh") and p.is_file():
                 words |= set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", p.read_text()))
                 words.add(p.stem)
+    # the Makefile's variables (TEST_WORKERS, PYTEST_ARGS) are named in the docs too
+    words |= set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", (ROOT / "Makefile").read_text()))
     problems = []
     for where, code in _code_lines():
         for ident in re.findall(r"\b[A-Za-z_][A-Za-z0-9_]{3,}\b", code):
             if ident.startswith("GAITRIG_") or ident in _NOT_IDENTIFIERS:
                 continue  # settings: test_settings_named_in_docs_exist
             if ("_" in ident or re.search(r"[a-z][A-Z]", ident)) and ident not in words:
-                problems.append(f"{where}: {ident} occurs nowhere in {', '.join(_SOURCES)}")
+                problems.append(f"{where}: {ident} occurs nowhere in "
+                                f"{', '.join(_SOURCES)} or the Makefile")
     assert not problems, "\n".join(sorted(set(problems)))
 
 
