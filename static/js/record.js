@@ -255,6 +255,27 @@
     catch (e) { say("rec-msg", e.message); $("stop").disabled = false; }
   });
 
+  // A recording that was running when the page was opened (reloaded mid-walk, or opened
+  // in a second tab): "Who and when" showed the newest subject and the label field the
+  // session's next trial ("walk 3"), so the page said that someone else's walk was being
+  // recorded, under another label. It shows the recording's own subject, session and
+  // label, and says which recording Stop ends.
+  async function showRunning(r) {
+    recId = r.id;
+    if (r.subject) {
+      try {
+        await fillProjects(r.subject.project_id);
+        await fillSubjects(r.subject.id);
+        await fillSessions(r.session_id);
+      } catch (e) { say("who-msg", e.message); }
+    }
+    $("label").value = r.label || "";
+    usedLabel = r.label || "";  // Stop counts it on ("walk 2" → "walk 3") as after a Start here
+    const whose = r.subject ? ` of ${r.subject.code}` : "";
+    say("rec-msg", `Recording ${r.id}${r.label ? ` (“${r.label}”)` : ""}${whose} is running: Stop ends it.`, true);
+    follow();
+  }
+
   (async () => {
     const m = /subject=(\d+)/.exec(location.hash);
     try {
@@ -266,8 +287,10 @@
       // (the newest page: a running recording is the newest)
       const live = (await api("/api/recordings")).find((r) => r.state === "recording");
       if (live) {
-        try { await api(`/api/storage/recordings/${live.id}`); recId = live.id; follow(); }
+        let r = null;
+        try { r = await api(`/api/storage/recordings/${live.id}`); }
         catch (e) { say("rec-msg", `Recording ${live.id} is running (started elsewhere, not filed under a session).`); }
+        if (r) await showRunning(r);
       }
     } catch (e) { /* the list is optional */ }
     refreshNodes(); gaitrig.poll(refreshNodes, 2000); setInterval(tick, 100);
