@@ -12,6 +12,11 @@
   const STATE_TEXT = { recording: "recording", on_nodes: "on the sensors, waiting for transfer", transferring: "transferring to the server",
     complete: "complete — every part verified on the server", incomplete: "incomplete", on_node: "on the node", pending: "starting" };
   const PART_TEXT = { ...STATE_TEXT, complete: "complete", on_nodes: "on the sensors" };
+  // A recording shorter than this (s) holds no step a report can use: the analysis needs
+  // a straight pass and leaves out its first step and stride (a Stop pressed at once gave
+  // a 0.1 s recording that the page called complete, and the report left out with "no
+  // tracked AnkleLeft positions").
+  const SHORT_WALK_S = 2;
   const mb = (n) => n >= 2 ** 20 ? (n / 2 ** 20).toFixed(1) + " MB" : (n / 1024).toFixed(0) + " kB";
 
   let recId = null, recStart = null, recStop = null, subjectId = null;
@@ -199,7 +204,9 @@
       // the stop's "now copies…" would otherwise stay beside the "complete" badge
       if (r.state === "complete" && copying === r.id) {
         copying = null;
-        say("rec-msg", `Recording ${r.id} is copied to the server: every sensor's part verified.`, true);
+        if (r.duration_s !== null && r.duration_s < SHORT_WALK_S)
+          say("rec-msg", `Recording ${r.id} is copied to the server, but it lasted only ${r.duration_s.toFixed(1)} s: too short for a gait report, which needs several steps of walking. Record the walk again (this recording can be deleted on Subjects & recordings).`);
+        else say("rec-msg", `Recording ${r.id} is copied to the server: every sensor's part verified.`, true);
       }
       // a save error stays on screen until the server saved again
       // (gaitrig.wait: the next poll not while the page is hidden, at once when shown)

@@ -4,6 +4,9 @@ when she did the obvious wrong things, each fixed and checked in a real browser.
 * She reloaded the Record page while a walk was being recorded: the page followed the
   recording but "Who and when" showed the newest subject (not the one being recorded), the
   trial label the session's next walk, and no message said which recording was running.
+* She pressed Stop at once: the 0.1 s recording was called "complete — every part
+  verified" with nothing saying it was too short for a report (which left it out later
+  as "no tracked AnkleLeft positions").
 """
 
 from __future__ import annotations
@@ -60,3 +63,26 @@ def test_reloaded_record_page_shows_the_running_recordings_subject_and_label(
             srv.api(f"/api/recordings/{rec['id']}/stop", {}, method="POST")
         _wait_complete(srv, rec["id"])
 
+
+def test_stop_pressed_at_once_says_the_recording_is_too_short_for_a_report(
+        page: Any, live_server: LiveServer, artifacts_dir: Path) -> None:
+    srv = live_server
+    srv.login()
+    pid = srv.api("/api/projects", {"name": "Stop at once"})["id"]
+    subject = srv.api("/api/subjects", {"project_id": pid, "code": "STP01"})
+    session = srv.api("/api/sessions", {"subject_id": subject["id"], "label": "visit"})
+    page.set_viewport_size({"width": 1366, "height": 768})
+    page.goto(srv.base_url + f"/record.html#subject={subject['id']}")
+    page.wait_for_function(f"document.getElementById('session').value === '{session['id']}'")
+    page.click("#start")
+    page.wait_for_function("!document.getElementById('stop').disabled")
+    page.click("#stop")
+    page.wait_for_selector("#state-badge[data-state=complete]", timeout=90_000)
+    page.wait_for_function("!document.getElementById('rec-msg').textContent.includes('now copies')")
+    msg = page.locator("#rec-msg")
+    text = msg.inner_text()
+    assert "too short for a gait report" in text and "Record the walk again" in text
+    assert "lasted only" in text and " s:" in text
+    assert "bad" in (msg.get_attribute("class") or "")  # not the green of a good walk
+    screenshot(page, artifacts_dir, "first_session_stopped_at_once")
+    assert not page.js_errors
