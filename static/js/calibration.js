@@ -206,6 +206,15 @@
       ? "Computing the sensor poses from the markers…" : "";
   }
 
+  // A result that was asked for (a capture, a simulated run, a restore) is shown and the
+  // focus goes to its summary, the verdict in words: a screen reader reads it once, as the
+  // focus, and Tab leads on through the result (to Accept when one is asked). The summary is
+  // not a live region: it was, and the verdict was read twice (as news, then as the focus).
+  function focusResult() {
+    $("res-h").scrollIntoView({ block: "start" });  // (the result is below the fold)
+    $("res-summary").focus({ preventScroll: true });
+  }
+
   let pendingJob = null;
   // The Accept/Reject box sits right under the result it judges (it was in step 2, above
   // the result, away from what it accepts); a refusal is said in it, the outcome under it.
@@ -235,10 +244,7 @@
         $("cap-state").textContent = "Done: check the result in step 3, then accept or reject it under the result.";
         shownSeq.acted(); const v = show(j.result, true);
         pendingJob = j.id; decide(true, v.cls === "verdict-bad");
-        // the result and its buttons are below the fold: the page shows the result and the
-        // focus goes to its summary (the verdict), from which Tab leads on to Accept
-        $("res-h").scrollIntoView({ block: "start" });
-        $("res-summary").focus({ preventScroll: true });
+        focusResult();  // (the verdict is read once; the box to accept it follows)
       }
     } catch (e) {
       $("cap-error").textContent = String(e.message || e);
@@ -248,6 +254,8 @@
   // the buttons still there and nothing said). Both are disabled while one is asked (a
   // second press reported "Not saved" for a calibration the first had saved); once
   // decided the box closes and the focus goes to the outcome under it (not to the page).
+  // The outcome is not a live region: the focus reads it, once (a clinician who pressed
+  // Accept hears "Saved as version 7 …" where the buttons were, not the same words twice).
   async function decideWith(pressed, path, failed, done) {
     if (pendingJob === null) return;
     // (the pressed one first: it gets the focus back)
@@ -323,6 +331,10 @@
         try { await gaitrig.api(`/api/calibration/${c.version}/restore`, { method: "POST" }); }
         catch (e) { $("hist-msg").textContent = `Version ${c.version} not restored: ${e.message || e}`; return; }
         await refresh();
+        // the redrawn list took the pressed button (and the focus) away: the focus goes to
+        // the verdict of the version now in use, the one restored (the summary is no live
+        // region: it said so as one while the focus fell to the page)
+        if (pendingJob === null) focusResult();
       });
       tb.append(row([String(c.version), new Date(c.created * 1000).toLocaleString(), c.sensors.join(" "),
         c.max_sensor_residual_mm === null ? "—" : c.max_sensor_residual_mm.toFixed(2), String(c.rejected), btn]));
@@ -352,6 +364,7 @@
       const doc = await gaitrig.api("/api/calibration/simulate", { method: "POST",
         body: JSON.stringify({ frames: Number($("sim-frames").value), seed: Number($("sim-seed").value) }) });
       shownSeq.acted(); show(doc, false);
+      focusResult();  // as after a capture: its verdict, read once
       await history();
     } catch (e) {
       $("sim-error").textContent = String(e.message || e);

@@ -241,25 +241,33 @@
       tick();
       usedLabel = $("label").value.trim();
       showLive(r);
-      say("rec-msg", `Recording ${r.id} started on ${r.parts.map((p) => p.node_id).join(", ")}.`, true);
+      // the focus on Stop (Start is disabled), then the message in the live region: Stop is
+      // read as the focus, the message once after it (written first, a reader could cut it
+      // short with the focus's words)
       $("stop").disabled = false; $("stop").focus();
+      say("rec-msg", `Recording ${r.id} started on ${r.parts.map((p) => p.node_id).join(", ")}.`, true);
       follow();
       fillSessions(sid).catch(() => {});  // the session's recording count went up
-    } catch (e) { say("rec-msg", e.message); $("start").disabled = false; }
+    } catch (e) { say("rec-msg", e.message); gaitrig.release($("start")); }
   });
   $("stop").addEventListener("click", async () => {
     $("stop").disabled = true;
     try {
       await api(`/api/recordings/${recId}/stop`, { method: "POST" });
+      // The disabled Stop dropped the keyboard focus to the page. It goes to the table of
+      // this recording's sensors, right under Stop, where the copy to the server shows and
+      // from which Tab leads to "Open this recording" (not to Start: a second press of the
+      // key would start a new recording). Not to the message: a live region that is also
+      // focused is read twice. So the focus first ("Sensors of this recording, table"),
+      // then the message, read once after it.
+      $("parts-table").hidden = false;  // (shown by the first poll; Stop may come before it)
+      $("parts-table").focus();
       say("rec-msg", `Recording ${recId} stopped; the server now copies every sensor's part.`, true);
       copying = recId;
       nextLabel(usedLabel);  // the next walk's label is ready
-      // the disabled Stop dropped the keyboard focus to the page; the message takes it (not
-      // Start: a second press of the key would start a new recording)
-      $("rec-msg").focus();
       follow();  // an answer asked for before the stop would enable Stop again
     }
-    catch (e) { say("rec-msg", e.message); $("stop").disabled = false; }
+    catch (e) { say("rec-msg", e.message); gaitrig.release($("stop")); }
   });
 
   // A recording that was running when the page was opened (reloaded mid-walk, or opened

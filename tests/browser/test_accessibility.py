@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import secrets
 import shutil
 import subprocess
@@ -32,6 +33,7 @@ import urllib.error
 import urllib.request
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from html.parser import HTMLParser
 from pathlib import Path
 from typing import Any
 
@@ -229,11 +231,10 @@ def _wizard(page: Any, lab: Lab) -> None:
     _shown(page, "#sensor-table tbody tr")
 
 
-def _wizard_decide(page: Any, lab: Lab) -> None:
-    """A captured result waiting for its "Use this calibration?" answer, with its
-    sensor-marker table and technical figures open. The capture job is answered with the
-    simulated calibration (a real capture takes minutes: tests/browser/test_calibration.py)."""
-    _wizard(page, lab)
+def _wizard_capture(page: Any) -> None:
+    """On the wizard, a capture whose job is answered with the active (simulated)
+    calibration (a real capture takes minutes: tests/browser/test_calibration.py), its
+    result waiting for its "Use this calibration?" answer."""
     doc = page.evaluate("fetch('/api/calibration/active').then((r) => r.json())")
     job = {"id": 1, "kind": "capture", "state": "done", "message": "", "frames": 2,
            "created": 0, "nodes": {s: {"received": 2, "error": None}
@@ -243,6 +244,13 @@ def _wizard_decide(page: Any, lab: Lab) -> None:
     page.route("**/api/calibration/captures/1", lambda route: route.fulfill(json=job))
     page.click("#cap-form button[type=submit]")
     _shown(page, "#decide")
+
+
+def _wizard_decide(page: Any, lab: Lab) -> None:
+    """A captured result waiting for its "Use this calibration?" answer, with its
+    sensor-marker table and technical figures open."""
+    _wizard(page, lab)
+    _wizard_capture(page)
     page.click("#res-more > summary")
     page.click("#res-figures > summary")
 
@@ -328,6 +336,111 @@ def test_every_console_page_is_checked() -> None:
     pages = {p.stem for p in (ROOT / "static").glob("*.html")}
     checked = set(STATES) | {"index"}
     assert pages <= checked, f"pages without an axe check: {sorted(pages - checked)}"
+
+
+# ------------------------------------------- a message read once: live or focused, not both
+
+#: what makes an element a live region (role=status/alert/log and <output> are live
+#: without aria-live): the roles in the files, the selector in the browser
+LIVE_ROLES = {"status", "alert", "log"}
+LIVE_SELECTOR = ("[aria-live]:not([aria-live=off]), [role=status], [role=alert], [role=log], "
+                 "output")
+#: a script's focus on an element of the page by its id
+FOCUS_BY_ID = re.compile(r"""(?:(?:\$|getElementById)\(\s*["'`]|querySelector\(\s*["'`]#)"""
+                         r"""([\w-]+)["'`]\s*\)\.focus\(""")
+#: an element a script makes (``el("p", {...})``) that is both live and focusable
+LIVE_AND_TABINDEX = re.compile(
+    r"""\{[^{}]*(?:role["']?\s*:\s*["'](?:status|alert|log)["']|["']aria-live["']\s*:\s*"""
+    r"""["'](?:polite|assertive)["'])[^{}]*\}""")
+
+
+class _LiveRegions(HTMLParser):
+    """Each element's id of a page, with whether it is a live region or inside one, and
+    the live regions that take the focus (``tabindex``)."""
+
+    VOID = frozenset({"area", "base", "br", "col", "embed", "hr", "img", "input", "link",
+                      "meta", "source", "track", "wbr"})
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.stack: list[tuple[str, bool]] = []  # (tag, in a live region)
+        self.live_ids: dict[str, str] = {}  # id → the live region's id (itself or around it)
+        self.focusable_live: list[str] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        a = dict(attrs)
+        live = (a.get("role") in LIVE_ROLES or tag == "output"
+                or (a.get("aria-live") not in (None, "off")))
+        around = self.stack[-1][1] if self.stack else False
+        if live and "tabindex" in a:
+            self.focusable_live.append(f"<{tag} id={a.get('id')}>")
+        if (i := a.get("id")) and (live or around):
+            self.live_ids[i] = "itself" if live else "inside one"
+        if tag not in self.VOID:
+            self.stack.append((tag, live or around))
+
+    def handle_endtag(self, tag: str) -> None:
+        for i in range(len(self.stack) - 1, -1, -1):  # (an unclosed <p> ends with its parent)
+            if self.stack[i][0] == tag:
+                del self.stack[i:]
+                return
+
+
+def live_and_focused(pages: dict[str, str], scripts: dict[str, str]) -> list[str]:
+    """Elements that are a live region (or inside one) and that a script focuses: a screen
+    reader reads their words twice, once as news and once as the focus.
+
+    Args:
+        pages: HTML by file name.
+        scripts: JavaScript by file name.
+
+    Returns:
+        One line per problem: a focused live region named by id, a live region with a
+        ``tabindex`` in a page, or one made focusable by a script.
+    """
+    live: dict[str, str] = {}
+    out: list[str] = []
+    for name, html in pages.items():
+        parser = _LiveRegions()
+        parser.feed(html)
+        live.update({i: f"{name}: #{i} is a live region ({why})"
+                     for i, why in parser.live_ids.items()})
+        out += [f"{name}: {t} is a live region with a tabindex" for t in parser.focusable_live]
+    for name, js in scripts.items():
+        for m in FOCUS_BY_ID.finditer(js):
+            if m.group(1) in live:
+                line = js.count("\n", 0, m.start()) + 1
+                out.append(f"{name}:{line} focuses it: {live[m.group(1)]}")
+        for m in LIVE_AND_TABINDEX.finditer(js):
+            if re.search(r"tabindex|tabIndex", m.group(0)):
+                line = js.count("\n", 0, m.start()) + 1
+                out.append(f"{name}:{line} makes a live region that takes the focus")
+    return out
+
+
+def test_no_live_region_is_focused_by_a_script() -> None:
+    """A message is said once: a script that moves the focus moves it to an element that is
+    no live region (a heading, the result, a button), and a live region is left to say what
+    changed while the focus stays put. Read from the files: every ``static/*.html`` and
+    the scripts that focus an element by its id (a focus on an element made by a script is
+    watched in the browser, :func:`test_focus_after_an_action_is_on_no_live_region`)."""
+    static = ROOT / "static"
+    pages = {p.name: p.read_text() for p in sorted(static.glob("*.html"))}
+    scripts = {str(p.relative_to(static)): p.read_text() for p in sorted(static.rglob("*.js"))
+               if "vendor" not in p.parts and p.name != "live-worker.js"}
+    assert {"console.js", "js/record.js", "js/calibration.js"} <= set(scripts), sorted(scripts)
+    problems = live_and_focused(pages, scripts)
+    assert not problems, "\n".join(problems)
+    # the check can fail: a focused status, an element inside a live region, a live region
+    # with a tabindex and a script's focusable status are all found
+    canary = live_and_focused(
+        {"c.html": '<p id="said" role="status"></p><div aria-live="polite"><p id="in">x'
+                   '</div><p id="fine" aria-live="off"></p><span role="alert" tabindex="-1">'},
+        {"c.js": '$("said").focus();\ndocument.getElementById("in").focus({});\n'
+                 '$("fine").focus();\nel("p", { role: "status", tabindex: "-1" });\n'
+                 'document.querySelector("#said").focus();\nm.querySelector("summary").focus();'})
+    assert len(canary) == 5, canary
+    assert not any("#fine" in c for c in canary), canary
 
 
 def _axe_problems(page: Any, name: str, artifacts_dir: Path) -> list[str]:
@@ -486,11 +599,41 @@ class Focus:
         raise AssertionError(f"{name!r} not reached in {limit} presses of {key}: {passed}")
 
 
+#: Added with ``add_init_script``: every focus that lands on a live region (or on an
+#: element holding one with words in it), by a script or by Tab, is kept in
+#: ``window.focusOnLive``. A landing inside a live region (a button in a list that is one)
+#: is no double reading and is not kept.
+WATCH_FOCUS_JS = """(() => {
+  const sel = LIVE_SELECTOR;
+  window.focusOnLive = [];
+  document.addEventListener("focusin", (ev) => {
+    const t = ev.target;
+    if (!(t instanceof Element) || t === document.body || t.matches("main")) return;
+    if (t.matches(sel) || [...t.querySelectorAll(sel)].some((r) => r.textContent.trim()))
+      window.focusOnLive.push(location.pathname + ": " + t.outerHTML.slice(0, 120));
+  }, true);
+})()""".replace("LIVE_SELECTOR", json.dumps(LIVE_SELECTOR))
+
+
+def _live_focus(page: Any) -> list[str]:
+    """The focus now and all the landings :data:`WATCH_FOCUS_JS` kept: elements that a
+    screen reader reads twice (once as a live region's news, once as the focus). The
+    focused element itself may be neither a live region, nor inside one, nor hold one."""
+    return page.evaluate("""(sel) => {
+        const out = [...(window.focusOnLive || [])];
+        const a = document.activeElement;
+        if (a && a !== document.body && (a.closest(sel)
+                || [...a.querySelectorAll(sel)].some((r) => r.textContent.trim())))
+            out.push("now: " + a.outerHTML.slice(0, 120));
+        return out; }""", LIVE_SELECTOR)
+
+
 def test_keyboard_only_login_record_and_report(browser: Any, lab: Lab,
                                                artifacts_dir: Path) -> None:
     """Log in, go to Record, find a subject by typing, start and stop a recording and
     open its report with Tab, Shift+Tab, Enter, Space and typing only."""
     page = new_page(browser, 30000)
+    page.add_init_script(WATCH_FOCUS_JS)
     focus = Focus(page)
     page.goto(lab.url + "/index.html")
     # the field has the focus as soon as the page has loaded (autofocus; Chromium's tree
@@ -534,14 +677,20 @@ def test_keyboard_only_login_record_and_report(browser: Any, lab: Lab,
     _text(page, "#rec-msg", "started")
     focus.expect("Stop")  # Start is disabled: the focus is on Stop
     assert focus.now()[0] == "button"
+    # the message is said by its live region, once: the focus is not on it too
+    assert page.get_attribute("#rec-msg", "role") == "status"
+    assert not _live_focus(page), _live_focus(page)
     # a short walk: the session already holds one with steps (the ``lab``), so its report
     # opens whatever this one caught (8 s were waited here)
     time.sleep(2.0)
     page.keyboard.press("Space")
     _text(page, "#rec-msg", "stopped")
-    # the disabled Stop gave the focus to the message, which a screen reader reads
-    page.wait_for_function("document.activeElement.id === 'rec-msg'")
-    assert focus.now()[0] == "status"
+    # the disabled Stop gave the focus to the recording's sensors right under it (where
+    # the copy shows), not to the message: that is a live region, read once as such
+    focus.expect("Sensors of this recording")
+    assert focus.now()[0] == "table"
+    assert not _live_focus(page), _live_focus(page)
+    screenshot(page, artifacts_dir, "a11y_keyboard_record_stopped")
     _shown(page, "#state-badge[data-state=complete]")
     assert focus.press("Tab") == ("link", "Open this recording in Subjects & recordings")
     screenshot(page, artifacts_dir, "a11y_keyboard_record")
@@ -556,6 +705,44 @@ def test_keyboard_only_login_record_and_report(browser: Any, lab: Lab,
     assert focus.now()[0] == "heading"
     assert KEY_CODE in page.inner_text("#report table.meta")
     screenshot(page, artifacts_dir, "a11y_keyboard_report")
+    assert not _live_focus(page), _live_focus(page)  # (nor anywhere on the way)
+    assert not page.js_errors, page.js_errors
+
+
+def test_a_calibration_result_and_its_outcome_are_read_once(page: Any, lab: Lab,
+                                                            artifacts_dir: Path) -> None:
+    """A simulated calibration's result and a capture's take the focus on their summary
+    (the verdict in words) and Reject on its outcome: each is then read once, as the
+    focus, so none of them may be a live region too (it was, and was read twice)."""
+    page.add_init_script(WATCH_FOCUS_JS)
+    focus = Focus(page)
+
+    def focused_on(element_id: str) -> str:
+        page.wait_for_function("(i) => document.activeElement.id === i", arg=element_id)
+        words = " ".join((page.text_content(f"#{element_id}") or "").split())
+        focus.expect(words)  # what a screen reader says as the focus: all of it
+        assert not _live_focus(page), _live_focus(page)
+        return words
+
+    _wizard(page, lab)  # a simulated run
+    assert "placed from" in focused_on("res-summary")
+    _wizard_capture(page)
+    assert "not saved yet" in focused_on("res-summary")
+    screenshot(page, artifacts_dir, "a11y_calibration_captured_focus")
+    page.route("**/api/calibration/captures/1/reject", lambda route: route.fulfill(json={}))
+    page.click("#reject")
+    assert focused_on("decide-state") == "Rejected: the active calibration is unchanged."
+    screenshot(page, artifacts_dir, "a11y_calibration_rejected_focus")
+    # Restore: the redrawn list takes its button away; the focus goes to the verdict of
+    # the version now in use (a second simulated run gives an older one to restore)
+    page.click("#sim-form button[type=submit]")
+    page.wait_for_function("document.querySelectorAll('#history tbody tr').length >= 2")
+    focused_on("res-summary")
+    newest = page.evaluate("fetch('/api/calibration').then((r) => r.json())")[0]["version"]
+    page.click("#history tbody tr:nth-child(2) button")
+    page.wait_for_function("(v) => document.getElementById('res-summary').textContent"
+                           ".startsWith(`Version ${v + 1} `)", arg=newest)
+    assert "placed from" in focused_on("res-summary")
     assert not page.js_errors, page.js_errors
 
 

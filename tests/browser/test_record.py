@@ -39,7 +39,8 @@ def test_record_stop_transfer_and_subjects_page(page: Any, live_server: LiveServ
         ".includes('(1 recording)')")
     page.focus("#stop")
     page.keyboard.press("Enter")  # as a keyboard user: focus must not drop to the page
-    page.wait_for_function("document.activeElement.id === 'rec-msg'")
+    # (onto the recording's sensors: the message is a live region, not focused as well)
+    page.wait_for_function("document.activeElement.id === 'parts-table'")
     page.wait_for_selector("#state-badge[data-state=complete]", timeout=60_000)
     # the message no longer says the copy is under way once the badge says complete
     page.wait_for_function("document.getElementById('rec-msg').textContent.includes('copied')")
