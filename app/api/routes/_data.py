@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import json
+from pathlib import Path
 from typing import Any, TypeVar
 
 from fastapi import HTTPException, Request, status
@@ -58,6 +59,21 @@ def datasync_of(request: Request) -> DataSync:
         ds = DataSync(request.app.state.hub, request.app.state.db_sessions, layout_of(request))
         request.app.state.datasync = ds
     return ds
+
+
+def upload_error(exc: BaseException, copy: Path, name: str) -> str:
+    """A reader's message about an uploaded file, naming the file the person chose
+    (``name``) instead of the server's temporary copy of it (``copy``): the readers name
+    the path they read, and "'walk.csv' is not a readable CSV file:
+    .1a24b5567737b4e5.csv.upload.tmp: no 'time' column" sent the clinician looking for a
+    file she never had. A message that starts with the copy's name loses it (the caller
+    names the file first)."""
+    text = str(exc)
+    for p in (str(copy), copy.name):
+        if text.startswith(p + ": "):
+            text = text[len(p) + 2:]
+            break
+    return text.replace(str(copy), name).replace(copy.name, name)
 
 
 #: Largest integer id a row can have (SQL BIGINT). A larger one names no row, and the

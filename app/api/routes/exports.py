@@ -34,6 +34,7 @@ from app.api.routes._data import (
     layout_of,
     purge,
     reference_json,
+    upload_error,
 )
 from app.db import data as m
 from app.server import erasures
@@ -183,7 +184,8 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
             traj = await asyncio.to_thread(read_reference, tmp, ext)
         except (GaitrigError, ValueError, OSError, RuntimeError) as exc:
             raise HTTPException(status.HTTP_400_BAD_REQUEST,
-                                f"{name!r} is not a readable {ext.upper()} file: {exc}") from exc
+                                f"{name!r} is not a readable {ext.upper()} file: "
+                                f"{upload_error(exc, tmp, name)}") from exc
         try:
             os.replace(tmp, path)
             fsync_dir(folder)

@@ -41,7 +41,7 @@ from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
 from app.api.limits import BoundedRoute
-from app.api.routes._data import audit_now, get_row
+from app.api.routes._data import audit_now, get_row, upload_error
 from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, like_pattern, page_of, set_total
 from app.db.data import Recording as DbRecording
 from app.db.data import ReferenceImport, Subject
@@ -713,7 +713,8 @@ async def put_reference(rec_id: str, request: Request, file: UploadFile, user: C
         try:
             steps = await anyio.to_thread.run_sync(an.reference_steps, path)
         except GaitrigError as exc:
-            raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+            raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                                upload_error(exc, path, file.filename or "the file")) from exc
         # its upload time tells it from a later upload when a restore re-applies the
         # deletion of this one (app.server.erasures)
         meta = {"filename": (file.filename or "")[-200:], "ext": path.suffix,
@@ -801,7 +802,9 @@ async def upload_report(request: Request, file: UploadFile, user: CurrentUser, d
                 data = an.build_report(subject, [res], title="Gait report (uploaded file)")
             except GaitrigError as exc:
                 raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    f"{file.filename}: {exc}") from exc
+                                    f"{file.filename}: "
+                                    f"{upload_error(exc, path, file.filename or 'the file')}"
+                                    ) from exc
             return _respond(data, format, f"gait-report-{subject}")
 
         out = await anyio.to_thread.run_sync(work)

@@ -1,0 +1,78 @@
+"""A file refused at upload is named as the person chose it: the readers' messages named
+the server's temporary copy ("'walk.csv' is not a readable CSV file:
+.1a24b5567737b4e5.csv.upload.tmp: no 'time' column", "reference upload.c3d: cannot read
+upload.c3d as C3D", "bad.csv: upload.csv: no 'time' column"), a file the clinician never
+had. Checked on the three upload routes of reference and report files."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from app.api.routes._data import upload_error
+
+#: What a temporary or server-side name looks like in a message.
+INTERNAL = re.compile(r"\.upload\.tmp|\bupload\.(csv|c3d|trc)\b|[0-9a-f]{16}")
+
+#: (file name, content) of files that are not what their extension says.
+BAD_FILES = [
+    ("my walk.csv", b"time_s;x\nhello\n"),
+    ("trial 3.c3d", b"not a c3d file at all"),
+    ("Gang.trc", b"PathFileType\t4\n\x00\x01"),
+]
+
+
+def _filed_recording(client: TestClient, data_dir: Path, rec_id: str) -> None:
+    """``rec_id`` filed under a new subject, with one sensor part on the server."""
+    from app.db import data as m
+
+    pid = client.post("/api/projects", json={"name": "uploads"}).json()["id"]
+    sid = client.post("/api/subjects", json={"project_id": pid, "code": "UP1"}).json()["id"]
+    se = client.post("/api/sessions", json={"subject_id": sid}).json()["id"]
+    with client.app.state.db_sessions() as db:  # type: ignore[attr-defined]
+        db.add(m.Recording(id=rec_id, session_id=se, state="complete"))
+        db.commit()
+    part = data_dir / "recordings" / rec_id / "S1"
+    part.mkdir(parents=True)
+    (part / "frames.bin").write_bytes(b"")
+    (part / "meta.json").write_text("{}")
+
+
+def _says_only_the_chosen_name(detail: str, name: str) -> None:
+    assert name in detail, detail
+    assert not INTERNAL.search(detail), f"a server-side file name in {detail!r}"
+
+
+@pytest.mark.parametrize(("name", "data"), BAD_FILES)
+def test_refused_uploads_name_the_chosen_file(admin_client: TestClient, tmp_path: Path,
+                                              name: str, data: bytes) -> None:
+    _filed_recording(admin_client, tmp_path, "R1")
+    # Subjects page: a reference attached to a recording
+    r = admin_client.post("/api/exports/R1/references",
+                          files={"file": (name, data, "application/octet-stream")})
+    assert r.status_code == 400, r.text
+    _says_only_the_chosen_name(r.json()["detail"], name)
+    # Reports page: the reference of the agreement section
+    r = admin_client.post("/api/reports/recordings/R1/reference",
+                          files={"file": (name, data, "application/octet-stream")})
+    assert r.status_code == 400, r.text
+    _says_only_the_chosen_name(r.json()["detail"], name)
+    # Reports page: "Analyse a file"
+    r = admin_client.post("/api/reports/upload", data={"subject": "UP1"},
+                          files={"file": (name, data, "application/octet-stream")})
+    assert r.status_code == 422, r.text
+    _says_only_the_chosen_name(r.json()["detail"], name)
+
+
+def test_upload_error_drops_a_leading_copy_name_and_renames_the_rest(tmp_path: Path) -> None:
+    copy = tmp_path / ".0123456789abcdef.csv.upload.tmp"
+    assert upload_error(ValueError(f"{copy.name}: no 'time' column"), copy,
+                        "walk.csv") == "no 'time' column"
+    assert upload_error(ValueError(f"{copy}: no 'time' column"), copy,
+                        "walk.csv") == "no 'time' column"
+    assert upload_error(ValueError(f"cannot read {copy} as C3D"), copy,
+                        "walk.c3d") == "cannot read walk.c3d as C3D"
+    assert upload_error(ValueError("bad header"), copy, "walk.csv") == "bad header"
