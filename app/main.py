@@ -27,6 +27,7 @@ from fastapi import APIRouter, Depends, FastAPI, Request, WebSocket
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
+from sqlalchemy.exc import OperationalError
 
 import app.api.routes as routes_pkg
 from app.api.deps import get_current_user
@@ -245,6 +246,22 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                        "could not be completed; the server log has the "
                                        "details under this reference"}, status_code=500,
                             headers={"cache-control": "no-store", **BASE_HEADERS})
+
+    @app.exception_handler(OperationalError)
+    async def database_unavailable(request: Request, exc: OperationalError) -> JSONResponse:
+        # The database refused (SQLite locked by a long backup or another writer, disk
+        # full, PostgreSQL unreachable): not a bug of the request, and the transaction was
+        # rolled back, so the person may simply try again. The cause stays in the log.
+        ref = secrets.token_hex(4)
+        log.error("database unavailable %s on %s %s", ref, request.method,
+                  request.url.path, exc_info=exc)
+        return JSONResponse({"detail": f"the database is busy or cannot write at the moment "
+                                       f"(reference {ref}); nothing was changed. Try again "
+                                       "in a minute; if it keeps happening, check the "
+                                       "server's free disk space and its log"},
+                            status_code=503,
+                            headers={"retry-after": "30", "cache-control": "no-store",
+                                     **BASE_HEADERS})
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(_req: Request, exc: RequestValidationError) -> JSONResponse:
