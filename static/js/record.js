@@ -201,12 +201,21 @@
         $("done-link").hidden = false;
         $("open-subject").href = `/subjects.html#subject=${r.subject.id}`;
       }
-      // the stop's "now copies…" would otherwise stay beside the "complete" badge
-      if (r.state === "complete" && copying === r.id) {
-        copying = null;
-        if (r.duration_s !== null && r.duration_s < SHORT_WALK_S)
-          say("rec-msg", `Recording ${r.id} is copied to the server, but it lasted only ${r.duration_s.toFixed(1)} s: too short for a gait report, which needs several steps of walking. Record the walk again (this recording can be deleted on Subjects & recordings).`);
-        else say("rec-msg", `Recording ${r.id} is copied to the server: every sensor's part verified.`, true);
+      // the stop's "now copies…" would otherwise stay beside the "complete" badge, and in
+      // green beside an "incomplete" one (a Stop pressed at once: no sensor had a frame)
+      if (copying === r.id && (r.state === "complete" || r.state === "incomplete")) {
+        const shown = r.duration_s === null ? null : r.duration_s.toFixed(1);
+        const short = shown !== null && Number(shown) < SHORT_WALK_S;  // (rounded as shown: never "only 2.0 s")
+        const again = `it lasted only ${shown} s: too short for a gait report, which needs several steps of walking. Record the walk again (this recording can be deleted on Subjects & recordings).`;
+        if (r.state === "complete") {
+          copying = null;
+          if (short) say("rec-msg", `Recording ${r.id} is copied to the server, but ${again}`);
+          else say("rec-msg", `Recording ${r.id} is copied to the server: every sensor's part verified.`, true);
+        } else {
+          // (still followed: a transfer tried again later can complete it)
+          const text = `Recording ${r.id} is incomplete: ${short ? again : "each sensor's note below says why."}`;
+          if ($("rec-msg").textContent !== text) say("rec-msg", text);  // (a live region: once)
+        }
       }
       // a save error stays on screen until the server saved again
       // (gaitrig.wait: the next poll not while the page is hidden, at once when shown)
@@ -252,6 +261,9 @@
   });
   $("stop").addEventListener("click", async () => {
     $("stop").disabled = true;
+    // a poll answered while the stop is on its way still says "recording" and would enable
+    // Stop again (a second press: "not recording" under the stop's own message)
+    chain.acted();
     try {
       await api(`/api/recordings/${recId}/stop`, { method: "POST" });
       // The disabled Stop dropped the keyboard focus to the page. It goes to the table of
@@ -267,7 +279,7 @@
       nextLabel(usedLabel);  // the next walk's label is ready
       follow();  // an answer asked for before the stop would enable Stop again
     }
-    catch (e) { say("rec-msg", e.message); gaitrig.release($("stop")); }
+    catch (e) { say("rec-msg", e.message); gaitrig.release($("stop")); follow(); }
   });
 
   // A recording that was running when the page was opened (reloaded mid-walk, or opened
