@@ -38,7 +38,7 @@ import os
 import re
 import secrets
 from collections import Counter
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -68,6 +68,25 @@ _ID_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 FACING_MIN_SPEED = 0.3
 #: Points kept for the ankle-height plot (the report shows one trial's trajectories).
 MAX_PLOT_POINTS = 1200
+#: A recording shorter than this (s) holds no step a report can use (the Record page
+#: says so once it is copied): its analysis says how long it was before which joint
+#: was missing ("no tracked AnkleLeft positions" told a clinician nothing).
+SHORT_RECORDING_S = 2.0
+
+
+def _too_short(streams: Sequence[SensorStream], why: str) -> str:
+    """``why`` prefixed with the recording's length when it is under
+    :data:`SHORT_RECORDING_S` (the longest sensor's skeleton span), else ``why``."""
+    spans = []
+    for s in streams:
+        ts = np.asarray(getattr(getattr(s, "series", None), "times", ()), dtype=float)
+        if ts.size:
+            spans.append(float(ts[-1] - ts[0]))
+    span = round(max(spans, default=SHORT_RECORDING_S), 1)  # (rounded as shown: never "only 2.0 s")
+    if span >= SHORT_RECORDING_S:
+        return why
+    return (f"the recording lasted only {span:.1f} s, too short for a walk with steps: "
+            f"record a longer walk ({why})")
 
 
 def _write_json(path: Path, obj: Any) -> None:
@@ -490,10 +509,10 @@ def analyse_recording(rec_dir: Path, options: AnalysisOptions,
         out.update(analyse_series(fused, options.method))
         out["ok"] = True
     except InsufficientDataError as exc:
-        out["error"] = str(exc)
+        out["error"] = _too_short(streams, str(exc))
     except InputError as exc:
         # E.g. no tracked ankles at all: the recording has no usable body.
-        out["error"] = f"no usable body in the recording: {exc}"
+        out["error"] = _too_short(streams, f"no usable body in the recording: {exc}")
     except GaitrigError as exc:  # any other typed engine failure
         out["error"] = f"the gait analysis cannot use this recording: {exc}"
     except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as exc:

@@ -18,7 +18,7 @@ from fastapi.testclient import TestClient
 from app.config import Settings
 from app.main import create_app
 from app.server import analysis as an
-from engine.errors import CalibrationError, GaitrigError, InsufficientDataError
+from engine.errors import CalibrationError, GaitrigError, InputError, InsufficientDataError
 
 REC = "rec0001"
 
@@ -97,3 +97,41 @@ def test_an_unknown_recording_is_named_as_unknown(client: TestClient) -> None:
     (an.recording_dir(client.app.state.settings.data_dir, "rec0002")).mkdir()
     r = client.get("/api/reports/recordings/rec0002/analysis")
     assert r.status_code == 404 and "transfer" in r.json()["detail"], r.text
+
+
+class _Series:
+    def __init__(self, duration_s: float) -> None:
+        self.times = np.arange(0.0, duration_s + 1e-9, 1 / 30)
+
+
+class _TimedStream(_Stream):
+    def __init__(self, duration_s: float) -> None:
+        self.series = _Series(duration_s)
+
+
+@pytest.mark.parametrize("exc", [InputError("the skeleton has no tracked AnkleLeft positions; "
+                                            "gait needs both ankles"),
+                                 InsufficientDataError("no straight walking found")])
+def test_a_recording_too_short_for_steps_says_how_long_it_was(
+        client: TestClient, monkeypatch: pytest.MonkeyPatch, exc: Exception) -> None:
+    """A Stop pressed at once gave a 0.1 s recording whose analysis (and the report's note
+    on it) said only that no AnkleLeft was tracked."""
+    _fake_engine(monkeypatch, exc)
+    monkeypatch.setattr(an, "load_streams",
+                        lambda d, poses: ([_TimedStream(0.1), _TimedStream(0.2)], {"S1": {}}))
+    doc = client.get(f"/api/reports/recordings/{REC}/analysis").json()
+    assert doc["ok"] is False
+    assert doc["error"].startswith("the recording lasted only 0.2 s, too short for a walk "
+                                   "with steps: record a longer walk"), doc["error"]
+    assert str(exc) in doc["error"]  # the reason stays for the engineer
+    r = client.get(f"/api/reports/recordings/{REC}/report")
+    assert r.status_code == 422 and "lasted only 0.2 s" in r.json()["detail"]
+
+
+def test_a_long_recording_without_steps_keeps_its_reason(
+        client: TestClient, monkeypatch: pytest.MonkeyPatch) -> None:
+    _fake_engine(monkeypatch, InsufficientDataError("no straight walking found"))
+    monkeypatch.setattr(an, "load_streams",
+                        lambda d, poses: ([_TimedStream(2.0)], {"S1": {}}))
+    doc = client.get(f"/api/reports/recordings/{REC}/analysis").json()
+    assert doc["error"] == "no straight walking found"
