@@ -133,3 +133,73 @@ def test_record_page_says_what_happened_to_each_part(page: Any, live_server: Liv
     assert "after the start" in page.inner_text("#left-out li[data-node=S7]")
     screenshot(page, artifacts_dir, "record_part_notes")
     assert not page.js_errors
+
+
+def test_a_poll_answered_during_the_stop_leaves_stop_disabled(page: Any,
+                                                              live_server: LiveServer) -> None:
+    """Stop is pressed while a poll of the running recording is still out: its answer
+    ("recording"), arriving before the stop's, must not enable Stop again (a second press
+    said "not recording" under the stop's own message). The server's answers are held and
+    given by the test, so the order is the one that went wrong."""
+    rid, t0 = "R20260101-110000-beef", 1767265200.0
+    part = {"n_frames": 30, "bytes_total": 0, "bytes_done": 0, "progress": 0.0,
+            "manifest_sha256": None, "attempts": 0, "reason": None}
+    filed = {"id": rid, "session_id": 1, "label": "walk", "notes": "", "state": "recording",
+             "reason": None, "t_start": t0, "t_stop": None, "duration_s": None,
+             "streams": [], "created_at": "2026-01-01T11:00:00", "references": [],
+             "bytes_on_server": 0, "session": {"id": 1, "date": "2026-01-01", "label": "visit"},
+             "subject": {"id": 1, "code": "FAKE2", "project_id": 1},
+             "parts": [{**part, "node_id": "S1", "state": "recording"}]}
+    done = {**filed, "state": "complete", "t_stop": t0 + 6.0, "duration_s": 6.0,
+            "parts": [{**part, "node_id": "S1", "state": "complete", "progress": 1.0}]}
+    live = {"id": rid, "state": "recording", "t_start": t0, "t_stop": None,
+            "parts": [{"node_id": "S1", "state": "recording"}]}
+    held: list[Any] = []
+    stops: list[Any] = []
+    mode = {"storage": "answer"}  # "answer" (running), "hold", then "done"
+
+    def storage(route: Any) -> None:
+        if mode["storage"] == "hold":
+            held.append(route)
+            return
+        route.fulfill(status=200, content_type="application/json",
+                      body=json.dumps(done if mode["storage"] == "done" else filed))
+
+    def wait_until(cond: Any) -> None:
+        for _ in range(400):  # (up to 20 s: answers the page asks for every 0.5 s)
+            if cond():
+                return
+            page.wait_for_timeout(50)
+        raise AssertionError("the page did not ask")
+
+    page.route("**/api/recordings", _json_route([live]))
+    page.route(f"**/api/recordings/{rid}", _json_route(live))
+    page.route(f"**/api/recordings/{rid}/stop", lambda route: stops.append(route))
+    page.route(f"**/api/storage/recordings/{rid}", storage)
+    page.goto(live_server.base_url + "/record.html")
+    page.wait_for_selector("#state-badge[data-state=recording]")
+    page.wait_for_function("!document.getElementById('stop').disabled")
+    # from here on, every time Stop is enabled is seen
+    page.evaluate("""() => { const stop = document.getElementById('stop');
+        window.stopEnabledAgain = false;
+        new MutationObserver(() => { if (!stop.disabled) window.stopEnabledAgain = true; })
+          .observe(stop, { attributes: true }); }""")
+    mode["storage"] = "hold"
+    wait_until(lambda: held)  # a poll is out
+    page.click("#stop")
+    wait_until(lambda: stops)  # the stop is out too
+    mode["storage"] = "done"
+    held.pop().fulfill(status=200, content_type="application/json", body=json.dumps(filed))
+    # the page draws that answer (or drops it) before the stop's answer comes
+    page.wait_for_function(f"""performance.getEntriesByType('resource').some(
+        (e) => e.name.endsWith('/api/storage/recordings/{rid}') && e.responseEnd > 0
+               && e.startTime > performance.now() - 30000)""")
+    page.wait_for_timeout(300)
+    assert page.evaluate("window.stopEnabledAgain") is False
+    stops.pop().fulfill(status=200, content_type="application/json",
+                        body=json.dumps({**live, "state": "on_nodes"}))
+    page.wait_for_selector("#state-badge[data-state=complete]")
+    assert page.evaluate("window.stopEnabledAgain") is False
+    assert page.locator("#stop").is_disabled()
+    assert "stopped" in page.inner_text("#rec-msg") or "copied" in page.inner_text("#rec-msg")
+    assert not page.js_errors
