@@ -112,6 +112,7 @@
   // reveal: a click in the list. On a tablet the details are under the list, out of
   // sight: the click seemed to do nothing, so the page goes to them.
   async function select(id, reveal = false) {
+    if (id !== subjectId) refNotes.clear();  // (another subject's upload messages are not this one's)
     subjectId = id;
     revealWanted = revealWanted || reveal;
     history.replaceState(null, "", `#subject=${id}`);
@@ -191,21 +192,61 @@
     return box;
   }
 
+  // What happened to each recording's reference upload, by recording id: the list is
+  // drawn again after an attach (and every second while a recording is busy), which wiped
+  // "Attached." at once and lost "Uploading…" and the disabled button with it.
+  const refNotes = new Map();  // rec_id → { text, kind: "good" | "bad" | "" }
+  const refBusy = new Set();   // rec_ids whose upload is on its way
+
+  const refButton = (recId) => document.querySelector(`[data-reference-box="${CSS.escape(recId)}"] button`);
+
   function referenceBox(r) {
-    const box = el("div", { class: "actions" });
+    const box = el("div", { class: "actions", "data-reference-box": r.id });
     for (const x of r.references)
       box.append(el("a", { class: "button", href: `/api/exports/${r.id}/references/${x.id}` },
         `reference ${x.filename} (${x.format.toUpperCase()}, ${x.rate_hz.toFixed(0)} Hz, ${gaitrig.plural(x.labels.length, "label")})`));
     const input = el("input", { type: "file", accept: ".c3d,.trc,.csv", id: `ref-${r.id}` });
-    const msg = el("span", { class: "msg", role: "status" });
+    const note = refNotes.get(r.id);
+    const msg = el("span", { class: "msg" + (note && note.kind ? " " + note.kind : ""), role: "status", id: `ref-msg-${r.id}` },
+      note ? note.text : "");
+    // (written into whichever box shows the recording now: the one pressed may be redrawn)
+    const tell = (text, kind) => {
+      refNotes.set(r.id, { text, kind });
+      const m = document.getElementById(`ref-msg-${r.id}`);
+      if (m) { m.textContent = text; m.className = "msg" + (kind ? " " + kind : ""); }
+    };
     const up = el("button", { type: "button", class: "secondary small", onclick: async () => {
-      if (!input.files.length) { msg.textContent = "Choose a C3D, TRC or CSV file first."; msg.className = "msg bad"; return; }
-      const fd = new FormData(); fd.append("file", input.files[0]);
-      msg.textContent = "Uploading…"; msg.className = "msg";
-      const res = await fetch(`/api/exports/${r.id}/references`, { method: "POST", body: fd, credentials: "same-origin" });
-      if (res.ok) { msg.textContent = "Attached."; msg.className = "msg good"; await loadDetail(false); }
-      else { let d = res.statusText; try { d = (await res.json()).detail; } catch (e) {} msg.textContent = d; msg.className = "msg bad"; }
+      if (refBusy.has(r.id)) return;
+      if (!input.files.length) { tell("Choose a C3D, TRC or CSV file first.", "bad"); return; }
+      const file = input.files[0];
+      const fd = new FormData(); fd.append("file", file);
+      refBusy.add(r.id); up.disabled = true;
+      tell(`Uploading ${file.name}…`, "");
+      let attached = false;
+      try {
+        const res = await fetch(`/api/exports/${r.id}/references`, { method: "POST", body: fd, credentials: "same-origin" });
+        if (res.status === 401) { refNotes.delete(r.id); gaitrig.toLogin(); return; }
+        if (!res.ok) {
+          let d = res.statusText; try { d = (await res.json()).detail || d; } catch (e) { /* not JSON */ }
+          tell(`${file.name} not attached: ${d}`, "bad"); return;
+        }
+        tell(`${file.name} attached.`, "good");
+        attached = true;
+      } catch (e) {
+        tell(`${file.name} not attached: the connection to the server broke off; try again`, "bad");
+      } finally {
+        refBusy.delete(r.id);
+        up.disabled = false;
+        const now = refButton(r.id);  // (the list may have been drawn again meanwhile)
+        if (now) now.disabled = false;
+      }
+      if (!attached) return;
+      await loadDetail(false);  // lists the new reference; the message stays (refNotes)
+      // the button pressed is gone with the old list: the focus goes to the new one
+      const again = refButton(r.id);
+      if (again && (!document.activeElement || document.activeElement === document.body)) again.focus({ preventScroll: true });
     } }, "Attach reference");
+    up.disabled = refBusy.has(r.id);
     box.append(el("label", { for: `ref-${r.id}`, class: "hint" }, "Reference (Vicon C3D, TRC, CSV):"), input, up, msg);
     return box;
   }

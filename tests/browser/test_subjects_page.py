@@ -181,3 +181,79 @@ def test_subjects_page_says_what_happened_to_each_part(page: Any,
     assert kept in second.locator(".note[data-kind=reason]").inner_text()
     assert box.locator(".reason").count() == 0  # nothing shown as an error
     assert not page.js_errors
+
+
+def test_attach_reference_says_each_outcome(page: Any, live_server: LiveServer,
+                                            artifacts_dir: Path, tmp_path: Path) -> None:
+    """"Attach reference" (one per recording) says what happened and keeps saying it: the
+    recording list is drawn again after an attach (and every second while a recording is
+    busy), which wiped "Attached." at once; a broken connection left "Uploading…" for
+    ever with no error handled; a refusal names the file; a logged-out session goes to
+    the login; the button is usable again after each."""
+    import time
+
+    from engine.io.c3d import write_c3d
+    from engine.sim.straight_walk import synth_walk, walk_markers
+    from tests.browser.conftest import screenshot
+
+    walk = tmp_path / "vicon walk.c3d"
+    write_c3d(walk, walk_markers(synth_walk()), units="mm")
+    p = live_server.api("/api/projects", {"name": "Reference upload"})
+    s = live_server.api("/api/subjects", {"project_id": p["id"], "code": "REF01"})
+    sess = live_server.api("/api/sessions", {"subject_id": s["id"], "label": "visit"})
+    rid = live_server.api(f"/api/sessions/{sess['id']}/recordings", {"label": "walk"})["id"]
+    time.sleep(1.0)
+    live_server.api(f"/api/recordings/{rid}/stop", {})
+    page.goto(f"{live_server.base_url}/subjects.html#subject={s['id']}")
+    # (the recording's box with the file input: the same before and after this fix)
+    box_sel = f".recording[data-recording='{rid}'] .actions:has(input[type=file])"
+    page.locator(box_sel).wait_for()
+    msg = f"document.querySelector(\"{box_sel} .msg\")"
+
+    def choose_and_attach() -> None:
+        page.locator(f"{box_sel} input[type=file]").set_input_files(str(walk))
+        page.locator(f"{box_sel} button").click()
+
+    # the server's answer held: "Uploading…", the button disabled; then a refusal
+    url = f"**/api/exports/{rid}/references"
+    held: list[Any] = []
+    page.route(url, lambda route: held.append(route))
+    choose_and_attach()
+    page.wait_for_function(f"{msg}.textContent === 'Uploading vicon walk.c3d…'")
+    assert page.locator(f"{box_sel} button").is_disabled()
+    held[0].fulfill(status=400, json={"detail": "'vicon walk.c3d' is too short"})
+    page.wait_for_function(f"{msg}.textContent.includes('not attached')")
+    assert page.text_content(f"{box_sel} .msg") == (
+        "vicon walk.c3d not attached: 'vicon walk.c3d' is too short")
+    assert "bad" in (page.get_attribute(f"{box_sel} .msg", "class") or "")
+    assert page.locator(f"{box_sel} button").is_enabled()
+    page.unroute(url)
+
+    # the connection breaks off: said, and the button is usable again
+    page.route(url, lambda route: route.abort("connectionreset"))
+    choose_and_attach()
+    page.wait_for_function(f"{msg}.textContent.includes('broke off')")
+    assert page.text_content(f"{box_sel} .msg") == (
+        "vicon walk.c3d not attached: the connection to the server broke off; try again")
+    assert page.locator(f"{box_sel} button").is_enabled()
+    row = f".recording[data-recording='{rid}']"
+    screenshot(page, artifacts_dir, "subjects_reference_failed", row)
+    page.unroute(url)
+
+    # attached: the list is drawn again with the reference, and the message stays
+    choose_and_attach()
+    page.locator(f"{box_sel} a.button").wait_for()
+    page.wait_for_function(f"{msg}.textContent.includes('attached')")
+    assert (page.text_content(f"{box_sel} .msg") or "").startswith("vicon walk.c3d attached.")
+    assert "good" in (page.get_attribute(f"{box_sel} .msg", "class") or "")
+    assert page.locator(f"{box_sel} button").is_enabled()
+    assert [x["filename"] for x in live_server.api(f"/api/exports/{rid}/references")] == [
+        "vicon walk.c3d"]
+    screenshot(page, artifacts_dir, "subjects_reference_attached", row)
+    assert not page.js_errors
+
+    # a session that ran out goes to the login, and back to this subject after it
+    page.route(url, lambda route: route.fulfill(status=401, json={"detail": "not logged in"}))
+    choose_and_attach()
+    page.wait_for_url("**/index.html?next=*")
+    assert f"subject%3D{s['id']}" in page.url or f"subject={s['id']}" in page.url
