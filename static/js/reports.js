@@ -125,7 +125,13 @@
     if (linked && !q) await offerSubject(linked[1]);
     if (!subjectsSeq.current(mine)) return;
     if (was && subjects.some((s) => String(s.id) === was)) sel.value = was;
-    else if (was) subjectChanged();  // the chosen subject left the list
+    else if (subjects.length === 1 && !(linked && !q)) {
+      // the only subject (on the server, or found by the search) is chosen for the user
+      // (the list of one had to be opened, and "Show report" alone gave a browser bubble);
+      // a link's subject is chosen by fromAddress
+      sel.value = String(subjects[0].id);
+      subjectChanged();
+    } else if (was) subjectChanged();  // the chosen subject left the list
     if (!total && !q) say("subject-msg", "Add a subject and record a walk on the Record page first.");
   }
   // the subject of a link (#subject=ID) is offered even when it is not among those listed
@@ -169,7 +175,10 @@
     ev.preventDefault();
     const url = subjectQuery("html");
     if (!url) {
+      // the page's own message (the select is not `required`: the browser's bubble covered
+      // "Show report" and was gone at the next click)
       say("subject-msg", $("subject").value ? "Tick at least one session to include." : "Choose a subject first.", true);
+      if (!$("subject").value) $("subject").focus();
       return;
     }
     say("subject-msg", "Analysing the recordings… (a first analysis takes a few seconds)");

@@ -1,0 +1,88 @@
+"""A clinician's walk-through at a 1366×768 laptop, and what got in her way.
+
+* Reports page: the only subject had to be chosen from a list of one, and "Show report"
+  with none chosen gave the browser's "Please select an item" bubble over the button.
+* Reports page: "Side A / Side B" of the one- vs two-sided comparison did not say which
+  side of the walkway was which.
+* Record page: the session list cut its text ("(2 recording…").
+* Dates were written three ways ("Nov 28, 2026", "11/28/2026, 10:07:14 AM", "2026-11-28").
+* Live page: the caption said "body tracked (magenta)" under a picture with no body (the
+  caption followed the stream's statistics, not the frame shown).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.browser.conftest import LiveServer, screenshot
+
+pytestmark = pytest.mark.browser
+
+LAPTOP = {"width": 1366, "height": 768}
+
+#: The chosen option of each visible select whose text does not fit it (the arrow takes
+#: about 20 px): what a person reads cut off.
+CUT_SELECTS_JS = """() => {
+  const ctx = document.createElement("canvas").getContext("2d");
+  return [...document.querySelectorAll("select")]
+    .filter((s) => s.getClientRects().length > 0 && s.selectedOptions.length).filter((s) => {
+      const cs = getComputedStyle(s); ctx.font = cs.font;
+      const room = s.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
+      return ctx.measureText(s.selectedOptions[0].textContent).width > room + 4;
+    }).map((s) => s.id + ": " + s.selectedOptions[0].textContent);
+}"""
+
+
+def _subject(server: LiveServer, project: str, code: str) -> tuple[int, int]:
+    """A new project with subject ``code`` and one session; (subject id, session id)."""
+    pid = server.api("/api/projects", {"name": project})["id"]
+    sid = server.api("/api/subjects", {"project_id": pid, "code": code})["id"]
+    session = server.api("/api/sessions", {"subject_id": sid, "label": "first visit"})
+    return int(sid), int(session["id"])
+
+
+@pytest.fixture
+def laptop(page: Any) -> Iterator[Any]:
+    page.set_viewport_size(LAPTOP)
+    yield page
+    assert not page.js_errors, page.js_errors
+
+
+def test_reports_page_chooses_the_only_subject_and_says_when_none_is_chosen(
+        laptop: Any, live_server: LiveServer, artifacts_dir: Path) -> None:
+    page = laptop
+    sid, _ = _subject(live_server, "Laptop one subject", "LAP01")
+    one = live_server.api(f"/api/subjects/{sid}")
+    # a clinic with one subject: the list answers only it
+    page.route("**/api/subjects?sort=*", lambda route: route.fulfill(
+        status=200, json=[one], headers={"X-Total-Count": "1"}))
+    page.goto(f"{live_server.base_url}/reports.html")
+    page.wait_for_function(f"document.getElementById('subject').value === '{sid}'")
+    # its sessions are offered as for a subject chosen by hand
+    page.wait_for_function("[...document.querySelectorAll('#session option')]"
+                           ".some(o => o.textContent.includes('first visit'))")
+    screenshot(page, artifacts_dir, "laptop_reports_one_subject", "#subject-form")
+
+    # several subjects: none is chosen for her, and "Show report" says so on the page
+    page.unroute("**/api/subjects?sort=*")
+    _subject(live_server, "Laptop two subjects", "LAP02")
+    page.goto(f"{live_server.base_url}/reports.html")
+    page.wait_for_function("document.querySelectorAll('#subject option').length > 2")
+    assert page.input_value("#subject") == ""
+    page.get_by_role("button", name="Show report").click()
+    msg = page.locator("#subject-msg")
+    page.wait_for_function("document.getElementById('subject-msg').textContent.length > 0")
+    assert "Choose a subject" in msg.inner_text()
+    assert "error" in (msg.get_attribute("class") or "")
+    # the list to choose from has the focus (no browser bubble over the button)
+    assert page.evaluate("document.activeElement.id") == "subject"
+    screenshot(page, artifacts_dir, "laptop_reports_no_subject_chosen")
+
+    # a link's subject (#subject=ID) is the one chosen, with two or more on the server
+    page.goto("about:blank")
+    page.goto(f"{live_server.base_url}/reports.html#subject={sid}")
+    page.wait_for_function(f"document.getElementById('subject').value === '{sid}'")
