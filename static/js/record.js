@@ -67,7 +67,12 @@
     if (subjectId === null) { sel.replaceChildren(el("option", { value: "" }, "— add a subject first —")); return; }
     const ss = await api(`/api/sessions?subject_id=${subjectId}`);
     if (!sessionsSeq.current(mine)) return;
-    sel.replaceChildren(...ss.slice().reverse().map((s) => el("option", { value: s.id, "data-recordings": String(s.n_recordings) }, `${gaitrig.day(s.date)}${s.label ? " — " + s.label : ""} (${s.n_recordings} recording${s.n_recordings === 1 ? "" : "s"})`)));
+    // the count before the label: a long label is cut at its end, never the count
+    // ("(2 recording…" at 1366 px); the whole text in the option's tooltip
+    sel.replaceChildren(...ss.slice().reverse().map((s) => {
+      const text = `${gaitrig.day(s.date)} (${gaitrig.plural(s.n_recordings, "recording")})${s.label ? " — " + s.label : ""}`;
+      return el("option", { value: s.id, "data-recordings": String(s.n_recordings), title: text }, text);
+    }));
     if (!ss.length) sel.append(el("option", { value: "" }, "— add a session —"));
     if (want) sel.value = want;
     suggestLabel();

@@ -86,3 +86,26 @@ def test_reports_page_chooses_the_only_subject_and_says_when_none_is_chosen(
     page.goto("about:blank")
     page.goto(f"{live_server.base_url}/reports.html#subject={sid}")
     page.wait_for_function(f"document.getElementById('subject').value === '{sid}'")
+
+
+def test_record_page_session_list_is_read_whole(laptop: Any, live_server: LiveServer,
+                                                artifacts_dir: Path) -> None:
+    page = laptop
+    sid, session_id = _subject(live_server, "Laptop record", "LAP03")
+    real = live_server.api(f"/api/sessions?subject_id={sid}")
+    # the session as the clinician had it: two walks recorded
+    shown = [{**s, "n_recordings": 2} for s in real]
+    page.route(f"**/api/sessions?subject_id={sid}", lambda route: route.fulfill(
+        status=200, json=shown))
+    page.goto(f"{live_server.base_url}/record.html#subject={sid}")
+    page.wait_for_function(f"document.getElementById('subject').value === '{sid}'")
+    page.wait_for_function(f"document.getElementById('session').value === '{session_id}'")
+    text = page.evaluate("document.getElementById('session').selectedOptions[0].textContent")
+    assert "2 recordings" in text and "first visit" in text, text
+    cut = page.evaluate(CUT_SELECTS_JS)
+    screenshot(page, artifacts_dir, "laptop_record_session", "section[aria-labelledby=who-h]")
+    screenshot(page, artifacts_dir, "laptop_record_page")
+    assert cut == [], cut
+    # a label too long for any width is cut at its end: the day and the count stay read
+    assert text.index("2 recordings") < text.index("first visit"), text
+    assert page.evaluate("document.documentElement.scrollWidth <= innerWidth")
