@@ -112,7 +112,7 @@
   // reveal: a click in the list. On a tablet the details are under the list, out of
   // sight: the click seemed to do nothing, so the page goes to them.
   async function select(id, reveal = false) {
-    if (id !== subjectId) refNotes.clear();  // (another subject's upload messages are not this one's)
+    if (id !== subjectId) { refNotes.clear(); refInputs.clear(); }  // (another subject's uploads are not this one's)
     subjectId = id;
     revealWanted = revealWanted || reveal;
     history.replaceState(null, "", `#subject=${id}`);
@@ -197,6 +197,7 @@
   // "Attached." at once and lost "Uploading…" and the disabled button with it.
   const refNotes = new Map();  // rec_id → { text, kind: "good" | "bad" | "" }
   const refBusy = new Set();   // rec_ids whose upload is on its way
+  const refInputs = new Map(); // rec_id → its file input
 
   const refButton = (recId) => document.querySelector(`[data-reference-box="${CSS.escape(recId)}"] button`);
 
@@ -205,7 +206,12 @@
     for (const x of r.references)
       box.append(el("a", { class: "button", href: `/api/exports/${r.id}/references/${x.id}` },
         `reference ${x.filename} (${x.format.toUpperCase()}, ${x.rate_hz.toFixed(0)} Hz, ${gaitrig.plural(x.labels.length, "label")})`));
-    const input = el("input", { type: "file", accept: ".c3d,.trc,.csv", id: `ref-${r.id}` });
+    // the same file input in every drawing: a new one dropped the file chosen in it
+    let input = refInputs.get(r.id);
+    if (!input) {
+      input = el("input", { type: "file", accept: ".c3d,.trc,.csv", id: `ref-${r.id}` });
+      refInputs.set(r.id, input);
+    }
     const note = refNotes.get(r.id);
     const msg = el("span", { class: "msg" + (note && note.kind ? " " + note.kind : ""), role: "status", id: `ref-msg-${r.id}` },
       note ? note.text : "");
@@ -231,6 +237,7 @@
           tell(`${file.name} not attached: ${d}`, "bad"); return;
         }
         tell(`${file.name} attached.`, "good");
+        input.value = "";
         attached = true;
       } catch (e) {
         tell(`${file.name} not attached: the connection to the server broke off; try again`, "bad");

@@ -240,8 +240,16 @@ def test_attach_reference_says_each_outcome(page: Any, live_server: LiveServer,
     screenshot(page, artifacts_dir, "subjects_reference_failed", row)
     page.unroute(url)
 
+    # the file chosen stays chosen when the list is drawn again before the press (as every
+    # second while a recording is busy; here: a session added)
+    page.locator(f"{box_sel} input[type=file]").set_input_files(str(walk))
+    n_sessions = page.locator(".session[data-session]").count()
+    page.fill("#session-form [name=label]", "second visit")
+    page.click("#session-form button[type=submit]")
+    page.wait_for_function(
+        f"document.querySelectorAll('.session[data-session]').length === {n_sessions + 1}")
     # attached: the list is drawn again with the reference, and the message stays
-    choose_and_attach()
+    page.locator(f"{box_sel} button").click()
     page.locator(f"{box_sel} a.button").wait_for()
     page.wait_for_function(f"{msg}.textContent.includes('attached')")
     assert (page.text_content(f"{box_sel} .msg") or "").startswith("vicon walk.c3d attached.")
