@@ -215,15 +215,17 @@
       cb.checked = initial.includes(s.id);
       cb.addEventListener("change", updateRecLinks);
       const lab = el("label", { for: id });
-      lab.append(cb, ` ${s.id}${s.side ? " (side " + s.side + ")" : ""}`);
+      lab.append(cb, ` ${s.id}${s.side ? ` (${s.side})` : ""}`);
       box.append(lab);
     }
     const presets = $(set).querySelector(".presets");
     presets.replaceChildren();
     const groups = [["All", sensors.map((s) => s.id)]];
-    for (const side of ["A", "B"]) {
+    // which side is which, in words ("Side A only" did not say): left and right of a
+    // person walking the walkway the way the 3D view looks (the server's sides)
+    for (const side of ["left", "right"]) {
       const ids = sensors.filter((s) => s.side === side).map((s) => s.id);
-      if (ids.length) groups.push([`Side ${side} only`, ids]);
+      if (ids.length) groups.push([`${side === "left" ? "Left" : "Right"} side only (${ids.join(", ")})`, ids]);
     }
     for (const [label, ids] of groups) {
       const b = el("button", { type: "button", class: "secondary" }, label);
@@ -274,12 +276,26 @@
     // another recording chosen meanwhile: its own answer draws the subsets
     if ($("recording").value !== rid) return;
     sensors = got;
-    const sideA = sensors.filter((s) => s.side === "A").map((s) => s.id);
+    // subset A: the side of the first sensor (S1's side in the usual avenue)
+    const first = sensors.find((s) => s.side);
+    const side = first ? first.side : "";
+    const sideA = sensors.filter((s) => side && s.side === side).map((s) => s.id);
     buildSubset("set-a", sideA.length ? sideA : sensors.slice(0, 1).map((s) => s.id));
     buildSubset("set-b", sensors.map((s) => s.id));
-    say("cmp-msg", sideA.length ? "Subset A: the sensors on one side of the walkway; B: all sensors." : "");
+    say("cmp-msg", sideA.length ? `Subset A: the sensors on the ${side} of the walkway (${sideA.join(", ")}); B: all sensors. ` +
+      "Left and right as seen walking along the walkway the way the 3D view looks." : "");
     updateRecLinks();
     refreshReference();
+  }
+
+  // a subset in words: "left side (S1, S3, S5)", "all sensors", else its ids
+  function subsetName(ids) {
+    const same = (xs) => xs.length === ids.length && xs.every((x) => ids.includes(x));
+    if (same(sensors.map((s) => s.id))) return `all sensors (${ids.join(", ")})`;
+    for (const side of ["left", "right"]) {
+      if (same(sensors.filter((s) => s.side === side).map((s) => s.id))) return `${side} side (${ids.join(", ")})`;
+    }
+    return ids.join(", ");
   }
 
   const ms = (p, scale, d) => (!p || p.mean === null ? "—"
@@ -334,8 +350,8 @@
         tr.append(el("th", label.startsWith("Sensors seeing") ? { scope: "row", title: "sensors per joint sample, after fusion" } : { scope: "row" }, label), el("td", {}, va), el("td", {}, vb), el("td", {}, d === null ? "" : d));
         body.append(tr);
       }
-      $("cmp-a-h").textContent = `A: ${a.join(", ")}`;
-      $("cmp-b-h").textContent = `B: ${b.join(", ")}`;
+      $("cmp-a-h").textContent = `A: ${subsetName(a)}`;
+      $("cmp-b-h").textContent = `B: ${subsetName(b)}`;
       $("cmp-table").hidden = false;
       const errs = [r.a, r.b].filter((x) => !x.ok).map((x) => `${x.sensors_used.join(", ")}: ${x.error}`);
       say("cmp-msg", errs.length ? "No gait result for " + errs.join("; ") : "Mean ± SD per subset.", errs.length > 0);

@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from tests.browser.conftest import LiveServer, screenshot
+from tests.browser.conftest import LiveServer, record_walk, screenshot
 
 pytestmark = pytest.mark.browser
 
@@ -109,3 +109,32 @@ def test_record_page_session_list_is_read_whole(laptop: Any, live_server: LiveSe
     # a label too long for any width is cut at its end: the day and the count stay read
     assert text.index("2 recordings") < text.index("first visit"), text
     assert page.evaluate("document.documentElement.scrollWidth <= innerWidth")
+
+
+def test_reports_comparison_names_the_sides_of_the_walkway(
+        laptop: Any, live_server: LiveServer, artifacts_dir: Path) -> None:
+    page = laptop
+    _, session_id = _subject(live_server, "Laptop sides", "LAP04")
+    rid = record_walk(live_server, session_id)  # with steps: its report is read
+    page.goto(f"{live_server.base_url}/reports.html")
+    page.wait_for_function(f"[...document.querySelectorAll('#recording option')]"
+                           f".some(o => o.value === '{rid}')")
+    page.select_option("#recording", rid)
+    page.wait_for_selector("#set-a input")
+    # the avenue: S1, S3, S5 on the left of a person walking the way the 3D view looks
+    assert page.get_by_role("checkbox", name="S1 (left)").count() == 2
+    assert page.get_by_role("checkbox", name="S2 (right)").count() == 2
+    presets = page.locator("#set-a .presets").inner_text()
+    assert "Left side only (S1, S3, S5)" in presets and "Right side only (S2, S4, S6)" in presets
+    said = page.inner_text("#cmp-msg")
+    assert "left of the walkway (S1, S3, S5)" in said, said
+    screenshot(page, artifacts_dir, "laptop_reports_sides", "section[aria-labelledby=cmp-h]")
+    # the report of subset A (the same template as its PDF) names the side in its title
+    page.get_by_role("button", name="Report of subset A").click()
+    page.wait_for_function("!document.getElementById('report-section').hidden || "
+                           "document.getElementById('cmp-msg').classList.contains('error')",
+                           timeout=120_000)
+    assert page.locator("#report").is_visible(), page.inner_text("#cmp-msg")
+    title = page.locator("#report h1").inner_text()
+    screenshot(page, artifacts_dir, "laptop_reports_side_report", "#report")
+    assert "sensors on the left of the walkway (S1, S3, S5)" in title, title

@@ -254,10 +254,13 @@ def _subject_info(subject: Any, dates: list[Any] | None = None) -> dict[str, Any
 
 
 def _side_groups(sensors: dict[str, list[float]]) -> dict[str, str]:
-    """Which side of the walkway each sensor stands on ("A"/"B", "" when on the axis).
+    """Which side of the walkway each sensor stands on: ``"left"``, ``"right"`` or ``""``
+    (on the axis), as seen by a person walking the walkway towards the world's +X.
 
     The walkway axis is the principal direction of the sensor positions on the floor
-    (sensors line the walkway); a sensor's side is the sign of its offset across it.
+    (sensors line the walkway), pointed along +X (the world frame's walkway direction, the
+    way the 3D view looks: ``engine.sim.rig`` has S1, S3, S5 on the left); a sensor's side
+    is the sign of its offset across it. "Side A / Side B" did not say which side was which.
     """
     ids = list(sensors)
     if len(ids) < 2:
@@ -266,12 +269,31 @@ def _side_groups(sensors: dict[str, list[float]]) -> dict[str, str]:
     c = P.mean(axis=0)
     _, _, vt = np.linalg.svd(P - c)
     d = vt[0]
-    across = (P - c) @ np.array([-d[1], d[0]])
+    # along +X (a walkway along Y: along +Y)
+    if d[0] < -1e-6 or (abs(d[0]) <= 1e-6 and d[1] < 0):
+        d = -d
+    across = (P - c) @ np.array([-d[1], d[0]])  # > 0: left of the walking direction
     tol = 0.1 * max(1e-9, float(np.ptp(across)))
-    # Orient so that side A holds the first sensor in id order, for stable labels.
-    sign = 1.0 if across[0] >= 0 else -1.0
-    return {i: ("" if abs(a) <= tol else "A" if sign * a > 0 else "B")
+    return {i: ("" if abs(a) <= tol else "left" if a > 0 else "right")
             for i, a in zip(ids, across, strict=True)}
+
+
+def _sides_of(settings: Any, hub: Any, rec_id: str) -> dict[str, str]:
+    """The side of the walkway (:func:`_side_groups`) of each posed sensor of a recording."""
+    d = _rec_dir(settings, rec_id, hub)
+    poses = an.sensor_poses(d, _live_poses(hub))
+    return _side_groups({k: list(np.asarray(v["T_world_sensor"], dtype=float)[:3, 3])
+                         for k, v in poses.items() if k in an.part_dirs(d)})
+
+
+def _subset_words(sensors: tuple[str, ...] | None, sides: dict[str, str]) -> str:
+    """A sensor subset as a clinician reads it: "sensors on the left of the walkway (S1, S3,
+    S5)" when it is exactly one side's sensors, else "sensors S1, S3"."""
+    if sensors is not None:
+        for side in ("left", "right"):
+            if set(sensors) == {k for k, v in sides.items() if v == side}:
+                return f"sensors on the {side} of the walkway ({an.subset_label(sensors)})"
+    return _subset(sensors)
 
 
 #: Query parameters that would put a subject's identity into a URL (access logs,
@@ -464,7 +486,8 @@ def recording_report(rec_id: str, request: Request, user: CurrentUser, settings:
     res = _analyse(settings, hub, rec_id, sub, method, estimator)
     link = _recording_links(db, rec_id).get(rec_id, {})
     code = str(link.get("subject_code") or "unassigned")
-    title = "Gait report" + ("" if sub is None else f" — {_subset(sub)}")
+    title = "Gait report" + ("" if sub is None
+                             else f" — {_subset_words(sub, _sides_of(settings, hub, rec_id))}")
     refs, ref_notes = _references(db, settings.data_dir, {rec_id: _rec_dir(settings, rec_id, hub)},
                                   method)
     try:

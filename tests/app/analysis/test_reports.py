@@ -206,14 +206,17 @@ def test_one_sided_vs_two_sided(recorded: Recorded) -> None:
     sides: dict[str, list[str]] = {}
     for s in sens["sensors"]:
         sides.setdefault(s["side"], []).append(s["id"])
-    # The avenue: S1, S3, S5 on one side of the walkway, S2, S4, S6 on the other.
-    assert sorted(sides) == ["A", "B"]
-    assert sorted(sides["A"]) == ["S1", "S3", "S5"] and sorted(sides["B"]) == ["S2", "S4", "S6"]
+    # The avenue: S1, S3, S5 on the left of a person walking along +X, S2, S4, S6 on the
+    # right (engine.sim.rig), named so (was "A"/"B": which side was which went unsaid).
+    assert sorted(sides) == ["left", "right"]
+    assert sorted(sides["left"]) == ["S1", "S3", "S5"]
+    assert sorted(sides["right"]) == ["S2", "S4", "S6"]
     # The report of a subset says so.
     code, html, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/report"
                                  "?sensors=S1,S3,S5")
     assert code == 200
-    assert "sensors S1, S3, S5" in html.decode() and "subset of its sensors" in html.decode()
+    assert "sensors on the left of the walkway (S1, S3, S5)" in html.decode()
+    assert "subset of its sensors" in html.decode()
     code, cmp, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/compare"
                                 "?a=S1,S3,S5&b=")
     assert code == 200, cmp
