@@ -27,6 +27,9 @@ from engine.skeleton import SkeletonSeries, TrackingState
 #: POINT parameters that list model outputs (angles, forces ...) stored as points.
 _NON_MARKER_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
 
+#: What to do about a file that is not readable as C3D (said with the reason).
+C3D_ADVICE = "export it again from the motion-capture software, as C3D"
+
 _EVENT_LABELS = {"foot_strike": "Foot Strike", "foot_off": "Foot Off"}
 _SIDE_CONTEXT = {"L": "Left", "R": "Right", "": "General"}
 
@@ -96,8 +99,12 @@ def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
         raise InputError(f"C3D file not found: {p}")
     try:
         c = ezc3d.c3d(str(p), extract_forceplat_data=False)
-    except Exception as exc:  # ezc3d raises plain RuntimeError/IOError on corrupt files
-        raise InputError(f"cannot read {p.name} as C3D: {exc}") from None
+    except Exception:  # ezc3d raises plain RuntimeError/IOError on corrupt files
+        # (its own words — "File must be a valid c3d file: iostream error", "Could not read
+        # the processor type" — say nothing a clinician can act on)
+        what = ("the file is empty" if p.stat().st_size == 0
+                else "the file is damaged or not a C3D file")
+        raise InputError(f"cannot read {p.name} as C3D: {what} ({C3D_ADVICE})") from None
     params = c["parameters"]
     labels = [str(s).strip() for s in (_param(params, "POINT", "LABELS") or [])]
     pts = np.asarray(c["data"]["points"], dtype=float)

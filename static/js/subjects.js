@@ -234,7 +234,8 @@
         if (res.status === 401) { refNotes.delete(r.id); gaitrig.toLogin(); return; }
         if (!res.ok) {
           let d = res.statusText; try { d = (await res.json()).detail || d; } catch (e) { /* not JSON */ }
-          tell(`${file.name} not attached: ${d}`, "bad"); return;
+          // (the server's refusal of the file names it: "'walk.c3d' is not a readable C3D file: …")
+          tell(String(d).includes(file.name) ? `Not attached: ${d}` : `${file.name} not attached: ${d}`, "bad"); return;
         }
         tell(`${file.name} attached.`, "good");
         input.value = "";

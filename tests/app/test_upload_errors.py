@@ -76,3 +76,32 @@ def test_upload_error_drops_a_leading_copy_name_and_renames_the_rest(tmp_path: P
     assert upload_error(ValueError(f"cannot read {copy} as C3D"), copy,
                         "walk.c3d") == "cannot read walk.c3d as C3D"
     assert upload_error(ValueError("bad header"), copy, "walk.csv") == "bad header"
+
+
+#: What a bad C3D file's message says instead of ezc3d's words, and what it never says.
+NOT_C3D = ("the file is damaged or not a C3D file (export it again from the motion-capture "
+           "software, as C3D)")
+LIBRARY_WORDS = re.compile(r"iostream|ezc3d|processor type|valid c3d file", re.IGNORECASE)
+
+
+def test_a_damaged_c3d_says_what_it_is_not_and_what_to_do(admin_client: TestClient,
+                                                          tmp_path: Path) -> None:
+    """Each upload route of a C3D file (Subjects page reference, Reports page reference,
+    "Analyse a file") says the file is damaged or not C3D and to export it again; the
+    reader's "File must be a valid c3d file: iostream error" was the end of each."""
+    _filed_recording(admin_client, tmp_path, "R1")
+    name, data = "trial 3.c3d", b"not a c3d file at all"
+    for url, form, code, want in [
+        ("/api/exports/R1/references", None, 400,
+         f"'trial 3.c3d' is not a readable C3D file: {NOT_C3D}"),
+        ("/api/reports/recordings/R1/reference", None, 400,
+         f"reference trial 3.c3d: cannot read trial 3.c3d as C3D: {NOT_C3D}"),
+        ("/api/reports/upload", {"subject": "UP1"}, 422,
+         f"trial 3.c3d: cannot read trial 3.c3d as C3D: {NOT_C3D}"),
+    ]:
+        r = admin_client.post(url, data=form,
+                              files={"file": (name, data, "application/octet-stream")})
+        assert r.status_code == code, r.text
+        detail = r.json()["detail"]
+        assert detail == want
+        assert not LIBRARY_WORDS.search(detail), detail

@@ -198,6 +198,8 @@ def test_attach_reference_says_each_outcome(page: Any, live_server: LiveServer,
 
     walk = tmp_path / "vicon walk.c3d"
     write_c3d(walk, walk_markers(synth_walk()), units="mm")
+    damaged = tmp_path / "trial 3.c3d"
+    damaged.write_bytes(walk.read_bytes()[:8] + b"not a c3d file at all")
     p = live_server.api("/api/projects", {"name": "Reference upload"})
     s = live_server.api("/api/subjects", {"project_id": p["id"], "code": "REF01"})
     sess = live_server.api("/api/sessions", {"subject_id": s["id"], "label": "visit"})
@@ -214,19 +216,24 @@ def test_attach_reference_says_each_outcome(page: Any, live_server: LiveServer,
         page.locator(f"{box_sel} input[type=file]").set_input_files(str(walk))
         page.locator(f"{box_sel} button").click()
 
-    # the server's answer held: "Uploading…", the button disabled; then a refusal
+    # the server's answer held: "Uploading…", the button disabled; then the server's
+    # refusal of a damaged C3D file, in words (not ezc3d's "iostream error")
     url = f"**/api/exports/{rid}/references"
     held: list[Any] = []
     page.route(url, lambda route: held.append(route))
-    choose_and_attach()
-    page.wait_for_function(f"{msg}.textContent === 'Uploading vicon walk.c3d…'")
+    page.locator(f"{box_sel} input[type=file]").set_input_files(str(damaged))
+    page.locator(f"{box_sel} button").click()
+    page.wait_for_function(f"{msg}.textContent === 'Uploading trial 3.c3d…'")
     assert page.locator(f"{box_sel} button").is_disabled()
-    held[0].fulfill(status=400, json={"detail": "'vicon walk.c3d' is too short"})
-    page.wait_for_function(f"{msg}.textContent.includes('not attached')")
+    held[0].continue_()
+    page.wait_for_function(f"{msg}.textContent.includes('ot attached')")
     assert page.text_content(f"{box_sel} .msg") == (
-        "vicon walk.c3d not attached: 'vicon walk.c3d' is too short")
+        "Not attached: 'trial 3.c3d' is not a readable C3D file: the file is damaged or not "
+        "a C3D file (export it again from the motion-capture software, as C3D)")
     assert "bad" in (page.get_attribute(f"{box_sel} .msg", "class") or "")
     assert page.locator(f"{box_sel} button").is_enabled()
+    row = f".recording[data-recording='{rid}']"
+    screenshot(page, artifacts_dir, "subjects_reference_damaged_c3d", row)
     page.unroute(url)
 
     # the connection breaks off: said, and the button is usable again
@@ -236,7 +243,6 @@ def test_attach_reference_says_each_outcome(page: Any, live_server: LiveServer,
     assert page.text_content(f"{box_sel} .msg") == (
         "vicon walk.c3d not attached: the connection to the server broke off; try again")
     assert page.locator(f"{box_sel} button").is_enabled()
-    row = f".recording[data-recording='{rid}']"
     screenshot(page, artifacts_dir, "subjects_reference_failed", row)
     page.unroute(url)
 

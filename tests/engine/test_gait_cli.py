@@ -72,10 +72,28 @@ def test_errors_are_one_line_exit_2(tmp_path: Path, capsys: pytest.CaptureFixtur
     else:
         p = tmp_path / "garbage.c3d"
         p.write_bytes(b"\x00\x01garbage" * 10)
-        expect = "cannot read"
+        # (ezc3d's "File must be a valid c3d file: iostream error" was the end of it)
+        expect = ("gaitrig gait: error: cannot read garbage.c3d as C3D: the file is damaged "
+                  "or not a C3D file (export it again from the motion-capture software, "
+                  "as C3D)\n")
     rc, out, err = _run([str(p), "--json"], capsys)
     assert rc == 2 and out == ""
     assert err.count("\n") == 1 and expect in err and "Traceback" not in err
+    if case == "garbage":
+        assert err == expect and "iostream" not in err
+
+
+def test_report_of_a_damaged_c3d_says_to_export_it_again(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``gaitrig report`` shows the same message as ``gaitrig gait``, naming the file."""
+    p = tmp_path / "trial 3.c3d"
+    p.write_bytes(b"not a c3d file at all")
+    rc = main(["report", str(p), "--subject", "P1", "-o", str(tmp_path / "r.html")])
+    out, err = capsys.readouterr()
+    assert rc == 2 and out == ""
+    assert err == ("gaitrig report: error: trial 3.c3d: cannot read trial 3.c3d as C3D: the "
+                   "file is damaged or not a C3D file (export it again from the "
+                   "motion-capture software, as C3D)\n")
 
 
 def test_subprocess_on_vicon_file(shared_data: Path) -> None:

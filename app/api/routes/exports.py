@@ -183,9 +183,11 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
         try:
             traj = await asyncio.to_thread(read_reference, tmp, ext)
         except (GaitrigError, ValueError, OSError, RuntimeError) as exc:
+            # (a reader's "cannot read walk.c3d as C3D: " says again what this says first)
+            why = upload_error(exc, tmp, name).removeprefix(
+                f"cannot read {name} as {ext.upper()}: ")
             raise HTTPException(status.HTTP_400_BAD_REQUEST,
-                                f"{name!r} is not a readable {ext.upper()} file: "
-                                f"{upload_error(exc, tmp, name)}") from exc
+                                f"{name!r} is not a readable {ext.upper()} file: {why}") from exc
         try:
             os.replace(tmp, path)
             fsync_dir(folder)

@@ -62,6 +62,23 @@ def test_c3d_marker_round_trip_with_events(tmp_path: Path) -> None:
     assert c["parameters"]["POINT"]["LABELS"]["value"] == m.labels
 
 
+@pytest.mark.parametrize(("data", "why"), [
+    (b"not a c3d file at all", "the file is damaged or not a C3D file"),  # "iostream error"
+    (b"\x02\x50" + b"\x00" * 600, "the file is damaged or not a C3D file"),  # "processor type"
+    (b"", "the file is empty"),
+])
+def test_unreadable_c3d_says_what_it_is_not_and_what_to_do(tmp_path: Path, data: bytes,
+                                                           why: str) -> None:
+    """ezc3d's own words ("File must be a valid c3d file: iostream error") are not what a
+    clinician can act on: the message says what the file is not and to export it again."""
+    p = tmp_path / "trial 3.c3d"
+    p.write_bytes(data)
+    with pytest.raises(InputError) as err:
+        read_c3d(p)
+    assert str(err.value) == (f"cannot read trial 3.c3d as C3D: {why} (export it again from "
+                              "the motion-capture software, as C3D)")
+
+
 def test_c3d_skeleton_export(tmp_path: Path) -> None:
     s = _skeleton(np.random.default_rng(0))
     ev = [MarkerEvent(11.0, "R", "placement", "placement")]

@@ -1,0 +1,65 @@
+"""The Reports page's two uploads of a file from another system — the reference of the
+agreement section and "Analyse a file" — say in words what a damaged C3D file is not and
+what to do (ezc3d's "File must be a valid c3d file: iostream error" ended both messages).
+Screenshots ``test-artifacts/browser/reports_reference_damaged_c3d.png`` and
+``reports_file_damaged_c3d.png``."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.browser.conftest import LiveServer, screenshot
+
+pytestmark = pytest.mark.browser
+
+#: What a damaged C3D file's message ends with on every upload.
+NOT_C3D = ("cannot read trial 3.c3d as C3D: the file is damaged or not a C3D file (export it "
+           "again from the motion-capture software, as C3D)")
+
+
+def _recording(server: LiveServer, code: str) -> str:
+    """A short recording of a new subject ``code``, copied to the server; its id."""
+    pid = server.api("/api/projects", {"name": f"References {code}"})["id"]
+    sid = server.api("/api/subjects", {"project_id": pid, "code": code})["id"]
+    se = server.api("/api/sessions", {"subject_id": sid, "label": "visit"})["id"]
+    rid = str(server.api(f"/api/sessions/{se}/recordings",
+                         {"label": "walk 1", "streams": [], "image_every": 3})["id"])
+    deadline = time.time() + 90
+    while not all(p["n_frames"] > 0 for p in server.api(f"/api/recordings/{rid}")["parts"]):
+        assert time.time() < deadline, f"recording {rid} got no frame from every sensor"
+        time.sleep(0.1)
+    server.api(f"/api/recordings/{rid}/stop", {})
+    while server.api(f"/api/storage/recordings/{rid}")["state"] != "complete":
+        assert time.time() < deadline, f"recording {rid} was not copied"
+        time.sleep(0.3)
+    return rid
+
+
+def test_reports_page_says_what_a_damaged_c3d_is_not(page: Any, live_server: LiveServer,
+                                                     artifacts_dir: Path,
+                                                     tmp_path: Path) -> None:
+    rid = _recording(live_server, "REFM1")
+    damaged = tmp_path / "trial 3.c3d"
+    damaged.write_bytes(b"\x02\x50" + b"\x00" * 6 + b"not a c3d file at all")
+    page.goto(live_server.base_url + "/reports.html")
+    page.wait_for_function(f"[...document.querySelectorAll('#recording option')]"
+                           f".some(o => o.value === '{rid}')")
+    page.select_option("#recording", rid)
+    page.click("#ref-box summary")
+    page.set_input_files("#ref-file", str(damaged))
+    page.click("#ref-form button[type=submit]")
+    page.wait_for_function("document.getElementById('ref-msg').textContent.includes('C3D:')")
+    assert page.text_content("#ref-msg") == f"reference trial 3.c3d: {NOT_C3D}"
+    screenshot(page, artifacts_dir, "reports_reference_damaged_c3d", "#ref-box")
+
+    page.set_input_files("#file", str(damaged))
+    page.click("#file-form button[type=submit]")
+    page.wait_for_function("document.getElementById('file-msg').textContent.includes('C3D:')")
+    assert page.text_content("#file-msg") == f"trial 3.c3d: {NOT_C3D}"
+    screenshot(page, artifacts_dir, "reports_file_damaged_c3d",
+               "section[aria-labelledby=file-h]")
+    assert not page.js_errors
