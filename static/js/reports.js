@@ -376,10 +376,19 @@
     if (!rid) { $("ref-state").textContent = ""; return; }
     try {
       const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference`);
+      // without one here, the newest attached on the Subjects page is the one used
+      // (app/api/routes/reports.py, _reference_paths); named, so nobody has to guess
+      let other = null;
+      if (!r.attached) {
+        try { const refs = await json(`/api/exports/${encodeURIComponent(rid)}/references`); other = refs.length ? refs[refs.length - 1] : null; }
+        catch (e) { other = undefined; }  // (not known: said in general words)
+      }
       if ($("recording").value !== rid) return;  // the newer choice's answer draws
       $("ref-state").textContent = r.attached
-        ? `Attached: ${r.filename} (${r.n_steps} steps, starts ${r.offset_s} s into the recording).`
-        : "No reference attached on this page (a reference imported on the Subjects page is used if present).";
+        ? `Attached: ${r.filename} (${r.n_steps} steps, starts ${r.offset_s} s into the recording). Reports use this one.`
+        : other ? `None attached here: reports use ${other.filename}, attached on the Subjects page.`
+        : other === null ? "None attached here or on the Subjects page: reports of this recording have no agreement section."
+        : "None attached here: reports use the newest reference attached on the Subjects page, if any.";
       $("ref-remove").disabled = !r.attached;
     } catch (e) { if ($("recording").value === rid) $("ref-state").textContent = e.message; }
   }

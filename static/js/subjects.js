@@ -201,11 +201,16 @@
 
   const refButton = (recId) => document.querySelector(`[data-reference-box="${CSS.escape(recId)}"] button`);
 
+  // Which reference a report uses (app/api/routes/reports.py, _reference_paths): one
+  // attached on the Reports page comes first; else the newest attached here.
+  const refUsed = (n) => `Reports use ${n === 1 ? "this reference" : "the newest of these (the last)"}, unless one is attached to this recording on the Reports page.`;
+
   function referenceBox(r) {
     const box = el("div", { class: "actions", "data-reference-box": r.id });
     for (const x of r.references)
       box.append(el("a", { class: "button", href: `/api/exports/${r.id}/references/${x.id}` },
         `reference ${x.filename} (${x.format.toUpperCase()}, ${x.rate_hz.toFixed(0)} Hz, ${gaitrig.plural(x.labels.length, "label")})`));
+    if (r.references.length) box.append(el("span", { class: "hint", "data-kind": "reference-used" }, refUsed(r.references.length)));
     // the same file input in every drawing: a new one dropped the file chosen in it
     let input = refInputs.get(r.id);
     if (!input) {

@@ -2,7 +2,11 @@
 agreement section and "Analyse a file" — say in words what a damaged C3D file is not and
 what to do (ezc3d's "File must be a valid c3d file: iostream error" ended both messages).
 Screenshots ``test-artifacts/browser/reports_reference_damaged_c3d.png`` and
-``reports_file_damaged_c3d.png``."""
+``reports_file_damaged_c3d.png``.
+
+And which of a recording's references its reports use (one attached on the Reports page,
+else the newest attached on the Subjects page) is said on the Reports page, naming the
+file (``reports_reference_from_subjects_page.png``, ``reports_reference_attached_here.png``)."""
 
 from __future__ import annotations
 
@@ -62,4 +66,54 @@ def test_reports_page_says_what_a_damaged_c3d_is_not(page: Any, live_server: Liv
     assert page.text_content("#file-msg") == f"trial 3.c3d: {NOT_C3D}"
     screenshot(page, artifacts_dir, "reports_file_damaged_c3d",
                "section[aria-labelledby=file-h]")
+    assert not page.js_errors
+
+
+def test_reports_page_names_the_reference_its_reports_use(page: Any, live_server: LiveServer,
+                                                          artifacts_dir: Path,
+                                                          tmp_path: Path) -> None:
+    """A recording's reference comes from one of two places (the Subjects page's "Attach
+    reference", the Reports page's reference of the agreement section); the Reports page
+    names the one its reports use: its own first, else the newest on the Subjects page."""
+    from engine.io.c3d import write_c3d
+    from engine.sim.straight_walk import synth_walk, walk_markers
+
+    rid = _recording(live_server, "REFM2")
+    walk = tmp_path / "vicon walk.c3d"
+    write_c3d(walk, walk_markers(synth_walk()), units="mm")
+    page.goto(live_server.base_url + "/reports.html")
+    page.wait_for_function(f"[...document.querySelectorAll('#recording option')]"
+                           f".some(o => o.value === '{rid}')")
+    page.select_option("#recording", rid)
+    page.click("#ref-box summary")
+    state = "document.getElementById('ref-state').textContent"
+    page.wait_for_function(f"{state}.startsWith('None attached')")
+    assert page.text_content("#ref-state") == (
+        "None attached here or on the Subjects page: reports of this recording have no "
+        "agreement section.")
+    assert page.inner_text("#ref-box .hint") == (
+        "Reports use the reference attached here; without one, the newest one attached to "
+        "the recording on the Subjects page (taken to start with the recording).")
+    # one attached on the Subjects page is named
+    for name in ("older.c3d", "vicon walk.c3d"):
+        upload = {"name": name, "mimeType": "application/octet-stream",
+                  "buffer": walk.read_bytes()}
+        r = page.request.post(f"{live_server.base_url}/api/exports/{rid}/references",
+                              multipart={"file": upload})
+        assert r.status == 201, r.text()
+    page.dispatch_event("#recording", "change")  # (as choosing it again)
+    page.wait_for_function(f"{state}.includes('vicon walk.c3d')")
+    assert page.text_content("#ref-state") == (
+        "None attached here: reports use vicon walk.c3d, attached on the Subjects page.")
+    screenshot(page, artifacts_dir, "reports_reference_from_subjects_page", "#ref-box")
+    # one attached here comes first
+    page.set_input_files("#ref-file", str(walk))
+    page.click("#ref-form button[type=submit]")
+    page.wait_for_function(f"{state}.startsWith('Attached:')")
+    assert (page.text_content("#ref-state") or "").endswith("Reports use this one."), (
+        page.text_content("#ref-state"))
+    screenshot(page, artifacts_dir, "reports_reference_attached_here", "#ref-box")
+    # removed: back to the Subjects page's
+    page.click("#ref-remove")
+    page.wait_for_function(f"{state}.startsWith('None attached here: reports use')")
     assert not page.js_errors

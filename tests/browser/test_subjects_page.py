@@ -260,6 +260,10 @@ def test_attach_reference_says_each_outcome(page: Any, live_server: LiveServer,
     page.wait_for_function(f"{msg}.textContent.includes('attached')")
     assert (page.text_content(f"{box_sel} .msg") or "").startswith("vicon walk.c3d attached.")
     assert "good" in (page.get_attribute(f"{box_sel} .msg", "class") or "")
+    # which of the two kinds of reference a report uses, said where they are attached
+    assert page.text_content(f"{box_sel} [data-kind=reference-used]") == (
+        "Reports use this reference, unless one is attached to this recording on the "
+        "Reports page.")
     assert page.locator(f"{box_sel} button").is_enabled()
     assert [x["filename"] for x in live_server.api(f"/api/exports/{rid}/references")] == [
         "vicon walk.c3d"]
