@@ -65,10 +65,20 @@ const gaitrig = (() => {
   }
   // A session's day ("2026-11-24") as the user writes dates ("24 Nov 2026", "Nov 24, 2026");
   // the month spelled out, so 03/04 cannot be read as either March or April.
+  // A Date is written as its day on the user's calendar.
+  const DAY = { day: "numeric", month: "short", year: "numeric" };
   function day(iso) {
-    const d = new Date(`${iso}T00:00:00`);  // local midnight: the same calendar day everywhere
-    return Number.isNaN(d.getTime()) ? String(iso)
-      : d.toLocaleDateString(undefined, { day: "numeric", month: "short", year: "numeric" });
+    // local midnight: the same calendar day everywhere
+    const d = iso instanceof Date ? iso : new Date(`${iso}T00:00:00`);
+    return Number.isNaN(d.getTime()) ? String(iso) : d.toLocaleDateString(undefined, DAY);
+  }
+  // A moment (a Date, or seconds since the epoch as the API's t_start and created) the same
+  // way, with the time on the user's clock: "28 Nov 2026, 10:07:14" / "Nov 28, 2026,
+  // 10:07:14 AM" (the wizard wrote "11/28/2026, 10:07:14 AM" beside "Nov 28, 2026").
+  // seconds: false drops them (a log's minute is enough).
+  function dateTime(t, { seconds = true } = {}) {
+    const d = t instanceof Date ? t : new Date(t * 1000);
+    return d.toLocaleString(undefined, { ...DAY, hour: "numeric", minute: "2-digit", ...(seconds ? { second: "2-digit" } : {}) });
   }
   function fmt(v, digits, unit) { return v === null || v === undefined ? "—" : v.toFixed(digits) + unit; }
   // A count with its noun in the right number: plural(1, "recording") is "1 recording",
@@ -175,7 +185,7 @@ const gaitrig = (() => {
     // clock, frames late): the newest three, with when it last did
     for (const w of (n.node_warnings || []).slice(0, 3)) {
       const at = new Date(w.at * 1000);
-      const time = at.toDateString() === new Date().toDateString() ? at.toLocaleTimeString() : at.toLocaleString();
+      const time = at.toDateString() === new Date().toDateString() ? at.toLocaleTimeString() : dateTime(at);
       notes.append(el("li", { class: "node-warning" }, `The sensor warned at ${time}: ${w.text}` +
         (w.repeats > 1 ? ` (${w.repeats} times)` : "")));
     }
@@ -215,7 +225,7 @@ const gaitrig = (() => {
     const at = sys.last_backup_at ? when(sys.last_backup_at).getTime() : NaN;
     if (at && Date.now() - at < 7 * 86400e3) return;
     const text = sys.last_backup_at
-      ? `No backup of this server since ${new Date(at).toLocaleDateString()}.`
+      ? `No backup of this server since ${day(new Date(at))}.`
       : "This server has never been backed up.";
     // (a clinician logged in as administrator read a command and a file they could not
     // open: who does it, and the guide's words on it, are said too)
@@ -310,7 +320,7 @@ const gaitrig = (() => {
           }
           return el("tr", { "data-recording": r.id }, el("th", { scope: "row" }, r.id),
             // the user's own clock and date format (was UTC, an hour or more off the wall clock)
-            el("td", {}, new Date(r.t_start * 1000).toLocaleString()),
+            el("td", {}, dateTime(r.t_start)),
             el("td", { class: "num" }, len), state, el("td", {}, parts));
         }));
       } catch (e) { /* shown by the node refresh */ }
@@ -320,7 +330,7 @@ const gaitrig = (() => {
     poll(refresh, 1000);
     poll(refreshRecordings, 1000);
   }
-  return { api, el, listPage, toLogin, newest, latest, release, day, plural, when, poll, wait,
+  return { api, el, listPage, toLogin, newest, latest, release, day, dateTime, plural, when, poll, wait,
     loginPage, rigPage };
 })();
 

@@ -47,7 +47,7 @@ from engine.report.normative import (
     NormativeRange,
     normative_lookup,
 )
-from engine.report.render import TableRow, TrialData, spatiotemporal_table
+from engine.report.render import TableRow, TrialData, day_text, spatiotemporal_table
 
 #: Significance level of the trial-to-trial test (a).
 ALPHA = 0.05
@@ -192,8 +192,8 @@ class SessionTrials:
 
     @property
     def name(self) -> str:
-        """Date and label as printed ("2026-11-20 baseline")."""
-        return " ".join(x for x in (self.date, self.label) if x) or "session"
+        """Date and label as printed ("20 Nov 2026 baseline", :func:`day_text`)."""
+        return " ".join(x for x in (day_text(self.date), self.label) if x) or "session"
 
 
 @dataclass(frozen=True)

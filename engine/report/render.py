@@ -33,6 +33,25 @@ if TYPE_CHECKING:
 
     from engine.report.progress import Change, Progress, ProgressParameter, SessionTrials
 
+_MONTHS = ("Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec")
+
+
+def day_text(iso: str) -> str:
+    """A calendar day ("2026-11-28") as the report prints it: "28 Nov 2026".
+
+    The report (HTML and PDF from one template) has no reader's locale, unlike the console
+    (``gaitrig.day()`` writes the browser's own order): the month in letters and the
+    four-digit year cannot be read the wrong way round (03/04: March or April?), in any
+    country. English month names, whatever the server's locale. Text that is not an ISO
+    date is returned as it is.
+    """
+    try:
+        d = _dt.date.fromisoformat(iso.strip()[:10]) if iso else None
+    except ValueError:
+        d = None
+    return f"{d.day} {_MONTHS[d.month - 1]} {d.year}" if d else iso
+
+
 TEMPLATE_DIR = Path(__file__).with_name("templates")
 #: Trials per foot-placement figure (one panel each): six fit on an A4 page.
 PLACEMENT_TRIALS_PER_FIGURE = 6
@@ -528,7 +547,10 @@ def build_context(data: ReportData) -> dict[str, Any]:
         "trial_paces": trial_paces(data.trials),
         "session_pace": pace(data.trials),
         **_progress_context(data),
-        "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        # the day as the report writes days ("28 Nov 2026", progress.day_text); UTC said:
+        # the server has no reader's time zone
+        "generated": (lambda t: f"{day_text(t.date().isoformat())} {t:%H:%M} UTC")(
+            _dt.datetime.now(_dt.UTC)),
         "version": __version__,
     }
 
@@ -620,6 +642,7 @@ def _env() -> Environment:
         return f"{v:.{d}f}"
 
     env.filters["fmt"] = fmt
+    env.filters["day"] = day_text
     return env
 
 

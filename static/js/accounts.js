@@ -11,8 +11,8 @@
   function say(id, text, good = false) { const m = $(id); m.textContent = text; m.className = "msg " + (good ? "good" : "bad"); }
   // the API's times carry their offset (an older server's did not: read as UTC)
   const when = gaitrig.when;
-  const dateText = (iso) => when(iso).toLocaleDateString(undefined, { day: "numeric", month: "short", year: "numeric" });
-  const timeText = (iso) => when(iso).toLocaleString(undefined, { day: "numeric", month: "short", year: "numeric", hour: "2-digit", minute: "2-digit" });
+  const dateText = (iso) => gaitrig.day(when(iso));
+  const timeText = (iso) => gaitrig.dateTime(when(iso), { seconds: false });
 
   let me = null;
 

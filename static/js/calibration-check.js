@@ -13,7 +13,7 @@
     banner.hidden = !warnings.length;
     for (const w of warnings) {
       const p = document.createElement("p");
-      const when = w.calibration_created ? new Date(w.calibration_created * 1000).toLocaleString() : `version ${w.calibration_version}`;
+      const when = w.calibration_created ? gaitrig.dateTime(w.calibration_created) : `version ${w.calibration_version}`;
       p.append(`Sensor ${w.sensor} has moved ${fmt(w.moved_mm / 10, 1)} cm / ${fmt(w.rotated_deg, 1)}° since the calibration of ${when}. Recalibrate before recording. `);
       const a = document.createElement("a");
       a.href = "/calibration-wizard.html"; a.textContent = "Open the calibration wizard";

@@ -115,7 +115,7 @@
     const worst = Math.max(...sens.map((s) => doc.sensor_residual_m[s] || 0));
     const head = pending ? "New calibration, not saved yet" : `Version ${doc.version}`;
     // the local time, as in the saved-versions table (was the raw "2026-11-24T17:14:50Z")
-    const when = new Date(doc.created_iso).toLocaleString();
+    const when = gaitrig.dateTime(gaitrig.when(doc.created_iso));
     // in words first ("worst sensor residual 1.39 mm" told a clinician nothing); the
     // exact figure and the graph's size are in the title and the technical figures
     const markers = new Set(doc.edges.map((e) => e.marker)).size;
@@ -336,7 +336,7 @@
         // region: it said so as one while the focus fell to the page)
         if (pendingJob === null) focusResult();
       });
-      tb.append(row([String(c.version), new Date(c.created * 1000).toLocaleString(), c.sensors.join(" "),
+      tb.append(row([String(c.version), gaitrig.dateTime(c.created), c.sensors.join(" "),
         c.max_sensor_residual_mm === null ? "—" : c.max_sensor_residual_mm.toFixed(2), String(c.rejected), btn]));
     });
     return rows;

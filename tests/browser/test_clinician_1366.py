@@ -12,13 +12,14 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.browser.conftest import LiveServer, record_walk, screenshot
+from tests.browser.conftest import LiveServer, login, record_walk, screenshot
 
 pytestmark = pytest.mark.browser
 
@@ -138,3 +139,40 @@ def test_reports_comparison_names_the_sides_of_the_walkway(
     title = page.locator("#report h1").inner_text()
     screenshot(page, artifacts_dir, "laptop_reports_side_report", "#report")
     assert "sensors on the left of the walkway (S1, S3, S5)" in title, title
+
+
+def test_date_times_are_written_one_way(browser: Any, live_server: LiveServer,
+                                        artifacts_dir: Path) -> None:
+    """The calibration wizard wrote "11/28/2026, 10:07:14 AM" beside the Subjects page's
+    "Nov 28, 2026": every date-time of the console spells its month as days do
+    (``gaitrig.day()``), on the user's clock."""
+    context = browser.new_context(viewport=LAPTOP, locale="en-US", timezone_id="UTC")
+    try:
+        page = context.new_page()
+        page.set_default_timeout(20000)
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        login(page, live_server)
+        t = 1795860434  # 2026-11-28 10:07:14 UTC
+        saved = [{"version": 3, "created": t, "sensors": ["S1", "S2"],
+                  "max_sensor_residual_mm": 1.2, "rejected": 0}]
+        page.route("**/api/calibration", lambda route: route.fulfill(status=200, json=saved)
+                   if route.request.method == "GET" else route.continue_())
+        page.goto(f"{live_server.base_url}/calibration-wizard.html")
+        cell = page.locator("#history tbody tr").first.locator("td").nth(1)
+        cell.wait_for()
+        screenshot(page, artifacts_dir, "laptop_wizard_history", "#history")
+        assert cell.inner_text() == "Nov 28, 2026, 10:07:14 AM", cell.inner_text()
+
+        listed = [{"id": "R20261128-100714-0001", "state": "complete", "t_start": t,
+                   "t_stop": t + 5.0, "parts": []}]
+        page.route("**/api/recordings", lambda route: route.fulfill(
+            status=200, json=listed) if route.request.method == "GET" else route.continue_())
+        page.goto(f"{live_server.base_url}/rig.html")
+        cell = page.locator("tr[data-recording] td").first
+        cell.wait_for()
+        assert cell.inner_text() == "Nov 28, 2026, 10:07:14 AM", cell.inner_text()
+        assert not re.search(r"\d{1,2}/\d{1,2}/\d{4}", page.inner_text("main"))
+        assert not errors, errors
+    finally:
+        context.close()

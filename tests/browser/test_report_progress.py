@@ -78,7 +78,7 @@ def test_pick_two_sessions_and_see_the_change(page: Any, live_server: LiveServer
     report = page.inner_text("#report")
     assert "Change over sessions" in report and "all sessions pooled" in report
     changes = page.inner_text("#report table[aria-label='changes between sessions']")
-    assert "2026-11-12 after therapy" in changes and "Walking speed" in changes
+    assert "12 Nov 2026 after therapy" in changes and "Walking speed" in changes
     # one trial per session: the trial-to-trial test cannot be made, and says so
     assert "too few trials to tell" in changes
     assert "cancelled" not in page.inner_text("#report table[aria-label='sessions']")

@@ -108,10 +108,10 @@ def test_all_sessions_have_the_change_section(client: TestClient) -> None:
     assert "Change over sessions" in html and "all sessions pooled" in html
     heads = _cells(html, "sessions")
     # time order, whatever the order of filing
-    assert heads.index("2026-10-01 baseline") < heads.index("2026-10-29 week 4") \
-        < heads.index("2026-11-26 week 8")
+    assert heads.index("1 Oct 2026 baseline") < heads.index("29 Oct 2026 week 4") \
+        < heads.index("26 Nov 2026 week 8")
     changes = _cells(html, "changes between sessions")
-    week8 = changes[changes.index("2026-11-26 week 8"):]
+    week8 = changes[changes.index("26 Nov 2026 week 8"):]
     row = re.search(r"Walking speed</th><th scope=\"row\"[^>]*>first</th>\s*<td class=\"l\">"
                     r"faster by ([0-9.]+) m/s \(\+([0-9.]+) %\)</td>\s*"
                     r"<td class=\"l beyond\">beyond trial-to-trial", week8)
@@ -171,6 +171,6 @@ def test_the_downloaded_pdf_is_tagged_like_the_html(client: TestClient) -> None:
     page = client.get(f"/api/reports/subjects/{sid}").text
     assert alts == [html_lib.unescape(a)
                     for a in re.findall(r'<img src="[^"]+" alt="([^"]*)"', page)]
-    assert alts[0].startswith("Parameters over 3 sessions, 2026-10-01 baseline to "
-                              "2026-11-26 week 8")
+    assert alts[0].startswith("Parameters over 3 sessions, 1 Oct 2026 baseline to "
+                              "26 Nov 2026 week 8")
     assert any(t.find("TH") for t in tree.find("Table"))

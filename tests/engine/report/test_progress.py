@@ -187,7 +187,7 @@ def test_report_section_html_and_pdf(three_sessions: list[SessionTrials], tmp_pa
     html = render_html(data)
     assert "Change over sessions" in html and "all sessions pooled" in html
     assert "pooling hides change" in html
-    assert "2026-11-26 week 8" in html and "faster by" in html
+    assert "26 Nov 2026 week 8" in html and "faster by" in html
     assert "beyond trial-to-trial variability" in html and "no published MDC" in html
     assert "Steffen T, Seney M" in html and "MDC95 0.18 m/s" in html
     assert "improve" not in html.lower()
