@@ -17,9 +17,19 @@
 function gaitrigLiveStream(opts) {
   // opts.url: websocket URL; opts.canvas(node) → a canvas (HTMLCanvasElement or
   // OffscreenCanvas) or null if not there yet; opts.report(msg): stats / events out.
+  // The caption's "body tracked" must describe the picture shown (it followed the
+  // statistics, a report later, and said "body tracked" under a picture without one):
+  // opts.painted(node, tracked), on the page's thread, is called right after a panel is
+  // painted, in the same task (one frame of the screen has both); in a worker,
+  // opts.handover(node, bitmap, tracked) gives the page a panel whose tracked state differs
+  // from its caption's, for the page to draw over the canvas with its caption in one
+  // task; captioned(node, tracked) says the page did, and the worker paints that state's
+  // panels from then on (a {type: "painted"} report lets the page lift its copy).
   const clock = { offset: 0, bestRtt: Infinity, samples: [] };
   const nodes = {};   // node → {frames, fps, latency_ms, body_pixels, seq, lat: []}
   const waiting = {}; // node → newest panel bitmap while its canvas is not there yet
+  const VISIBLE_BODY = 0.001;  // share of a panel's pixels from which a body is seen
+  const captioned = {}, handing = {}, overlaid = {};  // node → caption state, handover out, page copy shown
   let ws = null, retry = 500, frames = 0, dirty = true;
   const timing = { decode: [], draw: [] };  // ms, the newest 60 panels
   const keep = (a, v) => { a.push(v); if (a.length > 60) a.shift(); };
@@ -48,7 +58,18 @@ function gaitrigLiveStream(opts) {
     const t0 = performance.now();
     const bmp = await createImageBitmap(new Blob([new Uint8Array(buf, 4 + hlen)], { type: "image/jpeg" }));
     const t1 = performance.now();
-    paint(h.node, bmp);
+    // a body of a few pixels (far off, at the edge) is no body to see in the picture: the
+    // caption said "body tracked" over a picture without one
+    const tracked = h.body_pixels > VISIBLE_BODY * (h.width * h.height || 0);
+    if (opts.handover && tracked !== captioned[h.node]) {
+      // the caption changes with this picture: the page shows both (one at a time: a
+      // newer panel of either state waits for the answer, dropped)
+      if (!handing[h.node]) { handing[h.node] = true; opts.handover(h.node, bmp, tracked); } else bmp.close();
+    } else {
+      paint(h.node, bmp);
+      if (opts.painted) opts.painted(h.node, tracked);
+      if (overlaid[h.node]) { overlaid[h.node] = false; opts.report({ type: "painted", node: h.node, tracked }); }
+    }
     keep(timing.decode, t1 - t0);
     keep(timing.draw, performance.now() - t1);
     const n = nodes[h.node] || (nodes[h.node] = { frames: 0, lat: [] });
@@ -110,5 +131,7 @@ function gaitrigLiveStream(opts) {
   return {
     // a canvas for ``node`` became available: draw what waited for it
     canvasReady(node) { const b = waiting[node]; if (b) { delete waiting[node]; paint(node, b); } },
+    // the page shows a panel of this state with its caption (after opts.handover)
+    captioned(node, tracked) { captioned[node] = tracked; handing[node] = false; overlaid[node] = true; },
   };
 }

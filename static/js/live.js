@@ -20,18 +20,22 @@
     if (p) return p;
     const canvas = el("canvas", { width: "256", height: "212", role: "img",
       "aria-label": `Depth image of sensor ${id}` });
+    // a panel whose caption changes, drawn here with it in one task over the worker's
+    // canvas until the worker paints that state too (live-stream.js)
+    const cover = el("canvas", { width: "256", height: "212", class: "cover", "aria-hidden": "true" });
+    cover.hidden = true;
     const info = {
       node: el("span", { class: "node" }, id),
       fps: el("span", { class: "num" }, "— fps"),
       lat: el("span", { class: "num" }, "latency —"),
       body: el("span", { class: "nobody" }, "waiting for images…"),
     };
-    const fig = el("figure", { class: "panel", "data-node": id }, canvas,
+    const fig = el("figure", { class: "panel", "data-node": id }, el("div", { class: "frame" }, canvas, cover),
       el("figcaption", {}, info.node, info.fps, info.lat, info.body));
     const box = document.getElementById("panels");
     const after = [...box.children].find((c) => c.dataset.node.localeCompare(id, undefined, { numeric: true }) > 0);
     box.insertBefore(fig, after || null);
-    p = { fig, canvas, info };
+    p = { fig, canvas, cover, info, tracked: undefined };
     panels.set(id, p);
     if (worker) {  // the worker draws into it from now on
       const off = canvas.transferControlToOffscreen();
@@ -40,9 +44,29 @@
     return p;
   }
 
-  // Captions follow the stream's statistics (a few times a second, not per panel).
+  // "body tracked" says what the picture shown has: set with the picture (caption()),
+  // not from the statistics, which came a report later
+  function caption(p, tracked) {
+    p.tracked = tracked;
+    p.info.body.textContent = tracked ? "body tracked (magenta)" : "no body tracked";
+    p.info.body.className = tracked ? "body" : "nobody";
+  }
+  function handover(m) {
+    const p = panel(m.node), c = p.cover;
+    if (c.width !== m.bitmap.width || c.height !== m.bitmap.height) { c.width = m.bitmap.width; c.height = m.bitmap.height; }
+    c.getContext("2d").drawImage(m.bitmap, 0, 0);
+    m.bitmap.close();
+    c.hidden = false;
+    caption(p, m.tracked);
+    worker.postMessage({ type: "captioned", node: m.node, tracked: m.tracked });
+  }
+
+  // The rest of the captions follow the stream's statistics (a few times a second).
   function onStats(m) {
     if (m.type === "unauthorized") { gaitrig.toLogin(); return; }
+    if (m.type === "handover") { handover(m); return; }
+    // the worker's canvas shows the caption's state now: the copy over it goes
+    if (m.type === "painted") { const p = panel(m.node); if (p.tracked === m.tracked) p.cover.hidden = true; return; }
     if (m.type !== "stats") return;
     stats.connected = m.connected;
     stats.frames = m.frames;
@@ -57,9 +81,7 @@
       p.fig.classList.remove("offline");
       p.info.fps.textContent = `${(n.fps || 0).toFixed(1)} fps`;
       p.info.lat.textContent = n.latency_ms === null ? "latency —" : `latency ${n.latency_ms.toFixed(0)} ms`;
-      const tracked = n.body_pixels > 0;
-      p.info.body.textContent = tracked ? "body tracked (magenta)" : "no body tracked";
-      p.info.body.className = tracked ? "body" : "nobody";
+      if (p.tracked !== undefined) caption(p, p.tracked);  // (back from "sensor offline")
     }
     summary();
   }
@@ -99,7 +121,7 @@
     } else {  // older browsers: the same code on the page's own thread
       // eslint-disable-next-line no-undef
       stream = gaitrigLiveStream({ url, canvas: (id) => (panels.get(id) || {}).canvas || null,
-        report: onStats });
+        report: onStats, painted: (id, tracked) => caption(panel(id), tracked) });
       stats.mode = "page";
     }
   }

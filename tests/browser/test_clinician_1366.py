@@ -176,3 +176,72 @@ def test_date_times_are_written_one_way(browser: Any, live_server: LiveServer,
         assert not errors, errors
     finally:
         context.close()
+
+
+#: A busy page thread (the 3D view renders on it): the Live page hears from its panels'
+#: worker a second late. The worker draws the panels on its own meanwhile.
+SLOW_PAGE_JS = """(() => {
+  const Real = window.Worker;
+  window.Worker = class extends Real {
+    set onmessage(f) { super.onmessage = (ev) => setTimeout(() => f(ev), 1000); }
+    get onmessage() { return super.onmessage; }
+  };
+})()"""
+
+
+def _magenta(img: Any) -> float:
+    """Share of pixels in the body highlight or the caption's "body tracked" colour."""
+    r, g, b = (img[..., k].astype(int) for k in range(3))
+    return float(((r > 150) & (g < 70) & (b > 110) & (r > b)).mean())
+
+
+def _crop(img: Any, b: dict[str, float]) -> Any:
+    return img[int(b["y"]):int(b["y"] + b["height"]), int(b["x"]):int(b["x"] + b["width"])]
+
+
+def test_live_caption_describes_the_picture_shown(page: Any, live_server: LiveServer,
+                                                  artifacts_dir: Path) -> None:
+    """Each screenshot of the panels (one frame of the screen) is checked panel by panel:
+    "body tracked (magenta)" under a picture with the magenta body, "no body tracked"
+    under one without, while the simulated walker walks in and out of the sensors' view."""
+    page.add_init_script(SLOW_PAGE_JS)
+    # (taller than the laptop's 768: every caption whole on the screen)
+    page.set_viewport_size({"width": 1366, "height": 900})
+    page.route(live_server.viewer_url + "/**", lambda r: r.abort())
+    page.goto(live_server.base_url + "/live.html")
+    n = live_server.n_nodes
+    page.wait_for_function(
+        f"window.liveStats && Object.keys(window.liveStats.nodes).length === {n} && "
+        "Object.values(window.liveStats.nodes).every(s => s.frames >= 3)", timeout=60000)
+    assert page.evaluate("window.liveStats.mode") == "worker"
+    ids = [f"S{k}" for k in range(1, n + 1)]
+    # where each panel's picture and caption are (a caption of two lines moves the next
+    # row down: a screenshot between two different layouts is not judged)
+    where = ("ids => ids.map(i => ['canvas', 'figcaption'].map(s => { const r = document"
+             ".querySelector(`figure[data-node=${i}] ${s}`).getBoundingClientRect(); "
+             "return { x: r.x, y: r.y, width: r.width, height: r.height }; }))")
+    last: dict[str, bool] = {}
+    changes = 0
+    for k in range(400):
+        before = page.evaluate(where, ids)
+        full = screenshot(page, artifacts_dir, "laptop_live_panels")
+        if page.evaluate(where, ids) != before:
+            continue
+        boxes = dict(zip(ids, before, strict=True))
+        for i, (pic, cap) in boxes.items():
+            assert pic and cap
+            body, said = _magenta(_crop(full, pic)), _magenta(_crop(full, cap)) > 0.002
+            if 0 < body < 0.002:
+                continue  # a few pixels of a body far away: not judged either way
+            shown = body > 0
+            if said != shown:
+                screenshot(page, artifacts_dir, "laptop_live_caption_wrong")
+            assert said == shown, (f"{i}: the caption says {'a' if said else 'no'} body "
+                                   f"tracked under a picture {'with' if shown else 'without'}"
+                                   f" one (screenshot {k})")
+            changes += i in last and last[i] != shown
+            last[i] = shown
+        if changes >= 4:
+            break
+    assert changes >= 4, f"the walker was seen coming or going only {changes} times"
+    assert not page.js_errors, page.js_errors
