@@ -7,6 +7,7 @@ file is at ``(first_frame + i) / rate`` seconds with ``first_frame`` zero-based 
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,12 @@ _NON_MARKER_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACT
 
 #: What to do about a file that is not readable as C3D (said with the reason).
 C3D_ADVICE = "export it again from the motion-capture software, as C3D"
+
+#: What to do about a C3D file that is cut short (a copy or download that stopped).
+C3D_CUT_ADVICE = "copy or export it again"
+
+#: C3D processor types (the parameter section's 4th byte): 84 Intel, 85 DEC, 86 MIPS.
+_PROCESSOR_MIPS, _PROCESSOR_DEC = 86, 85
 
 _EVENT_LABELS = {"foot_strike": "Foot Strike", "foot_off": "Foot Off"}
 _SIDE_CONTEXT = {"L": "Left", "R": "Right", "": "General"}
@@ -75,6 +82,42 @@ def _subject_length_m(params: dict[str, Any], name: str) -> float | None:
     return None
 
 
+def _frames_held(path: Path) -> tuple[int, int] | None:
+    """(frames the file's data section holds, frames its header announces), from the
+    512-byte header and the file's size; None when the header gives no such count (no
+    full header, not a C3D header, no points or analogs, or nonsense values).
+
+    The data section starts at the header's 512-byte block (word 9) and holds, per frame,
+    4 values per point (word 2) plus the analog samples (word 3), each of 4 bytes (float,
+    a negative scale factor, words 7-8) or 2 (integer). A file longer than that (padding
+    to a whole block, data after the points) holds them all. A header saturated at 65535
+    frames (a longer trial) announces fewer frames than it holds, never more.
+    """
+    try:
+        with open(path, "rb") as f:
+            head = f.read(512)
+            if len(head) < 512 or head[1] != 0x50 or head[0] < 2:
+                return None
+            f.seek((head[0] - 1) * 512 + 3)  # the parameter section's processor type
+            proc = f.read(1)
+            size = f.seek(0, 2)
+    except OSError:  # (unreadable: said as ezc3d fails on it)
+        return None
+    big = proc == bytes([_PROCESSOR_MIPS])  # (a file cut before it: Intel's, the usual)
+    w = struct.unpack(">10H" if big else "<10H", head[2:22])
+    n_points, n_analog, first, last, data_start = w[0], w[1], w[2], w[3], w[7]
+    # sign bit of the scale factor: IEEE big- or little-endian, or DEC (VAX) floats,
+    # whose sign is bit 15 of the first little-endian word
+    sign = head[12] if big else head[13] if proc == bytes([_PROCESSOR_DEC]) else head[15]
+    value_bytes = 4 if sign & 0x80 else 2
+    frame_bytes = (4 * n_points + n_analog) * value_bytes
+    announced = last - first + 1
+    if frame_bytes == 0 or announced <= 0 or data_start <= head[0]:
+        return None
+    data = size - (data_start - 1) * 512
+    return min(max(data, 0) // frame_bytes, announced), announced
+
+
 def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
     """Read the 3-D points, labels, rate, units and events of a C3D file.
 
@@ -90,13 +133,21 @@ def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
         (``{"L": m, "R": m}``) and ``meta["marker_diameter_m"]``.
 
     Raises:
-        InputError: the file cannot be read or has no 3-D points.
+        InputError: the file cannot be read, is cut short (holds fewer frames than its
+            header announces) or has no 3-D points.
     """
     import ezc3d
 
     p = Path(path)
     if not p.is_file():
         raise InputError(f"C3D file not found: {p}")
+    # A copy or download that stopped leaves a file that starts right: ezc3d reads it
+    # without a word, the missing frames as gaps (or drops them, or fails on them).
+    held = _frames_held(p)
+    if held is not None and held[0] < held[1]:
+        raise InputError(f"cannot read {p.name} as C3D: the file is cut short (it holds "
+                         f"{held[0]} of the {held[1]} frames its header announces); "
+                         f"{C3D_CUT_ADVICE}")
     try:
         c = ezc3d.c3d(str(p), extract_forceplat_data=False)
     except Exception:  # ezc3d raises plain RuntimeError/IOError on corrupt files

@@ -105,3 +105,33 @@ def test_a_damaged_c3d_says_what_it_is_not_and_what_to_do(admin_client: TestClie
         detail = r.json()["detail"]
         assert detail == want
         assert not LIBRARY_WORDS.search(detail), detail
+
+
+#: What a C3D file cut short after its first kilobyte (of 86) says, after its name.
+CUT = ("the file is cut short (it holds 0 of the 525 frames its header announces); copy or "
+       "export it again")
+
+
+def test_a_c3d_file_cut_short_says_so_on_every_upload(admin_client: TestClient,
+                                                      tmp_path: Path) -> None:
+    """A C3D file whose copy stopped after 1 kB was attached as a reference of 525 frames
+    of gaps; each upload route refuses it, saying it is cut short and what to do."""
+    from engine.io.c3d import write_c3d
+    from engine.sim.straight_walk import synth_walk, walk_markers
+
+    _filed_recording(admin_client, tmp_path, "R1")
+    whole = tmp_path / "whole.c3d"
+    write_c3d(whole, walk_markers(synth_walk()), units="mm")
+    name, data = "walk.c3d", whole.read_bytes()[:1024]
+    for url, form, code, want in [
+        ("/api/exports/R1/references", None, 400,
+         f"'walk.c3d' is not a readable C3D file: {CUT}"),
+        ("/api/reports/recordings/R1/reference", None, 400,
+         f"reference walk.c3d: cannot read walk.c3d as C3D: {CUT}"),
+        ("/api/reports/upload", {"subject": "UP1"}, 422,
+         f"walk.c3d: cannot read walk.c3d as C3D: {CUT}"),
+    ]:
+        r = admin_client.post(url, data=form,
+                              files={"file": (name, data, "application/octet-stream")})
+        assert r.status_code == code, r.text
+        assert r.json()["detail"] == want

@@ -96,6 +96,24 @@ def test_report_of_a_damaged_c3d_says_to_export_it_again(
                    "motion-capture software, as C3D)\n")
 
 
+def test_gait_and_report_of_a_c3d_file_cut_short_say_so(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A C3D file whose copy stopped half-way was analysed as half the walk (its first
+    kilobyte as 525 frames of gaps); ``gaitrig gait`` and ``gaitrig report`` refuse it
+    in one line that says it is cut short and to copy or export it again."""
+    whole = tmp_path / "whole.c3d"
+    write_c3d(whole, walk_markers(synth_walk()), units="mm")
+    p = tmp_path / "walk.c3d"
+    p.write_bytes(whole.read_bytes()[:len(whole.read_bytes()) // 2])
+    why = ("cannot read walk.c3d as C3D: the file is cut short (it holds 259 of the 525 "
+           "frames its header announces); copy or export it again\n")
+    rc, out, err = _run([str(p), "--json"], capsys)
+    assert (rc, out, err) == (2, "", f"gaitrig gait: error: {why}")
+    rc = main(["report", str(p), "--subject", "P1", "-o", str(tmp_path / "r.html")])
+    out, err = capsys.readouterr()
+    assert (rc, out, err) == (2, "", f"gaitrig report: error: walk.c3d: {why}")
+
+
 def test_subprocess_on_vicon_file(shared_data: Path) -> None:
     f = shared_data / "mocap" / "kineticstoolkit" / "walk.c3d"
     r = subprocess.run([sys.executable, "-m", "app.cli", "gait", str(f), "--method",

@@ -79,6 +79,85 @@ def test_unreadable_c3d_says_what_it_is_not_and_what_to_do(tmp_path: Path, data:
                               "the motion-capture software, as C3D)")
 
 
+def _cut_message(name: str, held: int, announced: int) -> str:
+    return (f"cannot read {name} as C3D: the file is cut short (it holds {held} of the "
+            f"{announced} frames its header announces); copy or export it again")
+
+
+def test_a_c3d_file_cut_short_is_refused_in_words(tmp_path: Path) -> None:
+    """A copy or download that stopped leaves a C3D file that starts right: its first
+    1 kB (of 86 kB) read as 525 frames of gaps, half of it as half the walk, without a
+    word. The header's frame count, data start and point count say how long it must be;
+    a file one byte short of its last frame is refused, one padded to a whole 512-byte
+    block (as ezc3d writes them) or longer is read."""
+    m = walk_markers(synth_walk())
+    whole = tmp_path / "whole.c3d"
+    write_c3d(whole, m, units="mm")
+    data = whole.read_bytes()
+    start = (data[16] + 256 * data[17] - 1) * 512  # header word 9: data block
+    frame = 4 * len(m.labels) * 4  # float32 x, y, z, residual of each marker
+    assert len(m) == 525 and len(data) > start + 525 * frame  # (padded to a block)
+    cut = tmp_path / "walk.c3d"
+    for size, held in [(1024, 0), (start + 2 * frame + 7, 2), (len(data) // 2, 259),
+                       (start + 525 * frame - 1, 524)]:
+        cut.write_bytes(data[:size])
+        with pytest.raises(InputError) as err:
+            read_c3d(cut)
+        assert str(err.value) == _cut_message("walk.c3d", held, 525), size
+    for size in (start + 525 * frame, len(data), len(data) + 1000):
+        cut.write_bytes(data[:size] + b"\x00" * max(0, size - len(data)))
+        r = read_c3d(cut)
+        assert len(r) == 525 and not np.isnan(r.positions).all(), size
+
+
+@pytest.mark.parametrize("kind", ["integer", "big-endian"])
+def test_a_cut_c3d_file_is_told_from_its_header_of_any_kind(tmp_path: Path, kind: str) -> None:
+    """The data's size per frame follows from the header: 2-byte integers where the scale
+    factor is positive, words read big-endian where the processor is MIPS (86)."""
+    m = walk_markers(synth_walk())
+    whole = tmp_path / "whole.c3d"
+    write_c3d(whole, m, units="mm")
+    head = bytearray(whole.read_bytes())
+    start = (head[16] + 256 * head[17] - 1) * 512
+    value_bytes = 4
+    if kind == "integer":  # scale factor +0.1 (little-endian float32)
+        head[12:16] = np.float32(0.1).tobytes()
+        value_bytes = 2
+    else:
+        words = np.frombuffer(bytes(head[2:22]), "<u2").astype(">u2").tobytes()
+        scale = np.frombuffer(bytes(head[12:16]), "<f4").astype(">f4").tobytes()
+        head[2:22] = words
+        head[12:16] = scale
+        head[(head[0] - 1) * 512 + 3] = 86
+    frame = 4 * len(m.labels) * value_bytes
+    p = tmp_path / "walk.c3d"
+    p.write_bytes(bytes(head[:start + 100 * frame + 3]))
+    with pytest.raises(InputError) as err:
+        read_c3d(p)
+    assert str(err.value) == _cut_message("walk.c3d", 100, 525)
+
+
+def test_the_real_trial_cut_short_is_refused_and_whole_read(shared_data: Path,
+                                                            tmp_path: Path) -> None:
+    """kineticstoolkit's walk.c3d (Vicon Nexus: 96 points, 248 analog channels at 20
+    samples a frame, 221 frames, data from block 111)."""
+    f = shared_data / "mocap" / "kineticstoolkit" / "walk.c3d"
+    if not f.is_file():
+        pytest.skip(f"{f} absent")
+    data = f.read_bytes()
+    frame = (4 * 96 + 248 * 20) * 4
+    start = 110 * 512
+    assert len(data) >= start + 221 * frame
+    cut = tmp_path / "walk.c3d"
+    for size, held in [(1024, 0), (start, 0), (start + 2 * frame + 100, 2),
+                       (len(data) - 1, 220)]:
+        cut.write_bytes(data[:size])
+        with pytest.raises(InputError) as err:
+            read_c3d(cut)
+        assert str(err.value) == _cut_message("walk.c3d", held, 221), size
+    assert len(read_c3d(f)) == 221
+
+
 def test_c3d_skeleton_export(tmp_path: Path) -> None:
     s = _skeleton(np.random.default_rng(0))
     ev = [MarkerEvent(11.0, "R", "placement", "placement")]
