@@ -554,12 +554,47 @@ def _damaged(p: Path, e: BaseException) -> InputError:
                       f"format ({type(e).__name__}: {e}); export it again")
 
 
-def _read_mat(p: Path, **kwargs: Any) -> dict[str, Any]:
-    """``scipy.io.loadmat`` with every failure turned into :class:`InputError`."""
+#: MATLAB classes (``scipy.io.whosmat``'s names) that load as plain numeric arrays
+_MAT_NUMERIC = frozenset({"double", "single", "int8", "uint8", "int16", "uint16", "int32",
+                          "uint32", "int64", "uint64", "logical"})
+#: the variables each reader takes from a file (the others are never unpacked)
+_MADGWICK_VARS = ("time", "Gyroscope", "Accelerometer", "Magnetometer")
+_BROAD_KEYS = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "movement")
+_BROAD_MAT_VARS = (*_BROAD_KEYS, "sampling_rate")
+
+
+def _mat_variables(p: Path) -> list[tuple[str, tuple[int, ...], str]]:
+    """A .mat file's variables (name, shape, MATLAB class) from their headers alone
+    (``scipy.io.whosmat``: a compressed variable's header is unpacked, not its data)."""
     import scipy.io
 
     try:
-        return dict(scipy.io.loadmat(p, **kwargs))
+        return [(str(n), tuple(int(k) for k in shape), str(c))
+                for n, shape, c in scipy.io.whosmat(p)]
+    except FileNotFoundError as e:
+        raise InputError(f"cannot read {p}: {e}") from None
+    except Exception as e:  # a damaged file can trip any part of the reader
+        raise _damaged(p, e) from None
+
+
+def _mat_reader_vars(names: set[str]) -> tuple[str, ...]:
+    """The variables :func:`load_imu` reads from a .mat holding ``names``."""
+    return _BROAD_MAT_VARS if "imu_gyr" in names else _MADGWICK_VARS
+
+
+def _read_mat(p: Path, wanted: tuple[str, ...], **kwargs: Any) -> dict[str, Any]:
+    """``scipy.io.loadmat`` of the ``wanted`` variables only, every failure turned into
+    :class:`InputError`. The others are skipped unread, and a wanted one that is not a
+    numeric array (a cell, struct, object) is refused before it is read: its header does
+    not tell how much it unpacks to (:func:`estimate_memory_bytes` bounds the rest)."""
+    import scipy.io
+
+    for name, _, cls in _mat_variables(p):
+        if name in wanted and cls not in _MAT_NUMERIC:
+            raise InputError(f"{p.name}: variable {name!r} is not numeric (a MATLAB {cls}, "
+                             "not a numeric array); save it as a plain matrix")
+    try:
+        return dict(scipy.io.loadmat(p, variable_names=list(wanted), **kwargs))
     except FileNotFoundError as e:
         raise InputError(f"cannot read {p}: {e}") from None
     except Exception as e:  # a damaged file can trip any part of the reader
@@ -587,11 +622,11 @@ def load_madgwick_mat(path: str | Path) -> ImuRecording:
         InputError: unreadable file or missing variables.
     """
     p = Path(path)
-    d = _read_mat(p)
+    d = _read_mat(p, _MADGWICK_VARS)
     need = ("time", "Gyroscope", "Accelerometer")
     if not all(k in d for k in need):
         raise InputError(f"{p.name}: expected variables {need} (+ Magnetometer); "
-                         f"found {[k for k in d if not k.startswith('__')]}")
+                         f"found {[n for n, _, _ in _mat_variables(p)]}")
     v = {k: _as_float(p, k, d[k]) for k in (*need, "Magnetometer") if k in d}
     mag = v["Magnetometer"] * 100.0 if "Magnetometer" in v else None
     meta = {"format": "madgwick-mat", "source": str(p), "gyr_unit": "deg/s", "acc_unit": "g",
@@ -614,9 +649,9 @@ def load_broad(path: str | Path) -> ImuRecording:
         InputError: unreadable file or missing datasets.
     """
     p = Path(path)
-    keys = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "movement")
+    keys = _BROAD_KEYS
     if p.suffix.lower() == ".mat":
-        d = _read_mat(p, squeeze_me=True)
+        d = _read_mat(p, _BROAD_MAT_VARS, squeeze_me=True)
         fs = d.get("sampling_rate")
         arrays = {k: np.asarray(d[k]) for k in keys if k in d}
     else:
@@ -1318,15 +1353,8 @@ def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
                              quat_frame=kwargs.get("quat_frame"))
         return load_broad(p)
     if suf == ".mat":
-        import scipy.io
-
-        try:
-            names = {n for n, _, _ in scipy.io.whosmat(p)}
-        except FileNotFoundError as e:
-            raise InputError(f"cannot read {p}: {e}") from None
-        except Exception as e:  # a damaged file can trip any part of the reader
-            raise _damaged(p, e) from None
-        if {"Acceleration", "AngularVelocity"} <= names and "Gyroscope" not in names:
+        names = {n for n, _, _ in _mat_variables(p)}
+        if _is_sensorlog(names):
             # MATLAB Mobile's sensorlog: timetables, MATLAB objects no other reader opens
             raise InputError(
                 f"{p.name}: a MATLAB Mobile sensor log — its timetables (Acceleration, "
@@ -1336,7 +1364,8 @@ def load_imu(path: str | Path, **kwargs: Any) -> ImuRecording:
                 "writetable(T(:, {'t','X','Y','Z'}), 'Accelerometer.csv') — the same t0 for "
                 "AngularVelocity (Gyroscope.csv) and MagneticField (Magnetometer.csv) — zip "
                 "the files and upload the zip")
-        return load_broad(p) if "imu_gyr" in names else load_madgwick_mat(p)
+        return load_broad(p) if _mat_reader_vars(names) == _BROAD_MAT_VARS else \
+            load_madgwick_mat(p)
     if suf in (".csv", ".txt", ".tsv"):
         # x-IMU exports are one case of the generic reader (their headers carry the units)
         unknown = sorted(set(kwargs) - _CSV_OPTIONS)
@@ -1495,15 +1524,25 @@ def fill_gaps(rec: ImuRecording, max_gap_s: float = MAX_FILLED_GAP_S) -> ImuReco
                         quat_ref=quat, movement=movement, meta=meta, warnings=warnings)
 
 
+def _is_sensorlog(names: set[str]) -> bool:
+    """Whether a .mat's variables are MATLAB Mobile's sensor log (refused unread)."""
+    return {"Acceleration", "AngularVelocity"} <= names and "Gyroscope" not in names
+
+
 def _is_apdm(p: Path) -> bool:
     """Whether an HDF5 file has APDM's (Opal, Mobility Lab, Moveo) ``Sensors`` layout."""
     import h5py
 
     try:
         with h5py.File(p, "r") as f:
-            return "Sensors" in f and "imu_gyr" not in f
+            return _is_apdm_file(f)
     except Exception:  # not HDF5 at all: load_broad gives the error
         return False
+
+
+def _is_apdm_file(f: Any) -> bool:
+    """:func:`_is_apdm` of an open ``h5py.File``."""
+    return "Sensors" in f and "imu_gyr" not in f
 
 
 def load_apdm(path: str | Path, sensor: str | None = None,
@@ -1595,3 +1634,85 @@ def load_apdm(path: str | Path, sensor: str | None = None,
                     frequency=float(rate) if rate else None)
     rec.quat_ref = q_ref
     return rec
+
+
+#: APDM datasets :func:`load_apdm` reads of one sensor (``Sensors/<id>/...``)
+_APDM_DATASETS = ("Accelerometer", "Gyroscope", "Magnetometer", "Time")
+
+
+def estimate_memory_bytes(path: str | Path) -> int:
+    """Bytes a file's numbers take in memory once :func:`load_imu` reads them, told
+    before reading any, from the file's size and its datasets' shapes: at least the
+    file's size.
+
+    A compressed HDF5 dataset or ``.mat`` variable can unpack to far more than the file
+    (zeros a thousandfold), so for ``.h5``/``.hdf5`` and ``.mat`` the datasets the
+    reader takes are counted at 8 bytes a number (they are converted to float64) from
+    their headers: BROAD's five, an APDM sensor's (the largest sensor: one is read), a
+    Madgwick ``.mat``'s four (a non-numeric one is refused unread, see ``_read_mat``).
+    Any other file counts at its size: CSVs are parsed as they are, an ``.mvnx`` is
+    parsed frame by frame keeping only the sensor data, and a phone ``.zip`` should be
+    counted at its unpacked size (``engine.imu._phone.read_zip_directory``). A file
+    that cannot be opened counts at its size: the reader then says why.
+
+    Args:
+        path: The uploaded file.
+
+    Returns:
+        The estimate in bytes.
+
+    Raises:
+        InputError: the file does not exist.
+    """
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+    except OSError as e:
+        raise InputError(f"cannot read {p}: {e}") from None
+    suf = p.suffix.lower()
+    try:
+        if suf == ".mat":
+            listed = _mat_variables(p)
+            names = {n for n, _, _ in listed}
+            wanted = set() if _is_sensorlog(names) else set(_mat_reader_vars(names))
+            numbers = sum(_numbers(shape) for n, shape, c in listed
+                          if n in wanted and c in _MAT_NUMERIC)
+            return max(size, 8 * numbers)
+        if suf in (".h5", ".hdf5"):
+            return max(size, _hdf5_bytes(p))
+    except Exception:  # damaged: its reader says so in the file's turn
+        return size
+    return size
+
+
+def _numbers(shape: tuple[int, ...] | None) -> int:
+    out = 1
+    for k in shape or (0,):
+        out *= max(int(k), 0)
+    return out
+
+
+def _hdf5_bytes(p: Path) -> int:
+    """Bytes of the datasets the BROAD or APDM reader takes (the larger of 8 and the
+    item size a number), from their dataspaces: nothing is read."""
+    import h5py
+
+    def nbytes(obj: object) -> int:
+        if not isinstance(obj, h5py.Dataset):
+            return 0
+        return _numbers(obj.shape) * max(8, obj.dtype.itemsize)
+
+    with h5py.File(p, "r") as f:
+        if not _is_apdm_file(f):
+            return sum(nbytes(f.get(k)) for k in _BROAD_KEYS)
+        sensors = f["Sensors"]
+        proc = f.get("Processed")
+        largest = 0
+        for sid in sensors:
+            g = sensors[sid]
+            n = sum(nbytes(g.get(k)) for k in _APDM_DATASETS) if isinstance(g, h5py.Group) \
+                else 0
+            if isinstance(proc, h5py.Group) and isinstance(proc.get(sid), h5py.Group):
+                n += nbytes(proc[sid].get("Orientation"))
+            largest = max(largest, n)
+        return largest

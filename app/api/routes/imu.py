@@ -16,9 +16,11 @@ stream per tracker, named after its label (after ``<name>_`` when a name is give
 ``.zip`` (Sensor Logger, phyphox) is unpacked in memory-bounded steps (at most
 ``engine.imu._phone.MAX_ZIP_MEMBERS`` members and ``engine.imu._phone.MAX_ZIP_UNCOMPRESSED``
 bytes unpacked, member names never used as paths). What one request reads — its zips
-unpacked, its CSVs (and skeleton CSV) as they are — is at most ``MAX_ZIPS_UNPACKED_BYTES``
-together, else 413 before any file is read; each zip's directory is read once, for that
-bound and for its unpacking (``engine.imu._phone.read_zip_directory``). ``platform``
+unpacked, its ``.mat``/HDF5 files at their numbers' size in memory (told from their
+datasets' shapes, ``engine.imu.io.estimate_memory_bytes``), its CSVs (and skeleton CSV)
+and ``.mvnx`` exports as they are — is at most ``MAX_REQUEST_DATA_BYTES`` together, else
+413 before any file is read; each zip's directory is read once, for that bound and for its
+unpacking (``engine.imu._phone.read_zip_directory``). ``platform``
 (``ios``/``android``) declares its acceleration's sign convention when neither the phone's
 orientation nor its metadata tells. ``quat_order`` (``wxyz``/``xyzw``) and ``quat_frame``
 (``ENU``/``NED``) say how a CSV's reference quaternion columns are meant when gravity
@@ -63,6 +65,7 @@ from engine.imu.fusion import PAPER_SENSORS
 from engine.imu.io import (
     ImuRecording,
     MultipleSensorsError,
+    estimate_memory_bytes,
     fill_gaps,
     load_imu,
     load_mvnx_all,
@@ -80,14 +83,19 @@ MAX_FILES = 12
 #: Whole multipart request: every IMU file, the skeleton file and the form fields.
 MAX_REQUEST_BYTES = (MAX_FILES + 1) * MAX_FILE_BYTES + 1024 * 1024
 _ALLOWED_SUFFIXES = (".csv", ".txt", ".tsv", ".mat", ".hdf5", ".h5", ".mvnx", ".zip")
-#: text one request reads: its phone zips unpacked and its CSVs (the skeleton's too)
-#: together, one budget. Parsing peaks at ≈3.8× a zip's unpacked size in memory (256 MB →
-#: ≈1 GB), a CSV's at ≈4× its numbers' (docs/file-formats.md), and every file's recording
-#: is held until the session is built: 12 full zips would need ≈12 GB, and 12 CSVs of 64 MB
-#: were allowed beside them; one phone recording of this size is over two hours of Sensor
-#: Logger at 100 Hz
-MAX_ZIPS_UNPACKED_BYTES = 256 * 2**20
-#: files read as text, counted at their size against ``MAX_ZIPS_UNPACKED_BYTES``
+#: data one request reads, every file together, one budget: phone zips unpacked, CSVs (the
+#: skeleton's too) and ``.mvnx`` exports at their size, ``.mat``/HDF5 files at their
+#: numbers' size in memory (at least the file's: a compressed dataset can unpack to far
+#: more). Parsing peaks at ≈3.8× a zip's unpacked size in memory (256 MB → ≈1 GB), a CSV's
+#: at ≈4× its numbers' (docs/file-formats.md), a .mat/HDF5 file's numbers are held whole,
+#: and every file's recording is held until the session is built: 12 full zips would need
+#: ≈12 GB, and 12 files of 64 MB were allowed beside them; one phone recording of this
+#: size is over two hours of Sensor Logger at 100 Hz
+MAX_REQUEST_DATA_BYTES = 256 * 2**20
+#: the old name (it bounded the zips first, then the CSVs too); the route reads
+#: ``MAX_REQUEST_DATA_BYTES``: change that one
+MAX_ZIPS_UNPACKED_BYTES = MAX_REQUEST_DATA_BYTES
+#: files read as text, counted at their size against ``MAX_REQUEST_DATA_BYTES``
 _TEXT_SUFFIXES = (".csv", ".txt", ".tsv")
 #: streams of one session once MVNX exports are split per tracker (a full-body suit: 17)
 MAX_STREAMS = 24
@@ -241,7 +249,7 @@ async def upload_session(
 
         def read_all(opened: contextlib.ExitStack) -> ImuJob:
             zips = _zip_directories(paths, opened)
-            _check_unpacked(paths, files, zips, skel_path, skel_name)
+            _check_request_data(paths, files, zips, skel_path, skel_name)
             recs: dict[str, ImuRecording] = {}
             for name, path, up, choice in zip(names, paths, files, choices, strict=True):
                 try:
@@ -323,18 +331,20 @@ def _zip_directories(paths: list[Path], opened: contextlib.ExitStack
     return out
 
 
-def _check_unpacked(paths: list[Path], files: list[UploadFile],
-                    zips: dict[Path, ZipDirectory | Exception], skel_path: Path | None,
-                    skel_name: str) -> None:
-    """Refuse (413) a request whose files hold more than ``MAX_ZIPS_UNPACKED_BYTES`` of
-    text to read — phone zips unpacked (from their directories: each one alone is bounded
-    by the engine), CSVs and the skeleton CSV at their size — before any is read."""
+def _check_request_data(paths: list[Path], files: list[UploadFile],
+                        zips: dict[Path, ZipDirectory | Exception], skel_path: Path | None,
+                        skel_name: str) -> None:
+    """Refuse (413) a request whose files hold more than ``MAX_REQUEST_DATA_BYTES`` of
+    data to read — phone zips unpacked (from their directories: each one alone is bounded
+    by the engine), ``.mat``/HDF5 files at their numbers' size in memory (from their
+    datasets' shapes: ``engine.imu.io.estimate_memory_bytes``), CSVs, the skeleton CSV and
+    ``.mvnx`` exports at their size — before any is read."""
     sizes = [(up.filename or path.name, d.unpacked_bytes if isinstance(d, ZipDirectory)
               else 0) for path, up in zip(paths, files, strict=True)
              if (d := zips.get(path)) is not None]
     total = sum(n for _, n in sizes)
-    limit = f"{MAX_ZIPS_UNPACKED_BYTES // 2**20} MB"
-    if total > MAX_ZIPS_UNPACKED_BYTES:
+    limit = f"{MAX_REQUEST_DATA_BYTES // 2**20} MB"
+    if total > MAX_REQUEST_DATA_BYTES:
         mb = f"{total / 2**20:.0f} MB"
         if len(sizes) == 1:
             msg = (f"{sizes[0][0]}: the zip unpacks to {mb}, more than the {limit} one "
@@ -346,21 +356,27 @@ def _check_unpacked(paths: list[Path], files: list[UploadFile],
                    f"{limit} one session may unpack; upload them in several sessions, "
                    "fewer zips each, or split the longest recording")
         raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, msg)
-    text = [(up.filename or path.name, path.stat().st_size)
-            for path, up in zip(paths, files, strict=True) if path.suffix in _TEXT_SUFFIXES]
+    # the rest from their size or headers: CSVs and .mvnx at their size, .mat/HDF5 at
+    # their numbers' size in memory (estimate_memory_bytes: at least the file's size)
+    rest = [(up.filename or path.name, path.stat().st_size if path.suffix in _TEXT_SUFFIXES
+             else estimate_memory_bytes(path))
+            for path, up in zip(paths, files, strict=True) if path not in zips]
     if skel_path is not None:
-        text.append((skel_name or skel_path.name, skel_path.stat().st_size))
-    sizes += text
-    total += sum(n for _, n in text)
-    if total <= MAX_ZIPS_UNPACKED_BYTES:
+        rest.append((skel_name or skel_path.name, skel_path.stat().st_size))
+    sizes += rest
+    total += sum(n for _, n in rest)
+    if total <= MAX_REQUEST_DATA_BYTES:
         return
     name, largest = max(sizes, key=lambda s: s[1])
+    held = (f"{name} holds" if len(sizes) == 1
+            else f"the {len(sizes)} files of this session hold")
+    of_largest = "" if len(sizes) == 1 else f"; the largest, {name}, {largest / 2**20:.0f} MB"
     raise HTTPException(
         status.HTTP_413_CONTENT_TOO_LARGE,
-        f"upload fewer or shorter files: the {len(sizes)} files of this session hold "
-        f"{total / 2**20:.0f} MB to read (CSVs as they are, phone zips unpacked; the "
-        f"largest, {name}, {largest / 2**20:.0f} MB), at most {limit} in one session; "
-        "upload them in several sessions or split the longest recording")
+        f"upload fewer or shorter files: {held} {total / 2**20:.0f} MB to read (files as "
+        "they are, phone zips unpacked, .mat and HDF5 files as their numbers take in "
+        f"memory{of_largest}), at most {limit} in one session; upload them in several "
+        "sessions or split the longest recording")
 
 
 def _fuse_named(recs: dict[str, ImuRecording], sk: SkeletonSeries, filt: FilterName,

@@ -135,7 +135,7 @@ def test_phone_zips_of_one_session_bounded_together(
         client: TestClient, sims: dict[str, ImuRecording],  # noqa: F811
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Phone zips unpack to ≈3.8× their size in memory: one request's zips together may
-    unpack to at most MAX_ZIPS_UNPACKED_BYTES, refused (413, saying the total, the limit
+    unpack to at most MAX_REQUEST_DATA_BYTES, refused (413, saying the total, the limit
     and what to do) from their directories before any is unpacked. A zip whose directory
     understates a member cannot slip past: it is refused when unpacked."""
     from app.api.routes import imu as route
@@ -152,7 +152,7 @@ def test_phone_zips_of_one_session_bounded_together(
         return real_load(path, kwargs)
 
     monkeypatch.setattr(route, "_load", load)
-    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", size)
+    monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", size)
     code, body = _post(client, "walk.zip", content)
     assert code == 200, body
     loaded.clear()
@@ -166,14 +166,14 @@ def test_phone_zips_of_one_session_bounded_together(
                              "(the largest, walk1.zip, "), detail
     assert f"more than the {size // 2**20} MB one session may unpack; upload them in " \
            "several sessions" in detail
-    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", size - 1)
+    monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", size - 1)
     code, body = _post(client, "walk.zip", content)
     assert code == 413 and not loaded
     assert body["detail"].startswith("walk.zip: the zip unpacks to "), body
     assert "split the recording" in body["detail"]
     # a member longer than its directory says: counted at its declared size, and zipfile
     # reads no more than that (its CRC then fails), so the bound holds
-    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", size)
+    monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", size)
     data = bytearray(_zip_bytes({"Gyroscope.csv": b"0" * 100_000}))
     for sig, at in ((b"PK\x03\x04", 22), (b"PK\x01\x02", 24)):  # local header, directory
         k = data.find(sig)
@@ -197,7 +197,7 @@ def _csv_bytes(seconds: float = 2.0) -> bytes:
 def test_one_budget_for_the_csvs_and_zips_of_a_request(
         client: TestClient, sims: dict[str, ImuRecording],  # noqa: F811
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Plain CSVs (and the skeleton CSV) count against MAX_ZIPS_UNPACKED_BYTES too, at
+    """Plain CSVs (and the skeleton CSV) count against MAX_REQUEST_DATA_BYTES too, at
     their size, with the zips at their unpacked size: one budget per request. Past it the
     request is refused (413, the total, the limit and what to do) before any file is read,
     and nothing is stored; at it, accepted. Each zip's directory is read once, for the
@@ -244,7 +244,7 @@ def test_one_budget_for_the_csvs_and_zips_of_a_request(
     # at the budget: accepted, the zip opened once (before: once for the bound, once to
     # unpack it)
     total = unpacked + len(csv)
-    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", total)
+    monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", total)
     r = post(("walk.zip", content), ("mine.csv", csv))
     assert r.status_code == 200, r.text
     assert [s["name"] for s in r.json()["sensors"]] == ["walk", "mine"]
@@ -252,18 +252,19 @@ def test_one_budget_for_the_csvs_and_zips_of_a_request(
     # one byte over: refused before any file is read, nothing stored
     opened.clear()
     loaded.clear()
-    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", total - 1)
+    monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", total - 1)
     r = post(("walk.zip", content), ("mine.csv", csv))
     assert r.status_code == 413 and not loaded and len(added) == 1, r.text
     largest = "walk.zip" if unpacked >= len(csv) else "mine.csv"
     assert r.json()["detail"] == (
         f"upload fewer or shorter files: the 2 files of this session hold {mb(total)} to "
-        f"read (CSVs as they are, phone zips unpacked; the largest, {largest}, "
-        f"{mb(max(unpacked, len(csv)))}), at most {mb(total - 1)} in one session; upload "
-        "them in several sessions or split the longest recording")
+        f"read (files as they are, phone zips unpacked, .mat and HDF5 files as their "
+        f"numbers take in memory; the largest, {largest}, {mb(max(unpacked, len(csv)))}), "
+        f"at most {mb(total - 1)} in one session; upload them in several sessions or split "
+        "the longest recording")
     assert len(opened) == 1
     # CSVs only (twelve 64 MB ones fitted before), the skeleton CSV counted too
-    monkeypatch.setattr(route, "MAX_ZIPS_UNPACKED_BYTES", 2 * len(csv))
+    monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", 2 * len(csv))
     r = post(("mine1.csv", csv), ("mine2.csv", csv), ("mine3.csv", csv))
     assert r.status_code == 413 and not loaded and len(added) == 1, r.text
     assert r.json()["detail"].startswith("upload fewer or shorter files: the 3 files of "
@@ -274,3 +275,120 @@ def test_one_budget_for_the_csvs_and_zips_of_a_request(
     r = post(("mine1.csv", csv), ("mine2.csv", csv))
     assert r.status_code == 200, r.text
     assert len(loaded) == 2 and len(added) == 2
+
+
+def _madgwick_mat(path: Path, rec: ImuRecording) -> bytes:
+    """``rec`` as Madgwick's ExampleData.mat (deg/s, g, gauss), compressed as MATLAB
+    writes it."""
+    import scipy.io
+
+    scipy.io.savemat(path, {"time": rec.time[:, None], "Gyroscope": np.rad2deg(rec.gyr),
+                            "Accelerometer": rec.acc / 9.80665,
+                            "Magnetometer": (rec.mag if rec.mag is not None
+                                             else np.zeros_like(rec.acc)) / 100},
+                     do_compression=True)
+    return path.read_bytes()
+
+
+def _broad_hdf5(path: Path, n: int) -> bytes:
+    """A BROAD trial of ``n`` samples at rest, its datasets gzip-compressed (the file far
+    smaller than its numbers in memory)."""
+    import h5py
+
+    with h5py.File(path, "w") as f:
+        for k, row in (("imu_gyr", [0.0, 0, 0]), ("imu_acc", [0.0, 0, 9.81]),
+                       ("imu_mag", [20.0, 0, -40]), ("opt_quat", [1.0, 0, 0, 0])):
+            f.create_dataset(k, data=np.tile(row, (n, 1)), compression="gzip")
+        f.create_dataset("movement", data=np.ones(n, bool), compression="gzip")
+        f.attrs["sampling_rate"] = 100.0
+    return path.read_bytes()
+
+
+def test_binary_files_count_against_the_request_budget(
+        client: TestClient, sims: dict[str, ImuRecording],  # noqa: F811
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """.mat, HDF5 and .mvnx uploads share the request's one budget with its CSVs and
+    zips (twelve 64 MB .mat files fitted before): a .mvnx at its size, .mat and HDF5
+    files at their numbers' size in memory (8 bytes a number, from the datasets' shapes:
+    a compressed dataset unpacks to more than the file). Past the budget the request is
+    refused (413, the total, the largest, the limit and what to do) before any file is
+    read, and nothing is stored; a .mat and a CSV just within it are accepted."""
+    from app.api.routes import imu as route
+    from app.server.imu_analysis import ImuStore
+    from engine.imu.io import estimate_memory_bytes
+
+    # 256 MB, under the old name too
+    assert route.MAX_ZIPS_UNPACKED_BYTES == 256 * 2**20 == route.MAX_REQUEST_DATA_BYTES
+    rec = sims["Pelvis"]
+    mat = _madgwick_mat(tmp_path / "walk.mat", rec)
+    h5 = _broad_hdf5(tmp_path / "trial.hdf5", len(rec))
+    mvnx = write_mvnx(tmp_path / "take.mvnx", sims).read_bytes()
+    csv = _csv_bytes()
+    n = len(rec)
+    mat_bytes = 8 * n * (1 + 3 + 3 + 3)
+    h5_bytes = 8 * n * (3 + 3 + 3 + 4 + 1)
+    assert estimate_memory_bytes(tmp_path / "walk.mat") == mat_bytes > len(mat)
+    assert estimate_memory_bytes(tmp_path / "trial.hdf5") == h5_bytes > len(h5)
+    assert estimate_memory_bytes(tmp_path / "take.mvnx") == len(mvnx)
+    added: list[object] = []
+    real_add = ImuStore.add
+    monkeypatch.setattr(ImuStore, "add",
+                        lambda self, job: added.append(job) or real_add(self, job))
+    loaded: list[Path] = []
+    real_load = route._load
+    real_mvnx = route.load_mvnx_all
+
+    def load(path: Path, kwargs: dict) -> ImuRecording:
+        loaded.append(path)
+        return real_load(path, kwargs)
+
+    def load_mvnx(path: Path) -> dict[str, ImuRecording]:
+        loaded.append(path)
+        return real_mvnx(path)
+
+    monkeypatch.setattr(route, "_load", load)
+    monkeypatch.setattr(route, "load_mvnx_all", load_mvnx)
+
+    def post(*named: tuple[str, bytes]) -> Any:
+        return client.post("/api/imu/sessions", data={
+            "synchronise": "false", "gyr_unit": "rad/s", "acc_unit": "g"},
+            files=[("files", (n, c, "application/octet-stream")) for n, c in named])
+
+    def mb(k: int) -> str:
+        return f"{k / 2**20:.0f} MB"
+
+    # several binary files over the budget: refused before any is read, nothing stored;
+    # each one alone fits
+    total = mat_bytes + h5_bytes + 2 * len(mvnx)
+    monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", total - 1)
+    r = post(("walk.mat", mat), ("trial.hdf5", h5), ("take1.mvnx", mvnx),
+             ("take2.mvnx", mvnx))
+    assert r.status_code == 413 and not loaded and not added, r.text
+    largest = max((("walk.mat", mat_bytes), ("trial.hdf5", h5_bytes),
+                   ("take1.mvnx", len(mvnx))), key=lambda s: s[1])
+    assert r.json()["detail"] == (
+        f"upload fewer or shorter files: the 4 files of this session hold {mb(total)} to "
+        "read (files as they are, phone zips unpacked, .mat and HDF5 files as their "
+        f"numbers take in memory; the largest, {largest[0]}, {mb(largest[1])}), at most "
+        f"{mb(total - 1)} in one session; upload them in several sessions or split the "
+        "longest recording")
+    # a compressed HDF5 file counts at its numbers' size, not the file's
+    monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", h5_bytes - 1)
+    r = post(("trial.hdf5", h5))
+    assert r.status_code == 413 and not loaded and not added, r.text
+    assert r.json()["detail"] == (
+        f"upload fewer or shorter files: trial.hdf5 holds {mb(h5_bytes)} to read (files as "
+        "they are, phone zips unpacked, .mat and HDF5 files as their numbers take in "
+        f"memory), at most {mb(h5_bytes - 1)} in one session; upload them in several "
+        "sessions or split the longest recording")
+    # a .mat and a CSV just within the budget: accepted; a byte less: refused
+    monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", mat_bytes + len(csv))
+    r = post(("walk.mat", mat), ("mine.csv", csv))
+    assert r.status_code == 200, r.text
+    assert [s["name"] for s in r.json()["sensors"]] == ["walk", "mine"]
+    assert len(loaded) == 2 and len(added) == 1
+    loaded.clear()
+    monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", mat_bytes + len(csv) - 1)
+    r = post(("walk.mat", mat), ("mine.csv", csv))
+    assert r.status_code == 413 and not loaded and len(added) == 1, r.text
+    assert "the 2 files of this session" in r.json()["detail"]

@@ -238,3 +238,63 @@ def test_a_zip_whose_file_list_is_huge_is_refused_before_it_is_parsed(
     # not a zip at all: no end record, left to zipfile's own message
     (tmp_path / "no.zip").write_bytes(b"not a zip" * 100)
     assert _phone._zip_directory_bytes(tmp_path / "no.zip") is None
+
+
+def test_compressed_datasets_are_counted_at_their_size_in_memory(tmp_path: Path) -> None:
+    """A compressed HDF5 dataset or .mat variable can unpack to far more than the file:
+    estimate_memory_bytes tells the numbers' size (8 bytes each, float64) from the
+    headers, reading none, and is at least the file's size; a .mat's variables the
+    reader does not take are skipped unread, and a wanted one that is no numeric array
+    (a cell: its header does not tell its size) is refused before it is read."""
+    import h5py
+    import numpy as np
+    import scipy.io
+
+    from engine.imu.io import estimate_memory_bytes
+
+    bomb = tmp_path / "trial.hdf5"
+    with h5py.File(bomb, "w") as f:  # 2.4 GB of zeros in a few kB
+        f.create_dataset("imu_gyr", shape=(10**8, 3), dtype="f4", chunks=(10**5, 3),
+                         compression="gzip")
+        f.create_dataset("opt_pos", shape=(10**9, 3), dtype="f8", chunks=(10**5, 3),
+                         compression="gzip")
+    assert bomb.stat().st_size < 10**5
+    assert estimate_memory_bytes(bomb) == 8 * 3 * 10**8  # opt_pos is not read
+    # APDM: the largest sensor's datasets (one is read), float32 counted as float64
+    apdm = tmp_path / "opal.h5"
+    with h5py.File(apdm, "w") as f:
+        for sid, n in (("XI-1", 1000), ("XI-2", 10**7)):
+            for k in ("Accelerometer", "Gyroscope"):
+                f.create_dataset(f"Sensors/{sid}/{k}", shape=(n, 3), dtype="f4",
+                                 chunks=True, compression="gzip")
+            f.create_dataset(f"Sensors/{sid}/Time", shape=(n,), dtype="u8", chunks=True,
+                             compression="gzip")
+        f.create_dataset("Processed/XI-2/Orientation", shape=(10**7, 4), dtype="f4",
+                         chunks=True, compression="gzip")
+    assert estimate_memory_bytes(apdm) == 8 * 10**7 * (3 + 3 + 1 + 4)
+    # .mat (v5, compressed): the variables the reader takes, not the others
+    mat = tmp_path / "walk.mat"
+    n = 10**6
+    scipy.io.savemat(mat, {"time": np.arange(n, dtype=float)[:, None] / 100,
+                           "Gyroscope": np.zeros((n, 3), np.float32),
+                           "Accelerometer": np.zeros((n, 3)), "junk": np.zeros(10**7)},
+                     do_compression=True)
+    assert mat.stat().st_size < 8 * n
+    assert estimate_memory_bytes(mat) == 8 * n * 7
+    # small or unreadable files, CSVs and the rest: their size
+    for name, data in (("tiny.mat", None), ("bad.h5", b"not HDF5"), ("bad.mat", b"x" * 99),
+                       ("a.csv", b"time,gyr_x\n0,1\n")):
+        p = tmp_path / name
+        if data is None:
+            scipy.io.savemat(p, {"time": np.zeros((1, 1))})
+        else:
+            p.write_bytes(data)
+        assert estimate_memory_bytes(p) == p.stat().st_size, name
+    # a wanted variable that is a cell: refused unread, with what to do
+    cell = tmp_path / "cell.mat"
+    scipy.io.savemat(cell, {"time": np.zeros((10, 1)), "Accelerometer": np.zeros((10, 3)),
+                            "Gyroscope": np.array([np.zeros(3), np.zeros(2)], dtype=object)})
+    with pytest.raises(InputError, match=r"cell\.mat: variable 'Gyroscope' is not numeric "
+                                         r"\(a MATLAB cell, not a numeric array\); save it "
+                                         "as a plain matrix"):
+        load_imu(cell)
