@@ -44,12 +44,24 @@ MAX_GAP_S = 0.2
 #: ``PROCESSING:MarkerDiameter``): Vicon's 14 mm markers, Plug-in Gait's default.
 DEFAULT_MARKER_DIAMETER_M = 0.014
 #: Ankle width (across the malleoli, Plug-in Gait's ``AnkleWidth``) when a file has
-#: neither a medial malleolus marker nor the subject's measurement: the adult bimalleolar
-#: breadth midway between women's and men's means of the 2012 US Army anthropometric survey
-#: (ANSUR II; Gordon et al. 2014, NATICK/TR-15/007: about 65 and 73 mm, as recalled: not
-#: yet checked against the report's tables). A width off by
-#: x moves each foot's point by x/2, step widths by about x.
+#: neither a medial malleolus marker nor the subject's measurement, nor one given
+#: (``ankle_width_m``, ``--ankle-width-mm``): a round figure between adult women's and
+#: men's bimalleolar breadths in the 2012 US Army anthropometric survey (ANSUR II; Gordon
+#: et al. 2014, NATICK/TR-15/007). What is known: a figure derived from the public ANSUR II
+#: data, bimalleolar breadth ≈ 0.0426 × stature for men and ≈ 0.0412 × stature for women,
+#: which at mean statures of ≈ 1.756 m and ≈ 1.629 m gives ≈ 75 mm and ≈ 67 mm. What is
+#: not: that derivation was not checked against the report's own tables (its means, or
+#: their spread), and soldiers need not be a clinic's patients. A width off by x moves
+#: each foot's point by x/2, step widths by about x.
 DEFAULT_ANKLE_WIDTH_M = 0.070
+#: Ankle widths accepted when given (m): wider than any adult ankle's range, narrower
+#: than a width in cm or m read as mm (7, 0.07) or one in mm read as m.
+ANKLE_WIDTH_RANGE_M = (0.040, 0.150)
+#: How ankle markers are taken (``ankle_markers``, ``--ankle-markers``): ``"auto"`` by
+#: their names (:func:`engine.io.markers.is_lateral_ankle`, or a medial marker beside),
+#: ``"lateral"`` all on the lateral malleolus (their joint centre estimated),
+#: ``"joint"`` all joint centres already (measured as they are).
+ANKLE_MARKER_RULES = ("auto", "lateral", "joint")
 #: Below this heel→toe length on the floor a frame gives no foot axis (the foot is seen
 #: end-on or a marker jumped); the axis is interpolated from the neighbouring frames.
 MIN_FOOT_AXIS_M = 0.05
@@ -342,8 +354,13 @@ def walking_medial_directions(travel: FloatArray, ankle: FloatArray,
 
 def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str],
                    labels: list[str], P: FloatArray, t: FloatArray,
-                   meta: dict[str, object]) -> list[str]:
+                   meta: dict[str, object], forced: bool = False,
+                   given: dict[str, float] | None = None) -> list[str]:
     """Add the ``ankle_centre`` point of each foot whose ankle marker is lateral.
+
+    ``forced``: every ankle marker is lateral, whatever its name (``--ankle-markers
+    lateral``), and a foot whose centre cannot be placed is an error, not a note.
+    ``given``: ankle widths per side (m) used instead of the file's and the population's.
 
     A foot whose centre cannot be placed (no heel→toe axis, no medial marker) while the
     other foot's can is moved medially across the walking direction
@@ -357,8 +374,9 @@ def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str
     """
     notes: list[str] = []
     by_default: list[tuple[str, float]] = []  # (marker, offset cm) placed by the default
-    widths = meta.get("ankle_width_m")
-    widths = widths if isinstance(widths, dict) else {}
+    file_widths = meta.get("ankle_width_m")
+    file_widths = file_widths if isinstance(file_widths, dict) else {}
+    widths = given if given is not None else file_widths
     d = meta.get("marker_diameter_m")
     diameter = float(d) if isinstance(d, int | float) else DEFAULT_MARKER_DIAMETER_M
     d_from = "PROCESSING:MarkerDiameter" if isinstance(d, int | float) else "default"
@@ -373,7 +391,7 @@ def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str
         # a bare "Ankle" is a joint's name, unless a medial marker says it is a malleolus
         # (OpenSim's L.Ankle beside L.Ankle.Med)
         if (lab is None or ref is None
-                or not (is_lateral_ankle(lab, side) or med_lab is not None)):
+                or not (forced or is_lateral_ankle(lab, side) or med_lab is not None)):
             continue
         w = widths.get(side)
         todo[side] = (lab, med_lab, float(w) if isinstance(w, int | float) else None, ref)
@@ -381,6 +399,12 @@ def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str
     def width_words(side: str, lab: str, width: float | None) -> tuple[float, str]:
         off_cm = 100 * (0.5 * (width or DEFAULT_ANKLE_WIDTH_M) + 0.5 * diameter)
         src = f"PROCESSING:{side}AnkleWidth" if width is not None else "population default"
+        if given is not None:
+            src = "given"
+            w_file = file_widths.get(side)
+            if (isinstance(w_file, int | float)
+                    and round(1000 * w_file) != round(1000 * given[side])):
+                src += f", instead of PROCESSING:{side}AnkleWidth {1000 * w_file:.0f} mm"
         if width is None:
             by_default.append((lab, off_cm))
         return off_cm, (f"ankle joint centre: {lab} moved {off_cm:.1f} cm medially (ankle "
@@ -403,6 +427,11 @@ def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str
         if rule == "medial":
             sources[f"{side}_ankle_centre"] = (f"ankle joint centre: midpoint of {lab} and "
                                                f"{med_lab}")
+            if given is not None:
+                notes.append(f"The ankle width given for the {words[side]} foot "
+                             f"({1000 * given[side]:.0f} mm) was not used: its medial "
+                             f"malleolus marker {med_lab} places the joint centre, midway "
+                             f"between it and {lab}.")
         else:
             sources[f"{side}_ankle_centre"] = width_words(side, lab, width)[1] + ")"
     for side in unplaced:
@@ -415,6 +444,14 @@ def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str
             if travel is not None:
                 n = walking_medial_directions(travel, pts[side]["ankle"], ref)
         if n is None:
+            if forced:
+                raise InputError(
+                    f"--ankle-markers lateral: the {words[side]} ankle joint centre cannot be "
+                    f"placed from {lab}: the file has no medial malleolus marker and no heel "
+                    "and toe markers of that foot (its axis), nor the other foot's centre "
+                    "to place it across the walking direction; it needs that foot's heel "
+                    "and toe markers (named like LHEE, LTOE), or leave --ankle-markers out "
+                    f"to measure {lab} as it is (with a note)")
             notes.append(f"The {words[side]} ankle marker {lab} is on the lateral malleolus "
                          "and no heel and toe markers give the foot's axis to find the joint "
                          f"centre from it: {lab} itself is measured, which puts the "
@@ -461,12 +498,68 @@ def _check_up(P: FloatArray, labels: list[str], up: str) -> None:
                          f"feet along {found}; give --up {found} or leave it out")
 
 
+def ankle_widths_by_side(ankle_width_m: float | tuple[float, ...] | None
+                         ) -> dict[str, float] | None:
+    """Check given ankle widths and return them per side.
+
+    Args:
+        ankle_width_m: One width for both feet, ``(left, right)``, or None; metres.
+
+    Returns:
+        ``{"L": m, "R": m}``, or None when none was given.
+
+    Raises:
+        InputError: not one or two numbers, or a width outside
+            :data:`ANKLE_WIDTH_RANGE_M` (the message says how to give it).
+    """
+    if ankle_width_m is None:
+        return None
+    vals = (list(ankle_width_m) if isinstance(ankle_width_m, tuple | list | np.ndarray)
+            else [ankle_width_m])
+    how = ("give the distance across the malleoli in millimetres, one value for both "
+           "feet or left,right: --ankle-width-mm 70 or --ankle-width-mm 68,72")
+    if len(vals) not in (1, 2):
+        raise InputError(f"{len(vals)} ankle widths given; {how}")
+    try:
+        ws = [float(v) for v in vals]
+    except (TypeError, ValueError):
+        raise InputError(f"ankle width {vals!r} is not a number; {how}") from None
+    lo, hi = ANKLE_WIDTH_RANGE_M
+    for side, w in zip(("left", "right") if len(ws) == 2 else ("both feet",), ws,
+                       strict=True):
+        if not (np.isfinite(w) and lo <= w <= hi):
+            raise InputError(f"an ankle width of {1000 * w:g} mm ({side}) is outside "
+                             f"{1000 * lo:.0f}-{1000 * hi:.0f} mm (adult ankles measure about "
+                             f"55-90 mm); {how}")
+    return {"L": ws[0], "R": ws[-1]}
+
+
+def _check_ankle_options(ankle_markers: str, widths: dict[str, float] | None,
+                         named: bool) -> None:
+    """Ankle options that cannot apply are refused (they would be silently ignored)."""
+    if ankle_markers not in ANKLE_MARKER_RULES:
+        raise InputError(f"--ankle-markers {ankle_markers!r} is not one of "
+                         f"{', '.join(ANKLE_MARKER_RULES)}")
+    if named and (ankle_markers == "lateral" or widths is not None):
+        given = "--ankle-markers lateral" if ankle_markers == "lateral" else "--ankle-width-mm"
+        raise InputError(f"{given} applies to the ankle markers found by name; with "
+                         "--left/--right the named markers are measured as they are: leave "
+                         f"{given} out, or --left/--right out to have the ankle joint "
+                         "centres estimated")
+    if ankle_markers == "joint" and widths is not None:
+        raise InputError("--ankle-width-mm places joint centres from lateral-malleolus "
+                         "markers; with --ankle-markers joint the markers are the joint "
+                         "centres: leave one of the two out")
+
+
 def feet_from_markers(
     markers: MarkerTrajectories,
     left: str | None = None,
     right: str | None = None,
     up: str | None = None,
     units: str | None = None,
+    ankle_markers: str = "auto",
+    ankle_width_m: float | tuple[float, ...] | None = None,
 ) -> FeetTrajectories:
     """Map a mocap file's markers to per-foot trajectories (metres, Z up).
 
@@ -478,18 +571,33 @@ def feet_from_markers(
         up: vertical axis of the file (``x``, ``y``, ``z``, optionally ``-``); detected
             when None.
         units: unit the file's numbers are really in, overriding its header.
+        ankle_markers: how the ankle markers are taken (:data:`ANKLE_MARKER_RULES`):
+            ``"auto"`` by their names (``LANK`` lateral, ``L_Ankle`` a joint),
+            ``"lateral"`` all on the lateral malleolus (joint centres estimated; an
+            error when one cannot be), ``"joint"`` all joint centres already (measured
+            as they are, even beside a medial marker).
+        ankle_width_m: ankle width(s) across the malleoli, m: one for both feet or
+            ``(left, right)``, used instead of the file's ``PROCESSING`` widths and the
+            population default (:data:`DEFAULT_ANKLE_WIDTH_M`); within
+            :data:`ANKLE_WIDTH_RANGE_M`.
 
     Returns:
         Per-foot trajectories in metres, Z up, on the file's time axis, with the labels
-        used and what was detected (units, up axis).
+        used and what was detected (units, up axis); ``notes`` and the ``ankle_centre``
+        sources say which ankle rule and widths were used.
 
     Raises:
         InputError: no usable ankle/heel data (the message says what is missing and
-            lists the available labels), or only one of ``left``/``right`` given.
+            lists the available labels), only one of ``left``/``right`` given, an ankle
+            width out of range, or ankle options that cannot apply (with ``left``/
+            ``right``, a width with ``"joint"``, a width or ``"lateral"`` without lateral
+            ankle markers, a lateral marker whose centre cannot be placed).
     """
     labels = markers.labels
     if (left is None) != (right is None):
         raise InputError("give both --left and --right marker names, or neither")
+    given = ankle_widths_by_side(ankle_width_m)
+    _check_ankle_options(ankle_markers, given, left is not None)
     if len(markers) < 2:
         # said before the marker search, which would call the markers unusable
         raise InputError(f"the file holds {count(len(markers), 'frame')}; gait needs a recording "
@@ -570,11 +678,30 @@ def feet_from_markers(
                 + ", ".join(labels) + "; name the foot markers with --left/--right"
             )
     notes: list[str] = []
-    if not explicit:
+    ankles = [sources[f"{s}_ankle"] for s in ("L", "R") if f"{s}_ankle" in sources]
+    if not explicit and ankle_markers != "auto":
+        if not ankles:
+            raise InputError(f"--ankle-markers {ankle_markers}: the file has no ankle marker "
+                             "(looked for names like LANK, L_Ankle, L.Ankle.Lat, L_FAL); "
+                             "leave --ankle-markers out")
+        notes.append(f"The ankle {'markers' if len(ankles) == 2 else 'marker'} "
+                     f"{' and '.join(ankles)} {'were' if len(ankles) == 2 else 'was'} taken "
+                     + ("for lateral-malleolus markers, as asked (ankle markers: lateral)."
+                        if ankle_markers == "lateral" else
+                        "for the ankle joint centres, as asked (ankle markers: joint), and "
+                        "measured as they are."))
+    if not explicit and ankle_markers != "joint":
         # A lateral-malleolus marker (LANK) is 3-4 cm outside the joint the crossing
         # method was designed for (a skeleton's ankle): its joint centre is measured.
-        notes = _ankle_centres(pts, sources, scope, P[:, [labels.index(x) for x in scope]],
-                               t, markers.meta)
+        notes += _ankle_centres(pts, sources, scope, P[:, [labels.index(x) for x in scope]],
+                                t, markers.meta, ankle_markers == "lateral", given)
+        if given is not None and not any(f"{s}_ankle_centre" in sources for s in ("L", "R")):
+            names = " and ".join(ankles) or "the file's ankle markers"
+            raise InputError(f"--ankle-width-mm is not used: {names} "
+                             f"{'are' if len(ankles) != 1 else 'is'} taken for ankle joint "
+                             "centres by name (or no ankle marker was found); give "
+                             "--ankle-markers lateral if they are on the lateral malleoli, "
+                             "or leave --ankle-width-mm out")
         for side in ("L", "R"):
             if primary[side] == "ankle" and "ankle_centre" in pts[side]:
                 primary[side] = "ankle_centre"
@@ -649,7 +776,8 @@ def feet_from_skeleton(series: SkeletonSeries, up: str | None = "z",
 
 
 def load_feet(path: str | Path, left: str | None = None, right: str | None = None,
-              up: str | None = None, units: str | None = None) -> FeetTrajectories:
+              up: str | None = None, units: str | None = None, ankle_markers: str = "auto",
+              ankle_width_m: float | tuple[float, ...] | None = None) -> FeetTrajectories:
     """Read a C3D, TRC or skeleton CSV file and return its per-foot trajectories.
 
     What was detected is in the result: ``sources`` (the marker/joint labels used per
@@ -666,14 +794,21 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
             ``"-z"`` (``--up``); default: detected from the body.
         units: ``"mm"``, ``"cm"`` or ``"m"`` (``--units``), overriding the file's own
             unit or the one guessed from the body size.
+        ankle_markers: ``"auto"``, ``"lateral"`` or ``"joint"`` (``--ankle-markers``):
+            whether the ankle markers are on the lateral malleolus (their joint centre
+            estimated) or joint centres already; ``"auto"`` tells by their names
+            (:func:`feet_from_markers`). A skeleton CSV's ankles are joints.
+        ankle_width_m: ankle width(s), m, one or ``(left, right)`` (``--ankle-width-mm``),
+            instead of the file's ``PROCESSING`` widths or the population default
+            (TRC and CSV files carry none).
 
     Returns:
         Per-foot trajectories in metres, Z up, on the file's time axis.
 
     Raises:
-        InputError: unknown extension, unreadable file, no usable foot data, or a
-            ``left``/``right``/``up``/``units`` that contradicts the file (the message
-            says which).
+        InputError: unknown extension, unreadable file, no usable foot data, a
+            ``left``/``right``/``up``/``units`` that contradicts the file, or ankle
+            options that cannot apply to it (the message says which).
     """
     from engine.io.c3d import read_c3d
     from engine.io.csv import read_skeleton_csv
@@ -683,11 +818,19 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
     if p.is_dir():
         raise InputError(f"{p} is a folder; give a .c3d, .trc or .csv file")
     ext = p.suffix.lower()
+    given = ankle_widths_by_side(ankle_width_m)  # refused before the file is read
+    _check_ankle_options(ankle_markers, given, left is not None)
     if ext == ".c3d":
-        return feet_from_markers(read_c3d(p), left, right, up, units)
+        return feet_from_markers(read_c3d(p), left, right, up, units, ankle_markers,
+                                 ankle_width_m)
     if ext == ".trc":
-        return feet_from_markers(read_trc(p), left, right, up, units)
+        return feet_from_markers(read_trc(p), left, right, up, units, ankle_markers,
+                                 ankle_width_m)
     if ext == ".csv":
+        if ankle_markers == "lateral" or given is not None:
+            opt = "--ankle-markers lateral" if ankle_markers == "lateral" else "--ankle-width-mm"
+            raise InputError(f"{opt} applies to marker files (.c3d, .trc); a skeleton CSV's "
+                             "ankles are joints: leave it out")
         s = read_skeleton_csv(p)
         joints = list(s.joint_set.joints)
         if units is not None:

@@ -1,7 +1,8 @@
 """Options shared by the commands that read mocap files (``gaitrig gait``, ``gaitrig report``).
 
 ``--up`` takes a negative axis as its value (``--up -y``), which argparse alone would read
-as an option of its own; ``--units`` the file's length unit in any case.
+as an option of its own; ``--units`` the file's length unit in any case;
+``--ankle-markers`` and ``--ankle-width-mm`` how the ankle markers are taken.
 """
 
 from __future__ import annotations
@@ -80,3 +81,49 @@ def up_axis_missing(command: str, args: argparse.Namespace) -> str | None:
     if getattr(args, "up", None) != AXIS_PENDING:
         return None
     return f"gaitrig {command}: error: --up needs an axis: one of {', '.join(AXES)}"
+
+
+def _widths_mm(text: str) -> tuple[float, ...]:
+    """``--ankle-width-mm L[,R]``: one or two numbers in mm (the range is the engine's)."""
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        vals = tuple(float(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a width in mm: give one number for both feet or left,right, "
+            "e.g. 70 or 68,72") from None
+    if len(vals) > 2:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} gives {len(vals)} widths: give one for both feet or two, left,right")
+    return vals
+
+
+def add_ankle_arguments(parser: argparse.ArgumentParser) -> None:
+    """Register ``--ankle-markers auto|lateral|joint`` and ``--ankle-width-mm L[,R]``.
+
+    Args:
+        parser: The command's parser.
+    """
+    parser.add_argument("--ankle-markers", choices=["auto", "lateral", "joint"],
+                        type=str.lower, default="auto",
+                        help="auto: ankle markers named like LANK are on the lateral "
+                             "malleolus (their joint centre estimated), L_Ankle/AnkleLeft "
+                             "are joint centres; lateral: all are on the lateral malleolus; "
+                             "joint: all are joint centres (measured as they are)")
+    parser.add_argument("--ankle-width-mm", type=_widths_mm, metavar="L[,R]",
+                        help="ankle width across the malleoli in mm, one for both feet or "
+                             "left,right (40-150), instead of the C3D's PROCESSING widths "
+                             "or the 70 mm population default")
+
+
+def ankle_width_m(args: argparse.Namespace) -> tuple[float, ...] | None:
+    """``--ankle-width-mm`` in metres (None when not given).
+
+    Args:
+        args: The parsed arguments.
+
+    Returns:
+        One or two widths, m.
+    """
+    mm = getattr(args, "ankle_width_mm", None)
+    return None if mm is None else tuple(v / 1000.0 for v in mm)

@@ -10,7 +10,13 @@ import argparse
 import sys
 from typing import Any, Literal
 
-from app.commands._file_options import add_units_argument, add_up_argument, up_axis_missing
+from app.commands._file_options import (
+    add_ankle_arguments,
+    add_units_argument,
+    add_up_argument,
+    ankle_width_m,
+    up_axis_missing,
+)
 
 HELP = "gait parameters (steps, strides, speed, cadence ...) of a C3D/TRC/CSV file"
 
@@ -23,6 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--right", metavar="NAME", help="right-foot marker to analyse")
     add_up_argument(parser, "vertical axis of the file, '-y' for Y down (default: detected)")
     add_units_argument(parser, "length unit of the file's numbers (default: from the file)")
+    add_ankle_arguments(parser)
     parser.add_argument("--method", choices=["crossing", "heelstrike"], default="crossing",
                         help="crossing: foot placements where the ankles pass each other "
                              "(seed paper); heelstrike: Zeni foot strike / foot off")
@@ -95,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
         else args.exclude_first == "yes")
     try:
         feet = load_feet(args.file, left=args.left, right=args.right, up=args.up,
-                         units=args.units)
+                         units=args.units, ankle_markers=args.ankle_markers,
+                         ankle_width_m=ankle_width_m(args))
         ga = GaitAnalysis(args.method, exclude_first=excl).fit(feet)
     except GaitrigError as exc:
         print(f"gaitrig gait: error: {exc}", file=sys.stderr)

@@ -11,7 +11,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from app.commands._file_options import add_units_argument, add_up_argument, up_axis_missing
+from app.commands._file_options import (
+    add_ankle_arguments,
+    add_units_argument,
+    add_up_argument,
+    ankle_width_m,
+    up_axis_missing,
+)
 from engine.wording import count
 
 HELP = "gait report (HTML or PDF) of one or more C3D/TRC/CSV walking trials"
@@ -30,6 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--right", metavar="NAME", help="right-foot marker")
     add_up_argument(parser, "vertical axis of the files, '-y' for Y down (default: detected)")
     add_units_argument(parser, "length unit of the files' numbers (default: from each file)")
+    add_ankle_arguments(parser)
     parser.add_argument("--title", default="Gait report", help="report title")
     parser.add_argument("-o", "--output", required=True, type=Path, metavar="PATH",
                         help="report file: .pdf or .html")
@@ -61,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
             return 2
         try:
             analyses.append(analyse_file(p, args.method, args.left, args.right, args.up,
-                                         args.units))
+                                         args.units, args.ankle_markers, ankle_width_m(args)))
         except GaitrigError as exc:
             print(f"gaitrig report: error: {p.name}: {exc}", file=sys.stderr)
             return 2

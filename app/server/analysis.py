@@ -783,11 +783,12 @@ def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
 
 def analyse_file(path: Path, method: str = "crossing", left: str | None = None,
                  right: str | None = None, up: str | None = None,
-                 units: str | None = None) -> dict[str, Any]:
+                 units: str | None = None, ankle_markers: str = "auto",
+                 ankle_width_m: float | tuple[float, ...] | None = None) -> dict[str, Any]:
     """Analyse a C3D/TRC/CSV file as a report trial (``ok`` always True; errors raise).
 
-    ``left``, ``right``, ``up`` and ``units`` are :func:`engine.mocap.load_feet`'s
-    (None: detected from the file).
+    ``left``, ``right``, ``up``, ``units``, ``ankle_markers`` and ``ankle_width_m`` are
+    :func:`engine.mocap.load_feet`'s (None, ``"auto"``: detected from the file).
 
     Raises:
         GaitrigError: unreadable file, no usable ankle/heel data, too few steps.
@@ -795,7 +796,8 @@ def analyse_file(path: Path, method: str = "crossing", left: str | None = None,
     from engine.mocap import load_feet
 
     try:
-        feet = load_feet(path, left=left, right=right, up=up, units=units)
+        feet = load_feet(path, left=left, right=right, up=up, units=units,
+                         ankle_markers=ankle_markers, ankle_width_m=ankle_width_m)
     except GaitrigError:
         raise
     except (OSError, ValueError, KeyError, IndexError) as exc:  # a malformed file
