@@ -179,16 +179,20 @@
   $("export-link").addEventListener("click", download);
 
   function exportLinks(r) {
-    const box = el("div", { class: "actions" }, el("span", { class: "hint" }, "Export:"));
-    const link = (href, text) => el("a", { class: "button", href, download: "", onclick: download }, text);
-    for (const f of ["c3d", "trc", "csv"])
-      box.append(link(`/api/exports/${r.id}/skeleton?format=${f}&source=fused`, `fused ${f.toUpperCase()}`));
-    for (const p of r.parts.filter((p) => p.state === "complete")) {
-      box.append(link(`/api/exports/${r.id}/skeleton?format=csv&source=${encodeURIComponent(p.node_id)}`, `${p.node_id} CSV`));
-      if (r.streams.includes("depth"))
-        box.append(link(`/api/exports/${r.id}/depth?node=${encodeURIComponent(p.node_id)}&format=zip`, `${p.node_id} depth PNG`));
-    }
-    box.append(el("span", { class: "msg", role: "status" }));
+    const box = keep(`rec:${r.id}:exports`, "", () => el("div", { class: "actions" }, el("span", { class: "hint" }, "Export:")));
+    const msg = keep(`rec:${r.id}:export-msg`, "", () => el("span", { class: "msg", role: "status" }));
+    const complete = r.parts.filter((p) => p.state === "complete");
+    const links = keep(`rec:${r.id}:export-links`, JSON.stringify([complete.map((p) => p.node_id), r.streams]), () => {
+      const link = (href, text) => el("a", { class: "button", href, download: "", onclick: download }, text);
+      const out = ["c3d", "trc", "csv"].map((f) => link(`/api/exports/${r.id}/skeleton?format=${f}&source=fused`, `fused ${f.toUpperCase()}`));
+      for (const p of complete) {
+        out.push(link(`/api/exports/${r.id}/skeleton?format=csv&source=${encodeURIComponent(p.node_id)}`, `${p.node_id} CSV`));
+        if (r.streams.includes("depth"))
+          out.push(link(`/api/exports/${r.id}/depth?node=${encodeURIComponent(p.node_id)}&format=zip`, `${p.node_id} depth PNG`));
+      }
+      return out;
+    });
+    patch(box, [box.firstChild, links, msg]);
     return box;
   }
 
@@ -206,21 +210,35 @@
   const refUsed = (n) => `Reports use ${n === 1 ? "this reference" : "the newest of these (the last)"}, unless one is attached to this recording on the Reports page.`;
 
   function referenceBox(r) {
-    const box = el("div", { class: "actions", "data-reference-box": r.id });
-    for (const x of r.references)
-      box.append(el("a", { class: "button", href: `/api/exports/${r.id}/references/${x.id}` },
+    const box = keep(`rec:${r.id}:refs`, "", () => el("div", { class: "actions", "data-reference-box": r.id }));
+    const listed = keep(`rec:${r.id}:ref-links`, JSON.stringify(r.references), () => {
+      const out = r.references.map((x) => el("a", { class: "button", href: `/api/exports/${r.id}/references/${x.id}` },
         `reference ${x.filename} (${x.format.toUpperCase()}, ${x.rate_hz.toFixed(0)} Hz, ${gaitrig.plural(x.labels.length, "label")})`));
-    if (r.references.length) box.append(el("span", { class: "hint", "data-kind": "reference-used" }, refUsed(r.references.length)));
+      if (r.references.length) out.push(el("span", { class: "hint", "data-kind": "reference-used" }, refUsed(r.references.length)));
+      return out;
+    });
     // the same file input in every drawing: a new one dropped the file chosen in it
     let input = refInputs.get(r.id);
     if (!input) {
       input = el("input", { type: "file", accept: ".c3d,.trc,.csv", id: `ref-${r.id}` });
       refInputs.set(r.id, input);
     }
-    const note = refNotes.get(r.id);
-    const msg = el("span", { class: "msg" + (note && note.kind ? " " + note.kind : ""), role: "status", id: `ref-msg-${r.id}` },
-      note ? note.text : "");
-    // (written into whichever box shows the recording now: the one pressed may be redrawn)
+    const up = keep(`rec:${r.id}:ref-button`, "", () => attachButton(r.id, input));
+    up.disabled = refBusy.has(r.id);
+    const label = keep(`rec:${r.id}:ref-label`, "", () => el("label", { for: `ref-${r.id}`, class: "hint" }, "Reference (Vicon C3D, TRC, CSV):"));
+    const msg = keep(`rec:${r.id}:ref-msg`, "", () => {
+      const note = refNotes.get(r.id);
+      return el("span", { class: "msg" + (note && note.kind ? " " + note.kind : ""), role: "status", id: `ref-msg-${r.id}` },
+        note ? note.text : "");
+    });
+    patch(box, [listed, label, input, up, msg]);
+    return box;
+  }
+
+  // (one button per recording, kept from drawing to drawing, as its message is)
+  function attachButton(recId, input) {
+    const r = { id: recId };
+    // (written into whichever box shows the recording now)
     const tell = (text, kind) => {
       refNotes.set(r.id, { text, kind });
       const m = document.getElementById(`ref-msg-${r.id}`);
@@ -254,55 +272,79 @@
         if (now) now.disabled = false;
       }
       if (!attached) return;
-      await loadDetail(false);  // lists the new reference; the message stays (refNotes)
-      // the button pressed is gone with the old list: the focus goes to the new one
-      const again = refButton(r.id);
-      if (again && (!document.activeElement || document.activeElement === document.body)) again.focus({ preventScroll: true });
+      await loadDetail(false);  // lists the new reference; the button and its message stay
     } }, "Attach reference");
-    up.disabled = refBusy.has(r.id);
-    box.append(el("label", { for: `ref-${r.id}`, class: "hint" }, "Reference (Vicon C3D, TRC, CSV):"), input, up, msg);
-    return box;
+    return up;
   }
 
   function recordingRow(r, live) {
+    latest.set(r.id, r);
+    const k = (part) => `rec:${r.id}:${part}`;
+    const box = keep(k("box"), "", () => el("div", { class: "recording", "data-recording": r.id }));
+    if (box.dataset.state !== r.state) box.dataset.state = r.state;
+    // The recording's name and state: the one part of the list that speaks ("walk 2
+    // complete"), when the state changes and only then (its words are set only when they
+    // differ; the rest of the list is no live region).
+    const title = keep(k("title"), "", () => el("span", { class: "rec-title", role: "status" },
+      el("strong"), " ", el("span")));
+    setText(title.firstChild, r.label || r.id);
+    setText(title.lastChild, STATE_TEXT[r.state] || r.state);
+    title.lastChild.className = "badge st-" + r.state;
     const when = r.t_start ? new Date(r.t_start * 1000).toLocaleTimeString() : "";
     const dur = r.duration_s !== null ? `${r.duration_s.toFixed(1)} s` : "running";
-    const head = el("div", { class: "part" }, el("strong", {}, r.label || r.id), badge(r.state),
-      el("span", { class: "hint" }, `${r.id} · ${when} · ${dur} · ${bytes(r.bytes_on_server || 0)} on the server`));
-    const box = el("div", { class: "recording", "data-recording": r.id, "data-state": r.state }, head);
-    if (r.reason) box.append(el("p", { class: "reason" }, r.reason));
+    const about = `${r.id} · ${when} · ${dur} · ${bytes(r.bytes_on_server || 0)} on the server`;
+    const head = keep(k("head"), "", () => el("div", { class: "part" }));
+    patch(head, [title, keep(k("about"), about, () => el("span", { class: "hint" }, about))]);
     const lparts = new Map((live ? live.parts : []).map((p) => [p.node_id, p]));
-    for (const p of r.parts) box.append(partLine(r.id, p, lparts.get(p.node_id)));
+    const rows = [head];
+    if (r.reason) rows.push(keep(k("reason"), r.reason, () => el("p", { class: "reason" }, r.reason)));
+    for (const p of r.parts) {
+      const lp = lparts.get(p.node_id);
+      rows.push(keep(k("part:" + p.node_id), JSON.stringify([p, lp || null]), () => partLine(r.id, p, lp)));
+    }
     for (const n of (live && live.not_in_recording) || [])
-      box.append(el("p", { class: "note", "data-left-out": n.node_id }, `${n.node_id} is not in this recording: ${n.reason}.`));
-    const acts = el("div", { class: "actions" });
-    if (r.state === "incomplete" || r.state === "on_nodes")
-      acts.append(el("button", { type: "button", class: "secondary small", onclick: async () => {
+      rows.push(keep(k("left-out:" + n.node_id), n.reason, () =>
+        el("p", { class: "note", "data-left-out": n.node_id }, `${n.node_id} is not in this recording: ${n.reason}.`)));
+    rows.push(recordingActions(r));
+    if (r.state === "complete" || r.parts.some((p) => p.state === "complete")) rows.push(exportLinks(r));
+    rows.push(referenceBox(r));
+    patch(box, rows);
+    return box;
+  }
+
+  // Transfer again, and the deletion with the subject code typed: the box, its button and
+  // its refusal are kept from drawing to drawing (the code typed, the focus and the
+  // refusal were wiped every second while a recording was busy).
+  function recordingActions(r) {
+    const k = (part) => `rec:${r.id}:${part}`;
+    const acts = keep(k("actions"), "", () => el("div", { class: "actions" }));
+    const transfer = r.state === "incomplete" || r.state === "on_nodes"
+      ? keep(k("transfer"), "", () => el("button", { type: "button", class: "secondary small", onclick: async () => {
         try { await api(`/api/storage/recordings/${r.id}/transfer`, { method: "POST" }); say("session-msg", `Transfer of ${r.id} started.`, true); }
         catch (e) { say("session-msg", e.message); }
         await loadDetail(false);
-      } }, "Transfer again"));
-    const confirm = el("input", { "aria-label": `type ${subject.code} to delete ${r.id}`, placeholder: `type ${subject.code}`, size: "8", autocomplete: "off" });
+      } }, "Transfer again")) : null;
+    const confirm = keep(k("confirm:" + subject.code), "", () => el("input", { "aria-label": `type ${subject.code} to delete ${r.id}`, placeholder: `type ${subject.code}`, size: "8", autocomplete: "off" }));
     // a refusal is said beside the button pressed: written above the session's list, it was
     // off screen for a recording further down, and the press seemed to do nothing
-    const refusal = el("span", { class: "msg bad", role: "alert" });
-    acts.append(confirm, el("button", { type: "button", class: "danger small", onclick: async () => {
+    const refusal = keep(k("refusal"), "", () => el("span", { class: "msg bad", role: "alert" }));
+    const del = keep(k("delete"), "", () => el("button", { type: "button", class: "danger small", onclick: async () => {
+      const input = acts.querySelector("input");
+      const now = latest.get(r.id) || r;
       refusal.textContent = "";
-      if (confirm.value.trim() !== subject.code) {
+      if (input.value.trim() !== subject.code) {
         refusal.textContent = `Not deleted: type ${subject.code} in the box first, then press Delete recording.`;
-        confirm.focus(); return;
+        input.focus(); return;
       }
-      try { const d = await api(`/api/storage/recordings/${r.id}/delete`, { method: "POST", body: JSON.stringify({ confirm: confirm.value }) });
-        const kept = Object.entries(d.node_copies || {}).filter(([, v]) => v !== "deleted").map(([n, v]) => `${n}: ${v}`);
-        say("session-msg", `Recording ${r.label ? r.label + " (" + r.id + ")" : r.id} deleted on the server and the nodes.` + (kept.length ? ` Not yet on ${kept.join("; ")}.` : ""), true);
+      try { const d = await api(`/api/storage/recordings/${r.id}/delete`, { method: "POST", body: JSON.stringify({ confirm: input.value }) });
+        const left = Object.entries(d.node_copies || {}).filter(([, v]) => v !== "deleted").map(([n, v]) => `${n}: ${v}`);
+        say("session-msg", `Recording ${now.label ? now.label + " (" + r.id + ")" : r.id} deleted on the server and the nodes.` + (left.length ? ` Not yet on ${left.join("; ")}.` : ""), true);
         $("session-msg").scrollIntoView({ block: "nearest" });  // (the row pressed is gone)
         await loadDetail(false); await loadSubjects(); }
       catch (e) { refusal.textContent = `Not deleted: ${e.message}`; }
-    } }, "Delete recording"), refusal);
-    box.append(acts);
-    if (r.state === "complete" || r.parts.some((p) => p.state === "complete")) box.append(exportLinks(r));
-    box.append(referenceBox(r));
-    return box;
+    } }, "Delete recording"));
+    patch(acts, [transfer, confirm, del, refusal]);
+    return acts;
   }
 
   // An unfiled recording is health data all the same: deleting it needs its id typed.
@@ -317,26 +359,58 @@
       } }, "Delete recording")));
   }
 
-  // Recordings started without a session (e.g. from the Rig page) can be filed here.
-  async function showUnfiled(box, gen) {
-    let recs = [];
-    try { recs = await api("/api/storage/unfiled"); } catch (e) { return; }
-    if (!detailSeq.current(gen) || !recs.length || !subject.sessions.length) return;
-    const card = el("div", { class: "session", id: "unfiled" }, el("h3", {}, "Recordings not filed under a session"));
-    for (const r of recs) {
-      const sel = el("select", { "aria-label": `session for ${r.id}` },
-        ...subject.sessions.slice().reverse().map((x) => el("option", { value: x.id }, `${gaitrig.day(x.date)}${x.label ? " — " + x.label : ""}`)));
-      card.append(el("div", { class: "part", "data-unfiled": r.id },
-        el("strong", {}, r.id), badge(r.state), el("span", { class: "hint" }, r.nodes.join(", ")), sel,
-        el("button", { type: "button", class: "secondary small", onclick: async () => {
-          try { await api(`/api/sessions/${sel.value}/recordings/attach`, { method: "POST", body: JSON.stringify({ rec_id: r.id }) });
-            say("session-msg", `Recording ${r.id} filed under ${subject.code}.`, true); await loadDetail(false); await loadSubjects(); }
-          catch (e) { say("session-msg", e.message); }
-        } }, `File under ${subject.code}`),
-        unfiledDelete(r)));
-    }
-    box.append(card);
+  // Recordings started without a session (e.g. from the Rig page) can be filed here; the
+  // card of those in `recs`, or null.
+  function unfiledCard(recs) {
+    if (!recs.length || !subject.sessions.length) return null;
+    const sig = JSON.stringify([recs, subject.code, subject.sessions.map((x) => [x.id, x.date, x.label])]);
+    return keep("unfiled", sig, () => {
+      const card = el("div", { class: "session", id: "unfiled" }, el("h3", {}, "Recordings not filed under a session"));
+      for (const r of recs) {
+        const sel = el("select", { "aria-label": `session for ${r.id}` },
+          ...subject.sessions.slice().reverse().map((x) => el("option", { value: x.id }, `${gaitrig.day(x.date)}${x.label ? " — " + x.label : ""}`)));
+        card.append(el("div", { class: "part", "data-unfiled": r.id },
+          el("strong", {}, r.id), badge(r.state), el("span", { class: "hint" }, r.nodes.join(", ")), sel,
+          el("button", { type: "button", class: "secondary small", onclick: async () => {
+            try { await api(`/api/sessions/${sel.value}/recordings/attach`, { method: "POST", body: JSON.stringify({ rec_id: r.id }) });
+              say("session-msg", `Recording ${r.id} filed under ${subject.code}.`, true); await loadDetail(false); await loadSubjects(); }
+            catch (e) { say("session-msg", e.message); }
+          } }, `File under ${subject.code}`),
+          unfiledDelete(r)));
+      }
+      return card;
+    });
   }
+
+  // The list of sessions and recordings is drawn again every second while a recording is
+  // busy. It was one live region, replaced whole at each drawing: a screen reader could
+  // read all of it out again every second, delete boxes and all. Now only each
+  // recording's title (name and state badge) and the messages beside its buttons are live
+  // regions, and a drawing keeps every element whose content has not changed where it is:
+  // a live region taken out and put back may be read out again (an alert is), and the
+  // focus, a code typed into a delete box or a refusal beside a button went with it.
+  // `keep` gives the element drawn last under `key` while its `sig` (its content) is the
+  // same, `patch` puts elements into a parent without moving those already in place.
+  let kept = new Map(), keptFor = null;  // key → { sig, node }, of the subject keptFor
+  const latest = new Map();      // rec_id → its latest entry (for the kept buttons' words)
+  function keep(key, sig, make) {
+    const k = kept.get(key);
+    if (k && k.sig === sig) return k.node;
+    const node = make();
+    kept.set(key, { sig, node });
+    return node;
+  }
+  function patch(parent, nodes) {
+    const want = nodes.flat().filter((n) => n !== null && n !== undefined);
+    const keepSet = new Set(want);
+    for (const c of [...parent.childNodes]) if (!keepSet.has(c)) c.remove();
+    let at = parent.firstChild;
+    for (const n of want) {
+      if (n === at) at = at.nextSibling;
+      else parent.insertBefore(n, at);
+    }
+  }
+  const setText = (node, text) => { if (node.textContent !== text) node.textContent = text; };
 
   // Each loadDetail() makes the ones still waiting for an answer stale: the subject was
   // deleted or another one chosen meanwhile, or a newer answer is on its way. The edit
@@ -392,15 +466,23 @@
       if (!detailSeq.current(gen)) return;
     }
     const live = new Map(lives.map((x) => [x.id, x]));
-    const box = $("sessions");
-    box.replaceChildren(...subject.sessions.slice().reverse().map((s) => el("div", { class: "session", "data-session": s.id },
-      el("h3", {}, `${gaitrig.day(s.date)}${s.label ? " — " + s.label : ""}`,
-        s.recordings.some((r) => r.state === "complete")
-          ? el("a", { class: "button session-report", href: `/reports.html#subject=${subject.id}&session=${s.id}` }, "Gait report of this session") : null),
-      ...(s.recordings.length ? s.recordings.map((r) => recordingRow(r, live.get(r.id))) : [el("p", { class: "hint" }, "No recordings yet.")]))));
-    if (!subject.sessions.length) box.append(el("p", { class: "hint" }, "No sessions yet: add one above, then record it."));
-    await showUnfiled(box, gen);
+    let unfiled = [];
+    try { unfiled = await api("/api/storage/unfiled"); } catch (e) { /* the card is optional */ }
     if (!detailSeq.current(gen)) return;
+    if (keptFor !== subject.id) { kept = new Map(); latest.clear(); keptFor = subject.id; }
+    patch($("sessions"), [
+      ...subject.sessions.slice().reverse().map((s) => {
+        const card = keep(`session:${s.id}`, "", () => el("div", { class: "session", "data-session": s.id }));
+        const done = s.recordings.some((r) => r.state === "complete");
+        const h = keep(`session:${s.id}:h`, JSON.stringify([s.date, s.label, done]), () =>
+          el("h3", {}, `${gaitrig.day(s.date)}${s.label ? " — " + s.label : ""}`,
+            done ? el("a", { class: "button session-report", href: `/reports.html#subject=${subject.id}&session=${s.id}` }, "Gait report of this session") : null));
+        patch(card, [h, s.recordings.length ? s.recordings.map((r) => recordingRow(r, live.get(r.id)))
+          : keep(`session:${s.id}:none`, "", () => el("p", { class: "hint" }, "No recordings yet."))]);
+        return card;
+      }),
+      subject.sessions.length ? null : keep("no-sessions", "", () => el("p", { class: "hint" }, "No sessions yet: add one above, then record it.")),
+      unfiledCard(unfiled)]);
     const busy = subject.sessions.some((s) => s.recordings.some((r) => ["recording", "on_nodes", "transferring"].includes(r.state)));
     clearTimeout(timer);
     // (gaitrig.wait: not while the page is hidden; at once when it is shown again)

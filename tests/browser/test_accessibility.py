@@ -20,6 +20,8 @@ JSON): ``test-artifacts/browser/a11y_*``.
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import json
 import os
 import re
@@ -819,3 +821,93 @@ def test_live_regions_speak_only_of_changes(page: Any, lab: Lab, name: str) -> N
     noise = page.evaluate("window.liveNoise")
     loud = {k: v for k, v in noise.items() if v["same"] or v["changed"] > 2}
     assert not loud, f"live regions of {name} that speak without news: {loud}"
+
+
+#: Run in a page: from then on, what its live regions would say, in ``window.said`` as
+#: [where, words]: a live region on the page whose words change or get nodes added (a
+#: screen reader reads the additions, even words it said before), and an alert put on the
+#: page with words in it (read as it appears). ``where`` is the recording's id (if the
+#: region is in one) and the region's id or class. Unlike
+#: :func:`test_live_regions_speak_only_of_changes` (one observer per region found at the
+#: start), one observer of the whole page: a list drawn anew replaces its regions.
+LISTEN_JS = """(sel) => {
+  window.said = [];
+  const where = (r) => [r.closest('[data-recording]')?.dataset.recording,
+                        r.id || r.getAttribute('class') || r.tagName].filter(Boolean).join(' ');
+  new MutationObserver((records) => {
+    for (const m of records) {
+      const t = m.target.nodeType === 1 ? m.target : m.target.parentElement;
+      const region = t && t.closest(sel);
+      if (region) {
+        const added = m.type === 'characterData' ? m.target.data
+          : [...m.addedNodes].map((n) => n.textContent).join('');
+        if (added.trim()) window.said.push([where(region), region.textContent.trim()]);
+        continue;
+      }
+      for (const n of m.addedNodes) {
+        if (n.nodeType !== 1) continue;
+        for (const a of [n, ...n.querySelectorAll('[role=alert]')])
+          if (a.matches('[role=alert]') && a.textContent.trim())
+            window.said.push([where(a), a.textContent.trim()]);
+      }
+    }
+  }).observe(document.body, {childList: true, subtree: true, characterData: true});
+}"""
+
+
+def test_subjects_list_speaks_only_of_a_state_change(page: Any, lab: Lab,
+                                                     artifacts_dir: Path) -> None:
+    """The Subjects page draws its list again every second while a recording is busy. A
+    drawing that changes nothing says nothing (the list was one live region, read out again
+    at each drawing), a refusal beside *Delete recording* is said once and stays with the
+    code typed and the focus, and a recording whose state changes says its name and new
+    state, no more."""
+    code = "LIVE05"
+    project_id = lab.api(f"/api/subjects/{lab.subject_id}")["project_id"]
+    subject = lab.api("/api/subjects", {"project_id": project_id, "code": code})
+    session = lab.api("/api/sessions", {"subject_id": subject["id"], "label": "busy"})
+    rec_id = ""
+    try:
+        rec_id = str(lab.api(f"/api/sessions/{session['id']}/recordings",
+                             {"label": "busy walk", "streams": [], "image_every": 3})["id"])
+        row = f"#sessions [data-recording='{rec_id}']"
+        page.goto(f"{lab.url}/subjects.html#subject={subject['id']}")
+        _shown(page, f"{row}[data-state=recording]")
+        drawn: list[str] = []  # the list's drawings: one per answer about the subject
+        page.on("response", lambda r: drawn.append(r.url)
+                if r.url.endswith(f"/api/subjects/{subject['id']}") else None)
+        page.evaluate(LISTEN_JS, LIVE_SELECTOR)
+        page.fill(f"{row} .actions input", "wrong")
+        page.click(f"{row} button:text('Delete recording')")
+        refusal = f"Not deleted: type {code} in the box first, then press Delete recording."
+        _text(page, f"{row} [role=alert]", "Not deleted")
+        deadline = time.time() + 60
+        while len(drawn) < 4:  # drawn again (at least three times after the refusal)
+            assert time.time() < deadline, f"the busy list was not drawn again: {drawn}"
+            page.wait_for_timeout(200)
+        page.evaluate("(s) => document.querySelector(s).scrollIntoView()", row)
+        screenshot(page, artifacts_dir, "a11y_subjects_busy")
+        said = page.evaluate("window.said")
+        assert said == [[f"{rec_id} msg bad", refusal]], said
+        # the delete box keeps what was typed and the focus, the refusal stays beside it
+        assert page.evaluate("[document.activeElement.value, "
+                             "document.activeElement.closest('[data-recording]')"
+                             "?.dataset.recording]") == ["wrong", rec_id]
+        assert page.inner_text(f"{row} [role=alert]") == refusal
+
+        lab.api(f"/api/recordings/{rec_id}/stop", {}, method="POST")
+        _shown(page, f"{row}[data-state=complete]")
+        page.evaluate("(s) => document.querySelector(s).scrollIntoView()", row)
+        screenshot(page, artifacts_dir, "a11y_subjects_complete")
+        said = page.evaluate("window.said")[1:]
+        states = {"busy walk on the nodes", "busy walk transferring", "busy walk complete"}
+        assert said and said[-1] == [f"{rec_id} rec-title", "busy walk complete"], said
+        assert all(w == f"{rec_id} rec-title" and s in states for w, s in said), said
+        assert all(a != b for a, b in itertools.pairwise(said)), said  # each news once
+        assert not page.js_errors, page.js_errors
+    finally:
+        if rec_id:
+            with contextlib.suppress(urllib.error.HTTPError):  # (stopped already)
+                lab.api(f"/api/recordings/{rec_id}/stop", {}, method="POST")
+        with contextlib.suppress(urllib.error.HTTPError):  # (a failure above says why)
+            lab.api(f"/api/subjects/{subject['id']}/delete", {"confirm": code})
