@@ -55,11 +55,14 @@ def test_refused_uploads_name_the_chosen_file(admin_client: TestClient, tmp_path
                           files={"file": (name, data, "application/octet-stream")})
     assert r.status_code == 400, r.text
     _says_only_the_chosen_name(r.json()["detail"], name)
-    # Reports page: the reference of the agreement section
+    # Reports page: the reference of the agreement section, naming the file once ("reference
+    # my walk.csv: my walk.csv: no 'time' column", "reference trial 3.c3d: cannot read
+    # trial 3.c3d as C3D: …" named it twice)
     r = admin_client.post("/api/reports/recordings/R1/reference",
                           files={"file": (name, data, "application/octet-stream")})
     assert r.status_code == 400, r.text
     _says_only_the_chosen_name(r.json()["detail"], name)
+    assert r.json()["detail"].count(name) == 1, r.json()["detail"]
     # Reports page: "Analyse a file"
     r = admin_client.post("/api/reports/upload", data={"subject": "UP1"},
                           files={"file": (name, data, "application/octet-stream")})
@@ -95,7 +98,7 @@ def test_a_damaged_c3d_says_what_it_is_not_and_what_to_do(admin_client: TestClie
         ("/api/exports/R1/references", None, 400,
          f"'trial 3.c3d' is not a readable C3D file: {NOT_C3D}"),
         ("/api/reports/recordings/R1/reference", None, 400,
-         f"reference trial 3.c3d: cannot read trial 3.c3d as C3D: {NOT_C3D}"),
+         f"'trial 3.c3d' is not a readable C3D file: {NOT_C3D}"),
         ("/api/reports/upload", {"subject": "UP1"}, 422,
          f"trial 3.c3d: cannot read trial 3.c3d as C3D: {NOT_C3D}"),
     ]:
@@ -127,7 +130,7 @@ def test_a_c3d_file_cut_short_says_so_on_every_upload(admin_client: TestClient,
         ("/api/exports/R1/references", None, 400,
          f"'walk.c3d' is not a readable C3D file: {CUT}"),
         ("/api/reports/recordings/R1/reference", None, 400,
-         f"reference walk.c3d: cannot read walk.c3d as C3D: {CUT}"),
+         f"'walk.c3d' is not a readable C3D file: {CUT}"),
         ("/api/reports/upload", {"subject": "UP1"}, 422,
          f"walk.c3d: cannot read walk.c3d as C3D: {CUT}"),
     ]:

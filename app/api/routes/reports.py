@@ -737,7 +737,8 @@ async def put_reference(rec_id: str, request: Request, file: UploadFile, user: C
             steps = await anyio.to_thread.run_sync(an.reference_steps, path)
         except GaitrigError as exc:
             raise HTTPException(status.HTTP_400_BAD_REQUEST,
-                                upload_error(exc, path, file.filename or "the file")) from exc
+                                _reference_error(exc, path, file.filename or "the file")
+                                ) from exc
         # its upload time tells it from a later upload when a restore re-applies the
         # deletion of this one (app.server.erasures)
         meta = {"filename": (file.filename or "")[-200:], "ext": path.suffix,
@@ -753,6 +754,21 @@ async def put_reference(rec_id: str, request: Request, file: UploadFile, user: C
         os.replace(new, folder)
     note_changed(folder)  # the recording's bytes on the server (GET /api/storage)
     return {"rec_id": rec_id, "attached": True, **meta}
+
+
+def _reference_error(exc: BaseException, copy: Path, name: str) -> str:
+    """Why an uploaded reference was refused, naming the file (``name``, as the person
+    chose it; ``copy`` is the server's) once, in the Subjects page's words for a file
+    its reader refuses: "'trial 3.c3d' is not a readable C3D file: the file is damaged…"
+    (was "reference trial 3.c3d: cannot read trial 3.c3d as C3D: the file is damaged…",
+    the analysis's and the reader's names of it one after the other)."""
+    why = upload_error(exc, copy, name).removeprefix(f"reference {name}: ")
+    kind = copy.suffix.lstrip(".").upper()
+    for reader in (f"cannot read {name} as {kind}: ", f"{name}: "):
+        if why.startswith(reader):
+            return f"{name!r} is not a readable {kind} file: {why[len(reader):]}"
+    # a reader's sentence about the file ("Gang.trc is not a TRC file …") names it already
+    return why if name in why else f"reference {name}: {why}"
 
 
 #: Name start of a report reference's temporary upload folder (which ends in ``.tmp``).
