@@ -24,6 +24,7 @@ import itertools
 import re
 from array import array
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -554,6 +555,40 @@ def _damaged(p: Path, e: BaseException) -> InputError:
                       f"format ({type(e).__name__}: {e}); export it again")
 
 
+@contextmanager
+def _open_h5(p: Path) -> Iterator[Any]:
+    """Open an HDF5 file for reading, refusing one that points outside itself.
+
+    HDF5 lets a file take its data from elsewhere: a dataset's raw data in any file named
+    in it (external storage, read as numbers whatever that file is), a link to an object
+    in another HDF5 file, a virtual dataset mapped onto other files. An uploaded file
+    must not make the server read its own files (other subjects' data, its database), so
+    only self-contained files are read; nothing is read before the check.
+    """
+    import h5py
+
+    with h5py.File(p, "r") as f:
+        elsewhere: list[str] = []
+
+        def link(name: str, lnk: Any) -> None:
+            if isinstance(lnk, h5py.ExternalLink):
+                elsewhere.append(f"{name} (a link to another file)")
+
+        def obj(name: str, o: Any) -> None:
+            if isinstance(o, h5py.Dataset) and (o.external or o.is_virtual):
+                what = "data kept in other files" if o.external else "a virtual dataset"
+                elsewhere.append(f"{name} ({what})")
+
+        f.visititems_links(link)
+        f.visititems(obj)  # (hard links only: objects in this file, each once)
+        if elsewhere:
+            raise InputError(
+                f"{p.name}: the file takes data from other files ({', '.join(elsewhere[:3])}"
+                f"{', …' if len(elsewhere) > 3 else ''}), which is not accepted; save it as "
+                "one self-contained HDF5 file (e.g. h5py's copy, or h5repack) and upload that")
+        yield f
+
+
 #: MATLAB classes (``scipy.io.whosmat``'s names) that load as plain numeric arrays
 _MAT_NUMERIC = frozenset({"double", "single", "int8", "uint8", "int16", "uint16", "int32",
                           "uint32", "int64", "uint64", "logical"})
@@ -655,12 +690,12 @@ def load_broad(path: str | Path) -> ImuRecording:
         fs = d.get("sampling_rate")
         arrays = {k: np.asarray(d[k]) for k in keys if k in d}
     else:
-        import h5py
-
         try:
-            with h5py.File(p, "r") as f:
+            with _open_h5(p) as f:
                 arrays = {k: f[k][()] for k in keys if k in f}
                 fs = f.attrs.get("sampling_rate")
+        except InputError:
+            raise
         except FileNotFoundError as e:
             raise InputError(f"cannot read {p}: {e}") from None
         except Exception as e:  # a damaged file can trip any part of h5py
@@ -1531,10 +1566,9 @@ def _is_sensorlog(names: set[str]) -> bool:
 
 def _is_apdm(p: Path) -> bool:
     """Whether an HDF5 file has APDM's (Opal, Mobility Lab, Moveo) ``Sensors`` layout."""
-    import h5py
 
     try:
-        with h5py.File(p, "r") as f:
+        with _open_h5(p) as f:
             return _is_apdm_file(f)
     except Exception:  # not HDF5 at all: load_broad gives the error
         return False
@@ -1570,11 +1604,10 @@ def load_apdm(path: str | Path, sensor: str | None = None,
             message lists ids and labels).
         InputError: damaged file or missing datasets.
     """
-    import h5py
 
     p = Path(path)
     try:
-        with h5py.File(p, "r") as f:
+        with _open_h5(p) as f:
             sensors = f["Sensors"]
             ids = list(sensors.keys())
             labels = {}
@@ -1702,7 +1735,7 @@ def _hdf5_bytes(p: Path) -> int:
             return 0
         return _numbers(obj.shape) * max(8, obj.dtype.itemsize)
 
-    with h5py.File(p, "r") as f:
+    with _open_h5(p) as f:
         if not _is_apdm_file(f):
             return sum(nbytes(f.get(k)) for k in _BROAD_KEYS)
         sensors = f["Sensors"]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import tracemalloc
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -298,3 +299,76 @@ def test_compressed_datasets_are_counted_at_their_size_in_memory(tmp_path: Path)
                                          r"\(a MATLAB cell, not a numeric array\); save it "
                                          "as a plain matrix"):
         load_imu(cell)
+
+
+def _broad_h5(p: Path, n: int = 200, **extra: Any) -> None:
+    """A small self-contained BROAD-layout HDF5 trial (``extra``: more datasets/links)."""
+    import h5py
+    import numpy as np
+
+    with h5py.File(p, "w") as f:
+        f.attrs["sampling_rate"] = 100.0
+        f["imu_gyr"] = np.zeros((n, 3))
+        f["imu_acc"] = np.tile([0.0, 0.0, 9.81], (n, 1))
+        f["imu_mag"] = np.tile([20.0, 0.0, -40.0], (n, 1))
+        f["opt_quat"] = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+        f["movement"] = np.zeros(n, dtype=bool)
+        for k, v in extra.items():
+            f[k] = v
+
+
+def test_an_hdf5_file_that_takes_data_from_other_files_is_refused(tmp_path: Path) -> None:
+    """HDF5 lets a dataset's numbers live in any file it names (external storage), link to
+    another file's objects, or map other files (virtual datasets): an uploaded trial must
+    not make the server read its own files, so only self-contained files are read."""
+    import h5py
+    import numpy as np
+
+    from engine.imu.io import estimate_memory_bytes
+
+    secret = tmp_path / "server-file.bin"  # e.g. another subject's data, the database
+    secret.write_bytes(np.arange(600, dtype=float).tobytes())
+    ok = tmp_path / "ok.hdf5"
+    _broad_h5(ok)
+    assert load_imu(ok).gyr.shape == (200, 3)  # the same layout, self-contained, is read
+
+    external = tmp_path / "external.hdf5"
+    _broad_h5(external)
+    with h5py.File(external, "a") as f:
+        del f["imu_gyr"]
+        f.create_dataset("imu_gyr", shape=(200, 3), dtype=float,
+                         external=[(str(secret), 0, 200 * 3 * 8)])
+    with h5py.File(external, "r") as f:  # (h5py itself would read the other file)
+        assert f["imu_gyr"][()].ravel()[:3].tolist() == [0.0, 1.0, 2.0]
+    with pytest.raises(InputError, match=r"external\.hdf5: the file takes data from other "
+                                         r"files \(imu_gyr \(data kept in other files\)\), "
+                                         "which is not accepted; save it as one "
+                                         "self-contained HDF5 file"):
+        load_imu(external)
+
+    linked = tmp_path / "linked.hdf5"
+    _broad_h5(linked, other=h5py.ExternalLink(str(ok), "/imu_acc"))
+    with pytest.raises(InputError, match=r"other \(a link to another file\)"):
+        load_imu(linked)
+
+    virtual = tmp_path / "virtual.hdf5"
+    _broad_h5(virtual)
+    layout = h5py.VirtualLayout(shape=(200, 3), dtype=float)
+    layout[:] = h5py.VirtualSource(str(ok), "imu_acc", shape=(200, 3))
+    with h5py.File(virtual, "a") as f:
+        del f["imu_acc"]
+        f.create_virtual_dataset("imu_acc", layout)
+    with pytest.raises(InputError, match=r"imu_acc \(a virtual dataset\)"):
+        load_imu(virtual)
+
+    # APDM's layout goes through the same check, and the request budget's estimate only
+    # counts such a file at its size (the reader then refuses it)
+    apdm = tmp_path / "opal.h5"
+    with h5py.File(apdm, "w") as f:
+        f.create_dataset("Sensors/XI-1/Accelerometer", shape=(200, 3), dtype=float,
+                         external=[(str(secret), 0, 200 * 3 * 8)])
+        f["Sensors/XI-1/Gyroscope"] = np.zeros((200, 3))
+        f["Sensors/XI-1/Time"] = np.arange(200, dtype="u8") * 10_000
+    with pytest.raises(InputError, match="takes data from other files"):
+        load_imu(apdm)
+    assert estimate_memory_bytes(apdm) == apdm.stat().st_size
