@@ -822,21 +822,36 @@ async def upload_report(request: Request, file: UploadFile, user: CurrentUser, d
                         method: MethodQ = "crossing",
                         left: str | None = Query(None, max_length=64),
                         right: str | None = Query(None, max_length=64),
-                        up: Literal["x", "y", "z", "-x", "-y", "-z"] | None = None) -> Response:
+                        up: Literal["x", "y", "z", "-x", "-y", "-z"] | None = None,
+                        ankle_markers: Literal["auto", "lateral", "joint"] = "auto",
+                        ankle_width_mm: str | None = Query(None, max_length=32, description=(
+                            "ankle width(s) in mm, one for both feet or left,right "
+                            "(gaitrig gait --ankle-width-mm)"))) -> Response:
     """Report of an uploaded C3D/TRC/skeleton-CSV file (kept only while analysed).
 
-    The subject code comes in the multipart form, never in the URL.
+    The subject code comes in the multipart form, never in the URL. ``left``, ``right``,
+    ``up``, ``ankle_markers`` and ``ankle_width_mm`` are ``gaitrig gait``'s options.
     """
     import anyio
 
     _no_identifier_in_url(request)
+    widths_m: tuple[float, ...] | None = None
+    if ankle_width_mm is not None:
+        try:
+            widths_m = tuple(float(x) / 1000.0 for x in ankle_width_mm.split(","))
+        except ValueError:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"ankle_width_mm {ankle_width_mm!r} is not a width in mm: give "
+                                "one number for both feet or left,right, e.g. 70 or 68,72"
+                                ) from None
 
     with tempfile.TemporaryDirectory(prefix="gaitrig-upload-") as tmp:
         path = await _save_upload(request, file, Path(tmp))
 
         def work() -> Response:
             try:
-                res = an.analyse_file(path, method, left, right, up)
+                res = an.analyse_file(path, method, left, right, up, None, ankle_markers,
+                                      widths_m)
                 res["rec_id"] = Path(file.filename or "upload").name[-80:]
                 data = an.build_report(subject, [res], title="Gait report (uploaded file)")
             except GaitrigError as exc:
