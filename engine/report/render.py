@@ -42,8 +42,13 @@ def day_text(iso: str) -> str:
     The report (HTML and PDF from one template) has no reader's locale, unlike the console
     (``gaitrig.day()`` writes the browser's own order): the month in letters and the
     four-digit year cannot be read the wrong way round (03/04: March or April?), in any
-    country. English month names, whatever the server's locale. Text that is not an ISO
-    date is returned as it is.
+    country. English month names, whatever the server's locale.
+
+    Args:
+        iso: the day as ISO 8601 text (a date-time's first ten characters are used).
+
+    Returns:
+        "28 Nov 2026"; text that is not an ISO date is returned as it is.
     """
     try:
         d = _dt.date.fromisoformat(iso.strip()[:10]) if iso else None
