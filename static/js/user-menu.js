@@ -31,8 +31,14 @@
   }
 
   // ---- the dialog: each refusal is said beside the field it is about
+  // A refusal is the field's description (aria-describedby) and the field takes the focus:
+  // a screen reader then says "Current password, invalid entry, Type your current
+  // password." once, where the user types the fix. It is no live region: it was one too,
+  // and was read twice (as news, then with the field). A field that has the focus already
+  // (Enter pressed in it) is not announced again by a focus(), so there the refusal is
+  // said by the dialog's one hidden live region (#pw-said) instead, still once.
   function field(id, label, autocomplete, hint) {
-    const msg = el("p", { class: "field-msg", id: `${id}-msg`, "aria-live": "polite" });
+    const msg = el("p", { class: "field-msg", id: `${id}-msg` });
     const input = el("input", { id, name: id, type: "password", autocomplete, required: "",
       maxlength: "256", "aria-describedby": `${id}-msg${hint ? " " + id + "-hint" : ""}` });
     return { input, msg, box: el("div", { class: "field" }, el("label", { for: id }, label), input,
@@ -45,18 +51,30 @@
       "At least 12 characters, not containing your user name; a few words make a good one.");
     const rep = field("pw-repeat", "New password again", "new-password");
     const status = el("p", { id: "pw-status", role: "status", class: "msg" });
+    // (inside the dialog: a modal dialog hides the rest of the page from screen readers)
+    const said = el("p", { id: "pw-said", role: "status", class: "sr-only" });
     const submit = el("button", { type: "submit", id: "pw-submit" }, "Change password");
     const close = el("button", { type: "button", class: "secondary", id: "pw-close" }, "Close");
     // the browser's password manager files the new password under this user name
     const who = el("input", { type: "text", name: "username", autocomplete: "username",
       value: me.username, hidden: "", readonly: "" });
-    const form = el("form", { id: "password-form", novalidate: "" }, who, cur.box, nu.box, rep.box, status,
+    const form = el("form", { id: "password-form", novalidate: "" }, who, cur.box, nu.box, rep.box, status, said,
       el("div", { class: "actions" }, submit, close));
     dialog = el("dialog", { id: "password-dialog", "aria-labelledby": "password-h" },
       el("h2", { id: "password-h" }, `Change the password of ${me.username}`), form);
     document.body.append(dialog);
-    const clear = () => { for (const f of [cur, nu, rep]) { f.msg.textContent = ""; f.input.removeAttribute("aria-invalid"); } };
-    const refuse = (f, text) => { f.msg.textContent = text; f.input.setAttribute("aria-invalid", "true"); f.input.focus(); };
+    let saidLast = "";
+    const clear = () => {
+      for (const f of [cur, nu, rep]) { f.msg.textContent = ""; f.input.removeAttribute("aria-invalid"); }
+      saidLast = said.textContent; said.textContent = "";
+    };
+    const refuse = (f, text) => {
+      f.msg.textContent = text; f.input.setAttribute("aria-invalid", "true");
+      if (document.activeElement !== f.input) { f.input.focus(); return; }
+      // the same refusal again (emptied and written in one task) would be no change to a
+      // screen reader: a no-break space makes it one, and it is said again
+      said.textContent = text === saidLast ? text + "\u00a0" : text;
+    };
     close.addEventListener("click", () => dialog.close());
     // the focus goes back where it was (the menu's own button is hidden by then: its summary)
     dialog.addEventListener("close", () => {

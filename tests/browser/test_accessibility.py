@@ -355,6 +355,24 @@ LIVE_AND_TABINDEX = re.compile(
     r"""\{[^{}]*(?:role["']?\s*:\s*["'](?:status|alert|log)["']|["']aria-live["']\s*:\s*"""
     r"""["'](?:polite|assertive)["'])[^{}]*\}""")
 
+#: an object literal of an element a script makes, ``${…}`` substitutions and all
+_OBJECT = r"\{(?:[^{}]|\$\{[^{}]*\})*\}"
+_LIVE_ATTR = (r"""(?:role["']?\s*:\s*["'](?:status|alert|log)["']|["']aria-live["']\s*:\s*"""
+              r"""["'](?:polite|assertive)["'])""")
+#: a live region a script makes with an id (the id's text, substitutions and all), and an
+#: element a script makes with an ``aria-describedby`` (the value's text)
+LIVE_WITH_ID = re.compile(rf"""(?={_OBJECT})\{{(?=(?:[^{{}}]|\$\{{[^{{}}]*\}})*{_LIVE_ATTR})"""
+                          r"""(?:[^{}]|\$\{[^{}]*\})*?\bid["']?\s*:\s*(["'`])((?:(?!\1).)*)\1""")
+DESCRIBED_BY = re.compile(r"""["']aria-describedby["']\s*:\s*(["'`])((?:(?!\1).)*)\1""")
+
+
+def _id_in(id_text: str, described: str) -> bool:
+    """Whether a script's id (``${id}-msg``) is among those of a script's
+    ``aria-describedby`` value (``${id}-msg${hint ? …}``), both as written in the source:
+    the id's own words in the same places, any substitution where it has one."""
+    pattern = r"\$\{[^}]*\}".join(map(re.escape, re.split(r"\$\{[^}]*\}", id_text)))
+    return re.search(rf"(?<![\w-]){pattern}(?![\w-])", described) is not None
+
 
 class _LiveRegions(HTMLParser):
     """Each element's id of a page, with whether it is a live region or inside one, and
@@ -368,6 +386,7 @@ class _LiveRegions(HTMLParser):
         self.stack: list[tuple[str, bool]] = []  # (tag, in a live region)
         self.live_ids: dict[str, str] = {}  # id → the live region's id (itself or around it)
         self.focusable_live: list[str] = []
+        self.described_by: dict[str, list[str]] = {}  # id → the ids of its description
 
     def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
         a = dict(attrs)
@@ -378,6 +397,8 @@ class _LiveRegions(HTMLParser):
             self.focusable_live.append(f"<{tag} id={a.get('id')}>")
         if (i := a.get("id")) and (live or around):
             self.live_ids[i] = "itself" if live else "inside one"
+        if (i := a.get("id")) and a.get("aria-describedby"):
+            self.described_by[i] = (a.get("aria-describedby") or "").split()
         if tag not in self.VOID:
             self.stack.append((tag, live or around))
 
@@ -396,23 +417,43 @@ def live_and_focused(pages: dict[str, str], scripts: dict[str, str]) -> list[str
         pages: HTML by file name.
         scripts: JavaScript by file name.
 
+    A live region that is the description (``aria-describedby``) of a field that a script
+    focuses is read twice too: as news, and as the focused field's description. Found in
+    a page (the field focused by its id) and in a script that makes both the live region
+    and an element it describes, and that focuses anything (the field is focused by a
+    variable there, which the file does not tie to it).
+
     Returns:
         One line per problem: a focused live region named by id, a live region with a
-        ``tabindex`` in a page, or one made focusable by a script.
+        ``tabindex`` in a page, or one made focusable by a script, a live region that
+        describes a field a script focuses.
     """
     live: dict[str, str] = {}
+    described: dict[str, list[str]] = {}  # field id → its live descriptions, in any page
     out: list[str] = []
     for name, html in pages.items():
         parser = _LiveRegions()
         parser.feed(html)
-        live.update({i: f"{name}: #{i} is a live region ({why})"
-                     for i, why in parser.live_ids.items()})
+        page_live = {i: f"{name}: #{i} is a live region ({why})"
+                     for i, why in parser.live_ids.items()}
+        live.update(page_live)
+        for f, ds in parser.described_by.items():
+            described.setdefault(f, []).extend(page_live[d] for d in ds if d in page_live)
         out += [f"{name}: {t} is a live region with a tabindex" for t in parser.focusable_live]
     for name, js in scripts.items():
         for m in FOCUS_BY_ID.finditer(js):
+            line = js.count("\n", 0, m.start()) + 1
             if m.group(1) in live:
-                line = js.count("\n", 0, m.start()) + 1
                 out.append(f"{name}:{line} focuses it: {live[m.group(1)]}")
+            out += [f"{name}:{line} focuses #{m.group(1)}, described by {d}"
+                    for d in described.get(m.group(1), [])]
+        if ".focus(" in js:
+            for m in LIVE_WITH_ID.finditer(js):
+                for d in DESCRIBED_BY.finditer(js):
+                    if _id_in(m.group(2), d.group(2)):
+                        line = js.count("\n", 0, m.start()) + 1
+                        out.append(f"{name}:{line} makes a live region (id {m.group(2)}) "
+                                   f"that describes a field it makes, and focuses fields")
         for m in LIVE_AND_TABINDEX.finditer(js):
             if re.search(r"tabindex|tabIndex", m.group(0)):
                 line = js.count("\n", 0, m.start()) + 1
@@ -443,6 +484,17 @@ def test_no_live_region_is_focused_by_a_script() -> None:
                  'document.querySelector("#said").focus();\nm.querySelector("summary").focus();'})
     assert len(canary) == 5, canary
     assert not any("#fine" in c for c in canary), canary
+    # and a live region that describes a field a script focuses: in a page, and made by a
+    # script (the change-password dialog's refusals were, and were read twice)
+    canary = live_and_focused(
+        {"d.html": '<p id="count" aria-live="polite"></p><select id="pick" '
+                   'aria-describedby="hint count"></select><p id="hint">h</p>'
+                   '<input id="q" aria-describedby="hint">'},
+        {"d.js": '$("pick").focus();\n$("q").focus();\n',
+         "e.js": 'const msg = el("p", { id: `${id}-msg`, "aria-live": "polite" });\n'
+                 'el("input", { id, "aria-describedby": `${id}-msg${hint ? " h" : ""}` });\n'
+                 'el("input", { "aria-describedby": `${id}-message` });\ninput.focus();'})
+    assert len(canary) == 2 and "#pick" in canary[0] and "e.js:1" in canary[1], canary
 
 
 def _axe_problems(page: Any, name: str, artifacts_dir: Path) -> list[str]:
@@ -608,11 +660,30 @@ class Focus:
 WATCH_FOCUS_JS = """(() => {
   const sel = LIVE_SELECTOR;
   window.focusOnLive = [];
+  // live regions written since the focus last moved: one of them that describes
+  // (aria-describedby) the element the focus lands on says its news twice, as news and
+  // as the focused field's description (a description merely present is read once)
+  const news = new Set();
+  const note = (ms) => { for (const m of ms) {
+    const t = m.target.nodeType === 1 ? m.target : m.target.parentElement;
+    const r = t && t.closest(sel);
+    if (r) news.add(r); } };
+  const watch = new MutationObserver(note);
+  watch.observe(document, {childList: true, subtree: true, characterData: true});
   document.addEventListener("focusin", (ev) => {
+    note(watch.takeRecords());  // (written just before the focus() in the same task)
     const t = ev.target;
+    const said = [...news];
+    news.clear();
     if (!(t instanceof Element) || t === document.body || t.matches("main")) return;
     if (t.matches(sel) || [...t.querySelectorAll(sel)].some((r) => r.textContent.trim()))
       window.focusOnLive.push(location.pathname + ": " + t.outerHTML.slice(0, 120));
+    for (const id of (t.getAttribute("aria-describedby") || "").split(/\\s+/)) {
+      const d = id && document.getElementById(id), r = d && d.closest(sel);
+      if (r && said.includes(r) && d.textContent.trim())
+        window.focusOnLive.push(location.pathname + ": described by news: "
+                                + t.outerHTML.slice(0, 120));
+    }
   }, true);
 })()""".replace("LIVE_SELECTOR", json.dumps(LIVE_SELECTOR))
 
@@ -911,3 +982,36 @@ def test_subjects_list_speaks_only_of_a_state_change(page: Any, lab: Lab,
                 lab.api(f"/api/recordings/{rec_id}/stop", {}, method="POST")
         with contextlib.suppress(urllib.error.HTTPError):  # (a failure above says why)
             lab.api(f"/api/subjects/{subject['id']}/delete", {"confirm": code})
+
+
+def test_a_refused_password_is_read_once(page: Any, lab: Lab, artifacts_dir: Path) -> None:
+    """A refusal in the change-password dialog is the field's description and the field
+    takes the focus: read once, with the field (it was a live region too, and read twice).
+    Where the field has the focus already (Enter pressed in it), the dialog's hidden live
+    region says it, once, and again at a second press."""
+    page.add_init_script(WATCH_FOCUS_JS)
+    focus = Focus(page)
+    page.goto(lab.url + "/rig.html")
+    page.click(".user-menu summary")
+    page.click("#password-open")
+    _shown(page, "#password-dialog")
+    page.evaluate(LISTEN_JS, LIVE_SELECTOR)
+    page.click("#pw-submit")  # all empty: the focus goes from the button to the field
+    _text(page, "#pw-current-msg", ".")
+    focus.expect("Current password")
+    description = focus.cdp.send("Accessibility.getPartialAXTree", {
+        "objectId": focus.cdp.send("Runtime.evaluate", {
+            "expression": "document.activeElement"})["result"]["objectId"],
+        "fetchRelatives": False})["nodes"][0].get("description", {}).get("value")
+    assert description == "Type your current password."
+    assert page.evaluate("window.said") == []  # said with the field, as its description
+    assert not _live_focus(page), _live_focus(page)
+    screenshot(page, artifacts_dir, "a11y_password_refused_focus")
+    for n in (1, 2):  # Enter in the field: the focus stays, the live region says it
+        page.keyboard.press("Enter")
+        page.wait_for_function("(n) => window.said.length >= n", arg=n)
+    assert page.evaluate("window.said") == [["pw-said", "Type your current password."]] * 2
+    assert page.evaluate("document.activeElement.id") == "pw-current"
+    assert page.inner_text("#pw-current-msg") == "Type your current password."
+    assert not _live_focus(page), _live_focus(page)
+    assert not page.js_errors, page.js_errors
