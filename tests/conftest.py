@@ -189,3 +189,51 @@ def browser(_chromium: _Chromium) -> Iterator[Any]:
         yield _chromium.browser
     finally:
         _chromium.leave()
+
+
+#: Files of one worker's longest stretches (tens of seconds each, measured with
+#: ``--durations=0``), started early by :func:`pytest_collection_modifyitems`.
+_LONG_FILES = (
+    "tests/engine/report/test_report_many_sessions.py",
+    "tests/app/analysis/test_reports.py",
+    "tests/app/data/test_record_flow.py",
+    "tests/test_docs.py",
+    "tests/engine/test_mocap_sweep.py",
+    "tests/app/calibration/test_capture_lens_nodes.py",
+    "tests/integration/test_node_features.py",
+    "tests/app/data/test_transfer_faults.py",
+    "tests/integration/test_node_warnings.py",
+    "tests/integration/test_backup_live.py",
+    "tests/engine/calibration/test_capture_check.py",
+    "tests/integration/test_node_lens.py",
+    "tests/app/data/test_subject_lifecycle.py",
+    "tests/engine/report/test_report_scripts.py",
+    "tests/app/calibration/test_wizard_browser.py",
+    "tests/app/test_security_review.py",
+    "tests/engine/report/test_report_clinical.py",
+)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The order files are handed to ``make test``'s workers (``--dist loadfile
+    --no-loadscope-reorder``): the browser tests first, one after another, then the
+    long files, then the rest as collected.
+
+    The browser tests share one live demo server per worker (package scope), which is
+    stopped whenever a worker turns to a file of another folder and started again (≈ 10 s)
+    at its next browser file: xdist's default order (by number of tests) interleaved them
+    and started it 17 times. Long files go early so that the run does not end with one
+    worker alone on one of them. Only the order changes; a file's tests stay together and
+    in their order (a stable sort).
+    """
+    long_rank = {name: i for i, name in enumerate(_LONG_FILES)}
+
+    def rank(item: pytest.Item) -> tuple[int, int]:
+        path = item.nodeid.split("::", 1)[0]
+        if path.startswith("tests/browser/"):
+            return (0, 0)
+        if path in long_rank:
+            return (1, long_rank[path])
+        return (2, 0)
+
+    items.sort(key=rank)
