@@ -9,7 +9,6 @@ give the steps between the true centres (markers ``XL``/``XR``, measured with
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +24,7 @@ from engine.io.trc import write_trc
 from engine.mocap import DEFAULT_MARKER_DIAMETER_M, feet_from_markers, load_feet
 from engine.sim.straight_walk import SynthWalk, synth_walk, walk_skeleton
 from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
+from tests.engine.test_foreign_files import _run  # gaitrig gait: (exit code, JSON, stderr)
 
 Doc = dict[str, Any]
 #: The subject's true ankle widths (m): unlike each other and the 70 mm population one.
@@ -75,16 +75,6 @@ def _write(m: MarkerTrajectories, path: Path) -> Path:
     else:
         write_trc(path, m, units="mm")
     return path
-
-
-def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, Doc | None, str]:
-    rc = main(["gait", *argv])
-    out, err = capsys.readouterr()
-    assert "Traceback" not in err
-    if rc == 0:
-        return rc, json.loads(out), err
-    assert out == "" and err.count("\n") == 1 and err.startswith("gaitrig gait: error: "), err
-    return rc, None, err
 
 
 def _widths_off(ref: Doc, got: Doc) -> list[float]:
