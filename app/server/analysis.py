@@ -808,11 +808,14 @@ def analyse_file(path: Path, method: str = "crossing", left: str | None = None,
 
 
 def reference_steps(path: Path, method: str = "crossing") -> list[dict[str, Any]]:
-    """Steps of a reference file (C3D/TRC/CSV), for the agreement section."""
-    try:
-        res = analyse_file(path, method)
-    except GaitrigError as exc:
-        raise InputError(f"reference {path.name}: {exc}") from exc
+    """Steps of a reference file (C3D/TRC/CSV), for the agreement section.
+
+    Raises:
+        GaitrigError: :func:`analyse_file`'s, unchanged (a reader's names the file; a
+            "reference <file>: " before it named the file twice: callers name it,
+            ``app.api.routes._data.refusal``).
+    """
+    res = analyse_file(path, method)
     steps: list[dict[str, Any]] = res["gait"]["steps"]
     return steps
 

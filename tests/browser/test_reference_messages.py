@@ -1,8 +1,9 @@
 """The Reports page's two uploads of a file from another system — the reference of the
 agreement section and "Analyse a file" — say in words what a damaged C3D file is not and
 what to do (ezc3d's "File must be a valid c3d file: iostream error" ended both messages).
-Screenshots ``test-artifacts/browser/reports_reference_damaged_c3d.png`` and
-``reports_file_damaged_c3d.png``.
+Screenshots ``test-artifacts/browser/reports_reference_damaged_c3d.png``,
+``reports_file_damaged_c3d.png`` and ``reports_file_not_trc.png``; each message names the
+file once.
 
 And which of a recording's references its reports use (one attached on the Reports page,
 else the newest attached on the Subjects page) is said on the Reports page, naming the
@@ -20,9 +21,12 @@ from tests.browser.conftest import LiveServer, screenshot
 
 pytestmark = pytest.mark.browser
 
-#: What a damaged C3D file's message ends with on every upload.
-NOT_C3D = ("cannot read trial 3.c3d as C3D: the file is damaged or not a C3D file (export it "
-           "again from the motion-capture software, as C3D)")
+#: What every upload of a damaged C3D file says, naming it once (the Subjects page's words).
+NOT_C3D = ("'trial 3.c3d' is not a readable C3D file: the file is damaged or not a C3D file "
+           "(export it again from the motion-capture software, as C3D)")
+
+#: What every upload of a file that is not TRC says (the reader's sentence names it).
+NOT_TRC = "Gang.trc is not a TRC file (first line must start with PathFileType)"
 
 
 def _recording(server: LiveServer, code: str) -> str:
@@ -58,17 +62,28 @@ def test_reports_page_says_what_a_damaged_c3d_is_not(page: Any, live_server: Liv
     page.click("#ref-form button[type=submit]")
     page.wait_for_function("document.getElementById('ref-msg').textContent.includes('C3D')")
     # the file named once, as on the Subjects page
-    assert page.text_content("#ref-msg") == (
-        "'trial 3.c3d' is not a readable C3D file: the file is damaged or not a C3D file "
-        "(export it again from the motion-capture software, as C3D)")
+    assert page.text_content("#ref-msg") == NOT_C3D
     screenshot(page, artifacts_dir, "reports_reference_damaged_c3d", "#ref-box")
 
     page.set_input_files("#file", str(damaged))
     page.click("#file-form button[type=submit]")
-    page.wait_for_function("document.getElementById('file-msg').textContent.includes('C3D:')")
-    assert page.text_content("#file-msg") == f"trial 3.c3d: {NOT_C3D}"
+    page.wait_for_function("document.getElementById('file-msg').textContent.includes('C3D')")
+    # named once here too (was "trial 3.c3d: cannot read trial 3.c3d as C3D: …")
+    assert page.text_content("#file-msg") == NOT_C3D
     screenshot(page, artifacts_dir, "reports_file_damaged_c3d",
                "section[aria-labelledby=file-h]")
+
+    # a reader's sentence that names the file is said alone, on both uploads (was "Gang.trc:
+    # Gang.trc is not a TRC file …" here, "'Gang.trc' is not a readable TRC file: Gang.trc
+    # is not a TRC file …" on the Subjects page)
+    trc = tmp_path / "Gang.trc"
+    trc.write_bytes(b"PathFileType\t4\n\x00\x01")
+    for form, msg in (("#ref-form", "#ref-msg"), ("#file-form", "#file-msg")):
+        page.set_input_files(f"{form} input[type=file]", str(trc))
+        page.click(f"{form} button[type=submit]")
+        page.wait_for_function(f"document.querySelector('{msg}').textContent.includes('TRC')")
+        assert page.text_content(msg) == NOT_TRC
+    screenshot(page, artifacts_dir, "reports_file_not_trc", "section[aria-labelledby=file-h]")
     assert not page.js_errors
 
 

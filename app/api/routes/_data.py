@@ -76,6 +76,24 @@ def upload_error(exc: BaseException, copy: Path, name: str) -> str:
     return text.replace(str(copy), name).replace(copy.name, name)
 
 
+def refusal(exc: BaseException, copy: Path, name: str) -> str:
+    """Why the file ``name`` (read from ``copy``) was refused, naming it at most once:
+    a reader's "cannot read walk.c3d as C3D: …" (or "cannot read walk.c3d: …",
+    "walk.csv: …") becomes the Subjects page's "'walk.c3d' is not a readable C3D file:
+    …", a reader's sentence that names the file ("Gang.trc is not a TRC file …") is
+    kept as it is, and any other reason ("no steps were found") is returned without the
+    file's name: the caller, seeing ``name not in`` it, names the file itself (prefixing
+    every reason with the name said it twice: "'Gang.trc' is not a readable TRC file:
+    Gang.trc is not a TRC file …", "trial 3.c3d: cannot read trial 3.c3d as C3D: …")."""
+    # (not upload_error: the copy's name leading a reader's sentence is the file's)
+    why = str(exc).replace(str(copy), name).replace(copy.name, name)
+    kind = (Path(name).suffix or copy.suffix).lstrip(".").upper()
+    for reader in (f"cannot read {name} as {kind}: ", f"cannot read {name}: ", f"{name}: "):
+        if why.startswith(reader):
+            return f"{name!r} is not a readable {kind} file: {why[len(reader):]}"
+    return why
+
+
 #: Largest integer id a row can have (SQL BIGINT). A larger one names no row, and the
 #: database driver raises OverflowError on it (a 500), so lookups answer 404 first.
 MAX_DB_ID = 2**63 - 1

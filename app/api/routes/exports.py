@@ -34,7 +34,7 @@ from app.api.routes._data import (
     layout_of,
     purge,
     reference_json,
-    upload_error,
+    refusal,
 )
 from app.db import data as m
 from app.server import erasures
@@ -183,11 +183,12 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
         try:
             traj = await asyncio.to_thread(read_reference, tmp, ext)
         except (GaitrigError, ValueError, OSError, RuntimeError) as exc:
-            # (a reader's "cannot read walk.c3d as C3D: " says again what this says first)
-            why = upload_error(exc, tmp, name).removeprefix(
-                f"cannot read {name} as {ext.upper()}: ")
-            raise HTTPException(status.HTTP_400_BAD_REQUEST,
-                                f"{name!r} is not a readable {ext.upper()} file: {why}") from exc
+            # the file named once: a reader's "cannot read walk.c3d as C3D: …" or "Gang.trc
+            # is not a TRC file …" says again what a prefix would say first
+            why = refusal(exc, tmp, name)
+            raise HTTPException(status.HTTP_400_BAD_REQUEST, why if name in why else
+                                f"{name!r} is not a readable {ext.upper()} file: {why}"
+                                ) from exc
         try:
             os.replace(tmp, path)
             fsync_dir(folder)

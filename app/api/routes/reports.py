@@ -32,7 +32,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 from fastapi import APIRouter, Form, HTTPException, Query, Request, UploadFile, status
@@ -41,7 +41,7 @@ from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
 from app.api.limits import BoundedRoute
-from app.api.routes._data import audit_now, get_row, upload_error
+from app.api.routes._data import audit_now, get_row, refusal
 from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, like_pattern, page_of, set_total
 from app.db.data import Recording as DbRecording
 from app.db.data import ReferenceImport, Subject
@@ -155,19 +155,29 @@ def _reference_file(rec_dir: Path) -> tuple[Path, dict[str, Any]] | None:
     return (f, meta) if f.is_file() else None
 
 
+class ReferenceFile(NamedTuple):
+    """A recording's reference file for its report."""
+
+    path: Path  # the server's copy
+    offset_s: float  # the reference's time of the recording's start
+    name: str  # as the person chose it ("vicon walk.c3d"), for messages
+
+
 def _reference_paths(db: Any, data_dir: Path, rec_dirs: dict[str, Path]
-                     ) -> dict[str, tuple[Path, float]]:
-    """rec_id → its reference file and the reference's time of the recording's start.
+                     ) -> dict[str, ReferenceFile]:
+    """rec_id → its reference file, the reference's time of the recording's start and the
+    file's name as uploaded.
 
     A reference attached on this page wins; otherwise the newest one imported on the
     Subjects page (data-management ``ReferenceImport``, assumed to start with the
     recording).
     """
-    out: dict[str, tuple[Path, float]] = {}
+    out: dict[str, ReferenceFile] = {}
     for rec_id, d in rec_dirs.items():
         ref = _reference_file(d)
         if ref is not None:
-            out[rec_id] = (ref[0], float(ref[1].get("offset_s") or 0.0))
+            out[rec_id] = ReferenceFile(ref[0], float(ref[1].get("offset_s") or 0.0),
+                                        str(ref[1].get("filename") or "") or ref[0].name)
             continue
         imp = db.scalars(select(ReferenceImport)
                          .where(ReferenceImport.recording_id == rec_id)
@@ -176,23 +186,29 @@ def _reference_paths(db: Any, data_dir: Path, rec_dirs: dict[str, Path]
             continue
         path = Path(data_dir) / "references" / rec_id / imp.stored_name
         if path.is_file():
-            out[rec_id] = (path, 0.0)
+            out[rec_id] = ReferenceFile(path, 0.0, imp.filename or path.name)
     return out
 
 
-def _reference_steps(paths: dict[str, tuple[Path, float]], method: str,
+def _reference_steps(paths: dict[str, ReferenceFile], method: str,
                      labels: dict[str, str] | None = None
                      ) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
     """rec_id → reference steps on the recording's time axis, and notes on failures
-    (naming each recording by its trial label in ``labels``, rec_id → label)."""
+    (naming each recording by its trial label in ``labels``, rec_id → label, and its
+    reference file once, as the person chose it: "the reference could not be used —
+    'vicon walk.c3d' is not a readable C3D file: …", "the reference vicon walk.c3d could
+    not be used — no steps were found"; was "the reference could not be used — reference
+    reference.c3d: cannot read reference.c3d as C3D: …", the server's name twice)."""
     out: dict[str, list[dict[str, Any]]] = {}
     notes: list[str] = []
-    for rec_id, (path, off) in paths.items():
+    for rec_id, (path, off, name) in paths.items():
         try:
             steps = an.reference_steps(path, method)
         except GaitrigError as exc:
-            notes.append(f"{an.recording_named(rec_id, (labels or {}).get(rec_id, ''))}: "
-                         f"the reference could not be used — {exc}")
+            why = refusal(exc, path, name)
+            trial = an.recording_named(rec_id, (labels or {}).get(rec_id, ""))
+            notes.append(f"{trial}: the reference could not be used — {why}" if name in why
+                         else f"{trial}: the reference {name} could not be used — {why}")
             continue
         out[rec_id] = [{**s, "time_s": s["time_s"] + off} for s in steps]
     return out, notes
@@ -523,7 +539,7 @@ class SubjectReportSource:
     file_stamp: str  # date in the PDF's file name
     recordings: list[tuple[str, str]]  # (rec_id, state) in session order
     labels: dict[str, str] = field(default_factory=dict)  # rec_id → trial label
-    references: dict[str, tuple[Path, float]] = field(default_factory=dict)
+    references: dict[str, ReferenceFile] = field(default_factory=dict)
     #: (session id, label, ISO date, its rec_ids) in time order, when the report spans
     #: several sessions (for "Change over sessions"); empty for one session
     sessions: list[tuple[int, str, str, list[str]]] = field(default_factory=list)
@@ -762,13 +778,17 @@ def _reference_error(exc: BaseException, copy: Path, name: str) -> str:
     its reader refuses: "'trial 3.c3d' is not a readable C3D file: the file is damaged…"
     (was "reference trial 3.c3d: cannot read trial 3.c3d as C3D: the file is damaged…",
     the analysis's and the reader's names of it one after the other)."""
-    why = upload_error(exc, copy, name).removeprefix(f"reference {name}: ")
-    kind = copy.suffix.lstrip(".").upper()
-    for reader in (f"cannot read {name} as {kind}: ", f"{name}: "):
-        if why.startswith(reader):
-            return f"{name!r} is not a readable {kind} file: {why[len(reader):]}"
-    # a reader's sentence about the file ("Gang.trc is not a TRC file …") names it already
+    why = refusal(exc, copy, name)
     return why if name in why else f"reference {name}: {why}"
+
+
+def _file_error(exc: BaseException, copy: Path, name: str) -> str:
+    """Why "Analyse a file" gave no report of ``name`` (read from ``copy``), naming the
+    file once, as a refused reference does: "'trial 3.c3d' is not a readable C3D file:
+    the file is damaged…", "walk.trc: no steps were found" (was "trial 3.c3d: cannot read
+    trial 3.c3d as C3D: …", "Gang.trc: Gang.trc is not a TRC file …")."""
+    why = refusal(exc, copy, name)
+    return why if name in why else f"{name}: {why}"
 
 
 #: Name start of a report reference's temporary upload folder (which ends in ``.tmp``).
@@ -856,8 +876,7 @@ async def upload_report(request: Request, file: UploadFile, user: CurrentUser, d
                 data = an.build_report(subject, [res], title="Gait report (uploaded file)")
             except GaitrigError as exc:
                 raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    f"{file.filename}: "
-                                    f"{upload_error(exc, path, file.filename or 'the file')}"
+                                    _file_error(exc, path, file.filename or "the file")
                                     ) from exc
             return _respond(data, format, f"gait-report-{subject}")
 

@@ -206,11 +206,13 @@ def test_a_note_names_an_unused_recording_by_its_trial_label(
         session_date="2026-11-24", file_stamp="2026-11-24",
         recordings=[("R1", "complete"), ("R2", "on_nodes"), ("R3", "incomplete")],
         labels={"R1": "walk 1", "R2": "walk 2", "R3": ""},
-        references={"R1": (bad, 0.0)})
+        references={"R1": rr.ReferenceFile(bad, 0.0, "vicon ref.csv")})
     notes = rr.build_subject_report(src, tmp_path, {}).quality.notes
     assert "Trial “walk 2” (recording R2, still on the sensors) was not used: it is not " \
            "complete on the server." in notes, notes
     assert "Recording R3 (incomplete) was not used: it is not complete on the server." \
            in notes, notes
-    assert any(n.startswith("Trial “walk 1” (recording R1): the reference could not be used")
-               for n in notes), notes
+    # the reference named once, as chosen (not the server's ref.csv)
+    assert ("Trial “walk 1” (recording R1): the reference could not be used — 'vicon "
+            "ref.csv' is not a readable CSV file: no 'time' column; the first column must be "
+            "'time' (seconds), then <Joint>_x,<Joint>_y,<Joint>_z[,<Joint>_state]") in notes, notes
