@@ -8,6 +8,7 @@ trials a session) whose steps lengthen by 0.4 cm a session, so the change is kno
 
 from __future__ import annotations
 
+import functools
 import re
 import shutil
 import subprocess
@@ -45,6 +46,14 @@ def _data(n: int) -> ReportData:
     return ReportData("P-030", [t for s in ss for t in s.trials], sessions=ss)
 
 
+@functools.cache
+def _rendered(n: int) -> tuple[ReportData, str]:
+    """The report of ``n`` sessions and its HTML, rendered once for the tests that only
+    read them (the HTML, PDF and reflow tests of the same ``n``; ~3-6 s a rendering)."""
+    data = _data(n)
+    return data, render_html(data)
+
+
 def _table(html: str, label: str) -> str:
     start = html.index(f'<table aria-label="{label}"')
     return html[start:html.index("</table>", start)]
@@ -52,8 +61,7 @@ def _table(html: str, label: str) -> str:
 
 @pytest.mark.parametrize("n", [10, 30])
 def test_html_has_every_session_and_the_latest_changes(n: int) -> None:
-    data = _data(n)
-    html = render_html(data)
+    data, html = _rendered(n)
     sessions = _table(html, "sessions")
     rows = re.findall(r'<tr><th scope="row" class="l">([^<]+)</th>', sessions)
     assert rows == [s.name for s in data.sessions]  # all of them, in time order
@@ -138,8 +146,7 @@ def _layout_overflow(html: str) -> tuple[list[str], list[list[str]]]:
 @pytest.mark.parametrize("n", [10, 30])
 def test_pdf_keeps_every_session_inside_the_page(n: int, tmp_path: Path,
                                                  artifacts_dir: Path) -> None:
-    data = _data(n)
-    html = render_html(data)
+    data, html = _rendered(n)
     # WeasyPrint's own layout: no box past the right margin; the header row on every
     # page the sessions table spans
     over, heads = _layout_overflow(html)
@@ -179,7 +186,7 @@ def test_html_reflows_at_320_px(browser: Any, artifacts_dir: Path) -> None:
     each table that is wider scrolls in its own box, a named region that takes the focus."""
     ctx = browser.new_context(viewport={"width": REFLOW_WIDTH, "height": 700})
     page = ctx.new_page()
-    page.set_content(render_html(_data(30)))
+    page.set_content(_rendered(30)[1])
     scroll, inner = page.evaluate("[document.documentElement.scrollWidth, window.innerWidth]")
     assert scroll <= inner + 1, f"the page scrolls sideways: {scroll} > {inner}"
     boxes = page.evaluate("""() => [...document.querySelectorAll('table')].map((t) => {
