@@ -18,8 +18,12 @@ files; a recording deleted meanwhile is in the erasure log copied last, which th
 restore applies. Files are streamed (1 MiB at a time) and hashed as they are written:
 memory stays bounded whatever the size of the data folder.
 
-With PostgreSQL the archive holds the files only; the database is backed up with
-``pg_dump`` (the manifest and the command's output say so).
+With PostgreSQL the archive holds the files only; the operator backs the database up
+with ``pg_dump`` just before (database first, files after, as above) and restores it with
+``pg_restore`` before ``gaitrig restore`` (the manifest and the command's output say so).
+The manifest then records the database's alembic revision and row counts as read when
+the files were copied, and the restore refuses a database that was not restored yet
+(empty) or that a running server still uses.
 """
 
 from __future__ import annotations
@@ -59,9 +63,13 @@ _DB_FILES = ("gaitrig.sqlite3", "gaitrig.sqlite3-wal", "gaitrig.sqlite3-shm",
              "gaitrig.sqlite3-journal")
 
 PG_HOW = ("the database is PostgreSQL: this archive holds the files only. Back up the "
-          "database at the same time with pg_dump (pg_dump -Fc -f gaitrig.pgdump "
+          "database just before each backup with pg_dump (pg_dump -Fc -f gaitrig.pgdump "
           "\"$GAITRIG_DATABASE_URL\" with the driver part '+psycopg' removed) and keep "
-          "both together; restore it with pg_restore before running gaitrig restore")
+          "both together; restore it with pg_restore into an empty database before "
+          "running gaitrig restore (docs/backup.md)")
+#: What to install when the PostgreSQL client programs are missing.
+PG_CLIENT = ("the PostgreSQL client programs pg_dump and pg_restore (apt-get install "
+             "postgresql-client, of the server's major version or newer)")
 
 
 class BackupError(InputError):
@@ -227,6 +235,40 @@ def _db_facts(c: sqlite3.Connection) -> dict[str, Any]:
     return {"alembic_revision": rev, "counts": counts, "integrity": check}
 
 
+def _server_db_facts(db_url: str) -> tuple[set[str], str | None, dict[str, int]]:
+    """Tables, alembic revision and row counts of a database server's database."""
+    from sqlalchemy import create_engine, inspect, text
+
+    engine = create_engine(db_url)
+    try:
+        with engine.connect() as c:
+            tables = set(inspect(c).get_table_names())
+            rev = (c.execute(text("SELECT version_num FROM alembic_version")).scalar()
+                   if "alembic_version" in tables else None)
+            counts = {t: int(c.execute(text(f'SELECT count(*) FROM "{t}"')).scalar() or 0)
+                      for t in _COUNTED if t in tables}
+    finally:
+        engine.dispose()
+    return tables, rev, counts
+
+
+def _read_server_database(db_url: str, db: dict[str, Any], notes: list[str]) -> None:
+    """Record in ``db`` the revision and row counts of the (PostgreSQL) database the files
+    go with, as read now: not a snapshot (``pg_dump`` makes that), a reference for the
+    restore. Notes what cannot be read and a missing ``pg_dump``."""
+    from sqlalchemy.exc import SQLAlchemyError
+
+    try:
+        _tables, db["alembic_revision"], db["counts"] = _server_db_facts(db_url)
+        db["read_at"] = _now()
+    except (SQLAlchemyError, ImportError) as exc:
+        notes.append("the database could not be read to record its revision and row counts "
+                     f"({str(exc).splitlines()[0][:200]}); the files were backed up")
+    if shutil.which("pg_dump") is None:
+        notes.append(f"pg_dump is not installed on this machine: install {PG_CLIENT}, or "
+                     "run pg_dump on a machine that has it")
+
+
 def backup_name(now: datetime | None = None) -> str:
     """The archive name used when the destination is a folder."""
     return f"gaitrig-backup-{(now or datetime.now(UTC)):%Y%m%d-%H%M%S}.tar"
@@ -283,6 +325,7 @@ def create_backup(data_dir: Path, dest: Path, db_url: str | None = None) -> Back
                 db = {"dialect": make_url(db_url).get_backend_name(), "member": None,
                       "alembic_revision": None, "counts": {}, "how": PG_HOW}
                 notes.append(PG_HOW)
+                _read_server_database(db_url, db, notes)
             skip = {db_file.resolve()} if db_file is not None else set()
             for rel, path in _walk(data_dir, skipped, skip):
                 try:
@@ -654,6 +697,13 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
             "GAITRIG_DATABASE_URL set to it (it is migrated and the deletions applied to it)")
     res = RestoreResult(data_dir, man, revision_before=man.get("alembic_revision"),
                         with_current_log=bool(current))
+    if not has_db:
+        res.revision_before = _check_restored_database(str(db_url), man, res.notes)
+    elif db_url and make_url(db_url).get_backend_name() != "sqlite":
+        res.notes.append(
+            f"this backup holds a SQLite database, restored into {data_dir / 'gaitrig.sqlite3'}"
+            f"; GAITRIG_DATABASE_URL names another database ({make_url(db_url).get_backend_name()}"
+            "), which was left as it was: unset GAITRIG_DATABASE_URL to serve the restored one")
     created = not data_dir.exists()
     data_dir.mkdir(parents=True, exist_ok=True)
     # staged on the data folder's own file system, so that moving it in is a rename: beside
@@ -703,6 +753,56 @@ def restore_backup(archive: Path, data_dir: Path, deletion_logs: list[Path],
                          "(restored by you with pg_restore); it was migrated and the "
                          "deletions applied to it")
     return res
+
+
+def _check_restored_database(db_url: str, man: dict[str, Any], notes: list[str]) -> str | None:
+    """Check the (PostgreSQL) database an archive without one is restored with: restored
+    already (not empty) and used by no one else (a running server). Notes row counts that
+    differ from the backup's. Returns its alembic revision.
+
+    Raises:
+        BackupError: it cannot be reached, is empty, or is in use; nothing was changed.
+    """
+    from sqlalchemy import create_engine, text
+    from sqlalchemy.exc import SQLAlchemyError
+
+    shown = make_url(db_url).render_as_string(hide_password=True)
+    try:
+        tables, rev, counts = _server_db_facts(db_url)
+        others: list[str] = []
+        if make_url(db_url).get_backend_name() == "postgresql":
+            engine = create_engine(db_url)
+            try:
+                with engine.connect() as c:
+                    others = [f"{r[0] or 'a program'} from {r[1] or 'this machine'}"
+                              for r in c.execute(text(
+                                  "SELECT application_name, client_addr FROM pg_stat_activity "
+                                  "WHERE datname = current_database() AND pid <> "
+                                  "pg_backend_pid() AND backend_type = 'client backend'"))]
+            finally:
+                engine.dispose()
+    except (SQLAlchemyError, ImportError) as exc:
+        raise BackupError(f"the database {shown} (GAITRIG_DATABASE_URL) cannot be reached "
+                          f"({str(exc).splitlines()[0][:200]}); nothing was restored") from exc
+    if "alembic_version" not in tables or "subjects" not in tables:
+        raise BackupError(
+            f"the database {shown} (GAITRIG_DATABASE_URL) is empty: this backup holds the "
+            "files only; restore the database's pg_dump into it first (pg_restore "
+            "--no-owner -d <that URL without '+psycopg'> gaitrig.pgdump), then run gaitrig "
+            "restore again. Nothing was restored")
+    if others:
+        raise BackupError(
+            f"the database {shown} is in use ({len(others)} other connection(s): "
+            f"{', '.join(sorted(set(others))[:3])}; a running gaitrig server?): stop the "
+            "server, then restore; nothing was restored")
+    had = man["database"].get("counts") or {}
+    differ = [f"{t} {counts.get(t, 0)} (backup {had[t]})" for t in _COUNTED
+              if t in had and t not in ("users", "audit_events") and counts.get(t, 0) != had[t]]
+    if differ:
+        notes.append("the database's rows differ from those when the files were backed up ("
+                     + ", ".join(differ) + "): check that its pg_dump is the one taken with "
+                     "this backup")
+    return rev
 
 
 def _sync_tree(root: Path, files: bool = True) -> None:
