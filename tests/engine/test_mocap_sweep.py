@@ -11,8 +11,11 @@ must give exit code 2 and one line saying what to fix, never a traceback.
 
 from __future__ import annotations
 
+import copy
+import io
 import json
 from collections.abc import Callable
+from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -128,17 +131,29 @@ def synth() -> MarkerTrajectories:
     return _synthetic()
 
 
-@pytest.fixture(params=["real", "synth"])
-def base(request: pytest.FixtureRequest, tmp_path: Path,
-         capsys: pytest.CaptureFixture[str]) -> tuple[MarkerTrajectories, Doc]:
-    """(markers in metres, Z up; the CLI's answer on them written as a C3D file in mm)."""
+@pytest.fixture(scope="module", params=["real", "synth"])
+def _base_ref(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+              ) -> tuple[MarkerTrajectories, Doc]:
+    """:func:`base`, computed once per module for each base recording (it was once per
+    test, ~150 of them)."""
     m = request.getfixturevalue(request.param)
-    p = tmp_path / "ref.c3d"
+    p = tmp_path_factory.mktemp(f"base-{request.param}") / "ref.c3d"
     write_c3d(p, m, units="mm")
-    rc, doc, err = _run([str(p), "--json"], capsys)
-    assert rc == 0, err
-    assert doc is not None and len(doc["steps"]) >= 3
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        rc = main(["gait", str(p), "--json"])
+    assert rc == 0 and err.getvalue() == "", err.getvalue()
+    doc = json.loads(out.getvalue())
+    assert len(doc["steps"]) >= 3
     return m, doc
+
+
+@pytest.fixture
+def base(_base_ref: tuple[MarkerTrajectories, Doc]) -> tuple[MarkerTrajectories, Doc]:
+    """(markers in metres, Z up; the CLI's answer on them written as a C3D file in mm);
+    the answer is each test's own copy."""
+    m, doc = _base_ref
+    return m, copy.deepcopy(doc)
 
 
 def test_real_file_reference_equals_rewritten_copy(shared_data: Path,
