@@ -158,7 +158,10 @@
       if ($("subject").value !== sid) return;  // another subject was chosen meanwhile
       for (const x of s.sessions || []) {
         const done = (x.recordings || []).filter((r) => r.state === "complete").length;
-        sess.append(el("option", { value: String(x.id) }, `${gaitrig.day(x.date)} ${x.label || ""} (${plural(done, "complete recording")})`));
+        // the count before the label (as on the Record page): a long label is cut at its
+        // end, never the count; the whole text in the option's tooltip
+        const text = `${gaitrig.day(x.date)} (${plural(done, "complete recording")})${x.label ? " — " + x.label : ""}`;
+        sess.append(el("option", { value: String(x.id), title: text }, text));
         const cb = el("input", { type: "checkbox", id: `pick-session-${x.id}`, value: String(x.id) });
         cb.checked = true;
         cb.addEventListener("change", () => setLink($("pdf"), subjectQuery("pdf")));
@@ -256,17 +259,38 @@
     const sel = $("recording"), was = sel.value;
     sel.replaceChildren(el("option", { value: "" }, recs.length ? "Choose a recording…" : q ? `No recording matches “${q}”` : "No recording on the server yet"));
     for (const r of recs) {
-      const who = r.subject_code ? `${r.subject_code}, ${gaitrig.day(r.session_date)} ${r.session_label || ""}` : "no subject";
+      const who = r.subject_code ? [r.subject_code, r.session_label, gaitrig.day(r.session_date)].filter(Boolean).join(", ") : "no subject";
       // the clinician's own trial label ("walk 2") first: ids alone told the walks apart
-      // by their start time only
-      sel.append(el("option", { value: r.id }, `${r.label ? r.label + " — " : ""}${who} — ${r.id} — ${plural(r.sensors.length, "sensor")}`));
+      // by their start time only; the id last, where a list too narrow cuts the text
+      const text = `${r.label ? r.label + " — " : ""}${who} — ${plural(r.sensors.length, "sensor")} — ${r.id}`;
+      sel.append(el("option", { value: r.id, title: text }, text));
     }
     if (was && recs.some((r) => r.id === was)) sel.value = was;
     else if (was) recordingChanged();  // the chosen recording left the list
+    showWholeRecording();
   }
+
+  // The chosen recording's text, whole, under a list too narrow to show it (a long label,
+  // a phone or a zoomed window: 320 px shows "walk 3 self-selected speed — L").
+  const measure = document.createElement("canvas").getContext("2d");
+  function showWholeRecording() {
+    const sel = $("recording"), p = $("recording-whole");
+    const text = sel.value && sel.selectedOptions.length ? sel.selectedOptions[0].textContent : "";
+    let cut = false;
+    if (text && sel.clientWidth) {
+      const cs = getComputedStyle(sel);
+      measure.font = cs.font;
+      // (the list's arrow takes about 20 px)
+      cut = measure.measureText(text).width > sel.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
+    }
+    p.hidden = !cut;
+    p.textContent = cut ? text : "";
+  }
+  addEventListener("resize", showWholeRecording);
 
   async function recordingChanged() {
     const rid = $("recording").value;
+    showWholeRecording();
     $("cmp-table").hidden = true;
     sensors = [];
     if (!rid) { buildSubset("set-a", []); buildSubset("set-b", []); updateRecLinks(); return; }

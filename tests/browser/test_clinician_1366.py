@@ -5,6 +5,8 @@
 * Reports page: "Side A / Side B" of the one- vs two-sided comparison did not say which
   side of the walkway was which.
 * Record page: the session list cut its text ("(2 recording…").
+* Reports page: the recording list cut its text ("… Nov 28, 2026 first vis"), the subject
+  list too ("LAP05 — 1 session, 3 reco").
 * Dates were written three ways ("Nov 28, 2026", "11/28/2026, 10:07:14 AM", "2026-11-28").
 * Live page: the caption said "body tracked (magenta)" under a picture with no body (the
   caption followed the stream's statistics, not the frame shown).
@@ -13,6 +15,7 @@
 from __future__ import annotations
 
 import re
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -245,3 +248,60 @@ def test_live_caption_describes_the_picture_shown(page: Any, live_server: LiveSe
             break
     assert changes >= 4, f"the walker was seen coming or going only {changes} times"
     assert not page.js_errors, page.js_errors
+
+
+def _short_recording(server: LiveServer, session_id: int, label: str) -> str:
+    """A short recording ``label`` of ``session_id``, copied to the server; its id."""
+    rid = str(server.api(f"/api/sessions/{session_id}/recordings",
+                         {"label": label, "streams": [], "image_every": 3})["id"])
+    deadline = time.time() + 90
+    while not all(p["n_frames"] > 0 for p in server.api(f"/api/recordings/{rid}")["parts"]):
+        assert time.time() < deadline, f"recording {rid} got no frame from every sensor"
+        time.sleep(0.1)
+    server.api(f"/api/recordings/{rid}/stop", {})
+    while server.api(f"/api/storage/recordings/{rid}")["state"] != "complete":
+        assert time.time() < deadline, f"recording {rid} was not copied"
+        time.sleep(0.3)
+    return rid
+
+
+def test_reports_recording_list_is_read_whole(laptop: Any, live_server: LiveServer,
+                                              artifacts_dir: Path) -> None:
+    """The Reports page's recording list showed "walk 3 self-selected speed — LAP05, Nov
+    28, 2026 first vis" at 1366 px (half the card's row), the subject list "LAP05 — 1
+    session, 3 reco": every list is read whole there; at 320 px the page reflows and the
+    chosen recording's whole text is written under its list."""
+    page = laptop
+    sid, session_id = _subject(live_server, "Laptop recordings", "LAP05")
+    rids = [_short_recording(live_server, session_id, f"walk {k} self-selected speed")
+            for k in (1, 2, 3)]
+    page.goto(f"{live_server.base_url}/reports.html#subject={sid}")
+    page.wait_for_function(f"[...document.querySelectorAll('#recording option')]"
+                           f".some(o => o.value === '{rids[-1]}')")
+    page.wait_for_function("document.getElementById('session').options.length > 1")
+    page.select_option("#session", str(session_id))
+    page.select_option("#recording", rids[-1])
+    page.wait_for_selector("#set-a input")
+    text = page.evaluate("document.getElementById('recording').selectedOptions[0].textContent")
+    assert text.startswith("walk 3 self-selected speed — LAP05, first visit, "), text
+    assert text.endswith(f" — 6 sensors — {rids[-1]}"), text
+    cut = page.evaluate(CUT_SELECTS_JS)
+    screenshot(page, artifacts_dir, "laptop_reports_recordings", "section[aria-labelledby=cmp-h]")
+    screenshot(page, artifacts_dir, "laptop_reports_subject_lists", "#subject-form")
+    assert cut == [], cut
+    assert page.evaluate("document.documentElement.scrollWidth <= innerWidth")
+    # whole in its list: not written again under it
+    assert page.locator("#recording-whole").is_hidden()
+
+    # 320 px (a 1280 px window at 400 %): the page reflows, and the list, too narrow for the
+    # text, has it whole under it
+    page.set_viewport_size({"width": 320, "height": 700})
+    page.wait_for_function("!document.getElementById('recording-whole').hidden")
+    screenshot(page, artifacts_dir, "narrow_reports_recordings", "section[aria-labelledby=cmp-h]")
+    assert page.evaluate("document.documentElement.scrollWidth <= innerWidth")
+    assert page.inner_text("#recording-whole") == text
+    box = page.locator("#recording-whole").bounding_box()
+    assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= 320, box
+    # back to the laptop: written once again
+    page.set_viewport_size(LAPTOP)
+    page.wait_for_function("document.getElementById('recording-whole').hidden")
