@@ -13,8 +13,6 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from app.api.routes._data import upload_error
-
 #: What a temporary or server-side name looks like in a message.
 INTERNAL = re.compile(r"\.upload\.tmp|\bupload\.(csv|c3d|trc)\b|[0-9a-f]{16}")
 
@@ -74,17 +72,6 @@ def test_refused_uploads_name_the_chosen_file(admin_client: TestClient, tmp_path
     assert r.status_code == 422, r.text
     _says_only_the_chosen_name(r.json()["detail"], name)
     assert r.json()["detail"].count(name) == 1, r.json()["detail"]
-
-
-def test_upload_error_drops_a_leading_copy_name_and_renames_the_rest(tmp_path: Path) -> None:
-    copy = tmp_path / ".0123456789abcdef.csv.upload.tmp"
-    assert upload_error(ValueError(f"{copy.name}: no 'time' column"), copy,
-                        "walk.csv") == "no 'time' column"
-    assert upload_error(ValueError(f"{copy}: no 'time' column"), copy,
-                        "walk.csv") == "no 'time' column"
-    assert upload_error(ValueError(f"cannot read {copy} as C3D"), copy,
-                        "walk.c3d") == "cannot read walk.c3d as C3D"
-    assert upload_error(ValueError("bad header"), copy, "walk.csv") == "bad header"
 
 
 #: What a bad C3D file's message says instead of ezc3d's words, and what it never says.

@@ -61,21 +61,6 @@ def datasync_of(request: Request) -> DataSync:
     return ds
 
 
-def upload_error(exc: BaseException, copy: Path, name: str) -> str:
-    """A reader's message about an uploaded file, naming the file the person chose
-    (``name``) instead of the server's temporary copy of it (``copy``): the readers name
-    the path they read, and "'walk.csv' is not a readable CSV file:
-    .1a24b5567737b4e5.csv.upload.tmp: no 'time' column" sent the clinician looking for a
-    file she never had. A message that starts with the copy's name loses it (the caller
-    names the file first)."""
-    text = str(exc)
-    for p in (str(copy), copy.name):
-        if text.startswith(p + ": "):
-            text = text[len(p) + 2:]
-            break
-    return text.replace(str(copy), name).replace(copy.name, name)
-
-
 def refusal(exc: BaseException, copy: Path, name: str) -> str:
     """Why the file ``name`` (read from ``copy``) was refused, naming it at most once:
     a reader's "cannot read walk.c3d as C3D: …" (or "cannot read walk.c3d: …",
@@ -85,7 +70,6 @@ def refusal(exc: BaseException, copy: Path, name: str) -> str:
     file's name: the caller, seeing ``name not in`` it, names the file itself (prefixing
     every reason with the name said it twice: "'Gang.trc' is not a readable TRC file:
     Gang.trc is not a TRC file …", "trial 3.c3d: cannot read trial 3.c3d as C3D: …")."""
-    # (not upload_error: the copy's name leading a reader's sentence is the file's)
     why = str(exc).replace(str(copy), name).replace(copy.name, name)
     kind = (Path(name).suffix or copy.suffix).lstrip(".").upper()
     for reader in (f"cannot read {name} as {kind}: ", f"cannot read {name}: ", f"{name}: "):
