@@ -541,7 +541,11 @@ def _reflow_problems(page: Any, name: str, artifacts_dir: Path) -> list[str]:
     """At :data:`REFLOW_WIDTH` px the page itself must not scroll sideways (a table or a
     plot may, inside its own box); names the elements that stick out when it does."""
     page.set_viewport_size({"width": REFLOW_WIDTH, "height": 700})
-    page.wait_for_timeout(300)  # layout and the pages' resize handlers
+    # the layout and the pages' resize handlers (a resize event, ResizeObserver) run in
+    # the first frame at the new width; two frames on, they have (was a fixed 300 ms)
+    page.wait_for_function("(w) => window.innerWidth === w", arg=REFLOW_WIDTH)
+    page.evaluate("() => new Promise((r) => requestAnimationFrame(() => "
+                  "requestAnimationFrame(() => r(true))))")
     screenshot(page, artifacts_dir, f"a11y_{name}_{REFLOW_WIDTH}px")
     scroll, inner = page.evaluate(
         "[document.documentElement.scrollWidth, window.innerWidth]")
