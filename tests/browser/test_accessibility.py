@@ -165,10 +165,20 @@ def _login(page: Any, lab: Lab) -> None:
 
 @pytest.fixture
 def page(browser: Any, lab: Lab) -> Iterator[Any]:
-    """A logged-in page (1400×900) of the module's server."""
+    """A logged-in page (1400×900) of the module's server, on the Rig page. Its context
+    holds the session cookie of the module's administrator (:attr:`Lab.token`, one login)
+    instead of logging in through the form again for each test (the form is tested by
+    :func:`test_login_page_and_its_error_pass_axe_and_reflow` and the keyboard test)."""
+    from app.api.deps import SESSION_COOKIE
+
     p = new_page(browser, 30000)
     try:
-        _login(p, lab)
+        if not lab.token:
+            lab.api("/api/nodes")  # (logs in)
+        p.context.add_cookies([{"name": SESSION_COOKIE, "value": lab.token, "url": lab.url,
+                                "httpOnly": True, "sameSite": "Strict"}])
+        p.goto(lab.url + "/rig.html")
+        assert p.url.endswith("/rig.html"), p.url  # (not sent to the login form)
         yield p
     finally:
         p.context.close()
