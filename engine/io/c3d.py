@@ -118,6 +118,28 @@ def _frames_held(path: Path) -> tuple[int, int] | None:
     return min(max(data, 0) // frame_bytes, announced), announced
 
 
+def _whole_by_parameters(params: dict[str, Any], size: int, announced: int) -> bool:
+    """Whether a file of ``size`` bytes holds ``announced`` frames by its parameters:
+    ``POINT:DATA_START`` (512-byte block), ``POINT:USED`` points of 4 values,
+    ``ANALOG:USED`` channels at ``ANALOG:RATE / POINT:RATE`` samples a frame, 4-byte
+    values when ``POINT:SCALE`` is negative, else 2. False when they do not say."""
+    try:
+        start = int(_param(params, "POINT", "DATA_START")[0])
+        n_points = int(_param(params, "POINT", "USED")[0])
+        scale = float(_param(params, "POINT", "SCALE")[0])
+        channels = int((_param(params, "ANALOG", "USED") or [0])[0])
+        ratio = 0
+        if channels:
+            ratio = round(float(_param(params, "ANALOG", "RATE")[0])
+                          / float(_param(params, "POINT", "RATE")[0]))
+    except (IndexError, TypeError, ValueError, ZeroDivisionError, OverflowError):
+        return False
+    frame_bytes = (4 * n_points + channels * ratio) * (4 if scale < 0 else 2)
+    if start < 2 or frame_bytes <= 0:
+        return False
+    return size - (start - 1) * 512 >= announced * frame_bytes
+
+
 def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
     """Read the 3-D points, labels, rate, units and events of a C3D file.
 
@@ -144,19 +166,31 @@ def read_c3d(path: str | Path, markers_only: bool = True) -> MarkerTrajectories:
     # A copy or download that stopped leaves a file that starts right: ezc3d reads it
     # without a word, the missing frames as gaps (or drops them, or fails on them).
     held = _frames_held(p)
-    if held is not None and held[0] < held[1]:
-        raise InputError(f"cannot read {p.name} as C3D: the file is cut short (it holds "
-                         f"{held[0]} of the {held[1]} frames its header announces); "
-                         f"{C3D_CUT_ADVICE}")
+    cut = held is not None and held[0] < held[1]
+
+    def cut_short() -> InputError:
+        assert held is not None
+        return InputError(f"cannot read {p.name} as C3D: the file is cut short (it holds "
+                          f"{held[0]} of the {held[1]} frames its header announces); "
+                          f"{C3D_CUT_ADVICE}")
+
     try:
         c = ezc3d.c3d(str(p), extract_forceplat_data=False)
     except Exception:  # ezc3d raises plain RuntimeError/IOError on corrupt files
+        if cut:
+            raise cut_short() from None
         # (its own words — "File must be a valid c3d file: iostream error", "Could not read
         # the processor type" — say nothing a clinician can act on)
         what = ("the file is empty" if p.stat().st_size == 0
                 else "the file is damaged or not a C3D file")
         raise InputError(f"cannot read {p.name} as C3D: {what} ({C3D_ADVICE})") from None
     params = c["parameters"]
+    # Some writers' headers disagree with their parameters (the analog count, the scale
+    # factor's sign), and the parameters are what ezc3d reads the data by: a file is cut
+    # short only when it is by both, so a whole file from another lab is never refused.
+    if held is not None and cut and not _whole_by_parameters(params, p.stat().st_size,
+                                                              held[1]):
+        raise cut_short()
     labels = [str(s).strip() for s in (_param(params, "POINT", "LABELS") or [])]
     pts = np.asarray(c["data"]["points"], dtype=float)
     n_points = pts.shape[1] if pts.ndim == 3 else 0

@@ -394,3 +394,23 @@ def test_skeleton_c3d_with_detected_gait_events(tmp_path: Path) -> None:
     assert [(e.side, e.kind) for e in r.events] == [(e.side, e.kind) for e in g.events_]
     np.testing.assert_allclose([e.time_s for e in r.events], [e.time_s for e in g.events_],
                                atol=1e-5)
+
+
+def test_a_whole_c3d_file_whose_header_overstates_its_frames_is_read(tmp_path: Path) -> None:
+    """Some writers' headers disagree with their parameters (here the header's analog
+    samples per frame, word 3, with no analog channel in ANALOG:USED): the data is read by
+    the parameters, so a file whole by them is read, never refused as cut short."""
+    m = walk_markers(synth_walk())
+    whole = tmp_path / "whole.c3d"
+    write_c3d(whole, m, units="mm")
+    head = bytearray(whole.read_bytes())
+    head[4:6] = (40).to_bytes(2, "little")  # 40 analog samples a frame, by the header
+    p = tmp_path / "walk.c3d"
+    p.write_bytes(bytes(head))
+    r = read_c3d(p)
+    assert len(r) == 525 and np.allclose(r.positions, read_c3d(whole).positions,
+                                         equal_nan=True)
+    # cut short by both, it is refused (with the header's figures)
+    p.write_bytes(bytes(head[:len(head) // 2]))
+    with pytest.raises(InputError, match="the file is cut short"):
+        read_c3d(p)
