@@ -791,6 +791,66 @@ def _file_error(exc: BaseException, copy: Path, name: str) -> str:
     return why if name in why else f"{name}: {why}"
 
 
+#: The Reports page's disclosure with the options of "Analyse a file".
+FILE_OPTIONS = "Options for files from other labs"
+
+
+def _axis_words(up: str) -> str:
+    """``"-z"`` → ``"Z down"``, ``"y"`` → ``"Y up"`` (the page's vertical-axis choices)."""
+    return f"{up[-1].upper()} {'down' if up.startswith('-') else 'up'}"
+
+
+#: The engine's command-line advice (``gaitrig gait``'s flags) and the Reports page's
+#: words for it, most specific first: a clinician cannot act on "give it with --up".
+_FORM_WORDS: tuple[tuple[re.Pattern[str], Any], ...] = tuple(
+    (re.compile(a), b) for a, b in (
+        (r"give it with --up, e\.g\. --up (-?[xyz])\b",
+         lambda m: f"choose the vertical axis under '{FILE_OPTIONS}', e.g. "
+                   f"{_axis_words(m[1])}"),
+        (r"give it with --up", f"choose the vertical axis under '{FILE_OPTIONS}'"),
+        (r"--up (-?[xyz]) contradicts",
+         lambda m: f"the vertical axis {_axis_words(m[1])} contradicts"),
+        (r"give --up (-?[xyz]) or leave it out",
+         lambda m: f"choose {_axis_words(m[1])} as the vertical axis under "
+                   f"'{FILE_OPTIONS}', or Automatic"),
+        (r"give the units explicitly", f"choose the units under '{FILE_OPTIONS}'"),
+        (r"with --units (\w+)", r"with the units \1"),
+        (r"fix --units or leave it out",
+         f"choose other units under '{FILE_OPTIONS}', or Automatic"),
+        (r"give both --left and --right marker names, or neither",
+         f"give both the left and the right foot marker under '{FILE_OPTIONS}', or neither"),
+        (r"with --left/--right, e\.g\. --left (\S+)",
+         f"by giving the left and right foot markers under '{FILE_OPTIONS}', e.g. \\1 "
+         "as the left one"),
+        (r"with --left/--right the named", "with left and right foot markers given, the "
+         "named"),
+        (r"or --left/--right out", "or leave the left and right foot markers empty"),
+        (r"with --left/--right",
+         f"by giving the left and right foot markers under '{FILE_OPTIONS}'"),
+        (r"leave --left/--right out", "leave the left and right foot markers empty"),
+        (r"--left/--right", "left and right foot markers"),
+        (r"leave --ankle-markers lateral out|leave --ankle-markers out",
+         "set the ankle markers to Automatic"),
+        (r"--ankle-markers lateral", "ankle markers 'On the lateral malleoli'"),
+        (r"--ankle-markers joint", "ankle markers 'At the ankle joint centres'"),
+        (r"--ankle-markers", "the ankle markers"),
+        (r"leave --ankle-width-mm out", "leave the ankle width empty"),
+        (r"--ankle-width-mm 70 or --ankle-width-mm 68,72", "70 or 68,72"),
+        (r"--ankle-width-mm", "the ankle width"),
+    ))
+
+
+def form_words(message: str) -> str:
+    """A refusal of "Analyse a file" in the Reports page's words: the engine's
+    command-line advice ("give it with --up, e.g. --up x", "give the units explicitly")
+    becomes the page's fields under "Options for files from other labs" ("choose the
+    vertical axis under 'Options for files from other labs', e.g. X up"). The CLI keeps
+    its own wording; messages without such advice are returned unchanged."""
+    for pattern, repl in _FORM_WORDS:
+        message = pattern.sub(repl, message)
+    return message
+
+
 #: Name start of a report reference's temporary upload folder (which ends in ``.tmp``).
 _UPLOAD_PREFIX = ".reference-upload-"
 
@@ -846,11 +906,19 @@ async def upload_report(request: Request, file: UploadFile, user: CurrentUser, d
                         ankle_markers: Literal["auto", "lateral", "joint"] = "auto",
                         ankle_width_mm: str | None = Query(None, max_length=32, description=(
                             "ankle width(s) in mm, one for both feet or left,right "
-                            "(gaitrig gait --ankle-width-mm)"))) -> Response:
+                            "(gaitrig gait --ankle-width-mm)")),
+                        units: Literal["mm", "cm", "m"] | None = Query(None, description=(
+                            "length unit of the file's coordinates, overriding the file's "
+                            "own (gaitrig gait --units)")),
+                        advice: Literal["cli", "form"] = Query("cli", description=(
+                            "how a refusal names the options: 'cli' as gaitrig gait's flags "
+                            "(--up), 'form' as the Reports page's fields"))) -> Response:
     """Report of an uploaded C3D/TRC/skeleton-CSV file (kept only while analysed).
 
     The subject code comes in the multipart form, never in the URL. ``left``, ``right``,
-    ``up``, ``ankle_markers`` and ``ankle_width_mm`` are ``gaitrig gait``'s options.
+    ``up``, ``units``, ``ankle_markers`` and ``ankle_width_mm`` are ``gaitrig gait``'s
+    options; with ``advice=form`` (the Reports page) a refusal names them as the page's
+    fields under "Options for files from other labs" instead of as command-line flags.
     """
     import anyio
 
@@ -860,8 +928,9 @@ async def upload_report(request: Request, file: UploadFile, user: CurrentUser, d
         try:
             widths_m = tuple(float(x) / 1000.0 for x in ankle_width_mm.split(","))
         except ValueError:
+            what = ("the ankle width" if advice == "form" else "ankle_width_mm")
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                f"ankle_width_mm {ankle_width_mm!r} is not a width in mm: give "
+                                f"{what} {ankle_width_mm!r} is not a width in mm: give "
                                 "one number for both feet or left,right, e.g. 70 or 68,72"
                                 ) from None
 
@@ -870,14 +939,14 @@ async def upload_report(request: Request, file: UploadFile, user: CurrentUser, d
 
         def work() -> Response:
             try:
-                res = an.analyse_file(path, method, left, right, up, None, ankle_markers,
+                res = an.analyse_file(path, method, left, right, up, units, ankle_markers,
                                       widths_m)
                 res["rec_id"] = Path(file.filename or "upload").name[-80:]
                 data = an.build_report(subject, [res], title="Gait report (uploaded file)")
             except GaitrigError as exc:
+                why = _file_error(exc, path, file.filename or "the file")
                 raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    _file_error(exc, path, file.filename or "the file")
-                                    ) from exc
+                                    form_words(why) if advice == "form" else why) from exc
             return _respond(data, format, f"gait-report-{subject}")
 
         out = await anyio.to_thread.run_sync(work)
