@@ -453,6 +453,14 @@
     // the code goes in the form: a URL is kept in access logs and browser history
     fd.append("subject", code);
     const q = new URLSearchParams({ format, method: $("file-method").value });
+    // "Options for files from other labs": only what differs from automatic is sent; a
+    // refusal names these fields (advice=form), not gaitrig gait's flags
+    const opts = { up: $("file-up").value, units: $("file-units").value,
+      left: $("file-left").value.trim(), right: $("file-right").value.trim(),
+      ankle_markers: $("file-ankle").value === "auto" ? "" : $("file-ankle").value,
+      ankle_width_mm: $("file-width").value.replace(/\s+/g, "") };
+    for (const [k, v] of Object.entries(opts)) if (v) q.set(k, v);
+    q.set("advice", "form");
     if (format === "pdf") {
       // multipart POST: fetch, then hand the blob to the browser
       say("file-msg", `Analysing ${f.name}…`);
