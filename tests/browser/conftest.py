@@ -182,6 +182,21 @@ def live_server() -> Iterator[LiveServer]:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def short_recording(server: LiveServer, session_id: int, label: str) -> str:
+    """A short recording ``label`` of ``session_id``, copied to the server; its id."""
+    rid = str(server.api(f"/api/sessions/{session_id}/recordings",
+                         {"label": label, "streams": [], "image_every": 3})["id"])
+    deadline = time.time() + 90
+    while not all(p["n_frames"] > 0 for p in server.api(f"/api/recordings/{rid}")["parts"]):
+        assert time.time() < deadline, f"recording {rid} got no frame from every sensor"
+        time.sleep(0.1)
+    server.api(f"/api/recordings/{rid}/stop", {})
+    while server.api(f"/api/storage/recordings/{rid}")["state"] != "complete":
+        assert time.time() < deadline, f"recording {rid} was not copied"
+        time.sleep(0.3)
+    return rid
+
+
 #: Straight walking (s, in one pass of the simulated walker) a :func:`record_walk` holds:
 #: ≈ 6 steps at its 0.59 s step time — two or more after the analysis leaves out a pass's
 #: first steps, wherever the recording starts.

@@ -15,14 +15,13 @@
 from __future__ import annotations
 
 import re
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.browser.conftest import LiveServer, login, record_walk, screenshot
+from tests.browser.conftest import LiveServer, login, record_walk, screenshot, short_recording
 
 pytestmark = pytest.mark.browser
 
@@ -250,21 +249,6 @@ def test_live_caption_describes_the_picture_shown(page: Any, live_server: LiveSe
     assert not page.js_errors, page.js_errors
 
 
-def _short_recording(server: LiveServer, session_id: int, label: str) -> str:
-    """A short recording ``label`` of ``session_id``, copied to the server; its id."""
-    rid = str(server.api(f"/api/sessions/{session_id}/recordings",
-                         {"label": label, "streams": [], "image_every": 3})["id"])
-    deadline = time.time() + 90
-    while not all(p["n_frames"] > 0 for p in server.api(f"/api/recordings/{rid}")["parts"]):
-        assert time.time() < deadline, f"recording {rid} got no frame from every sensor"
-        time.sleep(0.1)
-    server.api(f"/api/recordings/{rid}/stop", {})
-    while server.api(f"/api/storage/recordings/{rid}")["state"] != "complete":
-        assert time.time() < deadline, f"recording {rid} was not copied"
-        time.sleep(0.3)
-    return rid
-
-
 def test_reports_recording_list_is_read_whole(laptop: Any, live_server: LiveServer,
                                               artifacts_dir: Path) -> None:
     """The Reports page's recording list showed "walk 3 self-selected speed — LAP05, Nov
@@ -273,7 +257,7 @@ def test_reports_recording_list_is_read_whole(laptop: Any, live_server: LiveServ
     chosen recording's whole text is written under its list."""
     page = laptop
     sid, session_id = _subject(live_server, "Laptop recordings", "LAP05")
-    rids = [_short_recording(live_server, session_id, f"walk {k} self-selected speed")
+    rids = [short_recording(live_server, session_id, f"walk {k} self-selected speed")
             for k in (1, 2, 3)]
     page.goto(f"{live_server.base_url}/reports.html#subject={sid}")
     page.wait_for_function(f"[...document.querySelectorAll('#recording option')]"

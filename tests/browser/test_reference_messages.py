@@ -11,13 +11,12 @@ file (``reports_reference_from_subjects_page.png``, ``reports_reference_attached
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.browser.conftest import LiveServer, screenshot
+from tests.browser.conftest import LiveServer, screenshot, short_recording
 
 pytestmark = pytest.mark.browser
 
@@ -34,17 +33,7 @@ def _recording(server: LiveServer, code: str) -> str:
     pid = server.api("/api/projects", {"name": f"References {code}"})["id"]
     sid = server.api("/api/subjects", {"project_id": pid, "code": code})["id"]
     se = server.api("/api/sessions", {"subject_id": sid, "label": "visit"})["id"]
-    rid = str(server.api(f"/api/sessions/{se}/recordings",
-                         {"label": "walk 1", "streams": [], "image_every": 3})["id"])
-    deadline = time.time() + 90
-    while not all(p["n_frames"] > 0 for p in server.api(f"/api/recordings/{rid}")["parts"]):
-        assert time.time() < deadline, f"recording {rid} got no frame from every sensor"
-        time.sleep(0.1)
-    server.api(f"/api/recordings/{rid}/stop", {})
-    while server.api(f"/api/storage/recordings/{rid}")["state"] != "complete":
-        assert time.time() < deadline, f"recording {rid} was not copied"
-        time.sleep(0.3)
-    return rid
+    return short_recording(server, se, "walk 1")
 
 
 def test_reports_page_says_what_a_damaged_c3d_is_not(page: Any, live_server: LiveServer,
