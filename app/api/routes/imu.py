@@ -92,9 +92,6 @@ _ALLOWED_SUFFIXES = (".csv", ".txt", ".tsv", ".mat", ".hdf5", ".h5", ".mvnx", ".
 #: ≈12 GB, and 12 files of 64 MB were allowed beside them; one phone recording of this
 #: size is over two hours of Sensor Logger at 100 Hz
 MAX_REQUEST_DATA_BYTES = 256 * 2**20
-#: the old name (it bounded the zips first, then the CSVs too); the route reads
-#: ``MAX_REQUEST_DATA_BYTES``: change that one
-MAX_ZIPS_UNPACKED_BYTES = MAX_REQUEST_DATA_BYTES
 #: files read as text, counted at their size against ``MAX_REQUEST_DATA_BYTES``
 _TEXT_SUFFIXES = (".csv", ".txt", ".tsv")
 #: streams of one session once MVNX exports are split per tracker (a full-body suit: 17)

@@ -317,8 +317,7 @@ def test_binary_files_count_against_the_request_budget(
     from app.server.imu_analysis import ImuStore
     from engine.imu.io import estimate_memory_bytes
 
-    # 256 MB, under the old name too
-    assert route.MAX_ZIPS_UNPACKED_BYTES == 256 * 2**20 == route.MAX_REQUEST_DATA_BYTES
+    assert route.MAX_REQUEST_DATA_BYTES == 256 * 2**20
     rec = sims["Pelvis"]
     mat = _madgwick_mat(tmp_path / "walk.mat", rec)
     h5 = _broad_hdf5(tmp_path / "trial.hdf5", len(rec))
