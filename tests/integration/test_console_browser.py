@@ -38,8 +38,14 @@ def test_login_and_rig_page(make_rig: object, artifacts_dir: Path, browser: Any)
         s1 = page.inner_text("tr[data-node='S1']")
         assert "online" in s1 and "fps" in s1
         # S1's clock is 200 ms off: shown, with the plain-words note; S2 needs no note
-        assert re.search(r"(199\.[5-9]\d|200\.[0-4]\d) ms ± 0\.\d+ ms", s1), s1
-        assert re.search(r"differs from the server by \+(199\.[5-9]|200\.[0-4]) ms", s1), s1
+        # (the true 200 ms within the uncertainty shown, and that below the 2 ms warning:
+        # on a loaded machine the estimate is 0.5-1 ms off, and says so)
+        m = re.search(r"(\d+\.\d\d) ms ± (\d+\.\d\d) ms", s1)
+        assert m, s1
+        offset, sd = float(m[1]), float(m[2])
+        assert sd < 2.0 and abs(offset - 200.0) <= max(0.5, sd), s1
+        note = re.search(r"differs from the server by \+(\d+\.\d) ms", s1)
+        assert note and abs(float(note[1]) - offset) <= 0.05, s1
         assert "Clock" not in page.inner_text("tr[data-node='S2'] td:last-child")
         # record from the console: both sensors, complete on the nodes after stop
         page.click("#record")
