@@ -113,9 +113,10 @@ def _walk(params: WalkerParams, seed: int) -> tuple[Walker, float]:
 
 def _paper_analysis() -> GaitAnalysis:
     """The paper's gait analysis: placement at the crossing instant, fixed walkway axis,
-    its exclusion rule taken literally (first left step, first right stride)."""
+    its exclusion rule taken literally (first left step, first right stride), crossings
+    only between consecutive samples (its data's gaps were filled up to 0.2 s only)."""
     return GaitAnalysis("crossing", exclude_first="L", placement_window_s=0.0,
-                        direction=PAPER_AXIS)
+                        direction=PAPER_AXIS, max_crossing_gap_s=0.0)
 
 
 def _our_analysis() -> GaitAnalysis:

@@ -84,6 +84,11 @@ STANDING_MIN_S = 0.3
 STANDING_LEFT_M = 0.1
 #: How far back (s) before the first crossing a pass's standing start is looked for.
 STANDING_LOOKBACK_S = 2.5
+#: Gaps (s) in the body centre shorter than this do not split a straight pass: a
+#: sensor group on one side loses the far ankle for ≈ 0.2-0.4 s as it passes behind the
+#: near leg, which split a pass at every hidden crossing (a stride is ≥ 0.8 s, so a gap
+#: this short cannot hide a turn).
+MAX_CENTRE_GAP_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -173,6 +178,25 @@ def _interp_rows(t: FloatArray, x: FloatArray, tq: float) -> FloatArray:
     return np.array([np.interp(tq, t, x[:, k]) for k in range(x.shape[1])])
 
 
+def _interp_across(t: FloatArray, x: FloatArray, tq: float, max_gap_s: float) -> FloatArray:
+    """``x`` at ``tq`` from its finite rows: linear between the finite rows on either side
+    when they are at most ``max_gap_s`` apart (a foot hidden for a moment at a crossing),
+    NaN otherwise."""
+    ok: NDArray[np.bool_] = np.asarray(np.isfinite(x).all(axis=1), dtype=bool)
+    j = int(np.searchsorted(t, tq))
+    if j < len(t) and t[j] == tq and ok[j]:
+        return np.array(x[j], dtype=float)
+    before = np.flatnonzero(ok[:j])
+    after = np.flatnonzero(ok[j:])
+    if len(before) == 0 or len(after) == 0:
+        return np.full(x.shape[1], np.nan)
+    a, b = int(before[-1]), j + int(after[0])
+    if t[b] - t[a] > max(max_gap_s, 1.5 * float(np.median(np.diff(t)))):
+        return np.full(x.shape[1], np.nan)
+    u = (tq - t[a]) / (t[b] - t[a]) if t[b] > t[a] else 0.0
+    return np.asarray((1.0 - u) * x[a] + u * x[b], dtype=float)
+
+
 def _nan_fill(t: FloatArray, x: FloatArray) -> FloatArray:
     """NaNs replaced by linear interpolation/edge values (for smoothing only)."""
     out = np.array(x, dtype=float, copy=True)
@@ -183,13 +207,26 @@ def _nan_fill(t: FloatArray, x: FloatArray) -> FloatArray:
     return out
 
 
+def _bridge_short_gaps(times: FloatArray, ok: NDArray[np.bool_], max_gap_s: float
+                       ) -> NDArray[np.bool_]:
+    """``ok`` with its interior runs of False spanning less than ``max_gap_s`` (from the
+    last good sample before to the first after) set True."""
+    out = np.array(ok, dtype=bool, copy=True)
+    good = np.flatnonzero(ok)
+    for a, b in itertools.pairwise(good):
+        if b > a + 1 and times[b] - times[a] < max_gap_s:
+            out[a + 1:b] = True
+    return out
+
+
 def find_passes(times: FloatArray, centre: FloatArray, rate: float) -> list[WalkPass]:
     """Split a recording into straight walking passes.
 
     The horizontal body centre is smoothed over ~0.8 s (about one stride, which removes
     the side-to-side sway of each step); samples faster than :data:`MIN_WALK_SPEED` and
-    turning slower than :data:`MAX_STRAIGHT_TURN_RATE` form straight runs; a run's
-    direction is its principal axis on the floor, oriented along its travel.
+    turning slower than :data:`MAX_STRAIGHT_TURN_RATE` form straight runs (gaps in the
+    centre shorter than :data:`MAX_CENTRE_GAP_S` are bridged); a run's direction is its
+    principal axis on the floor, oriented along its travel.
 
     Args:
         times: ``(T,)`` seconds.
@@ -200,11 +237,12 @@ def find_passes(times: FloatArray, centre: FloatArray, rate: float) -> list[Walk
         The straight passes in time order (start and end times in s, unit direction
         on the floor).
     """
-    ok = np.isfinite(centre[:, :2]).all(axis=1)
+    ok: NDArray[np.bool_] = np.asarray(np.isfinite(centre[:, :2]).all(axis=1), dtype=bool)
     if ok.sum() < 3:
         return []
     c = _nan_fill(times, centre[:, :2])
     c[: np.argmax(ok)] = c[np.argmax(ok)]
+    ok = _bridge_short_gaps(times, ok, MAX_CENTRE_GAP_S)
     # scipy where it is used: the server imports this module at start and needs none
     from scipy.ndimage import uniform_filter1d
 
@@ -452,6 +490,15 @@ class GaitAnalysis:
             pass; None (default) finds it per pass from the footprints. A fixed axis
             that is off the true line of progression by an angle ψ biases left and right
             step widths by ∓ψ·step length (the pattern of seed 000's Tables 2–3).
+        max_crossing_gap_s: crossing method: a crossing hidden in a gap of one ankle's
+            trajectory shorter than this (s) is still found, between the samples on
+            either side of the gap (with :data:`placement_window_s` > 0 its instant is
+            where a shape-preserving interpolation of the swinging foot passes the placed
+            one). Sensors on one side of a walkway lose the far ankle for ≈ 0.2–0.4 s as
+            it passes behind the near leg, i.e. at the crossing itself; without this such
+            crossings are missed and the steps around them dropped. 0: only crossings
+            between consecutive samples (the paper's data had its gaps filled only up to
+            the fusion's 0.2 s).
 
     Attributes (after :meth:`fit`; seconds on the input's time axis, metres on the floor):
         passes_: straight passes with their directions.
@@ -472,7 +519,8 @@ class GaitAnalysis:
                  exclude_first: bool | Literal["auto", "L", "R"] = "auto",
                  min_event_period_s: float = 0.4, placement_window_s: float = 0.3,
                  direction: tuple[float, float] | None = None,
-                 refine_events: bool | Literal["auto"] = "auto") -> None:
+                 refine_events: bool | Literal["auto"] = "auto",
+                 max_crossing_gap_s: float = 0.5) -> None:
         if method not in ("crossing", "heelstrike"):
             raise InputError(f"method must be 'crossing' or 'heelstrike', got {method!r}")
         if exclude_first not in (True, False, "auto", "L", "R"):
@@ -486,6 +534,10 @@ class GaitAnalysis:
         if not 0.0 <= placement_window_s <= 0.3:
             raise InputError("placement_window_s must be within [0, 0.3] s")
         self.placement_window_s = float(placement_window_s)
+        if not 0.0 <= max_crossing_gap_s <= 1.0:
+            raise InputError("max_crossing_gap_s must be within [0, 1] s (a longer gap "
+                             "can hide a whole step)")
+        self.max_crossing_gap_s = float(max_crossing_gap_s)
         self.direction: tuple[float, float] | None = None
         if direction is not None:
             d = np.asarray(direction, dtype=float).ravel()
@@ -536,10 +588,17 @@ class GaitAnalysis:
         # joint centre estimated from a lateral marker changes neither method's passes.
         pL, pR = (feet.points[s]["ankle"] if feet.primary[s] == "ankle_centre"
                   else feet.foot(s) for s in ("L", "R"))
-        if feet.pelvis is not None and np.isfinite(feet.pelvis).all(axis=1).sum() > len(t) // 2:
+        # The pelvis when it is seen at least as often as both feet together (or in most
+        # frames): with sensors on one side only, the far ankle is hidden for a moment
+        # at every crossing while the pelvis stays in view.
+        mid_feet = 0.5 * (pL + pR)
+        n_pelvis = (int(np.isfinite(feet.pelvis).all(axis=1).sum())
+                    if feet.pelvis is not None else 0)
+        n_mid = int(np.isfinite(mid_feet).all(axis=1).sum())
+        if feet.pelvis is not None and (n_pelvis > len(t) // 2 or n_pelvis >= max(n_mid, 3)):
             centre = feet.pelvis
         else:
-            centre = 0.5 * (pL + pR)
+            centre = mid_feet
         self.passes_ = find_passes(t, centre, rate)
         if self.direction is not None:
             # A fixed axis, oriented along each pass's travel (back-and-forth walks).
@@ -614,12 +673,18 @@ class GaitAnalysis:
         diff = (pL - pR) @ d
         diff[~m] = np.nan
         xL, xR = pL @ d, pR @ d
+        # Crossings between consecutive samples, and across a gap of one ankle shorter
+        # than max_crossing_gap_s (the far ankle hidden behind the near leg as it passes
+        # it, seen from one side): the gap's bracketing samples are interpolated.
         cross: list[tuple[int, float]] = []
-        for i in np.flatnonzero(np.isfinite(diff[:-1]) & np.isfinite(diff[1:])):
-            a, b = diff[i], diff[i + 1]
+        fin = np.flatnonzero(np.isfinite(diff))
+        for i, i2 in itertools.pairwise(fin):
+            if i2 > i + 1 and t[i2] - t[i] > self.max_crossing_gap_s:
+                continue
+            a, b = diff[i], diff[i2]
             if a == 0 or a * b < 0:
                 u = a / (a - b) if a != b else 0.0
-                cross.append((int(i), float(t[i] + u * (t[i + 1] - t[i]))))
+                cross.append((int(i), float(t[i] + u * (t[i2] - t[i]))))
         # Remove wiggles: consecutive crossings whose excursion between them is tiny
         # (noise around a crossing) are dropped in pairs.
         amp = np.nanpercentile(np.abs(diff), 90) if np.isfinite(diff).any() else 0.0
@@ -677,7 +742,8 @@ class GaitAnalysis:
             placed = self._stance_position(t, feet.foot(side), tc)
             if self.placement_window_s > 0:
                 tc = self._refine_crossing(t, xR if side == "L" else xL, float(placed @ d), tc)
-            other = _interp_rows(t, feet.foot("R" if side == "L" else "L"), tc)
+            other = _interp_across(t, feet.foot("R" if side == "L" else "L"), tc,
+                                   self.max_crossing_gap_s)
             pe.placements.append((side, tc, placed, other))
         if pe.placements and v_pass > 0:
             first = self._standing_placement(feet, d, pe.placements[0], t_prev)
@@ -798,13 +864,38 @@ class GaitAnalysis:
         """
         m = np.flatnonzero((t >= tc - 0.1) & (t <= tc + 0.1) & np.isfinite(x_swing))
         if len(m) < 2:
-            return tc
+            return GaitAnalysis._crossing_in_gap(t, x_swing, x_placed, tc)
         roots = []
         for a, b in itertools.pairwise(m):
             ya, yb = x_swing[a] - x_placed, x_swing[b] - x_placed
             if b == a + 1 and ya < 0 <= yb:
                 roots.append(float(t[a] + ya / (ya - yb) * (t[b] - t[a])))
-        return min(roots, key=lambda r: abs(r - tc)) if roots else tc
+        if roots:
+            return min(roots, key=lambda r: abs(r - tc))
+        return GaitAnalysis._crossing_in_gap(t, x_swing, x_placed, tc)
+
+    @staticmethod
+    def _crossing_in_gap(t: FloatArray, x_swing: FloatArray, x_placed: float, tc: float
+                         ) -> float:
+        """When the swinging foot is hidden around ``tc``: the instant a shape-preserving
+        (PCHIP) interpolation of its finite samples within ±0.5 s passes ``x_placed``,
+        inside the gap that holds ``tc``; ``tc`` when there is no such gap or root. A
+        swinging foot moves monotonically forward, which PCHIP keeps (a straight line
+        across the gap would put the crossing at the gap's mean speed)."""
+        from scipy.interpolate import PchipInterpolator
+
+        w = np.flatnonzero((t >= tc - 0.5) & (t <= tc + 0.5) & np.isfinite(x_swing))
+        before, after = w[t[w] <= tc], w[t[w] > tc]
+        if len(before) < 2 or len(after) < 2 or after[0] == before[-1] + 1:
+            return tc
+        ta, tb = float(t[before[-1]]), float(t[after[0]])
+        grid = np.linspace(ta, tb, max(3, int(np.ceil((tb - ta) / 0.002)) + 1))
+        y = PchipInterpolator(t[w], x_swing[w])(grid) - x_placed
+        up = np.flatnonzero((y[:-1] < 0) & (y[1:] >= 0))
+        if len(up) == 0:
+            return tc
+        k = up[np.argmin(np.abs(grid[up] - tc))]
+        return float(grid[k] + y[k] / (y[k] - y[k + 1]) * (grid[k + 1] - grid[k]))
 
     def _zeni_events(self, feet: FeetTrajectories, wp: WalkPass,
                      centre: FloatArray) -> _PassEvents:
@@ -899,7 +990,7 @@ class GaitAnalysis:
         for as long as the foot stays within :data:`STANCE_OUTLIER_M` of that median
         without a break (at most :data:`STANCE_MAX_HALF_S` from the crossing).
         """
-        p = _interp_rows(t, x, tc)
+        p = _interp_across(t, x, tc, self.max_crossing_gap_s)
         if self.placement_window_s <= 0:
             return p
         m = (t >= tc - self.placement_window_s) & (t <= tc + self.placement_window_s)

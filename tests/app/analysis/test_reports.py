@@ -214,7 +214,7 @@ def test_one_sided_vs_two_sided(recorded: Recorded) -> None:
     # The report of a subset says so.
     code, html, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/report"
                                  "?sensors=S1,S3,S5")
-    assert code == 200
+    assert code == 200, html  # the refusal's words: e.g. too few steps seen from one side
     assert "sensors on the left of the walkway (S1, S3, S5)" in html.decode()
     assert "subset of its sensors" in html.decode()
     code, cmp, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/compare"
