@@ -16,7 +16,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 from fastapi import APIRouter, FastAPI, UploadFile
 from fastapi.routing import APIRoute, iter_route_contexts
@@ -367,21 +366,12 @@ def test_int_ids_beyond_the_database_range_are_404(client: TestClient) -> None:
 # ------------------------------------------------------------------------ 3. uploads
 
 
-def _skeleton_csv(n: int = 40) -> bytes:
-    """A small valid skeleton CSV (Kinect v2 joints standing still)."""
-    from engine.io.csv import write_skeleton_csv
-    from engine.skeleton import KINECT_V2, SkeletonSeries
+def _skeleton_csv() -> bytes:
+    """A small valid skeleton CSV of a walk (Kinect v2 joints): a reference the Subjects
+    page accepts (one standing still has no steps, and is refused)."""
+    from tests.app.mocap_files import walk_skeleton_csv
 
-    J = len(KINECT_V2.joints)
-    rng = np.random.default_rng(0)
-    pos = np.tile(rng.normal(size=(1, J, 3)), (n, 1, 1)) + np.array([2.0, 0.0, 1.0])
-    s = SkeletonSeries(np.arange(n) / 30.0, pos, np.full((n, J), 2, np.uint8), KINECT_V2)
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as d:
-        p = Path(d) / "s.csv"
-        write_skeleton_csv(p, s)
-        return p.read_bytes()
+    return walk_skeleton_csv()
 
 
 def _filed_recording(client: TestClient, h: dict[str, str], rec_id: str) -> None:

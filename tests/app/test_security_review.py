@@ -555,7 +555,8 @@ def test_uploaded_file_names_are_never_paths(client: TestClient, tmp_path: Path,
     before = {p for p in tmp_path.rglob("*") if p.is_file()}
     r = client.post("/api/exports/R1/references", headers={"Origin": BASE},
                     files={"file": ("../../../../evil.c3d", bytes(raw))})
-    assert r.status_code in (201, 400), r.text
+    # (422: read, but the gait analysis finds no steps in what it holds)
+    assert r.status_code in (201, 400, 422), r.text
     assert str(tmp_path) not in r.text
     if r.status_code == 201:
         assert r.json()["filename"] == "evil.c3d"

@@ -5,11 +5,9 @@ files; a reference import's file is in place before its row commits."""
 from __future__ import annotations
 
 import os
-import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
@@ -85,16 +83,11 @@ def test_the_server_cleans_up_when_it_starts(tmp_path: Path) -> None:
     assert all(p.exists() for p in keep if p.name != "abcdefabcdefabcd.csv")
 
 
-def _skeleton_csv(n: int = 40) -> bytes:
-    from engine.io.csv import write_skeleton_csv
-    from engine.skeleton import KINECT_V2, SkeletonSeries
+def _skeleton_csv() -> bytes:
+    """A skeleton CSV of a walk: a reference the Subjects page accepts."""
+    from tests.app.mocap_files import walk_skeleton_csv
 
-    J = len(KINECT_V2.joints)
-    pos = np.tile(np.random.default_rng(0).normal(size=(1, J, 3)), (n, 1, 1)) + 2.0
-    s = SkeletonSeries(np.arange(n) / 30.0, pos, np.full((n, J), 2, np.uint8), KINECT_V2)
-    with tempfile.TemporaryDirectory() as d:
-        write_skeleton_csv(Path(d) / "s.csv", s)
-        return (Path(d) / "s.csv").read_bytes()
+    return walk_skeleton_csv()
 
 
 def test_a_reference_import_lands_before_its_row(admin_client: TestClient, tmp_path: Path,

@@ -174,10 +174,15 @@ def test_a_stored_reference_that_cannot_be_used_is_named_once(admin_client: Test
 
     for rec_id, code in (("R1", "UP1"), ("R2", "UP2")):
         _filed_recording(admin_client, tmp_path, rec_id, code)
-    # R1: attached on the Subjects page (readable, so taken), holding no walk
-    r = admin_client.post("/api/exports/R1/references",
-                          files={"file": ("still walk.trc", STILL_TRC.encode(), "text/plain")})
+    # R1: attached on the Subjects page, holding no walk (as one attached before that page
+    # checked for steps: it now refuses such a file, tests/app/test_reference_walk_check.py)
+    from tests.app.mocap_files import walk_trc
+
+    r = admin_client.post("/api/exports/R1/references", files={"file": (
+        "still walk.trc", walk_trc(tmp_path / "walk.trc").read_bytes(), "text/plain")})
     assert r.status_code == 201, r.text
+    (stored_r1,) = (tmp_path / "references" / "R1").iterdir()
+    stored_r1.write_text(STILL_TRC)
     # R2: attached on the Reports page, damaged on the server since
     whole = tmp_path / "whole.c3d"
     write_c3d(whole, walk_markers(synth_walk()), units="mm")

@@ -124,3 +124,48 @@ def test_reports_page_names_the_reference_its_reports_use(page: Any, live_server
     page.click("#ref-remove")
     page.wait_for_function(f"{state}.startsWith('None attached here: reports use')")
     assert not page.js_errors
+
+
+def test_subjects_page_refuses_a_reference_with_no_walk(page: Any, live_server: LiveServer,
+                                                        artifacts_dir: Path,
+                                                        tmp_path: Path) -> None:
+    """A reference with no walk in it (the subject standing) was attached on the Subjects
+    page and only said so later, as a note in the report: it is refused where it was
+    attached, naming the file and what to do, and the reference attached before stays
+    (``subjects_reference_no_walk.png``)."""
+    from tests.app.mocap_files import standing_trc, walk_trc
+
+    pid = live_server.api("/api/projects", {"name": "References REFM3"})["id"]
+    sid = live_server.api("/api/subjects", {"project_id": pid, "code": "REFM3"})["id"]
+    se = live_server.api("/api/sessions", {"subject_id": sid, "label": "visit"})["id"]
+    rid = short_recording(live_server, se, "walk 1")
+    good = walk_trc(tmp_path / "vicon walk.trc")
+    r = page.request.post(f"{live_server.base_url}/api/exports/{rid}/references",
+                          multipart={"file": {"name": good.name, "mimeType": "text/plain",
+                                              "buffer": good.read_bytes()}})
+    assert r.status == 201, r.text()
+    still = standing_trc(tmp_path / "standing still.trc")
+
+    page.goto(f"{live_server.base_url}/subjects.html#subject={sid}")
+    box_sel = f".recording[data-recording='{rid}'] .actions:has(input[type=file])"
+    page.locator(f"{box_sel} a.button").wait_for()
+    page.locator(f"{box_sel} input[type=file]").set_input_files(str(still))
+    page.locator(f"{box_sel} button").click()
+    page.wait_for_function(
+        f"document.querySelector(\"{box_sel} .msg\").textContent.includes('ot attached')")
+    said = page.text_content(f"{box_sel} .msg") or ""
+    # beside the button pressed, the file named once, what is wrong and what to do
+    assert said.startswith("Not attached: 'standing still.trc' has no walk in it: "
+                           "0 steps found"), said
+    assert "attach the reference recording of this walk" in said.lower(), said
+    assert "'vicon walk.trc' stays attached" in said and said.count("standing still") == 1
+    assert "bad" in (page.get_attribute(f"{box_sel} .msg", "class") or "")
+    assert page.locator(f"{box_sel} button").is_enabled()
+    # the reference attached before is still listed, and the only one
+    assert page.locator(f"{box_sel} a.button").all_inner_texts() == [
+        "reference vicon walk.trc (TRC, 50 Hz, 10 labels)"]
+    assert [x["filename"] for x in live_server.api(f"/api/exports/{rid}/references")] == [
+        "vicon walk.trc"]
+    screenshot(page, artifacts_dir, "subjects_reference_no_walk",
+               f".recording[data-recording='{rid}']")
+    assert not page.js_errors

@@ -17,6 +17,7 @@ import json
 import os
 import re
 import secrets
+import tempfile
 import time
 from pathlib import Path, PurePath
 from typing import Annotated, Any, Literal
@@ -38,6 +39,7 @@ from app.api.routes._data import (
 )
 from app.db import data as m
 from app.server import erasures
+from app.server.analysis import reference_steps
 from app.server.recording_file import fsync_dir
 from app.server.storage import (
     check_id,
@@ -53,7 +55,7 @@ from app.server.storage import (
     sensor_streams,
     uniform_series,
 )
-from engine.errors import GaitrigError
+from engine.errors import GaitrigError, InsufficientDataError
 
 router = APIRouter(prefix="/exports", route_class=BoundedRoute, tags=["data"])
 
@@ -189,6 +191,14 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
             raise HTTPException(status.HTTP_400_BAD_REQUEST, why if name in why else
                                 f"{name!r} is not a readable {ext.upper()} file: {why}"
                                 ) from exc
+        # The report's gait analysis of it, now: a readable file with no walk in it (the
+        # subject standing, fewer than two steps, no ankle or heel markers recognised)
+        # was stored and only said so later, as a note in the report. Bounded as the read
+        # is: by MAX_REFERENCE_BYTES, in a worker thread.
+        attached = [x.filename for x in rec.references]
+        why_not = await asyncio.to_thread(_walk_refusal, tmp, ext, name, attached)
+        if why_not is not None:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, why_not)
         try:
             os.replace(tmp, path)
             fsync_dir(folder)
@@ -211,6 +221,50 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
     finally:
         note_changed(folder)  # the recording's bytes on the server (GET /api/storage)
     return reference_json(ref)
+
+
+def _walk_refusal(tmp: Path, ext: str, name: str, attached: list[str]) -> str | None:
+    """Why the report's gait analysis (:func:`app.server.analysis.reference_steps`) finds
+    no steps in the upload ``tmp`` (a ``.{ext}`` file named ``name``), or None when it
+    does. The analysis tells the format by the file's extension, which the upload's
+    temporary name hides: it reads the file through a link named ``reference.{ext}`` in a
+    private temporary folder (outside the data folder: nothing for a backup to take)."""
+    with tempfile.TemporaryDirectory(prefix="gaitrig-reference-check-") as d:
+        link = Path(d) / f"reference.{ext}"
+        os.symlink(tmp.resolve(), link)
+        try:
+            reference_steps(link)
+        except GaitrigError as exc:
+            return _no_walk(exc, link, name, attached)
+    return None
+
+
+def _no_walk(exc: GaitrigError, copy: Path, name: str, attached: list[str]) -> str:
+    """Why the reference ``name`` (read from ``copy``) was refused by the gait analysis,
+    in a clinician's words: what is wrong, what to do, and that a reference ``attached``
+    before stays ("'standing.trc' has no walk in it: 0 steps found — no straight walking
+    (…). Attach the reference recording of this walk: …"). The engine's advice for
+    recordings (place or add sensors) and for ``gaitrig gait`` (``--left/--right``) is
+    left out: neither can be followed on the Subjects page."""
+    why = refusal(exc, copy, name)
+    if isinstance(exc, InsufficientDataError):
+        # the reason, without the advice on recording that follows it
+        found = why.split(". ", 1)[0].rstrip(".")
+        if found.startswith("no straight walking found"):
+            found = "0 steps found — no straight walking" + found.removeprefix(
+                "no straight walking found")
+        lead = f"{name!r} has no walk in it: {found}"
+    else:  # no usable foot markers, a length unit or vertical axis not recognised, …
+        kept = "; ".join(c for c in why.split("; ") if "--" not in c).rstrip(".")
+        # (a reader's sentence that names the file is said as it is: named once)
+        lead = kept if name in kept else f"{name!r} has no walk the report can use: {kept}"
+    out = (f"{lead}. Attach the reference recording of this walk: the motion-capture file "
+           "of the same trial, with at least two steps and the ankle or heel markers named.")
+    if len(attached) == 1:
+        out += f" {attached[0]!r} stays attached."
+    elif attached:
+        out += f" The {len(attached)} references attached before stay."
+    return out
 
 
 #: Suffix of a reference being uploaded (ends in ``.tmp``: backups leave it out).

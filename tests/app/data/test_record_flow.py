@@ -230,10 +230,15 @@ def check_exports(rig: Rig, server_dir: Path, rec_id: str) -> None:
     assert code == 400 and "depth" in msg
     code, _ = http_error(lambda: download(rig, f"/api/exports/{rec_id}/skeleton?source=..%2Fx"))
     assert code == 400
-    # reference import: a C3D is attached with its labels and rate; junk is refused
-    ref = upload(rig, f"/api/exports/{rec_id}/references", "vicon walk.c3d", fused_c3d)
+    # reference import: a C3D is attached with its labels and rate; junk is refused. (A
+    # synthetic walk as the skeleton export writes it: this 1.5 s recording's own export
+    # has no steps, and a reference without steps is refused, test_reference_walk_check.)
+    from tests.app.mocap_files import walk_skeleton_c3d
+
+    walk_c3d, n_walk = walk_skeleton_c3d()
+    ref = upload(rig, f"/api/exports/{rec_id}/references", "vicon walk.c3d", walk_c3d)
     assert ref["format"] == "c3d" and ref["rate_hz"] == pytest.approx(30.0)
-    assert ref["labels"][:25] == list(KINECT_V2.joints) and ref["n_frames"] == len(mf)
+    assert ref["labels"][:25] == list(KINECT_V2.joints) and ref["n_frames"] == n_walk
     assert read_reference(server_dir / "references" / rec_id / next(
         p.name for p in (server_dir / "references" / rec_id).iterdir()), "c3d").labels
     code, msg = http_error(lambda: upload(rig, f"/api/exports/{rec_id}/references", "x.c3d",

@@ -62,8 +62,11 @@ def test_deleting_a_subject_leaves_no_trace(make_rig: Any, tmp_path: Path) -> No
         rig.api(f"/api/reports/recordings/{rec}/analysis")
     except urllib.error.HTTPError as exc:  # no walk in 1.5 s: the failure is cached too
         assert exc.code == 422, exc
-    c3d = download(rig, f"/api/exports/{rec}/skeleton?format=c3d&source=S2")
-    upload(rig, f"/api/exports/{rec}/references", f"{CODE} vicon.c3d", c3d)
+    # (a synthetic walk: the 1.5 s recording's own export has no steps, and a reference
+    # without steps is refused)
+    from tests.app.mocap_files import walk_skeleton_c3d
+
+    upload(rig, f"/api/exports/{rec}/references", f"{CODE} vicon.c3d", walk_skeleton_c3d()[0])
 
     server = tmp_path / "server"
     nodes = {n: rig.node_dir(n) for n in ("S1", "S2")}
