@@ -295,7 +295,8 @@ def _unswap_legs(E: FloatArray, have: NDArray[np.bool_], js: JointSet, lat: Floa
     pass each other side by side, a step width apart, so a sensor whose ankles' lateral
     order is inverted by more than :data:`SWAP_MARGIN_M` while another sensor sees them
     the right way round by as much has its knee/ankle/foot labels swapped back (a
-    cross-over step seen by every sensor is left alone). With only two sensors a
+    cross-over step seen by every sensor is left alone) — when its ankles, swapped, lie
+    closer on the floor to the right-way sensors' ankles than as they are. With only two sensors a
     per-sample vote cannot tell which is wrong; the body's left/right axis can.
     """
     pairs = [(js.role_index(f"{p}_left"), js.role_index(f"{p}_right"))
@@ -306,8 +307,23 @@ def _unswap_legs(E: FloatArray, have: NDArray[np.bool_], js: JointSet, lat: Floa
     iL, iR = js.role_index("ankle_left"), js.role_index("ankle_right")
     d = np.einsum("sgk,gk->sg", E[:, :, iL] - E[:, :, iR], np.nan_to_num(lat))
     d = np.where(have[:, :, iL] & have[:, :, iR] & np.isfinite(lat[None, :, 0]), d, np.nan)
-    right_way = np.nanmax(np.where(np.isfinite(d), d, -np.inf), axis=0) > SWAP_MARGIN_M
+    good = d > SWAP_MARGIN_M  # (S, G) sensors that see the ankles the right way round
+    right_way = good.any(axis=0)
     swap = (d < -SWAP_MARGIN_M) & right_way[None]  # (S, G)
+    if not swap.any():
+        return E, have
+    # A swap puts each ankle where the other one is: confirm it on the floor against the
+    # right-way sensors' ankles. A lateral order inverted by noise while the feet are a
+    # step apart along the walk (a far-side view's lateral error) is no swap, and
+    # swapping it would move both feet by a step length.
+    ref = np.where(good[..., None, None], E[:, :, [iL, iR], :2], np.nan)  # (S, G, 2, 2)
+    refL, refR = (_nanmedian0(ref[:, :, k]) for k in (0, 1))  # (G, 2) each
+    eL, eR = E[:, :, iL, :2], E[:, :, iR, :2]
+    keep_cost = (np.linalg.norm(eL - refL[None], axis=-1)
+                 + np.linalg.norm(eR - refR[None], axis=-1))
+    swap_cost = (np.linalg.norm(eL - refR[None], axis=-1)
+                 + np.linalg.norm(eR - refL[None], axis=-1))
+    swap &= swap_cost < keep_cost
     if not swap.any():
         return E, have
     E = E.copy()
