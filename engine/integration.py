@@ -307,7 +307,8 @@ def _unswap_legs(E: FloatArray, have: NDArray[np.bool_], js: JointSet, lat: Floa
     iL, iR = js.role_index("ankle_left"), js.role_index("ankle_right")
     d = np.einsum("sgk,gk->sg", E[:, :, iL] - E[:, :, iR], np.nan_to_num(lat))
     d = np.where(have[:, :, iL] & have[:, :, iR] & np.isfinite(lat[None, :, 0]), d, np.nan)
-    good = d > SWAP_MARGIN_M  # (S, G) sensors that see the ankles the right way round
+    # (S, G): sensors that see the ankles the right way round
+    good: NDArray[np.bool_] = np.asarray(d > SWAP_MARGIN_M, dtype=bool)
     right_way = good.any(axis=0)
     swap = (d < -SWAP_MARGIN_M) & right_way[None]  # (S, G)
     if not swap.any():
