@@ -309,7 +309,7 @@ def _unswap_legs(E: FloatArray, have: NDArray[np.bool_], js: JointSet, lat: Floa
     d = np.where(have[:, :, iL] & have[:, :, iR] & np.isfinite(lat[None, :, 0]), d, np.nan)
     # (S, G): sensors that see the ankles the right way round
     good: NDArray[np.bool_] = np.asarray(d > SWAP_MARGIN_M, dtype=bool)
-    right_way = good.any(axis=0)
+    right_way: NDArray[np.bool_] = np.asarray(good.any(axis=0), dtype=bool)
     swap = (d < -SWAP_MARGIN_M) & right_way[None]  # (S, G)
     if not swap.any():
         return E, have
