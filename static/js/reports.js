@@ -132,6 +132,7 @@
       sel.value = String(subjects[0].id);
       subjectChanged();
     } else if (was) subjectChanged();  // the chosen subject left the list
+    showWhole();
     if (!total && !q) say("subject-msg", "Add a subject and record a walk on the Record page first.");
   }
   // the subject of a link (#subject=ID) is offered even when it is not among those listed
@@ -152,6 +153,7 @@
     pickBox.replaceChildren();
     showSessionPick();
     setLink($("pdf"), null);
+    showWhole();
     if (!sid) return;
     try {
       const s = await json(`/api/subjects/${encodeURIComponent(sid)}`);
@@ -170,6 +172,7 @@
         pickBox.append(lab);
       }
       showSessionPick();
+      showWhole();
     } catch (e) { if ($("subject").value !== sid) return; say("subject-msg", e.message, true); }
     setLink($("pdf"), subjectQuery("pdf"));
   }
@@ -267,30 +270,33 @@
     }
     if (was && recs.some((r) => r.id === was)) sel.value = was;
     else if (was) recordingChanged();  // the chosen recording left the list
-    showWholeRecording();
+    showWhole();
   }
 
-  // The chosen recording's text, whole, under a list too narrow to show it (a long label,
-  // a phone or a zoomed window: 320 px shows "walk 3 self-selected speed — L").
+  // The chosen entry's text, whole, under a list too narrow to show it (a long label or
+  // code, a phone or a zoomed window: 320 px shows "walk 3 self-selected speed — L"), in
+  // the list's `#<list>-whole`: for the subject, session and recording lists.
   const measure = document.createElement("canvas").getContext("2d");
-  function showWholeRecording() {
-    const sel = $("recording"), p = $("recording-whole");
-    const text = sel.value && sel.selectedOptions.length ? sel.selectedOptions[0].textContent : "";
-    let cut = false;
-    if (text && sel.clientWidth) {
-      const cs = getComputedStyle(sel);
-      measure.font = cs.font;
-      // (the list's arrow takes about 20 px)
-      cut = measure.measureText(text).width > sel.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
+  function showWhole() {
+    for (const id of ["subject", "session", "recording"]) {
+      const sel = $(id), p = $(id + "-whole");
+      const text = sel.value && sel.selectedOptions.length ? sel.selectedOptions[0].textContent : "";
+      let cut = false;
+      if (text && sel.clientWidth) {
+        const cs = getComputedStyle(sel);
+        measure.font = cs.font;
+        // (the list's arrow takes about 20 px)
+        cut = measure.measureText(text).width > sel.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
+      }
+      p.hidden = !cut;
+      p.textContent = cut ? text : "";
     }
-    p.hidden = !cut;
-    p.textContent = cut ? text : "";
   }
-  addEventListener("resize", showWholeRecording);
+  addEventListener("resize", showWhole);
 
   async function recordingChanged() {
     const rid = $("recording").value;
-    showWholeRecording();
+    showWhole();
     $("cmp-table").hidden = true;
     sensors = [];
     if (!rid) { buildSubset("set-a", []); buildSubset("set-b", []); updateRecLinks(); return; }
@@ -430,7 +436,11 @@
       const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference?${q}`, { method: "POST", body: fd });
       say("ref-msg", `Attached (${r.n_steps} reference steps). Reports of this recording now include an agreement section.`);
       refreshReference();
-    } catch (e) { say("ref-msg", e.message, true); }
+    } catch (e) {
+      // as the Subjects page's "Attach reference" says it: the server's refusal names the
+      // file ("'walk.trc' has no walk in it: …"), and the reference attached before stays
+      say("ref-msg", e.message.includes(f.name) ? `Not attached: ${e.message}` : `${f.name} not attached: ${e.message}`, true);
+    }
   }
 
   async function removeReference() {
@@ -520,6 +530,7 @@
   $("subject").addEventListener("change", keepChoice);
   $("session").addEventListener("change", keepChoice);
   $("session").addEventListener("change", showSessionPick);
+  $("session").addEventListener("change", showWhole);
   async function fromAddress() {
     const q = new URLSearchParams(location.hash.slice(1));
     const sid = q.get("subject");
@@ -531,7 +542,7 @@
     $("subject").value = sid;
     await subjectChanged();
     const sess = q.get("session");
-    if (sess && [...$("session").options].some((o) => o.value === sess)) $("session").value = sess;
+    if (sess && [...$("session").options].some((o) => o.value === sess)) { $("session").value = sess; showWhole(); }
     setLink($("pdf"), subjectQuery("pdf"));
     $("subject-form").requestSubmit();
   }

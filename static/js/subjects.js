@@ -79,7 +79,7 @@
     $("subjects-next").disabled = offset + ss.length >= total;
     body.replaceChildren(...ss.map((s) => {
       const tr = el("tr", { class: "clickable" + (s.id === subjectId ? " selected" : ""), "data-subject": s.code },
-        el("th", { scope: "row", class: "code-cell" }, el("a", { href: `#subject=${s.id}`, onclick: (ev) => { ev.preventDefault(); select(s.id, true); } }, s.code)),
+        el("th", { scope: "row", class: "code-cell" }, el("a", { href: `#subject=${s.id}`, title: s.code, onclick: (ev) => { ev.preventDefault(); select(s.id, true); } }, s.code)),
         el("td", { class: "num" }, String(s.n_sessions)), el("td", { class: "num" }, String(s.n_recordings)),
         el("td", { class: "num" }, bytes(s.bytes_on_server)));
       tr.addEventListener("click", () => select(s.id, true));
@@ -290,7 +290,8 @@
     setText(title.firstChild, r.label || r.id);
     setText(title.lastChild, STATE_TEXT[r.state] || r.state);
     title.lastChild.className = "badge st-" + r.state;
-    const when = r.t_start ? new Date(r.t_start * 1000).toLocaleTimeString() : "";
+    // (the console's one way: "Nov 28, 2026, 11:40:27 AM", not a bare "11:40:27 AM")
+    const when = r.t_start ? gaitrig.dateTime(r.t_start) : "";
     const dur = r.duration_s !== null ? `${r.duration_s.toFixed(1)} s` : "running";
     const about = `${r.id} · ${when} · ${dur} · ${bytes(r.bytes_on_server || 0)} on the server`;
     const head = keep(k("head"), "", () => el("div", { class: "part" }));

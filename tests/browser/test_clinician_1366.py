@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterator
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -147,7 +148,8 @@ def test_date_times_are_written_one_way(browser: Any, live_server: LiveServer,
                                         artifacts_dir: Path) -> None:
     """The calibration wizard wrote "11/28/2026, 10:07:14 AM" beside the Subjects page's
     "Nov 28, 2026": every date-time of the console spells its month as days do
-    (``gaitrig.day()``), on the user's clock."""
+    (``gaitrig.day()``), on the user's clock. The Subjects page wrote a recording's start
+    as a bare "11:40:27 AM"."""
     context = browser.new_context(viewport=LAPTOP, locale="en-US", timezone_id="UTC")
     try:
         page = context.new_page()
@@ -175,6 +177,20 @@ def test_date_times_are_written_one_way(browser: Any, live_server: LiveServer,
         cell.wait_for()
         assert cell.inner_text() == "Nov 28, 2026, 10:07:14 AM", cell.inner_text()
         assert not re.search(r"\d{1,2}/\d{1,2}/\d{4}", page.inner_text("main"))
+
+        # the Subjects page wrote a recording's start as a bare "11:40:27 AM"
+        sid, session_id = _subject(live_server, "Start times", "TIM01")
+        rid = short_recording(live_server, session_id, "walk 1")
+        started = live_server.api(f"/api/subjects/{sid}")["sessions"][0]["recordings"][0]["t_start"]
+        d = datetime.fromtimestamp(started, UTC)
+        want = (f"{d:%b} {d.day}, {d.year}, {d.hour % 12 or 12}:{d:%M:%S} "
+                f"{'AM' if d.hour < 12 else 'PM'}")
+        page.goto(f"{live_server.base_url}/subjects.html#subject={sid}")
+        about = page.locator(f"#sessions [data-recording='{rid}'] .part .hint").first
+        about.wait_for()
+        screenshot(page, artifacts_dir, "laptop_subjects_recording_start",
+                   f"#sessions [data-recording='{rid}']")
+        assert about.inner_text().startswith(f"{rid} · {want} · "), about.inner_text()
         assert not errors, errors
     finally:
         context.close()
@@ -289,3 +305,78 @@ def test_reports_recording_list_is_read_whole(laptop: Any, live_server: LiveServ
     # back to the laptop: written once again
     page.set_viewport_size(LAPTOP)
     page.wait_for_function("document.getElementById('recording-whole').hidden")
+
+
+#: Each visible list of the Reports page's subject and recording forms whose chosen entry
+#: is read neither in the list (cut, as :data:`CUT_SELECTS_JS` measures) nor whole under it
+#: (``#<list>-whole``, on the screen): what a person cannot read at this width.
+UNREAD_SELECTS_JS = """() => {
+  const ctx = document.createElement("canvas").getContext("2d");
+  return [...document.querySelectorAll("#subject-form select, .rec-pick select")]
+    .filter((s) => s.getClientRects().length > 0 && s.selectedOptions.length).filter((s) => {
+      const cs = getComputedStyle(s); ctx.font = cs.font;
+      const room = s.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
+      const text = s.selectedOptions[0].textContent;
+      if (ctx.measureText(text).width <= room + 4) return false;
+      const whole = document.getElementById(s.id + "-whole");
+      if (!whole || whole.hidden || whole.textContent !== text) return true;
+      const r = whole.getBoundingClientRect();
+      return r.left < 0 || r.right > document.documentElement.clientWidth + 0.5;
+    }).map((s) => s.id + ": " + s.selectedOptions[0].textContent);
+}"""
+
+#: Text of the page's subject form (the session ticks, the lists' labels) that runs out of
+#: its card: not wrapped, and cut or off the screen.
+OUT_OF_CARD_JS = """() => {
+  const card = document.querySelector("section[aria-labelledby=subject-h]").getBoundingClientRect();
+  return [...document.querySelectorAll("#subject-form label, #subject-form p")]
+    .filter((e) => e.getClientRects().length > 0)
+    .filter((e) => e.getBoundingClientRect().right > card.right + 0.5)
+    .map((e) => e.textContent.trim());
+}"""
+
+
+def test_reports_lists_are_read_at_every_width(page: Any, live_server: LiveServer,
+                                               artifacts_dir: Path) -> None:
+    """Between about 900 and 1100 px the Reports page put Find, Subject and Session three
+    to a row: "KNEE-OA-0117 — 2 sessions, 2 r", "Nov 28, 2026 (1 complete recor", with no
+    way to read the rest but opening the list; at 1366 px the subject list was cut too,
+    and at 320 px the session ticks ran off the card. At every width
+    from 320 to 1920 px each list's chosen entry is read whole, in the list or under it,
+    and nothing runs off the card or the screen; from 900 px the subject and session
+    lists hold their entries whole."""
+    code = "KNEE-OA-0117"
+    sid, first = _subject(live_server, "Knee replacement follow-up", code)
+    later = live_server.api("/api/sessions", {
+        "subject_id": sid, "label": "six weeks after knee replacement"})
+    short_recording(live_server, first, "walk 1")
+    rid = short_recording(live_server, later["id"], "walk 1 self-selected speed")
+    page.goto(f"{live_server.base_url}/reports.html#subject={sid}")
+    page.wait_for_function("document.getElementById('session').options.length > 2")
+    page.wait_for_function(f"[...document.querySelectorAll('#recording option')]"
+                           f".some(o => o.value === '{rid}')")
+    page.select_option("#recording", rid)
+    widths = (320, 900, 1000, 1100, 1366, 1920)
+    # all sessions: the sessions' ticks are shown
+    for w in widths:
+        page.set_viewport_size({"width": w, "height": 900})
+        page.wait_for_selector("#sessions-pick input")
+        screenshot(page, artifacts_dir, f"reports_lists_all_sessions_{w}", "#subject-form")
+        assert page.evaluate("document.documentElement.scrollWidth <= innerWidth"), w
+        assert page.evaluate(OUT_OF_CARD_JS) == [], (w, page.evaluate(OUT_OF_CARD_JS))
+    # one session, with its long label
+    page.select_option("#session", str(later["id"]))
+    assert page.evaluate("document.getElementById('session').selectedOptions[0].textContent"
+                         ).endswith("(1 complete recording) — six weeks after knee "
+                                    "replacement")
+    for w in widths:
+        page.set_viewport_size({"width": w, "height": 900})
+        page.wait_for_timeout(100)  # (the page's resize handler)
+        screenshot(page, artifacts_dir, f"reports_lists_{w}", "#subject-form")
+        assert page.evaluate("document.documentElement.scrollWidth <= innerWidth"), w
+        assert page.evaluate(OUT_OF_CARD_JS) == [], (w, page.evaluate(OUT_OF_CARD_JS))
+        assert page.evaluate(UNREAD_SELECTS_JS) == [], (w, page.evaluate(UNREAD_SELECTS_JS))
+        if w >= 900:
+            cut = [c for c in page.evaluate(CUT_SELECTS_JS) if c.split(":")[0] in
+                   ("subject", "session")]
+            assert cut == [], (w, cut)

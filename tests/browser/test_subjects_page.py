@@ -275,3 +275,46 @@ def test_attach_reference_says_each_outcome(page: Any, live_server: LiveServer,
     choose_and_attach()
     page.wait_for_url("**/index.html?next=*")
     assert f"subject%3D{s['id']}" in page.url or f"subject={s['id']}" in page.url
+
+
+def test_subject_codes_stay_on_one_line(page: Any, live_server: LiveServer,
+                                        artifacts_dir: Path) -> None:
+    """In the narrow list column at 1400 px a code broke inside itself ("A11Y" over "01",
+    read as two codes). Every code is on one line at every width; one too long for the
+    column ends in "…" and keeps the whole code as its link's name and title."""
+    from tests.browser.conftest import screenshot, short_recording
+
+    p = live_server.api("/api/projects", {"name": "One-line codes"})
+    codes = ["A11Y01", "KBD07", "P2026-0117", "LONGCODE_abcdefghijklmnopqrstuvwxyz01234"]
+    ids = [live_server.api("/api/subjects", {"project_id": p["id"], "code": c})["id"]
+           for c in codes]
+    session = live_server.api("/api/sessions", {"subject_id": ids[0], "label": "first visit"})
+    short_recording(live_server, session["id"], "walk 1")  # (a size in kB in its row)
+    page.goto(f"{live_server.base_url}/subjects.html#subject={ids[0]}")
+    page.wait_for_selector("tr[data-subject='A11Y01'] a")
+    measure = """(codes) => codes.map((c) => {
+      const a = document.querySelector(`tr[data-subject="${c}"] a`);
+      const line = parseFloat(getComputedStyle(a).lineHeight);
+      return { code: c, lines: Math.round(a.getBoundingClientRect().height / line),
+               cut: a.scrollWidth > a.clientWidth + 1, title: a.title, text: a.textContent };
+    })"""
+    for w in (1400, 1024, 900, 768, 320):
+        page.set_viewport_size({"width": w, "height": 900})
+        page.locator("section[aria-labelledby=subj-h] table").scroll_into_view_if_needed()
+        screenshot(page, artifacts_dir, f"subjects_codes_{w}",
+                   "section[aria-labelledby=subj-h] table")
+        got = page.evaluate(measure, codes)
+        assert all(g["lines"] == 1 for g in got), (w, got)
+        assert all(g["text"] == c and g["title"] == c for g, c in zip(got, codes, strict=True)), got
+        # short codes are whole; the 40 characters end in "…", and 10 on a phone
+        may_cut = codes[2:] if w < 768 else codes[3:]
+        assert [g["code"] for g in got if g["cut"]] in (may_cut, codes[3:]), (w, got)
+        assert page.evaluate("document.documentElement.scrollWidth <= innerWidth"), w
+        card = page.locator("section[aria-labelledby=subj-h]").bounding_box()
+        for cell in page.locator("#subjects tr[data-subject] > *").all():
+            box = cell.bounding_box()
+            right = box["x"] + box["width"]
+            assert right <= card["x"] + card["width"] + 0.5, (w, cell.inner_text())
+    # the whole code is the link's accessible name
+    assert page.get_by_role("link", name=codes[-1], exact=True).count() == 1
+    assert not page.js_errors, page.js_errors
