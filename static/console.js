@@ -80,6 +80,12 @@ const gaitrig = (() => {
     const d = t instanceof Date ? t : new Date(t * 1000);
     return d.toLocaleString(undefined, { ...DAY, hour: "numeric", minute: "2-digit", ...(seconds ? { second: "2-digit" } : {}) });
   }
+  // A moment of today by its time alone ("1:14:10 PM"), another day's with its date: a
+  // check or warning from yesterday read "at 10:02:11 AM" as if it were this morning's.
+  function moment(t) {
+    const d = t instanceof Date ? t : new Date(t * 1000);
+    return d.toDateString() === new Date().toDateString() ? d.toLocaleTimeString() : dateTime(d);
+  }
   function fmt(v, digits, unit) { return v === null || v === undefined ? "—" : v.toFixed(digits) + unit; }
   // A count with its noun in the right number: plural(1, "recording") is "1 recording",
   // plural(2, "copy", "copies") "2 copies" (the console wrote "1 recording(s)").
@@ -184,8 +190,7 @@ const gaitrig = (() => {
     // what the sensor itself warned about after it connected (body tracking stopped, its
     // clock, frames late): the newest three, with when it last did
     for (const w of (n.node_warnings || []).slice(0, 3)) {
-      const at = new Date(w.at * 1000);
-      const time = at.toDateString() === new Date().toDateString() ? at.toLocaleTimeString() : dateTime(at);
+      const time = moment(w.at);
       notes.append(el("li", { class: "node-warning" }, `The sensor warned at ${time}: ${w.text}` +
         (w.repeats > 1 ? ` (${w.repeats} times)` : "")));
     }
@@ -330,7 +335,7 @@ const gaitrig = (() => {
     poll(refresh, 1000);
     poll(refreshRecordings, 1000);
   }
-  return { api, el, listPage, toLogin, newest, latest, release, day, dateTime, plural, when, poll, wait,
+  return { api, el, listPage, toLogin, newest, latest, release, day, dateTime, moment, plural, when, poll, wait,
     loginPage, rigPage };
 })();
 

@@ -39,7 +39,7 @@
       state.className = ""; state.textContent = "No live check yet: run one after moving people or equipment near the sensors.";
       return;
     }
-    const when = new Date(j.created * 1000).toLocaleTimeString();
+    const when = gaitrig.moment(j.created);  // with its date when it was not today
     if (j.state === "failed") { state.className = "warn"; state.textContent = `Check at ${when} failed: ${j.message}`; return; }
     const unknown = (j.checks || []).filter((c) => c.status === "unknown").map((c) => `${c.sensor} (${c.reason})`);
     if (j.moved.length) {

@@ -15,7 +15,8 @@
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -144,6 +145,16 @@ def test_reports_comparison_names_the_sides_of_the_walkway(
     assert "sensors on the left of the walkway (S1, S3, S5)" in title, title
 
 
+def _answer_get(body: Any) -> Callable[[Any], None]:
+    """A route handler that answers GET with ``body`` and lets other methods through."""
+    def answer(route: Any) -> None:
+        if route.request.method == "GET":
+            route.fulfill(status=200, json=body)
+        else:
+            route.continue_()
+    return answer
+
+
 def test_date_times_are_written_one_way(browser: Any, live_server: LiveServer,
                                         artifacts_dir: Path) -> None:
     """The calibration wizard wrote "11/28/2026, 10:07:14 AM" beside the Subjects page's
@@ -191,6 +202,24 @@ def test_date_times_are_written_one_way(browser: Any, live_server: LiveServer,
         screenshot(page, artifacts_dir, "laptop_subjects_recording_start",
                    f"#sessions [data-recording='{rid}']")
         assert about.inner_text().startswith(f"{rid} · {want} · "), about.inner_text()
+
+        # the calibration's live check wrote a bare time: yesterday's read as this morning's
+        now = time.time()
+        for created, said in ((now - 86400.0, datetime.fromtimestamp(now - 86400.0, UTC)),
+                              (now, None)):
+            check = {"checked": True, "created": created, "state": "done", "moved": [],
+                     "checks": [], "message": ""}
+            page.unroute("**/api/calibration/live-check")
+            page.route("**/api/calibration/live-check", _answer_get(check))
+            page.goto(f"{live_server.base_url}/calibrate.html")
+            state = page.locator("#bump-state")
+            page.wait_for_function("() => document.getElementById('bump-state')"
+                                   ".textContent.startsWith('Checked at')")
+            text = state.inner_text()
+            if said is not None:
+                assert text.startswith(f"Checked at {said:%b} {said.day}, {said.year}, "), text
+            else:
+                assert re.match(r"Checked at \d{1,2}:\d\d:\d\d [AP]M: ", text), text
         assert not errors, errors
     finally:
         context.close()
