@@ -268,8 +268,10 @@
       } finally {
         refBusy.delete(r.id);
         up.disabled = false;
-        const now = refButton(r.id);  // (the list may have been drawn again meanwhile)
-        if (now) now.disabled = false;
+        // (the list may have been drawn again meanwhile) the focus, dropped to the page while
+        // the button was disabled, goes back to it: the message beside it is said while the
+        // focus stays on the button pressed, as on the Reports page
+        gaitrig.release(refButton(r.id) || up);
       }
       if (!attached) return;
       await loadDetail(false);  // lists the new reference; the button and its message stay

@@ -432,19 +432,20 @@ def test_a_reference_upload_is_never_under_its_final_name_before_its_row(
     import sqlalchemy.exc
     from sqlalchemy.orm import Session
 
-    from app.api.routes import exports
+    from app.server import storage
 
     h = _login(client)
     _filed_recording(client, h, "R1")
     folder = tmp_path / "references" / "R1"
     seen: list[list[str]] = []
-    real_read = exports.read_reference
+    real_read = storage.read_reference
 
     def read(path: Path, fmt: str) -> Any:
         seen.append(sorted(p.name for p in folder.iterdir()))
         return real_read(path, fmt)
 
-    monkeypatch.setattr(exports, "read_reference", read)
+    # (the check shared with the Reports page's upload reads it: app.api.routes._reference)
+    monkeypatch.setattr(storage, "read_reference", read)
     r = client.post("/api/exports/R1/references", headers=h,
                     files={"file": ("walk.csv", _skeleton_csv(), "text/csv")})
     assert r.status_code == 201, r.text
@@ -482,29 +483,32 @@ def test_a_report_reference_being_checked_is_not_in_a_backup(
     written after the file was in place. Now the whole new folder is swapped in."""
     from app.api.routes import reports
     from app.server import backup
+    from tests.app.mocap_files import walk_skeleton_c3d
 
     h = _login(client)
     ref = _planted_report_reference(tmp_path)
     files = _tree(tmp_path)
     in_backup: list[list[str]] = []
+    walk, _ = walk_skeleton_c3d()  # a file its reader takes: the analysis is checked next
 
     def steps(path: Path) -> Any:
         in_backup.append([str(r) for r, _ in backup._walk(tmp_path, [], set())])
-        raise reports.InputError("no steps in this walk")
+        raise reports.InsufficientDataError("no steps in this walk")
 
     monkeypatch.setattr(reports.an, "reference_steps", steps)
     r = client.post("/api/reports/recordings/R2/reference", headers=h,
-                    files={"file": ("walk.c3d", b"x" * 100, "application/octet-stream")})
-    assert r.status_code == 400, r.text
+                    files={"file": ("walk.c3d", walk, "application/octet-stream")})
+    assert r.status_code == 422, r.text  # readable, no walk in it (as on the Subjects page)
+    assert "'old.csv' stays attached" in r.json()["detail"], r.text
     assert in_backup and not [n for n in in_backup[0] if "upload" in n], in_backup
     assert _tree(tmp_path) == files  # nothing left behind, the old reference kept
     monkeypatch.setattr(reports.an, "reference_steps", lambda path: [1, 2, 3, 4])
     r = client.post("/api/reports/recordings/R2/reference?offset_s=1.5", headers=h,
-                    files={"file": ("new.c3d", b"c3d" * 10, "application/octet-stream")})
+                    files={"file": ("new.c3d", walk, "application/octet-stream")})
     assert r.status_code == 201, r.text
     assert sorted(p.name for p in (tmp_path / "recordings" / "R2").iterdir()) == [
         "S1", "reference"]
-    assert (ref / "reference.c3d").read_bytes() == b"c3d" * 10
+    assert (ref / "reference.c3d").read_bytes() == walk
     assert not (ref / "reference.csv").exists()
     got = client.get("/api/reports/recordings/R2/reference", headers=h).json()
     assert got["attached"] and got["filename"] == "new.c3d" and got["n_steps"] == 4
@@ -514,7 +518,7 @@ def test_a_report_reference_being_checked_is_not_in_a_backup(
     (stale / "upload.c3d").write_bytes(b"half")
     os.utime(stale, (time.time() - 3 * 86400,) * 2)
     r = client.post("/api/reports/recordings/R2/reference", headers=h,
-                    files={"file": ("new.c3d", b"c3d" * 10, "application/octet-stream")})
+                    files={"file": ("new.c3d", walk, "application/octet-stream")})
     assert r.status_code == 201, r.text
     assert not stale.exists()
 

@@ -518,6 +518,7 @@ def test_a_deleted_reference_stays_deleted_after_restoring_an_older_backup(
     """Deleting a reference (an imported one, a report's) was not in the erasure log: a
     restore of a backup made before brought it back. A later upload is kept."""
     from app.api.routes import reports
+    from app.server import storage
 
     var = tmp_path / "var"
     rid = "R20260101-100000-aaaa"
@@ -530,7 +531,9 @@ def test_a_deleted_reference_stays_deleted_after_restoring_an_older_backup(
         db.commit()
         ref_id = ref.id
     (var / "references" / rid / "b2.c3d").write_bytes(b"vicon of " + GONE.encode())
+    # (the file is no C3D: its reader, run first by both pages' check, is faked as well)
     monkeypatch.setattr(reports.an, "reference_steps", lambda path: [1.0, 2.0, 3.0])
+    monkeypatch.setattr(storage, "read_reference", lambda path, fmt: None)
 
     def attach(data: bytes) -> None:
         r = server.post(f"/api/reports/recordings/{rid}/reference",

@@ -50,8 +50,8 @@ def test_reports_page_says_what_a_damaged_c3d_is_not(page: Any, live_server: Liv
     page.set_input_files("#ref-file", str(damaged))
     page.click("#ref-form button[type=submit]")
     page.wait_for_function("document.getElementById('ref-msg').textContent.includes('C3D')")
-    # the file named once, as on the Subjects page
-    assert page.text_content("#ref-msg") == NOT_C3D
+    # the file named once, in the Subjects page's words and way ("Not attached: …")
+    assert page.text_content("#ref-msg") == f"Not attached: {NOT_C3D}"
     screenshot(page, artifacts_dir, "reports_reference_damaged_c3d", "#ref-box")
 
     page.set_input_files("#file", str(damaged))
@@ -67,11 +67,12 @@ def test_reports_page_says_what_a_damaged_c3d_is_not(page: Any, live_server: Liv
     # is not a TRC file …" on the Subjects page)
     trc = tmp_path / "Gang.trc"
     trc.write_bytes(b"PathFileType\t4\n\x00\x01")
-    for form, msg in (("#ref-form", "#ref-msg"), ("#file-form", "#file-msg")):
+    for form, msg, said in (("#ref-form", "#ref-msg", f"Not attached: {NOT_TRC}"),
+                            ("#file-form", "#file-msg", NOT_TRC)):
         page.set_input_files(f"{form} input[type=file]", str(trc))
         page.click(f"{form} button[type=submit]")
         page.wait_for_function(f"document.querySelector('{msg}').textContent.includes('TRC')")
-        assert page.text_content(msg) == NOT_TRC
+        assert page.text_content(msg) == said
     screenshot(page, artifacts_dir, "reports_file_not_trc", "section[aria-labelledby=file-h]")
     assert not page.js_errors
 
@@ -168,4 +169,61 @@ def test_subjects_page_refuses_a_reference_with_no_walk(page: Any, live_server: 
         "vicon walk.trc"]
     screenshot(page, artifacts_dir, "subjects_reference_no_walk",
                f".recording[data-recording='{rid}']")
+    assert not page.js_errors
+
+
+def test_both_pages_say_the_same_of_a_reference_with_no_walk(page: Any,
+                                                             live_server: LiveServer,
+                                                             artifacts_dir: Path,
+                                                             tmp_path: Path) -> None:
+    """A reference can be attached on the Subjects page and on the Reports page: the same
+    file with no walk in it (the subject standing) is refused with the same words on both,
+    in the same way — a polite status beside the button pressed, which keeps the focus —
+    (the Reports page said the analysis's words, with advice on placing sensors;
+    ``reports_reference_no_walk.png``)."""
+    from tests.app.mocap_files import standing_trc
+
+    pid = live_server.api("/api/projects", {"name": "References REFM4"})["id"]
+    sid = live_server.api("/api/subjects", {"project_id": pid, "code": "REFM4"})["id"]
+    se = live_server.api("/api/sessions", {"subject_id": sid, "label": "visit"})["id"]
+    rid = short_recording(live_server, se, "walk 1")
+    still = standing_trc(tmp_path / "standing still.trc")
+
+    page.goto(live_server.base_url + "/reports.html")
+    page.wait_for_function(f"[...document.querySelectorAll('#recording option')]"
+                           f".some(o => o.value === '{rid}')")
+    page.select_option("#recording", rid)
+    page.click("#ref-box summary")
+    page.set_input_files("#ref-file", str(still))
+    page.click("#ref-form button[type=submit]")
+    page.wait_for_function("document.getElementById('ref-msg').textContent.includes('ot attached')")
+    on_reports = page.text_content("#ref-msg") or ""
+    reports_way = page.evaluate("""() => { const m = document.getElementById('ref-msg');
+        const f = document.activeElement;
+        return [m.getAttribute('role'), f === m || m.contains(f),
+                f.matches('#ref-form button[type=submit]')]; }""")
+    screenshot(page, artifacts_dir, "reports_reference_no_walk", "#ref-box")
+
+    page.goto(f"{live_server.base_url}/subjects.html#subject={sid}")
+    box_sel = f".recording[data-recording='{rid}'] .actions:has(input[type=file])"
+    page.locator(f"{box_sel} button").wait_for()
+    page.locator(f"{box_sel} input[type=file]").set_input_files(str(still))
+    page.locator(f"{box_sel} button").click()
+    page.wait_for_function(
+        f"document.querySelector(\"{box_sel} .msg\").textContent.includes('ot attached')")
+    on_subjects = page.text_content(f"{box_sel} .msg") or ""
+    subjects_way = page.evaluate("""(sel) => { const m = document.querySelector(sel + ' .msg');
+        const f = document.activeElement;
+        return [m.getAttribute('role'), f === m || m.contains(f),
+                f.matches(sel + ' button')]; }""", box_sel)
+
+    assert on_reports == on_subjects, (on_reports, on_subjects)
+    assert on_reports.startswith("Not attached: 'standing still.trc' has no walk in it: "
+                                 "0 steps found"), on_reports
+    assert "attach the reference recording of this walk" in on_reports.lower(), on_reports
+    assert "--" not in on_reports and "sensors" not in on_reports, on_reports
+    # a status (polite, as every refusal of the Reports page's forms and beside the
+    # Subjects page's export and reference buttons), never focused; the focus stays on
+    # the button pressed
+    assert reports_way == subjects_way == ["status", False, True], (reports_way, subjects_way)
     assert not page.js_errors

@@ -17,9 +17,8 @@ import json
 import os
 import re
 import secrets
-import tempfile
 import time
-from pathlib import Path, PurePath
+from pathlib import Path
 from typing import Annotated, Any, Literal
 from urllib.parse import quote
 
@@ -35,11 +34,10 @@ from app.api.routes._data import (
     layout_of,
     purge,
     reference_json,
-    refusal,
 )
+from app.api.routes._reference import check_reference, upload_name
 from app.db import data as m
 from app.server import erasures
-from app.server.analysis import reference_steps
 from app.server.recording_file import fsync_dir
 from app.server.storage import (
     check_id,
@@ -50,12 +48,10 @@ from app.server.storage import (
     fused_skeleton,
     note_changed,
     read_part_skeleton,
-    read_reference,
     recording_poses,
     sensor_streams,
     uniform_series,
 )
-from engine.errors import GaitrigError, InsufficientDataError
 
 router = APIRouter(prefix="/exports", route_class=BoundedRoute, tags=["data"])
 
@@ -153,7 +149,7 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
                            ) -> dict[str, Any]:
     """Attach a reference recording (e.g. Vicon C3D) for the agreement analysis."""
     rec = get_recording(db, rec_id)
-    name = PurePath(file.filename or "reference").name[:255]
+    name = upload_name(file.filename)
     ext = name.rsplit(".", 1)[-1].lower() if "." in name else ""
     if ext not in m.REFERENCE_FORMATS:
         raise HTTPException(status.HTTP_400_BAD_REQUEST,
@@ -182,23 +178,12 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
                 f.write(chunk)
             f.flush()
             os.fsync(f.fileno())
-        try:
-            traj = await asyncio.to_thread(read_reference, tmp, ext)
-        except (GaitrigError, ValueError, OSError, RuntimeError) as exc:
-            # the file named once: a reader's "cannot read walk.c3d as C3D: …" or "Gang.trc
-            # is not a TRC file …" says again what a prefix would say first
-            why = refusal(exc, tmp, name)
-            raise HTTPException(status.HTTP_400_BAD_REQUEST, why if name in why else
-                                f"{name!r} is not a readable {ext.upper()} file: {why}"
-                                ) from exc
-        # The report's gait analysis of it, now: a readable file with no walk in it (the
-        # subject standing, fewer than two steps, no ankle or heel markers recognised)
-        # was stored and only said so later, as a note in the report. Bounded as the read
-        # is: by MAX_REFERENCE_BYTES, in a worker thread.
-        attached = [x.filename for x in rec.references]
-        why_not = await asyncio.to_thread(_walk_refusal, tmp, ext, name, attached)
-        if why_not is not None:
-            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, why_not)
+        # read, and the report's gait analysis of it, now (as the Reports page's reference
+        # is): 400 for a file no reader takes, 422 for one with no usable walk in it, in
+        # the same words on both pages (app.api.routes._reference). Bounded by
+        # MAX_REFERENCE_BYTES, in a worker thread.
+        traj, _ = await asyncio.to_thread(check_reference, tmp, ext, name,
+                                          [x.filename for x in rec.references])
         try:
             os.replace(tmp, path)
             fsync_dir(folder)
@@ -221,50 +206,6 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
     finally:
         note_changed(folder)  # the recording's bytes on the server (GET /api/storage)
     return reference_json(ref)
-
-
-def _walk_refusal(tmp: Path, ext: str, name: str, attached: list[str]) -> str | None:
-    """Why the report's gait analysis (:func:`app.server.analysis.reference_steps`) finds
-    no steps in the upload ``tmp`` (a ``.{ext}`` file named ``name``), or None when it
-    does. The analysis tells the format by the file's extension, which the upload's
-    temporary name hides: it reads the file through a link named ``reference.{ext}`` in a
-    private temporary folder (outside the data folder: nothing for a backup to take)."""
-    with tempfile.TemporaryDirectory(prefix="gaitrig-reference-check-") as d:
-        link = Path(d) / f"reference.{ext}"
-        os.symlink(tmp.resolve(), link)
-        try:
-            reference_steps(link)
-        except GaitrigError as exc:
-            return _no_walk(exc, link, name, attached)
-    return None
-
-
-def _no_walk(exc: GaitrigError, copy: Path, name: str, attached: list[str]) -> str:
-    """Why the reference ``name`` (read from ``copy``) was refused by the gait analysis,
-    in a clinician's words: what is wrong, what to do, and that a reference ``attached``
-    before stays ("'standing.trc' has no walk in it: 0 steps found — no straight walking
-    (…). Attach the reference recording of this walk: …"). The engine's advice for
-    recordings (place or add sensors) and for ``gaitrig gait`` (``--left/--right``) is
-    left out: neither can be followed on the Subjects page."""
-    why = refusal(exc, copy, name)
-    if isinstance(exc, InsufficientDataError):
-        # the reason, without the advice on recording that follows it
-        found = why.split(". ", 1)[0].rstrip(".")
-        if found.startswith("no straight walking found"):
-            found = "0 steps found — no straight walking" + found.removeprefix(
-                "no straight walking found")
-        lead = f"{name!r} has no walk in it: {found}"
-    else:  # no usable foot markers, a length unit or vertical axis not recognised, …
-        kept = "; ".join(c for c in why.split("; ") if "--" not in c).rstrip(".")
-        # (a reader's sentence that names the file is said as it is: named once)
-        lead = kept if name in kept else f"{name!r} has no walk the report can use: {kept}"
-    out = (f"{lead}. Attach the reference recording of this walk: the motion-capture file "
-           "of the same trial, with at least two steps and the ankle or heel markers named.")
-    if len(attached) == 1:
-        out += f" {attached[0]!r} stays attached."
-    elif attached:
-        out += f" The {len(attached)} references attached before stay."
-    return out
 
 
 #: Suffix of a reference being uploaded (ends in ``.tmp``: backups leave it out).

@@ -23,6 +23,7 @@ Heavy work (fusion, gait, PDF) runs in FastAPI's thread pool (plain ``def`` rout
 
 from __future__ import annotations
 
+import asyncio
 import datetime as _dt
 import json
 import os
@@ -43,6 +44,7 @@ from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
 from app.api.limits import BoundedRoute
 from app.api.routes._data import audit_now, get_row, refusal
 from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, like_pattern, page_of, set_total
+from app.api.routes._reference import check_reference, upload_name
 from app.db.data import Recording as DbRecording
 from app.db.data import ReferenceImport, Subject
 from app.db.data import Session as DbSession
@@ -747,14 +749,13 @@ async def put_reference(rec_id: str, request: Request, file: UploadFile, user: C
     # kill) and swapped in by renames: a backup never takes a half-written reference.
     with tempfile.TemporaryDirectory(dir=d, prefix=_UPLOAD_PREFIX, suffix=".tmp") as tmp:
         path = await _save_upload(request, file, Path(tmp))
-        import anyio
-
-        try:
-            steps = await anyio.to_thread.run_sync(an.reference_steps, path)
-        except GaitrigError as exc:
-            raise HTTPException(status.HTTP_400_BAD_REQUEST,
-                                _reference_error(exc, path, file.filename or "the file")
-                                ) from exc
+        # as on the Subjects page (app.api.routes._reference): 400 for a file no reader
+        # takes, 422 for one with no usable walk in it, in the same words; the reference
+        # attached here before stays, and is named
+        before = _reference_file(d)
+        _, steps = await asyncio.to_thread(
+            check_reference, path, path.suffix.lstrip("."), upload_name(file.filename),
+            [str(before[1].get("filename") or "") or before[0].name] if before else [])
         # its upload time tells it from a later upload when a restore re-applies the
         # deletion of this one (app.server.erasures)
         meta = {"filename": (file.filename or "")[-200:], "ext": path.suffix,
@@ -770,16 +771,6 @@ async def put_reference(rec_id: str, request: Request, file: UploadFile, user: C
         os.replace(new, folder)
     note_changed(folder)  # the recording's bytes on the server (GET /api/storage)
     return {"rec_id": rec_id, "attached": True, **meta}
-
-
-def _reference_error(exc: BaseException, copy: Path, name: str) -> str:
-    """Why an uploaded reference was refused, naming the file (``name``, as the person
-    chose it; ``copy`` is the server's) once, in the Subjects page's words for a file
-    its reader refuses: "'trial 3.c3d' is not a readable C3D file: the file is damaged…"
-    (was "reference trial 3.c3d: cannot read trial 3.c3d as C3D: the file is damaged…",
-    the analysis's and the reader's names of it one after the other)."""
-    why = refusal(exc, copy, name)
-    return why if name in why else f"reference {name}: {why}"
 
 
 def _file_error(exc: BaseException, copy: Path, name: str) -> str:
