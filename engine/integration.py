@@ -30,8 +30,9 @@ sensors", plus our estimator):
      are weighted by distance only. Each sensor's limb joints
      are first moved back along its line of sight by the surface bias of a depth fit
      (``SURFACE_BIAS_M``: a sensor sees, and fits to, the near half of a limb), and a
-     sensor whose ankles' left/right order is inverted while another sensor sees it right
-     has its lower legs' labels swapped back (a tracker's leg swap). Each sensor is
+     sensor whose ankles' left/right order is inverted, and whose ankles fit the other
+     sensors' better swapped, has its lower legs' labels swapped back (a tracker's leg
+     swap). Each sensor is
      further weighted by a Tukey biweight of its residual from the current estimate
      (iteratively reweighted from the per-coordinate median, so a sensor that swaps or
      misplaces a joint is rejected).
@@ -293,11 +294,16 @@ def _unswap_legs(E: FloatArray, have: NDArray[np.bool_], js: JointSet, lat: Floa
     A tracker swaps the legs' labels when they cross in its view (Kinect v2 gait studies
     report such outliers). The left ankle is then on the right of the right ankle. Feet
     pass each other side by side, a step width apart, so a sensor whose ankles' lateral
-    order is inverted by more than :data:`SWAP_MARGIN_M` while another sensor sees them
-    the right way round by as much has its knee/ankle/foot labels swapped back (a
-    cross-over step seen by every sensor is left alone) — when its ankles, swapped, lie
-    closer on the floor to the right-way sensors' ankles than as they are. With only two sensors a
-    per-sample vote cannot tell which is wrong; the body's left/right axis can.
+    order is inverted by more than :data:`SWAP_MARGIN_M` is a candidate, and its
+    knee/ankle/foot labels are swapped back when its ankles, swapped, lie closer on the
+    floor to the other sensors' ankles than as they are. The references are the
+    per-sample medians of each ankle over the sensors not inverted, including one that
+    sees a single ankle (the far one hidden): with two sensors a vote cannot tell which
+    is wrong, and the far ankle is often missing exactly when the legs cross. A
+    cross-over step seen by every sensor has no reference and is left alone; a lateral
+    order inverted by noise while the feet are a step apart along the walk (a far-side
+    view's lateral error) fits better as it is, and swapping it would move both feet by a
+    step length.
     """
     pairs = [(js.role_index(f"{p}_left"), js.role_index(f"{p}_right"))
              for p in ("knee", "ankle", "foot") if f"{p}_left" in js.roles
@@ -307,24 +313,23 @@ def _unswap_legs(E: FloatArray, have: NDArray[np.bool_], js: JointSet, lat: Floa
     iL, iR = js.role_index("ankle_left"), js.role_index("ankle_right")
     d = np.einsum("sgk,gk->sg", E[:, :, iL] - E[:, :, iR], np.nan_to_num(lat))
     d = np.where(have[:, :, iL] & have[:, :, iR] & np.isfinite(lat[None, :, 0]), d, np.nan)
-    # (S, G): sensors that see the ankles the right way round
-    good: NDArray[np.bool_] = np.asarray(d > SWAP_MARGIN_M, dtype=bool)
-    right_way: NDArray[np.bool_] = np.asarray(good.any(axis=0), dtype=bool)
-    swap = (d < -SWAP_MARGIN_M) & right_way[None]  # (S, G)
-    if not swap.any():
+    inverted: NDArray[np.bool_] = np.asarray(d < -SWAP_MARGIN_M, dtype=bool)  # (S, G)
+    if not inverted.any():
         return E, have
-    # A swap puts each ankle where the other one is: confirm it on the floor against the
-    # right-way sensors' ankles. A lateral order inverted by noise while the feet are a
-    # step apart along the walk (a far-side view's lateral error) is no swap, and
-    # swapping it would move both feet by a step length.
-    ref = np.where(good[..., None, None], E[:, :, [iL, iR], :2], np.nan)  # (S, G, 2, 2)
-    refL, refR = (_nanmedian0(ref[:, :, k]) for k in (0, 1))  # (G, 2) each
+    refs = []
+    for j in (iL, iR):
+        seen = (have[:, :, j] & ~inverted)[..., None]
+        refs.append(_nanmedian0(np.where(seen, E[:, :, j, :2], np.nan)))  # (G, 2)
+    refL, refR = refs
     eL, eR = E[:, :, iL, :2], E[:, :, iR, :2]
-    keep_cost = (np.linalg.norm(eL - refL[None], axis=-1)
-                 + np.linalg.norm(eR - refR[None], axis=-1))
-    swap_cost = (np.linalg.norm(eL - refR[None], axis=-1)
-                 + np.linalg.norm(eR - refL[None], axis=-1))
-    swap &= swap_cost < keep_cost
+
+    def dist(a: FloatArray, b: FloatArray) -> FloatArray:
+        return np.nan_to_num(np.linalg.norm(a - b[None], axis=-1), nan=0.0)
+
+    keep_cost = dist(eL, refL) + dist(eR, refR)
+    swap_cost = dist(eL, refR) + dist(eR, refL)
+    has_ref = np.isfinite(refL[:, 0]) | np.isfinite(refR[:, 0])
+    swap = inverted & has_ref[None] & (swap_cost < keep_cost)
     if not swap.any():
         return E, have
     E = E.copy()
