@@ -59,8 +59,9 @@ _log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 #: Bump when the analysis changes, so old cached results are recomputed (2: crossings
-#: hidden in a short gap of one ankle are found, see GaitAnalysis.max_crossing_gap_s).
-ANALYSIS_VERSION = 2
+#: hidden in a short gap of one ankle are found, see GaitAnalysis.max_crossing_gap_s;
+#: 3: leg swaps confirmed on the floor, engine.integration._unswap_legs).
+ANALYSIS_VERSION = 3
 #: Folder name of the server's recordings under the data folder.
 RECORDINGS_DIR = "recordings"
 _ID_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
