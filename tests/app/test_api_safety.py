@@ -394,7 +394,7 @@ def _tree(folder: Path) -> dict[str, bytes]:
 
 def test_reference_import_limits_and_rollback(client: TestClient, tmp_path: Path,
                                               monkeypatch: pytest.MonkeyPatch) -> None:
-    from app.api.routes import exports
+    from app.api.routes import _reference
 
     h = _login(client)
     _filed_recording(client, h, "R1")
@@ -404,7 +404,7 @@ def test_reference_import_limits_and_rollback(client: TestClient, tmp_path: Path
     assert r.status_code == 201, r.text
     refs = client.get("/api/exports/R1/references", headers=h).json()
     files = _tree(tmp_path)
-    monkeypatch.setattr(exports, "MAX_REFERENCE_BYTES", len(good) + 100)
+    monkeypatch.setattr(_reference, "MAX_REFERENCE_BYTES", len(good) + 100)
     for name, data, status in (
             ("big.csv", good + b"x" * 500, 413),
             ("bad.c3d", b"not a c3d file at all", 400),
@@ -575,12 +575,12 @@ def _planted_report_reference(data_dir: Path) -> Path:
 
 def test_report_reference_limits_and_rollback(client: TestClient, tmp_path: Path,
                                               monkeypatch: pytest.MonkeyPatch) -> None:
-    from app.api.routes import reports
+    from app.api.routes import _reference
 
     h = _login(client)
     _planted_report_reference(tmp_path)
     files = _tree(tmp_path)
-    monkeypatch.setattr(reports, "MAX_UPLOAD_BYTES", 1000)
+    monkeypatch.setattr(_reference, "MAX_REFERENCE_BYTES", 1000)
     for name, data, status in (("big.c3d", b"x" * 5000, 413),
                                ("bad.c3d", b"not a c3d", 400),
                                ("bad.csv", b"time,a\n1,2\n", 400),

@@ -3,26 +3,35 @@ the two places that attach one: the Subjects page (``POST /api/exports/{rec}/ref
 and the Reports page (``POST /api/reports/recordings/{rec}/reference``). The same file is
 refused alike on both, with the same status and words:
 
+* 400 — not a ``.c3d``, ``.trc`` or ``.csv`` file (:func:`reference_type`), or an empty
+  one (:func:`receive`): "'walk.pdf': choose a .c3d, .trc or skeleton .csv file", "'trial
+  3.c3d' is empty …";
+* 413 — larger than :data:`MAX_REFERENCE_BYTES` (:func:`receive`; the route's
+  ``max_body_size`` is that and :data:`UPLOAD_OVERHEAD`);
 * 400 — no reader takes it: "'trial 3.c3d' is not a readable C3D file: the file is
   damaged …" (a reader's sentence that names the file is said as it is);
 * 422 — it is read, and the report's gait analysis
   (:func:`app.server.analysis.reference_steps`) finds no usable walk in it: "'standing.trc'
   has no walk in it: 0 steps found — no straight walking (…). Attach the reference
-  recording of this walk: …", naming the reference attached before, which stays.
+  recording of this walk: …", naming the reference attached before, which stays; the
+  marker names the analysis recognises are said in words (:func:`marker_words`), not as
+  the documentation file that lists them.
 
 Both run in a worker thread: the caller's ``asyncio.to_thread``."""
 
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path, PurePath
-from typing import Any
+from typing import Any, BinaryIO
 
-from fastapi import HTTPException, status
+from fastapi import HTTPException, UploadFile, status
 
 from app.api.routes._data import refusal
+from app.db.data import REFERENCE_FORMATS
 from app.server import analysis as an
 from app.server import storage
 from engine.errors import GaitrigError, InsufficientDataError
@@ -35,9 +44,56 @@ WHAT_TO_DO = ("Attach the reference recording of this walk: the motion-capture f
               "same trial, with at least two steps and the ankle or heel markers named.")
 
 
+#: Largest reference file either page takes (a C3D of a long Vicon session with analog
+#: data is ~100 MB); also the Reports page's "Analyse a file", which takes the same files.
+MAX_REFERENCE_BYTES = 200 * 1024 * 1024
+#: What a multipart request adds to the file it carries: a route taking one file accepts
+#: a body of ``MAX_REFERENCE_BYTES + UPLOAD_OVERHEAD``.
+UPLOAD_OVERHEAD = 64 * 1024
+_CHUNK = 1024 * 1024
+
+
 def upload_name(filename: str | None) -> str:
     """The name of an uploaded file as the person chose it, for messages (no folders)."""
     return PurePath(filename or "reference").name[:255]
+
+
+def reference_type(name: str) -> str:
+    """The format (``"c3d"``, ``"trc"`` or ``"csv"``) of an upload the person named
+    ``name``, told by its extension.
+
+    Raises:
+        HTTPException: 400 for any other extension.
+    """
+    ext = name.rsplit(".", 1)[-1].lower() if "." in name else ""
+    if ext not in REFERENCE_FORMATS:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                            f"{name!r}: choose a .c3d, .trc or skeleton .csv file")
+    return ext
+
+
+async def receive(file: UploadFile, out: BinaryIO, name: str) -> int:
+    """Copy the upload ``file`` (named ``name`` by the person) into ``out``, within
+    :data:`MAX_REFERENCE_BYTES`; the number of bytes copied.
+
+    Raises:
+        HTTPException: 413 when it is larger (nothing more is read), 400 when it is empty.
+    """
+    limit = MAX_REFERENCE_BYTES
+    size = 0
+    while chunk := await file.read(_CHUNK):
+        size += len(chunk)
+        if size > limit:
+            raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
+                                f"{name!r} is larger than {limit // 2**20} MB, the largest "
+                                "file the server takes: export only the walk (without "
+                                "analog channels) from the motion-capture software")
+        out.write(chunk)
+    if size == 0:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST,
+                            f"{name!r} is empty: choose the file again, or export it again "
+                            "from the motion-capture software")
+    return size
 
 
 def check_reference(upload: Path, ext: str, name: str, attached: Sequence[str] = ()
@@ -87,7 +143,7 @@ def no_walk(exc: GaitrigError, copy: Path, name: str, attached: Sequence[str] = 
     recordings (place or add sensors) and for ``gaitrig gait`` (``--left/--right``,
     ``--up``, "give the units explicitly") is left out: it cannot be followed on either
     page."""
-    why = refusal(exc, copy, name)
+    why = marker_words(refusal(exc, copy, name))
     if isinstance(exc, InsufficientDataError):
         # the reason, without the advice on recording that follows it
         found = why.split(". ", 1)[0].rstrip(".")
@@ -106,3 +162,17 @@ def no_walk(exc: GaitrigError, copy: Path, name: str, attached: Sequence[str] = 
     elif attached:
         out += f" The {len(attached)} references attached before stay."
     return out
+
+
+#: The analysis's pointer to the documentation of the foot-marker names it recognises
+#: ("looked for names like LANK/RANK, …: docs/gait-json.md lists them", engine.mocap),
+#: which ``gaitrig gait`` keeps: a clinician in the browser has no such file.
+_DOCS_LIST = re.compile(r"looked for names like ([^:;()]+?): docs/[\w./-]+ lists them")
+
+
+def marker_words(message: str) -> str:
+    """``message`` with the recognised marker names said in words instead of the
+    documentation file that lists them: "(looked for names like LANK/RANK, LHEE/RHEE,
+    …: docs/gait-json.md lists them)" → "(markers named like LANK/RANK, LHEE/RHEE, … are
+    recognised)". Other messages are returned unchanged."""
+    return _DOCS_LIST.sub(r"markers named like \1 are recognised", message)

@@ -26,6 +26,7 @@ from fastapi import APIRouter, File, HTTPException, Query, Request, Response, Up
 
 from app.api.deps import CurrentUser, DbDep, HubDep
 from app.api.limits import BoundedRoute
+from app.api.routes import _reference
 from app.api.routes._data import (
     audit_event,
     audit_now,
@@ -35,7 +36,7 @@ from app.api.routes._data import (
     purge,
     reference_json,
 )
-from app.api.routes._reference import check_reference, upload_name
+from app.api.routes._reference import check_reference, receive, reference_type, upload_name
 from app.db import data as m
 from app.server import erasures
 from app.server.recording_file import fsync_dir
@@ -55,8 +56,6 @@ from app.server.storage import (
 
 router = APIRouter(prefix="/exports", route_class=BoundedRoute, tags=["data"])
 
-MAX_REFERENCE_BYTES = 100 * 1024 * 1024
-_MULTIPART_OVERHEAD = 64 * 1024
 _MEDIA = {"c3d": "application/octet-stream", "trc": "text/plain", "csv": "text/csv",
           "zip": "application/zip", "npz": "application/octet-stream"}
 
@@ -143,17 +142,14 @@ def references(rec_id: str, user: CurrentUser, db: DbDep) -> list[dict[str, Any]
 
 
 @router.post("/{rec_id}/references", status_code=201,
-             max_body_size=MAX_REFERENCE_BYTES + _MULTIPART_OVERHEAD)
+             max_body_size=_reference.MAX_REFERENCE_BYTES + _reference.UPLOAD_OVERHEAD)
 async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db: DbDep,
                            file: Annotated[UploadFile, File(description="C3D, TRC or CSV")]
                            ) -> dict[str, Any]:
     """Attach a reference recording (e.g. Vicon C3D) for the agreement analysis."""
     rec = get_recording(db, rec_id)
     name = upload_name(file.filename)
-    ext = name.rsplit(".", 1)[-1].lower() if "." in name else ""
-    if ext not in m.REFERENCE_FORMATS:
-        raise HTTPException(status.HTTP_400_BAD_REQUEST,
-                            f"{name!r}: upload a .c3d, .trc or .csv file")
+    ext = reference_type(name)  # the same words, limit and checks as the Reports page's
     folder = layout_of(request).reference_dir(rec.id)
     folder.mkdir(parents=True, exist_ok=True)
     _sweep_stale_uploads(folder)
@@ -165,23 +161,16 @@ async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db:
     # file without its row, if the server dies in between, is an orphan the start-up
     # clean-up removes a day later: app.server.cleanup); a failed upload leaves none.
     tmp = folder / f".{stored}{_UPLOAD_SUFFIX}"
-    size = 0
     placed = False
     try:
         with open(tmp, "wb") as f:
-            while chunk := await file.read(1 << 20):
-                size += len(chunk)
-                if size > MAX_REFERENCE_BYTES:
-                    raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
-                                        f"{name!r} is larger than "
-                                        f"{MAX_REFERENCE_BYTES // 2**20} MB")
-                f.write(chunk)
+            size = await receive(file, f, name)  # 413 when too large, 400 when empty
             f.flush()
             os.fsync(f.fileno())
         # read, and the report's gait analysis of it, now (as the Reports page's reference
         # is): 400 for a file no reader takes, 422 for one with no usable walk in it, in
         # the same words on both pages (app.api.routes._reference). Bounded by
-        # MAX_REFERENCE_BYTES, in a worker thread.
+        # its MAX_REFERENCE_BYTES, in a worker thread.
         traj, _ = await asyncio.to_thread(check_reference, tmp, ext, name,
                                           [x.filename for x in rec.references])
         try:

@@ -42,9 +42,16 @@ from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
 from app.api.limits import BoundedRoute
+from app.api.routes import _reference
 from app.api.routes._data import audit_now, get_row, refusal
 from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, like_pattern, page_of, set_total
-from app.api.routes._reference import check_reference, upload_name
+from app.api.routes._reference import (
+    check_reference,
+    marker_words,
+    receive,
+    reference_type,
+    upload_name,
+)
 from app.db.data import Recording as DbRecording
 from app.db.data import ReferenceImport, Subject
 from app.db.data import Session as DbSession
@@ -57,11 +64,9 @@ from engine.report.render import ReportData, render_html, render_pdf
 
 router = APIRouter(prefix="/reports", route_class=BoundedRoute, tags=["reports"])
 
-#: Largest accepted upload (C3D of a long Vicon session with analog data is ~100 MB).
-MAX_UPLOAD_BYTES = 200 * 1024 * 1024
-UPLOAD_TYPES = (".c3d", ".trc", ".csv")
-_COPY_CHUNK = 1024 * 1024
-_MULTIPART_OVERHEAD = 64 * 1024
+#: Largest accepted request of an upload (a reference, or "Analyse a file"): the limit of
+#: a reference file on either page (app.api.routes._reference) and the multipart around it.
+_UPLOAD_BODY_MAX = _reference.MAX_REFERENCE_BYTES + _reference.UPLOAD_OVERHEAD
 _SENSOR_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 _STORED_RE = re.compile(r"^[0-9a-f]{8,64}\.(c3d|trc|csv)$")
 
@@ -222,28 +227,14 @@ def _references(db: Any, data_dir: Path, rec_dirs: dict[str, Path], method: str
     return _reference_steps(_reference_paths(db, data_dir, rec_dirs), method)
 
 
-async def _save_upload(request: Request, file: UploadFile, dest_dir: Path) -> Path:
-    """Copy an upload to ``dest_dir/upload<ext>`` within :data:`MAX_UPLOAD_BYTES`."""
-    name = file.filename or ""
-    ext = Path(name).suffix.lower()
-    if ext not in UPLOAD_TYPES:
-        raise HTTPException(status.HTTP_400_BAD_REQUEST,
-                            f"file {name!r}: choose a .c3d, .trc or skeleton .csv file")
-    declared = request.headers.get("content-length")
-    if declared and declared.isdigit() and int(declared) > MAX_UPLOAD_BYTES + _MULTIPART_OVERHEAD:
-        raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
-                            f"the upload is larger than {MAX_UPLOAD_BYTES // 2**20} MB")
-    dest = dest_dir / f"upload{ext}"
-    size = 0
+async def _save_upload(file: UploadFile, dest_dir: Path) -> Path:
+    """Copy an upload to ``dest_dir/upload<ext>``: refused as the Subjects page refuses a
+    reference (app.api.routes._reference: its extensions, size limit, an empty file, in
+    the same words)."""
+    name = upload_name(file.filename)
+    dest = dest_dir / f"upload.{reference_type(name)}"
     with open(dest, "wb") as f:
-        while chunk := await file.read(_COPY_CHUNK):
-            size += len(chunk)
-            if size > MAX_UPLOAD_BYTES:
-                raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
-                                    f"{name} is larger than {MAX_UPLOAD_BYTES // 2**20} MB")
-            f.write(chunk)
-    if size == 0:
-        raise HTTPException(status.HTTP_400_BAD_REQUEST, f"{name} is empty")
+        await receive(file, f, name)
     return dest
 
 
@@ -735,8 +726,8 @@ def get_reference(rec_id: str, user: CurrentUser, settings: SettingsDep,
 
 
 @router.post("/recordings/{rec_id}/reference", status_code=201,
-             max_body_size=MAX_UPLOAD_BYTES + _MULTIPART_OVERHEAD)
-async def put_reference(rec_id: str, request: Request, file: UploadFile, user: CurrentUser,
+             max_body_size=_UPLOAD_BODY_MAX)
+async def put_reference(rec_id: str, file: UploadFile, user: CurrentUser,
                         settings: SettingsDep, hub: HubDep,
                         offset_s: float = Query(0.0, ge=-3600, le=3600,
                                                 description="reference time of the recording's "
@@ -748,7 +739,7 @@ async def put_reference(rec_id: str, request: Request, file: UploadFile, user: C
     # .tmp (backups leave it out; removed on any failure, or by a later upload after a
     # kill) and swapped in by renames: a backup never takes a half-written reference.
     with tempfile.TemporaryDirectory(dir=d, prefix=_UPLOAD_PREFIX, suffix=".tmp") as tmp:
-        path = await _save_upload(request, file, Path(tmp))
+        path = await _save_upload(file, Path(tmp))
         # as on the Subjects page (app.api.routes._reference): 400 for a file no reader
         # takes, 422 for one with no usable walk in it, in the same words; the reference
         # attached here before stays, and is named
@@ -836,10 +827,13 @@ def form_words(message: str) -> str:
     command-line advice ("give it with --up, e.g. --up x", "give the units explicitly")
     becomes the page's fields under "Options for files from other labs" ("choose the
     vertical axis under 'Options for files from other labs', e.g. X up"). The CLI keeps
-    its own wording; messages without such advice are returned unchanged."""
+    its own wording, and its pointer to docs/gait-json.md for the marker names it
+    recognises becomes those names in words, as for a reference
+    (:func:`app.api.routes._reference.marker_words`); messages without such advice are
+    returned unchanged."""
     for pattern, repl in _FORM_WORDS:
         message = pattern.sub(repl, message)
-    return message
+    return marker_words(message)
 
 
 #: Name start of a report reference's temporary upload folder (which ends in ``.tmp``).
@@ -884,7 +878,7 @@ def delete_reference(rec_id: str, user: CurrentUser, settings: SettingsDep,
 
 
 @router.post("/upload", response_model=None,
-             max_body_size=MAX_UPLOAD_BYTES + _MULTIPART_OVERHEAD)
+             max_body_size=_UPLOAD_BODY_MAX)
 async def upload_report(request: Request, file: UploadFile, user: CurrentUser, db: DbDep,
                         subject: Annotated[str, Form(min_length=1, max_length=40, description=(
                             "subject code printed on the report (a form field: a URL is "
@@ -926,7 +920,7 @@ async def upload_report(request: Request, file: UploadFile, user: CurrentUser, d
                                 ) from None
 
     with tempfile.TemporaryDirectory(prefix="gaitrig-upload-") as tmp:
-        path = await _save_upload(request, file, Path(tmp))
+        path = await _save_upload(file, Path(tmp))
 
         def work() -> Response:
             try:

@@ -33,7 +33,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.api.routes import reports as reports_route
+from app.api.routes import _reference
 from app.config import Settings
 from app.main import create_app
 
@@ -539,7 +539,7 @@ def test_recording_without_a_walk_gives_a_clear_message(client: TestClient,
 
 def test_oversized_upload_is_refused(client: TestClient, monkeypatch: pytest.MonkeyPatch
                                      ) -> None:
-    monkeypatch.setattr(reports_route, "MAX_UPLOAD_BYTES", 1000)
+    monkeypatch.setattr(_reference, "MAX_REFERENCE_BYTES", 1000)
     r = client.post("/api/reports/upload",
                     files={"file": ("big.c3d", b"\0" * 5000, "application/octet-stream")})
     assert r.status_code == 413 and "MB" in r.json()["detail"]

@@ -12,7 +12,7 @@ import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from app.api.routes import exports
+from app.api.routes import _reference
 from app.config import Settings
 from app.db.base import Base, alembic_head, make_engine
 from app.main import create_app
@@ -197,7 +197,7 @@ def _recording_row(client: TestClient) -> None:
 def test_reference_upload_is_bounded(client: TestClient, tmp_path: Path,
                                      monkeypatch: pytest.MonkeyPatch) -> None:
     _recording_row(client)
-    monkeypatch.setattr(exports, "MAX_REFERENCE_BYTES", 1000)
+    monkeypatch.setattr(_reference, "MAX_REFERENCE_BYTES", 1000)
     r = client.post("/api/exports/R1/references", files={"file": ("big.csv", b"x" * 5000)})
     assert r.status_code == 413 and "larger" in r.json()["detail"]
     assert not any((tmp_path / "references" / "R1").iterdir())
