@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -33,18 +34,23 @@ def standing_trc(path: Path) -> Path:
     return path
 
 
-def walk_skeleton_csv(n_steps: int = 6) -> bytes:
-    """A skeleton CSV (Kinect v2 joints, 30 Hz) of a straight walk: an accepted reference."""
-    from engine.io.csv import write_skeleton_csv
+def _walk_series(n_steps: int) -> Any:
+    """A 30 Hz Kinect v2 skeleton (every joint TRACKED) of a straight walk."""
     from engine.sim.straight_walk import synth_walk, walk_skeleton
     from engine.skeleton import KINECT_V2, SkeletonSeries
 
     w = synth_walk(n_steps=n_steps, rate=30.0)
     pos = walk_skeleton(w)
-    states = np.full(pos.shape[:2], 2, np.uint8)
+    return SkeletonSeries(w.times, pos, np.full(pos.shape[:2], 2, np.uint8), KINECT_V2)
+
+
+def walk_skeleton_csv(n_steps: int = 6) -> bytes:
+    """A skeleton CSV (Kinect v2 joints, 30 Hz) of a straight walk: an accepted reference."""
+    from engine.io.csv import write_skeleton_csv
+
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "walk.csv"
-        write_skeleton_csv(p, SkeletonSeries(w.times, pos, states, KINECT_V2))
+        write_skeleton_csv(p, _walk_series(n_steps))
         return p.read_bytes()
 
 
@@ -52,13 +58,9 @@ def walk_skeleton_c3d(n_steps: int = 6) -> tuple[bytes, int]:
     """A skeleton C3D (Kinect v2 joint labels, mm, 30 Hz) of a straight walk, as the
     console's skeleton export writes it: an accepted reference; with its frame count."""
     from engine.io.c3d import write_skeleton_c3d
-    from engine.sim.straight_walk import synth_walk, walk_skeleton
-    from engine.skeleton import KINECT_V2, SkeletonSeries
 
-    w = synth_walk(n_steps=n_steps, rate=30.0)
-    pos = walk_skeleton(w)
-    states = np.full(pos.shape[:2], 2, np.uint8)
+    series = _walk_series(n_steps)
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "walk.c3d"
-        write_skeleton_c3d(p, SkeletonSeries(w.times, pos, states, KINECT_V2))
-        return p.read_bytes(), len(w.times)
+        write_skeleton_c3d(p, series)
+        return p.read_bytes(), len(series.times)

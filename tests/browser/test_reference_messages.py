@@ -127,6 +127,20 @@ def test_reports_page_names_the_reference_its_reports_use(page: Any, live_server
     assert not page.js_errors
 
 
+def _attach_on_subjects_page(page: Any, live_server: LiveServer, sid: int, rid: str,
+                             file: Path, ready: str) -> str:
+    """Attach ``file`` as a reference of recording ``rid`` on the Subjects page (once the
+    box's ``ready`` element shows) and wait for the refusal; the box's selector."""
+    page.goto(f"{live_server.base_url}/subjects.html#subject={sid}")
+    box_sel = f".recording[data-recording='{rid}'] .actions:has(input[type=file])"
+    page.locator(f"{box_sel} {ready}").wait_for()
+    page.locator(f"{box_sel} input[type=file]").set_input_files(str(file))
+    page.locator(f"{box_sel} button").click()
+    page.wait_for_function(
+        f"document.querySelector(\"{box_sel} .msg\").textContent.includes('ot attached')")
+    return box_sel
+
+
 def test_subjects_page_refuses_a_reference_with_no_walk(page: Any, live_server: LiveServer,
                                                         artifacts_dir: Path,
                                                         tmp_path: Path) -> None:
@@ -147,13 +161,7 @@ def test_subjects_page_refuses_a_reference_with_no_walk(page: Any, live_server: 
     assert r.status == 201, r.text()
     still = standing_trc(tmp_path / "standing still.trc")
 
-    page.goto(f"{live_server.base_url}/subjects.html#subject={sid}")
-    box_sel = f".recording[data-recording='{rid}'] .actions:has(input[type=file])"
-    page.locator(f"{box_sel} a.button").wait_for()
-    page.locator(f"{box_sel} input[type=file]").set_input_files(str(still))
-    page.locator(f"{box_sel} button").click()
-    page.wait_for_function(
-        f"document.querySelector(\"{box_sel} .msg\").textContent.includes('ot attached')")
+    box_sel = _attach_on_subjects_page(page, live_server, sid, rid, still, "a.button")
     said = page.text_content(f"{box_sel} .msg") or ""
     # beside the button pressed, the file named once, what is wrong and what to do
     assert said.startswith("Not attached: 'standing still.trc' has no walk in it: "
@@ -204,13 +212,7 @@ def test_both_pages_say_the_same_of_a_reference_with_no_walk(page: Any,
                 f.matches('#ref-form button[type=submit]')]; }""")
     screenshot(page, artifacts_dir, "reports_reference_no_walk", "#ref-box")
 
-    page.goto(f"{live_server.base_url}/subjects.html#subject={sid}")
-    box_sel = f".recording[data-recording='{rid}'] .actions:has(input[type=file])"
-    page.locator(f"{box_sel} button").wait_for()
-    page.locator(f"{box_sel} input[type=file]").set_input_files(str(still))
-    page.locator(f"{box_sel} button").click()
-    page.wait_for_function(
-        f"document.querySelector(\"{box_sel} .msg\").textContent.includes('ot attached')")
+    box_sel = _attach_on_subjects_page(page, live_server, sid, rid, still, "button")
     on_subjects = page.text_content(f"{box_sel} .msg") or ""
     subjects_way = page.evaluate("""(sel) => { const m = document.querySelector(sel + ' .msg');
         const f = document.activeElement;
