@@ -36,20 +36,28 @@ def _recording(server: LiveServer, code: str) -> str:
     return short_recording(server, se, "walk 1")
 
 
+def _attach_on_reports_page(page: Any, live_server: LiveServer, rid: str, file: Path,
+                            said: str) -> None:
+    """Attach ``file`` as the reference of recording ``rid`` on the Reports page and wait
+    until its message holds ``said``."""
+    page.goto(live_server.base_url + "/reports.html")
+    page.wait_for_function(f"[...document.querySelectorAll('#recording option')]"
+                           f".some(o => o.value === '{rid}')")
+    page.select_option("#recording", rid)
+    page.click("#ref-box summary")
+    page.set_input_files("#ref-file", str(file))
+    page.click("#ref-form button[type=submit]")
+    page.wait_for_function(
+        f"document.getElementById('ref-msg').textContent.includes({said!r})")
+
+
 def test_reports_page_says_what_a_damaged_c3d_is_not(page: Any, live_server: LiveServer,
                                                      artifacts_dir: Path,
                                                      tmp_path: Path) -> None:
     rid = _recording(live_server, "REFM1")
     damaged = tmp_path / "trial 3.c3d"
     damaged.write_bytes(b"\x02\x50" + b"\x00" * 6 + b"not a c3d file at all")
-    page.goto(live_server.base_url + "/reports.html")
-    page.wait_for_function(f"[...document.querySelectorAll('#recording option')]"
-                           f".some(o => o.value === '{rid}')")
-    page.select_option("#recording", rid)
-    page.click("#ref-box summary")
-    page.set_input_files("#ref-file", str(damaged))
-    page.click("#ref-form button[type=submit]")
-    page.wait_for_function("document.getElementById('ref-msg').textContent.includes('C3D')")
+    _attach_on_reports_page(page, live_server, rid, damaged, "C3D")
     # the file named once, in the Subjects page's words and way ("Not attached: …")
     assert page.text_content("#ref-msg") == f"Not attached: {NOT_C3D}"
     screenshot(page, artifacts_dir, "reports_reference_damaged_c3d", "#ref-box")
@@ -197,14 +205,7 @@ def test_both_pages_say_the_same_of_a_reference_with_no_walk(page: Any,
     rid = short_recording(live_server, se, "walk 1")
     still = standing_trc(tmp_path / "standing still.trc")
 
-    page.goto(live_server.base_url + "/reports.html")
-    page.wait_for_function(f"[...document.querySelectorAll('#recording option')]"
-                           f".some(o => o.value === '{rid}')")
-    page.select_option("#recording", rid)
-    page.click("#ref-box summary")
-    page.set_input_files("#ref-file", str(still))
-    page.click("#ref-form button[type=submit]")
-    page.wait_for_function("document.getElementById('ref-msg').textContent.includes('ot attached')")
+    _attach_on_reports_page(page, live_server, rid, still, "ot attached")
     on_reports = page.text_content("#ref-msg") or ""
     reports_way = page.evaluate("""() => { const m = document.getElementById('ref-msg');
         const f = document.activeElement;
