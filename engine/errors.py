@@ -3,13 +3,109 @@
 Every error that a user can cause (bad file, too little data, unreachable sensor)
 raises a subclass of :class:`GaitrigError` whose message says what to fix. The API
 maps these to HTTP 4xx responses.
+
+The message (``str(exc)``) is ``gaitrig gait``'s: its advice names command-line flags
+("give it with --up, e.g. --up x"). An error whose fix is one of the analysis's options
+for files from other labs (:data:`OPTIONS`) also says it in parts, with no flag in them
+(:attr:`GaitrigError.reason`, :attr:`GaitrigError.advice`, :attr:`GaitrigError.example`),
+so that a front end with other controls (a web form) or none (a reference upload) words
+the fix its own way (:meth:`GaitrigError.words`) instead of rewriting the message.
 """
 
 from __future__ import annotations
 
+import re
+from collections.abc import Callable
+
+#: The options for files from other labs an error's advice can name, as
+#: :func:`engine.mocap.feet_from_file`'s arguments: ``up`` (vertical axis), ``units``
+#: (length unit), ``markers`` (the left and right foot markers, given together),
+#: ``ankle_markers`` (how ankle markers are taken) and ``ankle_width_mm``.
+OPTIONS = ("up", "units", "markers", "ankle_markers", "ankle_width_mm")
+#: What an advice token asks of its option: ``""`` names it (with the value given or the
+#: token's), ``"give"`` set it, ``"by"`` the same as a means ("… by giving …"),
+#: ``"change"`` choose another value than the one given (or the automatic one),
+#: ``"clear"`` leave it out (automatic), ``"both"`` give both of a pair or neither.
+VERBS = ("", "give", "by", "change", "clear", "both")
+#: A token in :attr:`GaitrigError.reason` or :attr:`GaitrigError.advice`:
+#: ``{option}``, ``{option=value}`` or ``{option:verb}``. Other braces are text.
+TOKEN = re.compile(r"\{(" + "|".join(OPTIONS) + r")(?:=([A-Za-z0-9_+-]+))?"
+                   r"(?::(" + "|".join(v for v in VERBS if v) + r"))?\}")
+
+#: How a front end says a token: ``say(option, value, verb, example)`` with the token's
+#: option, its ``=value`` (None without), its verb (``""`` without) and the error's
+#: :attr:`GaitrigError.example`.
+Say = Callable[[str, str | None, str, str | None], str]
+
 
 class GaitrigError(Exception):
-    """Base class of every user-facing engine error."""
+    """Base class of every user-facing engine error.
+
+    ``str(exc)`` is the message given first (``gaitrig gait``'s words). An error whose fix
+    is an option for files from other labs, or whose message says what to do in words
+    only the command line understands, also gives keyword-only parts without flags:
+
+    Args:
+        *args: As for :class:`Exception`: the message first.
+        reason: What is wrong, without advice: for any front end, including one with no
+            options (a reference upload). An option the person gave is a token
+            (:data:`TOKEN`) naming it with its value, e.g. ``"{up=z} contradicts the
+            markers: …"``.
+        advice: What to do, with each option named as a token, e.g. ``"{up:give}"``,
+            ``"choose one subject's feet {markers:by}"``, ``"{ankle_markers:clear}, or
+            {markers:clear} to have the ankle joint centres estimated"``; None when the
+            reason is all there is to say without the command line.
+        example: A value of the advice's option that would do (``"x"`` for ``up``,
+            ``"LHEE"`` for ``markers``, the left one), said by its tokens.
+        sep: What joins the reason and the advice in :meth:`words` (``"; "``, ``": "`` or
+            ``". "``, as in the message).
+
+    Attributes:
+        reason: As given; None for an error raised with its message only (a front end
+            then has the message alone, and rewrites it at its own risk).
+        advice: As given.
+        example: As given.
+        sep: As given.
+    """
+
+    reason: str | None = None
+    advice: str | None = None
+    example: str | None = None
+    sep: str = "; "
+
+    def __init__(self, *args: object, reason: str | None = None, advice: str | None = None,
+                 example: str | None = None, sep: str = "; ") -> None:
+        super().__init__(*args)
+        self.reason = reason
+        self.advice = advice
+        self.example = example
+        self.sep = sep
+
+    @property
+    def structured(self) -> bool:
+        """Whether the error gives its reason or advice in parts (else only ``str()``)."""
+        return self.reason is not None or self.advice is not None
+
+    @property
+    def option(self) -> str | None:
+        """The option that fixes it: the first the advice names (None without one)."""
+        m = TOKEN.search(self.advice or "")
+        return m[1] if m else None
+
+    def words(self, say: Say, advice: bool = True) -> str | None:
+        """The reason and (with ``advice``) the advice, joined by :attr:`sep`, their
+        tokens said by ``say``; None when there is neither (an error given with its
+        message only, or without ``advice`` one that gives advice alone)."""
+        parts = [p for p in (self.reason, self.advice if advice else None) if p is not None]
+        if not parts:
+            return None
+        return self.sep.join(fill(p, say, self.example) for p in parts)
+
+
+def fill(template: str, say: Say, example: str | None = None) -> str:
+    """``template`` with each token (:data:`TOKEN`) replaced by ``say(option, value,
+    verb, example)``."""
+    return TOKEN.sub(lambda m: say(m[1], m[2], m[3] or "", example), template)
 
 
 class InputError(GaitrigError, ValueError):

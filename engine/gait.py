@@ -610,10 +610,9 @@ class GaitAnalysis:
                                        p.excluded_first))
             self.passes_ = passes
         if not self.passes_:
-            raise InsufficientDataError(
-                "no straight walking found (the body centre must travel ≥ "
-                f"{MIN_PASS_M} m at ≥ {MIN_WALK_SPEED} m/s for ≥ {MIN_PASS_S} s)"
-            )
+            why = ("no straight walking found (the body centre must travel ≥ "
+                   f"{MIN_PASS_M} m at ≥ {MIN_WALK_SPEED} m/s for ≥ {MIN_PASS_S} s)")
+            raise InsufficientDataError(why, reason=why)
         events: list[GaitEvent] = []
         steps: list[Step] = []
         strides: list[Stride] = []
@@ -645,13 +644,14 @@ class GaitAnalysis:
                     seen.append((float(np.linalg.norm(c[-1, :2] - c[0, :2])),
                                  p.t_end - p.t_start))
             longest_m, longest_s = max(seen)
-            raise InsufficientDataError(
-                f"only {count(len(steps), 'step')} found in "
-                f"{count(len(self.passes_), 'pass', 'passes')}; at least "
-                f"two steps are needed. The longest stretch of straight walking seen was "
-                f"{longest_m:.1f} m ({longest_s:.1f} s): record a longer walk, or, if the "
-                "subject walked farther, place or add sensors to cover more of the walkway"
-            )
+            why = (f"only {count(len(steps), 'step')} found in "
+                   f"{count(len(self.passes_), 'pass', 'passes')}; at least two steps are "
+                   "needed")
+            # the advice is on recording: a reference file cannot follow it
+            what = (f"The longest stretch of straight walking seen was {longest_m:.1f} m "
+                    f"({longest_s:.1f} s): record a longer walk, or, if the subject walked "
+                    "farther, place or add sensors to cover more of the walkway")
+            raise InsufficientDataError(f"{why}. {what}", reason=why, advice=what, sep=". ")
         self.summary_ = self._summary(float(rate))
         self.summary_["foot_points"] = measured_points(feet, self.method)
         # the notes are about the crossing method's point (a lateral ankle marker's centre)

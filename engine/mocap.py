@@ -445,13 +445,17 @@ def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str
                 n = walking_medial_directions(travel, pts[side]["ankle"], ref)
         if n is None:
             if forced:
+                why = (f"the {words[side]} ankle joint centre cannot be placed from {lab}: "
+                       "the file has no medial malleolus marker and no heel and toe markers "
+                       "of that foot (its axis), nor the other foot's centre to place it "
+                       "across the walking direction")
+                needs = "it needs that foot's heel and toe markers (named like LHEE, LTOE)"
                 raise InputError(
-                    f"--ankle-markers lateral: the {words[side]} ankle joint centre cannot be "
-                    f"placed from {lab}: the file has no medial malleolus marker and no heel "
-                    "and toe markers of that foot (its axis), nor the other foot's centre "
-                    "to place it across the walking direction; it needs that foot's heel "
-                    "and toe markers (named like LHEE, LTOE), or leave --ankle-markers out "
-                    f"to measure {lab} as it is (with a note)")
+                    f"--ankle-markers lateral: {why}; {needs}, or leave --ankle-markers out "
+                    f"to measure {lab} as it is (with a note)",
+                    reason="{ankle_markers=lateral}: " + why,
+                    advice=f"{needs}, or {{ankle_markers:clear}} to measure {lab} as it is "
+                           "(with a note)")
             notes.append(f"The {words[side]} ankle marker {lab} is on the lateral malleolus "
                          "and no heel and toe markers give the foot's axis to find the joint "
                          f"centre from it: {lab} itself is measured, which puts the "
@@ -484,8 +488,10 @@ def _check_units(P: FloatArray, labels: list[str], units: str) -> None:
     """A unit given by the user must give a body of human size (leg or height)."""
     L = characteristic_length(P, labels)
     if not 0.2 < L < 5.0:
-        raise InputError(f"with --units {units} the body measures {L:.3g} m (leg length or "
-                         "height); fix --units or leave it out")
+        why = f"the body measures {L:.3g} m (leg length or height)"
+        raise InputError(f"with --units {units} {why}; fix --units or leave it out",
+                         reason=f"with {{units={units.strip()}}} {why}",
+                         advice="{units:change}")
 
 
 def _check_up(P: FloatArray, labels: list[str], up: str) -> None:
@@ -494,8 +500,10 @@ def _check_up(P: FloatArray, labels: list[str], up: str) -> None:
     up_rotation(up)  # "w" is not an axis: say so rather than that it contradicts the body
     found = labelled_vertical_axis(P, labels)
     if found is not None and found != up.strip().lower().lstrip("+"):
-        raise InputError(f"--up {up} contradicts the markers: the pelvis/head are above the "
-                         f"feet along {found}; give --up {found} or leave it out")
+        why = f"contradicts the markers: the pelvis/head are above the feet along {found}"
+        raise InputError(f"--up {up} {why}; give --up {found} or leave it out",
+                         reason=f"{{up={up.strip()}}} {why}", advice="{up:change}",
+                         example=found)
 
 
 def ankle_widths_by_side(ankle_width_m: float | tuple[float, ...] | None
@@ -517,20 +525,25 @@ def ankle_widths_by_side(ankle_width_m: float | tuple[float, ...] | None
     vals = (list(ankle_width_m) if isinstance(ankle_width_m, tuple | list | np.ndarray)
             else [ankle_width_m])
     how = ("give the distance across the malleoli in millimetres, one value for both "
-           "feet or left,right: --ankle-width-mm 70 or --ankle-width-mm 68,72")
+           "feet or left,right: {}70 or {}68,72")
+    cli, words = how.format("--ankle-width-mm ", "--ankle-width-mm "), how.format("", "")
+
+    def refused(why: str) -> InputError:
+        return InputError(f"{why}; {cli}", reason=why, advice=words)
+
     if len(vals) not in (1, 2):
-        raise InputError(f"{len(vals)} ankle widths given; {how}")
+        raise refused(f"{len(vals)} ankle widths given")
     try:
         ws = [float(v) for v in vals]
     except (TypeError, ValueError):
-        raise InputError(f"ankle width {vals!r} is not a number; {how}") from None
+        raise refused(f"ankle width {vals!r} is not a number") from None
     lo, hi = ANKLE_WIDTH_RANGE_M
     for side, w in zip(("left", "right") if len(ws) == 2 else ("both feet",), ws,
                        strict=True):
         if not (np.isfinite(w) and lo <= w <= hi):
-            raise InputError(f"an ankle width of {1000 * w:g} mm ({side}) is outside "
-                             f"{1000 * lo:.0f}-{1000 * hi:.0f} mm (adult ankles measure about "
-                             f"55-90 mm); {how}")
+            raise refused(f"an ankle width of {1000 * w:g} mm ({side}) is outside "
+                          f"{1000 * lo:.0f}-{1000 * hi:.0f} mm (adult ankles measure about "
+                          "55-90 mm)")
     return {"L": ws[0], "R": ws[-1]}
 
 
@@ -541,15 +554,25 @@ def _check_ankle_options(ankle_markers: str, widths: dict[str, float] | None,
         raise InputError(f"--ankle-markers {ankle_markers!r} is not one of "
                          f"{', '.join(ANKLE_MARKER_RULES)}")
     if named and (ankle_markers == "lateral" or widths is not None):
-        given = "--ankle-markers lateral" if ankle_markers == "lateral" else "--ankle-width-mm"
+        lateral = ankle_markers == "lateral"
+        given = "--ankle-markers lateral" if lateral else "--ankle-width-mm"
+        opt = "ankle_markers" if lateral else "ankle_width_mm"
         raise InputError(f"{given} applies to the ankle markers found by name; with "
                          "--left/--right the named markers are measured as they are: leave "
                          f"{given} out, or --left/--right out to have the ankle joint "
-                         "centres estimated")
+                         "centres estimated",
+                         reason=("{ankle_markers=lateral}" if lateral else "{ankle_width_mm}")
+                         + " applies to the ankle markers found by name; with {markers} "
+                         "given, the named markers are measured as they are",
+                         advice=f"{{{opt}:clear}}, or {{markers:clear}} to have the ankle "
+                                "joint centres estimated", sep=": ")
     if ankle_markers == "joint" and widths is not None:
         raise InputError("--ankle-width-mm places joint centres from lateral-malleolus "
                          "markers; with --ankle-markers joint the markers are the joint "
-                         "centres: leave one of the two out")
+                         "centres: leave one of the two out",
+                         reason="{ankle_width_mm} places joint centres from "
+                         "lateral-malleolus markers; with {ankle_markers=joint} the markers "
+                         "are the joint centres", advice="leave one of the two out", sep=": ")
 
 
 def feet_from_markers(
@@ -595,7 +618,8 @@ def feet_from_markers(
     """
     labels = markers.labels
     if (left is None) != (right is None):
-        raise InputError("give both --left and --right marker names, or neither")
+        raise InputError("give both --left and --right marker names, or neither",
+                         advice="{markers:both}")
     given = ankle_widths_by_side(ankle_width_m)
     _check_ankle_options(ankle_markers, given, left is not None)
     if len(markers) < 2:
@@ -639,9 +663,11 @@ def feet_from_markers(
             if len(same) > 1 and left is None:
                 # e.g. two subjects' Plug-in Gait sets: analysing the first silently
                 # could report the wrong person.
-                raise InputError(f"several markers are named like {lab!r}: "
-                                 f"{', '.join(same)}; choose one subject's feet with "
-                                 f"--left/--right, e.g. --left {same[0]}")
+                why = f"several markers are named like {lab!r}: {', '.join(same)}"
+                raise InputError(f"{why}; choose one subject's feet with --left/--right, "
+                                 f"e.g. --left {same[0]}", reason=why,
+                                 advice="choose one subject's feet {markers:by}",
+                                 example=same[0])
             if lab is not None:
                 x = fill_gaps(t, P[:, labels.index(lab)])
                 if np.isfinite(x).all(axis=1).sum() >= 2:
@@ -666,24 +692,29 @@ def feet_from_markers(
             else:
                 primary[side] = have[0]
         if missing and empty:
-            raise InputError(f"no usable {' and no '.join(missing)} marker: "
-                             f"{', '.join(empty)} {'holds' if len(empty) == 1 else 'hold'} "
-                             "no data (missing in every frame but at most one); name other "
-                             "foot markers with --left/--right")
+            why = (f"no usable {' and no '.join(missing)} marker: {', '.join(empty)} "
+                   f"{'holds' if len(empty) == 1 else 'hold'} no data (missing in every "
+                   "frame but at most one)")
+            raise InputError(f"{why}; name other foot markers with --left/--right",
+                             reason=why, advice="name other foot markers {markers:by}")
         if missing:
+            names = "LANK/RANK, LHEE/RHEE, L.Ankle, L_FAL, L_FCC, AnkleLeft"
+            what, available = (f"no usable {' and no '.join(missing)} marker",
+                               "available labels: " + ", ".join(labels))
             raise InputError(
-                f"no usable {' and no '.join(missing)} marker (looked for names like "
-                "LANK/RANK, LHEE/RHEE, L.Ankle, L_FAL, L_FCC, AnkleLeft: "
-                "docs/gait-json.md lists them); available labels: "
-                + ", ".join(labels) + "; name the foot markers with --left/--right"
-            )
+                f"{what} (looked for names like {names}: docs/gait-json.md lists them); "
+                f"{available}; name the foot markers with --left/--right",
+                reason=f"{what} (markers named like {names} are recognised); {available}",
+                advice="name the foot markers {markers:by}")
     notes: list[str] = []
     ankles = [sources[f"{s}_ankle"] for s in ("L", "R") if f"{s}_ankle" in sources]
     if not explicit and ankle_markers != "auto":
         if not ankles:
-            raise InputError(f"--ankle-markers {ankle_markers}: the file has no ankle marker "
-                             "(looked for names like LANK, L_Ankle, L.Ankle.Lat, L_FAL); "
-                             "leave --ankle-markers out")
+            why = ("the file has no ankle marker (looked for names like LANK, L_Ankle, "
+                   "L.Ankle.Lat, L_FAL)")
+            raise InputError(f"--ankle-markers {ankle_markers}: {why}; leave --ankle-markers "
+                             "out", reason=f"{{ankle_markers={ankle_markers}}}: {why}",
+                             advice="{ankle_markers:clear}")
         notes.append(f"The ankle {'markers' if len(ankles) == 2 else 'marker'} "
                      f"{' and '.join(ankles)} {'were' if len(ankles) == 2 else 'was'} taken "
                      + ("for lateral-malleolus markers, as asked (ankle markers: lateral)."
@@ -697,11 +728,13 @@ def feet_from_markers(
                                 t, markers.meta, ankle_markers == "lateral", given)
         if given is not None and not any(f"{s}_ankle_centre" in sources for s in ("L", "R")):
             names = " and ".join(ankles) or "the file's ankle markers"
-            raise InputError(f"--ankle-width-mm is not used: {names} "
-                             f"{'are' if len(ankles) != 1 else 'is'} taken for ankle joint "
-                             "centres by name (or no ankle marker was found); give "
-                             "--ankle-markers lateral if they are on the lateral malleoli, "
-                             "or leave --ankle-width-mm out")
+            why = (f"is not used: {names} {'are' if len(ankles) != 1 else 'is'} taken for "
+                   "ankle joint centres by name (or no ankle marker was found)")
+            raise InputError(f"--ankle-width-mm {why}; give --ankle-markers lateral if they "
+                             "are on the lateral malleoli, or leave --ankle-width-mm out",
+                             reason="{ankle_width_mm} " + why,
+                             advice="give {ankle_markers=lateral} if they are on the lateral "
+                                    "malleoli, or {ankle_width_mm:clear}")
         for side in ("L", "R"):
             if primary[side] == "ankle" and "ankle_centre" in pts[side]:
                 primary[side] = "ankle_centre"
@@ -828,9 +861,13 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
                                  ankle_width_m)
     if ext == ".csv":
         if ankle_markers == "lateral" or given is not None:
-            opt = "--ankle-markers lateral" if ankle_markers == "lateral" else "--ankle-width-mm"
-            raise InputError(f"{opt} applies to marker files (.c3d, .trc); a skeleton CSV's "
-                             "ankles are joints: leave it out")
+            lateral = ankle_markers == "lateral"
+            opt = "--ankle-markers lateral" if lateral else "--ankle-width-mm"
+            why = "applies to marker files (.c3d, .trc); a skeleton CSV's ankles are joints"
+            raise InputError(f"{opt} {why}: leave it out",
+                             reason=("{ankle_markers=lateral} " if lateral
+                                     else "{ankle_width_mm} ") + why,
+                             advice="leave it out", sep=": ")
         s = read_skeleton_csv(p)
         joints = list(s.joint_set.joints)
         if units is not None:

@@ -446,8 +446,9 @@ def characteristic_length(positions: ArrayLike, labels: list[str]) -> float:
     ext = ns.nanmax(P, axis=1) - ns.nanmin(P, axis=1)
     L = float(ns.nanmedian(ns.nanmax(ext, axis=-1)))
     if not np.isfinite(L) or L <= 0:
-        raise InputError("cannot guess the length unit: no frame with two or more markers; "
-                         "give the units explicitly")
+        why = "cannot guess the length unit: no frame with two or more markers"
+        raise InputError(f"{why}; give the units explicitly", reason=why,
+                         advice="{units:give}")
     return L
 
 
@@ -535,8 +536,8 @@ def detect_vertical_axis(positions: ArrayLike, labels: list[str]) -> str:
         centroid = ns.nanmean(P, axis=1)
         travel = ns.nanstd(centroid, axis=0)
         if not np.all(np.isfinite(spread)):
-            raise InputError("cannot detect the vertical axis: too few markers; give it "
-                             "with --up")
+            why = "cannot detect the vertical axis: too few markers"
+            raise InputError(f"{why}; give it with --up", reason=why, advice="{up:give}")
         score = spread / (travel + spread.max() * 0.1 + 1e-12)
         a = int(np.argmax(score))
     return ("-" if feet and _height_skew(P[:, feet, a]) < 0 else "") + AXES[a]
@@ -599,9 +600,10 @@ def floor_axis(positions: ArrayLike, labels: list[str]) -> int | None:
     order = np.argsort(score)
     if score[order[1]] < FLOOR_AXIS_MARGIN * score[order[0]]:
         a, b = sorted((AXES[order[0]], AXES[order[1]]))
-        raise InputError(f"cannot tell the vertical axis from the foot markers ({a} or "
-                         f"{b}: the feet stand at one level along both); give it with "
-                         f"--up, e.g. --up {a}")
+        why = (f"cannot tell the vertical axis from the foot markers ({a} or {b}: the feet "
+               "stand at one level along both)")
+        raise InputError(f"{why}; give it with --up, e.g. --up {a}", reason=why,
+                         advice="{up:give}", example=a)
     return int(order[0])
 
 
