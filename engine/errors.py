@@ -55,6 +55,8 @@ class GaitrigError(Exception):
             ``"choose one subject's feet {markers:by}"``, ``"{ankle_markers:clear}, or
             {markers:clear} to have the ankle joint centres estimated"``; None when the
             reason is all there is to say without the command line.
+        option: The option (:data:`OPTIONS`) that fixes it, when the advice names none
+            as a token (default: the first it names).
         example: A value of the advice's option that would do (``"x"`` for ``up``,
             ``"LHEE"`` for ``markers``, the left one), said by its tokens.
         sep: What joins the reason and the advice in :meth:`words` (``"; "``, ``": "`` or
@@ -73,9 +75,13 @@ class GaitrigError(Exception):
     example: str | None = None
     sep: str = "; "
 
+    _option: str | None = None
+
     def __init__(self, *args: object, reason: str | None = None, advice: str | None = None,
-                 example: str | None = None, sep: str = "; ") -> None:
+                 option: str | None = None, example: str | None = None,
+                 sep: str = "; ") -> None:
         super().__init__(*args)
+        self._option = option
         self.reason = reason
         self.advice = advice
         self.example = example
@@ -88,9 +94,10 @@ class GaitrigError(Exception):
 
     @property
     def option(self) -> str | None:
-        """The option that fixes it: the first the advice names (None without one)."""
+        """The option that fixes it: as given, else the first the advice names (None
+        without one)."""
         m = TOKEN.search(self.advice or "")
-        return m[1] if m else None
+        return self._option or (m[1] if m else None)
 
     def words(self, say: Say, advice: bool = True) -> str | None:
         """The reason and (with ``advice``) the advice, joined by :attr:`sep`, their

@@ -529,7 +529,7 @@ def ankle_widths_by_side(ankle_width_m: float | tuple[float, ...] | None
     cli, words = how.format("--ankle-width-mm ", "--ankle-width-mm "), how.format("", "")
 
     def refused(why: str) -> InputError:
-        return InputError(f"{why}; {cli}", reason=why, advice=words)
+        return InputError(f"{why}; {cli}", reason=why, advice=words, option="ankle_width_mm")
 
     if len(vals) not in (1, 2):
         raise refused(f"{len(vals)} ankle widths given")
@@ -572,7 +572,8 @@ def _check_ankle_options(ankle_markers: str, widths: dict[str, float] | None,
                          "centres: leave one of the two out",
                          reason="{ankle_width_mm} places joint centres from "
                          "lateral-malleolus markers; with {ankle_markers=joint} the markers "
-                         "are the joint centres", advice="leave one of the two out", sep=": ")
+                         "are the joint centres", advice="leave one of the two out",
+                         option="ankle_width_mm", sep=": ")
 
 
 def feet_from_markers(
@@ -867,7 +868,8 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
             raise InputError(f"{opt} {why}: leave it out",
                              reason=("{ankle_markers=lateral} " if lateral
                                      else "{ankle_width_mm} ") + why,
-                             advice="leave it out", sep=": ")
+                             advice="leave it out",
+                             option="ankle_markers" if lateral else "ankle_width_mm", sep=": ")
         s = read_skeleton_csv(p)
         joints = list(s.joint_set.joints)
         if units is not None:

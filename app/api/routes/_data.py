@@ -61,7 +61,7 @@ def datasync_of(request: Request) -> DataSync:
     return ds
 
 
-def refusal(exc: BaseException, copy: Path, name: str) -> str:
+def refusal(exc: BaseException, copy: Path, name: str, text: str | None = None) -> str:
     """Why the file ``name`` (read from ``copy``) was refused, naming it at most once:
     a reader's "cannot read walk.c3d as C3D: …" (or "cannot read walk.c3d: …",
     "walk.csv: …") becomes the Subjects page's "'walk.c3d' is not a readable C3D file:
@@ -69,8 +69,10 @@ def refusal(exc: BaseException, copy: Path, name: str) -> str:
     kept as it is, and any other reason ("no steps were found") is returned without the
     file's name: the caller, seeing ``name not in`` it, names the file itself (prefixing
     every reason with the name said it twice: "'Gang.trc' is not a readable TRC file:
-    Gang.trc is not a TRC file …", "trial 3.c3d: cannot read trial 3.c3d as C3D: …")."""
-    why = str(exc).replace(str(copy), name).replace(copy.name, name)
+    Gang.trc is not a TRC file …", "trial 3.c3d: cannot read trial 3.c3d as C3D: …").
+    ``text`` is said instead of ``str(exc)`` when given (the error's reason and advice in
+    a page's words, :meth:`engine.errors.GaitrigError.words`)."""
+    why = (str(exc) if text is None else text).replace(str(copy), name).replace(copy.name, name)
     kind = (Path(name).suffix or copy.suffix).lstrip(".").upper()
     for reader in (f"cannot read {name} as {kind}: ", f"cannot read {name}: ", f"{name}: "):
         if why.startswith(reader):

@@ -135,6 +135,18 @@ def unreadable(exc: BaseException, copy: Path, name: str, ext: str) -> str:
     return why if name in why else f"{name!r} is not a readable {ext.upper()} file: {why}"
 
 
+#: How an option the analysis names is said where no option can be given (the person
+#: gave none: an engine error names one only in its advice, which is left out here).
+OPTION_NAMES = {"up": "the vertical axis", "units": "the units",
+                "markers": "the left and right foot markers",
+                "ankle_markers": "the ankle markers", "ankle_width_mm": "the ankle width"}
+
+
+def _name_option(option: str, value: str | None, verb: str, example: str | None) -> str:
+    """An option named in an error's reason (:meth:`GaitrigError.words`), said plainly."""
+    return OPTION_NAMES[option] + (f" {value}" if value else "")
+
+
 def no_walk(exc: GaitrigError, copy: Path, name: str, attached: Sequence[str] = ()) -> str:
     """Why the reference ``name`` (read from ``copy``) was refused by the gait analysis,
     in a clinician's words: what is wrong, what to do, and that a reference ``attached``
@@ -142,18 +154,25 @@ def no_walk(exc: GaitrigError, copy: Path, name: str, attached: Sequence[str] = 
     (…). Attach the reference recording of this walk: …"). The engine's advice for
     recordings (place or add sensors) and for ``gaitrig gait`` (``--left/--right``,
     ``--up``, "give the units explicitly") is left out: it cannot be followed on either
-    page."""
-    why = marker_words(refusal(exc, copy, name))
+    page. The error's :attr:`~engine.errors.GaitrigError.reason` says what is wrong; an
+    error raised with its message only is cut by phrases (its first sentence, or the
+    clauses without a flag), the exception."""
+    reason = exc.words(_name_option, advice=False)
+    if reason is not None:
+        why = refusal(exc, copy, name, reason).rstrip(".")
+    else:
+        why = marker_words(refusal(exc, copy, name))
     if isinstance(exc, InsufficientDataError):
         # the reason, without the advice on recording that follows it
-        found = why.split(". ", 1)[0].rstrip(".")
+        found = why if reason is not None else why.split(". ", 1)[0].rstrip(".")
         if found.startswith("no straight walking found"):
             found = "0 steps found — no straight walking" + found.removeprefix(
                 "no straight walking found")
         lead = f"{name!r} has no walk in it: {found}"
     else:  # no usable foot markers, a length unit or vertical axis not recognised, …
-        kept = "; ".join(c for c in why.split("; ")
-                         if "--" not in c and "give the units" not in c).rstrip(".")
+        kept = why if reason is not None else "; ".join(
+            c for c in why.split("; ") if "--" not in c and "give the units" not in c
+        ).rstrip(".")
         # (a reader's sentence that names the file is said as it is: named once)
         lead = kept if name in kept else f"{name!r} has no walk the report can use: {kept}"
     out = f"{lead}. {WHAT_TO_DO}"

@@ -46,6 +46,7 @@ from app.api.routes import _reference
 from app.api.routes._data import audit_now, get_row, refusal
 from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, like_pattern, page_of, set_total
 from app.api.routes._reference import (
+    OPTION_NAMES,
     check_reference,
     marker_words,
     receive,
@@ -764,12 +765,13 @@ async def put_reference(rec_id: str, file: UploadFile, user: CurrentUser,
     return {"rec_id": rec_id, "attached": True, **meta}
 
 
-def _file_error(exc: BaseException, copy: Path, name: str) -> str:
+def _file_error(exc: BaseException, copy: Path, name: str, text: str | None = None) -> str:
     """Why "Analyse a file" gave no report of ``name`` (read from ``copy``), naming the
     file once, as a refused reference does: "'trial 3.c3d' is not a readable C3D file:
     the file is damaged…", "walk.trc: no steps were found" (was "trial 3.c3d: cannot read
-    trial 3.c3d as C3D: …", "Gang.trc: Gang.trc is not a TRC file …")."""
-    why = refusal(exc, copy, name)
+    trial 3.c3d as C3D: …", "Gang.trc: Gang.trc is not a TRC file …"). ``text`` is said
+    instead of the error's message when given (:func:`form_say`'s words)."""
+    why = refusal(exc, copy, name, text)
     return why if name in why else f"{name}: {why}"
 
 
@@ -782,8 +784,55 @@ def _axis_words(up: str) -> str:
     return f"{up[-1].upper()} {'down' if up.startswith('-') else 'up'}"
 
 
+#: The Reports page's choices of "ankle markers" (``static/reports.html``).
+_ANKLE_LABELS = {"auto": "Automatic", "lateral": "On the lateral malleoli",
+                 "joint": "At the ankle joint centres"}
+
+
+def form_say(option: str, value: str | None, verb: str, example: str | None) -> str:
+    """An option named in an engine error's reason or advice
+    (:meth:`engine.errors.GaitrigError.words`), as the Reports page's field under
+    "Options for files from other labs": ``{up=z}`` "the vertical axis Z up",
+    ``{up:give}`` with example ``x`` "choose the vertical axis under '…', e.g. X up",
+    ``{markers:by}`` "by giving the left and right foot markers under '…'",
+    ``{ankle_markers:clear}`` "set the ankle markers to Automatic"."""
+    under = f"under '{FILE_OPTIONS}'"
+    the = OPTION_NAMES[option]
+    auto = "leave it empty" if option in ("ankle_width_mm", "markers") else "Automatic"
+    eg = ("" if example is None else f", e.g. {_axis_words(example)}" if option == "up"
+          else f", e.g. {example} as the left one" if option == "markers"
+          else f", e.g. {example}")
+    if verb == "":
+        if option == "markers":
+            return "left and right foot markers"
+        if value is None or option == "ankle_width_mm":
+            return the
+        return {"up": f"the vertical axis {_axis_words(value)}",
+                "units": f"the units {value}",
+                "ankle_markers": f"ankle markers '{_ANKLE_LABELS.get(value, value)}'",
+                }[option]
+    if verb == "both" and option == "markers":
+        return f"give both the left and the right foot marker {under}, or neither"
+    if verb == "by":
+        return f"by giving {the} {under}{eg}"
+    if verb == "change":
+        if option == "up" and example is not None:
+            return f"choose {_axis_words(example)} as the vertical axis {under}, or {auto}"
+        if option == "units":
+            return f"choose other units {under}, or {auto}"
+        return f"change {the} {under}{eg}, or {auto}"
+    if verb == "clear":
+        return (f"leave {the} empty" if auto == "leave it empty"
+                else f"set {the} to Automatic")
+    # "give" (and "both" of a single option)
+    act = "give" if option in ("markers", "ankle_width_mm") else "choose"
+    return f"{act} {the} {under}{eg}"
+
+
 #: The engine's command-line advice (``gaitrig gait``'s flags) and the Reports page's
 #: words for it, most specific first: a clinician cannot act on "give it with --up".
+#: Only for an error raised with its message alone (the exception: one that gives its
+#: reason and advice in parts is said by :func:`form_say`).
 _FORM_WORDS: tuple[tuple[re.Pattern[str], Any], ...] = tuple(
     (re.compile(a), b) for a, b in (
         (r"give it with --up, e\.g\. --up (-?[xyz])\b",
@@ -830,7 +879,8 @@ def form_words(message: str) -> str:
     its own wording, and its pointer to docs/gait-json.md for the marker names it
     recognises becomes those names in words, as for a reference
     (:func:`app.api.routes._reference.marker_words`); messages without such advice are
-    returned unchanged."""
+    returned unchanged. The fallback for an error raised with its message only: one that
+    gives its reason and advice in parts is said by :func:`form_say`."""
     for pattern, repl in _FORM_WORDS:
         message = pattern.sub(repl, message)
     return marker_words(message)
@@ -929,9 +979,11 @@ async def upload_report(request: Request, file: UploadFile, user: CurrentUser, d
                 res["rec_id"] = Path(file.filename or "upload").name[-80:]
                 data = an.build_report(subject, [res], title="Gait report (uploaded file)")
             except GaitrigError as exc:
-                why = _file_error(exc, path, file.filename or "the file")
-                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    form_words(why) if advice == "form" else why) from exc
+                said = exc.words(form_say) if advice == "form" else None
+                why = _file_error(exc, path, file.filename or "the file", said)
+                if advice == "form" and said is None:
+                    why = form_words(why)  # raised with its message only: by phrases
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, why) from exc
             return _respond(data, format, f"gait-report-{subject}")
 
         out = await anyio.to_thread.run_sync(work)
