@@ -241,10 +241,13 @@ def walk_stop_time(t_start: float, straight_s: float = WALK_STRAIGHT_S,
     raise AssertionError(f"the simulated walker has no {straight_s:g} s pass")  # not reached
 
 
-def record_walk(server: Any, session_id: int, timeout_s: float = 90.0) -> str:
+def record_walk(server: Any, session_id: int, timeout_s: float = 90.0,
+                wait: bool = True) -> str:
     """Record a few steps of the simulated walker (default avenue, seed 0) under
     ``session_id`` through ``server.api`` (a :class:`LiveServer` or a test's own lab) and
-    wait until the recording is complete on the server; its id.
+    wait until the recording is complete on the server; its id. With ``wait=False`` it
+    returns once the recording is stopped, its copy to the server under way (another
+    walk can start at once; :func:`wait_copied` waits for it).
 
     The recording is stopped once it holds :data:`WALK_STRAIGHT_S` of straight walking
     (by the simulator's own footprints, :func:`walk_stop_time`), so each walk has steps:
@@ -255,13 +258,19 @@ def record_walk(server: Any, session_id: int, timeout_s: float = 90.0) -> str:
     # + 0.3 s: the nodes' frames reach the ring a moment after their capture time
     time.sleep(max(0.0, walk_stop_time(float(rec["t_start"])) + 0.3 - time.time()))
     server.api(f"/api/recordings/{rec['id']}/stop", {}, method="POST")
+    if wait:
+        wait_copied(server, str(rec["id"]), timeout_s)
+    return str(rec["id"])
+
+
+def wait_copied(server: Any, rec_id: str, timeout_s: float = 90.0) -> None:
+    """Wait until the stopped recording ``rec_id`` is complete on the server."""
     deadline = time.time() + timeout_s
-    while server.api(f"/api/storage/recordings/{rec['id']}")["state"] != "complete":
+    while server.api(f"/api/storage/recordings/{rec_id}")["state"] != "complete":
         if time.time() > deadline:
-            raise TimeoutError(f"recording {rec['id']} was not copied to the server in "
+            raise TimeoutError(f"recording {rec_id} was not copied to the server in "
                                f"{timeout_s:g} s")
         time.sleep(0.1)
-    return str(rec["id"])
 
 
 def login(page: Any, server: LiveServer) -> None:

@@ -8,36 +8,45 @@ from typing import Any
 
 import pytest
 
-from tests.browser.conftest import LiveServer, screenshot
+from tests.browser.conftest import LiveServer, screenshot, wait_copied
 
 pytestmark = pytest.mark.browser
 
 RECORD_S = 8.0
 
 
-def _record(server: LiveServer, session_id: int, attempts: int = 3) -> str:
-    """A short walk of the simulated subject in the session, copied to the server, with
+def _record(server: LiveServer, session_ids: list[int], attempts: int = 3) -> None:
+    """A short walk of the simulated subject in each session, copied to the server, with
     at least two steps in it (the simulated walker turns at the corridor's ends: a few
-    seconds caught at a turn are refused by the analysis, and then recorded again)."""
+    seconds caught at a turn are refused by the analysis, and then recorded again).
+
+    The walks are recorded one straight after the other; their copies to the server and
+    their analyses follow (each walk waited for its own before the next started)."""
     from app.nodes.backends.sim import WORLD_CYCLE_S
 
+    todo = list(session_ids)
     reasons: list[str] = []
     for _ in range(attempts):
         # a recording across the simulated walk's restart has no single walk in it
         to_restart = WORLD_CYCLE_S - time.time() % WORLD_CYCLE_S
-        if to_restart < RECORD_S + 3.0:
+        if to_restart < RECORD_S * len(todo) + 3.0:
             time.sleep(to_restart + 1.0)
-        rid: str = server.api(f"/api/sessions/{session_id}/recordings", {"label": "walk"})["id"]
-        time.sleep(RECORD_S)
-        server.api(f"/api/recordings/{rid}/stop", {})
-        deadline = time.time() + 120
-        while server.api(f"/api/storage/recordings/{rid}")["state"] != "complete":
-            assert time.time() < deadline, server.api(f"/api/recordings/{rid}")
-            time.sleep(0.5)
-        analysis = server.api(f"/api/reports/recordings/{rid}/analysis", timeout=60)
-        if analysis["ok"]:
-            return rid
-        reasons.append(analysis["error"])
+        rids: dict[int, str] = {}
+        for sid in todo:
+            rids[sid] = server.api(f"/api/sessions/{sid}/recordings", {"label": "walk"})["id"]
+            time.sleep(RECORD_S)
+            server.api(f"/api/recordings/{rids[sid]}/stop", {})
+        for rid in rids.values():
+            wait_copied(server, rid, 120)
+        again = []
+        for sid, rid in rids.items():
+            analysis = server.api(f"/api/reports/recordings/{rid}/analysis", timeout=60)
+            if not analysis["ok"]:
+                again.append(sid)
+                reasons.append(analysis["error"])
+        if not again:
+            return
+        todo = again
     raise AssertionError(f"no walk with two steps in {attempts} recordings: {reasons}")
 
 
@@ -51,8 +60,7 @@ def test_pick_two_sessions_and_see_the_change(page: Any, live_server: LiveServer
                                      "label": "cancelled"})
     last = live_server.api("/api/sessions", {"subject_id": s["id"], "date": "2026-11-12",
                                              "label": "after therapy"})
-    _record(live_server, first["id"])
-    _record(live_server, last["id"])
+    _record(live_server, [first["id"], last["id"]])
 
     page.goto(f"{live_server.base_url}/reports.html")
     page.wait_for_function(f"[...document.querySelectorAll('#subject option')]"
