@@ -145,7 +145,12 @@
     return true;
   }
 
+  // Two drawings of the same subject can be under way at once (the page chooses the
+  // only subject as it loads while the person chooses it too): only the last one asked
+  // draws, else both added their sessions and every session was listed twice.
+  const subjectSeq = gaitrig.latest();
   async function subjectChanged() {
+    const asked = subjectSeq.ask();
     const sid = $("subject").value;
     const sess = $("session");
     sess.replaceChildren(el("option", { value: "" }, "All sessions"));
@@ -157,7 +162,7 @@
     if (!sid) return;
     try {
       const s = await json(`/api/subjects/${encodeURIComponent(sid)}`);
-      if ($("subject").value !== sid) return;  // another subject was chosen meanwhile
+      if (!subjectSeq.current(asked)) return;  // chosen again meanwhile (or another one)
       for (const x of s.sessions || []) {
         const done = (x.recordings || []).filter((r) => r.state === "complete").length;
         // the count before the label (as on the Record page): a long label is cut at its
@@ -173,7 +178,7 @@
       }
       showSessionPick();
       showWhole();
-    } catch (e) { if ($("subject").value !== sid) return; say("subject-msg", e.message, true); }
+    } catch (e) { if (!subjectSeq.current(asked)) return; say("subject-msg", e.message, true); }
     setLink($("pdf"), subjectQuery("pdf"));
   }
 

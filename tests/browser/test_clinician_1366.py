@@ -409,3 +409,25 @@ def test_reports_lists_are_read_at_every_width(page: Any, live_server: LiveServe
             cut = [c for c in page.evaluate(CUT_SELECTS_JS) if c.split(":")[0] in
                    ("subject", "session")]
             assert cut == [], (w, cut)
+
+
+def test_a_subject_chosen_twice_at_once_lists_its_sessions_once(
+        page: Any, live_server: LiveServer) -> None:
+    """The Reports page chooses the only subject as it loads; a person choosing it at the
+    same moment started a second drawing of the same subject, and both added their
+    sessions: every session and its tick box was listed twice."""
+    sid, first = _subject(live_server, "Twice chosen", "TWICE01")
+    later = live_server.api("/api/sessions", {"subject_id": sid, "label": "second visit"})
+    short_recording(live_server, first, "walk 1")
+    short_recording(live_server, later["id"], "walk 1")
+    page.goto(f"{live_server.base_url}/reports.html#subject={sid}")
+    page.wait_for_function("document.getElementById('session').options.length > 2")
+    # two drawings of the same subject under way together, as a load and a click make them
+    page.evaluate("""() => { const s = document.getElementById('subject');
+        s.dispatchEvent(new Event('change')); s.dispatchEvent(new Event('change')); }""")
+    page.wait_for_function("document.getElementById('session').options.length > 2")
+    page.wait_for_timeout(1000)  # both answers are in (the doubled list came with the second)
+    sessions = page.eval_on_selector_all("#session option", "os => os.map(o => o.value)")
+    ticks = page.eval_on_selector_all("#sessions-pick input", "cs => cs.map(c => c.value)")
+    assert sessions == ["", str(first), str(later["id"])], sessions
+    assert sorted(ticks) == sorted([str(first), str(later["id"])]), ticks
