@@ -101,8 +101,17 @@ class GaitrigError(Exception):
 
     def words(self, say: Say, advice: bool = True) -> str | None:
         """The reason and (with ``advice``) the advice, joined by :attr:`sep`, their
-        tokens said by ``say``; None when there is neither (an error given with its
-        message only, or without ``advice`` one that gives advice alone)."""
+        tokens said by ``say``.
+
+        Args:
+            say: How the front end says a token (:data:`Say`).
+            advice: Include the advice (False: the reason alone, for a front end whose
+                controls cannot follow it).
+
+        Returns:
+            The words; None when there are none (an error given with its message only,
+            or without ``advice`` one that gives advice alone).
+        """
         parts = [p for p in (self.reason, self.advice if advice else None) if p is not None]
         if not parts:
             return None
@@ -110,8 +119,16 @@ class GaitrigError(Exception):
 
 
 def fill(template: str, say: Say, example: str | None = None) -> str:
-    """``template`` with each token (:data:`TOKEN`) replaced by ``say(option, value,
-    verb, example)``."""
+    """Say the option tokens of a reason or an advice.
+
+    Args:
+        template: Text with tokens (:data:`TOKEN`).
+        say: How the front end says a token (:data:`Say`).
+        example: The error's example value, passed on to ``say``.
+
+    Returns:
+        ``template`` with each token replaced by ``say(option, value, verb, example)``.
+    """
     return TOKEN.sub(lambda m: say(m[1], m[2], m[3] or "", example), template)
 
 
