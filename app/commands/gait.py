@@ -39,6 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "auto: only for passes that start from standing; L/R: the "
                              "subject started with this foot, drop its first step and the "
                              "other foot's first stride (seed paper's literal rule)")
+    parser.add_argument("--max-crossing-gap", type=float, default=0.5, metavar="S",
+                        help="crossing method: find a crossing hidden in a gap of one ankle "
+                             "up to S seconds long (a far ankle seen from one side; "
+                             "default 0.5; 0: only between consecutive samples, as the "
+                             "seed paper)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -97,6 +102,10 @@ def run(args: argparse.Namespace) -> int:
     if missing:
         print(missing, file=sys.stderr)
         return 2
+    if not 0.0 <= args.max_crossing_gap <= 1.0:
+        print("gaitrig gait: error: --max-crossing-gap must be between 0 and 1 s (a longer "
+              f"gap can hide a whole step), got {args.max_crossing_gap:g}", file=sys.stderr)
+        return 2
     excl: bool | Literal["auto", "L", "R"] = (
         args.exclude_first if args.exclude_first in ("auto", "L", "R")
         else args.exclude_first == "yes")
@@ -104,7 +113,8 @@ def run(args: argparse.Namespace) -> int:
         feet = load_feet(args.file, left=args.left, right=args.right, up=args.up,
                          units=args.units, ankle_markers=args.ankle_markers,
                          ankle_width_m=ankle_width_m(args))
-        ga = GaitAnalysis(args.method, exclude_first=excl).fit(feet)
+        ga = GaitAnalysis(args.method, exclude_first=excl,
+                          max_crossing_gap_s=args.max_crossing_gap).fit(feet)
     except GaitrigError as exc:
         print(f"gaitrig gait: error: {exc}", file=sys.stderr)
         return 2

@@ -197,3 +197,35 @@ def test_step_table_names_its_time_columns(tmp_path: Path,
     first = lines[head + 1].split()
     assert float(first[-1]) == pytest.approx(0.55, abs=0.01)
     assert float(first[2]) > 0.55  # the instant, on the file's time axis
+
+
+def test_max_crossing_gap_reproduces_the_papers_rule(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A skeleton CSV whose left ankle is lost for 0.3 s at each crossing (seen from the
+    right only): found by default, and ``--max-crossing-gap 0`` (the seed paper's rule,
+    crossings between consecutive samples only) finds too few steps."""
+    from engine.gait import GaitAnalysis
+    from engine.io.csv import write_skeleton_csv
+    from engine.mocap import feet_from_skeleton
+    from engine.sim.straight_walk import walk_skeleton
+    from engine.skeleton import KINECT_V2, SkeletonSeries, TrackingState
+
+    w = synth_walk(n_steps=12, rate=30.0)
+    P = walk_skeleton(w)
+    states = np.full(P.shape[:2], TrackingState.TRACKED, np.uint8)
+    full = GaitAnalysis().fit(feet_from_skeleton(SkeletonSeries(w.times, P, states, KINECT_V2)))
+    ankle = KINECT_V2.joints.index("AnkleLeft")
+    for e in full.events_:
+        hidden = np.abs(w.times - e.time_s) <= 0.15
+        P[hidden, ankle] = np.nan
+        states[hidden, ankle] = TrackingState.NOT_TRACKED
+    p = tmp_path / "one side.csv"
+    write_skeleton_csv(p, SkeletonSeries(w.times, P, states, KINECT_V2))
+    rc, out, err = _run([str(p), "--json"], capsys)
+    assert rc == 0, err
+    assert len(json.loads(out)["steps"]) == len(full.steps_)
+    rc, out, err = _run([str(p), "--json", "--max-crossing-gap", "0"], capsys)
+    assert rc == 2 and "step" in err, (rc, out, err)
+    rc, out, err = _run([str(p), "--max-crossing-gap", "2"], capsys)
+    assert rc == 2 and err == ("gaitrig gait: error: --max-crossing-gap must be between 0 "
+                               "and 1 s (a longer gap can hide a whole step), got 2\n"), err
