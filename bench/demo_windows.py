@@ -122,7 +122,7 @@ def main() -> None:
     out: dict[str, Any] = {"bench": "demo_windows", "seed": args.seed,
                            "windows": len(starts), "record_s": RECORD_S}
     for name in CONFIGS:
-        e = np.abs(np.array(errs[name])) if errs[name] else np.zeros((0, 3))
+        e = np.abs(np.array(errs[name], dtype=float).reshape(-1, 3))
         n_found = int(np.sum(found[name]))
         out[name] = {
             "refused": refused[name],
