@@ -71,7 +71,12 @@ def _streams(rig: Any, walker: Walker, seed: int, w0: float) -> list[SensorStrea
         world = SkeletonSeries(np.asarray(s.meta["times_true"]) - w0, P, s.states,
                                s.joint_set)
         world, _ = unmirror_back_facing(world, T[:3, 3])
-        out.append(SensorStream(world, np.eye(4), 0.0, 0.0, f"S{k}"))
+        # back into the sensor's frame with its pose, as the server does (the weighted
+        # fusion weighs each sensor by where it stands)
+        Ti = np.linalg.inv(T)
+        local = transform_points(Ti, world.positions.reshape(-1, 3)).reshape(P.shape)
+        out.append(SensorStream(SkeletonSeries(world.times, local, world.states,
+                                               world.joint_set), T, 0.0, 0.0, f"S{k}"))
     return out
 
 

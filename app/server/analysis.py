@@ -60,8 +60,9 @@ FloatArray = NDArray[np.float64]
 
 #: Bump when the analysis changes, so old cached results are recomputed (2: crossings
 #: hidden in a short gap of one ankle are found, see GaitAnalysis.max_crossing_gap_s;
-#: 3: leg swaps confirmed on the floor, engine.integration._unswap_legs).
-ANALYSIS_VERSION = 3
+#: 3: leg swaps confirmed on the floor, engine.integration._unswap_legs; 4: each sensor
+#: placed at its pose for the weighted fusion, was at the world origin).
+ANALYSIS_VERSION = 4
 #: Folder name of the server's recordings under the data folder.
 RECORDINGS_DIR = "recordings"
 _ID_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -389,7 +390,13 @@ def load_streams(rec_dir: Path, poses: Mapping[str, Mapping[str, Any]]
         world = _transform(series, T)
         world, mirrored = unmirror_back_facing(world, T[:3, 3])
         tracked = float(np.mean(series.states == TrackingState.TRACKED) * 100.0)
-        streams.append(SensorStream(world, np.eye(4), a, clk["drift"] * 1e6, node))
+        # The fusion weighs each sensor by where it stands (distance, the body side it
+        # sees, the surface it fits to): the un-mirrored skeleton goes back into the
+        # sensor's frame with the sensor's pose. (World coordinates with an identity pose
+        # put every sensor at the world origin, and the weighted estimator's weights and
+        # surface-bias correction with them.)
+        local = _transform(world, np.linalg.inv(T))
+        streams.append(SensorStream(local, T, a, clk["drift"] * 1e6, node))
         facts[node] = {"frames": len(series), "tracked_pct": tracked,
                        "mirrored_pct": 100.0 * mirrored,
                        "clock_offset_ms": 1e3 * clk["offset_s"],
