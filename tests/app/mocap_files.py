@@ -64,3 +64,12 @@ def walk_skeleton_c3d(n_steps: int = 6) -> tuple[bytes, int]:
         p = Path(d) / "walk.c3d"
         write_skeleton_c3d(p, series)
         return p.read_bytes(), len(series.times)
+
+
+def upload_for_report(client: Any, data: bytes, name: str, subject: str,
+                      query: str = "") -> tuple[int, str]:
+    """POST ``data`` as file ``name`` to the Reports page's "Analyse a file" (HTML report,
+    extra query ``query``, e.g. ``"advice=form&up=z"``); its status and text."""
+    r = client.post(f"/api/reports/upload?format=html&{query}", data={"subject": subject},
+                    files={"file": (name, data, "application/octet-stream")})
+    return r.status_code, r.text

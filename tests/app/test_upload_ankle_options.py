@@ -8,6 +8,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from engine.io.trc import write_trc
+from tests.app.mocap_files import upload_for_report
 from tests.engine.test_mocap_ankle_options import _markers, _walk
 
 
@@ -19,9 +20,7 @@ def trc(tmp_path_factory: pytest.TempPathFactory) -> bytes:
 
 
 def _upload(client: TestClient, data: bytes, query: str) -> tuple[int, str]:
-    r = client.post(f"/api/reports/upload?format=html&{query}", data={"subject": "UP1"},
-                    files={"file": ("bare.trc", data, "application/octet-stream")})
-    return r.status_code, r.text
+    return upload_for_report(client, data, "bare.trc", "UP1", query)
 
 
 def test_upload_with_ankle_options(admin_client: TestClient, trc: bytes) -> None:

@@ -17,6 +17,7 @@ from app.api.routes.reports import FILE_OPTIONS, form_words
 from engine.io.markers import MarkerTrajectories
 from engine.io.trc import write_trc
 from engine.sim.straight_walk import synth_walk
+from tests.app.mocap_files import upload_for_report
 
 
 def ambiguous_up_trc(path: Path) -> Path:
@@ -42,9 +43,7 @@ def trc(tmp_path_factory: pytest.TempPathFactory) -> bytes:
 
 
 def _upload(client: TestClient, data: bytes, query: str) -> tuple[int, str]:
-    r = client.post(f"/api/reports/upload?format=html&{query}", data={"subject": "OL1"},
-                    files={"file": ("other lab.trc", data, "application/octet-stream")})
-    return r.status_code, r.text
+    return upload_for_report(client, data, "other lab.trc", "OL1", query)
 
 
 def test_vertical_axis_reaches_the_analysis(admin_client: TestClient, trc: bytes) -> None:
