@@ -351,6 +351,89 @@ def depth_to_points(
     return pts, (v * w + u).astype(np.int64)
 
 
+#: a pair of neighbouring depth pixels whose 3D segment lies within this angle of the line
+#: of sight is a jump across a depth edge: a floor seen from 1 m up is steeper than this
+#: out to 14 m, a flying pixel between surfaces 12 cm or more apart (1 px at 1.5 m,
+#: f 180 px) is flatter
+JUMP_EDGE_ANGLE_DEG = 4.0
+
+
+def jump_edge_pixels(depth_m: ArrayLike, rays: ArrayLike,
+                     max_angle_deg: float = JUMP_EDGE_ANGLE_DEG) -> NDArray[np.bool_]:
+    """Pixels behind a depth edge: time-of-flight "flying pixels" and the background pixel
+    next to a silhouette.
+
+    A time-of-flight pixel that straddles a depth edge mixes both surfaces and reads a
+    depth in between (Sarbolandi et al. 2015, CVIU 139:1): in a point cloud it floats in
+    the air along the line of sight behind the edge. Two neighbouring pixels (across or
+    down) whose 3D segment is within ``max_angle_deg`` of the farther one's line of sight
+    are a jump, not a surface, and the farther of the two is flagged (the jump-edge
+    criterion of ToF mapping, e.g. May et al. 2009, J. Field Robotics 26:934, kept
+    one-sided so that the near surface, e.g. a body, keeps its rim).
+
+    Args:
+        depth_m: ``(H, W)`` depth along the optical axis (m); 0 or NaN: no measurement.
+        rays: ``(H, W, 2)`` normalised rays ``(x/z, y/z)`` of the pixels
+            (:func:`pixel_ray_table`); NaN rays count as no measurement.
+        max_angle_deg: Largest angle (degrees) between a neighbour segment and the line of
+            sight that counts as a jump.
+
+    Returns:
+        ``(H, W)`` bool mask of the pixels to drop.
+
+    Raises:
+        InputError: shapes that do not match, or an angle outside (0, 90).
+    """
+    z = np.ascontiguousarray(depth_m, dtype=np.float64)
+    r = np.ascontiguousarray(rays, dtype=np.float64)
+    if z.ndim != 2 or r.shape != (*z.shape, 2):
+        raise InputError(f"rays must be (H, W, 2) for a depth image of shape {z.shape}, "
+                         f"got {r.shape}")
+    if not 0 < max_angle_deg < 90:
+        raise InputError("max_angle_deg must be between 0 and 90 degrees")
+    drop = np.zeros(z.shape, dtype=np.bool_)
+    _jump_edge_kernel()(z, r, float(np.cos(np.radians(max_angle_deg))), drop)
+    return drop
+
+
+def _jump_edge_kernel_py(z: FloatArray, r: FloatArray, cos_max: float,
+                         drop: NDArray[np.bool_]) -> None:
+    H, W = z.shape
+    for i in range(H):
+        for j in range(W):
+            za = z[i, j]
+            if not za > 0 or r[i, j, 0] != r[i, j, 0] or r[i, j, 1] != r[i, j, 1]:
+                continue  # no measurement (0, NaN) or no ray
+            for di, dj in ((0, 1), (1, 0)):  # the neighbour across, then down
+                k, m = i + di, j + dj
+                if k >= H or m >= W:
+                    continue
+                zb = z[k, m]
+                if not zb > 0 or r[k, m, 0] != r[k, m, 0] or r[k, m, 1] != r[k, m, 1]:
+                    continue
+                ax, ay = r[i, j, 0] * za, r[i, j, 1] * za
+                bx, by = r[k, m, 0] * zb, r[k, m, 1] * zb
+                sx, sy, sz = bx - ax, by - ay, zb - za
+                fx, fy, fz = (bx, by, zb) if zb > za else (ax, ay, za)  # the farther one
+                dot = sx * fx + sy * fy + sz * fz
+                n2 = (sx * sx + sy * sy + sz * sz) * (fx * fx + fy * fy + fz * fz)
+                # |cos| > cos_max, squared (no roots): the segment is along the sight line
+                if n2 > 0 and dot * dot > cos_max * cos_max * n2:
+                    if zb > za:
+                        drop[k, m] = True
+                    else:
+                        drop[i, j] = True
+
+
+@functools.cache
+def _jump_edge_kernel() -> Callable[[FloatArray, FloatArray, float, NDArray[np.bool_]],
+                                    None]:
+    """The jump-edge loop compiled on first use (the live view runs it on every frame)."""
+    from numba import njit
+
+    return njit(cache=True, nogil=True)(_jump_edge_kernel_py)  # type: ignore[no-any-return]
+
+
 def project_points(points: ArrayLike, intrinsics: CameraIntrinsics) -> FloatArray:
     """Pinhole projection (no distortion) of camera-frame points to pixels (N, 2).
 

@@ -27,7 +27,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from engine.errors import InputError
-from engine.pointcloud import CameraIntrinsics, undistort_normalised
+from engine.pointcloud import (
+    JUMP_EDGE_ANGLE_DEG,
+    CameraIntrinsics,
+    jump_edge_pixels,
+    undistort_normalised,
+)
 
 MAX_VOXELS = 64_000_000  # dense-grid cells (int32 index): 256 MB at most, far above a lab
 
@@ -250,6 +255,7 @@ def _kernels() -> tuple[Any, Any]:
 def merge_depth_views(views: Sequence[DepthView], voxel_m: float = 0.03,
                       z_range_m: tuple[float, float] = (0.3, 8.0),
                       highlight_color: tuple[int, int, int] = (255, 0, 200),
+                      jump_edge_deg: float | None = JUMP_EDGE_ANGLE_DEG,
                       ) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
     """Unproject, transform and voxel-average several depth images into one world cloud.
 
@@ -262,6 +268,10 @@ def merge_depth_views(views: Sequence[DepthView], voxel_m: float = 0.03,
         voxel_m: voxel edge length (m).
         z_range_m: usable depth range along the optical axis (m).
         highlight_color: colour of highlighted (body) pixels.
+        jump_edge_deg: pixels behind a depth edge are dropped
+            (:func:`engine.pointcloud.jump_edge_pixels` with this angle): the flying
+            pixels of a time-of-flight sensor would float in the air behind a walker,
+            on the floor a clinician checks. None: every pixel is kept.
 
     Returns:
         ``(points (N, 3) float32 world metres, colours (N, 3) uint8)``.
@@ -283,6 +293,9 @@ def merge_depth_views(views: Sequence[DepthView], voxel_m: float = 0.03,
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise InputError("T_world_sensor must be a finite 4×4 matrix")
         rays = pixel_rays(v.K, depth.shape[1], depth.shape[0], v.dist)
+        if jump_edge_deg is not None:
+            depth = np.where(jump_edge_pixels(depth * 0.001, rays, jump_edge_deg),
+                             np.uint16(0), depth)
         total += bounds_kernel(depth, rays, T, z_range_m[0], z_range_m[1], bounds)
         prepared.append((depth, rays, T, v))
     if total == 0:

@@ -63,6 +63,33 @@ def test_highlight_mask_and_scaled_intrinsics() -> None:
         merge_depth_views([view], voxel_m=0.0)
 
 
+def test_flying_pixels_behind_a_body_are_not_drawn() -> None:
+    """A body in front of the floor with a time-of-flight edge: pixels beside it read a
+    depth between the body and the floor. The live cloud drops them (they floated over
+    the floor); the body and the floor stay whole."""
+    view, T = _floor_view()
+    depth = view.depth_mm.astype(np.int64)
+    body = np.zeros(depth.shape, bool)
+    body[0:100, 60:80] = True
+    depth[body] = 1200  # 1.2 m from the camera, in front of the floor (1.6–4.6 m)
+    rows = np.arange(0, 100)
+    behind = depth[rows, 80] > 1900
+    depth[rows, 80] = np.where(behind, (1200 + depth[rows, 80]) // 2, depth[rows, 80])  # mixed
+    view = DepthView(depth.astype(np.uint16), view.K, T, (10, 200, 30), body)
+
+    def over_the_floor(p: np.ndarray, c: np.ndarray) -> int:
+        own = (c == (10, 200, 30)).all(axis=1)
+        return int((own & (p[:, 2] > 0.03)).sum())
+
+    kept = merge_depth_views([view], voxel_m=0.02, jump_edge_deg=None)
+    assert behind.sum() > 20 and over_the_floor(*kept) >= 20  # floating points, before
+    pts, cols = merge_depth_views([view], voxel_m=0.02)
+    assert over_the_floor(pts, cols) == 0
+    hl = (cols == HIGHLIGHT_RGB).all(axis=1)
+    assert hl.sum() == (kept[1] == HIGHLIGHT_RGB).all(axis=1).sum()  # the body whole
+    assert (~hl).sum() >= 0.95 * (~(kept[1] == HIGHLIGHT_RGB).all(axis=1)).sum()
+
+
 def test_panel_colours_and_decode() -> None:
     import cv2
 
