@@ -353,6 +353,29 @@ def _clock_of(meta: Mapping[str, Any]) -> dict[str, float]:
         return {"offset_s": 0.0, "drift": 0.0, "t_ref": 0.0, "uncertainty_s": math.nan}
 
 
+def unmirror_in_sensor_frame(series: SkeletonSeries, T_world_sensor: FloatArray
+                             ) -> tuple[SkeletonSeries, float]:
+    """One sensor's skeleton with its back-facing frames un-mirrored, still in the
+    sensor's frame: what the fusion takes with the sensor's pose (reports and fused
+    exports alike).
+
+    The fusion weighs each sensor by where it stands (distance, the body side it sees,
+    the surface it fits to), so a stream keeps its own frame and pose; world coordinates
+    with an identity pose would put every sensor at the world origin.
+
+    Args:
+        series: the sensor's skeleton in its own frame.
+        T_world_sensor: the sensor's pose (4×4).
+
+    Returns:
+        The corrected series (sensor frame) and the fraction of its tracked frames that
+        were swapped (:func:`unmirror_back_facing`).
+    """
+    T = np.asarray(T_world_sensor, dtype=float)
+    world, mirrored = unmirror_back_facing(_transform(series, T), T[:3, 3])
+    return _transform(world, np.linalg.inv(T)), mirrored
+
+
 def load_streams(rec_dir: Path, poses: Mapping[str, Mapping[str, Any]]
                  ) -> tuple[list[SensorStream], dict[str, Any]]:
     """Every part of a recording as a world-placed, un-mirrored :class:`SensorStream`.
@@ -387,15 +410,8 @@ def load_streams(rec_dir: Path, poses: Mapping[str, Mapping[str, Any]]
         # Node clock model: t_local = t_server + offset + drift·(t_server − t_ref). With
         # t_rec = t_server − t0 this is the integration's t_local = a + (1 + d)·t_rec.
         a = t0 + clk["offset_s"] + clk["drift"] * (t0 - clk["t_ref"])
-        world = _transform(series, T)
-        world, mirrored = unmirror_back_facing(world, T[:3, 3])
+        local, mirrored = unmirror_in_sensor_frame(series, T)
         tracked = float(np.mean(series.states == TrackingState.TRACKED) * 100.0)
-        # The fusion weighs each sensor by where it stands (distance, the body side it
-        # sees, the surface it fits to): the un-mirrored skeleton goes back into the
-        # sensor's frame with the sensor's pose. (World coordinates with an identity pose
-        # put every sensor at the world origin, and the weighted estimator's weights and
-        # surface-bias correction with them.)
-        local = _transform(world, np.linalg.inv(T))
         streams.append(SensorStream(local, T, a, clk["drift"] * 1e6, node))
         facts[node] = {"frames": len(series), "tracked_pct": tracked,
                        "mirrored_pct": 100.0 * mirrored,

@@ -539,7 +539,8 @@ def recording_poses(layout: StorageLayout, registry: Any, rec_id: str
 
 def sensor_streams(layout: StorageLayout, rec_id: str,
                    poses: dict[str, NDArray[np.float64] | None]) -> list[SensorStream]:
-    """Every complete part of a recording with its sensor's pose (for fusion).
+    """Every complete part of a recording with its sensor's pose (for fusion), its
+    back-facing frames un-mirrored.
 
     Raises:
         InputError: no part on the server, or a part's sensor has no calibrated pose.
@@ -551,12 +552,17 @@ def sensor_streams(layout: StorageLayout, rec_id: str,
     if missing:
         raise InputError(f"{named('sensor', missing, 'has', 'have')} no calibrated pose; calibrate "
                          "the rig (Calibrate page) or export the sensors one by one")
+    from app.server.analysis import unmirror_in_sensor_frame
+
     out = []
     for n in nodes:
         pose = poses[n]
         assert pose is not None
-        out.append(SensorStream(read_part_skeleton(layout.part_dir(rec_id, n)),
-                                np.asarray(pose, dtype=float), sensor_id=n))
+        T = np.asarray(pose, dtype=float)
+        # as the reports do: a sensor that sees the subject's back labels the left leg
+        # right (read_part_skeleton's times are already on the server clock)
+        series, _ = unmirror_in_sensor_frame(read_part_skeleton(layout.part_dir(rec_id, n)), T)
+        out.append(SensorStream(series, T, sensor_id=n))
     return out
 
 
