@@ -543,3 +543,35 @@ def test_oversized_upload_is_refused(client: TestClient, monkeypatch: pytest.Mon
     r = client.post("/api/reports/upload",
                     files={"file": ("big.c3d", b"\0" * 5000, "application/octet-stream")})
     assert r.status_code == 413 and "MB" in r.json()["detail"]
+
+
+def test_fused_export_read_by_the_cli_gives_the_reports_steps(recorded: Recorded,
+                                                               tmp_path: Path) -> None:
+    """A research engineer downloads the fused C3D of a recording and runs ``gaitrig gait``
+    on it: the steps are the report's (same sides in the same order, lengths and widths
+    within 1 cm, durations within one frame)."""
+    import httpx
+
+    code, a, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/analysis")
+    assert code == 200 and a["ok"], a
+    h = {"Authorization": f"Bearer {recorded.token}"}
+    r = httpx.get(f"{recorded.base}/api/exports/{recorded.rec_id}/skeleton",
+                  params={"format": "c3d", "source": "fused"}, headers=h, timeout=60)
+    assert r.status_code == 200, r.text
+    f = tmp_path / "fused.c3d"
+    f.write_bytes(r.content)
+    out = subprocess.run([sys.executable, "-m", "app.cli", "gait", str(f), "--json"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    cli = json.loads(out.stdout)["steps"]
+    rep = a["gait"]["steps"]
+    assert len(rep) >= 4
+    # the two time bases differ (the report counts from the recording's start, the file
+    # from its first frame): the steps are compared in order
+    sides_rep = "".join(s["side"] for s in rep)
+    sides_cli = "".join(s["side"] for s in cli)
+    assert sides_cli == sides_rep, (sides_cli, sides_rep)
+    for s, c in zip(rep, cli, strict=True):
+        assert abs(s["length_m"] - c["length_m"]) < 0.01, (s, c)
+        assert abs(s["width_m"] - c["width_m"]) < 0.01, (s, c)
+        assert abs(s["duration_s"] - c["duration_s"]) < 0.034, (s, c)
