@@ -636,6 +636,28 @@ def _read_mat(p: Path, wanted: tuple[str, ...], **kwargs: Any) -> dict[str, Any]
         raise _damaged(p, e) from None
 
 
+def _h5_numbers(p: Path, name: str, ds: Any) -> Any:
+    """An HDF5 dataset's numbers, refused unread unless they are plain numbers.
+
+    The upload budget counts a dataset at its shape times its item size; a
+    variable-length or object dataset's item is a pointer, and its data could unpack to
+    any size when read, so it is refused before anything is read.
+
+    Raises:
+        InputError: not a dataset, or not of booleans, integers or floats.
+    """
+    import h5py
+
+    if not isinstance(ds, h5py.Dataset):
+        raise InputError(f"{p.name}: {name!r} is not a dataset of numbers")
+    if ds.dtype.kind not in "biuf":
+        what = ("variable-length data" if h5py.check_vlen_dtype(ds.dtype) is not None
+                else f"data of type {ds.dtype}")
+        raise InputError(f"{p.name}: dataset {name!r} holds {what}, not numbers; save it as "
+                         "an array of numbers")
+    return ds[()]
+
+
 def _as_float(p: Path, what: str, a: Any) -> FloatArray:
     """A numeric array from a file's variable (InputError if it is not numeric)."""
     try:
@@ -692,7 +714,7 @@ def load_broad(path: str | Path) -> ImuRecording:
     else:
         try:
             with _open_h5(p) as f:
-                arrays = {k: f[k][()] for k in keys if k in f}
+                arrays = {k: _h5_numbers(p, k, f[k]) for k in keys if k in f}
                 fs = f.attrs.get("sampling_rate")
         except InputError:
             raise
@@ -1634,17 +1656,20 @@ def load_apdm(path: str | Path, sensor: str | None = None,
             if missing:
                 raise InputError(f"{p.name}: sensor {sid} lacks {', '.join(missing)}; not "
                                  "an APDM recording (file format 5)?")
-            acc = _as_float(p, "Accelerometer", g["Accelerometer"][()])
-            gyr = _as_float(p, "Gyroscope", g["Gyroscope"][()])
-            mag = (_as_float(p, "Magnetometer", g["Magnetometer"][()])
+            acc = _as_float(p, "Accelerometer", _h5_numbers(p, "Accelerometer",
+                                                            g["Accelerometer"]))
+            gyr = _as_float(p, "Gyroscope", _h5_numbers(p, "Gyroscope", g["Gyroscope"]))
+            mag = (_as_float(p, "Magnetometer", _h5_numbers(p, "Magnetometer",
+                                                            g["Magnetometer"]))
                    if "Magnetometer" in g else None)
-            t_us = np.asarray(g["Time"][()], dtype=np.int64)
+            t_us = np.asarray(_h5_numbers(p, "Time", g["Time"]), dtype=np.int64)
             cfg = g.get("Configuration")
             rate = cfg.attrs.get("Sample Rate") if cfg is not None else None
             quat = None
             proc = f.get("Processed")
             if proc is not None and sid in proc and "Orientation" in proc[sid]:
-                quat = _as_float(p, "Orientation", proc[sid]["Orientation"][()])
+                quat = _as_float(p, "Orientation", _h5_numbers(p, "Orientation",
+                                                               proc[sid]["Orientation"]))
     except InputError:
         raise
     except FileNotFoundError as e:

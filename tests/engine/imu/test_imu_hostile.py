@@ -372,3 +372,42 @@ def test_an_hdf5_file_that_takes_data_from_other_files_is_refused(tmp_path: Path
     with pytest.raises(InputError, match="takes data from other files"):
         load_imu(apdm)
     assert estimate_memory_bytes(apdm) == apdm.stat().st_size
+
+
+def test_a_variable_length_dataset_is_refused_unread(tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """A variable-length dataset is counted by the upload budget at a pointer per item,
+    but each item can hold any number of values (a few kB of file, gigabytes once read):
+    a dataset the readers take that is not plain numbers is refused before it is read,
+    with what to do (BROAD layout and APDM alike)."""
+    import h5py
+    import numpy as np
+
+    reads: list[str] = []
+    real_getitem = h5py.Dataset.__getitem__
+
+    def spy(self: Any, key: Any) -> Any:
+        reads.append(self.name)
+        return real_getitem(self, key)
+
+    vlen = h5py.vlen_dtype(np.float64)
+    broad = tmp_path / "trial.hdf5"
+    _broad_h5(broad)
+    with h5py.File(broad, "a") as f:
+        del f["imu_gyr"]
+        ds = f.create_dataset("imu_gyr", shape=(3,), dtype=vlen)
+        for k in range(3):
+            ds[k] = np.zeros(1000)
+    apdm = tmp_path / "opal.h5"
+    with h5py.File(apdm, "w") as f:
+        f["Sensors/XI-1/Accelerometer"] = np.tile([0.0, 0.0, 9.81], (100, 1))
+        g = f.create_dataset("Sensors/XI-1/Gyroscope", shape=(2,), dtype=vlen)
+        g[0] = np.zeros(500)
+        g[1] = np.zeros(500)
+        f["Sensors/XI-1/Time"] = np.arange(100, dtype=np.uint64) * 7812
+    monkeypatch.setattr(h5py.Dataset, "__getitem__", spy)
+    for p, name in ((broad, "imu_gyr"), (apdm, "Gyroscope")):
+        with pytest.raises(InputError, match=rf"{p.name}: dataset '{name}' holds "
+                                             r"variable-length data, not numbers; save it"):
+            load_imu(p)
+        assert not any(r.endswith(name) for r in reads), reads
