@@ -81,6 +81,11 @@ MAX_PENDING_HELLOS = 8
 #: never saying hello, a slowloris) would otherwise lock every node out; with this, a flood
 #: from one address leaves the other slots to nodes elsewhere on the LAN.
 MAX_PENDING_HELLOS_PER_ADDRESS = 2
+#: Addresses the per-address limit does not apply to: the server's own machine, where the
+#: demo's six nodes (or a PC driving several sensors beside the server) open their
+#: connections in the same instant; a process there could take the whole machine anyway,
+#: and the global :data:`MAX_PENDING_HELLOS` still holds.
+OWN_MACHINE_ADDRESSES = frozenset({"127.0.0.1", "::1"})
 #: Seconds a new connection has to send its hello. A node sends it as soon as the websocket
 #: is open (milliseconds on a LAN), so this only bounds how long a silent peer holds a slot.
 HELLO_TIMEOUT_S = 5.0
@@ -241,7 +246,8 @@ class Hub:
         await ws.accept()
         peer = f"{ws.client.host}:{ws.client.port}" if ws.client else "?"
         address = ws.client.host if ws.client else "?"
-        if self._pending_by_address.get(address, 0) >= MAX_PENDING_HELLOS_PER_ADDRESS:
+        if (address not in OWN_MACHINE_ADDRESSES
+                and self._pending_by_address.get(address, 0) >= MAX_PENDING_HELLOS_PER_ADDRESS):
             await self._refuse(ws, peer, f"{MAX_PENDING_HELLOS_PER_ADDRESS} connections from "
                                f"{address} are already waiting to say hello; try again in a "
                                "few seconds", CLOSE_BUSY)

@@ -282,6 +282,30 @@ def test_one_address_flooding_hellos_does_not_lock_other_nodes_out(
     asyncio.run(scenario())
 
 
+def test_nodes_on_the_servers_own_machine_may_all_connect_at_once(
+        server: tuple[Settings, Hub], monkeypatch: pytest.MonkeyPatch) -> None:
+    """The demo's six nodes run on the server's machine and open their connections in the
+    same instant: from 127.0.0.1 more than MAX_PENDING_HELLOS_PER_ADDRESS may wait for
+    their hello (the third was refused, and the demo's log began with warnings); the
+    global cap still holds there."""
+    settings, hub = server
+    url = f"ws://127.0.0.1:{settings.port}/ws/node"
+    monkeypatch.setattr(hub_module, "HELLO_TIMEOUT_S", 300.0)
+    n = MAX_PENDING_HELLOS_PER_ADDRESS + 3
+    assert n < MAX_PENDING_HELLOS
+
+    async def scenario() -> None:
+        async with _silent(url, "127.0.0.1", n):
+            await _counted(hub, n)
+            assert hub._pending_by_address == {"127.0.0.1": n}
+        async with _silent(url, "127.0.0.1", MAX_PENDING_HELLOS):
+            await _counted(hub, MAX_PENDING_HELLOS)
+            msg, code = await _refusal(url, "127.0.0.1")
+            assert code == CLOSE_BUSY and f"{MAX_PENDING_HELLOS} connections" in msg["reason"]
+
+    asyncio.run(scenario())
+
+
 def test_a_silent_connection_is_closed_after_the_hello_timeout(
         server: tuple[Settings, Hub], monkeypatch: pytest.MonkeyPatch) -> None:
     url = f"ws://127.0.0.1:{server[0].port}/ws/node"
