@@ -27,6 +27,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import re
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -201,6 +202,13 @@ def populate_coverage(server: viser.ViserServer, planner: Planner, visible: bool
                            # just above the floor grid
                            position=((g.x0 + g.x1) / 2, (g.y0 + g.y1) / 2, 0.002),
                            visible=visible)
+
+
+
+def _natural_key(node_id: str) -> tuple[tuple[int, int | str], ...]:
+    """Sort key that puts S2 before S10 (digit runs compare as numbers)."""
+    return tuple((0, int(part)) if part.isdigit() else (1, part)
+                 for part in re.findall(r"\d+|\D+", node_id))
 
 
 class LiveServices:
@@ -394,6 +402,9 @@ class LiveServices:
 
             t.on_update(toggled)
             self._node_toggles[node_id] = t
+            # listed S1, S2, … S10 whichever node's cloud came first
+            for k, nid in enumerate(sorted(self._node_toggles, key=_natural_key)):
+                self._node_toggles[nid].order = float(k)
         return bool(t.value)
 
     def _draw_graph(self) -> None:

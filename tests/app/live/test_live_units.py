@@ -363,3 +363,23 @@ def test_clouds_far_from_the_origin_keep_millimetres() -> None:
         assert populate_cloud(server, "S1", pts[:0], np.zeros((0, 3), np.uint8)) is None
     finally:
         server.stop()
+
+
+def test_point_cloud_toggles_are_listed_in_sensor_order(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The 3D view's "Point cloud per sensor" listed the sensors in the order their first
+    clouds arrived (S1, S2, S4, S6, S5, S3 in the demo); it lists them S1 … S10."""
+    import viser
+
+    from app.config import Settings
+    from app.server.hub import Hub
+    from app.viewer.live import LiveServices
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        live = LiveServices(Hub(Settings(data_dir=tmp_path)), server)
+        for nid in ("S2", "S10", "S6", "S1", "K4A-b", "K4A-a"):
+            live._node_toggle(nid)
+        listed = sorted(live._node_toggles, key=lambda n: live._node_toggles[n].order)
+        assert listed == ["K4A-a", "K4A-b", "S1", "S2", "S6", "S10"]
+    finally:
+        server.stop()
