@@ -45,6 +45,19 @@ def test_imu_page_simulated_session(page: Any, live_server: LiveServer,
     assert not page.js_errors
 
 
+def test_imu_page_lists_are_read_whole(page: Any, live_server: LiveServer) -> None:
+    """The generic-CSV units' lists showed "from the names or gravit" (cut) at 1366 and
+    1920 px: each list's chosen entry fits it at common widths."""
+    from tests.browser.test_clinician_1366 import CUT_SELECTS_JS
+
+    page.goto(live_server.base_url + "/imu.html")
+    page.wait_for_selector("#quat_order")
+    for width in (320, 1024, 1366, 1920):
+        page.set_viewport_size({"width": width, "height": 900})
+        assert page.evaluate(CUT_SELECTS_JS, None) == [], width
+    assert not page.js_errors
+
+
 def test_imu_page_upload_of_a_session(page: Any, live_server: LiveServer,
                                       artifacts_dir: Path, tmp_path: Path) -> None:
     """Nine generic IMU CSVs (own clocks) and a skeleton CSV with 2 cm joint noise uploaded
