@@ -46,6 +46,28 @@ const gaitrig = (() => {
     for (const c of children) if (c !== null && c !== undefined) e.append(c);
     return e;
   }
+  // The chosen entry's text, whole, under a list too narrow to show it (a long label or
+  // code, a phone or a zoomed window: 320 px shows "walk 3 self-selected speed — L"), in
+  // the list's `#<list>-whole` paragraph, hidden while the list shows it whole. For the
+  // lists `ids` (the Reports page's subject, session and recording, the Record page's
+  // subject and session); a page calls it when a list changes and on resize.
+  const measure = document.createElement("canvas").getContext("2d");
+  function showWhole(ids) {
+    for (const id of ids) {
+      const sel = document.getElementById(id), p = document.getElementById(id + "-whole");
+      if (!sel || !p) continue;
+      const text = sel.value && sel.selectedOptions.length ? sel.selectedOptions[0].textContent : "";
+      let cut = false;
+      if (text && sel.clientWidth) {
+        const cs = getComputedStyle(sel);
+        measure.font = cs.font;
+        // (the list's arrow takes about 20 px)
+        cut = measure.measureText(text).width > sel.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
+      }
+      p.hidden = !cut;
+      p.textContent = cut ? text : "";
+    }
+  }
   // A page of a list with how many match in all (the X-Total-Count header). With `body`,
   // a POST: a subject code searched for goes in the body, never in a URL (access logs).
   async function listPage(path, body) {
@@ -335,7 +357,7 @@ const gaitrig = (() => {
     poll(refresh, 1000);
     poll(refreshRecordings, 1000);
   }
-  return { api, el, listPage, toLogin, newest, latest, release, day, dateTime, moment, plural, when, poll, wait,
+  return { api, el, listPage, showWhole, toLogin, newest, latest, release, day, dateTime, moment, plural, when, poll, wait,
     loginPage, rigPage };
 })();
 

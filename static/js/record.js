@@ -64,7 +64,7 @@
     const mine = sessionsSeq.ask();
     const sel = $("session");
     subjectId = $("subject").value ? Number($("subject").value) : null;
-    if (subjectId === null) { sel.replaceChildren(el("option", { value: "" }, "— add a subject first —")); return; }
+    if (subjectId === null) { sel.replaceChildren(el("option", { value: "" }, "— add a subject first —")); showWhole(); return; }
     const ss = await api(`/api/sessions?subject_id=${subjectId}`);
     if (!sessionsSeq.current(mine)) return;
     // the count before the label: a long label is cut at its end, never the count
@@ -76,7 +76,12 @@
     if (!ss.length) sel.append(el("option", { value: "" }, "— add a session —"));
     if (want) sel.value = want;
     suggestLabel();
+    showWhole();
   }
+  // The chosen subject's and session's text, whole, under a list too narrow to show it
+  // (a phone, a zoomed window, a long session label): gaitrig.showWhole
+  function showWhole() { gaitrig.showWhole(["subject", "session"]); }
+  addEventListener("resize", showWhole);
 
   // A trial without a label is listed by its id ("R20261125-035820-9256") on the Subjects
   // and Reports pages, and the placeholder "walk 1" looked filled in but was not sent. The
@@ -99,6 +104,7 @@
   $("project").addEventListener("change", () => fillSubjects());
   $("subject").addEventListener("change", () => fillSessions());
   $("session").addEventListener("change", suggestLabel);
+  $("session").addEventListener("change", showWhole);
   let typing = null;
   $("subject-q").addEventListener("input", () => {
     clearTimeout(typing);

@@ -278,25 +278,8 @@
     showWhole();
   }
 
-  // The chosen entry's text, whole, under a list too narrow to show it (a long label or
-  // code, a phone or a zoomed window: 320 px shows "walk 3 self-selected speed — L"), in
-  // the list's `#<list>-whole`: for the subject, session and recording lists.
-  const measure = document.createElement("canvas").getContext("2d");
-  function showWhole() {
-    for (const id of ["subject", "session", "recording"]) {
-      const sel = $(id), p = $(id + "-whole");
-      const text = sel.value && sel.selectedOptions.length ? sel.selectedOptions[0].textContent : "";
-      let cut = false;
-      if (text && sel.clientWidth) {
-        const cs = getComputedStyle(sel);
-        measure.font = cs.font;
-        // (the list's arrow takes about 20 px)
-        cut = measure.measureText(text).width > sel.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
-      }
-      p.hidden = !cut;
-      p.textContent = cut ? text : "";
-    }
-  }
+  // The chosen entry's text, whole, under a list too narrow to show it (gaitrig.showWhole)
+  function showWhole() { gaitrig.showWhole(["subject", "session", "recording"]); }
   addEventListener("resize", showWhole);
 
   async function recordingChanged() {

@@ -29,16 +29,25 @@ pytestmark = pytest.mark.browser
 
 LAPTOP = {"width": 1366, "height": 768}
 
-#: The chosen option of each visible select whose text does not fit it (the arrow takes
-#: about 20 px): what a person reads cut off.
-CUT_SELECTS_JS = """() => {
+#: The measuring both list checks share: ``shown(css)``, the visible lists matching ``css``
+#: with an entry chosen; ``cut(s)``, whether list ``s`` shows its chosen entry cut (wider
+#: than the list's box less its padding and its arrow, about 20 px); ``said(s)``, what a
+#: failed check reports.
+_SELECTS_JS = """
   const ctx = document.createElement("canvas").getContext("2d");
-  return [...document.querySelectorAll("select")]
-    .filter((s) => s.getClientRects().length > 0 && s.selectedOptions.length).filter((s) => {
-      const cs = getComputedStyle(s); ctx.font = cs.font;
-      const room = s.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
-      return ctx.measureText(s.selectedOptions[0].textContent).width > room + 4;
-    }).map((s) => s.id + ": " + s.selectedOptions[0].textContent);
+  const shown = (css) => [...document.querySelectorAll(css)]
+    .filter((s) => s.getClientRects().length > 0 && s.selectedOptions.length);
+  const cut = (s) => {
+    const cs = getComputedStyle(s); ctx.font = cs.font;
+    const room = s.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
+    return ctx.measureText(s.selectedOptions[0].textContent).width > room + 4;
+  };
+  const said = (s) => s.id + ": " + s.selectedOptions[0].textContent;"""
+
+#: The chosen option of each visible select (of those matching the CSS selector given, by
+#: default all) whose text does not fit it: what a person reads cut off.
+CUT_SELECTS_JS = """(css) => {""" + _SELECTS_JS + """
+  return shown(css || "select").filter(cut).map(said);
 }"""
 
 
@@ -336,22 +345,18 @@ def test_reports_recording_list_is_read_whole(laptop: Any, live_server: LiveServ
     page.wait_for_function("document.getElementById('recording-whole').hidden")
 
 
-#: Each visible list of the Reports page's subject and recording forms whose chosen entry
-#: is read neither in the list (cut, as :data:`CUT_SELECTS_JS` measures) nor whole under it
-#: (``#<list>-whole``, on the screen): what a person cannot read at this width.
-UNREAD_SELECTS_JS = """() => {
-  const ctx = document.createElement("canvas").getContext("2d");
-  return [...document.querySelectorAll("#subject-form select, .rec-pick select")]
-    .filter((s) => s.getClientRects().length > 0 && s.selectedOptions.length).filter((s) => {
-      const cs = getComputedStyle(s); ctx.font = cs.font;
-      const room = s.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
-      const text = s.selectedOptions[0].textContent;
-      if (ctx.measureText(text).width <= room + 4) return false;
-      const whole = document.getElementById(s.id + "-whole");
-      if (!whole || whole.hidden || whole.textContent !== text) return true;
-      const r = whole.getBoundingClientRect();
-      return r.left < 0 || r.right > document.documentElement.clientWidth + 0.5;
-    }).map((s) => s.id + ": " + s.selectedOptions[0].textContent);
+#: Each visible list (of those matching the CSS selector given, by default the Reports
+#: page's subject and recording forms) whose chosen entry is read neither in the list (cut,
+#: as :data:`CUT_SELECTS_JS` measures) nor whole under it (``#<list>-whole``, on the
+#: screen): what a person cannot read at this width.
+UNREAD_SELECTS_JS = """(css) => {""" + _SELECTS_JS + """
+  return shown(css || "#subject-form select, .rec-pick select").filter(cut).filter((s) => {
+    const whole = document.getElementById(s.id + "-whole");
+    const text = s.selectedOptions[0].textContent;
+    if (!whole || whole.hidden || whole.textContent !== text) return true;
+    const r = whole.getBoundingClientRect();
+    return r.left < 0 || r.right > document.documentElement.clientWidth + 0.5;
+  }).map(said);
 }"""
 
 #: Text of the page's subject form (the session ticks, the lists' labels) that runs out of
