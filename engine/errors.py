@@ -6,10 +6,11 @@ maps these to HTTP 4xx responses.
 
 The message (``str(exc)``) is ``gaitrig gait``'s: its advice names command-line flags
 ("give it with --up, e.g. --up x"). An error whose fix is one of the analysis's options
-for files from other labs (:data:`OPTIONS`) also says it in parts, with no flag in them
-(:attr:`GaitrigError.reason`, :attr:`GaitrigError.advice`, :attr:`GaitrigError.example`),
-so that a front end with other controls (a web form) or none (a reference upload) words
-the fix its own way (:meth:`GaitrigError.words`) instead of rewriting the message.
+for files from other labs (:data:`OPTIONS`) says it in parts instead, each option a
+token (:attr:`GaitrigError.reason`, :attr:`GaitrigError.advice`,
+:attr:`GaitrigError.example`): its message is the parts said by :func:`cli_say` (the
+flags), and a front end with other controls (a web form) or none (a reference upload)
+says the same parts its own way (:meth:`GaitrigError.words`).
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ OPTIONS = ("up", "units", "markers", "ankle_markers", "ankle_width_mm")
 #: ``"clear"`` leave it out (automatic), ``"both"`` give both of a pair or neither.
 VERBS = ("", "give", "by", "change", "clear", "both")
 #: A token in :attr:`GaitrigError.reason` or :attr:`GaitrigError.advice`:
-#: ``{option}``, ``{option=value}`` or ``{option:verb}``. Other braces are text.
-TOKEN = re.compile(r"\{(" + "|".join(OPTIONS) + r")(?:=([A-Za-z0-9_+-]+))?"
+#: ``{option}``, ``{option=value}``, ``{option:verb}`` or ``{option=value:verb}``. Other
+#: braces are text.
+TOKEN = re.compile(r"\{(" + "|".join(OPTIONS) + r")(?:=([A-Za-z0-9_+,.-]+))?"
                    r"(?::(" + "|".join(v for v in VERBS if v) + r"))?\}")
 
 #: How a front end says a token: ``say(option, value, verb, example)`` with the token's
@@ -37,16 +39,61 @@ TOKEN = re.compile(r"\{(" + "|".join(OPTIONS) + r")(?:=([A-Za-z0-9_+-]+))?"
 #: :attr:`GaitrigError.example`.
 Say = Callable[[str, str | None, str, str | None], str]
 
+#: ``gaitrig gait``'s flag of each option (:data:`OPTIONS`).
+FLAGS = {"up": "--up", "units": "--units", "markers": "--left/--right",
+         "ankle_markers": "--ankle-markers", "ankle_width_mm": "--ankle-width-mm"}
+
+
+def cli_say(option: str, value: str | None, verb: str, example: str | None) -> str:
+    """A token (:data:`Say`) as ``gaitrig gait``'s flags: the words of ``str(exc)``.
+
+    Args:
+        option: The token's option (:data:`OPTIONS`).
+        value: Its ``=value``; None without one.
+        verb: Its verb (:data:`VERBS`).
+        example: The error's example value of the option; None without one.
+
+    Returns:
+        ``{up=z}`` "--up z", ``{up:give}`` with example ``x`` "give it with --up, e.g.
+        --up x", ``{up:change}`` with example ``z`` "give --up z or leave it out",
+        ``{units:change}`` "fix --units or leave it out", ``{markers:by}`` "with
+        --left/--right", ``{ankle_markers=lateral:clear}`` "leave --ankle-markers lateral
+        out", ``{markers:both}`` "give both --left and --right marker names, or neither".
+    """
+    flag = FLAGS[option]
+    first = "--left" if option == "markers" else flag  # the left one of a pair
+    named = flag if value is None else f"{first} {value}"
+    eg = "" if example is None else f", e.g. {first} {example}"
+    if verb == "give":
+        if option == "units":
+            return "give the units explicitly"
+        return f"give it with {flag}{eg}"
+    if verb == "by":
+        return f"with {flag}{eg}"
+    if verb == "change":
+        return (f"fix {flag}" if example is None else f"give {first} {example}"
+                ) + " or leave it out"
+    if verb == "clear":
+        return f"leave {named} out"
+    if verb == "both":
+        if option == "markers":
+            return "give both --left and --right marker names, or neither"
+        return f"give {flag} for both or neither"
+    return named
+
 
 class GaitrigError(Exception):
     """Base class of every user-facing engine error.
 
-    ``str(exc)`` is the message given first (``gaitrig gait``'s words). An error whose fix
-    is an option for files from other labs, or whose message says what to do in words
-    only the command line understands, also gives keyword-only parts without flags:
+    ``str(exc)`` is ``gaitrig gait``'s words. An error whose fix is an option for files
+    from other labs, or which names one, is raised with keyword-only parts without flags
+    instead of a message, and its message is the parts said by :func:`cli_say`; a message
+    given with parts is said instead (the command line's own words, e.g. a pointer to its
+    documentation that a page has not).
 
     Args:
-        *args: As for :class:`Exception`: the message first.
+        *args: As for :class:`Exception`: the message first; none for an error given in
+            parts (:meth:`words` with :func:`cli_say` is then its message).
         reason: What is wrong, without advice: for any front end, including one with no
             options (a reference upload). An option the person gave is a token
             (:data:`TOKEN`) naming it with its value, e.g. ``"{up=z} contradicts the
@@ -60,11 +107,11 @@ class GaitrigError(Exception):
         example: A value of the advice's option that would do (``"x"`` for ``up``,
             ``"LHEE"`` for ``markers``, the left one), said by its tokens.
         sep: What joins the reason and the advice in :meth:`words` (``"; "``, ``": "`` or
-            ``". "``, as in the message).
+            ``". "``; so in the message made from them).
 
     Attributes:
-        reason: As given; None for an error raised with its message only (a front end
-            then has the message alone, and rewrites it at its own risk).
+        reason: As given; None for an error raised with its message only (which names
+            no option: a front end says it as it is).
         advice: As given.
         example: As given.
         sep: As given.
@@ -80,12 +127,14 @@ class GaitrigError(Exception):
     def __init__(self, *args: object, reason: str | None = None, advice: str | None = None,
                  option: str | None = None, example: str | None = None,
                  sep: str = "; ") -> None:
-        super().__init__(*args)
         self._option = option
         self.reason = reason
         self.advice = advice
         self.example = example
         self.sep = sep
+        if not args and self.structured:
+            args = (self.words(cli_say),)
+        super().__init__(*args)
 
     @property
     def structured(self) -> bool:

@@ -612,7 +612,7 @@ class GaitAnalysis:
         if not self.passes_:
             why = ("no straight walking found (the body centre must travel ≥ "
                    f"{MIN_PASS_M} m at ≥ {MIN_WALK_SPEED} m/s for ≥ {MIN_PASS_S} s)")
-            raise InsufficientDataError(why, reason=why)
+            raise InsufficientDataError(reason=why)
         events: list[GaitEvent] = []
         steps: list[Step] = []
         strides: list[Stride] = []
@@ -651,7 +651,7 @@ class GaitAnalysis:
             what = (f"The longest stretch of straight walking seen was {longest_m:.1f} m "
                     f"({longest_s:.1f} s): record a longer walk, or, if the subject walked "
                     "farther, place or add sensors to cover more of the walkway")
-            raise InsufficientDataError(f"{why}. {what}", reason=why, advice=what, sep=". ")
+            raise InsufficientDataError(reason=why, advice=what, sep=". ")
         self.summary_ = self._summary(float(rate))
         self.summary_["foot_points"] = measured_points(feet, self.method)
         # the notes are about the crossing method's point (a lateral ankle marker's centre)

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from engine import nanstats
-from engine.errors import InputError
+from engine.errors import InputError, cli_say, fill
 from engine.io.markers import (
     PELVIS_SINGLE,
     MarkerEvent,
@@ -451,8 +451,6 @@ def _ankle_centres(pts: dict[str, dict[str, FloatArray]], sources: dict[str, str
                        "across the walking direction")
                 needs = "it needs that foot's heel and toe markers (named like LHEE, LTOE)"
                 raise InputError(
-                    f"--ankle-markers lateral: {why}; {needs}, or leave --ankle-markers out "
-                    f"to measure {lab} as it is (with a note)",
                     reason="{ankle_markers=lateral}: " + why,
                     advice=f"{needs}, or {{ankle_markers:clear}} to measure {lab} as it is "
                            "(with a note)")
@@ -489,8 +487,7 @@ def _check_units(P: FloatArray, labels: list[str], units: str) -> None:
     L = characteristic_length(P, labels)
     if not 0.2 < L < 5.0:
         why = f"the body measures {L:.3g} m (leg length or height)"
-        raise InputError(f"with --units {units} {why}; fix --units or leave it out",
-                         reason=f"with {{units={units.strip()}}} {why}",
+        raise InputError(reason=f"with {{units={units.strip()}}} {why}",
                          advice="{units:change}")
 
 
@@ -501,8 +498,7 @@ def _check_up(P: FloatArray, labels: list[str], up: str) -> None:
     found = labelled_vertical_axis(P, labels)
     if found is not None and found != up.strip().lower().lstrip("+"):
         why = f"contradicts the markers: the pelvis/head are above the feet along {found}"
-        raise InputError(f"--up {up} {why}; give --up {found} or leave it out",
-                         reason=f"{{up={up.strip()}}} {why}", advice="{up:change}",
+        raise InputError(reason=f"{{up={up.strip()}}} {why}", advice="{up:change}",
                          example=found)
 
 
@@ -524,12 +520,10 @@ def ankle_widths_by_side(ankle_width_m: float | tuple[float, ...] | None
         return None
     vals = (list(ankle_width_m) if isinstance(ankle_width_m, tuple | list | np.ndarray)
             else [ankle_width_m])
-    how = ("give the distance across the malleoli in millimetres, one value for both "
-           "feet or left,right: {}70 or {}68,72")
-    cli, words = how.format("--ankle-width-mm ", "--ankle-width-mm "), how.format("", "")
-
     def refused(why: str) -> InputError:
-        return InputError(f"{why}; {cli}", reason=why, advice=words, option="ankle_width_mm")
+        return InputError(reason=why, advice="give the distance across the malleoli in "
+                          "millimetres, one value for both feet or left,right: "
+                          "{ankle_width_mm=70} or {ankle_width_mm=68,72}")
 
     if len(vals) not in (1, 2):
         raise refused(f"{len(vals)} ankle widths given")
@@ -551,26 +545,17 @@ def _check_ankle_options(ankle_markers: str, widths: dict[str, float] | None,
                          named: bool) -> None:
     """Ankle options that cannot apply are refused (they would be silently ignored)."""
     if ankle_markers not in ANKLE_MARKER_RULES:
-        raise InputError(f"--ankle-markers {ankle_markers!r} is not one of "
-                         f"{', '.join(ANKLE_MARKER_RULES)}")
+        raise InputError(reason=f"{{ankle_markers}} {ankle_markers!r} is not one of "
+                         f"{', '.join(ANKLE_MARKER_RULES)}", option="ankle_markers")
     if named and (ankle_markers == "lateral" or widths is not None):
         lateral = ankle_markers == "lateral"
-        given = "--ankle-markers lateral" if lateral else "--ankle-width-mm"
-        opt = "ankle_markers" if lateral else "ankle_width_mm"
-        raise InputError(f"{given} applies to the ankle markers found by name; with "
-                         "--left/--right the named markers are measured as they are: leave "
-                         f"{given} out, or --left/--right out to have the ankle joint "
-                         "centres estimated",
-                         reason=("{ankle_markers=lateral}" if lateral else "{ankle_width_mm}")
-                         + " applies to the ankle markers found by name; with {markers} "
-                         "given, the named markers are measured as they are",
-                         advice=f"{{{opt}:clear}}, or {{markers:clear}} to have the ankle "
+        given = "{ankle_markers=lateral" if lateral else "{ankle_width_mm"
+        raise InputError(reason=given + "} applies to the ankle markers found by name; "
+                         "with {markers} given, the named markers are measured as they are",
+                         advice=given + ":clear}, or {markers:clear} to have the ankle "
                                 "joint centres estimated", sep=": ")
     if ankle_markers == "joint" and widths is not None:
-        raise InputError("--ankle-width-mm places joint centres from lateral-malleolus "
-                         "markers; with --ankle-markers joint the markers are the joint "
-                         "centres: leave one of the two out",
-                         reason="{ankle_width_mm} places joint centres from "
+        raise InputError(reason="{ankle_width_mm} places joint centres from "
                          "lateral-malleolus markers; with {ankle_markers=joint} the markers "
                          "are the joint centres", advice="leave one of the two out",
                          option="ankle_width_mm", sep=": ")
@@ -619,8 +604,7 @@ def feet_from_markers(
     """
     labels = markers.labels
     if (left is None) != (right is None):
-        raise InputError("give both --left and --right marker names, or neither",
-                         advice="{markers:both}")
+        raise InputError(advice="{markers:both}")
     given = ankle_widths_by_side(ankle_width_m)
     _check_ankle_options(ankle_markers, given, left is not None)
     if len(markers) < 2:
@@ -665,9 +649,7 @@ def feet_from_markers(
                 # e.g. two subjects' Plug-in Gait sets: analysing the first silently
                 # could report the wrong person.
                 why = f"several markers are named like {lab!r}: {', '.join(same)}"
-                raise InputError(f"{why}; choose one subject's feet with --left/--right, "
-                                 f"e.g. --left {same[0]}", reason=why,
-                                 advice="choose one subject's feet {markers:by}",
+                raise InputError(reason=why, advice="choose one subject's feet {markers:by}",
                                  example=same[0])
             if lab is not None:
                 x = fill_gaps(t, P[:, labels.index(lab)])
@@ -696,25 +678,26 @@ def feet_from_markers(
             why = (f"no usable {' and no '.join(missing)} marker: {', '.join(empty)} "
                    f"{'holds' if len(empty) == 1 else 'hold'} no data (missing in every "
                    "frame but at most one)")
-            raise InputError(f"{why}; name other foot markers with --left/--right",
-                             reason=why, advice="name other foot markers {markers:by}")
+            raise InputError(reason=why, advice="name other foot markers {markers:by}")
         if missing:
             names = "LANK/RANK, LHEE/RHEE, L.Ankle, L_FAL, L_FCC, AnkleLeft"
             what, available = (f"no usable {' and no '.join(missing)} marker",
                                "available labels: " + ", ".join(labels))
+            advice = "name the foot markers {markers:by}"
             raise InputError(
+                # the command line's own reason points to its documentation of the names,
+                # which a page has not (a page says the reason given here)
                 f"{what} (looked for names like {names}: docs/gait-json.md lists them); "
-                f"{available}; name the foot markers with --left/--right",
+                f"{available}; {fill(advice, cli_say)}",
                 reason=f"{what} (markers named like {names} are recognised); {available}",
-                advice="name the foot markers {markers:by}")
+                advice=advice)
     notes: list[str] = []
     ankles = [sources[f"{s}_ankle"] for s in ("L", "R") if f"{s}_ankle" in sources]
     if not explicit and ankle_markers != "auto":
         if not ankles:
             why = ("the file has no ankle marker (looked for names like LANK, L_Ankle, "
                    "L.Ankle.Lat, L_FAL)")
-            raise InputError(f"--ankle-markers {ankle_markers}: {why}; leave --ankle-markers "
-                             "out", reason=f"{{ankle_markers={ankle_markers}}}: {why}",
+            raise InputError(reason=f"{{ankle_markers={ankle_markers}}}: {why}",
                              advice="{ankle_markers:clear}")
         notes.append(f"The ankle {'markers' if len(ankles) == 2 else 'marker'} "
                      f"{' and '.join(ankles)} {'were' if len(ankles) == 2 else 'was'} taken "
@@ -731,9 +714,7 @@ def feet_from_markers(
             names = " and ".join(ankles) or "the file's ankle markers"
             why = (f"is not used: {names} {'are' if len(ankles) != 1 else 'is'} taken for "
                    "ankle joint centres by name (or no ankle marker was found)")
-            raise InputError(f"--ankle-width-mm {why}; give --ankle-markers lateral if they "
-                             "are on the lateral malleoli, or leave --ankle-width-mm out",
-                             reason="{ankle_width_mm} " + why,
+            raise InputError(reason="{ankle_width_mm} " + why,
                              advice="give {ankle_markers=lateral} if they are on the lateral "
                                     "malleoli, or {ankle_width_mm:clear}")
         for side in ("L", "R"):
@@ -863,10 +844,8 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
     if ext == ".csv":
         if ankle_markers == "lateral" or given is not None:
             lateral = ankle_markers == "lateral"
-            opt = "--ankle-markers lateral" if lateral else "--ankle-width-mm"
             why = "applies to marker files (.c3d, .trc); a skeleton CSV's ankles are joints"
-            raise InputError(f"{opt} {why}: leave it out",
-                             reason=("{ankle_markers=lateral} " if lateral
+            raise InputError(reason=("{ankle_markers=lateral} " if lateral
                                      else "{ankle_width_mm} ") + why,
                              advice="leave it out",
                              option="ankle_markers" if lateral else "ankle_width_mm", sep=": ")

@@ -447,8 +447,7 @@ def characteristic_length(positions: ArrayLike, labels: list[str]) -> float:
     L = float(ns.nanmedian(ns.nanmax(ext, axis=-1)))
     if not np.isfinite(L) or L <= 0:
         why = "cannot guess the length unit: no frame with two or more markers"
-        raise InputError(f"{why}; give the units explicitly", reason=why,
-                         advice="{units:give}")
+        raise InputError(reason=why, advice="{units:give}")
     return L
 
 
@@ -537,7 +536,7 @@ def detect_vertical_axis(positions: ArrayLike, labels: list[str]) -> str:
         travel = ns.nanstd(centroid, axis=0)
         if not np.all(np.isfinite(spread)):
             why = "cannot detect the vertical axis: too few markers"
-            raise InputError(f"{why}; give it with --up", reason=why, advice="{up:give}")
+            raise InputError(reason=why, advice="{up:give}")
         score = spread / (travel + spread.max() * 0.1 + 1e-12)
         a = int(np.argmax(score))
     return ("-" if feet and _height_skew(P[:, feet, a]) < 0 else "") + AXES[a]
@@ -602,8 +601,7 @@ def floor_axis(positions: ArrayLike, labels: list[str]) -> int | None:
         a, b = sorted((AXES[order[0]], AXES[order[1]]))
         why = (f"cannot tell the vertical axis from the foot markers ({a} or {b}: the feet "
                "stand at one level along both)")
-        raise InputError(f"{why}; give it with --up, e.g. --up {a}", reason=why,
-                         advice="{up:give}", example=a)
+        raise InputError(reason=why, advice="{up:give}", example=a)
     return int(order[0])
 
 

@@ -102,15 +102,28 @@ def test_unknown_marker_names_are_said_in_words(admin_client: TestClient,
 
 
 def test_analyse_a_file_says_the_marker_names_in_words_and_the_cli_keeps_its_own() -> None:
-    """"Analyse a file" on the Reports page (``advice=form``) says the names in words too;
-    ``gaitrig gait`` (``advice=cli``, the engine's message) still points to the docs."""
-    from app.api.routes.reports import form_words
+    """"Analyse a file" on the Reports page (``advice=form``) says the names in words too
+    (the error's parts); ``gaitrig gait`` (``advice=cli``, the engine's message) still
+    points to the docs."""
+    import numpy as np
 
-    cli = ("no usable left ankle or heel marker (looked for names like LANK/RANK, LHEE/RHEE, "
-           "L.Ankle, L_FAL, L_FCC, AnkleLeft: docs/gait-json.md lists them); available "
-           "labels: M0, M1; name the foot markers with --left/--right")
-    said = form_words(cli)
+    from app.api.routes.reports import form_say
+    from engine.errors import InputError
+    from engine.io.markers import MarkerTrajectories
+    from engine.mocap import feet_from_markers
+
+    P = np.zeros((3, 2, 3))
+    P[:, 1, 2] = 1.0  # a body a metre tall
+    m = MarkerTrajectories(np.arange(3) / 100.0, P, ["M0", "M1"], 100.0, "m")
+    with pytest.raises(InputError) as exc:
+        feet_from_markers(m, up="z")
+    cli = str(exc.value)
+    said = exc.value.words(form_say)
+    assert said is not None
     assert "docs/" not in said and "--" not in said, said
     assert "(markers named like LANK/RANK, LHEE/RHEE, L.Ankle, L_FAL, L_FCC, AnkleLeft are "\
         "recognised)" in said, said
-    assert "docs/gait-json.md lists them" in cli
+    assert cli == ("no usable left ankle or heel and no right ankle or heel marker (looked "
+                   "for names like LANK/RANK, LHEE/RHEE, L.Ankle, L_FAL, L_FCC, AnkleLeft: "
+                   "docs/gait-json.md lists them); available labels: M0, M1; name the foot "
+                   "markers with --left/--right")

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.api.routes.reports import FILE_OPTIONS, form_words
+from app.api.routes.reports import FILE_OPTIONS
 from engine.io.markers import MarkerTrajectories
 from engine.io.trc import write_trc
 from engine.sim.straight_walk import synth_walk
@@ -78,29 +78,3 @@ def test_foot_markers_reach_the_analysis(admin_client: TestClient, trc: bytes) -
     assert f"give both the left and the right foot marker under '{FILE_OPTIONS}'" in text
     code, text = _upload(admin_client, trc, "up=z&left=LHEE&right=RHEE")
     assert code == 200, text
-
-
-@pytest.mark.parametrize(("cli", "form"), [
-    ("cannot detect the vertical axis: too few markers; give it with --up",
-     f"cannot detect the vertical axis: too few markers; choose the vertical axis under "
-     f"'{FILE_OPTIONS}'"),
-    ("--up z contradicts the markers: the pelvis/head are above the feet along -y; give "
-     "--up -y or leave it out",
-     "the vertical axis Z up contradicts the markers: the pelvis/head are above the feet "
-     f"along -y; choose Y down as the vertical axis under '{FILE_OPTIONS}', or Automatic"),
-    ("cannot guess the length unit: no frame with two or more markers; give the units "
-     "explicitly",
-     "cannot guess the length unit: no frame with two or more markers; choose the units "
-     f"under '{FILE_OPTIONS}'"),
-    ("several markers are named like 'LANK': A:LANK, B:LANK; choose one subject's feet "
-     "with --left/--right, e.g. --left A:LANK",
-     "several markers are named like 'LANK': A:LANK, B:LANK; choose one subject's feet by "
-     f"giving the left and right foot markers under '{FILE_OPTIONS}', e.g. A:LANK as the "
-     "left one"),
-    ("give both --left and --right marker names, or neither",
-     f"give both the left and the right foot marker under '{FILE_OPTIONS}', or neither"),
-    ("x.trc: no steps were found", "x.trc: no steps were found"),
-])
-def test_form_words(cli: str, form: str) -> None:
-    assert form_words(cli) == form
-    assert "--" not in form_words(cli)

@@ -248,10 +248,10 @@ _BAD: dict[str, tuple[list[str], str, str]] = {
                         "with --ankle-markers joint the markers are the joint centres: "
                         "leave one of the two out"),
     "lateral_and_names": (["--ankle-markers", "lateral", "--left", "XL", "--right", "XR"],
-                          "lateral", "with --left/--right the named markers are measured "
-                          "as they are"),
+                          "lateral", "with --left/--right given, the named markers are "
+                          "measured as they are"),
     "width_and_names": (["--ankle-width-mm", "70", "--left", "XL", "--right", "XR"],
-                        "lateral", "leave --ankle-width-mm out, or --left/--right out"),
+                        "lateral", "leave --ankle-width-mm out, or leave --left/--right out"),
     "width_unused": (["--ankle-width-mm", "70"], "bare",
                      "--ankle-width-mm is not used: L_Ankle and R_Ankle are taken for ankle "
                      "joint centres by name (or no ankle marker was found); give "

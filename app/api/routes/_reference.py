@@ -13,16 +13,13 @@ refused alike on both, with the same status and words:
 * 422 — it is read, and the report's gait analysis
   (:func:`app.server.analysis.reference_steps`) finds no usable walk in it: "'standing.trc'
   has no walk in it: 0 steps found — no straight walking (…). Attach the reference
-  recording of this walk: …", naming the reference attached before, which stays; the
-  marker names the analysis recognises are said in words (:func:`marker_words`), not as
-  the documentation file that lists them.
+  recording of this walk: …", naming the reference attached before, which stays.
 
 Both run in a worker thread: the caller's ``asyncio.to_thread``."""
 
 from __future__ import annotations
 
 import os
-import re
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path, PurePath
@@ -155,43 +152,22 @@ def no_walk(exc: GaitrigError, copy: Path, name: str, attached: Sequence[str] = 
     recordings (place or add sensors) and for ``gaitrig gait`` (``--left/--right``,
     ``--up``, "give the units explicitly") is left out: it cannot be followed on either
     page. The error's :attr:`~engine.errors.GaitrigError.reason` says what is wrong; an
-    error raised with its message only is cut by phrases (its first sentence, or the
-    clauses without a flag), the exception."""
-    reason = exc.words(_name_option, advice=False)
-    if reason is not None:
-        why = refusal(exc, copy, name, reason).rstrip(".")
-    else:
-        why = marker_words(refusal(exc, copy, name))
+    error raised with its message only (which names no option) is said as it is."""
+    reason = (exc.words(_name_option, advice=False) or "") if exc.structured else None
+    why = refusal(exc, copy, name, reason).rstrip(".")
     if isinstance(exc, InsufficientDataError):
-        # the reason, without the advice on recording that follows it
-        found = why if reason is not None else why.split(". ", 1)[0].rstrip(".")
+        found = why  # the reason, without the advice on recording that follows it
         if found.startswith("no straight walking found"):
             found = "0 steps found — no straight walking" + found.removeprefix(
                 "no straight walking found")
         lead = f"{name!r} has no walk in it: {found}"
     else:  # no usable foot markers, a length unit or vertical axis not recognised, …
-        kept = why if reason is not None else "; ".join(
-            c for c in why.split("; ") if "--" not in c and "give the units" not in c
-        ).rstrip(".")
         # (a reader's sentence that names the file is said as it is: named once)
-        lead = kept if name in kept else f"{name!r} has no walk the report can use: {kept}"
+        lead = (why if name in why else f"{name!r} has no walk the report can use"
+                + (f": {why}" if why else ""))
     out = f"{lead}. {WHAT_TO_DO}"
     if len(attached) == 1:
         out += f" {attached[0]!r} stays attached."
     elif attached:
         out += f" The {len(attached)} references attached before stay."
     return out
-
-
-#: The analysis's pointer to the documentation of the foot-marker names it recognises
-#: ("looked for names like LANK/RANK, …: docs/gait-json.md lists them", engine.mocap),
-#: which ``gaitrig gait`` keeps: a clinician in the browser has no such file.
-_DOCS_LIST = re.compile(r"looked for names like ([^:;()]+?): docs/[\w./-]+ lists them")
-
-
-def marker_words(message: str) -> str:
-    """``message`` with the recognised marker names said in words instead of the
-    documentation file that lists them: "(looked for names like LANK/RANK, LHEE/RHEE,
-    …: docs/gait-json.md lists them)" → "(markers named like LANK/RANK, LHEE/RHEE, … are
-    recognised)". Other messages are returned unchanged."""
-    return _DOCS_LIST.sub(r"markers named like \1 are recognised", message)

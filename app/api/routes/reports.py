@@ -48,7 +48,6 @@ from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, like_pattern, page_
 from app.api.routes._reference import (
     OPTION_NAMES,
     check_reference,
-    marker_words,
     receive,
     reference_type,
     upload_name,
@@ -795,7 +794,8 @@ def form_say(option: str, value: str | None, verb: str, example: str | None) -> 
     "Options for files from other labs": ``{up=z}`` "the vertical axis Z up",
     ``{up:give}`` with example ``x`` "choose the vertical axis under '…', e.g. X up",
     ``{markers:by}`` "by giving the left and right foot markers under '…'",
-    ``{ankle_markers:clear}`` "set the ankle markers to Automatic"."""
+    ``{ankle_markers:clear}`` "set the ankle markers to Automatic", ``{ankle_width_mm=70}``
+    "70"."""
     under = f"under '{FILE_OPTIONS}'"
     the = OPTION_NAMES[option]
     auto = "leave it empty" if option in ("ankle_width_mm", "markers") else "Automatic"
@@ -805,7 +805,9 @@ def form_say(option: str, value: str | None, verb: str, example: str | None) -> 
     if verb == "":
         if option == "markers":
             return "left and right foot markers"
-        if value is None or option == "ankle_width_mm":
+        if option == "ankle_width_mm":
+            return value or the  # a width as typed in the field: "70 or 68,72"
+        if value is None:
             return the
         return {"up": f"the vertical axis {_axis_words(value)}",
                 "units": f"the units {value}",
@@ -827,63 +829,6 @@ def form_say(option: str, value: str | None, verb: str, example: str | None) -> 
     # "give" (and "both" of a single option)
     act = "give" if option in ("markers", "ankle_width_mm") else "choose"
     return f"{act} {the} {under}{eg}"
-
-
-#: The engine's command-line advice (``gaitrig gait``'s flags) and the Reports page's
-#: words for it, most specific first: a clinician cannot act on "give it with --up".
-#: Only for an error raised with its message alone (the exception: one that gives its
-#: reason and advice in parts is said by :func:`form_say`).
-_FORM_WORDS: tuple[tuple[re.Pattern[str], Any], ...] = tuple(
-    (re.compile(a), b) for a, b in (
-        (r"give it with --up, e\.g\. --up (-?[xyz])\b",
-         lambda m: f"choose the vertical axis under '{FILE_OPTIONS}', e.g. "
-                   f"{_axis_words(m[1])}"),
-        (r"give it with --up", f"choose the vertical axis under '{FILE_OPTIONS}'"),
-        (r"--up (-?[xyz]) contradicts",
-         lambda m: f"the vertical axis {_axis_words(m[1])} contradicts"),
-        (r"give --up (-?[xyz]) or leave it out",
-         lambda m: f"choose {_axis_words(m[1])} as the vertical axis under "
-                   f"'{FILE_OPTIONS}', or Automatic"),
-        (r"give the units explicitly", f"choose the units under '{FILE_OPTIONS}'"),
-        (r"with --units (\w+)", r"with the units \1"),
-        (r"fix --units or leave it out",
-         f"choose other units under '{FILE_OPTIONS}', or Automatic"),
-        (r"give both --left and --right marker names, or neither",
-         f"give both the left and the right foot marker under '{FILE_OPTIONS}', or neither"),
-        (r"with --left/--right, e\.g\. --left (\S+)",
-         f"by giving the left and right foot markers under '{FILE_OPTIONS}', e.g. \\1 "
-         "as the left one"),
-        (r"with --left/--right the named", "with left and right foot markers given, the "
-         "named"),
-        (r"or --left/--right out", "or leave the left and right foot markers empty"),
-        (r"with --left/--right",
-         f"by giving the left and right foot markers under '{FILE_OPTIONS}'"),
-        (r"leave --left/--right out", "leave the left and right foot markers empty"),
-        (r"--left/--right", "left and right foot markers"),
-        (r"leave --ankle-markers lateral out|leave --ankle-markers out",
-         "set the ankle markers to Automatic"),
-        (r"--ankle-markers lateral", "ankle markers 'On the lateral malleoli'"),
-        (r"--ankle-markers joint", "ankle markers 'At the ankle joint centres'"),
-        (r"--ankle-markers", "the ankle markers"),
-        (r"leave --ankle-width-mm out", "leave the ankle width empty"),
-        (r"--ankle-width-mm 70 or --ankle-width-mm 68,72", "70 or 68,72"),
-        (r"--ankle-width-mm", "the ankle width"),
-    ))
-
-
-def form_words(message: str) -> str:
-    """A refusal of "Analyse a file" in the Reports page's words: the engine's
-    command-line advice ("give it with --up, e.g. --up x", "give the units explicitly")
-    becomes the page's fields under "Options for files from other labs" ("choose the
-    vertical axis under 'Options for files from other labs', e.g. X up"). The CLI keeps
-    its own wording, and its pointer to docs/gait-json.md for the marker names it
-    recognises becomes those names in words, as for a reference
-    (:func:`app.api.routes._reference.marker_words`); messages without such advice are
-    returned unchanged. The fallback for an error raised with its message only: one that
-    gives its reason and advice in parts is said by :func:`form_say`."""
-    for pattern, repl in _FORM_WORDS:
-        message = pattern.sub(repl, message)
-    return marker_words(message)
 
 
 #: Name start of a report reference's temporary upload folder (which ends in ``.tmp``).
@@ -979,10 +924,9 @@ async def upload_report(request: Request, file: UploadFile, user: CurrentUser, d
                 res["rec_id"] = Path(file.filename or "upload").name[-80:]
                 data = an.build_report(subject, [res], title="Gait report (uploaded file)")
             except GaitrigError as exc:
+                # an error raised with its message only names no option: said as it is
                 said = exc.words(form_say) if advice == "form" else None
                 why = _file_error(exc, path, file.filename or "the file", said)
-                if advice == "form" and said is None:
-                    why = form_words(why)  # raised with its message only: by phrases
                 raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, why) from exc
             return _respond(data, format, f"gait-report-{subject}")
 
