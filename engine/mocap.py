@@ -9,6 +9,7 @@ overridden by explicit ``left``/``right`` names. Everything returned is in metre
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -833,43 +834,77 @@ def load_feet(path: str | Path, left: str | None = None, right: str | None = Non
     if p.is_dir():
         raise InputError(f"{p} is a folder; give a .c3d, .trc or .csv file")
     ext = p.suffix.lower()
-    given = ankle_widths_by_side(ankle_width_m)  # refused before the file is read
-    _check_ankle_options(ankle_markers, given, left is not None)
+    # the options are refused before the file is read
+    _check_ankle_options(ankle_markers, ankle_widths_by_side(ankle_width_m), left is not None)
     if ext == ".c3d":
-        return feet_from_markers(read_c3d(p), left, right, up, units, ankle_markers,
-                                 ankle_width_m)
-    if ext == ".trc":
-        return feet_from_markers(read_trc(p), left, right, up, units, ankle_markers,
-                                 ankle_width_m)
-    if ext == ".csv":
-        if ankle_markers == "lateral" or given is not None:
-            lateral = ankle_markers == "lateral"
-            why = "applies to marker files (.c3d, .trc); a skeleton CSV's ankles are joints"
-            raise InputError(reason=("{ankle_markers=lateral} " if lateral
-                                     else "{ankle_width_mm} ") + why,
-                             advice="leave it out",
-                             option="ankle_markers" if lateral else "ankle_width_mm", sep=": ")
-        s = read_skeleton_csv(p)
-        joints = list(s.joint_set.joints)
-        if units is not None:
-            s.positions = s.positions * unit_scale(units)
-            _check_units(s.positions, joints, units)
-        else:
-            # The format is metres, but a file in mm or cm would give 1000 m steps:
-            # its body size tells the unit, as for C3D/TRC files without one. Too few
-            # joints to tell leave the format's metres (missing feet are named below).
-            try:
-                size: float | None = characteristic_length(s.positions, joints)
-            except InputError:
-                size = None
-            if size is not None and not 0.3 < size < 3.0:
-                s.positions = s.positions * unit_scale(detect_units(s.positions, joints))
-        if left is not None or right is not None:
-            m = MarkerTrajectories(s.times, s.tracked_positions(), list(s.joint_set.joints),
-                                   float(1.0 / np.median(np.diff(s.times))) if len(s) > 1 else 30.0,
-                                   "m")
-            return feet_from_markers(m, left, right, up, None)
-        if up is not None:
-            _check_up(s.tracked_positions(), joints, up)
-        return feet_from_skeleton(s, up=up)
-    raise InputError(f"unsupported file type {p.suffix!r}; use .c3d, .trc or .csv")
+        data: MarkerTrajectories | SkeletonSeries = read_c3d(p)
+    elif ext == ".trc":
+        data = read_trc(p)
+    elif ext == ".csv":
+        _refuse_skeleton_ankle_options(ankle_markers, ankle_width_m)
+        data = read_skeleton_csv(p)
+    else:
+        raise InputError(f"unsupported file type {p.suffix!r}; use .c3d, .trc or .csv")
+    return feet_from_file_data(data, left, right, up, units, ankle_markers, ankle_width_m)
+
+
+def _refuse_skeleton_ankle_options(ankle_markers: str,
+                                   ankle_width_m: float | tuple[float, ...] | None) -> None:
+    """Refuse ankle options given for a skeleton CSV (its ankles are joints)."""
+    if ankle_markers == "lateral" or ankle_widths_by_side(ankle_width_m) is not None:
+        lateral = ankle_markers == "lateral"
+        why = "applies to marker files (.c3d, .trc); a skeleton CSV's ankles are joints"
+        raise InputError(reason=("{ankle_markers=lateral} " if lateral
+                                 else "{ankle_width_mm} ") + why,
+                         advice="leave it out",
+                         option="ankle_markers" if lateral else "ankle_width_mm", sep=": ")
+
+
+def feet_from_file_data(data: MarkerTrajectories | SkeletonSeries, left: str | None = None,
+                        right: str | None = None, up: str | None = None,
+                        units: str | None = None, ankle_markers: str = "auto",
+                        ankle_width_m: float | tuple[float, ...] | None = None
+                        ) -> FeetTrajectories:
+    """:func:`load_feet` of a file already read (a server checking an upload reads it
+    once for both its own use and the gait analysis).
+
+    Args:
+        data: what :func:`engine.io.c3d.read_c3d` or :func:`engine.io.trc.read_trc`
+            (markers) or :func:`engine.io.csv.read_skeleton_csv` (a skeleton) returned;
+            not changed (a skeleton's units are scaled in a copy).
+        left, right, up, units, ankle_markers, ankle_width_m: :func:`load_feet`'s.
+
+    Returns:
+        Per-foot trajectories in metres, Z up, as :func:`load_feet` returns for the file.
+
+    Raises:
+        InputError: as :func:`load_feet`, but for reading the file.
+    """
+    given = ankle_widths_by_side(ankle_width_m)
+    _check_ankle_options(ankle_markers, given, left is not None)
+    if isinstance(data, MarkerTrajectories):
+        return feet_from_markers(data, left, right, up, units, ankle_markers, ankle_width_m)
+    _refuse_skeleton_ankle_options(ankle_markers, ankle_width_m)
+    s = copy.copy(data)  # its positions are rescaled below: the caller's stay as read
+    joints = list(s.joint_set.joints)
+    if units is not None:
+        s.positions = s.positions * unit_scale(units)
+        _check_units(s.positions, joints, units)
+    else:
+        # The format is metres, but a file in mm or cm would give 1000 m steps:
+        # its body size tells the unit, as for C3D/TRC files without one. Too few
+        # joints to tell leave the format's metres (missing feet are named below).
+        try:
+            size: float | None = characteristic_length(s.positions, joints)
+        except InputError:
+            size = None
+        if size is not None and not 0.3 < size < 3.0:
+            s.positions = s.positions * unit_scale(detect_units(s.positions, joints))
+    if left is not None or right is not None:
+        m = MarkerTrajectories(s.times, s.tracked_positions(), list(s.joint_set.joints),
+                               float(1.0 / np.median(np.diff(s.times))) if len(s) > 1 else 30.0,
+                               "m")
+        return feet_from_markers(m, left, right, up, None)
+    if up is not None:
+        _check_up(s.tracked_positions(), joints, up)
+    return feet_from_skeleton(s, up=up)

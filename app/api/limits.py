@@ -3,8 +3,10 @@
 Every router uses :class:`BoundedRoute` (``APIRouter(..., route_class=BoundedRoute)``): a
 request body larger than the route's ``max_body_size`` — :data:`JSON_BODY_MAX` unless the
 route declares its own, as the uploads do — is refused with HTTP 413 and a message that
-names the limit. A declared ``Content-Length`` is checked before anything is read; a body
-without one is counted while it is read, so neither a huge JSON body nor an over-size upload
+names the limit (or the route's own words for it: :func:`refused_with`, as the reference
+uploads say one message of a file too large, whichever check finds it). A declared
+``Content-Length`` is checked before anything is read; a body without one is counted while
+it is read, so neither a huge JSON body nor an over-size upload
 is held in memory or spooled to disk in full. An upload (a route with a larger limit
 that requires a login) is refused with 401 before its body is read, so an anonymous client
 cannot make the server spool hundreds of MB.
@@ -13,7 +15,7 @@ cannot make the server spool hundreds of MB.
 from __future__ import annotations
 
 from collections.abc import Callable, Coroutine
-from typing import Any
+from typing import Any, TypeVar
 
 from fastapi import HTTPException, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
@@ -28,15 +30,32 @@ from app.api.deps import get_current_user
 JSON_BODY_MAX = 1024 * 1024
 
 
-def _size(n: int) -> str:
+def size_words(n: int) -> str:
+    """A size limit as the messages say it: whole MB from 1 MB ("200 MB"), whole KB
+    below ("4 KB")."""
     return f"{n / 2**20:.0f} MB" if n >= 2**20 else f"{max(1, n // 1024)} KB"
 
 
 def too_large(limit: int) -> HTTPException:
     """HTTP 413 naming the limit."""
     return HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
-                         f"the request is larger than this route accepts ({_size(limit)}); "
-                         "send a smaller file or fewer values")
+                         f"the request is larger than this route accepts "
+                         f"({size_words(limit)}); send a smaller file or fewer values")
+
+
+_Endpoint = TypeVar("_Endpoint", bound=Callable[..., Any])
+
+
+def refused_with(refusal: Callable[[], HTTPException]) -> Callable[[_Endpoint], _Endpoint]:
+    """Decorator of an endpoint, under its ``@router.post(...)``: a request body over the
+    route's ``max_body_size`` is refused with ``refusal()`` instead of :func:`too_large`'s
+    general words — the words the endpoint says of a file over its own limit, so that a
+    file too large is refused alike whether its request declares the size, its streamed
+    body passes the limit or the endpoint counts the file."""
+    def mark(endpoint: _Endpoint) -> _Endpoint:
+        endpoint.body_refusal = refusal  # type: ignore[attr-defined]
+        return endpoint
+    return mark
 
 
 def _needs_login(dependant: Dependant) -> bool:
@@ -58,19 +77,26 @@ class BoundedRoute(APIRoute):
                  max_body_size: int | None = None, **kwargs: Any) -> None:
         #: Largest accepted request body (bytes).
         self.body_limit = JSON_BODY_MAX if max_body_size is None else max_body_size
+        #: The endpoint's words for a body over the limit (:func:`refused_with`), if any.
+        self.body_refusal: Callable[[], HTTPException] | None = getattr(
+            endpoint, "body_refusal", None)
         # Not handed to FastAPI: its own limiter would answer a bare "Content Too Large"
         # (plain text when Content-Length is over) before the handler below could say more.
         super().__init__(path, endpoint, **kwargs)
 
     def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
         handler = super().get_route_handler()
-        limit = self.body_limit
-        login_first = limit > JSON_BODY_MAX and _needs_login(self.dependant)
+        login_first = self.body_limit > JSON_BODY_MAX and _needs_login(self.dependant)
 
         async def bounded(request: Request) -> Response:
+            limit = self.body_limit
+
+            def refused() -> HTTPException:
+                return self.body_refusal() if self.body_refusal else too_large(limit)
+
             declared = request.headers.get("content-length", "")
             if declared.isdigit() and int(declared) > limit:
-                raise too_large(limit)
+                raise refused()
             if login_first:
                 await run_in_threadpool(_check_login, request)
             receive = request.receive
@@ -82,7 +108,7 @@ class BoundedRoute(APIRoute):
                 if msg["type"] == "http.request":
                     total += len(msg.get("body", b""))
                     if total > limit:
-                        raise too_large(limit)
+                        raise refused()
                 return msg
 
             return await handler(Request(request.scope, counted))

@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.gait import GaitAnalysis
 from engine.integration import SensorStream, integrate_skeletons
+from engine.io.markers import MarkerTrajectories
 from engine.mocap import FeetTrajectories, feet_from_skeleton
 from engine.report.render import AgreementRow, QualityInfo, ReportData, TrialData
 from engine.skeleton import JOINT_SETS, SkeletonSeries, TrackingState
@@ -809,20 +810,28 @@ def build_report(subject_code: str, analyses: list[dict[str, Any]], *,
 def analyse_file(path: Path, method: str = "crossing", left: str | None = None,
                  right: str | None = None, up: str | None = None,
                  units: str | None = None, ankle_markers: str = "auto",
-                 ankle_width_m: float | tuple[float, ...] | None = None) -> dict[str, Any]:
+                 ankle_width_m: float | tuple[float, ...] | None = None, *,
+                 data: MarkerTrajectories | SkeletonSeries | None = None) -> dict[str, Any]:
     """Analyse a C3D/TRC/CSV file as a report trial (``ok`` always True; errors raise).
 
     ``left``, ``right``, ``up``, ``units``, ``ankle_markers`` and ``ankle_width_m`` are
-    :func:`engine.mocap.load_feet`'s (None, ``"auto"``: detected from the file).
+    :func:`engine.mocap.load_feet`'s (None, ``"auto"``: detected from the file). ``data``
+    is the file's content when it was read already (``app.server.storage.parse_reference``):
+    then ``path`` only names the file and is not read again.
 
     Raises:
         GaitrigError: unreadable file, no usable ankle/heel data, too few steps.
     """
-    from engine.mocap import load_feet
+    from engine.mocap import feet_from_file_data, load_feet
 
     try:
-        feet = load_feet(path, left=left, right=right, up=up, units=units,
-                         ankle_markers=ankle_markers, ankle_width_m=ankle_width_m)
+        if data is None:
+            feet = load_feet(path, left=left, right=right, up=up, units=units,
+                             ankle_markers=ankle_markers, ankle_width_m=ankle_width_m)
+        else:
+            feet = feet_from_file_data(data, left=left, right=right, up=up, units=units,
+                                       ankle_markers=ankle_markers,
+                                       ankle_width_m=ankle_width_m)
     except GaitrigError:
         raise
     except (OSError, ValueError, KeyError, IndexError) as exc:  # a malformed file
@@ -832,15 +841,18 @@ def analyse_file(path: Path, method: str = "crossing", left: str | None = None,
             **res}
 
 
-def reference_steps(path: Path, method: str = "crossing") -> list[dict[str, Any]]:
-    """Steps of a reference file (C3D/TRC/CSV), for the agreement section.
+def reference_steps(path: Path, method: str = "crossing", *,
+                    data: MarkerTrajectories | SkeletonSeries | None = None
+                    ) -> list[dict[str, Any]]:
+    """Steps of a reference file (C3D/TRC/CSV), for the agreement section; ``data`` is
+    its content when read already (:func:`analyse_file`'s: ``path`` is not read again).
 
     Raises:
         GaitrigError: :func:`analyse_file`'s, unchanged (a reader's names the file; a
             "reference <file>: " before it named the file twice: callers name it,
             ``app.api.routes._data.refusal``).
     """
-    res = analyse_file(path, method)
+    res = analyse_file(path, method, data=data)
     steps: list[dict[str, Any]] = res["gait"]["steps"]
     return steps
 

@@ -601,7 +601,19 @@ def export_skeleton(series: SkeletonSeries, fmt: str, events: list[MarkerEvent] 
 
 
 def read_reference(path: Path, fmt: str) -> MarkerTrajectories:
-    """Parse an uploaded reference recording (C3D, TRC or skeleton CSV).
+    """Parse an uploaded reference recording (C3D, TRC or skeleton CSV) as markers.
+
+    Raises:
+        InputError: the file is not a valid file of that format.
+    """
+    return reference_markers(parse_reference(path, fmt))
+
+
+def parse_reference(path: Path, fmt: str) -> MarkerTrajectories | SkeletonSeries:
+    """Parse an uploaded reference recording as its reader returns it: a C3D or TRC
+    file's markers, a skeleton CSV's skeleton. Both :func:`reference_markers` (what is
+    stored of it) and the gait analysis (``app.server.analysis.reference_steps(...,
+    data=)``) take the result, so an upload is parsed once.
 
     Raises:
         InputError: the file is not a valid file of that format.
@@ -611,9 +623,16 @@ def read_reference(path: Path, fmt: str) -> MarkerTrajectories:
     if fmt == "trc":
         return read_trc(path)
     if fmt == "csv":
-        s = read_skeleton_csv(path)
-        return skeleton_to_markers(s, units="m")
+        return read_skeleton_csv(path)
     raise InputError(f"reference format {fmt!r} is not c3d, trc or csv")
+
+
+def reference_markers(data: MarkerTrajectories | SkeletonSeries) -> MarkerTrajectories:
+    """The markers of a reference :func:`parse_reference` read (a skeleton's joints as
+    markers, in metres)."""
+    if isinstance(data, SkeletonSeries):
+        return skeleton_to_markers(data, units="m")
+    return data
 
 
 # --------------------------------------------------------------------------- subject export

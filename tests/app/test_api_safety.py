@@ -438,14 +438,14 @@ def test_a_reference_upload_is_never_under_its_final_name_before_its_row(
     _filed_recording(client, h, "R1")
     folder = tmp_path / "references" / "R1"
     seen: list[list[str]] = []
-    real_read = storage.read_reference
+    real_read = storage.parse_reference
 
     def read(path: Path, fmt: str) -> Any:
         seen.append(sorted(p.name for p in folder.iterdir()))
         return real_read(path, fmt)
 
     # (the check shared with the Reports page's upload reads it: app.api.routes._reference)
-    monkeypatch.setattr(storage, "read_reference", read)
+    monkeypatch.setattr(storage, "parse_reference", read)
     r = client.post("/api/exports/R1/references", headers=h,
                     files={"file": ("walk.csv", _skeleton_csv(), "text/csv")})
     assert r.status_code == 201, r.text
@@ -491,7 +491,7 @@ def test_a_report_reference_being_checked_is_not_in_a_backup(
     in_backup: list[list[str]] = []
     walk, _ = walk_skeleton_c3d()  # a file its reader takes: the analysis is checked next
 
-    def steps(path: Path) -> Any:
+    def steps(path: Path, **_: Any) -> Any:
         in_backup.append([str(r) for r, _ in backup._walk(tmp_path, [], set())])
         raise reports.InsufficientDataError("no steps in this walk")
 
@@ -502,7 +502,7 @@ def test_a_report_reference_being_checked_is_not_in_a_backup(
     assert "'old.csv' stays attached" in r.json()["detail"], r.text
     assert in_backup and not [n for n in in_backup[0] if "upload" in n], in_backup
     assert _tree(tmp_path) == files  # nothing left behind, the old reference kept
-    monkeypatch.setattr(reports.an, "reference_steps", lambda path: [1, 2, 3, 4])
+    monkeypatch.setattr(reports.an, "reference_steps", lambda path, **_: [1, 2, 3, 4])
     r = client.post("/api/reports/recordings/R2/reference?offset_s=1.5", headers=h,
                     files={"file": ("new.c3d", walk, "application/octet-stream")})
     assert r.status_code == 201, r.text

@@ -532,8 +532,8 @@ def test_a_deleted_reference_stays_deleted_after_restoring_an_older_backup(
         ref_id = ref.id
     (var / "references" / rid / "b2.c3d").write_bytes(b"vicon of " + GONE.encode())
     # (the file is no C3D: its reader, run first by both pages' check, is faked as well)
-    monkeypatch.setattr(reports.an, "reference_steps", lambda path: [1.0, 2.0, 3.0])
-    monkeypatch.setattr(storage, "read_reference", lambda path, fmt: None)
+    monkeypatch.setattr(reports.an, "reference_steps", lambda path, **_: [1.0, 2.0, 3.0])
+    monkeypatch.setattr(storage, "parse_reference", lambda path, fmt: None)
 
     def attach(data: bytes) -> None:
         r = server.post(f"/api/reports/recordings/{rid}/reference",

@@ -6,8 +6,10 @@ refused alike on both, with the same status and words:
 * 400 — not a ``.c3d``, ``.trc`` or ``.csv`` file (:func:`reference_type`), or an empty
   one (:func:`receive`): "'walk.pdf': choose a .c3d, .trc or skeleton .csv file", "'trial
   3.c3d' is empty …";
-* 413 — larger than :data:`MAX_REFERENCE_BYTES` (:func:`receive`; the route's
-  ``max_body_size`` is that and :data:`UPLOAD_OVERHEAD`);
+* 413 — larger than :data:`MAX_REFERENCE_BYTES`: "'trial 3.c3d' is larger than 200 MB,
+  the largest file the server takes: …" (:func:`too_large`), whether :func:`receive` counts
+  the file or the route's ``max_body_size`` (that and :data:`UPLOAD_OVERHEAD`) refuses the
+  request before the file is known ("The file is larger than 200 MB, …");
 * 400 — no reader takes it: "'trial 3.c3d' is not a readable C3D file: the file is
   damaged …" (a reader's sentence that names the file is said as it is);
 * 422 — it is read, and the report's gait analysis
@@ -27,6 +29,7 @@ from typing import Any, BinaryIO
 
 from fastapi import HTTPException, UploadFile, status
 
+from app.api.limits import size_words
 from app.api.routes._data import refusal
 from app.db.data import REFERENCE_FORMATS
 from app.server import analysis as an
@@ -81,10 +84,7 @@ async def receive(file: UploadFile, out: BinaryIO, name: str) -> int:
     while chunk := await file.read(_CHUNK):
         size += len(chunk)
         if size > limit:
-            raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
-                                f"{name!r} is larger than {limit // 2**20} MB, the largest "
-                                "file the server takes: export only the walk (without "
-                                "analog channels) from the motion-capture software")
+            raise too_large(name)
         out.write(chunk)
     if size == 0:
         raise HTTPException(status.HTTP_400_BAD_REQUEST,
@@ -93,10 +93,24 @@ async def receive(file: UploadFile, out: BinaryIO, name: str) -> int:
     return size
 
 
+def too_large(name: str | None = None) -> HTTPException:
+    """HTTP 413 for a file larger than :data:`MAX_REFERENCE_BYTES`, named ``name`` (None:
+    a request refused by its size before the file's name is read), on every route that
+    takes a reference-sized file: the same words whichever check finds it ("'trial 3.c3d'
+    is larger than 200 MB, the largest file the server takes: export only the walk …")."""
+    who = repr(name) if name else "The file"
+    return HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
+                         f"{who} is larger than {size_words(MAX_REFERENCE_BYTES)}, the "
+                         "largest file the server takes: export only the walk (without "
+                         "analog channels) from the motion-capture software and upload it")
+
+
 def check_reference(upload: Path, ext: str, name: str, attached: Sequence[str] = ()
                     ) -> tuple[MarkerTrajectories, list[dict[str, Any]]]:
     """Read the uploaded reference ``upload`` (a ``.{ext}`` file the person named
-    ``name``) and find its steps as a report will; its trajectories and steps.
+    ``name``) and find its steps as a report will; its trajectories and steps. The file
+    is parsed once (:func:`app.server.storage.parse_reference`): the analysis takes what
+    was read (it read the file again: ≈ 2 s more for a 200 MB C3D).
 
     The readers and the analysis tell the format by the file's extension, and name the
     file in their messages: they read it through a link named ``reference.{ext}`` in a
@@ -112,12 +126,13 @@ def check_reference(upload: Path, ext: str, name: str, attached: Sequence[str] =
         link = Path(d) / f"reference.{ext}"
         os.symlink(upload.resolve(), link)
         try:
-            traj = storage.read_reference(link, ext)
+            data = storage.parse_reference(link, ext)
+            traj = storage.reference_markers(data)  # what is stored of it
         except (GaitrigError, ValueError, OSError, RuntimeError) as exc:
             raise HTTPException(status.HTTP_400_BAD_REQUEST,
                                 unreadable(exc, link, name, ext)) from exc
         try:
-            steps = an.reference_steps(link)
+            steps = an.reference_steps(link, data=data)
         except GaitrigError as exc:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                                 no_walk(exc, link, name, attached)) from exc

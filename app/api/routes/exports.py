@@ -25,7 +25,7 @@ from urllib.parse import quote
 from fastapi import APIRouter, File, HTTPException, Query, Request, Response, UploadFile, status
 
 from app.api.deps import CurrentUser, DbDep, HubDep
-from app.api.limits import BoundedRoute
+from app.api.limits import BoundedRoute, refused_with
 from app.api.routes import _reference
 from app.api.routes._data import (
     audit_event,
@@ -143,6 +143,7 @@ def references(rec_id: str, user: CurrentUser, db: DbDep) -> list[dict[str, Any]
 
 @router.post("/{rec_id}/references", status_code=201,
              max_body_size=_reference.MAX_REFERENCE_BYTES + _reference.UPLOAD_OVERHEAD)
+@refused_with(_reference.too_large)  # a request too large: receive()'s words, unnamed
 async def upload_reference(rec_id: str, request: Request, user: CurrentUser, db: DbDep,
                            file: Annotated[UploadFile, File(description="C3D, TRC or CSV")]
                            ) -> dict[str, Any]:

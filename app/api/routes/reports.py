@@ -41,7 +41,7 @@ from fastapi.responses import HTMLResponse, Response
 from sqlalchemy import select
 
 from app.api.deps import CurrentUser, DbDep, HubDep, SettingsDep
-from app.api.limits import BoundedRoute
+from app.api.limits import BoundedRoute, refused_with
 from app.api.routes import _reference
 from app.api.routes._data import audit_now, get_row, refusal
 from app.api.routes._paging import LimitQ, OffsetQ, SearchQ, like_pattern, page_of, set_total
@@ -727,6 +727,7 @@ def get_reference(rec_id: str, user: CurrentUser, settings: SettingsDep,
 
 @router.post("/recordings/{rec_id}/reference", status_code=201,
              max_body_size=_UPLOAD_BODY_MAX)
+@refused_with(_reference.too_large)  # a request too large: receive()'s words, unnamed
 async def put_reference(rec_id: str, file: UploadFile, user: CurrentUser,
                         settings: SettingsDep, hub: HubDep,
                         offset_s: float = Query(0.0, ge=-3600, le=3600,
@@ -874,6 +875,7 @@ def delete_reference(rec_id: str, user: CurrentUser, settings: SettingsDep,
 
 @router.post("/upload", response_model=None,
              max_body_size=_UPLOAD_BODY_MAX)
+@refused_with(_reference.too_large)  # a request too large: receive()'s words, unnamed
 async def upload_report(request: Request, file: UploadFile, user: CurrentUser, db: DbDep,
                         subject: Annotated[str, Form(min_length=1, max_length=40, description=(
                             "subject code printed on the report (a form field: a URL is "
