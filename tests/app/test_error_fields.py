@@ -267,13 +267,8 @@ FORM = {
     "width on a skeleton":
         "the ankle width applies to marker files (.c3d, .trc); a skeleton CSV's ankles are "
         "joints: leave it out",
-    "no straight walking":
-        "no straight walking found (the body centre must travel ≥ 0.5 m at ≥ 0.15 m/s for ≥ "
-        "0.8 s)",
-    "too few steps":
-        "only 0 steps found in 1 pass; at least two steps are needed. The longest stretch of "
-        "straight walking seen was 1.1 m (0.8 s): record a longer walk, or, if the subject "
-        "walked farther, place or add sensors to cover more of the walkway",
+    # messages that name no option read the same everywhere
+    **{k: CLI[k] for k in ("no straight walking", "too few steps")},
 }
 REFERENCE = {
     "units unknown":
