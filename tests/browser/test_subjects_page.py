@@ -277,39 +277,66 @@ def test_attach_reference_says_each_outcome(page: Any, live_server: LiveServer,
     assert f"subject%3D{s['id']}" in page.url or f"subject={s['id']}" in page.url
 
 
+#: The Subjects list's headings that take more than one line (a word broken at a soft
+#: hyphen, or at all): each line of a heading's text is a box of its own.
+BROKEN_HEADINGS_JS = """() => [...document.querySelectorAll(
+    "section[aria-labelledby=subj-h] thead th")].filter((th) => {
+  const r = document.createRange(); r.selectNodeContents(th);
+  return new Set([...r.getClientRects()].map((b) => Math.round(b.top))).size > 1;
+}).map((th) => th.textContent)"""
+
+
 def test_subject_codes_stay_on_one_line(page: Any, live_server: LiveServer,
                                         artifacts_dir: Path) -> None:
     """In the narrow list column at 1400 px a code broke inside itself ("A11Y" over "01",
-    read as two codes). Every code is on one line at every width; one too long for the
-    column ends in "…" and keeps the whole code as its link's name and title."""
+    read as two codes), and with a long code listed the count headings broke at their soft
+    hyphens ("Ses-sions"). Every code and heading is on one line at every width from 320
+    to 1920 px and the list fits its card; a code too long for the column ends in "…" and
+    keeps the whole code as its link's name and title, and on a wide screen a study's
+    code of 12 characters is whole ("KNEE-OA-01…" at 1400 px)."""
     from tests.browser.conftest import screenshot, short_recording
 
     p = live_server.api("/api/projects", {"name": "One-line codes"})
-    codes = ["A11Y01", "KBD07", "P2026-0117", "LONGCODE_abcdefghijklmnopqrstuvwxyz01234"]
+    codes = ["A11Y01", "KBD07", "P2026-0117", "KNEE-OA-0117",
+             "LONGCODE_abcdefghijklmnopqrstuvwxyz01234"]
     ids = [live_server.api("/api/subjects", {"project_id": p["id"], "code": c})["id"]
            for c in codes]
     session = live_server.api("/api/sessions", {"subject_id": ids[0], "label": "first visit"})
     short_recording(live_server, session["id"], "walk 1")  # (a size in kB in its row)
     page.goto(f"{live_server.base_url}/subjects.html#subject={ids[0]}")
     page.wait_for_selector("tr[data-subject='A11Y01'] a")
+    headings = page.eval_on_selector_all("section[aria-labelledby=subj-h] thead th",
+                                         "ths => ths.map(th => th.textContent)")
+    assert [h.replace("\u00ad", "") for h in headings] == ["Code", "Sessions", "Recordings",
+                                                          "Size"], headings
     measure = """(codes) => codes.map((c) => {
       const a = document.querySelector(`tr[data-subject="${c}"] a`);
       const line = parseFloat(getComputedStyle(a).lineHeight);
       return { code: c, lines: Math.round(a.getBoundingClientRect().height / line),
                cut: a.scrollWidth > a.clientWidth + 1, title: a.title, text: a.textContent };
     })"""
-    for w in (1400, 1024, 900, 768, 320):
+    for w in (1920, 1400, 1024, 901, 900, 768, 600, 320):
         page.set_viewport_size({"width": w, "height": 900})
-        page.locator("section[aria-labelledby=subj-h] table").scroll_into_view_if_needed()
+        table = page.locator("section[aria-labelledby=subj-h] table")
+        table.scroll_into_view_if_needed()
         screenshot(page, artifacts_dir, f"subjects_codes_{w}",
                    "section[aria-labelledby=subj-h] table")
+        if w in (1400, 901):
+            screenshot(page, artifacts_dir, f"subjects_page_{w}")
         got = page.evaluate(measure, codes)
         assert all(g["lines"] == 1 for g in got), (w, got)
         assert all(g["text"] == c and g["title"] == c for g, c in zip(got, codes, strict=True)), got
-        # short codes are whole; the 40 characters end in "…", and 10 on a phone
-        may_cut = codes[2:] if w < 768 else codes[3:]
-        assert [g["code"] for g in got if g["cut"]] in (may_cut, codes[3:]), (w, got)
+        # short codes are whole; the 40 characters end in "…"; a 10-character code is
+        # whole from a tablet up, a 12-character one on a wide screen
+        cut = [g["code"] for g in got if g["cut"]]
+        assert codes[-1] in cut and not set(cut) & set(codes[:2]), (w, got)
+        if w >= 768:
+            assert "P2026-0117" not in cut, (w, got)
+        if w >= 1400:
+            assert cut == codes[-1:], (w, got)
+        assert page.evaluate(BROKEN_HEADINGS_JS) == [], w
         assert page.evaluate("document.documentElement.scrollWidth <= innerWidth"), w
+        assert table.evaluate("t => t.parentElement.scrollWidth <= t.parentElement.clientWidth"), w
         card = page.locator("section[aria-labelledby=subj-h]").bounding_box()
         for cell in page.locator("#subjects tr[data-subject] > *").all():
             box = cell.bounding_box()
