@@ -549,8 +549,8 @@ def test_oversized_upload_is_refused(client: TestClient, monkeypatch: pytest.Mon
 def test_fused_export_read_by_the_cli_gives_the_reports_steps(recorded: Recorded,
                                                                tmp_path: Path) -> None:
     """A research engineer downloads the fused C3D of a recording and runs ``gaitrig gait``
-    on it: the steps are the report's (same sides in the same order, lengths and widths
-    within 1 cm, durations within one frame)."""
+    on it: the steps are the report's (the same steps at the same times, lengths and
+    widths within 1 cm, durations within one frame; an edge step may differ)."""
     import httpx
 
     code, a, _ = recorded.get(f"/api/reports/recordings/{recorded.rec_id}/analysis")
@@ -567,12 +567,18 @@ def test_fused_export_read_by_the_cli_gives_the_reports_steps(recorded: Recorded
     cli = json.loads(out.stdout)["steps"]
     rep = a["gait"]["steps"]
     assert len(rep) >= 4
-    # the two time bases differ (the report counts from the recording's start, the file
-    # from its first frame): the steps are compared in order
-    sides_rep = "".join(s["side"] for s in rep)
-    sides_cli = "".join(s["side"] for s in cli)
-    assert sides_cli == sides_rep, (sides_cli, sides_rep)
-    for s, c in zip(rep, cli, strict=True):
-        assert abs(s["length_m"] - c["length_m"]) < 0.01, (s, c)
-        assert abs(s["width_m"] - c["width_m"]) < 0.01, (s, c)
-        assert abs(s["duration_s"] - c["duration_s"]) < 0.034, (s, c)
+    # The two time bases differ by a constant (the report counts from the recording's
+    # start, the file from its first frame): the offset that pairs the most steps of the
+    # same side within 20 ms lines them up. A step at either end of the recording may be
+    # found by one and not the other (where a pass is cut by the recording's edge).
+    def pairs(offset: float) -> list[tuple[dict[str, Any], dict[str, Any]]]:
+        return [(r, c) for r in rep for c in cli if r["side"] == c["side"]
+                and abs(c["time_s"] - offset - r["time_s"]) < 0.02]
+
+    offsets = [c["time_s"] - r["time_s"] for r in rep for c in cli if r["side"] == c["side"]]
+    matched = max((pairs(o) for o in offsets), key=len)
+    assert len(matched) >= max(4, min(len(rep), len(cli)) - 2), (rep, cli)
+    for r, c in matched:
+        assert abs(r["length_m"] - c["length_m"]) < 0.01, (r, c)
+        assert abs(r["width_m"] - c["width_m"]) < 0.01, (r, c)
+        assert abs(r["duration_s"] - c["duration_s"]) < 0.034, (r, c)
