@@ -384,8 +384,10 @@ def jump_edge_pixels(depth_m: ArrayLike, rays: ArrayLike,
     Raises:
         InputError: shapes that do not match, or an angle outside (0, 90).
     """
-    z = np.ascontiguousarray(depth_m, dtype=np.float64)
-    r = np.ascontiguousarray(rays, dtype=np.float64)
+    # float32 or float64 as given (the live view's cached rays are float32: no copy of
+    # them per frame); anything else as float64
+    z, r = (np.ascontiguousarray(a) if np.asarray(a).dtype in (np.float32, np.float64)
+            else np.ascontiguousarray(a, dtype=np.float64) for a in (depth_m, rays))
     if z.ndim != 2 or r.shape != (*z.shape, 2):
         raise InputError(f"rays must be (H, W, 2) for a depth image of shape {z.shape}, "
                          f"got {r.shape}")

@@ -294,7 +294,7 @@ def merge_depth_views(views: Sequence[DepthView], voxel_m: float = 0.03,
             raise InputError("T_world_sensor must be a finite 4×4 matrix")
         rays = pixel_rays(v.K, depth.shape[1], depth.shape[0], v.dist)
         if jump_edge_deg is not None:
-            depth = np.where(jump_edge_pixels(depth * 0.001, rays, jump_edge_deg),
+            depth = np.where(jump_edge_pixels(depth * np.float32(0.001), rays, jump_edge_deg),
                              np.uint16(0), depth)
         total += bounds_kernel(depth, rays, T, z_range_m[0], z_range_m[1], bounds)
         prepared.append((depth, rays, T, v))
