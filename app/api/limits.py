@@ -30,10 +30,13 @@ from app.api.deps import get_current_user
 JSON_BODY_MAX = 1024 * 1024
 
 
-def size_words(n: int) -> str:
-    """A size limit as the messages say it: whole MB from 1 MB ("200 MB"), whole KB
-    below ("4 KB")."""
-    return f"{n / 2**20:.0f} MB" if n >= 2**20 else f"{max(1, n // 1024)} KB"
+def size_words(n: int, *, round_up: bool = False) -> str:
+    """A size as the messages say it: whole MB from 1 MB ("200 MB"), whole KB below
+    ("4 KB"). ``round_up`` for a size said to be over a limit, so that 256.3 MB over a
+    256 MB limit reads "257 MB", not "256 MB, more than the 256 MB"."""
+    unit, name = (2**20, "MB") if n >= 2**20 else (1024, "KB")
+    whole = -(-n // unit) if round_up else max(1, round(n / unit))
+    return f"{whole} {name}"
 
 
 def too_large(limit: int) -> HTTPException:

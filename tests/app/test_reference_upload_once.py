@@ -178,3 +178,7 @@ def test_the_limit_is_said_in_whole_megabytes_or_kilobytes() -> None:
     assert size_words(3 * 2**20) == "3 MB"
     assert size_words(1000) == "1 KB"
     assert size_words(4096) == "4 KB"
+    # a size said to be over a limit is rounded up, never down to the limit itself
+    assert size_words(256 * 2**20 + 300 * 1024, round_up=True) == "257 MB"
+    assert size_words(256 * 2**20, round_up=True) == "256 MB"
+    assert size_words(4097, round_up=True) == "5 KB"

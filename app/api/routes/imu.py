@@ -50,7 +50,7 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
 
 from app.api.deps import CurrentUser, HubDep, SettingsDep
-from app.api.limits import BoundedRoute
+from app.api.limits import BoundedRoute, size_words
 from app.server.imu_analysis import (
     FilterName,
     ImuJob,
@@ -133,7 +133,7 @@ async def _save(upload: UploadFile, folder: Path, stem: str) -> Path:
             size += len(chunk)
             if size > limit:
                 raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
-                                    f"{name}: larger than {limit // 2**20} MB; split "
+                                    f"{name}: larger than {size_words(limit)}; split "
                                     "the recording")
             fh.write(chunk)
     if size == 0:
@@ -340,16 +340,16 @@ def _check_request_data(paths: list[Path], files: list[UploadFile],
               else 0) for path, up in zip(paths, files, strict=True)
              if (d := zips.get(path)) is not None]
     total = sum(n for _, n in sizes)
-    limit = f"{MAX_REQUEST_DATA_BYTES // 2**20} MB"
+    limit = size_words(MAX_REQUEST_DATA_BYTES)
     if total > MAX_REQUEST_DATA_BYTES:
-        mb = f"{total / 2**20:.0f} MB"
+        mb = size_words(total, round_up=True)
         if len(sizes) == 1:
             msg = (f"{sizes[0][0]}: the zip unpacks to {mb}, more than the {limit} one "
                    "session may unpack; split the recording")
         else:
             name, largest = max(sizes, key=lambda s: s[1])
             msg = (f"the {len(sizes)} phone zips of this session unpack to {mb} together "
-                   f"(the largest, {name}, to {largest / 2**20:.0f} MB), more than the "
+                   f"(the largest, {name}, to {size_words(largest)}), more than the "
                    f"{limit} one session may unpack; upload them in several sessions, "
                    "fewer zips each, or split the longest recording")
         raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, msg)
@@ -367,13 +367,13 @@ def _check_request_data(paths: list[Path], files: list[UploadFile],
     name, largest = max(sizes, key=lambda s: s[1])
     held = (f"{name} holds" if len(sizes) == 1
             else f"the {len(sizes)} files of this session hold")
-    of_largest = "" if len(sizes) == 1 else f"; the largest, {name}, {largest / 2**20:.0f} MB"
+    of_largest = "" if len(sizes) == 1 else f"; the largest, {name}, {size_words(largest)}"
     raise HTTPException(
         status.HTTP_413_CONTENT_TOO_LARGE,
-        f"upload fewer or shorter files: {held} {total / 2**20:.0f} MB to read (files as "
-        "they are, phone zips unpacked, .mat and HDF5 files as their numbers take in "
-        f"memory{of_largest}), at most {limit} in one session; upload them in several "
-        "sessions or split the longest recording")
+        f"upload fewer or shorter files: {held} {size_words(total, round_up=True)} to "
+        "read (files as they are, phone zips unpacked, .mat and HDF5 files as their "
+        f"numbers take in memory{of_largest}), at most {limit} in one session; upload "
+        "them in several sessions or split the longest recording")
 
 
 def _fuse_named(recs: dict[str, ImuRecording], sk: SkeletonSeries, filt: FilterName,

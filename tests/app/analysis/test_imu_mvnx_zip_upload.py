@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from app.api.limits import size_words
 from engine.imu import _phone
 from engine.imu.filter import orientation_filter
 from engine.imu.io import ImuRecording
@@ -32,6 +33,16 @@ from tests.engine.imu.test_foreign_imu_mvnx_phone import (
 @pytest.fixture(scope="module")
 def sims() -> dict[str, ImuRecording]:
     return {"Pelvis": _motion(rng=1), "RightLowerLeg": _motion(rng=2, peak=2.0)}
+
+
+def _say(n: int) -> str:
+    """A size in the routes' words (``limits.size_words``: KB below 1 MB, never "0 MB")."""
+    return size_words(n)
+
+
+def _over(n: int) -> str:
+    """A size said to be over a limit: rounded up (``round_up=True``)."""
+    return size_words(n, round_up=True)
 
 
 def _post(c: TestClient, name: str, content: bytes, **data: object) -> tuple[int, dict]:
@@ -161,10 +172,10 @@ def test_phone_zips_of_one_session_bounded_together(
                            for n in ("walk1.zip", "walk2.zip", "notes.csv")])
     assert r.status_code == 413 and not loaded
     detail = r.json()["detail"]
-    mb = f"{2 * size / 2**20:.0f} MB"
+    mb = _over(2 * size)
     assert detail.startswith(f"the 2 phone zips of this session unpack to {mb} together "
                              "(the largest, walk1.zip, "), detail
-    assert f"more than the {size // 2**20} MB one session may unpack; upload them in " \
+    assert f"more than the {_say(size)} one session may unpack; upload them in " \
            "several sessions" in detail
     monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", size - 1)
     code, body = _post(client, "walk.zip", content)
@@ -238,9 +249,6 @@ def test_one_budget_for_the_csvs_and_zips_of_a_request(
         return client.post("/api/imu/sessions", files=up, data={
             "synchronise": "false", "gyr_unit": "rad/s", "acc_unit": "g"})
 
-    def mb(n: int) -> str:
-        return f"{n / 2**20:.0f} MB"
-
     # at the budget: accepted, the zip opened once (before: once for the bound, once to
     # unpack it)
     total = unpacked + len(csv)
@@ -256,11 +264,12 @@ def test_one_budget_for_the_csvs_and_zips_of_a_request(
     r = post(("walk.zip", content), ("mine.csv", csv))
     assert r.status_code == 413 and not loaded and len(added) == 1, r.text
     largest = "walk.zip" if unpacked >= len(csv) else "mine.csv"
+    assert " 0 MB" not in r.json()["detail"]  # sizes under 1 MB said in KB
     assert r.json()["detail"] == (
-        f"upload fewer or shorter files: the 2 files of this session hold {mb(total)} to "
+        f"upload fewer or shorter files: the 2 files of this session hold {_over(total)} to "
         f"read (files as they are, phone zips unpacked, .mat and HDF5 files as their "
-        f"numbers take in memory; the largest, {largest}, {mb(max(unpacked, len(csv)))}), "
-        f"at most {mb(total - 1)} in one session; upload them in several sessions or split "
+        f"numbers take in memory; the largest, {largest}, {_say(max(unpacked, len(csv)))}), "
+        f"at most {_say(total - 1)} in one session; upload them in several sessions or split "
         "the longest recording")
     assert len(opened) == 1
     # CSVs only (twelve 64 MB ones fitted before), the skeleton CSV counted too
@@ -353,9 +362,6 @@ def test_binary_files_count_against_the_request_budget(
             "synchronise": "false", "gyr_unit": "rad/s", "acc_unit": "g"},
             files=[("files", (n, c, "application/octet-stream")) for n, c in named])
 
-    def mb(k: int) -> str:
-        return f"{k / 2**20:.0f} MB"
-
     # several binary files over the budget: refused before any is read, nothing stored;
     # each one alone fits
     total = mat_bytes + h5_bytes + 2 * len(mvnx)
@@ -366,19 +372,19 @@ def test_binary_files_count_against_the_request_budget(
     largest = max((("walk.mat", mat_bytes), ("trial.hdf5", h5_bytes),
                    ("take1.mvnx", len(mvnx))), key=lambda s: s[1])
     assert r.json()["detail"] == (
-        f"upload fewer or shorter files: the 4 files of this session hold {mb(total)} to "
+        f"upload fewer or shorter files: the 4 files of this session hold {_over(total)} to "
         "read (files as they are, phone zips unpacked, .mat and HDF5 files as their "
-        f"numbers take in memory; the largest, {largest[0]}, {mb(largest[1])}), at most "
-        f"{mb(total - 1)} in one session; upload them in several sessions or split the "
+        f"numbers take in memory; the largest, {largest[0]}, {_say(largest[1])}), at most "
+        f"{_say(total - 1)} in one session; upload them in several sessions or split the "
         "longest recording")
     # a compressed HDF5 file counts at its numbers' size, not the file's
     monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", h5_bytes - 1)
     r = post(("trial.hdf5", h5))
     assert r.status_code == 413 and not loaded and not added, r.text
     assert r.json()["detail"] == (
-        f"upload fewer or shorter files: trial.hdf5 holds {mb(h5_bytes)} to read (files as "
+        f"upload fewer or shorter files: trial.hdf5 holds {_over(h5_bytes)} to read (files as "
         "they are, phone zips unpacked, .mat and HDF5 files as their numbers take in "
-        f"memory), at most {mb(h5_bytes - 1)} in one session; upload them in several "
+        f"memory), at most {_say(h5_bytes - 1)} in one session; upload them in several "
         "sessions or split the longest recording")
     # a .mat and a CSV just within the budget: accepted; a byte less: refused
     monkeypatch.setattr(route, "MAX_REQUEST_DATA_BYTES", mat_bytes + len(csv))
