@@ -91,3 +91,33 @@ def test_refine_refuses_large_drift() -> None:
     assert np.allclose(poses["B"], err)
     assert any("away from the marker solution" in r.reason or "did not improve" in r.reason
                for r in reps)
+
+
+def test_static_cloud_drops_flying_pixels_at_depth_edges() -> None:
+    """ICP's static cloud of a box 1.5 m in front of a wall at 3 m, whose rim pixels read
+    in between in every frame (a time-of-flight pixel across the edge mixes both
+    surfaces, and the temporal median keeps what every frame shows): the points floating
+    in the gap are dropped, the box and the wall kept."""
+    from engine.calibration.corners3d import SensorFrames
+    from engine.calibration.pipeline import static_cloud
+
+    K = np.array([[250.0, 0, 63.5], [0, 250.0, 47.5], [0, 0, 1]])
+    depth = np.full((96, 128), 3000, np.uint16)
+    depth[30:66, 40:88] = 1500
+    # the same mixed readings in every frame: the median cannot remove them
+    rng = np.random.default_rng(3)
+    for rows, cols in ((slice(30, 66), [38, 39, 88, 89]), ([28, 29, 66, 67], slice(40, 88))):
+        depth[rows, cols] = rng.uniform(1600, 2900, depth[rows, cols].shape).astype(np.uint16)
+    frames = [depth] * 5
+    colour = np.zeros((96, 128, 3), np.uint8)
+    pts = static_cloud(SensorFrames("S1", [colour] * 5, frames, K, K))
+    z = pts[:, 2]
+    # within ≈ 17 cm behind the rim a point is not told from the rim's own slope (two
+    # pixels 1.2 cm apart at 1.5 m, 4°); beyond, nothing floats
+    floating = (z > 1.7) & (z < 2.95)
+    assert not np.any(floating), np.sort(z[floating])
+    assert np.count_nonzero((depth[::2, ::2] > 1700) & (depth[::2, ::2] < 2950)) > 40
+    box = np.count_nonzero(np.abs(z - 1.5) < 1e-6)
+    wall = np.count_nonzero(np.abs(z - 3.0) < 1e-6)
+    assert box == 18 * 24  # every other pixel of the 36 × 48 box, its rim included
+    assert wall > 0.9 * (48 * 64 - box - 2 * (18 + 24) - 4)
