@@ -59,10 +59,18 @@ const gaitrig = (() => {
       const text = sel.value && sel.selectedOptions.length ? sel.selectedOptions[0].textContent : "";
       let cut = false;
       if (text && sel.clientWidth) {
-        const cs = getComputedStyle(sel);
-        measure.font = cs.font;
-        // (the list's arrow takes about 20 px)
-        cut = measure.measureText(text).width > sel.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight) - 20;
+        // A list is as wide as its widest entry unless its box holds it narrower: the
+        // room for the text is the widest entry less what the box takes off (a list out
+        // of the flow for a moment shows its own width). Not a guess of the arrow's width:
+        // a guess wrote an entry shown whole under its list again.
+        measure.font = getComputedStyle(sel).font;
+        const shown = sel.getBoundingClientRect().width;
+        const style = sel.style.cssText;  // (CSSOM: the console's CSP refuses style attributes)
+        sel.style.cssText += ";position:absolute;width:auto;max-width:none";
+        const own = sel.getBoundingClientRect().width;
+        sel.style.cssText = style;
+        const widest = Math.max(...[...sel.options].map((o) => measure.measureText(o.textContent).width));
+        cut = measure.measureText(text).width > widest - Math.max(0, own - shown) + 0.5;
       }
       p.hidden = !cut;
       p.textContent = cut ? text : "";
