@@ -64,7 +64,8 @@ _EXPORTS: dict[str, str] = {
     # not the function ``agreement``: ``engine.agreement`` is its module
     "Agreement": "engine.agreement", "agreement_levels": "engine.agreement",
     "match_steps": "engine.agreement", "match_events": "engine.agreement",
-    "bland_altman_png": "engine.agreement",
+    "bland_altman_png": "engine.agreement", "AgreementStudy": "engine.agreement",
+    "StudyRow": "engine.agreement", "StudyTrial": "engine.agreement",
     "GaitCycle": "engine.gait", "gait_cycles": "engine.gait",
     "load_point_cloud": "engine.pointcloud", "load_depth_image": "engine.pointcloud",
     "load_intrinsics": "engine.pointcloud", "load_imu": "engine.imu.io",
@@ -84,6 +85,7 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = [
     "Agreement",
+    "AgreementStudy",
     "CalibrationError",
     "CalibrationResult",
     "CameraIntrinsics",
@@ -103,6 +105,8 @@ __all__ = [
     "SkeletonSeries",
     "Step",
     "Stride",
+    "StudyRow",
+    "StudyTrial",
     "TrackingState",
     "WalkPass",
     "__version__",
@@ -144,6 +148,9 @@ __all__ = [
 if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ loads them
     from engine.agreement import (
         Agreement,
+        AgreementStudy,
+        StudyRow,
+        StudyTrial,
         agreement_levels,
         bland_altman_png,
         match_events,

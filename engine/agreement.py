@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
 from engine.errors import InputError, InsufficientDataError
+from engine.wording import count
 
 FloatArray = NDArray[np.float64]
 
@@ -309,3 +310,199 @@ def bland_altman_png(measured: ArrayLike, reference: ArrayLike, title: str = "",
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     return buf.getvalue()
+
+
+@dataclass(frozen=True)
+class StudyTrial:
+    """One walk of a validation study: the system's and the reference's gait results of
+    the same walk, on one time axis.
+
+    Attributes:
+        measured_steps: the system's steps (objects with ``side``, ``time_s``,
+            ``length_m``, ``width_m``, ``duration_s``, e.g. :class:`engine.gait.Step`).
+        reference_steps: the reference system's steps.
+        measured_strides: the system's strides (``side``, ``time_s``, ``length_m``).
+        reference_strides: the reference system's strides.
+        measured_speed_m_s: the system's walking speed of the walk (m/s; NaN: none).
+        reference_speed_m_s: the reference's walking speed of the walk (m/s; NaN: none).
+        name: the walk's name in messages (a file or trial label).
+    """
+
+    measured_steps: Sequence[Any]
+    reference_steps: Sequence[Any]
+    measured_strides: Sequence[Any] = ()
+    reference_strides: Sequence[Any] = ()
+    measured_speed_m_s: float = float("nan")
+    reference_speed_m_s: float = float("nan")
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class StudyRow:
+    """One row of a validation study's tables (seed 000, Tables 1–3).
+
+    Attributes:
+        table: ``1`` for the view-independent parameters (walking speed, step time),
+            ``2`` for the spatial ones (stride length, step length, step width).
+        parameter: ``"walking speed"``, ``"step time"``, ``"stride length"``,
+            ``"step length"`` or ``"step width"``.
+        level: ``"L"``/``"R"`` (single steps or strides of one side, matched in time),
+            ``"AV L"``/``"AV R"`` (subject averages of one side), ``"AV AVG"`` (subject
+            averages over both sides) or ``"AV"`` (walking speed: subject averages).
+        unit: the unit the paper's tables use: ``"cm/s"``, ``"s"`` or ``"cm"``.
+        agreement: the row's statistics in SI units (m, s, m/s).
+    """
+
+    table: int
+    parameter: str
+    level: str
+    unit: str
+    agreement: Agreement
+
+    @property
+    def scale(self) -> float:
+        """Factor from the SI statistics to :attr:`unit` (100 for cm and cm/s)."""
+        return 1.0 if self.unit == "s" else 100.0
+
+    @property
+    def label(self) -> str:
+        """The row's name as the paper writes it, e.g. ``"AV step width R (cm)"``."""
+        if self.level == "AV":
+            return f"AV {self.parameter} ({self.unit})"
+        if self.level.startswith("AV"):
+            return f"AV {self.parameter} {self.level[3:]} ({self.unit})"
+        return f"{self.parameter[0].upper()}{self.parameter[1:]} {self.level} ({self.unit})"
+
+    def shown(self) -> Agreement:
+        """The statistics in :attr:`unit` (means, SDs, bias and RPC scaled; r, p, CV and
+        ICC unchanged).
+
+        Returns:
+            A scaled copy of :attr:`agreement`.
+        """
+        a, k = self.agreement, self.scale
+        return Agreement(a.n, a.mean_measured * k, a.sd_measured * k, a.mean_reference * k,
+                         a.sd_reference * k, a.r, a.p, a.bias * k, a.rpc * k, a.cv_pct,
+                         a.icc_a1)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form, in :attr:`unit`.
+
+        Returns:
+            ``{"table", "parameter", "level", "label", "unit", **statistics}``.
+        """
+        return {"table": self.table, "parameter": self.parameter, "level": self.level,
+                "label": self.label, "unit": self.unit, **self.shown().to_dict()}
+
+
+#: (parameter, attribute, steps or strides, table, unit), in the paper's order
+_STUDY_PARAMETERS = (("step time", "duration_s", "steps", 1, "s"),
+                     ("stride length", "length_m", "strides", 2, "cm"),
+                     ("step length", "length_m", "steps", 2, "cm"),
+                     ("step width", "width_m", "steps", 2, "cm"))
+
+#: The columns of :meth:`AgreementStudy.csv`.
+STUDY_CSV_COLUMNS = ("table", "parameter", "level", "unit", "n", "mean_measured",
+                     "sd_measured", "mean_reference", "sd_reference", "r", "p", "bias",
+                     "rpc", "cv_pct", "icc_a1")
+
+
+class AgreementStudy:
+    """A validation study against a reference system at the paper's three levels (seed
+    000, "Quantitative comparison", Tables 1–3): single steps and strides per side
+    matched in time, subject averages per side, subject averages over both sides; and
+    the subjects' average walking speed.
+
+    Subject averages use every step of each system (the paper's AV rows), single steps
+    only those matched within ``max_dt_s`` (:func:`match_steps`). A row with fewer than
+    three values (e.g. subject averages of a study with two subjects) is left out.
+
+    Args:
+        max_dt_s: step and stride matching tolerance, s.
+
+    Attributes:
+        rows_: the tables' rows (:class:`StudyRow`), in the paper's order.
+        pairs_: parameter → ``(measured, reference)`` arrays of the matched single steps
+            (or strides) of both sides, SI units: the Bland–Altman plots' points.
+        n_subjects_: subjects with at least one trial.
+        n_trials_: trials.
+        unmatched_: name of each trial none of whose steps matched the reference in time
+            (the two files do not start together, or are not the same walk).
+    """
+
+    def __init__(self, max_dt_s: float = 0.25) -> None:
+        self.max_dt_s = max_dt_s
+
+    def fit(self, trials: Mapping[str, Sequence[StudyTrial]]) -> AgreementStudy:
+        """Compute the study's rows.
+
+        Args:
+            trials: subject code → that subject's trials.
+
+        Returns:
+            ``self``, with the ``*_`` attributes set.
+
+        Raises:
+            InputError: ``max_dt_s`` not positive.
+            InsufficientDataError: no row can be computed (fewer than three matched
+                steps in all, fewer than three subjects' walking speeds).
+        """
+        if not self.max_dt_s > 0:
+            raise InputError(f"max_dt_s must be positive, got {self.max_dt_s}")
+        subjects = {k: list(v) for k, v in trials.items() if len(v)}
+        rows: list[StudyRow] = []
+        pairs: dict[str, tuple[FloatArray, FloatArray]] = {}
+        speeds: tuple[list[float], list[float]] = ([], [])
+        for trs in subjects.values():
+            m = [t.measured_speed_m_s for t in trs if np.isfinite(t.measured_speed_m_s)]
+            r = [t.reference_speed_m_s for t in trs if np.isfinite(t.reference_speed_m_s)]
+            if m and r:
+                speeds[0].append(float(np.mean(m)))
+                speeds[1].append(float(np.mean(r)))
+        if len(speeds[0]) >= 3:
+            rows.append(StudyRow(1, "walking speed", "AV", "cm/s", agreement(*speeds)))
+        for parameter, attr, kind, table, unit in _STUDY_PARAMETERS:
+            data = {k: [(getattr(t, f"measured_{kind}"), getattr(t, f"reference_{kind}"))
+                        for t in trs] for k, trs in subjects.items()}
+            levels = agreement_levels(data, attr, self.max_dt_s)
+            rows += [StudyRow(table, parameter, level, unit, levels[level])
+                     for level in ("L", "R", "AV L", "AV R", "AV AVG") if level in levels]
+            matched = [(float(getattr(a, attr)), float(getattr(b, attr)))
+                       for pairs_of in data.values() for meas, ref in pairs_of
+                       for a, b in match_steps(meas, ref, self.max_dt_s)]
+            if matched:
+                arr = np.asarray(matched, dtype=float)
+                pairs[parameter] = (arr[:, 0], arr[:, 1])
+        if not rows:
+            n = sum(len(t.measured_steps) for trs in subjects.values() for t in trs)
+            raise InsufficientDataError(
+                f"no agreement can be computed from {count(len(subjects), 'subject')} and "
+                f"{count(sum(map(len, subjects.values())), 'trial')} ({n} measured steps): "
+                "at least three steps must match the reference in time (within "
+                f"{self.max_dt_s:g} s), or three subjects have a walking speed")
+        self.rows_ = rows
+        self.pairs_ = pairs
+        self.n_subjects_ = len(subjects)
+        self.n_trials_ = sum(len(v) for v in subjects.values())
+        self.unmatched_ = [t.name for trs in subjects.values() for t in trs
+                           if t.measured_steps and t.reference_steps
+                           and not match_steps(t.measured_steps, t.reference_steps,
+                                               self.max_dt_s)]
+        return self
+
+    def csv(self) -> str:
+        """The rows as CSV (:data:`STUDY_CSV_COLUMNS`, values in each row's unit).
+
+        Returns:
+            CSV text with a header line.
+        """
+        import csv
+
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(STUDY_CSV_COLUMNS)
+        for row in self.rows_:
+            d = row.to_dict()
+            w.writerow([d[c] if isinstance(d[c], str | int) else f"{d[c]:.6g}"
+                        for c in STUDY_CSV_COLUMNS])
+        return buf.getvalue()
