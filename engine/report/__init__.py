@@ -6,6 +6,9 @@
   minimal detectable changes, loadable from a lab's own JSON.
 * :mod:`engine.report.progress` — change of a subject's gait over sessions
   (:func:`session_progress`).
+* :mod:`engine.report.study` — a validation study's report (:class:`StudyReport`:
+  Tables 1–3 of :class:`engine.agreement.AgreementStudy`, Bland–Altman plots),
+  :func:`save_study_report` (``.html``, ``.pdf`` or ``.csv``).
 * :mod:`engine.report.plots` — the figures (matplotlib, PNG bytes) and their text
   alternatives.
 
@@ -37,6 +40,10 @@ _EXPORTS: dict[str, str] = {
     "session_progress": "engine.report.progress",
     "load_mdc_values": "engine.report.progress",
     "save_mdc_values": "engine.report.progress",
+    "StudyReport": "engine.report.study",
+    "render_study_html": "engine.report.study",
+    "render_study_pdf": "engine.report.study",
+    "save_study_report": "engine.report.study",
 }
 
 __all__ = [
@@ -47,14 +54,18 @@ __all__ = [
     "QualityInfo",
     "ReportData",
     "SessionTrials",
+    "StudyReport",
     "TrialData",
     "load_mdc_values",
     "load_normative_ranges",
     "render_html",
     "render_pdf",
+    "render_study_html",
+    "render_study_pdf",
     "save_mdc_values",
     "save_normative_ranges",
     "save_report",
+    "save_study_report",
     "session_progress",
 ]
 
@@ -80,6 +91,12 @@ if TYPE_CHECKING:  # what type checkers see; at run time __getattr__ loads them
         render_html,
         render_pdf,
         save_report,
+    )
+    from engine.report.study import (
+        StudyReport,
+        render_study_html,
+        render_study_pdf,
+        save_study_report,
     )
 
 __getattr__, __dir__ = _lazy_exports(__name__, _EXPORTS, globals())
