@@ -3,51 +3,25 @@ them ("Change over sessions")."""
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import pytest
 
-from tests.browser.conftest import LiveServer, screenshot, wait_copied
+from tests.browser.conftest import LiveServer, record_walk, screenshot, wait_copied
 
 pytestmark = pytest.mark.browser
 
-RECORD_S = 8.0
 
-
-def _record(server: LiveServer, session_ids: list[int], attempts: int = 3) -> None:
-    """A short walk of the simulated subject in each session, copied to the server, with
-    at least two steps in it (the simulated walker turns at the corridor's ends: a few
-    seconds caught at a turn are refused by the analysis, and then recorded again).
-
-    The walks are recorded one straight after the other; their copies to the server and
-    their analyses follow (each walk waited for its own before the next started)."""
-    from app.nodes.backends.sim import WORLD_CYCLE_S
-
-    todo = list(session_ids)
-    reasons: list[str] = []
-    for _ in range(attempts):
-        # a recording across the simulated walk's restart has no single walk in it
-        to_restart = WORLD_CYCLE_S - time.time() % WORLD_CYCLE_S
-        if to_restart < RECORD_S * len(todo) + 3.0:
-            time.sleep(to_restart + 1.0)
-        rids: dict[int, str] = {}
-        for sid in todo:
-            rids[sid] = server.api(f"/api/sessions/{sid}/recordings", {"label": "walk"})["id"]
-            time.sleep(RECORD_S)
-            server.api(f"/api/recordings/{rids[sid]}/stop", {})
-        for rid in rids.values():
-            wait_copied(server, rid, 120)
-        again = []
-        for sid, rid in rids.items():
-            analysis = server.api(f"/api/reports/recordings/{rid}/analysis", timeout=60)
-            if not analysis["ok"]:
-                again.append(sid)
-                reasons.append(analysis["error"])
-        if not again:
-            return
-        todo = again
-    raise AssertionError(f"no walk with two steps in {attempts} recordings: {reasons}")
+def _record(server: LiveServer, session_ids: list[int]) -> None:
+    """A walk of the simulated subject in each session (:func:`record_walk`: stopped once
+    it holds a stretch of straight walking, so it has steps), one straight after the
+    other, then their copies to the server waited for and each one's analysis checked."""
+    rids = [record_walk(server, sid, wait=False) for sid in session_ids]
+    for rid in rids:
+        wait_copied(server, rid, 120)
+    for rid in rids:
+        analysis = server.api(f"/api/reports/recordings/{rid}/analysis", timeout=60)
+        assert analysis["ok"], analysis["error"]
 
 
 def test_pick_two_sessions_and_see_the_change(page: Any, live_server: LiveServer,
