@@ -1,8 +1,10 @@
-"""Options shared by the commands that read mocap files (``gaitrig gait``, ``gaitrig report``).
+"""Options shared by the commands that read mocap files (``gaitrig gait``, ``gaitrig report``,
+``gaitrig agreement``).
 
-``--up`` takes a negative axis as its value (``--up -y``), which argparse alone would read
-as an option of its own; ``--units`` the file's length unit in any case;
-``--ankle-markers`` and ``--ankle-width-mm`` how the ankle markers are taken.
+``--left``/``--right`` the foot markers; ``--up`` takes a negative axis as its value
+(``--up -y``), which argparse alone would read as an option of its own; ``--units`` the
+file's length unit in any case; ``--ankle-markers`` and ``--ankle-width-mm`` how the
+ankle markers are taken.
 """
 
 from __future__ import annotations
@@ -40,6 +42,19 @@ class _NegativeAxis(argparse.Action):
             parser.error(f"unrecognized argument {option_string}: for a vertical axis "
                          f"pointing down write --up {option_string}")
         setattr(namespace, self.dest, option_string)
+
+
+def add_marker_arguments(parser: argparse.ArgumentParser, left_help: str,
+                         right_help: str) -> None:
+    """Register ``--left NAME`` and ``--right NAME`` (the foot markers to analyse).
+
+    Args:
+        parser: The command's parser.
+        left_help: The help line of ``--left``.
+        right_help: The help line of ``--right``.
+    """
+    parser.add_argument("--left", metavar="NAME", help=left_help)
+    parser.add_argument("--right", metavar="NAME", help=right_help)
 
 
 def add_up_argument(parser: argparse.ArgumentParser, help_text: str) -> None:

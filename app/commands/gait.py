@@ -12,6 +12,7 @@ from typing import Any, Literal
 
 from app.commands._file_options import (
     add_ankle_arguments,
+    add_marker_arguments,
     add_units_argument,
     add_up_argument,
     ankle_width_m,
@@ -24,9 +25,8 @@ HELP = "gait parameters (steps, strides, speed, cadence ...) of a C3D/TRC/CSV fi
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the command's options."""
     parser.add_argument("file", metavar="FILE", help="a .c3d, .trc or skeleton .csv file")
-    parser.add_argument("--left", metavar="NAME",
-                        help="left-foot marker to analyse (default: automatic, e.g. LANK/LHEE)")
-    parser.add_argument("--right", metavar="NAME", help="right-foot marker to analyse")
+    add_marker_arguments(parser, "left-foot marker to analyse (default: automatic, e.g. "
+                                 "LANK/LHEE)", "right-foot marker to analyse")
     add_up_argument(parser, "vertical axis of the file, '-y' for Y down (default: detected)")
     add_units_argument(parser, "length unit of the file's numbers (default: from the file)")
     add_ankle_arguments(parser)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from app.commands._file_options import (
     add_ankle_arguments,
+    add_marker_arguments,
     add_units_argument,
     add_up_argument,
     ankle_width_m,
@@ -32,8 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=["crossing", "heelstrike"], default="crossing",
                         help="crossing: foot placements where the ankles pass each other "
                              "(seed paper); heelstrike: Zeni foot strike / foot off")
-    parser.add_argument("--left", metavar="NAME", help="left-foot marker (default: automatic)")
-    parser.add_argument("--right", metavar="NAME", help="right-foot marker")
+    add_marker_arguments(parser, "left-foot marker (default: automatic)", "right-foot marker")
     add_up_argument(parser, "vertical axis of the files, '-y' for Y down (default: detected)")
     add_units_argument(parser, "length unit of the files' numbers (default: from each file)")
     add_ankle_arguments(parser)
