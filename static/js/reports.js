@@ -1,5 +1,6 @@
 // Reports page: subject/session report (inline HTML fragment + PDF link), one- vs
-// two-sided comparison of a recording's sensor subsets, reference upload, file analysis.
+// two-sided comparison of a recording's sensor subsets, reference upload, a project's
+// agreement with a reference system (HTML fragment, PDF, CSV), file analysis.
 "use strict";
 (() => {
   const $ = (id) => document.getElementById(id);
@@ -45,11 +46,12 @@
     p.classList.toggle("error", isError);
   }
 
-  function showReport(html) {
+  // `help`: the guide's part that explains the report's notes
+  function showReport(html, help = "/help.html#report-quality") {
     $("report").innerHTML = html; // server-rendered, escaped by the template engine
     // the data-quality notes (too few steps, one-sided, clock, calibration) are explained in the guide
     const notes = $("report").querySelector("ul.notes");
-    if (notes) notes.after(el("p", { class: "hint" }, el("a", { href: "/help.html#report-quality" }, "What does this mean?")));
+    if (notes) notes.after(el("p", { class: "hint" }, el("a", { href: help }, "What does this mean?")));
     $("report-section").hidden = false;
     // the focus on the report's title: a screen reader says which report this is
     // (the report's box alone has no name)
@@ -59,10 +61,10 @@
 
   function hideReport() { $("report-section").hidden = true; $("report").replaceChildren(); }
 
-  // PDF through fetch so that a refusal (e.g. no complete recording) shows as a message
-  // on this page instead of a raw error document.
-  async function downloadPdf(url, msgId, fallbackName) {
-    say(msgId, "Rendering the PDF…");
+  // PDF (or CSV) through fetch so that a refusal (e.g. no complete recording) shows as a
+  // message on this page instead of a raw error document.
+  async function downloadPdf(url, msgId, fallbackName, kind = "PDF") {
+    say(msgId, kind === "PDF" ? "Rendering the PDF…" : `Computing the ${kind}…`);
     try {
       const r = await call(url);
       const cd = r.headers.get("Content-Disposition") || "";
@@ -71,7 +73,7 @@
       const a = el("a", { href: URL.createObjectURL(blob), download: m ? m[1] : fallbackName });
       document.body.append(a); a.click(); a.remove();
       setTimeout(() => URL.revokeObjectURL(a.href), 10000);
-      say(msgId, `PDF downloaded (${m ? m[1] : fallbackName}).`);
+      say(msgId, `${kind} downloaded (${m ? m[1] : fallbackName}).`);
     } catch (e) { say(msgId, e.message, true); }
   }
 
@@ -279,7 +281,7 @@
   }
 
   // The chosen entry's text, whole, under a list too narrow to show it (gaitrig.showWhole)
-  function showWhole() { gaitrig.showWhole(["subject", "session", "recording"]); }
+  function showWhole() { gaitrig.showWhole(["subject", "session", "recording", "study-project"]); }
   addEventListener("resize", showWhole);
 
   async function recordingChanged() {
@@ -441,6 +443,53 @@
     } catch (e) { say("ref-msg", e.message, true); }
   }
 
+  // ------------------------------------------------------------------ agreement study
+  async function loadProjects() {
+    let projects;
+    try { projects = await json("/api/projects?limit=1000"); }
+    catch (e) { say("study-msg", "Cannot load projects: " + e.message, true); return; }
+    const sel = $("study-project"), was = sel.value;
+    sel.replaceChildren(el("option", { value: "" }, projects.length ? "Choose a project…" : "No projects yet"));
+    for (const p of projects) {
+      sel.append(el("option", { value: String(p.id) }, `${p.name} — ${plural(p.n_subjects, "subject")}`));
+    }
+    if (was && projects.some((p) => String(p.id) === was)) sel.value = was;
+    else if (projects.length === 1) sel.value = String(projects[0].id);
+    showWhole();
+  }
+
+  // the study's address, or null with the page's message said (no project chosen)
+  function studyQuery(format) {
+    const pid = $("study-project").value;
+    if (!pid) {
+      say("study-msg", "Choose a project first.", true);
+      $("study-project").focus();
+      return null;
+    }
+    const q = new URLSearchParams({ format, method: $("study-method").value,
+      estimator: $("study-estimator").value });
+    // the server checks the ids (and says which recording lacks one)
+    const sensors = $("study-sensors").value.replace(/\s+/g, "");
+    if (sensors) q.set("sensors", sensors);
+    return `/api/reports/projects/${encodeURIComponent(pid)}/agreement?${q}`;
+  }
+
+  async function showStudy(ev) {
+    ev.preventDefault();
+    const url = studyQuery("html");
+    if (!url) return;
+    say("study-msg", "Analysing the project's recordings and their references… (a first analysis takes a few seconds per recording)");
+    $("study-show").disabled = true;
+    try {
+      const r = await call(url);
+      showReport(await r.text(), "/help.html#report-study");
+      say("study-msg", "Agreement below.");
+    } catch (e) {
+      hideReport();
+      say("study-msg", e.message, true);
+    } finally { gaitrig.release($("study-show")); }
+  }
+
   // ------------------------------------------------------------------ file analysis
   async function analyseFile(format) {
     const f = $("file").files[0];
@@ -498,6 +547,16 @@
     if (url) downloadPdf(url, "cmp-msg", "gait-report.pdf");
     else say("cmp-msg", "Choose a recording and at least one sensor in subset A.", true);
   });
+  $("study-form").addEventListener("submit", showStudy);
+  $("study-project").addEventListener("change", showWhole);
+  $("study-pdf").addEventListener("click", () => {
+    const url = studyQuery("pdf");
+    if (url) downloadPdf(url, "study-msg", "agreement.pdf");
+  });
+  $("study-csv").addEventListener("click", () => {
+    const url = studyQuery("csv");
+    if (url) downloadPdf(url, "study-msg", "agreement.csv", "CSV");
+  });
   $("recording").addEventListener("change", recordingChanged);
   onSearch($("subject-q"), loadSubjects);
   onSearch($("recording-q"), loadRecordings);
@@ -537,4 +596,5 @@
   loadSubjects().then(fromAddress);
   buildSubset("set-a", []); buildSubset("set-b", []);
   loadRecordings();
+  loadProjects();
 })();

@@ -230,3 +230,64 @@ def test_both_pages_say_the_same_of_a_reference_with_no_walk(page: Any,
     # the button pressed
     assert reports_way == subjects_way == ["status", False, True], (reports_way, subjects_way)
     assert not page.js_errors
+
+
+def test_reports_page_shows_a_projects_agreement_with_its_references(
+        page: Any, live_server: LiveServer, artifacts_dir: Path, tmp_path: Path) -> None:
+    """"Agreement with a reference system": a project of three subjects, each with a walk
+    whose reference is attached on the Reports page, gives the paper's tables (its single
+    steps and subject averages) on the page, and their numbers as a CSV file.
+
+    The recordings are short real ones; their analyses are simulated walks
+    (:mod:`tests.app.study_walks`) put in the server's analysis cache, so that the walks
+    are long enough for steps without recording them (the same walks are the references,
+    with their own noise)."""
+    import json
+
+    from app.server import analysis as an
+    from tests.app.study_walks import walk_analysis, walk_reference_csv
+
+    pid = live_server.api("/api/projects", {"name": "Agreement study"})["id"]
+    for k, walker in enumerate(("V01", "V02", "V03"), start=1):
+        sid = live_server.api("/api/subjects", {"project_id": pid, "code": f"AGR{k}"})["id"]
+        se = live_server.api("/api/sessions", {"subject_id": sid, "label": "lab"})["id"]
+        rid = short_recording(live_server, se, "walk 1")
+        # the recording's sensor poses fixed (sensors.json), as its first analysis does
+        sensors = [s["id"] for s in
+                   live_server.api(f"/api/reports/recordings/{rid}/sensors")["sensors"]]
+        d = an.recording_dir(live_server.data_dir / "server", rid)
+        cache = d / "analysis" / f"{an.AnalysisOptions().key()}-{an._fingerprint(d)}.json"
+        cache.parent.mkdir(exist_ok=True)
+        cache.write_text(json.dumps(walk_analysis(rid, walker, k, tuple(sensors))))
+        ref = walk_reference_csv(tmp_path / f"vicon {k}.csv", walker, k)
+        r = page.request.post(f"{live_server.base_url}/api/reports/recordings/{rid}/reference",
+                              multipart={"file": {"name": ref.name, "mimeType": "text/csv",
+                                                  "buffer": ref.read_bytes()}})
+        assert r.status == 201, r.text()
+    page.goto(live_server.base_url + "/reports.html")
+    page.wait_for_function("[...document.querySelectorAll('#study-project option')]"
+                           f".some(o => o.value === '{pid}')")
+    page.select_option("#study-project", str(pid))
+    page.click("#study-show")
+    msg = "document.getElementById('study-msg').textContent"
+    page.wait_for_function(f"{msg} === 'Agreement below.' || "
+                           "document.getElementById('study-msg').classList.contains('error')",
+                           timeout=60_000)
+    assert page.text_content("#study-msg") == "Agreement below."
+    for label in ("Step width L (cm)", "AV step width AVG (cm)", "AV walking speed (cm/s)"):
+        assert page.locator("#report").get_by_role("rowheader", name=label,
+                                                   exact=True).is_visible(), label
+    assert "Project Agreement study: 3 subjects, 3 trials with a reference" in (
+        page.text_content("#report") or "")
+    screenshot(page, artifacts_dir, "reports_agreement_study", "#report-section")
+    screenshot(page, artifacts_dir, "reports_agreement_card",
+               "section[aria-labelledby=study-h]")
+    with page.expect_download() as got:
+        page.click("#study-csv")
+    text = Path(got.value.path()).read_text()
+    assert got.value.suggested_filename.startswith("agreement-Agreement_study-")
+    assert got.value.suggested_filename.endswith(".csv")
+    assert text.startswith("table,parameter,level,unit,n,"), text[:200]
+    assert "step width,L,cm," in text
+    page.wait_for_function(f"{msg}.startsWith('CSV downloaded')")
+    assert not page.js_errors

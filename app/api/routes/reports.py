@@ -15,6 +15,9 @@ Routes (all under ``/api/reports``, login required):
 * ``GET  /subjects/{subject_id}`` — report of a subject from all its complete recordings,
   of some of its sessions (``sessions=3,5``: with two or more, the report adds the
   section "Change over sessions"), or of one session (``session_id``);
+* ``GET  /projects/{project_id}/agreement`` — agreement with a reference system over a
+  project's subjects (seed 000's Tables 1–3; ``format=html|pdf|csv|json``, ``sensors``,
+  ``method``, ``estimator``) from its recordings with a reference attached;
 * ``POST /upload`` — report of an uploaded C3D/TRC/CSV file (research engineers); the
   subject code printed on it is a form field (never in the URL).
 
@@ -52,8 +55,8 @@ from app.api.routes._reference import (
     reference_type,
     upload_name,
 )
+from app.db.data import Project, ReferenceImport, Subject
 from app.db.data import Recording as DbRecording
-from app.db.data import ReferenceImport, Subject
 from app.db.data import Session as DbSession
 from app.server import analysis as an
 from app.server import erasures
@@ -61,6 +64,8 @@ from app.server.storage import note_changed
 from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.report.progress import SessionTrials
 from engine.report.render import ReportData, render_html, render_pdf
+from engine.report.study import StudyReport, render_study_html, render_study_pdf
+from engine.wording import count
 
 router = APIRouter(prefix="/reports", route_class=BoundedRoute, tags=["reports"])
 
@@ -212,13 +217,19 @@ def _reference_steps(paths: dict[str, ReferenceFile], method: str,
         try:
             steps = an.reference_steps(path, method)
         except GaitrigError as exc:
-            why = refusal(exc, path, name)
-            trial = an.recording_named(rec_id, (labels or {}).get(rec_id, ""))
-            notes.append(f"{trial}: the reference could not be used — {why}" if name in why
-                         else f"{trial}: the reference {name} could not be used — {why}")
+            notes.append(_reference_refused(
+                an.recording_named(rec_id, (labels or {}).get(rec_id, "")), exc, path, name))
             continue
         out[rec_id] = [{**s, "time_s": s["time_s"] + off} for s in steps]
     return out, notes
+
+
+def _reference_refused(trial: str, exc: BaseException, path: Path, name: str) -> str:
+    """A report's note on a reference that gave no steps, naming the trial and the file
+    once (:func:`app.api.routes._data.refusal`)."""
+    why = refusal(exc, path, name)
+    return (f"{trial}: the reference could not be used — {why}" if name in why
+            else f"{trial}: the reference {name} could not be used — {why}")
 
 
 def _references(db: Any, data_dir: Path, rec_dirs: dict[str, Path], method: str
@@ -712,6 +723,202 @@ def subject_report(subject_id: int, request: Request, user: CurrentUser,
                else f"sessions {', '.join(str(s.id) for s in picked)}" if picked is not None
                else f"all sessions ({len(subject.sessions)})")
               + f"; report {format} ({method}, {_subset(sub)})")
+    return out
+
+
+# ---------------------------------------------------------------------------- project study
+
+
+#: The console's words for the analysis options (the Reports page's lists).
+METHOD_WORDS = {"crossing": "Foot placements", "heelstrike": "Heel strike / toe off"}
+ESTIMATOR_WORDS = {"weighted": "Weighted by view angle", "mean": "Equal-weight mean"}
+#: Steps of the system and of the reference further apart in time are not paired (s).
+STUDY_MAX_DT_S = 0.25
+
+
+@dataclass
+class ProjectStudySource:
+    """What a project's agreement study needs from the database, read at once."""
+
+    project_id: int
+    name: str
+    #: (subject code, rec_id, trial label) of each complete recording with a reference,
+    #: subjects by code, sessions by date
+    trials: list[tuple[str, str, str]]
+    references: dict[str, ReferenceFile]
+    n_without: int  # complete recordings without a reference (not in the study)
+    #: recordings with a reference that are not complete on the server (named in notes)
+    not_complete: list[str] = field(default_factory=list)
+
+
+class NoReferenceError(InsufficientDataError):
+    """The project has no complete recording with a reference attached."""
+
+
+def project_study_source(db: Any, data_dir: Path, project: Any) -> ProjectStudySource:
+    """Read which recordings of ``project`` take part in its agreement study."""
+    recs: list[tuple[str, str, str, str]] = []  # (code, rec_id, label, state)
+    for subj in sorted(project.subjects, key=lambda x: (x.code, x.id)):
+        for se in sorted(subj.sessions,
+                         key=lambda s: (s.date is None, s.date or _dt.date.min, s.id)):
+            recs += [(subj.code, r.id, r.label or "", r.state) for r in se.recordings]
+    refs = _reference_paths(db, data_dir, {
+        rec_id: an.recording_dir(data_dir, rec_id) for _, rec_id, _, _ in recs})
+    trials: list[tuple[str, str, str]] = []
+    not_complete: list[str] = []
+    n_without = 0
+    for code, rec_id, label, state in recs:
+        complete = state == "complete" and bool(an.part_dirs(an.recording_dir(data_dir, rec_id)))
+        if rec_id not in refs:
+            n_without += int(complete)
+        elif complete:
+            trials.append((code, rec_id, label))
+        else:
+            not_complete.append(an.recording_named(rec_id, label, state))
+    return ProjectStudySource(project.id, project.name, trials, refs, n_without, not_complete)
+
+
+def _study_steps(steps: list[dict[str, Any]], shift_s: float = 0.0) -> list[Any]:
+    """Gait JSON steps (or strides) as objects for :class:`engine.agreement.StudyTrial`,
+    times shifted by ``shift_s`` (a value the JSON has as None is NaN)."""
+    from types import SimpleNamespace
+
+    out = []
+    for s in steps:
+        d = {k: float("nan") if v is None else v for k, v in s.items()}
+        d["time_s"] = float(d["time_s"]) + shift_s
+        out.append(SimpleNamespace(**d))
+    return out
+
+
+def _speed(gait: dict[str, Any]) -> float:
+    v = (gait.get("summary") or {}).get("walking_speed_m_s")
+    return float("nan") if v is None else float(v)
+
+
+def build_project_study(src: ProjectStudySource, data_dir: Path, live: dict[str, Any],
+                        sensors: tuple[str, ...] | None = None, method: str = "crossing",
+                        estimator: str = "weighted") -> StudyReport:
+    """Analyse each recording of a project with a reference, and its reference, and fit
+    the agreement study (seed 000's Tables 1–3) over the project's subjects (no database).
+
+    A recording whose analysis or reference gives no steps is a note; the others go on.
+
+    Raises:
+        NoReferenceError: no complete recording of the project has a reference.
+        InsufficientDataError: too few steps match the reference for any row.
+    """
+    from engine.agreement import AgreementStudy, StudyTrial
+
+    if not src.trials:
+        more = (f" (not complete on the server: {', '.join(src.not_complete)})"
+                if src.not_complete else "")
+        raise NoReferenceError(
+            f"project {src.name} has no recording with a reference attached{more}; attach "
+            "one to each validation walk (Reports page, 'Reference recording for the "
+            "agreement section', or the Subjects page)")
+    notes = [f"{t} was not used: it is not complete on the server." for t in src.not_complete]
+    by_subject: dict[str, list[StudyTrial]] = {}
+    for code, rec_id, label in src.trials:
+        trial = an.recording_named(rec_id, label)
+        try:
+            a = an.analyse_recording(an.recording_dir(data_dir, rec_id),
+                                     an.AnalysisOptions(method, estimator, sensors), live)
+        except GaitrigError as exc:  # e.g. a sensor of the subset this recording lacks
+            notes.append(f"{trial} was not used: {exc}")
+            continue
+        if not a.get("ok"):
+            notes.append(f"{trial} was not used: {a.get('error')}")
+            continue
+        path, off, name = src.references[rec_id]
+        try:
+            ref = an.analyse_file(path, method)["gait"]
+        except GaitrigError as exc:
+            notes.append(_reference_refused(trial, exc, path, name))
+            continue
+        except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as exc:
+            # an engine defect on an unusual file: a note, the other trials go on
+            notes.append(f"{trial}: the reference {name} could not be analysed "
+                         f"({type(exc).__name__}: {exc})")
+            continue
+        gait = a["gait"]
+        by_subject.setdefault(code, []).append(StudyTrial(
+            _study_steps(gait["steps"]), _study_steps(ref["steps"], off),
+            _study_steps(gait["strides"]), _study_steps(ref["strides"], off),
+            _speed(gait), _speed(ref), trial))
+    try:
+        study = AgreementStudy(max_dt_s=STUDY_MAX_DT_S).fit(by_subject)
+    except InsufficientDataError as exc:
+        raise InsufficientDataError(
+            f"project {src.name}: {exc}" + (f" ({'; '.join(notes)})" if notes else "")
+        ) from exc
+    n_with = len(src.trials)
+    basis = [f"Project {src.name}: {count(study.n_subjects_, 'subject')}, "
+             f"{count(study.n_trials_, 'trial')} with a reference"
+             + (f" ({n_with - study.n_trials_} more left out, see the notes)"
+                if n_with > study.n_trials_ else "")
+             + (f"; {count(src.n_without, 'complete recording')} without a reference "
+                "not part of the study" if src.n_without else "") + ".",
+             f"Sensors: {_subset(sensors)}.",
+             f"Sensor fusion: {ESTIMATOR_WORDS.get(estimator, estimator)}.",
+             f"Gait events: {METHOD_WORDS.get(method, method)}, on both systems; steps "
+             f"paired with the reference's steps of the same side within "
+             f"{STUDY_MAX_DT_S:g} s."]
+    return StudyReport(study, basis=basis, notes=notes)
+
+
+def _json_safe(v: Any) -> Any:
+    """NaN and infinities as None (JSON has neither)."""
+    return None if isinstance(v, float) and not np.isfinite(v) else v
+
+
+@router.get("/projects/{project_id}/agreement", response_model=None)
+def project_agreement(project_id: int, request: Request, user: CurrentUser,
+                      settings: SettingsDep, hub: HubDep, db: DbDep,
+                      format: Literal["html", "pdf", "csv", "json"] = "html",
+                      sensors: str | None = Query(None, max_length=2000, description=(
+                          "e.g. S1,S3,S5 (a one-sided study); empty = all sensors")),
+                      method: MethodQ = "crossing",
+                      estimator: EstimatorQ = "weighted") -> Response:
+    """Agreement with a reference system over a project (seed 000's Tables 1–3 at its
+    three levels): every complete recording of the project's subjects with a reference
+    attached, analysed with the options given and paired with its reference; audited."""
+    project = get_row(db, Project, project_id)
+    if project is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no project with id {project_id}")
+    sub = _sensors_param(sensors)
+    src = project_study_source(db, settings.data_dir, project)
+    try:
+        report = build_project_study(src, settings.data_dir, _live_poses(hub), sub, method,
+                                     estimator)
+    except InputError as exc:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
+    except GaitrigError as exc:  # no reference, too few matched steps
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
+    study = report.study
+    stem = _filename("agreement", src.name, _dt.date.today().isoformat())
+    out: Response
+    try:
+        if format == "json":
+            out = Response(json.dumps({
+                "project": src.name, "subjects": study.n_subjects_, "trials": study.n_trials_,
+                "rows": [{k: _json_safe(v) for k, v in r.to_dict().items()}
+                         for r in study.rows_],
+                "unmatched": study.unmatched_, "notes": report.notes,
+                "basis": report.basis}), media_type="application/json")
+        elif format == "csv":
+            out = Response(study.csv(), media_type="text/csv", headers={
+                "Content-Disposition": f'attachment; filename="{stem}.csv"'})
+        elif format == "pdf":
+            out = Response(render_study_pdf(report), media_type="application/pdf", headers={
+                "Content-Disposition": f'attachment; filename="{stem}.pdf"'})
+        else:
+            out = HTMLResponse(render_study_html(report, standalone=False))
+    except GaitrigError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
+    audit_now(db, request, user, "export", f"project {project_id}",
+              f"agreement {format} ({method}, {estimator}, {_subset(sub)}; "
+              f"{count(study.n_subjects_, 'subject')}, {count(study.n_trials_, 'trial')})")
     return out
 
 
