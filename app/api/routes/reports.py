@@ -171,13 +171,13 @@ class ReferenceFile(NamedTuple):
     """A recording's reference file for its report."""
 
     path: Path  # the server's copy
-    offset_s: float  # the reference's time of the recording's start
+    offset_s: float  # s into the recording at which the reference starts (added to its times)
     name: str  # as the person chose it ("vicon walk.c3d"), for messages
 
 
 def _reference_paths(db: Any, data_dir: Path, rec_dirs: dict[str, Path]
                      ) -> dict[str, ReferenceFile]:
-    """rec_id → its reference file, the reference's time of the recording's start and the
+    """rec_id → its reference file, the time into the recording at which it starts and the
     file's name as uploaded.
 
     A reference attached on this page wins; otherwise the newest one imported on the
@@ -938,8 +938,10 @@ def get_reference(rec_id: str, user: CurrentUser, settings: SettingsDep,
 async def put_reference(rec_id: str, file: UploadFile, user: CurrentUser,
                         settings: SettingsDep, hub: HubDep,
                         offset_s: float = Query(0.0, ge=-3600, le=3600,
-                                                description="reference time of the recording's "
-                                                "start")) -> dict[str, Any]:
+                                                description="seconds into the recording at "
+                                                "which the reference starts (added to its "
+                                                "times; negative: it started before)")
+                        ) -> dict[str, Any]:
     """Attach a reference recording (C3D/TRC/CSV); it must contain a walk with steps."""
     d = _rec_dir(settings, rec_id, hub)
     _sweep_stale_uploads(d)

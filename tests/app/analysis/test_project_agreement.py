@@ -27,7 +27,8 @@ from engine.errors import InputError
 from tests.app.study_walks import attach_reference, walk_analysis, walk_reference_csv
 
 #: rec_id → (subject code, walk seed, trial label, state, reference: "ok", "late" (the
-#: reference started 2 s later, said by its offset), "broken", "far" (100 s off, no
+#: reference started 2 s before the recording, its times 2 s later; said by its offset, −2:
+#: it starts at −2 s into the recording), "broken", "far" (100 s off, no
 #: offset: no step matches), or None)
 RECORDINGS = {
     "A1": ("V01", 1, "walk 1", "complete", "ok"),
@@ -143,7 +144,8 @@ def test_the_study_has_the_papers_three_levels(study: dict[str, Any]) -> None:
     speed = rows["AV walking speed (cm/s)"]
     assert speed["n"] == 4 and 100.0 < speed["mean_measured"] < 140.0
     assert speed["icc_a1"] > 0.9
-    # the reference started 2 s later, said by its offset: its steps still matched
+    # the reference started 2 s before the recording, said by its offset: its steps still
+    # matched
     assert study["unmatched"] == []
     # every value JSON can hold (a NaN would have been a 500)
     assert all(v is None or isinstance(v, int | float | str) for r in study["rows"]
