@@ -644,7 +644,9 @@ def _env() -> Environment:
     def fmt(v: float | None, d: int = 2) -> str:
         if v is None or (isinstance(v, float) and not math.isfinite(v)):
             return "–"
-        return f"{v:.{d}f}"
+        text = f"{v:.{d}f}"
+        # a value that rounds to zero has no sign ("-0.000" read as a negative bias)
+        return text[1:] if text.startswith("-") and float(text) == 0 else text
 
     env.filters["fmt"] = fmt
     env.filters["day"] = day_text

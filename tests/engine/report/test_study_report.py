@@ -66,6 +66,9 @@ def test_html_has_both_tables_every_row_and_the_plots() -> None:
         assert img is not None and img.std() > 10
         assert "bias" in alt and "limits of agreement" in alt
     assert "P0 walk 0: none of its steps matched the reference" in html
+    # a bias that rounds to zero has no sign (the step times' read "-0.000")
+    assert not re.search(r"<td>-0\.0+</td>", html)
+    assert re.search(r"<td>0\.000</td>", html)
     assert "P9 walk 2: the reference could not be used" in html
     assert "Project Knee OA: 4 subjects, 12 trials" in html
     # the console's fragment: no page around it
