@@ -277,8 +277,13 @@ def test_reports_page_shows_a_projects_agreement_with_its_references(
     for label in ("Step width L (cm)", "AV step width AVG (cm)", "AV walking speed (cm/s)"):
         assert page.locator("#report").get_by_role("rowheader", name=label,
                                                    exact=True).is_visible(), label
-    assert "Project Agreement study: 3 subjects, 3 trials with a reference" in (
-        page.text_content("#report") or "")
+    shown = page.text_content("#report") or ""
+    assert "Project Agreement study: 3 subjects, 3 trials with a reference" in shown
+    # the page's words, not the developers' ("seed paper", "issue 8")
+    from tests.browser.test_console_ux import JARGON
+
+    assert not JARGON.search(shown), JARGON.findall(shown)
+    assert not JARGON.search(page.text_content("section[aria-labelledby=study-h]") or "")
     screenshot(page, artifacts_dir, "reports_agreement_study", "#report-section")
     screenshot(page, artifacts_dir, "reports_agreement_card",
                "section[aria-labelledby=study-h]")

@@ -36,7 +36,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal, NamedTuple
+from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 from fastapi import APIRouter, Form, HTTPException, Query, Request, UploadFile, status
@@ -64,8 +64,10 @@ from app.server.storage import note_changed
 from engine.errors import GaitrigError, InputError, InsufficientDataError
 from engine.report.progress import SessionTrials
 from engine.report.render import ReportData, render_html, render_pdf
-from engine.report.study import StudyReport, render_study_html, render_study_pdf
 from engine.wording import count
+
+if TYPE_CHECKING:  # the study's module imports scipy: loaded on a study's first request
+    from engine.report.study import StudyReport
 
 router = APIRouter(prefix="/reports", route_class=BoundedRoute, tags=["reports"])
 
@@ -809,6 +811,7 @@ def build_project_study(src: ProjectStudySource, data_dir: Path, live: dict[str,
         InsufficientDataError: too few steps match the reference for any row.
     """
     from engine.agreement import AgreementStudy, StudyTrial
+    from engine.report.study import StudyReport
 
     if not src.trials:
         more = (f" (not complete on the server: {', '.join(src.not_complete)})"
@@ -895,6 +898,8 @@ def project_agreement(project_id: int, request: Request, user: CurrentUser,
         raise HTTPException(status.HTTP_400_BAD_REQUEST, str(exc)) from exc
     except GaitrigError as exc:  # no reference, too few matched steps
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
+    from engine.report.study import render_study_html, render_study_pdf
+
     study = report.study
     stem = _filename("agreement", src.name, _dt.date.today().isoformat())
     out: Response
