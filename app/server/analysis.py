@@ -30,6 +30,8 @@ as its message, so a clinician gets the same clear answer at once next time.
 
 from __future__ import annotations
 
+import copy
+import functools
 import hashlib
 import json
 import logging
@@ -852,9 +854,34 @@ def reference_steps(path: Path, method: str = "crossing", *,
             "reference <file>: " before it named the file twice: callers name it,
             ``app.api.routes._data.refusal``).
     """
-    res = analyse_file(path, method, data=data)
-    steps: list[dict[str, Any]] = res["gait"]["steps"]
-    return steps
+    if data is not None:
+        steps: list[dict[str, Any]] = analyse_file(path, method, data=data)["gait"]["steps"]
+        return steps
+    return list(reference_gait(path, method)["steps"])
+
+
+@functools.lru_cache(maxsize=512)
+def _file_gait(path: str, size: int, mtime_ns: int, method: str) -> dict[str, Any]:
+    # keyed by the file's size and modification time: a file replaced is analysed anew
+    gait: dict[str, Any] = analyse_file(Path(path), method)["gait"]
+    return gait
+
+
+def reference_gait(path: Path, method: str = "crossing") -> dict[str, Any]:
+    """The gait JSON (``steps``, ``strides``, ``summary``…) of a stored reference file,
+    analysed once per version of the file and method in this process: a project's
+    agreement study reads every reference of the project at each request (its HTML, PDF
+    and CSV are three requests), and the reports of a subject read theirs again.
+
+    Raises:
+        GaitrigError: :func:`analyse_file`'s (a failure is not kept: it is tried again),
+            and for a file gone since it was listed.
+    """
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise InputError(f"cannot read {path.name}: {exc.strerror or exc}") from exc
+    return copy.deepcopy(_file_gait(str(path), st.st_size, st.st_mtime_ns, method))
 
 
 def subset_label(sensors: Collection[str] | None) -> str:

@@ -835,7 +835,7 @@ def build_project_study(src: ProjectStudySource, data_dir: Path, live: dict[str,
             continue
         path, off, name = src.references[rec_id]
         try:
-            ref = an.analyse_file(path, method)["gait"]
+            ref = an.reference_gait(path, method)
         except GaitrigError as exc:
             notes.append(_reference_refused(trial, exc, path, name))
             continue

@@ -231,3 +231,37 @@ def test_refusals_are_clear(client: TestClient) -> None:
     assert r.status_code == 400 and "must be 1-64 characters" in r.json()["detail"]
     r = _get(client, "Validation study", format="xml")
     assert r.status_code == 422  # FastAPI's validation, not a 500
+
+
+def test_a_reference_is_analysed_once_per_version(tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """A project's study reads every reference at each request (HTML, PDF and CSV are
+    three): each file is analysed once per version and method; a file replaced (another
+    size or modification time) is analysed anew, and one gone is a clear error."""
+    import os
+
+    from engine.errors import GaitrigError
+
+    calls: list[str] = []
+    real = an.analyse_file
+
+    def counted(path: Path, method: str = "crossing", *a: Any, **k: Any) -> dict[str, Any]:
+        calls.append(method)
+        return real(path, method, *a, **k)
+
+    monkeypatch.setattr(an, "analyse_file", counted)
+    f = walk_reference_csv(tmp_path / "ref.csv", "V09", 9)
+    first = an.reference_gait(f, "crossing")
+    first["steps"].clear()  # a caller's change does not reach the next caller
+    again = an.reference_gait(f, "crossing")
+    assert again["steps"] and calls == ["crossing"]
+    assert an.reference_steps(f, "crossing") == again["steps"] and len(calls) == 1
+    an.reference_gait(f, "heelstrike")
+    assert calls == ["crossing", "heelstrike"]
+    walk_reference_csv(f, "V09", 10)  # replaced by another walk
+    os.utime(f, ns=(1, 1))
+    an.reference_gait(f, "crossing")
+    assert len(calls) == 3
+    f.unlink()
+    with pytest.raises(GaitrigError, match=r"cannot read ref\.csv"):
+        an.reference_gait(f, "crossing")
