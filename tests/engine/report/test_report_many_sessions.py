@@ -143,15 +143,16 @@ def _layout_overflow(html: str) -> tuple[list[str], list[list[str]]]:
 
 
 @needs_poppler
-@pytest.mark.parametrize("n", [10, 30])
-def test_pdf_keeps_every_session_inside_the_page(n: int, tmp_path: Path,
-                                                 artifacts_dir: Path) -> None:
+def test_pdf_keeps_every_session_inside_the_page(tmp_path: Path, artifacts_dir: Path) -> None:
+    # 30 sessions: the table spans pages (10 fitted on one and checked nothing more, at
+    # 15 s of the suite's time)
+    n = 30
     data, html = _rendered(n)
     # WeasyPrint's own layout: no box past the right margin; the header row on every
     # page the sessions table spans
     over, heads = _layout_overflow(html)
     assert not over, over[:5]
-    assert len(heads) >= (2 if n == 30 else 1)
+    assert len(heads) >= 2
     assert all(h and h[0] == "Session" and "Walking speed (m/s)" in h for h in heads), heads
     pdf = tmp_path / "r.pdf"
     pdf.write_bytes(render_pdf(data))
