@@ -471,6 +471,8 @@
     // the server checks the ids (and says which recording lacks one)
     const sensors = $("study-sensors").value.replace(/\s+/g, "");
     if (sensors) q.set("sensors", sensors);
+    const reference = $("study-reference").value.trim();
+    if (reference) q.set("reference_name", reference);
     return `/api/reports/projects/${encodeURIComponent(pid)}/agreement?${q}`;
   }
 

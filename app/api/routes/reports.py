@@ -882,7 +882,10 @@ def project_agreement(project_id: int, request: Request, user: CurrentUser,
                       sensors: str | None = Query(None, max_length=2000, description=(
                           "e.g. S1,S3,S5 (a one-sided study); empty = all sensors")),
                       method: MethodQ = "crossing",
-                      estimator: EstimatorQ = "weighted") -> Response:
+                      estimator: EstimatorQ = "weighted",
+                      reference_name: str = Query("", max_length=40, description=(
+                          "the reference system's name heading its columns, e.g. Vicon "
+                          "(empty: 'reference')"))) -> Response:
     """Agreement with a reference system over a project (seed 000's Tables 1–3 at its
     three levels): every complete recording of the project's subjects with a reference
     attached, analysed with the options given and paired with its reference; audited."""
@@ -900,6 +903,7 @@ def project_agreement(project_id: int, request: Request, user: CurrentUser,
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from exc
     from engine.report.study import render_study_html, render_study_pdf
 
+    report.reference = " ".join(reference_name.split()) or report.reference
     study = report.study
     stem = _filename("agreement", src.name, _dt.date.today().isoformat())
     out: Response

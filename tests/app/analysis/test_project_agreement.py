@@ -178,6 +178,11 @@ def test_html_csv_and_pdf(client: TestClient, study: dict[str, Any]) -> None:
     for word in ("Agreement with a reference system", "Step width L", "AV step width AVG",
                  "Project Validation study", "vicon walk 3.c3d"):
         assert word in html, word
+    assert html.count(">gaitrig</th>") == 2 and html.count(">reference</th>") == 2
+    # the reference system named by the user heads its columns (escaped as any text)
+    named = _get(client, "Validation study", reference_name="  Vicon <Nexus>  ").text
+    assert named.count(">Vicon &lt;Nexus&gt;</th>") == 2 and ">reference</th>" not in named
+    assert _get(client, "Validation study", reference_name="x" * 41).status_code == 422
     r = _get(client, "Validation study", format="csv")
     assert r.status_code == 200 and r.headers["content-type"].startswith("text/csv")
     cd = r.headers["content-disposition"]
