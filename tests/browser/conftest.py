@@ -242,7 +242,7 @@ def walk_stop_time(t_start: float, straight_s: float = WALK_STRAIGHT_S,
 
 
 def record_walk(server: Any, session_id: int, timeout_s: float = 90.0,
-                wait: bool = True) -> str:
+                wait: bool = True, straight_s: float = WALK_STRAIGHT_S) -> str:
     """Record a few steps of the simulated walker (default avenue, seed 0) under
     ``session_id`` through ``server.api`` (a :class:`LiveServer` or a test's own lab) and
     wait until the recording is complete on the server; its id. With ``wait=False`` it
@@ -252,11 +252,13 @@ def record_walk(server: Any, session_id: int, timeout_s: float = 90.0,
     The recording is stopped once it holds :data:`WALK_STRAIGHT_S` of straight walking
     (by the simulator's own footprints, :func:`walk_stop_time`), so each walk has steps:
     3.5-12 s (6.4 on average), instead of a fixed 7 s that a turn could leave without
-    any (the callers then walked again)."""
+    any (the callers then walked again). ``straight_s``: more straight walking, for a
+    report of one side's sensors (which lose the far foot now and then)."""
     rec = server.api(f"/api/sessions/{session_id}/recordings",
                      {"label": "walk", "streams": [], "image_every": 3})
     # + 0.3 s: the nodes' frames reach the ring a moment after their capture time
-    time.sleep(max(0.0, walk_stop_time(float(rec["t_start"])) + 0.3 - time.time()))
+    time.sleep(max(0.0, walk_stop_time(float(rec["t_start"]), straight_s) + 0.3
+                   - time.time()))
     server.api(f"/api/recordings/{rec['id']}/stop", {}, method="POST")
     if wait:
         wait_copied(server, str(rec["id"]), timeout_s)
