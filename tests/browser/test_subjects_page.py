@@ -335,6 +335,11 @@ def test_subject_codes_stay_on_one_line(page: Any, live_server: LiveServer,
         if w >= 1400:
             assert cut == codes[-1:], (w, got)
         assert page.evaluate(BROKEN_HEADINGS_JS) == [], w
+        if w == 1920:  # the page takes a wide screen's room (up to 1500 px), prose does not
+            assert page.evaluate("document.querySelector('main').getBoundingClientRect()"
+                                 ".width") > 1400
+            assert page.evaluate("Math.max(...[...document.querySelectorAll('main > p')]"
+                                 ".map(p => p.getBoundingClientRect().width))") <= 1200.5
         assert page.evaluate("document.documentElement.scrollWidth <= innerWidth"), w
         assert table.evaluate("t => t.parentElement.scrollWidth <= t.parentElement.clientWidth"), w
         # every cell measured at once in the page (the polled list may be drawn anew
