@@ -219,6 +219,12 @@ def match_events(measured: Sequence[Any], reference: Sequence[Any], max_dt_s: fl
     return pairs
 
 
+def _value(step: Any, attr: str) -> float:
+    """A step's value as a float: NaN where it has none (None in gait JSON)."""
+    v = getattr(step, attr)
+    return float("nan") if v is None else float(v)
+
+
 def agreement_levels(
     trials: Mapping[str, Sequence[tuple[Sequence[Any], Sequence[Any]]]],
     attr: str,
@@ -245,13 +251,16 @@ def agreement_levels(
         subj_r: dict[str, list[float]] = {"L": [], "R": []}
         for meas, ref in trs:
             for m, r in match_steps(meas, ref, max_dt_s):
-                single[m.side][0].append(float(getattr(m, attr)))
-                single[m.side][1].append(float(getattr(r, attr)))
+                single[m.side][0].append(_value(m, attr))
+                single[m.side][1].append(_value(r, attr))
             # Subject averages use every step of each system (as the paper's AV rows).
             for s in meas:
-                subj_m[s.side].append(float(getattr(s, attr)))
+                subj_m[s.side].append(_value(s, attr))
             for s in ref:
-                subj_r[s.side].append(float(getattr(s, attr)))
+                subj_r[s.side].append(_value(s, attr))
+        # a step without the value (NaN, None in gait JSON) is left out of its average
+        subj_m = {k: [v for v in vs if np.isfinite(v)] for k, vs in subj_m.items()}
+        subj_r = {k: [v for v in vs if np.isfinite(v)] for k, vs in subj_r.items()}
         for side in ("L", "R"):
             if subj_m[side] and subj_r[side]:
                 av[side][0].append(float(np.mean(subj_m[side])))
@@ -467,11 +476,12 @@ class AgreementStudy:
             levels = agreement_levels(data, attr, self.max_dt_s)
             rows += [StudyRow(table, parameter, level, unit, levels[level])
                      for level in ("L", "R", "AV L", "AV R", "AV AVG") if level in levels]
-            matched = [(float(getattr(a, attr)), float(getattr(b, attr)))
+            matched = [(_value(a, attr), _value(b, attr))
                        for pairs_of in data.values() for meas, ref in pairs_of
                        for a, b in match_steps(meas, ref, self.max_dt_s)]
-            if matched:
-                arr = np.asarray(matched, dtype=float)
+            arr = np.asarray(matched, dtype=float).reshape(-1, 2)
+            arr = arr[np.isfinite(arr).all(axis=1)]  # a step without the value: no point
+            if len(arr):
                 pairs[parameter] = (arr[:, 0], arr[:, 1])
         if not rows:
             n = sum(len(t.measured_steps) for trs in subjects.values() for t in trs)

@@ -128,3 +128,29 @@ def test_walks_that_do_not_start_together_are_named_and_nothing_is_computed() ->
     assert study.unmatched_ == ["P1 walk 0"]
     with pytest.raises(InputError, match="max_dt_s"):
         AgreementStudy(max_dt_s=0).fit(trials)
+
+
+def test_steps_without_a_value_are_left_out_not_fatal() -> None:
+    """Gait JSON writes a value a step does not have as None (NaN in the engine): such a
+    step leaves its pair and its subject's average, and the rest is computed as before."""
+    trials = _study()
+    holes = {}
+    for k, trs in trials.items():
+        first = trs[0]
+        steps = [SimpleNamespace(**{**vars(s), "width_m": None}) if i == 0 else s
+                 for i, s in enumerate(first.measured_steps)]
+        ref = [SimpleNamespace(**{**vars(s), "duration_s": float("nan")}) if i == 1 else s
+               for i, s in enumerate(first.reference_steps)]
+        holes[k] = [StudyTrial(steps, ref, first.measured_strides, first.reference_strides,
+                               first.measured_speed_m_s, first.reference_speed_m_s,
+                               first.name), *trs[1:]]
+    study = AgreementStudy().fit(holes)
+    rows = {r.label: r for r in study.rows_}
+    whole = AgreementStudy().fit(trials)
+    full = {r.label: r for r in whole.rows_}
+    assert rows["Step width L (cm)"].agreement.n == full["Step width L (cm)"].agreement.n - 4
+    assert rows["Step time R (s)"].agreement.n == full["Step time R (s)"].agreement.n - 4
+    assert np.isfinite(rows["AV step width AVG (cm)"].agreement.bias)
+    m, r = study.pairs_["step width"]
+    assert np.isfinite(m).all() and np.isfinite(r).all()
+    assert len(m) == len(whole.pairs_["step width"][0]) - 4
