@@ -244,6 +244,17 @@ def agreement_levels(
         averages per side; ``"AV AVG"`` subject averages over both sides. Levels with
         too few values are omitted.
     """
+    out: dict[str, Agreement] = {}
+    for key, (a, b) in _level_values(trials, attr, max_dt_s).items():
+        if len(a) >= 3:
+            out[key] = agreement(a, b)
+    return out
+
+
+def _level_values(trials: Mapping[str, Sequence[tuple[Sequence[Any], Sequence[Any]]]],
+                  attr: str, max_dt_s: float) -> dict[str, tuple[list[float], list[float]]]:
+    """The paired values of :func:`agreement_levels`' levels (``"L"``, ``"R"``, ``"AV
+    L"``, ``"AV R"``, ``"AV AVG"``: measured, reference), each trial's steps matched once."""
     single: dict[str, tuple[list[float], list[float]]] = {"L": ([], []), "R": ([], [])}
     av: dict[str, tuple[list[float], list[float]]] = {k: ([], []) for k in ("L", "R", "AVG")}
     for trs in trials.values():
@@ -251,8 +262,10 @@ def agreement_levels(
         subj_r: dict[str, list[float]] = {"L": [], "R": []}
         for meas, ref in trs:
             for m, r in match_steps(meas, ref, max_dt_s):
-                single[m.side][0].append(_value(m, attr))
-                single[m.side][1].append(_value(r, attr))
+                a, b = _value(m, attr), _value(r, attr)
+                if np.isfinite(a) and np.isfinite(b):  # a step without the value: no pair
+                    single[m.side][0].append(a)
+                    single[m.side][1].append(b)
             # Subject averages use every step of each system (as the paper's AV rows).
             for s in meas:
                 subj_m[s.side].append(_value(s, attr))
@@ -269,11 +282,7 @@ def agreement_levels(
         if allm and allr:
             av["AVG"][0].append(float(np.mean(allm)))
             av["AVG"][1].append(float(np.mean(allr)))
-    out: dict[str, Agreement] = {}
-    for key, (a, b) in [*single.items(), *((f"AV {k}", v) for k, v in av.items())]:
-        if len(a) >= 3:
-            out[key] = agreement(a, b)
-    return out
+    return {**single, **{f"AV {k}": v for k, v in av.items()}}
 
 
 def bland_altman_png(measured: ArrayLike, reference: ArrayLike, title: str = "",
@@ -473,16 +482,14 @@ class AgreementStudy:
         for parameter, attr, kind, table, unit in _STUDY_PARAMETERS:
             data = {k: [(getattr(t, f"measured_{kind}"), getattr(t, f"reference_{kind}"))
                         for t in trs] for k, trs in subjects.items()}
-            levels = agreement_levels(data, attr, self.max_dt_s)
-            rows += [StudyRow(table, parameter, level, unit, levels[level])
-                     for level in ("L", "R", "AV L", "AV R", "AV AVG") if level in levels]
-            matched = [(_value(a, attr), _value(b, attr))
-                       for pairs_of in data.values() for meas, ref in pairs_of
-                       for a, b in match_steps(meas, ref, self.max_dt_s)]
-            arr = np.asarray(matched, dtype=float).reshape(-1, 2)
-            arr = arr[np.isfinite(arr).all(axis=1)]  # a step without the value: no point
-            if len(arr):
-                pairs[parameter] = (arr[:, 0], arr[:, 1])
+            values = _level_values(data, attr, self.max_dt_s)
+            rows += [StudyRow(table, parameter, level, unit, agreement(*values[level]))
+                     for level in ("L", "R", "AV L", "AV R", "AV AVG")
+                     if len(values[level][0]) >= 3]
+            # the Bland–Altman points: the matched single steps of both sides
+            if values["L"][0] or values["R"][0]:
+                pairs[parameter] = (np.array(values["L"][0] + values["R"][0]),
+                                    np.array(values["L"][1] + values["R"][1]))
         if not rows:
             n = sum(len(t.measured_steps) for trs in subjects.values() for t in trs)
             raise InsufficientDataError(

@@ -197,10 +197,7 @@ def _trials(pairs: list[Pair], args: argparse.Namespace
         subject → trials, and ``{"file", "error"}`` for each file that failed (its walk
         left out).
     """
-    from types import SimpleNamespace
-
-    from app.server.analysis import analyse_file
-    from engine.agreement import StudyTrial
+    from app.server.analysis import analyse_file, study_trial
     from engine.errors import GaitrigError
 
     done: dict[tuple[bool, Path], dict[str, Any] | str] = {}
@@ -222,24 +219,13 @@ def _trials(pairs: list[Pair], args: argparse.Namespace
         got = done[key]
         return got if isinstance(got, dict) else None
 
-    def speed(g: dict[str, Any]) -> float:
-        v = g["summary"].get("walking_speed_m_s")
-        return float("nan") if v is None else float(v)
-
     trials: dict[str, list[StudyTrial]] = {}
     for p in pairs:
         m, r = gait(p.measured, False), gait(p.reference, True)
         if m is None or r is None:
             continue
-        shift = [{**s, "time_s": s["time_s"] + p.offset_s} for s in r["steps"]]
-        shift_strides = [{**s, "time_s": s["time_s"] + p.offset_s} for s in r["strides"]]
-        trials.setdefault(p.subject, []).append(StudyTrial(
-            [SimpleNamespace(**s) for s in m["steps"]],
-            [SimpleNamespace(**s) for s in shift],
-            [SimpleNamespace(**s) for s in m["strides"]],
-            [SimpleNamespace(**s) for s in shift_strides],
-            speed(m), speed(r),
-            name=f"{p.subject}: {p.measured.name} vs {p.reference.name}"))
+        trials.setdefault(p.subject, []).append(study_trial(
+            m, r, p.offset_s, name=f"{p.subject}: {p.measured.name} vs {p.reference.name}"))
     return trials, failed
 
 

@@ -43,7 +43,7 @@ from collections import Counter
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,6 +56,9 @@ from engine.mocap import FeetTrajectories, feet_from_skeleton
 from engine.report.render import AgreementRow, QualityInfo, ReportData, TrialData
 from engine.skeleton import JOINT_SETS, SkeletonSeries, TrackingState
 from engine.wording import count
+
+if TYPE_CHECKING:  # engine.agreement imports scipy: loaded on first use
+    from engine.agreement import StudyTrial
 
 _log = logging.getLogger(__name__)
 
@@ -841,6 +844,27 @@ def analyse_file(path: Path, method: str = "crossing", left: str | None = None,
     res = analyse_series(feet, method)
     return {"rec_id": path.name, "ok": True, "error": None, "sensors": {}, "fusion": None,
             **res}
+
+
+def study_trial(measured: Mapping[str, Any], reference: Mapping[str, Any],
+                offset_s: float = 0.0, name: str = "") -> StudyTrial:
+    """A :class:`engine.agreement.StudyTrial` from two gait JSON documents of one walk
+    (``steps``, ``strides``, ``summary``), the reference's times moved by ``offset_s``
+    onto the measured one's (added, as a recording's reference offset)."""
+    from types import SimpleNamespace
+
+    from engine.agreement import StudyTrial
+
+    def items(gait: Mapping[str, Any], key: str, shift: float) -> list[Any]:
+        return [SimpleNamespace(**{**s, "time_s": s["time_s"] + shift}) for s in gait[key]]
+
+    def speed(gait: Mapping[str, Any]) -> float:
+        v = (gait.get("summary") or {}).get("walking_speed_m_s")
+        return float("nan") if v is None else float(v)
+
+    return StudyTrial(items(measured, "steps", 0.0), items(reference, "steps", offset_s),
+                      items(measured, "strides", 0.0), items(reference, "strides", offset_s),
+                      speed(measured), speed(reference), name)
 
 
 def reference_steps(path: Path, method: str = "crossing", *,

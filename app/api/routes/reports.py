@@ -780,24 +780,6 @@ def project_study_source(db: Any, data_dir: Path, project: Any) -> ProjectStudyS
     return ProjectStudySource(project.id, project.name, trials, refs, n_without, not_complete)
 
 
-def _study_steps(steps: list[dict[str, Any]], shift_s: float = 0.0) -> list[Any]:
-    """Gait JSON steps (or strides) as objects for :class:`engine.agreement.StudyTrial`,
-    times shifted by ``shift_s`` (a value the JSON has as None is NaN)."""
-    from types import SimpleNamespace
-
-    out = []
-    for s in steps:
-        d = {k: float("nan") if v is None else v for k, v in s.items()}
-        d["time_s"] = float(d["time_s"]) + shift_s
-        out.append(SimpleNamespace(**d))
-    return out
-
-
-def _speed(gait: dict[str, Any]) -> float:
-    v = (gait.get("summary") or {}).get("walking_speed_m_s")
-    return float("nan") if v is None else float(v)
-
-
 def build_project_study(src: ProjectStudySource, data_dir: Path, live: dict[str, Any],
                         sensors: tuple[str, ...] | None = None, method: str = "crossing",
                         estimator: str = "weighted") -> StudyReport:
@@ -844,11 +826,7 @@ def build_project_study(src: ProjectStudySource, data_dir: Path, live: dict[str,
             notes.append(f"{trial}: the reference {name} could not be analysed "
                          f"({type(exc).__name__}: {exc})")
             continue
-        gait = a["gait"]
-        by_subject.setdefault(code, []).append(StudyTrial(
-            _study_steps(gait["steps"]), _study_steps(ref["steps"], off),
-            _study_steps(gait["strides"]), _study_steps(ref["strides"], off),
-            _speed(gait), _speed(ref), trial))
+        by_subject.setdefault(code, []).append(an.study_trial(a["gait"], ref, off, trial))
     try:
         study = AgreementStudy(max_dt_s=STUDY_MAX_DT_S).fit(by_subject)
     except InsufficientDataError as exc:
