@@ -840,7 +840,7 @@ def build_project_study(src: ProjectStudySource, data_dir: Path, live: dict[str,
                 if n_with > study.n_trials_ else "")
              + (f"; {count(src.n_without, 'complete recording')} without a reference "
                 "not part of the study" if src.n_without else "") + ".",
-             f"Sensors: {_subset(sensors)}.",
+             f"Sensors: {an.subset_label(sensors)}.",
              f"Sensor fusion: {ESTIMATOR_WORDS.get(estimator, estimator)}.",
              f"Gait events: {METHOD_WORDS.get(method, method)}, on both systems; steps "
              f"paired with the reference's steps of the same side within "

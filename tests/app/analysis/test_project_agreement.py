@@ -205,7 +205,7 @@ def test_options_are_in_the_basis_and_the_audit(client: TestClient,
              method="heelstrike", estimator="mean")
     assert r.status_code == 200, r.text
     basis = r.json()["basis"]
-    assert "Sensors: sensors S1." in basis and "Sensors: all sensors." not in basis
+    assert "Sensors: S1." in basis and "Sensors: all sensors." not in basis
     assert "Sensor fusion: Equal-weight mean." in basis
     assert any(b.startswith("Gait events: Heel strike / toe off") for b in basis)
     e = client.get("/api/audit").json()[0]
