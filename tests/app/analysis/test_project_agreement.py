@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import datetime as dt
 import io
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -159,8 +160,12 @@ def test_left_out_recordings_are_named_with_why(study: dict[str, Any]) -> None:
                       "'vicon walk 3.c3d' is not a readable C3D file: the file is damaged or "
                       "not a C3D file (export it again from the motion-capture software, as "
                       "C3D)"], notes
-    assert ("Trial “walk 2” (recording D2, still on the sensors) was not used: it is not "
-            "complete on the server.") in notes
+    # (the server's data sync may already have marked the recording, tracked by no node
+    # that is connected, incomplete: either state is named, and why it was left out)
+    left = [n for n in notes if "D2" in n]
+    assert len(left) == 1 and re.fullmatch(
+        r"Trial “walk 2” \(recording D2, (still on the sensors|incomplete)\) was not used: "
+        r"it is not complete on the server\.", left[0]), notes
     assert len(notes) == 2, notes
     basis = study["basis"]
     assert basis[0] == ("Project Validation study: 4 subjects, 7 trials with a reference (1 "
