@@ -1,6 +1,7 @@
 // Reports page: subject/session report (inline HTML fragment + PDF link), one- vs
-// two-sided comparison of a recording's sensor subsets, reference upload, a project's
-// agreement with a reference system (HTML fragment, PDF, CSV), file analysis.
+// two-sided comparison of a recording's sensor subsets, reference upload (one recording's,
+// or many at once), a project's agreement with a reference system (HTML fragment, PDF,
+// CSV), file analysis.
 "use strict";
 (() => {
   const $ = (id) => document.getElementById(id);
@@ -492,6 +493,295 @@
     } finally { gaitrig.release($("study-show")); }
   }
 
+  // ------------------------------------------------------------------ references in bulk
+  // "Attach references to several recordings": files of the chosen project's walks, each
+  // matched to a recording by its name (or by a manifest chosen with them), attached one
+  // after another through the one-recording upload (POST …/reference), so that a refused
+  // file leaves the others attached and its recording's reference as it was.
+  const SKIP = "-";  // "Leave this file out"
+  let bulkRecs = [];  // the project's recordings (GET /api/reports/recordings of its subjects)
+  let bulkRecsOf = null;  // the project they are of (null while they are listed)
+  let bulkRows = [];
+  let bulkManifest = null;  // normalised file name → {recording, subject, offset, line}
+  let bulkBusy = false;
+  const bulkSeq = gaitrig.latest();
+  // lower case, letters and digits only: "P01_Walk-3" and "p01 walk 3" are the same
+  const norm = (s) => String(s || "").toLowerCase().normalize("NFKD").replace(/[^\p{L}\p{N}]/gu, "");
+  const stem = (name) => name.replace(/\.[^.]*$/, "");
+  const isDigit = (c) => c !== undefined && c >= "0" && c <= "9";
+  // `needle` in `hay`, not running on into digits: "walk1" is not in "walk10", "p01" not in "p012"
+  function holds(hay, needle) {
+    if (!needle) return false;
+    for (let i = hay.indexOf(needle); i >= 0; i = hay.indexOf(needle, i + 1)) {
+      if (isDigit(needle[0]) && isDigit(hay[i - 1])) continue;
+      if (isDigit(needle[needle.length - 1]) && isDigit(hay[i + needle.length])) continue;
+      return true;
+    }
+    return false;
+  }
+  // Of several recordings, those the file name also names the subject of (labels repeat
+  // over subjects: "walk 3" of each), then those whose label no other one's contains
+  // ("walk 1 slow" over "walk 1" for "P01 walk 1 slow.c3d").
+  function narrow(cands, key) {
+    if (cands.length > 1) {
+      const bySubject = cands.filter((r) => r.subject_code && holds(key, norm(r.subject_code)));
+      if (bySubject.length) cands = bySubject;
+    }
+    if (cands.length > 1) {
+      cands = cands.filter((r) => !cands.some((o) => o !== r && norm(o.label) !== norm(r.label)
+        && norm(o.label).includes(norm(r.label))));
+    }
+    return cands;
+  }
+  // The recording a file's name says (its code, else its trial label), or why none is chosen.
+  function matchByName(name) {
+    const key = norm(stem(name));
+    const byId = bulkRecs.filter((r) => holds(key, norm(r.id)));
+    const cands = byId.length ? byId : narrow(bulkRecs.filter((r) => r.label && holds(key, norm(r.label))), key);
+    if (cands.length === 1) return { rec: cands[0] };
+    return { why: cands.length ? `Its name fits ${cands.length} recordings (${cands.map(recName).join("; ")}): choose one.`
+      : "No trial label or recording code of the project's recordings is in its name: choose its recording." };
+  }
+  function matchByManifest(m) {
+    const want = norm(m.recording);
+    let cands = bulkRecs.filter((r) => norm(r.id) === want);
+    if (!cands.length) cands = bulkRecs.filter((r) => r.label && norm(r.label) === want);
+    if (m.subject) cands = cands.filter((r) => norm(r.subject_code) === norm(m.subject));
+    if (cands.length === 1) return { rec: cands[0] };
+    const what = `The manifest's line ${m.line} (recording “${m.recording}”${m.subject ? `, subject “${m.subject}”` : ""})`;
+    return { why: cands.length ? `${what} fits ${cands.length} recordings: add the subject column, or choose one.`
+      : `${what} names no recording of the project: choose its recording.` };
+  }
+  const recName = (r) => [r.subject_code, r.label].filter(Boolean).join(" ") || r.id;
+  function recText(r) {
+    const who = [r.session_label, gaitrig.day(r.session_date)].filter(Boolean).join(", ");
+    return `${recName(r)}${who ? " — " + who : ""} — ${r.id}`;
+  }
+
+  // one line of a CSV file (quoted cells with commas in them, "" for a quote)
+  function csvCells(line) {
+    const out = [];
+    let cell = "", quoted = false;
+    for (let i = 0; i < line.length; i++) {
+      const c = line[i];
+      if (quoted) {
+        if (c === '"' && line[i + 1] === '"') { cell += '"'; i++; } else if (c === '"') quoted = false; else cell += c;
+      } else if (c === '"') quoted = true;
+      else if (c === ",") { out.push(cell.trim()); cell = ""; } else cell += c;
+    }
+    out.push(cell.trim());
+    return out;
+  }
+  // A manifest (header recording,reference[,offset_s][,subject]; "file" for "reference"):
+  // {rows} or {error}; null for a CSV that is not one (a skeleton CSV: a reference).
+  function manifestOf(text) {
+    const lines = text.replace(/^\uFEFF/, "").split(/\r?\n/);
+    const head = csvCells(lines[0] || "").map((h) => h.toLowerCase());
+    const col = (...names) => head.findIndex((h) => names.includes(h));
+    const iRec = col("recording"), iFile = col("reference", "file"), iOff = col("offset_s"), iSub = col("subject");
+    if (iRec < 0 || iFile < 0) return null;
+    const rows = [];
+    for (let n = 1; n < lines.length; n++) {
+      const cells = csvCells(lines[n]);
+      if (!cells.some(Boolean)) continue;
+      const file = (cells[iFile] || "").split(/[\\/]/).pop(), recording = cells[iRec] || "";
+      if (!file || !recording) return { error: `line ${n + 1}: no ${file ? "recording" : "reference file"} given` };
+      let offset = "0";
+      if (iOff >= 0 && cells[iOff]) {
+        if (!Number.isFinite(Number(cells[iOff]))) return { error: `line ${n + 1}: offset_s “${cells[iOff]}” is not a number of seconds` };
+        offset = cells[iOff];
+      }
+      rows.push({ file, recording, subject: iSub >= 0 ? cells[iSub] || "" : "", offset, line: n + 1 });
+    }
+    return rows.length ? { rows } : { error: "it lists no file: give one line recording,reference,offset_s a file under its header" };
+  }
+
+  async function bulkLoadRecordings() {
+    const mine = bulkSeq.ask();
+    const pid = $("study-project").value;
+    bulkRecs = [];
+    bulkRecsOf = null;
+    if (pid) {
+      try {
+        const subjects = (await listPage(`/api/subjects?project_id=${encodeURIComponent(pid)}&limit=500&bytes_on_server=false`)).items;
+        const lists = await Promise.all(subjects.map((s) =>
+          listPage(`/api/reports/recordings?subject_id=${encodeURIComponent(s.id)}&limit=500`)));
+        if (!bulkSeq.current(mine)) return;
+        bulkRecs = lists.flatMap((l) => l.items);
+        bulkRecs.sort((a, b) => (a.subject_code || "").localeCompare(b.subject_code || "")
+          || (a.session_date || "").localeCompare(b.session_date || "")
+          || (a.label || "").localeCompare(b.label || "", undefined, { numeric: true }) || a.created - b.created);
+      } catch (e) { if (bulkSeq.current(mine)) say("bulk-msg", "Cannot list the project's recordings: " + e.message, true); return; }
+    }
+    if (!bulkSeq.current(mine)) return;
+    bulkRecsOf = pid;
+    bulkDraw();
+  }
+
+  async function bulkFilesChosen() {
+    const files = [...$("bulk-files").files];
+    bulkManifest = null;
+    const refs = [], problems = [];
+    for (const f of files) {
+      if (/\.csv$/i.test(f.name) && f.size < 1e6) {
+        const m = manifestOf(await f.text());
+        if (m && m.error) { problems.push(`The manifest ${f.name} cannot be used: ${m.error}.`); continue; }
+        if (m) {
+          bulkManifest = new Map(m.rows.map((r) => [norm(r.file), r]));
+          const chosen = new Set(files.map((x) => norm(x.name)));
+          const absent = m.rows.filter((r) => !chosen.has(norm(r.file))).map((r) => r.file);
+          if (absent.length) problems.push(`The manifest ${f.name} names ${plural(absent.length, "file")} not chosen: ${absent.join(", ")}.`);
+          continue;
+        }
+      }
+      refs.push(f);
+    }
+    bulkRows = refs.map((f) => ({ file: f, done: false, outcome: null }));
+    say("bulk-msg", problems.join(" "), problems.length > 0);
+    bulkDraw();
+  }
+
+  function bulkDraw() {
+    const tb = $("bulk-table").querySelector("tbody");
+    tb.replaceChildren();
+    $("bulk-table").hidden = !bulkRows.length;
+    if (!bulkRows.length) { $("bulk-state").textContent = ""; return; }
+    if (!$("study-project").value || bulkRecsOf !== $("study-project").value) {
+      $("bulk-table").hidden = true;
+      $("bulk-state").textContent = `${plural(bulkRows.length, "file")} chosen: ` + ($("study-project").value
+        ? "listing the project's recordings…" : "choose the project above to list its recordings.");
+      return;
+    }
+    let matched = 0;
+    bulkRows.forEach((row, i) => {
+      const name = row.file.name;
+      const m = bulkManifest && bulkManifest.get(norm(name));
+      const pick = m ? matchByManifest(m) : matchByName(name);
+      row.note = pick.why || "";
+      row.outcome = null;
+      row.done = false;
+      const sel = el("select", { id: `bulk-rec-${i}`, "aria-label": `Recording for ${name}` },
+        el("option", { value: "" }, "— choose —"), el("option", { value: SKIP }, "Leave this file out"));
+      for (const r of bulkRecs) sel.append(el("option", { value: r.id, title: recText(r) }, recText(r)));
+      if (pick.rec) { sel.value = pick.rec.id; matched++; }
+      const off = el("input", { id: `bulk-off-${i}`, type: "number", step: "0.001", min: "-3600", max: "3600",
+        value: m ? m.offset : "0", "aria-label": `${name} starts at (s into the recording)` });
+      row.select = sel; row.offset = off;
+      row.state = el("td");
+      row.result = el("td", { class: "bulk-result" });
+      sel.addEventListener("change", () => { row.done = false; row.outcome = null; row.note = ""; bulkRowState(row); bulkResults(); });
+      off.addEventListener("input", () => { row.done = false; row.outcome = null; bulkResults(); });
+      const file = el("th", { scope: "row", class: "bulk-file" }, name);
+      tb.append(el("tr", {}, file, el("td", {}, sel), el("td", {}, off), row.state, row.result));
+      bulkRowState(row);
+    });
+    const n = bulkRows.length, how = bulkManifest ? "by the manifest or by name" : "by name";
+    $("bulk-state").textContent = !bulkRecs.length ? "The project has no recording on the server yet."
+      : matched === n ? `${plural(n, "file")}, ${n === 1 ? "its recording" : "each one's recording"} chosen ${how}: check, then press “Attach all”.`
+      : `${plural(n, "file")}: ${matched} matched to a recording ${how}, ${n - matched} to choose (“— choose —”); then press “Attach all”.`;
+    bulkResults();
+  }
+
+  // the chosen recording's reference attached on this page now (its name and steps)
+  async function bulkRowState(row) {
+    const rid = row.select.value;
+    const rec = bulkRecs.find((r) => r.id === rid);
+    row.state.textContent = !rec ? "" : rec.has_reference ? "Yes" : "None";
+    if (!rec || !rec.has_reference) return;
+    try {
+      const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference`);
+      if (row.select.value !== rid || !r.attached) return;
+      row.state.textContent = `${r.filename} (${plural(r.n_steps, "step")})`;
+    } catch (e) { /* "Yes" stays */ }
+  }
+
+  // each row's result: its upload's, else two files for one recording, else why none is chosen
+  function bulkResults() {
+    const by = new Map();
+    for (const row of bulkRows) {
+      const v = row.select.value;
+      if (v && v !== SKIP) by.set(v, [...(by.get(v) || []), row]);
+    }
+    let clashes = 0;
+    for (const row of bulkRows) {
+      const others = (by.get(row.select.value) || []).filter((o) => o !== row);
+      let text = "", bad = false;
+      if (row.outcome) ({ text, bad } = row.outcome);
+      else if (others.length) { text = `Also chosen for ${others.map((o) => o.file.name).join(", ")}: a recording takes one reference.`; bad = true; clashes++; }
+      else if (!row.select.value) { text = row.note || "Choose its recording."; }
+      row.result.textContent = text;
+      row.result.classList.toggle("error", bad);
+    }
+    return clashes;
+  }
+
+  function bulkLock(on) {
+    bulkBusy = on;
+    for (const row of bulkRows) { row.select.disabled = on; row.offset.disabled = on; }
+    $("bulk-files").disabled = on;
+    $("study-project").disabled = on;
+    if (on) $("bulk-attach").disabled = true; else gaitrig.release($("bulk-attach"));
+  }
+
+  async function bulkAttach() {
+    if (bulkBusy) return;
+    if (!$("study-project").value) { say("bulk-msg", "Choose the project above first.", true); $("study-project").focus(); return; }
+    if (!bulkRows.length) { say("bulk-msg", "Choose the reference files first.", true); $("bulk-files").focus(); return; }
+    const open = bulkRows.filter((r) => !r.select.value);
+    if (open.length) {
+      say("bulk-msg", `Choose a recording for ${open.map((r) => r.file.name).join(", ")} (or “Leave this file out”).`, true);
+      open[0].select.focus();
+      return;
+    }
+    if (bulkResults()) {
+      say("bulk-msg", "Two files are chosen for the same recording: choose another recording for one of them (their rows say which). Nothing was attached.", true);
+      const first = bulkRows.find((r) => r.result.classList.contains("error") && !r.outcome);
+      if (first) first.select.focus();
+      return;
+    }
+    const todo = bulkRows.filter((r) => r.select.value !== SKIP && !r.done);
+    const badOffset = todo.find((r) => r.offset.value === "" || !Number.isFinite(Number(r.offset.value)) || Math.abs(Number(r.offset.value)) > 3600);
+    if (badOffset) {
+      say("bulk-msg", `The start of ${badOffset.file.name} must be a number of seconds between −3600 and 3600.`, true);
+      badOffset.offset.focus();
+      return;
+    }
+    if (!todo.length) { say("bulk-msg", "Every file is attached already (or left out)."); return; }
+    bulkLock(true);
+    let ok = 0;
+    const failed = [];
+    say("bulk-msg", `0 of ${todo.length} attached…`);
+    for (const row of todo) {
+      const rid = row.select.value, name = row.file.name;
+      row.outcome = { text: "Attaching…", bad: false };
+      bulkResults();
+      const fd = new FormData();
+      fd.append("file", row.file);
+      try {
+        const q = new URLSearchParams({ offset_s: String(Number(row.offset.value)) });
+        const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference?${q}`, { method: "POST", body: fd });
+        row.done = true;
+        row.outcome = { text: `Attached: ${plural(r.n_steps, "step")}`, bad: false };
+        const rec = bulkRecs.find((x) => x.id === rid);
+        if (rec) rec.has_reference = true;
+        row.state.textContent = `${r.filename} (${plural(r.n_steps, "step")})`;
+        ok++;
+      } catch (e) {
+        // the server's refusal names the file and what to fix; the recording keeps the
+        // reference it had
+        row.outcome = { text: e.message.includes(name) ? `Not attached: ${e.message}` : `Not attached: ${name}: ${e.message}`, bad: true };
+        failed.push(name);
+      }
+      bulkResults();
+      if (ok + failed.length < todo.length) say("bulk-msg", `${ok} of ${todo.length} attached…`);
+    }
+    bulkLock(false);
+    say("bulk-msg", failed.length
+      ? `${ok} of ${todo.length} attached; not attached: ${failed.join(", ")} — ${failed.length === 1 ? "its row says" : "their rows say"} why. Press “Attach all” again once fixed: attached files are not sent again.`
+      : `${ok} of ${todo.length} attached. “Show agreement” now uses them.`, failed.length > 0);
+    if ($("recording").value) refreshReference();
+  }
+
   // ------------------------------------------------------------------ file analysis
   async function analyseFile(format) {
     const f = $("file").files[0];
@@ -551,6 +841,9 @@
   });
   $("study-form").addEventListener("submit", showStudy);
   $("study-project").addEventListener("change", showWhole);
+  $("study-project").addEventListener("change", bulkLoadRecordings);
+  $("bulk-files").addEventListener("change", bulkFilesChosen);
+  $("bulk-attach").addEventListener("click", bulkAttach);
   $("study-pdf").addEventListener("click", () => {
     const url = studyQuery("pdf");
     if (url) downloadPdf(url, "study-msg", "agreement.pdf");
@@ -598,5 +891,5 @@
   loadSubjects().then(fromAddress);
   buildSubset("set-a", []); buildSubset("set-b", []);
   loadRecordings();
-  loadProjects();
+  loadProjects().then(bulkLoadRecordings);
 })();
