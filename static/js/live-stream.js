@@ -31,6 +31,8 @@ function gaitrigLiveStream(opts) {
   const VISIBLE_BODY = 0.001;  // share of a panel's pixels from which a body is seen
   const captioned = {}, handing = {}, overlaid = {};  // node → caption state, handover out, page copy shown
   let ws = null, retry = 500, frames = 0, dirty = true;
+  let openedAt = Infinity;  // this page's clock (s) when the stream last opened
+  const STALE_S = 1.0;
   const timing = { decode: [], draw: [] };  // ms, the newest 60 panels
   const keep = (a, v) => { a.push(v); if (a.length > 60) a.shift(); };
 
@@ -75,7 +77,11 @@ function gaitrigLiveStream(opts) {
     const n = nodes[h.node] || (nodes[h.node] = { frames: 0, lat: [] });
     n.frames += 1;
     frames += 1;
-    if (h.t_capture !== null && clock.bestRtt < Infinity) {
+    // A panel captured before this page began to look is the server's last one from an
+    // earlier watch (the nodes stop sending pictures while nobody watches): drawn, but no
+    // latency ("median 22904 ms" on opening the page, until fresh pictures came).
+    const stale = h.t_capture !== null && h.t_capture < openedAt + clock.offset - STALE_S;
+    if (h.t_capture !== null && clock.bestRtt < Infinity && !stale) {
       n.lat.push(1000 * (now() + clock.offset - h.t_capture));
       if (n.lat.length > 60) n.lat.shift();
     }
@@ -109,7 +115,7 @@ function gaitrigLiveStream(opts) {
   function connect() {
     ws = new WebSocket(opts.url);
     ws.binaryType = "arraybuffer";
-    ws.onopen = () => { retry = 500; for (let i = 0; i < 5; i++) setTimeout(ping, 50 * i); report(true); };
+    ws.onopen = () => { retry = 500; openedAt = now(); for (let i = 0; i < 5; i++) setTimeout(ping, 50 * i); report(true); };
     ws.onmessage = (ev) => {
       if (typeof ev.data === "string") { try { onText(JSON.parse(ev.data)); } catch (e) { /* not ours */ } return; }
       let hlen, h;

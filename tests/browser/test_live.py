@@ -206,3 +206,25 @@ def test_panels_without_offscreen_canvas(page: Any, live_server: LiveServer,
     img = screenshot(page, artifacts_dir, "live_panel_S1_page_mode", "figure[data-node=S1] canvas")
     assert saturated_fraction(img) > 0.2
     assert not page.js_errors
+
+
+def test_reopened_page_shows_no_stale_latency(page: Any, live_server: LiveServer) -> None:
+    """After nobody watched for a while the server still holds each node's last panel: the
+    page opened again draws it, but its age is no latency (the summary said "median
+    22904 ms" until fresh panels came)."""
+    from app.server.streaming import IDLE_UNSUBSCRIBE_S
+
+    _open_live_page(page, live_server)
+    page.goto("about:blank")  # nobody watches: the nodes are told to stop their pictures
+    # the last panel the server holds is then ≈ 6.5 s old, more than any latency here
+    time.sleep(IDLE_UNSUBSCRIBE_S + 6.5)
+    # every latency the page ever reports, from its first panel on
+    page.add_init_script("""
+      window.latenciesSeen = [];
+      setInterval(() => { for (const s of Object.values((window.liveStats || {}).nodes || {}))
+        if (s.latency_ms !== null && s.latency_ms !== undefined)
+          window.latenciesSeen.push(s.latency_ms); }, 20);""")
+    _open_live_page(page, live_server)
+    seen = page.evaluate("window.latenciesSeen")
+    assert seen, "no latency was reported"
+    assert max(seen) < 5000, f"a stale panel's age shown as latency: {max(seen):.0f} ms"
