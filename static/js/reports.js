@@ -686,13 +686,13 @@
   async function bulkRowState(row) {
     const rid = row.select.value;
     const rec = bulkRecs.find((r) => r.id === rid);
-    row.state.textContent = !rec ? "" : rec.has_reference ? "Yes" : "None";
+    row.state.textContent = !rec ? "" : rec.has_reference ? "yes" : "none";
     if (!rec || !rec.has_reference) return;
     try {
       const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference`);
       if (row.select.value !== rid || !r.attached) return;
       row.state.textContent = `${r.filename} (${plural(r.n_steps, "step")})`;
-    } catch (e) { /* "Yes" stays */ }
+    } catch (e) { /* "yes" stays */ }
   }
 
   // each row's result: its upload's, else two files for one recording, else why none is chosen

@@ -94,7 +94,7 @@ def test_reports_page_attaches_references_to_several_recordings(
     assert [r["label"] for r in rows] == [f"Recording for {f.name}"
                                           for f in (good1, good2, broken, either)]
     assert [r["offset"] for r in rows] == ["0"] * 4
-    assert [r["now"] for r in rows] == ["None", "None", "None", ""]
+    assert [r["now"] for r in rows] == ["none", "none", "none", ""]
     assert rows[3]["result"] == ("Its name fits 2 recordings (BLK1 walk 1; BLK2 walk 1): "
                                  "choose one.")
     assert page.text_content("#bulk-state") == (
