@@ -182,6 +182,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 sk = s.skeleton
                 if sk is None or sk.t_local - last_draw.get(s.id, -1e9) < 0.1:
                     return
+                if not viewer.server.get_clients():
+                    # nobody looks: viser would still encode and queue every update (with
+                    # the fused skeleton, a sixth of an idle server's CPU). Not counted as
+                    # drawn, so a browser that connects gets the next frame (≤ 1/30 s).
+                    return
                 last_draw[s.id] = sk.t_local
                 try:
                     populate_skeleton(viewer.server, s.id, sk.positions, sk.states)

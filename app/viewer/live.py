@@ -488,6 +488,8 @@ class LiveServices:
         now = time.time()
         if now - self._last_fused < 0.1 or self.viewer is None or not self._layer_visible("fused"):
             return
+        if not self.viewer.get_clients():
+            return  # nobody looks (as the sensors' skeletons in app.main)
         self._last_fused = now
         sk: dict[str, tuple[NDArray[np.float64], NDArray[np.uint8]]] = {}
         for n in self.hub.registry.nodes.values():

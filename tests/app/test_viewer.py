@@ -273,3 +273,62 @@ def test_proxy_forwards_the_stream_and_lets_go(live_server: tuple[int, Any, str]
             seen = b"/proxied" in dctx.decompress(msg[16:16 + n_comp], max_output_size=n_inner)
         assert seen, "the new point cloud never came through the proxy"
     _wait_for(lambda: len(viewer.server.get_clients()) == 0, 10, "the proxy to close viser's side")
+
+
+def test_fused_skeleton_drawn_only_while_someone_looks(server: viser.ViserServer,
+                                                       tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """With no browser on the 3D view the live fused skeleton is not redrawn (it cost the
+    idle server CPU at every frame); the first frame after one connects draws it."""
+    from app.server.hub import Hub
+    from app.server.registry import LatestSkeleton
+    from app.viewer.live import LiveServices
+    from engine.skeleton import KINECT_V2, TrackingState
+
+    async def send(_text: str) -> None:
+        pass
+
+    hub = Hub(Settings(data_dir=tmp_path))
+    live = LiveServices(hub, server)
+    s = hub.registry.connect("S1", "sim", SensorInfo(T_world_sensor=np.eye(4).tolist()),
+                             send, True)
+    J = len(KINECT_V2.joints)
+    pos = np.random.default_rng(0).normal(size=(1, J, 3)).astype(np.float32)
+    s.skeleton = LatestSkeleton(1, 0.0, time.time(), pos,
+                                np.full((1, J), TrackingState.TRACKED, np.uint8), [0])
+    live._on_skeleton(s)
+    assert "/fused/skeleton" not in _names(server)
+    monkeypatch.setattr(server, "get_clients", lambda: {1: object()})  # a browser
+    live._on_skeleton(s)
+    assert "/fused/skeleton" in _names(server)
+
+
+def test_sensor_skeletons_drawn_only_while_someone_looks(tmp_path: Path) -> None:
+    """Skeleton frames reach the 3D view only while a browser shows it (drawing them for
+    nobody cost the idle server CPU); the first frame after one connects is drawn."""
+    from app.nodes.protocol import encode_skeletons
+    from engine.skeleton import KINECT_V2, TrackingState
+
+    settings = Settings(data_dir=tmp_path, viewer_enabled=True, viewer_port=0,
+                        node_token="tok-tok-tok", admin_password="pw")
+    J = len(KINECT_V2.joints)
+    pos = np.random.default_rng(0).normal(size=(1, J, 3)).astype(np.float32)
+    st = np.full((1, J), TrackingState.TRACKED, np.uint8)
+    with TestClient(create_app(settings)) as client:
+        viewer = client.app.state.viewer  # type: ignore[attr-defined]
+        with client.websocket_connect("/ws/node") as ws:
+            ws.send_text(dump(Hello(node_id="S1", token="tok-tok-tok",
+                                    sensor=SensorInfo(T_world_sensor=np.eye(4).tolist()))))
+            assert json.loads(ws.receive_text())["type"] == "welcome"
+
+            def skeleton_then_round_trip(seq: int) -> None:
+                ws.send_bytes(encode_skeletons(seq, 10.0 + seq, pos, st, [0]))
+                ws.send_text("not json")  # answered once the skeleton was handled
+                while json.loads(ws.receive_text())["type"] != "error":
+                    pass
+
+            skeleton_then_round_trip(1)
+            assert "/sensors/S1/skeleton" not in _names(viewer.server)
+            viewer.server.get_clients = lambda: {1: object()}  # a browser
+            skeleton_then_round_trip(2)
+            assert "/sensors/S1/skeleton" in _names(viewer.server)
