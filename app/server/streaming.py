@@ -54,6 +54,8 @@ HIGHLIGHT_RGB = (255, 0, 200)
 DEPTH_RANGE_MM = (500.0, 4500.0)
 IDLE_UNSUBSCRIBE_S = 5.0
 PAIR_WAIT_S = 0.2  # how long a depth image waits for its body-index image
+SUB_CHECK_S = 0.5  # subscriptions are brought up to date this often
+POLL_S = 0.01  # new images are looked for this often while nodes may be sending them
 
 
 @dataclass
@@ -211,6 +213,7 @@ class LiveStreams:
         self._idle_since: float | None = time.time()
         self._task: asyncio.Task[None] | None = None
         self._busy: set[str] = set()
+        self._wake = asyncio.Event()  # a watcher or an API request: stop idling now
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -240,6 +243,7 @@ class LiveStreams:
         for p in self.panels.values():
             w.offer(p)
         self.start()
+        self._wake.set()
 
     def remove_watcher(self, w: Watcher) -> None:
         self.watchers.discard(w)
@@ -290,6 +294,7 @@ class LiveStreams:
             self.external[node] = sub
         else:
             self.external.pop(node, None)
+        self._wake.set()
         await self._sync_subscriptions(only=node)
         return self.effective(node)
 
@@ -317,11 +322,15 @@ class LiveStreams:
             except Exception as exc:  # a node that just left: retried next round
                 log.info("could not update the subscription of %s: %s", s.id, exc)
 
+    def _streaming(self) -> bool:
+        """Whether nodes may be sending images to look for every :data:`POLL_S`."""
+        return self._live_on or self.watched or bool(self.external)
+
     async def _pump(self) -> None:
         last_sub_check = 0.0
         while True:
             now = time.time()
-            if now - last_sub_check > 0.5:
+            if now - last_sub_check > SUB_CHECK_S:
                 last_sub_check = now
                 if self.watched:
                     self._idle_since = None
@@ -333,7 +342,17 @@ class LiveStreams:
                 await self._sync_subscriptions()
             for s in list(self.hub.registry.nodes.values()):
                 self._check(s, now)
-            await asyncio.sleep(0.01)
+            if self._streaming():
+                await asyncio.sleep(POLL_S)
+                continue
+            # Idle (nobody watches, nothing subscribed): no 100 wake-ups a second for
+            # nothing. Sleep until the next subscription check (kept on its 0.5 s beat)
+            # or until a watcher or a request comes; a snapshot's image meanwhile waits
+            # for that check (no panel shows it).
+            self._wake.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(),
+                                       last_sub_check + SUB_CHECK_S + POLL_S - time.time())
 
     def _check(self, s: NodeSession, now: float) -> None:
         depth = s.images.get("depth")

@@ -383,3 +383,36 @@ def test_point_cloud_toggles_are_listed_in_sensor_order(tmp_path) -> None:  # ty
         assert listed == ["K4A-a", "K4A-b", "S1", "S2", "S6", "S10"]
     finally:
         server.stop()
+
+
+def test_pump_idles_until_watched(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Nobody watching and nothing subscribed: the pump looks for images only at its
+    subscription checks, not every 10 ms; with a watcher it polls again."""
+    from types import SimpleNamespace
+
+    from app.server.streaming import POLL_S, SUB_CHECK_S, LiveStreams
+
+    async def send(raw: str) -> None:
+        pass
+
+    node = SimpleNamespace(id="S1", connected=True, connected_at=1.0, send=send, images={})
+    hub = SimpleNamespace(registry=SimpleNamespace(nodes={"S1": node}))
+
+    async def run() -> None:
+        live = LiveStreams(hub)  # type: ignore[arg-type]
+        looks: list[float] = []
+        monkeypatch.setattr(live, "_check", lambda s, now: looks.append(now))
+        live.start()
+        await asyncio.sleep(2.2 * SUB_CHECK_S)
+        # a check at start and one per SUB_CHECK_S (a 10 ms poll: > 100)
+        assert 1 <= len(looks) <= 4, len(looks)
+        n = len(looks)
+        live.add_watcher(Watcher(send=lambda b: asyncio.sleep(0)))
+        for _ in range(300):  # polling again while somebody watches (a loaded machine: slow)
+            await asyncio.sleep(POLL_S)
+            if len(looks) - n >= 10:
+                break
+        assert len(looks) - n >= 10
+        await live.stop()
+
+    asyncio.run(run())
