@@ -76,6 +76,10 @@ class ClockEstimator:
         self.min_bins_for_drift = min_bins_for_drift
         # (t_mid_server, offset, rtt)
         self._samples: deque[tuple[float, float, float]] = deque()
+        # bin → its samples (oldest first) and its best one, kept as samples come and go
+        # (rebuilding them from the whole window at every exchange was a third of the fit)
+        self._bins: dict[int, deque[tuple[float, float, float]]] = {}
+        self._best: dict[int, tuple[float, float, float]] = {}
         self.estimate_: ClockEstimate | None = None
 
     def add(self, t1: float, t2: float, t3: float, t4: float) -> None:
@@ -85,22 +89,33 @@ class ClockEstimator:
             return  # impossible stamps (clock stepped): ignore rather than poison the fit
         theta = ((t2 - t1) + (t3 - t4)) / 2.0
         t_mid = (t1 + t4) / 2.0
-        self._samples.append((t_mid, theta, rtt))
+        b = int(t_mid // self.bin_s)  # first: a NaN stamp raises before anything changed
+        sample = (t_mid, theta, rtt)
+        self._samples.append(sample)
+        self._bins.setdefault(b, deque()).append(sample)
+        best = self._best.get(b)
+        if best is None or rtt < best[2]:  # strict: the first of equals stays
+            self._best[b] = sample
         while self._samples and self._samples[0][0] < t_mid - self.window_s:
-            self._samples.popleft()
+            gone = self._samples.popleft()
+            gb = int(gone[0] // self.bin_s)
+            left = self._bins[gb]
+            left.popleft()  # the oldest of its bin too: both are in arrival order
+            if not left:
+                del self._bins[gb], self._best[gb]
+            elif self._best[gb] is gone:
+                self._best[gb] = min(left, key=lambda x: x[2])  # min keeps the first of equals
         self._fit()
 
     def reset(self) -> None:
         """Forget every sample (the node restarted: its clock may have stepped)."""
         self._samples.clear()
+        self._bins.clear()
+        self._best.clear()
         self.estimate_ = None
 
     def _best_per_bin(self) -> np.ndarray:
-        best: dict[int, tuple[float, float, float]] = {}
-        for s in self._samples:
-            b = int(s[0] // self.bin_s)
-            if b not in best or s[2] < best[b][2]:
-                best[b] = s
+        best = self._best
         return np.array([best[k] for k in sorted(best)], dtype=float)
 
     def _fit(self) -> None:

@@ -63,3 +63,29 @@ def test_impossible_stamps_ignored_and_reset() -> None:
     assert est.estimate_ is not None
     est.reset()
     assert est.estimate_ is None
+
+
+def test_best_per_bin_kept_as_samples_come_and_go() -> None:
+    """The bins kept incrementally equal a fresh scan of the window (the shortest round
+    trip per bin, the first of equal ones), through evictions, ties and a reset."""
+    rng = np.random.default_rng(7)
+    est = ClockEstimator(window_s=3.0, bin_s=0.5)
+
+    def scan() -> list[tuple[float, float, float]]:
+        best: dict[int, tuple[float, float, float]] = {}
+        for s in est._samples:
+            b = int(s[0] // est.bin_s)
+            if b not in best or s[2] < best[b][2]:
+                best[b] = s
+        return [best[k] for k in sorted(best)]
+
+    t = 100.0
+    for k in range(600):
+        t += float(rng.uniform(0.02, 0.15))
+        rtt = float(rng.choice([3e-4, 3e-4, 4e-4, rng.uniform(1e-4, 3e-3)]))  # many ties
+        est.add(t, t + 0.2 + rtt / 2, t + 0.2 + rtt / 2, t + rtt)
+        if k == 300:
+            est.reset()
+            continue
+        got = [tuple(r) for r in est._best_per_bin()]
+        assert got == scan(), k
