@@ -179,11 +179,12 @@ const gaitrig = (() => {
     });
   }
 
-  function clockCell(n, warnMs) {
+  function clockCell(n) {
     if (!n.connected) return "—";
     if (n.clock_offset_ms === null) return "measuring…";
     const text = `${n.clock_offset_ms.toFixed(2)} ms ± ${n.clock_uncertainty_ms.toFixed(2)} ms`;
-    return n.clock_uncertainty_ms > warnMs ? el("span", { class: "warn" }, text + " (too uncertain)") : text;
+    // the server's warning (it clears below 3/4 of the limit: no flicker at the limit)
+    return n.clock_warning ? el("span", { class: "warn" }, text + " (too uncertain)") : text;
   }
 
   // Free space, and what the node's own recordings hold: parts the server has not verified
@@ -213,7 +214,7 @@ const gaitrig = (() => {
     return `Lens: ${lens.source} (${coef}, …)`;
   }
 
-  function row(n, warnMs) {
+  function row(n) {
     const status = n.connected ? el("span", { class: "ok" }, "online") : el("span", { class: "off" }, "offline");
     const notes = el("ul", { class: "warnings" });
     for (const w of n.warnings) notes.append(el("li", {}, w));
@@ -230,7 +231,7 @@ const gaitrig = (() => {
       el("td", {}, status),
       el("td", { class: "num" }, n.connected ? fmt(n.fps, 1, " fps") : "—"),
       el("td", { class: "num" }, String(n.dropped_frames)),
-      el("td", { class: "num" }, clockCell(n, warnMs)),
+      el("td", { class: "num" }, clockCell(n)),
       el("td", { class: "num" }, free), el("td", {}, notes.children.length ? notes : "OK"));
   }
 
@@ -286,7 +287,7 @@ const gaitrig = (() => {
         const nodes = await api("/api/nodes");
         if (!nodeSeq.fresh(n)) return;
         const body = document.getElementById("nodes");
-        body.replaceChildren(...nodes.map((n) => row(n, sys.clock_warn_ms)));
+        body.replaceChildren(...nodes.map((n) => row(n)));
         const online = nodes.filter((n) => n.connected).length;
         const clockBad = nodes.filter((n) => n.connected && n.clock_warning).length;
         say(`${online} of ${nodes.length} sensors online.` +

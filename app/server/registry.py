@@ -30,6 +30,9 @@ NODE_WARNINGS_PER_MINUTE = 20
 #: node's health warnings: long enough to be read on the Rig page after a flood closed the
 #: connection and the node reconnected.
 REFUSAL_SUMMARY_SHOWN_S = 600.0
+#: A node's clock warning, once raised at the limit (``clock_warn_ms``), is lifted below
+#: this fraction of it (see :meth:`NodeSession.clock_uncertain`).
+CLOCK_CLEAR_FRACTION = 0.75
 
 
 @dataclass
@@ -92,6 +95,8 @@ class NodeSession:
     last_rejection: str | None = None
     #: (server time, text) of the newest summary of refused messages counted, not logged
     refusal_summary: tuple[float, str] | None = None
+    #: the clock's uncertainty state of :meth:`clock_uncertain` (hysteresis)
+    _clock_uncertain: bool = True
     node_warnings: deque[NodeWarningRecord] = field(
         default_factory=lambda: deque(maxlen=NODE_WARNINGS_KEPT))
     node_warnings_dropped: int = 0
@@ -142,6 +147,18 @@ class NodeSession:
     @property
     def estimate(self) -> ClockEstimate | None:
         return self.clock.estimate_
+
+    def clock_uncertain(self, warn_ms: float) -> bool:
+        """Whether the clock offset is uncertain beyond ``warn_ms``, with hysteresis: once
+        above, it counts as uncertain until back below :data:`CLOCK_CLEAR_FRACTION` of
+        the limit (on a loaded network the uncertainty hovers at the limit, and the Rig
+        page's summary, a live region, flipped several times a second)."""
+        est = self.estimate
+        if est is None or est.uncertainty_s * 1e3 > warn_ms:
+            self._clock_uncertain = True
+        elif est.uncertainty_s * 1e3 < CLOCK_CLEAR_FRACTION * warn_ms:
+            self._clock_uncertain = False
+        return self._clock_uncertain
 
     def to_server(self, t_local: float) -> float | None:
         """Convert a node timestamp to server time (None until the clock is measured)."""
@@ -216,10 +233,14 @@ class NodeRegistry:
         else:
             if est is None:
                 warnings.append("Clock offset not measured yet.")
-            elif unc_ms is not None and unc_ms > self.clock_warn_ms:
+            elif unc_ms is not None and s.clock_uncertain(self.clock_warn_ms):
+                clear_ms = CLOCK_CLEAR_FRACTION * self.clock_warn_ms
+                clears = ("" if unc_ms > self.clock_warn_ms
+                          else f"; the warning clears below {clear_ms:g} ms")
                 warnings.append(
-                    f"Clock uncertain by ±{unc_ms:.1f} ms (limit {self.clock_warn_ms:g} ms): "
-                    "frames of this sensor may be mistimed; check the network load.")
+                    f"Clock uncertain by ±{unc_ms:.1f} ms (limit {self.clock_warn_ms:g} ms"
+                    f"{clears}): frames of this sensor may be mistimed; check the network "
+                    "load.")
             if offset_ms is not None and abs(offset_ms) > self.clock_warn_ms:
                 warnings.append(
                     f"Clock differs from the server by {offset_ms:+.1f} ms; gaitrig corrects "
@@ -259,8 +280,7 @@ class NodeRegistry:
             "clock_drift_ppm": est.drift * 1e6 if est else None,
             "clock_rtt_ms": est.rtt_s * 1e3 if est else None,
             "clock_at": now,
-            "clock_warning": bool(
-                s.connected and (est is None or (unc_ms or 0) > self.clock_warn_ms)),
+            "clock_warning": s.connected and s.clock_uncertain(self.clock_warn_ms),
             "disk_free_bytes": s.status.disk_free_bytes if s.status else None,
             "ring_seconds": s.status.ring_seconds if s.status else None,
             # what the node holds, how much of it the server verified (and the node may

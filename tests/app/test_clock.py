@@ -89,3 +89,27 @@ def test_best_per_bin_kept_as_samples_come_and_go() -> None:
             continue
         got = [tuple(r) for r in est._best_per_bin()]
         assert got == scan(), k
+
+
+def test_clock_warning_has_hysteresis() -> None:
+    """Raised above the limit, lifted only below 3/4 of it: an uncertainty hovering at the
+    limit (a loaded network) does not flip the Rig page's warning and its live summary."""
+    from app.nodes.protocol import SensorInfo
+    from app.server.clock import ClockEstimate
+    from app.server.registry import CLOCK_CLEAR_FRACTION, NodeRegistry
+
+    reg = NodeRegistry(clock_warn_ms=2.0)
+    s = reg.connect("S1", "sim", SensorInfo(), lambda _m: None, restarted=False)
+
+    def health_at(unc_ms: float) -> dict[str, object]:
+        s.clock.estimate_ = ClockEstimate(0.0, 0.0, 0.0, unc_ms / 1e3, 10, 0.001)
+        return reg.health(s, now=0.0)
+
+    assert reg.health(s, now=0.0)["clock_warning"]  # not measured yet
+    seq = [0.5, 1.9, 2.1, 1.9, 1.6, 2.05, 1.2, 1.9]
+    got = [health_at(u)["clock_warning"] for u in seq]
+    assert CLOCK_CLEAR_FRACTION * 2.0 == 1.5
+    assert got == [False, False, True, True, True, True, False, False]
+    text = " ".join(health_at(2.5)["warnings"] + health_at(1.8)["warnings"])  # type: ignore[operator]
+    assert "±2.5 ms (limit 2 ms)" in text
+    assert "±1.8 ms (limit 2 ms; the warning clears below 1.5 ms)" in text
