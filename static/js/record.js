@@ -168,7 +168,8 @@
     return el("tr", { "data-node": p.node_id, "data-state": p.state },
       el("th", { scope: "row" }, p.node_id), el("td", {}, el("span", { class: "badge st-" + p.state }, PART_TEXT[p.state] || p.state)),
       el("td", { class: "num" }, String(p.n_frames)),
-      el("td", { class: "num" }, prog, ` ${Math.round(p.progress * 100)} % of ${mb(p.bytes_total)}`),
+      el("td", { class: "num" }, prog, " ",
+        el("span", { class: "amount" }, `${Math.round(p.progress * 100)}\u00a0% of ${mb(p.bytes_total)}`)),
       el("td", { class: "why" }, ...partWhy(p, lp)));
   }
 
