@@ -434,18 +434,25 @@ def load_streams(rec_dir: Path, poses: Mapping[str, Mapping[str, Any]]
 
 
 def _placements(ga: GaitAnalysis, feet: FeetTrajectories) -> list[dict[str, Any]]:
-    """Foot positions at the step events, x along / y across the walking direction."""
+    """Foot positions at the step events: x along the walkway (the first pass's
+    direction, for every pass), y across each pass's own direction (left positive)."""
     out: list[dict[str, Any]] = []
+    axis: np.ndarray | None = None
     for s in ga.steps_:
         wp = ga.passes_[s.pass_index]
         d = np.array(wp.direction, dtype=float)
         lat = np.array([-d[1], d[0]])
+        # A pass walked back is measured along the same axis as the first: along its own
+        # direction its placements were mirrored and drawn metres beyond the first pass's
+        # instead of on the same stretch of floor.
+        axis = d if axis is None else axis
+        along = d if d @ axis >= 0 else -d
         x = feet.foot(s.side)
         p = np.array([np.interp(s.time_s, feet.times, x[:, k]) for k in range(3)])
         if not np.isfinite(p).all():
             continue
         out.append({"side": s.side, "time_s": s.time_s,
-                    "position": [float(p[:2] @ d), float(p[:2] @ lat), float(p[2])]})
+                    "position": [float(p[:2] @ along), float(p[:2] @ lat), float(p[2])]})
     # One common origin so that several passes overlay.
     if out:
         x0 = min(o["position"][0] for o in out)
