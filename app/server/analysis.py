@@ -67,8 +67,9 @@ FloatArray = NDArray[np.float64]
 #: Bump when the analysis changes, so old cached results are recomputed (2: crossings
 #: hidden in a short gap of one ankle are found, see GaitAnalysis.max_crossing_gap_s;
 #: 3: leg swaps confirmed on the floor, engine.integration._unswap_legs; 4: each sensor
-#: placed at its pose for the weighted fusion, was at the world origin).
-ANALYSIS_VERSION = 4
+#: placed at its pose for the weighted fusion, was at the world origin; 5: the top view's
+#: passes walked back measured along the first pass's axis, see _placements).
+ANALYSIS_VERSION = 5
 #: Folder name of the server's recordings under the data folder.
 RECORDINGS_DIR = "recordings"
 _ID_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
