@@ -208,23 +208,52 @@ def test_panels_without_offscreen_canvas(page: Any, live_server: LiveServer,
     assert not page.js_errors
 
 
-def test_reopened_page_shows_no_stale_latency(page: Any, live_server: LiveServer) -> None:
-    """After nobody watched for a while the server still holds each node's last panel: the
-    page opened again draws it, but its age is no latency (the summary said "median
-    22904 ms" until fresh panels came)."""
-    from app.server.streaming import IDLE_UNSUBSCRIBE_S
 
-    _open_live_page(page, live_server)
-    page.goto("about:blank")  # nobody watches: the nodes are told to stop their pictures
-    # the last panel the server holds is then ≈ 6.5 s old, more than any latency here
-    time.sleep(IDLE_UNSUBSCRIBE_S + 6.5)
-    # every latency the page ever reports, from its first panel on
+def _panel(node: str, seq: int, t_capture: float) -> bytes:
+    """A live panel message as the server sends it (app.server.streaming.encode_panel)."""
+    import struct
+
+    import cv2
+
+    ok, jpg = cv2.imencode(".jpg", np.full((8, 8, 3), 128, np.uint8))
+    assert ok
+    header = json.dumps({"node": node, "seq": seq, "t_capture": t_capture, "fps": 30.0,
+                         "body_pixels": 0, "width": 8, "height": 8}).encode()
+    return struct.pack("<I", len(header)) + header + jpg.tobytes()
+
+
+def test_a_stale_panel_shows_no_latency(page: Any, live_server: LiveServer) -> None:
+    """When nobody watched for a while the server still holds each node's last panel and
+    sends it to a page that opens the stream: the page draws it, but its age is no
+    latency (the summary said "median 22904 ms" until fresh panels came). The stream is
+    played here (page mode), the stale panel after the page's clock is measured."""
+    page.add_init_script("delete HTMLCanvasElement.prototype.transferControlToOffscreen;")
     page.add_init_script("""
       window.latenciesSeen = [];
       setInterval(() => { for (const s of Object.values((window.liveStats || {}).nodes || {}))
         if (s.latency_ms !== null && s.latency_ms !== undefined)
           window.latenciesSeen.push(s.latency_ms); }, 20);""")
-    _open_live_page(page, live_server)
+    pings = {"n": 0}
+
+    def stream(ws: Any) -> None:
+        def on_message(message: str | bytes) -> None:
+            m = json.loads(message)
+            if m.get("type") != "time":
+                return  # acknowledgements
+            ws.send(json.dumps({"type": "time", "t": time.time(), "echo": m["echo"]}))
+            pings["n"] += 1
+            if pings["n"] == 2:  # the page's clock is known: a panel 20 s old
+                ws.send(_panel("S1", 1, time.time() - 20.0))
+            elif pings["n"] == 5:  # then a fresh one
+                ws.send(_panel("S1", 2, time.time() - 0.05))
+        ws.on_message(on_message)
+
+    page.route_web_socket("**/api/live/ws", stream)
+    page.route(live_server.viewer_url + "/**", lambda r: r.abort())
+    page.goto(live_server.base_url + "/live.html")
+    page.wait_for_function("window.liveStats && window.liveStats.nodes.S1 "
+                           "&& window.liveStats.nodes.S1.frames >= 2", timeout=20000)
+    page.wait_for_function("window.latenciesSeen.length > 0")
     seen = page.evaluate("window.latenciesSeen")
-    assert seen, "no latency was reported"
     assert max(seen) < 5000, f"a stale panel's age shown as latency: {max(seen):.0f} ms"
+    assert _stats(page)["mode"] == "page"
