@@ -228,12 +228,13 @@ class NodeRegistry:
         dropped = s.seq_gaps + (s.status.dropped if s.status else 0)
         fps = s.fps(now) if s.connected else 0.0
         warnings: list[str] = []
+        uncertain = s.clock_uncertain(self.clock_warn_ms)
         if not s.connected:
             warnings.append("Node is offline: check that its computer and agent are running.")
         else:
             if est is None:
                 warnings.append("Clock offset not measured yet.")
-            elif unc_ms is not None and s.clock_uncertain(self.clock_warn_ms):
+            elif unc_ms is not None and uncertain:
                 clear_ms = CLOCK_CLEAR_FRACTION * self.clock_warn_ms
                 clears = ("" if unc_ms > self.clock_warn_ms
                           else f"; the warning clears below {clear_ms:g} ms")
@@ -280,7 +281,7 @@ class NodeRegistry:
             "clock_drift_ppm": est.drift * 1e6 if est else None,
             "clock_rtt_ms": est.rtt_s * 1e3 if est else None,
             "clock_at": now,
-            "clock_warning": s.connected and s.clock_uncertain(self.clock_warn_ms),
+            "clock_warning": s.connected and uncertain,
             "disk_free_bytes": s.status.disk_free_bytes if s.status else None,
             "ring_seconds": s.status.ring_seconds if s.status else None,
             # what the node holds, how much of it the server verified (and the node may

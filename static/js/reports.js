@@ -414,17 +414,23 @@
     } catch (e) { if ($("recording").value === rid) $("ref-state").textContent = e.message; }
   }
 
+  // Attach `file` as the reference of recording `rid`, starting `offset` s into it (the
+  // server's answer; its refusal, which names the file, is thrown)
+  function uploadReference(rid, file, offset) {
+    const fd = new FormData();
+    fd.append("file", file);
+    const q = new URLSearchParams({ offset_s: offset });
+    return json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference?${q}`, { method: "POST", body: fd });
+  }
+
   async function attachReference(ev) {
     ev.preventDefault();
     const rid = $("recording").value;
     const f = $("ref-file").files[0];
     if (!rid || !f) { say("ref-msg", "Choose a recording and a file.", true); return; }
-    const fd = new FormData();
-    fd.append("file", f);
     say("ref-msg", "Uploading and analysing the reference…");
     try {
-      const q = new URLSearchParams({ offset_s: $("ref-offset").value || "0" });
-      const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference?${q}`, { method: "POST", body: fd });
+      const r = await uploadReference(rid, f, $("ref-offset").value || "0");
       say("ref-msg", `Attached (${r.n_steps} reference steps). Reports of this recording now include an agreement section.`);
       refreshReference();
     } catch (e) {
@@ -755,11 +761,8 @@
       const rid = row.select.value, name = row.file.name;
       row.outcome = { text: "Attaching…", bad: false };
       bulkResults();
-      const fd = new FormData();
-      fd.append("file", row.file);
       try {
-        const q = new URLSearchParams({ offset_s: String(Number(row.offset.value)) });
-        const r = await json(`/api/reports/recordings/${encodeURIComponent(rid)}/reference?${q}`, { method: "POST", body: fd });
+        const r = await uploadReference(rid, row.file, String(Number(row.offset.value)));
         row.done = true;
         row.outcome = { text: `Attached: ${plural(r.n_steps, "step")}`, bad: false };
         const rec = bulkRecs.find((x) => x.id === rid);
